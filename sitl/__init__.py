@@ -1,0 +1,1 @@
+"""The simulated vehicle: rigid-body physics, motors/ESCs, attacker, MAVLink endpoint."""

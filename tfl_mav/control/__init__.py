@@ -1,0 +1,1 @@
+"""Pure control math: no sockets, no files, no clocks."""

@@ -1,0 +1,1 @@
+"""MAVLink plumbing shared by the simulator and the controller: link, frames, recorder."""

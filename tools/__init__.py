@@ -1,0 +1,1 @@
+"""Command-line tools around a flight (the ``tfl-mav`` entry point)."""
