@@ -1,0 +1,119 @@
+"""The attacker: seizes one rotor from a start time and forces its thrust to A(t, x, y, z).
+
+The paper's false-data-injection model (Definition adversarial_signal): the rotor's thrust is
+fully the attacker's. Built-in signals and any safe expression in ``t`` (sim time, s), ``tau``
+(time since the attack started, s) and ``x, y, z`` (position, m, paper frame z up) are
+supported. The applied value is clamped to [0, f_max]; the raw value and the clamping are
+reported so a log shows when the attacker asked for more than the rotor can give.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from tfl_mav.expr import Expr, compile_expr
+from tfl_mav.scenario import AttackConfig
+
+__all__ = ["FAILURE_TYPES", "AttackSample", "Attacker"]
+
+# MAV_CMD_INJECT_FAILURE param2 (FAILURE_TYPE) → the signal it starts. 0 (OK) ends the attack.
+FAILURE_TYPES: dict[int, str] = {0: "ok", 1: "off", 2: "stuck", 4: "wrong", 8: "drift"}
+
+
+@dataclass(frozen=True)
+class AttackSample:
+    """One evaluation of the attack on the seized rotor."""
+
+    rotor: int          # 1-4; 0 = no attack active
+    raw_n: float        # what the signal asked for (N), NaN if it was not finite
+    applied_n: float    # clamped to [0, f_max] (N)
+    clamped: bool
+
+
+NO_ATTACK = AttackSample(0, 0.0, 0.0, False)
+
+
+class Attacker:
+    """Evaluates the scenario's attack; :meth:`inject` starts one now (GCS command)."""
+
+    def __init__(self, cfg: AttackConfig, thrust_max_n: float) -> None:
+        self.cfg = cfg
+        self.thrust_max_n = thrust_max_n
+        self.rotor = cfg.rotor
+        self.start_s = cfg.start_s
+        self.signal = cfg.signal
+        self._stuck_n: float | None = None
+        self._expr: Expr | None = None
+        if self.signal not in ("paper", "constant", "step", "ramp", "sine", "stuck", "off"):
+            self._expr = compile_expr(self.signal, ("t", "tau", "x", "y", "z"),
+                                      field="attack.signal")
+
+    def active(self, t_s: float) -> bool:
+        return self.rotor != 0 and t_s >= self.start_s
+
+    def inject(self, rotor: int, failure_type: int, t_s: float) -> None:
+        """Start (or, with type 0, stop) an attack on ``rotor`` (1-4) at ``t_s``.
+
+        Types: 1 OFF → thrust 0; 2 STUCK → held at the command at onset; 4 WRONG → the
+        scenario's signal (its built-in ``paper`` if the scenario has none); 8 DRIFT → a ramp.
+        Raises ValueError naming the parameter for anything else.
+        """
+        if not 1 <= rotor <= 4:
+            raise ValueError(f"param3 (instance): rotor must be 1-4, got {rotor}")
+        if failure_type not in FAILURE_TYPES:
+            raise ValueError(f"param2 (failure type): {failure_type} is not supported "
+                             f"(supported: {sorted(FAILURE_TYPES)})")
+        if failure_type == 0:
+            if rotor == self.rotor:
+                self.rotor = 0
+            return
+        self.rotor = rotor
+        self.start_s = t_s
+        self._stuck_n = None
+        kind = FAILURE_TYPES[failure_type]
+        if kind == "off":
+            self.signal = "off"
+        elif kind == "stuck":
+            self.signal = "stuck"
+        elif kind == "drift":
+            self.signal = "ramp"
+        else:
+            self.signal = self.cfg.signal if self.cfg.signal != "off" else "paper"
+
+    def sample(self, t_s: float, position_m: tuple[float, float, float],
+               last_command_n: float) -> AttackSample:
+        """The attacked rotor's thrust at ``t_s``; ``last_command_n`` feeds STUCK."""
+        if not self.active(t_s):
+            return NO_ATTACK
+        raw = self._raw(t_s, position_m, last_command_n)
+        if not math.isfinite(raw):
+            return AttackSample(self.rotor, math.nan, 0.0, True)
+        applied = min(max(raw, 0.0), self.thrust_max_n)
+        return AttackSample(self.rotor, raw, applied, applied != raw)
+
+    def _raw(self, t: float, pos: tuple[float, float, float], last_command_n: float) -> float:
+        c = self.cfg
+        tau = t - self.start_s
+        s = self.signal
+        if s == "paper":
+            return 0.1 * t + math.sin(pos[2])
+        if s == "constant":
+            return c.value_n
+        if s == "step":
+            return c.value_n if tau >= c.step_after_s else c.initial_n
+        if s == "ramp":
+            return c.initial_n + c.rate_nps * tau
+        if s == "sine":
+            return c.offset_n + c.amplitude_n * math.sin(2.0 * math.pi * c.frequency_hz * tau)
+        if s == "stuck":
+            if self._stuck_n is None:
+                self._stuck_n = last_command_n
+            return self._stuck_n
+        if s == "off":
+            return 0.0
+        assert self._expr is not None
+        try:
+            return float(self._expr({"t": t, "tau": tau, "x": pos[0], "y": pos[1], "z": pos[2]}))
+        except (ArithmeticError, ValueError):
+            return math.nan

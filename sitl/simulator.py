@@ -1,0 +1,215 @@
+"""The simulated vehicle without a network: rigid body + motors/ESCs + attacker + sensors.
+
+One :class:`Simulator` owns sim time. A client sets rotor thrust commands and advances one
+control period (a whole number of fixed physics steps); it reads the measured state (with the
+scenario's seeded sensor noise) and the ESC rpm, and, for logs, the truth. Both the MAVLink
+endpoint (``sitl.vehicle``) and the in-process runner (``tools.offline``) drive this class,
+so a lockstep flight over UDP and an offline flight integrate exactly the same physics.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from sitl.attacker import Attacker, AttackSample
+from sitl.motors import RADPS_TO_RPM, MotorBank
+from sitl.physics import RigidBodyParams, RigidBodyState, mix, rk4_step
+from tfl_mav.scenario import Scenario
+
+__all__ = ["MeasuredState", "Simulator", "euler_to_quaternion"]
+
+# Beyond these the run is over: the messages say why in words a user can act on.
+MAX_BODY_RATE_RADPS = 300.0
+MAX_SPEED_MPS = 100.0
+
+
+@dataclass(frozen=True)
+class MeasuredState:
+    """What the vehicle's estimator reports (truth + seeded noise), paper frame z up."""
+
+    time_s: float
+    position_m: np.ndarray
+    velocity_mps: np.ndarray
+    quaternion_wxyz: np.ndarray
+    body_rates_radps: np.ndarray
+
+
+def euler_to_quaternion(phi: float, theta: float, psi: float) -> np.ndarray:
+    """ZYX Euler angles (eq. roation_matrix_product: R = Rz(ψ) Ry(θ) Rx(φ)) → (w, x, y, z)."""
+    cr, sr = math.cos(phi / 2), math.sin(phi / 2)
+    cp, sp = math.cos(theta / 2), math.sin(theta / 2)
+    cy, sy = math.cos(psi / 2), math.sin(psi / 2)
+    return np.array([
+        cy * cp * cr + sy * sp * sr,
+        cy * cp * sr - sy * sp * cr,
+        cy * sp * cr + sy * cp * sr,
+        sy * cp * cr - cy * sp * sr,
+    ])
+
+
+class Simulator:
+    """Fixed-step physics at ``run.physics_hz``; the control period is a whole multiple."""
+
+    def __init__(self, scenario: Scenario) -> None:
+        self.scenario = scenario
+        v = scenario.vehicle
+        self.params = RigidBodyParams(v.mass_kg, v.inertia_kgm2, v.arm_m,
+                                      v.drag_thrust_ratio_m, v.k_t, v.k_r, v.gravity_mps2)
+        self.physics_dt_s = scenario.run.physics_dt_s
+        self.steps_per_control = scenario.run.steps_per_control
+        self.control_dt_s = scenario.run.control_dt_s
+        self.thrust_max_n = v.thrust_max_n
+        ini = scenario.initial
+        q0 = euler_to_quaternion(*ini.euler_rad)
+        self._x = [*ini.position_m, *ini.velocity_mps, *q0, *ini.body_rates_radps]
+        hover_n = v.mass_kg * v.gravity_mps2 / 4.0
+        self.motors = MotorBank(v.k_f, v.thrust_max_n, v.motor_time_constant_s, [hover_n] * 4)
+        self.attacker = Attacker(scenario.attack, v.thrust_max_n)
+        self.rotor_commands_n = [hover_n] * 4
+        self.physics_steps = 0
+        self.tick = 0
+        self.rejected_commands = 0
+        self.attack = self.attacker.sample(0.0, tuple(ini.position_m), hover_n)
+        self._rng = np.random.default_rng(scenario.run.seed)
+        self._mean_thrust_n = self.motors.thrust_n
+        self._measure()
+
+    # ------------------------------------------------------------------ time and commands
+    @property
+    def time_s(self) -> float:
+        return self.physics_steps * self.physics_dt_s
+
+    @property
+    def time_usec(self) -> int:
+        """Sim time in µs as sent on the wire (ODOMETRY.time_usec): k·T exactly."""
+        return round(self.physics_steps * 1_000_000 / self.scenario.run.physics_hz)
+
+    def set_command(self, thrust_cmd_n: Sequence[float]) -> None:
+        """Set the four rotor thrust commands (N), clamped to [0, f_max].
+
+        Raises ValueError (and keeps the previous command) for a wrong length or a value
+        that is not finite: a NaN never reaches a motor.
+        """
+        if len(thrust_cmd_n) != 4:
+            self.rejected_commands += 1
+            raise ValueError(f"thrust command: expected 4 values, got {len(thrust_cmd_n)}")
+        values = [float(f) for f in thrust_cmd_n]
+        for i, f in enumerate(values):
+            if not math.isfinite(f):
+                self.rejected_commands += 1
+                raise ValueError(f"thrust command[{i}] (rotor {i + 1}): not finite ({f})")
+        fmax = self.thrust_max_n
+        self.rotor_commands_n = [min(max(f, 0.0), fmax) for f in values]
+
+    def inject_failure(self, rotor: int, failure_type: int) -> None:
+        """Start an attack on ``rotor`` now (MAV_CMD_INJECT_FAILURE); ValueError if invalid."""
+        self.attacker.inject(rotor, failure_type, self.time_s)
+
+    # ------------------------------------------------------------------ integration
+    def step_control_period(self) -> None:
+        """Integrate one control period with the current command held (zero-order hold)."""
+        p = self.params
+        h = self.physics_dt_s
+        motors = self.motors
+        for _ in range(self.steps_per_control):
+            t = self.time_s
+            targets = [motors.omega_for_thrust(f) for f in self.rotor_commands_n]
+            att = self.attacker.sample(t, (self._x[0], self._x[1], self._x[2]),
+                                       self.rotor_commands_n[self.attacker.rotor - 1]
+                                       if self.attacker.rotor else 0.0)
+            if att.rotor:
+                targets[att.rotor - 1] = motors.omega_for_thrust(att.applied_n)
+            self.attack = att
+            mean_thrust = motors.step(targets, h)
+            self._mean_thrust_n = mean_thrust
+            self._x = rk4_step(p, self._x, mix(p, mean_thrust), h)
+            self.physics_steps += 1
+        self.tick += 1
+        self._measure()
+
+    def _measure(self) -> None:
+        """Sample the sensors once per control tick (so repeated reads agree)."""
+        v = self.scenario.vehicle
+        sens = self.scenario.sensors
+        rng = self._rng
+        rpm = np.array(self.motors.rpm)
+        if v.rpm_noise_std > 0:
+            rpm = rpm + rng.normal(0.0, v.rpm_noise_std, 4)
+        self._rpm = np.clip(rpm, 0.0, 65535.0)
+        x = np.array(self._x)
+        pos, vel, q, w = x[0:3], x[3:6], x[6:10], x[10:13]
+        if sens.position_noise_std_m > 0:
+            pos = pos + rng.normal(0.0, sens.position_noise_std_m, 3)
+        if sens.velocity_noise_std_mps > 0:
+            vel = vel + rng.normal(0.0, sens.velocity_noise_std_mps, 3)
+        if sens.attitude_noise_std_rad > 0:
+            dq = np.array([1.0, *(0.5 * rng.normal(0.0, sens.attitude_noise_std_rad, 3))])
+            q = _quat_mul(q, dq)
+            q = q / np.linalg.norm(q)
+        if sens.rate_noise_std_radps > 0:
+            w = w + rng.normal(0.0, sens.rate_noise_std_radps, 3)
+        self._measured = MeasuredState(self.time_s, pos, vel, q, w)
+
+    # ------------------------------------------------------------------ outputs
+    @property
+    def state(self) -> RigidBodyState:
+        """True rigid-body state (paper frame)."""
+        return RigidBodyState.from_list(self._x)
+
+    @property
+    def measured(self) -> MeasuredState:
+        """State as the vehicle's estimator reports it (truth + sensor noise)."""
+        return self._measured
+
+    def measured_rpm(self) -> np.ndarray:
+        """ESC-reported rotor speeds (rpm, with the scenario's seeded noise)."""
+        return self._rpm.copy()
+
+    @property
+    def rotor_thrusts_n(self) -> list[float]:
+        """True instantaneous thrust of each rotor (N)."""
+        return self.motors.thrust_n
+
+    @property
+    def rotor_rpm_true(self) -> list[float]:
+        return [w * RADPS_TO_RPM for w in self.motors.omega_radps]
+
+    @property
+    def attack_sample(self) -> AttackSample:
+        return self.attack
+
+    def crash_reason(self) -> str | None:
+        """None while flyable, else a sentence saying why the run is over."""
+        x = self._x
+        if not all(math.isfinite(c) for c in x):
+            return "the state became non-finite (NaN/inf): the integration diverged"
+        if x[2] < 0.0:
+            return f"hit the ground (z = {x[2]:.2f} m < 0) at t = {self.time_s:.3f} s"
+        _qw, qx, qy, _qz = x[6:10]
+        b3z = 1.0 - 2.0 * (qx * qx + qy * qy)
+        if b3z < 0.0:
+            return (f"flipped: thrust axis points down (tilt {math.degrees(math.acos(b3z)):.0f}°)"
+                    f" at t = {self.time_s:.3f} s")
+        rate = math.sqrt(x[10] ** 2 + x[11] ** 2 + x[12] ** 2)
+        if rate > MAX_BODY_RATE_RADPS:
+            return (f"spinning at {rate:.0f} rad/s (> {MAX_BODY_RATE_RADPS:.0f} rad/s, beyond "
+                    f"what a real airframe and its gyros survive) at t = {self.time_s:.3f} s")
+        speed = math.sqrt(x[3] ** 2 + x[4] ** 2 + x[5] ** 2)
+        if speed > MAX_SPEED_MPS:
+            return f"speed {speed:.0f} m/s exceeds {MAX_SPEED_MPS:.0f} m/s: runaway"
+        return None
+
+
+def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return np.array([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ])

@@ -1,0 +1,1 @@
+"""Built-in scenarios, addressable by name (``tfl-mav offline paper``)."""
