@@ -127,8 +127,8 @@ class PathConfig:
 class ControllerConfig:
     """The controller's model and gains (model deliberately off by the scales)."""
 
-    model_mass_scale: float = _f(1.0, lo=0.5, hi=2.0, doc="model mass = scale * true mass")
-    model_inertia_scale: float = _f(1.0, lo=0.5, hi=2.0, doc="model J = scale * true J")
+    model_mass_scale: float = _f(1.02, lo=0.5, hi=2.0, doc="model mass = scale * true mass")
+    model_inertia_scale: float = _f(1.1, lo=0.5, hi=2.0, doc="model J = scale * true J")
     law: str = _f("robust", doc="'paper' (plain law) or 'robust' (estimators + gain switch)")
     xi_pole: float = _f(-2.5, "1/s", hi=0.0, lo_open=False, doc="repeated pole of the xi chain")
     eta_pole: float = _f(-2.0, "1/s", hi=0.0, doc="repeated pole of the eta chain")

@@ -1,0 +1,98 @@
+"""Rotor allocation: from (u_f, τ_p, τ_q, τ_r) or the attacked law's inputs to rotor thrusts.
+
+The paper derives the attacked law for rotor 2 (eq. tau_p). Any other rotor maps onto that
+case by relabelling the body axes by a multiple of 90° about b3 (DESIGN §5): in the
+relabelled ("canonical") frame the attacked rotor sits on −b2' like rotor 2. Rotors 1 and 3
+spin the other way from 2 and 4, so relabelling by an odd number of quarter turns also flips
+the sign of the yaw reaction: the canonical frame then has d' = −d.
+
+Rotor layout (paper frame, body FLU): rotor 1 on +b1, 2 on −b2, 3 on −b1, 4 on +b2.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+__all__ = ["RotorFrame", "allocate_attacked", "allocate_nominal", "canonical_frame"]
+
+
+@dataclass(frozen=True)
+class RotorFrame:
+    """Canonical body frame for an attack on ``rotor``.
+
+    ``rot`` is the 3×3 integer rotation (body → canonical body), ``perm[i]`` the physical
+    rotor index (0-based) that plays canonical rotor i+1, ``d_sign`` the yaw-reaction sign.
+    """
+
+    rotor: int
+    rot: tuple[tuple[int, int, int], ...]
+    perm: tuple[int, int, int, int]
+    d_sign: float
+    swap_xy: bool  # canonical (Ix', Iy') = (Iy, Ix) after an odd quarter turn
+
+
+def canonical_frame(rotor: int) -> RotorFrame:
+    """The relabelling that puts physical ``rotor`` (1-4) in the place of rotor 2."""
+    if rotor not in (1, 2, 3, 4):
+        raise ValueError(f"rotor must be 1-4, got {rotor}")
+    # Quarter turns k about b3 such that canonical b1' = Rz(−k·90°)… chosen so that the
+    # physical rotor at angle −90°(rotor−1) appears at −90° in the canonical frame.
+    k = (rotor - 2) % 4  # number of +90° turns of the labels
+    # Canonical rotor i+1 is the physical rotor (i + k) mod 4 (+1).
+    perm = tuple((i + k) % 4 for i in range(4))
+    # Vector components in the canonical frame: v' = Rz(+90°·k)ᵀ-like integer map.
+    rots = {
+        0: ((1, 0, 0), (0, 1, 0), (0, 0, 1)),
+        1: ((0, -1, 0), (1, 0, 0), (0, 0, 1)),
+        2: ((-1, 0, 0), (0, -1, 0), (0, 0, 1)),
+        3: ((0, 1, 0), (-1, 0, 0), (0, 0, 1)),
+    }
+    return RotorFrame(rotor, rots[k], perm, -1.0 if k % 2 else 1.0, bool(k % 2))  # type: ignore[arg-type]
+
+
+def allocate_nominal(uf: float, tau_p: float, tau_q: float, tau_r: float,
+                     arm_m: float, d_m: float, thrust_max_n: float = float("inf")
+                     ) -> list[float]:
+    """Invert eq. Uf_and_Utau_relation: rotor thrusts (N) for a wrench, all four healthy.
+
+    With ``thrust_max_n`` the result is feasible: the yaw torque (the least important
+    input: yaw does not move the position) is scaled down first, then each rotor is
+    clipped to [0, f_max].
+    """
+    a = uf / 4.0
+    hp, hq = tau_p / (2.0 * arm_m), tau_q / (2.0 * arm_m)
+    r = tau_r / (4.0 * d_m)
+    base = (a - hq, a - hp, a + hq, a + hp)
+    signs = (1.0, -1.0, 1.0, -1.0)
+    scale = 1.0
+    for b, sg in zip(base, signs, strict=True):
+        f = b + sg * r
+        if f < 0.0 and sg * r < 0.0 and b > 0.0:
+            scale = min(scale, b / abs(r))
+        elif f > thrust_max_n and sg * r > 0.0 and b < thrust_max_n:
+            scale = min(scale, (thrust_max_n - b) / abs(r))
+    r *= scale
+    return [min(max(b + sg * r, 0.0), thrust_max_n) for b, sg in zip(base, signs, strict=True)]
+
+
+def allocate_attacked(uf: float, tau_q: float, tau_r: float, attack_n: float,
+                      arm_m: float, d_m: float, thrust_max_n: float = float("inf")
+                      ) -> list[float]:
+    """Canonical rotor thrusts with rotor 2 forced to ``attack_n`` (eq. tau_p's mixer).
+
+    With f2 = A the mixer gives f1 + f3 = (u_f + τ_r/d)/2, f3 − f1 = τ_q/l and
+    f4 = (u_f − τ_r/d)/2 − A, so τ_p = (u_f − τ_r/d) l/2 − 2lA (eq. tau_p) follows.
+
+    With ``thrust_max_n`` the result is feasible, sacrificing inputs in reverse order of
+    importance: τ_r (hence τ_p) first — f4 is clipped and f1 + f3 absorb the difference so
+    that u_f is kept — then τ_q, and u_f only when two rotors cannot carry it. When A ≈ 0
+    (the paper's attack while climbing) f4 ≥ A means τ_p ≥ 0 only: the law's τ_p demand is
+    then physically unreachable and this keeps the rest of the wrench exact.
+    """
+    f4 = min(max(0.5 * (uf - tau_r / d_m) - attack_n, 0.0), thrust_max_n)
+    s13 = min(max(uf - attack_n - f4, 0.0), 2.0 * thrust_max_n)
+    half = 0.5 * tau_q / arm_m
+    # Keep f1 + f3 = s13 and reduce |f3 − f1| until both are within [0, f_max].
+    room = min(0.5 * s13, thrust_max_n - 0.5 * s13)
+    half = max(-room, min(room, half))
+    return [0.5 * s13 - half, attack_n, 0.5 * s13 + half, f4]

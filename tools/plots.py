@@ -1,0 +1,126 @@
+"""The report figures a reader of the paper would recognise (PNG, matplotlib Agg)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from tools.flightlog import FlightLog
+
+__all__ = ["write_report"]
+
+
+def _mark_attack(ax, log: FlightLog) -> None:
+    if np.isfinite(log.attack_start_s):
+        ax.axvline(log.attack_start_s, color="tab:red", ls=":", lw=1, label="attack start")
+
+
+def write_report(log: FlightLog, out_dir: Path, title: str = "") -> list[Path]:
+    """Write the six report figures into ``out_dir``; returns the paths written."""
+    out_dir.mkdir(parents=True, exist_ok=True)
+    t = log["t_s"]
+    files: list[Path] = []
+    suffix = f" — {title}" if title else ""
+    if log.crashed:
+        suffix += " (crashed)"
+
+    def save(fig, name: str) -> None:
+        path = out_dir / name
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+        files.append(path)
+
+    # 1. 3-D path and trajectory.
+    fig = plt.figure(figsize=(7, 6))
+    ax = fig.add_subplot(projection="3d")
+    if log.path_points_m is not None:
+        pp = log.path_points_m
+        ax.plot(pp[:, 0], pp[:, 1], pp[:, 2], "k--", lw=1, label="path γ")
+    pos = log["position_m"]
+    if len(pos):
+        ax.plot(pos[:, 0], pos[:, 1], pos[:, 2], color="tab:blue", lw=1.2, label="vehicle")
+        ax.scatter(*pos[0], color="tab:green", s=20, label="start")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_zlabel("z (m, up)")
+    ax.set_title("Path following" + suffix)
+    ax.legend(loc="upper left")
+    save(fig, "path_3d.png")
+
+    # 2. Path distance, log scale.
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    d = np.maximum(log["path_distance_m"], 1e-12)
+    ax.semilogy(t, d, color="tab:blue")
+    _mark_attack(ax, log)
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("distance to path (m)")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.set_title("‖y‖_γ" + suffix)
+    save(fig, "path_distance.png")
+
+    # 3. Attack signal: applied and estimated.
+    fig, ax = plt.subplots(figsize=(7, 3.5))
+    ax.plot(t, log["attack_true_n"], label="A(t, x_q) applied", color="tab:red")
+    est = log["attack_estimate_n"]
+    if np.any(np.isfinite(est)):
+        ax.plot(t, est, "--", label="estimate from rpm", color="k", lw=0.8)
+    ax.axhline(log.thrust_max_n, color="gray", ls=":", lw=1)
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("thrust (N)")
+    ax.set_title(f"Attack on rotor {log.attack_rotor}" + suffix)
+    ax.legend()
+    save(fig, "attack.png")
+
+    # 4. Rotor thrusts with their limits.
+    fig, ax = plt.subplots(figsize=(7, 4))
+    ft = log["thrust_true_n"]
+    for i in range(4):
+        if len(ft):
+            ax.plot(t, ft[:, i], lw=0.9, label=f"f{i + 1}")
+    ax.axhline(0.0, color="gray", ls=":", lw=1)
+    ax.axhline(log.thrust_max_n, color="gray", ls=":", lw=1, label="limits")
+    _mark_attack(ax, log)
+    ax.set_xlabel("t (s)")
+    ax.set_ylabel("rotor thrust (N)")
+    ax.set_title("Rotor thrusts" + suffix)
+    ax.legend(ncol=3)
+    save(fig, "rotor_thrusts.png")
+
+    # 5. Total thrust and torques.
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    a1.plot(t, log["uf_n"], color="tab:blue")
+    a1.set_ylabel("u_f (N)")
+    tq = log["torque_nm"]
+    for i, name in enumerate(("τ_p", "τ_q", "τ_r")):
+        if len(tq):
+            a2.plot(t, tq[:, i], lw=0.9, label=name)
+    a2.set_ylabel("torque (N m)")
+    a2.set_xlabel("t (s)")
+    a2.legend()
+    a1.set_title("Thrust and torques" + suffix)
+    save(fig, "thrust_torques.png")
+
+    # 6. Linear and angular velocities.
+    fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
+    vel = log["velocity_mps"]
+    rates = log["body_rates_radps"]
+    for i, name in enumerate(("v_x", "v_y", "v_z")):
+        if len(vel):
+            a1.plot(t, vel[:, i], lw=0.9, label=name)
+    a1.set_ylabel("velocity (m/s)")
+    a1.legend()
+    for i, name in enumerate(("p", "q", "r")):
+        if len(rates):
+            a2.plot(t, rates[:, i], lw=0.9, label=name)
+    a2.set_ylabel("body rates (rad/s)")
+    a2.set_xlabel("t (s)")
+    a2.legend()
+    a1.set_title("Velocities" + suffix)
+    save(fig, "velocities.png")
+    return files
