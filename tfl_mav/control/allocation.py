@@ -89,7 +89,11 @@ def allocate_attacked(uf: float, tau_q: float, tau_r: float, attack_n: float,
     (the paper's attack while climbing) f4 ≥ A means τ_p ≥ 0 only: the law's τ_p demand is
     then physically unreachable and this keeps the rest of the wrench exact.
     """
-    f4 = min(max(0.5 * (uf - tau_r / d_m) - attack_n, 0.0), thrust_max_n)
+    # f4's range that leaves f1 + f3 = u_f − A − f4 within [0, 2 f_max] when possible.
+    rest = uf - attack_n
+    hi = min(thrust_max_n, max(rest, 0.0))
+    lo = min(max(rest - 2.0 * thrust_max_n, 0.0), hi)
+    f4 = min(max(0.5 * (uf - tau_r / d_m) - attack_n, lo), hi)
     s13 = min(max(uf - attack_n - f4, 0.0), 2.0 * thrust_max_n)
     half = 0.5 * tau_q / arm_m
     # Keep f1 + f3 = s13 and reduce |f3 − f1| until both are within [0, f_max].

@@ -178,6 +178,8 @@ class Jet:
         s0 = math.sin(a0)
         c0 = math.cos(a0)
         n = len(a)
+        if n == 2:
+            return Jet((s0, a[1] * c0)), Jet((c0, -a[1] * s0))
         if n == 5:
             _, a1, a2, a3, a4 = a
             b2 = 2.0 * a2

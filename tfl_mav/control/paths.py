@@ -105,10 +105,6 @@ def _taylor_curve(path: Path, lam0: float) -> list[tuple[float, float, float]]:
     return [(cx[j], cy[j], cz[j]) for j in range(6)]
 
 
-def _series_mul(a: list[float], b: list[float], n: int) -> list[float]:
-    return [sum(a[i] * b[k - i] for i in range(k + 1)) for k in range(n)]
-
-
 class PathTracker:
     """Keeps the closest-point parameter λ between calls and evaluates (α, π) on jets."""
 
@@ -116,8 +112,8 @@ class PathTracker:
         self.path = path
         self.min_tube_margin = min_tube_margin
         self.lam: float | None = None
-        self._arc_lam = 0.0       # λ where the accumulated arc length was last updated
-        self._arc_m = 0.0         # arc length from λ0 = lam_range[0] … to _arc_lam (m)
+        self._arc_lam = 0.0       # λ of the first projection: π's origin
+        self._arc_m = 0.0         # π: arc length from there to λ (m)
 
     # ------------------------------------------------------------------ projection
     def _global_lam(self, y: Sequence[float]) -> float:
@@ -148,22 +144,27 @@ class PathTracker:
                 return lam, True
         return lam, abs(step) < 1e-8
 
-    # ------------------------------------------------------------------ arc length
-    def _arc_length(self, lam: float) -> float:
-        """Arc length (m) from the tracker's reference λ, accumulated by Gauss–Legendre."""
-        a, b = self._arc_lam, lam
-        if a == b:
-            return self._arc_m
-        total = 0.0
-        n = max(1, math.ceil(abs(b - a) / 0.05))
-        h = (b - a) / n
-        for i in range(n):
-            mid = a + (i + 0.5) * h
-            for node, weight in _GAUSS5:
-                sx, sy, sz = self.path.sigma(Jet.variable(mid + 0.5 * h * node, order=1))
-                total += weight * 0.5 * h * math.sqrt(sx.c[1] ** 2 + sy.c[1] ** 2 + sz.c[1] ** 2)
-        self._arc_lam, self._arc_m = lam, self._arc_m + total
-        return self._arc_m
+    def _project(self, y0: Sequence[float]) -> list[tuple[float, float, float]] | None:
+        """Move λ to the closest point of ``y0``; returns σ's Taylor coefficients there.
+
+        Newton runs on σ's degree-5 Taylor polynomial about the current λ (no calls into
+        the path code), then σ is re-expanded at the new λ; from a warm start that is two
+        evaluations of σ per tick. The arc length π is advanced on the same polynomial
+        (Simpson's rule on |σ'|, exact to O(Δλ⁵)).
+        """
+        lam = self.lam
+        assert lam is not None
+        for _ in range(_NEWTON_ITERS):
+            c = _taylor_curve(self.path, lam)
+            delta = _poly_newton(c, y0)
+            if delta is None:
+                return None
+            if abs(delta) < 1e-10:
+                self.lam = lam
+                return c
+            self._arc_m += _poly_arc(c, delta)
+            lam += delta
+        return None
 
     # ------------------------------------------------------------------ evaluation
     def evaluate(self, taylor: Sequence[Sequence[float]]) -> PathOutput:
@@ -175,16 +176,15 @@ class PathTracker:
         if not all(math.isfinite(c) for row in taylor for c in row):
             return self._lost(y0, "non-finite state")
         if self.lam is None:
-            self.lam = self._global_lam(y0)
-            self._arc_lam = self.lam
-        lam, ok = self._newton(y0, self.lam)
-        if not ok or not math.isfinite(lam):
+            lam, ok = self._newton(y0, self._global_lam(y0))
+            if not ok or not math.isfinite(lam):
+                return self._lost(y0, "closest-point search did not converge")
+            self.lam = self._arc_lam = lam
+        c = self._project(y0)
+        if c is None:
             return self._lost(y0, "closest-point search did not converge")
-        self.lam = lam
-
-        c = _taylor_curve(self.path, lam)          # σ(λ0 + δ) coefficients, δ ∈ R
-        Y = [tuple(taylor[i][k] for i in range(3)) for k in range(5)]
-        e0 = tuple(Y[0][i] - c[0][i] for i in range(3))
+        lam = self.lam
+        e0 = tuple(y0[i] - c[0][i] for i in range(3))
         s1sq = c[1][0] ** 2 + c[1][1] ** 2 + c[1][2] ** 2
         slope = -s1sq + 2.0 * (e0[0] * c[2][0] + e0[1] * c[2][1] + e0[2] * c[2][2])
         margin = -slope / s1sq if s1sq > 0.0 else 0.0
@@ -193,36 +193,28 @@ class PathTracker:
             return self._lost(y0, f"distance {distance:.3f} m near the radius of curvature "
                                   f"(projection margin {margin:.2f})", lam, distance)
 
-        # λ(t) = λ0 + δ(t): solve coefficient k of g(t) = ⟨Y(t) − σ(λ(t)), σ'(λ(t))⟩ = 0.
-        d = [0.0] * 5
-        powers = [[1.0, 0.0, 0.0, 0.0, 0.0]]
-        for k in range(1, 5):
-            powers = [[1.0, 0.0, 0.0, 0.0, 0.0]]
-            for _ in range(1, 6):
-                powers.append(_series_mul(powers[-1], d, 5))
-            sig = [[sum(c[j][i] * powers[j][n] for j in range(6)) for n in range(5)]
-                   for i in range(3)]
-            dsig = [[sum(j * c[j][i] * powers[j - 1][n] for j in range(1, 6)) for n in range(5)]
-                    for i in range(3)]
-            g_k = 0.0
-            for i in range(3):
-                err = [Y[n][i] - sig[i][n] for n in range(k + 1)]
-                g_k += sum(err[a] * dsig[i][k - a] for a in range(k + 1))
-            d[k] = -g_k / slope
-        # Final σ'(λ(t)) with all coefficients of δ known.
-        powers = [[1.0, 0.0, 0.0, 0.0, 0.0]]
-        for _ in range(1, 5):
-            powers.append(_series_mul(powers[-1], d, 5))
-        dsig = [[sum(j * c[j][i] * powers[j - 1][n] for j in range(1, 6)) for n in range(4)]
-                for i in range(3)]
-        # π̇ = |σ'(λ(t))| λ̇(t); integrate the series once for π (order 4).
-        speed2 = Jet(tuple(_series_mul(dsig[0], dsig[0], 4)))
-        speed2 = speed2 + Jet(tuple(_series_mul(dsig[1], dsig[1], 4)))
-        speed2 = speed2 + Jet(tuple(_series_mul(dsig[2], dsig[2], 4)))
-        speed = speed2.sqrt()
-        lamdot = (d[1], 2.0 * d[2], 3.0 * d[3], 4.0 * d[4])
-        pidot = _series_mul(list(speed.c), list(lamdot), 4)
-        pi0 = self._arc_length(lam)
+        d1, d2, d3, d4 = _lambda_series(c, taylor, slope)
+        # σ'(λ(t)) = Σ_j (j+1) c_{j+1} δʲ to order 3; π̇ = |σ'(λ(t))| λ̇(t), integrated once.
+        p2_2, p2_3 = d1 * d1, 2.0 * d1 * d2
+        p3_3 = d1 * p2_2
+        speed2 = [0.0, 0.0, 0.0, 0.0]
+        for i in range(3):
+            c1, c2, c3, c4 = 1.0 * c[1][i], 2.0 * c[2][i], 3.0 * c[3][i], 4.0 * c[4][i]
+            t0 = c1
+            t1 = c2 * d1
+            t2 = c2 * d2 + c3 * p2_2
+            t3 = c2 * d3 + c3 * p2_3 + c4 * p3_3
+            speed2[0] += t0 * t0
+            speed2[1] += 2.0 * t0 * t1
+            speed2[2] += 2.0 * t0 * t2 + t1 * t1
+            speed2[3] += 2.0 * (t0 * t3 + t1 * t2)
+        speed = Jet(tuple(speed2)).sqrt().c
+        l1, l2, l3, l4 = d1, 2.0 * d2, 3.0 * d3, 4.0 * d4
+        pidot = (speed[0] * l1,
+                 speed[0] * l2 + speed[1] * l1,
+                 speed[0] * l3 + speed[1] * l2 + speed[2] * l1,
+                 speed[0] * l4 + speed[1] * l3 + speed[2] * l2 + speed[3] * l1)
+        pi0 = self._arc_m
         pi = Jet((pi0, pidot[0], pidot[1] / 2.0, pidot[2] / 3.0, pidot[3] / 4.0))
 
         jx, jy, jz = (Jet(tuple(taylor[i][:5])) for i in range(3))
@@ -248,6 +240,82 @@ class PathTracker:
         zero = Jet((0.0,) * 5)
         ident = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
         return PathOutput((zero, zero), zero, ident, lam, distance, False, reason)
+
+
+def _poly_newton(c: Sequence[Sequence[float]], y0: Sequence[float],
+                 max_step: float = 0.05) -> float | None:
+    """δ with ⟨y0 − S(δ), S'(δ)⟩ = 0 for S(δ) = Σ c_j δʲ, |δ| ≤ ``max_step`` (where the
+    degree-5 polynomial stands for σ to ~1e-8 relative); None if not found there."""
+    delta = 0.0
+    for _ in range(8):
+        s = [0.0, 0.0, 0.0]
+        ds = [0.0, 0.0, 0.0]
+        dds = [0.0, 0.0, 0.0]
+        for i in range(3):
+            c0, c1, c2, c3, c4, c5 = (c[0][i], c[1][i], c[2][i], c[3][i], c[4][i], c[5][i])
+            x = delta
+            s[i] = c0 + x * (c1 + x * (c2 + x * (c3 + x * (c4 + x * c5))))
+            ds[i] = c1 + x * (2 * c2 + x * (3 * c3 + x * (4 * c4 + x * 5 * c5)))
+            dds[i] = 2 * c2 + x * (6 * c3 + x * (12 * c4 + x * 20 * c5))
+        e = [y0[i] - s[i] for i in range(3)]
+        g = e[0] * ds[0] + e[1] * ds[1] + e[2] * ds[2]
+        dg = (e[0] * dds[0] + e[1] * dds[1] + e[2] * dds[2]
+              - (ds[0] * ds[0] + ds[1] * ds[1] + ds[2] * ds[2]))
+        if not dg < 0.0:
+            return None
+        step = -g / dg
+        delta += step
+        if abs(delta) > max_step or not math.isfinite(delta):
+            return None
+        if abs(step) < 1e-13:
+            return delta
+    return delta if abs(step) < 1e-9 else None
+
+
+def _poly_arc(c: Sequence[Sequence[float]], delta: float) -> float:
+    """∫₀^δ |S'(u)| du by Simpson's rule (signed: negative for δ < 0)."""
+    def speed(x: float) -> float:
+        acc = 0.0
+        for i in range(3):
+            d = c[1][i] + x * (2 * c[2][i] + x * (3 * c[3][i] + x * (4 * c[4][i]
+                                                                   + x * 5 * c[5][i])))
+            acc += d * d
+        return math.sqrt(acc)
+
+    return delta / 6.0 * (speed(0.0) + 4.0 * speed(0.5 * delta) + speed(delta))
+
+
+def _lambda_series(c: Sequence[Sequence[float]], taylor: Sequence[Sequence[float]],
+                   slope: float) -> tuple[float, float, float, float]:
+    """Taylor coefficients d₁…d₄ of δ(t) = λ(t) − λ0 from g(t) = ⟨Y − σ(λ), σ'(λ)⟩ ≡ 0.
+
+    Coefficient k of g is affine in d_k with slope ∂g/∂λ; computing it with d_k = 0 and
+    solving gives d_k, one order at a time (k = 1…4). ``c[j]`` = σ⁽ʲ⁾(λ0)/j!, ``taylor[i]``
+    = the position's Taylor coefficients. Unrolled: this runs every control tick.
+    """
+    inv = -1.0 / slope
+    d = [0.0, 0.0, 0.0, 0.0, 0.0]
+    for k in range(1, 5):
+        d1, d2, d3 = d[1], d[2], d[3]
+        # Powers of δ up to order k (δ has no constant term), with d_k still 0.
+        p2 = (0.0, 0.0, d1 * d1, 2.0 * d1 * d2, 2.0 * d1 * d3 + d2 * d2)
+        p3 = (0.0, 0.0, 0.0, d1 * d1 * d1, 3.0 * d1 * d1 * d2)
+        p4 = (0.0, 0.0, 0.0, 0.0, d1 * d1 * d1 * d1)
+        gk = 0.0
+        for i in range(3):
+            c0, c1, c2, c3, c4, c5 = (c[0][i], c[1][i], c[2][i], c[3][i], c[4][i], c[5][i])
+            y = taylor[i]
+            # E_n = Y_n − σ_n and T_n = σ'_n for n = 0..k.
+            e = [y[0] - c0]
+            t = [c1]
+            for n in range(1, k + 1):
+                e.append(y[n] - (c1 * d[n] + c2 * p2[n] + c3 * p3[n] + c4 * p4[n]))
+                t.append(2.0 * c2 * d[n] + 3.0 * c3 * p2[n] + 4.0 * c4 * p3[n]
+                         + 5.0 * c5 * p4[n])
+            for a in range(k + 1):
+                gk += e[a] * t[k - a]
+        d[k] = gk * inv
+    return d[1], d[2], d[3], d[4]
 
 
 def _as_jet(x: Any) -> Jet:
