@@ -1,0 +1,262 @@
+"""``tfl-mav sim``: run the simulated vehicle as a MAVLink endpoint (see :mod:`sitl.vehicle`).
+
+Loaded lazily by :mod:`tools.cli` (``add_parser`` + ``run``). SIGINT and SIGTERM end the run
+cleanly: the loop stops within ~50 ms, the peers get a last HEARTBEAT, the recorder (if any)
+is closed, and the summary is printed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import importlib
+import math
+import signal
+import sys
+import textwrap
+import threading
+import tomllib
+from typing import TYPE_CHECKING, Any
+
+from tfl_mav.scenario import Scenario, ScenarioError, load_scenario
+
+if TYPE_CHECKING:
+    from tfl_mav.mavlink.link import Address
+
+__all__ = ["EXIT_CODES", "add_parser", "apply_settings", "run"]
+
+EXIT_OK, EXIT_CRASHED, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
+EXIT_SIGINT, EXIT_SIGTERM = 128 + signal.SIGINT, 128 + signal.SIGTERM
+EXIT_CODES = {
+    EXIT_OK: "the run completed its duration",
+    EXIT_CRASHED: "the vehicle crashed (the reason is printed and sent as STATUSTEXT)",
+    EXIT_USAGE: "usage or scenario error (bad option, bad --set, unknown scenario)",
+    EXIT_LINK: "link or I/O error (port in use, unresolvable address, MCAP file not writable)",
+    EXIT_SIGINT: "interrupted by SIGINT (Ctrl-C), after a clean shutdown",
+    EXIT_SIGTERM: "terminated by SIGTERM, after a clean shutdown",
+}
+
+_SECTIONS = tuple(f.name for f in dataclasses.fields(Scenario)
+                  if f.name not in ("name", "description", "source"))
+_SEVERITY = {0: "EMERGENCY", 1: "ALERT", 2: "CRITICAL", 3: "ERROR", 4: "WARNING",
+             5: "NOTICE", 6: "INFO", 7: "DEBUG"}
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    epilog = "exit codes:\n" + "\n".join(f"  {code:3d}  {text}"
+                                          for code, text in EXIT_CODES.items())
+    epilog += "\n\n" + textwrap.fill(
+        "The vehicle waits for the controller's first HEARTBEAT on the control port before "
+        "sim time starts (HEARTBEAT to the GCS meanwhile). Lockstep (default): each state is "
+        "answered by HIL_ACTUATOR_CONTROLS with the same time_usec before physics advances. "
+        "--realtime: physics follows the wall clock, the latest command is held, and no valid "
+        "command for --command-timeout seconds cuts the motors (like a real ESC).", width=78)
+    p = sub.add_parser(
+        "sim", help="run the simulated quadrotor as a MAVLink endpoint on UDP",
+        description="Simulate the quadrotor of SCENARIO and serve it over MAVLink 2 on UDP: "
+                    "ODOMETRY + ESC_TELEMETRY_1_TO_4 every control tick to the controller, "
+                    "HIL_ACTUATOR_CONTROLS back; GCS telemetry and MAV_CMD_INJECT_FAILURE on "
+                    "the GCS port.",
+        epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("scenario", nargs="?", default="paper",
+                   help="built-in scenario name or .toml path (default: paper)")
+    p.add_argument("--listen", default="127.0.0.1:14540", metavar="HOST:PORT",
+                   help="control port to bind (default 127.0.0.1:14540; port 0 = any free)")
+    p.add_argument("--gcs", metavar="HOST:PORT",
+                   help="send GCS telemetry to a ground station listening here "
+                        "(e.g. 127.0.0.1:14550 for QGroundControl or MAVProxy udpin)")
+    p.add_argument("--peer", metavar="HOST:PORT",
+                   help="only accept this controller address (default: the sender of the "
+                        "first HEARTBEAT)")
+    p.add_argument("--realtime", action="store_true",
+                   help="pace physics by the wall clock instead of lockstep")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="sim seconds to run (default: the scenario's run.duration_s; "
+                        "0 = until interrupted)")
+    p.add_argument("--seed", type=int, metavar="N", help="override run.seed (sensor noise)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="settings",
+                   help="override a scenario key, e.g. --set attack.rotor=3 "
+                        "--set initial.position_m=[0,0,5] (VALUE in TOML syntax; a bare "
+                        "word is a string); repeatable")
+    p.add_argument("--mcap", metavar="FILE",
+                   help="record all traffic and ground truth to an MCAP file")
+    p.add_argument("--lockstep-timeout", type=float, default=2.0, metavar="S",
+                   help="lockstep: wall seconds to wait for a reply before resending the "
+                        "state and reporting it (default 2)")
+    p.add_argument("--command-timeout", type=float, default=0.25, metavar="S",
+                   help="real time: wall seconds without a valid command before the motors "
+                        "are cut (default 0.25)")
+    p.add_argument("--gcs-rate", type=float, default=50.0, metavar="HZ",
+                   help="GCS telemetry rate, at most 50 Hz (default 50)")
+    p.add_argument("--no-failure-injection", action="store_true",
+                   help="deny MAV_CMD_INJECT_FAILURE (the scenario's own attack still runs)")
+    p.set_defaults(func=run)
+
+
+def apply_settings(scenario: Scenario, settings: list[str]) -> Scenario:
+    """Apply ``--set section.key=value`` overrides; ScenarioError naming the key if bad."""
+    for item in settings:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or "." not in key:
+            raise ScenarioError("--set", f"expected SECTION.KEY=VALUE, got {item!r}")
+        try:
+            value: Any = tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = text.strip()
+        section = key.split(".", 1)[0]
+        if section not in _SECTIONS:
+            raise ScenarioError(key, f"unknown section {section!r} (known: "
+                                     f"{', '.join(_SECTIONS)})")
+        try:
+            scenario = scenario.replace(**{key: value})
+        except TypeError as exc:
+            raise ScenarioError(key, str(exc)) from None
+    return scenario
+
+
+def run(args: argparse.Namespace) -> int:
+    from tfl_mav.mavlink.link import parse_address
+
+    prog = "tfl-mav sim"
+    try:
+        scenario = apply_settings(load_scenario(args.scenario), args.settings)
+        if args.seed is not None:
+            scenario = scenario.replace(**{"run.seed": args.seed})
+    except ScenarioError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    try:
+        listen = parse_address(args.listen, "--listen")
+        gcs = parse_address(args.gcs, "--gcs") if args.gcs else None
+        peer = parse_address(args.peer, "--peer") if args.peer else None
+        duration = _duration(args.duration, scenario)
+    except ValueError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+
+    recorder = None
+    if args.mcap:
+        recorder, code = _open_recorder(args.mcap, scenario, prog)
+        if recorder is None:
+            return code
+    try:
+        return _fly(args, scenario, listen, gcs, peer, duration, recorder, prog)
+    finally:
+        if recorder is not None:
+            recorder.close()
+
+
+def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
+         gcs: Address | None, peer: Address | None, duration: float, recorder: Any,
+         prog: str) -> int:
+    from sitl.vehicle import ExitStatus, Vehicle
+    from tfl_mav.mavlink.link import LinkError
+
+    holder: dict[str, Vehicle] = {}
+
+    def on_status(severity: int, text: str) -> None:
+        t = holder["v"].sim.time_s if "v" in holder else 0.0
+        print(f"sim [t={t:8.3f} s] {_SEVERITY.get(severity, severity)}: {text}",
+              file=sys.stderr, flush=True)
+
+    try:
+        vehicle = Vehicle(
+            scenario, listen=listen, gcs=gcs, peer=peer, realtime=args.realtime,
+            lockstep_timeout_s=args.lockstep_timeout, command_timeout_s=args.command_timeout,
+            gcs_rate_hz=args.gcs_rate, allow_failure_injection=not args.no_failure_injection,
+            on_frame=recorder.on_frame if recorder is not None else None,
+            on_truth=recorder.on_truth if recorder is not None else None,
+            on_status=on_status)
+    except LinkError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return EXIT_LINK
+    except ValueError as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    holder["v"] = vehicle
+    received: list[int] = []
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        received.append(signum)
+        vehicle.stop()
+
+    previous = _install_signals(on_signal)
+    try:
+        host, port = vehicle.listen_address
+        mode = "real time" if args.realtime else "lockstep"
+        run_cfg = scenario.run
+        length = "until interrupted" if math.isinf(duration) else f"{duration:g} s"
+        gcs_text = f", GCS -> {gcs[0]}:{gcs[1]}" if gcs else ""
+        print(f"{prog}: listening on {host}:{port} (control port), {mode}, scenario "
+              f"{scenario.name!r}, physics {run_cfg.physics_hz:g} Hz, control "
+              f"{1.0 / run_cfg.control_dt_s:g} Hz, {length}{gcs_text}; waiting for the "
+              "controller's HEARTBEAT", flush=True)
+        result = vehicle.run(duration)
+    finally:
+        _restore_signals(previous)
+        vehicle.close()
+    print(f"{prog}: {result.status.value}: {result.reason}; {result.ticks} ticks, "
+          f"{result.sim_time_s:.3f} s sim in {result.wall_time_s:.3f} s wall "
+          f"({result.real_time_factor:.1f}x real time)", flush=True)
+    print(f"{prog}: {vehicle.stats.summary()}", flush=True)
+    if result.status is ExitStatus.CRASHED:
+        return EXIT_CRASHED
+    if result.status is ExitStatus.STOPPED:
+        if received and received[-1] == signal.SIGTERM:
+            return EXIT_SIGTERM
+        return EXIT_SIGINT
+    return EXIT_OK
+
+
+def _duration(value: float | None, scenario: Scenario) -> float:
+    if value is None:
+        return scenario.run.duration_s
+    if not math.isfinite(value) or value < 0:
+        raise ValueError(f"--duration: must be >= 0 seconds (0 = until interrupted), "
+                         f"got {value}")
+    return math.inf if value == 0 else value
+
+
+def _open_recorder(path: str, scenario: Scenario, prog: str) -> tuple[Any, int]:
+    """The MCAP recorder, imported only when asked for.
+
+    Contract: ``tfl_mav.mavlink.recorder.Recorder(path, scenario=...)`` with
+    ``on_frame(direction, raw, msg, time_s)``, ``on_truth(sim)`` and ``close()``; raising
+    OSError if the file cannot be written. Returns (recorder, 0) or (None, exit code).
+    """
+    try:
+        recorder_module = importlib.import_module("sitl.recording")
+    except ModuleNotFoundError as exc:
+        if exc.name not in ("sitl.recording", "tfl_mav.mavlink.recorder"):
+            raise
+        print(f"{prog}: --mcap: the MCAP recorder (tfl_mav.mavlink.recorder) is not part of "
+              "this build", file=sys.stderr)
+        return None, EXIT_USAGE
+    cls = getattr(recorder_module, "SimRecorder", None)
+    missing = [name for name in ("on_frame", "on_truth", "close")
+               if cls is None or not callable(getattr(cls, name, None))]
+    if missing:
+        print(f"{prog}: --mcap: tfl_mav.mavlink.recorder.Recorder lacks "
+              f"{', '.join(missing)}", file=sys.stderr)
+        return None, EXIT_USAGE
+    try:
+        return cls(path, scenario=scenario), EXIT_OK
+    except OSError as exc:
+        print(f"{prog}: --mcap: cannot write {path!r}: {exc.strerror or exc}", file=sys.stderr)
+        return None, EXIT_LINK
+
+
+def _install_signals(handler: Any) -> dict[int, Any]:
+    """SIGINT/SIGTERM → ``handler`` (main thread only; elsewhere Python forbids it)."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    previous = {}
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        previous[sig] = signal.signal(sig, handler)
+    return previous
+
+
+def _restore_signals(previous: dict[int, Any]) -> None:
+    for sig, old in previous.items():
+        signal.signal(sig, old)

@@ -1,0 +1,247 @@
+"""The UDP link: peer pinning, MAVLink 2 only, every rejected datagram counted by reason."""
+
+from __future__ import annotations
+
+import socket
+import struct
+
+import pytest
+
+from tfl_mav.mavlink.dialect import mav, new_mavlink
+from tfl_mav.mavlink.link import Link, LinkError, finite_fields, nonfinite_field, parse_address
+
+LOOPBACK = ("127.0.0.1", 0)
+WAIT_S = 1.0
+
+
+def heartbeat():
+    return mav.MAVLink_heartbeat_message(mav.MAV_TYPE_ONBOARD_CONTROLLER,
+                                         mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)
+
+
+def controls(time_usec=1000, values=(0.5, 0.5, 0.5, 0.5)):
+    return mav.MAVLink_hil_actuator_controls_message(time_usec, [*values] + [0.0] * 12, 128, 1)
+
+
+def frame(msg, sysid=2, compid=191) -> bytes:
+    return bytes(msg.pack(new_mavlink(sysid, compid)))
+
+
+def mavlink1_heartbeat(sysid=2, compid=191) -> bytes:
+    """A valid MAVLink 1 HEARTBEAT (magic 0xFE, correct CRC)."""
+    payload = struct.pack("<IBBBBB", 0, mav.MAV_TYPE_ONBOARD_CONTROLLER, 8, 0, 0, 3)
+    header = struct.pack("<BBBBBB", 0xFE, len(payload), 0, sysid, compid, 0)
+    crc = mav.x25crc(header[1:] + payload)
+    crc.accumulate(bytes([mav.MAVLink_heartbeat_message.crc_extra]))
+    return header + payload + struct.pack("<H", crc.crc)
+
+
+def unknown_id_frame(msgid=60000, sysid=2, compid=191) -> bytes:
+    payload = b"\x01\x02\x03"
+    header = struct.pack("<BBBBBBBHB", 0xFD, len(payload), 0, 0, 0, sysid, compid,
+                         msgid & 0xFFFF, msgid >> 16)
+    return header + payload + b"\x00\x00"
+
+
+class Raw:
+    """A bare UDP socket: sends bytes exactly as given from its own address."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(LOOPBACK)
+
+    def send(self, data: bytes, to) -> None:
+        self.sock.sendto(data, to)
+
+    def close(self) -> None:
+        self.sock.close()
+
+
+@pytest.fixture
+def vehicle_side():
+    link = Link.listen(LOOPBACK, src_system=1, src_component=1)
+    yield link
+    link.close()
+
+
+@pytest.fixture
+def raw():
+    r = Raw()
+    yield r
+    r.close()
+
+
+def drain(link: Link, expect_datagrams: int) -> list:
+    """Receive until the link has seen ``expect_datagrams`` datagrams in total."""
+    out: list = []
+    for _ in range(50):
+        out += link.recv(0.05)
+        if link.stats.rx_datagrams >= expect_datagrams:
+            break
+    out += link.recv(0.0)
+    return out
+
+
+def test_peer_is_learned_from_the_first_heartbeat_and_pinned(vehicle_side, raw):
+    addr = vehicle_side.local_address
+    raw.send(frame(controls()), addr)            # before any HEARTBEAT: not a peer yet
+    raw.send(frame(heartbeat()), addr)
+    msgs = drain(vehicle_side, 2)
+    assert [m.get_type() for m in msgs] == ["HEARTBEAT"]
+    assert vehicle_side.stats.no_peer == 1
+    assert vehicle_side.peer == raw.sock.getsockname()
+    assert vehicle_side.peer_sysid == 2
+    raw.send(frame(controls()), addr)             # now accepted
+    assert [m.get_type() for m in drain(vehicle_side, 3)] == ["HIL_ACTUATOR_CONTROLS"]
+
+
+def test_foreign_sender_is_dropped_and_never_answered(vehicle_side, raw):
+    addr = vehicle_side.local_address
+    raw.send(frame(heartbeat()), addr)
+    drain(vehicle_side, 1)
+    intruder = Raw()
+    try:
+        intruder.send(frame(heartbeat()), addr)
+        intruder.send(frame(controls()), addr)
+        assert drain(vehicle_side, 3) == []
+        assert vehicle_side.stats.foreign == 2
+        assert vehicle_side.peer == raw.sock.getsockname()
+        vehicle_side.send(heartbeat())
+        intruder.sock.settimeout(0.1)
+        with pytest.raises(TimeoutError):
+            intruder.sock.recvfrom(1024)          # nothing goes to the intruder
+        raw.sock.settimeout(WAIT_S)
+        assert raw.sock.recvfrom(1024)[0][0] == 0xFD
+    finally:
+        intruder.close()
+
+
+def test_other_sysid_from_the_peer_address_is_dropped(vehicle_side, raw):
+    addr = vehicle_side.local_address
+    raw.send(frame(heartbeat(), sysid=2), addr)
+    raw.send(frame(controls(), sysid=99), addr)
+    assert [m.get_type() for m in drain(vehicle_side, 2)] == ["HEARTBEAT"]
+    assert vehicle_side.stats.wrong_sysid == 1
+
+
+def test_pinned_peer_rejects_everyone_else_even_with_heartbeats(raw):
+    intruder = Raw()
+    link = Link.listen(LOOPBACK, src_system=1, src_component=1, peer=raw.sock.getsockname())
+    try:
+        intruder.send(frame(heartbeat()), link.local_address)
+        raw.send(frame(heartbeat()), link.local_address)
+        assert [m.get_type() for m in drain(link, 2)] == ["HEARTBEAT"]
+        assert link.stats.foreign == 1
+    finally:
+        link.close()
+        intruder.close()
+
+
+BAD_DATAGRAMS = {
+    "garbage": b"\x00hello, this is not MAVLink",
+    "mavlink1": mavlink1_heartbeat(),
+    "truncated": frame(controls())[:-5],
+    "bad_crc": (lambda b: b[:-1] + bytes([b[-1] ^ 0xFF]))(frame(controls())),
+    "unknown_id": unknown_id_frame(),
+    "bad_flags": (lambda b: b[:2] + b"\x80" + b[3:])(frame(controls())),
+    "wrong_length": (lambda b: b[:1] + bytes([b[1] + 3]) + b[2:] + b"\x00\x00\x00")(
+        frame(heartbeat())),   # header length grown to match: the CRC no longer does
+}
+
+
+COUNTER = {"wrong_length": "bad_crc"}
+
+
+@pytest.mark.parametrize("reason", sorted(BAD_DATAGRAMS))
+def test_each_bad_datagram_is_counted_once_and_the_link_keeps_working(vehicle_side, raw,
+                                                                      reason):
+    addr = vehicle_side.local_address
+    raw.send(frame(heartbeat()), addr)
+    drain(vehicle_side, 1)
+    raw.send(BAD_DATAGRAMS[reason], addr)
+    raw.send(frame(controls(time_usec=42)), addr)
+    msgs = drain(vehicle_side, 3)
+    assert [(m.get_type(), m.time_usec) for m in msgs] == [("HIL_ACTUATOR_CONTROLS", 42)]
+    counts = vehicle_side.stats.as_dict()
+    assert counts[COUNTER.get(reason, reason)] == 1, counts
+    assert vehicle_side.stats.rejected == 1, counts
+
+
+def test_a_bad_frame_does_not_swallow_the_next_datagram(vehicle_side, raw):
+    addr = vehicle_side.local_address
+    raw.send(frame(heartbeat()), addr)
+    raw.send(frame(controls())[:20], addr)        # header promises more than arrives
+    raw.send(frame(controls(time_usec=7)), addr)
+    msgs = drain(vehicle_side, 3)
+    assert [m.get_type() for m in msgs] == ["HEARTBEAT", "HIL_ACTUATOR_CONTROLS"]
+    assert msgs[1].time_usec == 7
+    assert vehicle_side.stats.truncated == 1
+
+
+def test_several_frames_in_one_datagram_are_all_decoded(vehicle_side, raw):
+    blob = frame(heartbeat()) + frame(controls(time_usec=1)) + frame(controls(time_usec=2))
+    raw.send(blob, vehicle_side.local_address)
+    msgs = drain(vehicle_side, 1)
+    assert [getattr(m, "time_usec", None) for m in msgs] == [None, 1, 2]
+    assert vehicle_side.stats.rx_frames == 3
+
+
+def test_recorder_hook_sees_exact_bytes_both_ways(raw):
+    seen = []
+    link = Link.listen(LOOPBACK, src_system=1, src_component=1,
+                       on_frame=lambda d, b, m, t: seen.append((d, bytes(b), m)))
+    try:
+        good = frame(heartbeat())
+        raw.send(good, link.local_address)
+        raw.send(b"\x01garbage", link.local_address)
+        drain(link, 2)
+        n = link.send(controls())
+        raw.sock.settimeout(WAIT_S)
+        sent = raw.sock.recvfrom(1024)[0]
+        assert n == len(sent)
+        assert [(d, b, m is not None) for d, b, m in seen] == [
+            ("rx", good, True), ("rx", b"\x01garbage", False), ("tx", sent, True)]
+    finally:
+        link.close()
+
+
+def test_send_before_a_peer_is_known_is_counted_not_sent(vehicle_side):
+    assert vehicle_side.send(heartbeat()) == 0
+    assert vehicle_side.stats.unsent_no_peer == 1
+    assert vehicle_side.stats.tx_frames == 0
+
+
+def test_sequence_numbers_advance_per_frame(raw):
+    link = Link.connect(raw.sock.getsockname(), src_system=1, src_component=1)
+    try:
+        raw.sock.settimeout(WAIT_S)
+        seqs = []
+        for _ in range(3):
+            link.send(heartbeat())
+            seqs.append(raw.sock.recvfrom(1024)[0][4])
+        assert seqs == [0, 1, 2]
+    finally:
+        link.close()
+
+
+def test_port_in_use_is_a_clear_link_error(vehicle_side):
+    with pytest.raises(LinkError, match=r"in use|another process"):
+        Link.listen(vehicle_side.local_address, src_system=1, src_component=1)
+
+
+@pytest.mark.parametrize(("text", "match"), [
+    ("localhost", "expected HOST:PORT"),
+    (":14540", "expected HOST:PORT"),
+    ("127.0.0.1:x", "port must be an integer"),
+    ("127.0.0.1:70000", "port must be 0-65535"),
+])
+def test_bad_addresses_name_the_field(text, match):
+    with pytest.raises(ValueError, match=f"--listen: {match}"):
+        parse_address(text, "--listen")
+
+
+def test_nonfinite_fields_are_named_element_by_element():
+    msg = controls(values=(0.5, float("nan"), 0.5, 0.5))
+    assert nonfinite_field(msg, ["time_usec", "controls"]) == "controls[1]"
+    assert not finite_fields(msg, ["controls"])
+    assert finite_fields(controls(), ["controls"])

@@ -1,0 +1,347 @@
+"""MCAP recorder: real links on loopback UDP, real files, real processes killed mid-run."""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
+
+import jsonschema
+import numpy as np
+import pytest
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+
+from tfl_mav.mavlink.dialect import mav, new_mavlink
+from tfl_mav.mavlink.link import Link
+from tfl_mav.mavlink.logread import LogReader
+from tfl_mav.mavlink.recorder import Recorder, RecorderError
+from tools.cli import main as cli_main
+
+REPO = Path(__file__).resolve().parents[1]
+NAN = float("nan")
+TICKS = 150
+
+
+def _odometry(k: int) -> mav.MAVLink_odometry_message:
+    """A state at tick k (1 ms ticks), unknown covariances (NaN first element, MAVLink's
+    convention) and a velocity that is not a round float32."""
+    cov = [NAN] + [0.0] * 20
+    return mav.MAVLink_odometry_message(
+        k * 1000, mav.MAV_FRAME_LOCAL_NED, mav.MAV_FRAME_BODY_FRD, 0.1 * k, -0.2, -1.5,
+        [1.0, 0.0, 0.0, 0.0], 0.1, 0.2, 0.3, 0.01, 0.02, 0.03, cov, cov, 0, 0, 100)
+
+
+def _esc(k: int) -> mav.MAVLink_esc_telemetry_1_to_4_message:
+    rpm = [6000 + k % 7, 6100, 6200, 6300]
+    return mav.MAVLink_esc_telemetry_1_to_4_message([30] * 4, [1600] * 4, [500] * 4,
+                                                    [10] * 4, rpm, [k & 0xFFFF] * 4)
+
+
+def _fly_link_pair(tmp_path: Path) -> tuple[Path, Path, Link, Link, float, float]:
+    """Vehicle ⇄ controller over loopback UDP for TICKS lockstep ticks, each side recording
+    its own file; plus garbage, a MAVLink 1 frame, a truncated frame and a foreign sender."""
+    veh_file, ctl_file = tmp_path / "veh.mcap", tmp_path / "ctl.mcap"
+    t_start = time.time()
+    with Link.listen(("127.0.0.1", 0), src_system=1, src_component=1) as veh, \
+            Link.connect(veh.local_address, src_system=2, src_component=1) as ctl, \
+            Recorder(veh_file) as rec_v, Recorder(ctl_file) as rec_c, \
+            socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger:
+        rec_v.attach(veh)
+        rec_c.attach(ctl)
+        ctl.send(mav.MAVLink_heartbeat_message(mav.MAV_TYPE_ONBOARD_CONTROLLER, 8, 0, 0, 4, 3))
+        assert veh.recv(1.0), "vehicle never heard the controller's HEARTBEAT"
+        veh.send(mav.MAVLink_heartbeat_message(mav.MAV_TYPE_QUADROTOR, 8, 128, 0, 4, 3))
+        veh.send(mav.MAVLink_statustext_message(mav.MAV_SEVERITY_WARNING,
+                                                b"attack \xff on rotor 2"))
+        rec_v.path(np.c_[np.linspace(0, 5, 50), np.cos(np.linspace(0, 5, 50)),
+                         np.full(50, 8.0)])
+        for k in range(TICKS):
+            veh.send(_odometry(k))
+            veh.send(_esc(k))
+            got = []
+            deadline = time.monotonic() + 1.0
+            while not any(m.get_type() == "ESC_TELEMETRY_1_TO_4" for m in got):
+                assert time.monotonic() < deadline, f"no ESC_TELEMETRY at tick {k}"
+                got += ctl.recv(0.2)
+            odo = next(m for m in got if m.get_type() == "ODOMETRY")
+            ctl.send(mav.MAVLink_hil_actuator_controls_message(
+                odo.time_usec, [0.43, 0.45, 1.0, 0.0] + [0.0] * 12, 128, 1))
+            assert veh.recv(1.0), f"no HIL_ACTUATOR_CONTROLS at tick {k}"
+            t = k * 1e-3
+            rec_v.truth(t, [0.1 * k, 0.2, 8.0], [1.0, 0.0, 0.0], [1.0, 0.0, 0.0, 0.0],
+                        [0.0, 0.0, 0.0], [2.7, 2.6, 2.8, 2.7], 2 if k > 50 else 0,
+                        1.5 if k > 50 else 0.0, NAN if k == 60 else 1.5)
+            rec_c.controller(t, {"mode": "nominal", "xi": np.arange(4.0),
+                                 "attack_estimate_n": NAN, "detected_rotor": 0})
+        rec_c.log("warning", "link check done", TICKS * 1e-3)
+        ctl.send_raw(b"\x00not mavlink")
+        ctl.send_raw(b"\xfe\x09\x00\x01\x01\x00" + bytes(11))         # MAVLink 1
+        ctl.send_raw(bytes(_odometry(0).pack(new_mavlink(2, 1)))[:20])  # truncated
+        stranger.sendto(b"\xfdhello", veh.local_address)              # foreign sender
+        time.sleep(0.05)
+        veh.recv(0.2)
+    return veh_file, ctl_file, veh, ctl, t_start, time.time()
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory):
+    return _fly_link_pair(tmp_path_factory.mktemp("flight"))
+
+
+def _read_all(path: Path) -> list[tuple[str, str, dict, int, int]]:
+    """(topic, schema json, message, log_time, publish_time) in log-time order, via the
+    mcap reader (which refuses unfinished files)."""
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        return [(ch.topic, sc.data.decode(), json.loads(m.data), m.log_time, m.publish_time)
+                for sc, ch, m in reader.iter_messages(log_time_order=False)]
+
+
+def _same(json_value, wire_value) -> bool:
+    if isinstance(wire_value, list):
+        return len(json_value) == len(wire_value) and all(
+            _same(a, b) for a, b in zip(json_value, wire_value, strict=True))
+    if isinstance(wire_value, float) and not math.isfinite(wire_value):
+        return json_value is None
+    return json_value == wire_value
+
+
+@pytest.mark.parametrize("side", ["veh", "ctl"])
+def test_counts_match_link_stats(flight, side):
+    veh_file, ctl_file, veh, ctl, *_ = flight
+    path, link = (veh_file, veh) if side == "veh" else (ctl_file, ctl)
+    raw = [m for topic, _, m, _, _ in _read_all(path) if topic == "/mavlink/raw"]
+    st = link.stats
+    assert sum(f["direction"] == "rx" and f["accepted"] for f in raw) == st.rx_frames
+    assert sum(f["direction"] == "rx" and not f["accepted"] for f in raw) == st.rejected
+    assert sum(f["direction"] == "tx" for f in raw) == st.tx_frames
+    assert st.rx_frames >= TICKS and st.tx_frames >= TICKS
+    if side == "veh":
+        assert st.rejected == 4   # garbage, MAVLink 1, truncated, foreign
+        assert st.garbage == st.mavlink1 == st.truncated == st.foreign == 1
+
+
+@pytest.mark.parametrize("side", ["veh", "ctl"])
+def test_raw_bytes_reparse_to_the_decoded_messages(flight, side):
+    path = flight[0] if side == "veh" else flight[1]
+    msgs = _read_all(path)
+    decoded: dict[str, list[dict]] = defaultdict(list)
+    for topic, _, m, _, _ in msgs:
+        if topic.startswith("/mavlink/") and topic != "/mavlink/raw":
+            decoded[topic].append(m)
+    cursor: dict[str, int] = defaultdict(int)
+    parser = new_mavlink(200, 1)
+    checked = 0
+    for topic, _, f, _, _ in msgs:
+        if topic != "/mavlink/raw" or f["name"] is None:   # rejected, or sent with send_raw
+            continue
+        raw = base64.b64decode(f["data"])
+        assert len(raw) == f["len"]
+        wire = parser.decode(bytearray(raw))
+        assert (wire.get_msgId(), wire.get_srcSystem(), wire.get_srcComponent(), wire.get_seq()) \
+            == (f["msgid"], f["sysid"], f["compid"], f["seq"])
+        chan = f"/mavlink/{f['sysid']}/{f['compid']}/{wire.get_type()}"
+        rec = decoded[chan][cursor[chan]]
+        cursor[chan] += 1
+        for name in wire.get_fieldnames():
+            assert _same(rec[name], getattr(wire, name)), (chan, name, rec[name])
+        checked += 1
+    assert checked >= 2 * TICKS if side == "veh" else checked >= TICKS
+    assert all(cursor[t] == len(v) for t, v in decoded.items()), "decoded without raw"
+
+
+@pytest.mark.parametrize("side", ["veh", "ctl"])
+def test_every_message_validates_against_its_channel_schema(flight, side):
+    path = flight[0] if side == "veh" else flight[1]
+    validators: dict[str, jsonschema.protocols.Validator] = {}
+    topics = set()
+    for topic, schema, m, _, _ in _read_all(path):
+        v = validators.get(schema)
+        if v is None:
+            s = json.loads(schema)
+            jsonschema.validators.validator_for(s).check_schema(s)
+            v = validators[schema] = jsonschema.validators.validator_for(s)(s)
+        v.validate(m)
+        topics.add(topic)
+    expected = ({"/mavlink/raw", "/mavlink/1/1/ODOMETRY", "/mavlink/1/1/ESC_TELEMETRY_1_TO_4",
+                 "/mavlink/2/1/HIL_ACTUATOR_CONTROLS", "/mavlink/1/1/STATUSTEXT", "/log",
+                 "/sim/truth/state", "/sim/truth/attack", "/sim/truth/thrusts", "/tf",
+                 "/scene/vehicle", "/scene/path", "/sim/truth/path_distance"}
+                if side == "veh" else {"/controller/state", "/log", "/mavlink/raw"})
+    assert expected <= topics
+
+
+def test_times_and_foxglove_content(flight):
+    veh_file, _, _, _, t_start, t_end = flight
+    msgs = _read_all(veh_file)
+    for topic, _, m, log_ns, pub_ns in msgs:
+        assert t_start - 1e-3 <= log_ns * 1e-9 <= t_end + 1e-3, topic
+        if topic == "/mavlink/1/1/ODOMETRY":
+            assert pub_ns == m["time_usec"] * 1000          # sim time from the frame itself
+            assert m["pose_covariance"][0] is None          # NaN → null
+            assert m["vx"] == pytest.approx(0.1, abs=1e-8) and m["vx"] != 0.1  # float32 wire
+        if topic == "/sim/truth/state":
+            assert pub_ns == round(m["t_s"] * 1e9)
+    attack = [m for t, _, m, _, _ in msgs if t == "/sim/truth/attack"]
+    assert [a["requested_n"] for a in attack if a["t_s"] == pytest.approx(0.06)] == [None]
+    logs = [m["message"] for t, _, m, _, _ in msgs if t == "/log"]
+    assert any("attack \ufffd on rotor 2" in text for text in logs)
+    scenes = [m for t, _, m, _, _ in msgs if t == "/scene/vehicle"]
+    ent = scenes[-1]["entities"][0]
+    assert ent["frame_id"] == "base_link" and len(ent["cubes"]) == 5
+    assert ent["cubes"][2]["color"]["r"] == 1.0 and ent["cubes"][2]["color"]["g"] < 0.1
+    tfs = [m for t, _, m, _, _ in msgs if t == "/tf"]
+    assert tfs[-1]["translation"]["x"] == pytest.approx(0.1 * (TICKS - 1), abs=0.1 * 20 + 1e-9)
+    # /tf and /scene/vehicle follow scene_hz (50 Hz sim time) over 0.149 s of sim: 8 each
+    assert len(tfs) == len(scenes) == math.floor((TICKS - 1) * 1e-3 * 50) + 1
+
+
+def test_path_distance_channel_is_distance_to_the_polyline(flight):
+    msgs = _read_all(flight[0])
+    dist = [m for t, _, m, _, _ in msgs if t == "/sim/truth/path_distance"]
+    xs = np.linspace(0.0, 5.0, 50001)     # the path: (s, cos s, 8), s in [0, 5]
+    assert len(dist) == 8
+    for d in dist:   # truth: (100 t, 0.2, 8), same height as the path
+        x = 100.0 * d["t_s"]
+        exact = float(np.min(np.hypot(xs - x, np.cos(xs) - 0.2)))
+        # 50 samples: chord sag <= h^2/8 * max|cos''| = 0.102^2/8 = 1.3 mm
+        assert d["distance_m"] == pytest.approx(exact, abs=2e-3)
+
+
+CHILD = r"""
+import json, sys, time
+sys.path.insert(0, {repo!r})
+from tfl_mav.mavlink.dialect import mav
+from tfl_mav.mavlink.link import Link
+from tfl_mav.mavlink.recorder import Recorder
+rec = Recorder({path!r}, flush_interval_s={interval})
+with Link.listen(("127.0.0.1", 0), src_system=1, src_component=1) as a, \
+        Link.connect(a.local_address, src_system=2, src_component=1) as b:
+    rec.attach(a)
+    b.send(mav.MAVLink_heartbeat_message(18, 8, 0, 0, 4, 3))
+    a.recv(1.0)
+    print("ready", flush=True)
+    k = 0
+    t0 = time.monotonic()
+    while time.monotonic() - t0 < {duration}:
+        a.send(mav.MAVLink_hil_actuator_controls_message(k, [0.5] * 16, 128, 1))
+        rec.truth(k * 1e-3, [0.0, 0.0, 1.0], [0.0] * 3, [1.0, 0.0, 0.0, 0.0], [0.0] * 3,
+                  [2.0] * 4, 0, 0.0, 0.0)
+        b.recv(0.0)
+        k += 1
+        time.sleep(0.0005)
+print(json.dumps({{"error": rec.error, "stats": rec.stats.as_dict(), "ticks": k}}), flush=True)
+"""
+
+
+def _start_child(path: Path, *, interval: float, duration: float,
+                 preexec=None) -> subprocess.Popen:
+    code = CHILD.format(repo=str(REPO), path=str(path), interval=interval, duration=duration)
+    return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=REPO, preexec_fn=preexec)
+
+
+def test_sigkill_leaves_a_readable_file_missing_at_most_the_last_second(tmp_path):
+    path = tmp_path / "killed.mcap"
+    proc = _start_child(path, interval=1.0, duration=30.0)
+    assert proc.stdout.readline().strip() == "ready", proc.stderr.read()
+    time.sleep(2.6)
+    t_kill = time.time()
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(5)
+    with open(path, "rb") as f, pytest.raises(McapError):   # unfinished: no summary
+        list(make_reader(f).iter_messages())
+    reader = LogReader(path)
+    last = max(m.log_time_ns for m in reader.messages()) * 1e-9
+    assert not reader.complete
+    # flush every 1.0 s; allow 0.4 s for scheduling on 2 shared cores
+    assert t_kill - last <= 1.0 + 0.4, f"lost {t_kill - last:.2f} s"
+    # --recover rewrites it as a valid file with everything readable
+    out = tmp_path / "recovered.mcap"
+    assert cli_main(["inspect", str(path), "--recover", str(out), "--json"]) == 0
+    with open(out, "rb") as f:
+        r = make_reader(f)
+        summary = r.get_summary()
+        n = sum(1 for _ in r.iter_messages())
+    assert n == summary.statistics.message_count == sum(1 for _ in LogReader(path).messages())
+    assert n > 1000
+
+
+def test_write_error_mid_run_is_counted_and_flight_goes_on(tmp_path):
+    """A file-size limit (RLIMIT_FSIZE, the kernel's EFBIG) stands in for a full disk."""
+    import resource
+
+    def limit() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (16 * 1024, 16 * 1024))
+
+    path = tmp_path / "full.mcap"
+    proc = _start_child(path, interval=0.1, duration=2.0, preexec=limit)
+    out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    result = json.loads(out.splitlines()[-1])
+    assert result["stats"]["write_errors"] == 1
+    assert result["stats"]["dropped"] > 0
+    assert str(path) in result["error"] and "File too large" in result["error"]
+    assert result["ticks"] > 500                    # kept flying after the error
+    assert path.stat().st_size <= 16 * 1024
+    assert sum(1 for _ in LogReader(path).messages()) > 0
+
+
+def test_unwritable_path_raises_a_clear_error(tmp_path):
+    missing = tmp_path / "no" / "such" / "dir" / "run.mcap"
+    with pytest.raises(RecorderError, match=str(missing)):
+        Recorder(missing)
+    with pytest.raises(RecorderError, match=str(tmp_path)):
+        Recorder(tmp_path)                          # a directory
+    if os.path.exists("/dev/full"):
+        with pytest.raises(RecorderError, match=r"/dev/full.*No space left"):
+            Recorder("/dev/full")
+    with pytest.raises(OSError):                    # RecorderError is an OSError
+        Recorder(missing)
+
+
+def test_bad_input_is_counted_never_raised(tmp_path):
+    path = tmp_path / "bad.mcap"
+    with Recorder(path) as rec:
+        rec.truth(0.0, [1.0, 2.0], [0.0] * 3, [1, 0, 0, 0], [0] * 3, [1] * 4, 0, 0.0, 0.0)
+        rec.truth(NAN, [0.0] * 3, [0.0] * 3, [1, 0, 0, 0], [0] * 3, [1] * 4, 0, 0.0, 0.0)
+        rec.truth(0.0, [0.0] * 3, [0.0] * 3, [1, 0, 0, 0], [0] * 3, [1] * 4, 7, 0.0, 0.0)
+        rec.truth(0.0, [NAN] * 3, [0.0] * 3, [1, 0, 0, 0], [0] * 3, [1] * 4, 0, 0.0, 0.0)
+        rec.on_frame("sideways", b"\xfd", None, 0.0)
+        rec.controller(0.1, {"bad": object()})
+        rec.log("loud", "text", 0.1)
+        rec.set_sim_time(float("inf"))
+        assert rec.stats.bad_input == 8
+        assert rec.last_bad_input.startswith("time_s")
+        with pytest.raises(ValueError, match="points_m"):
+            rec.path([[0.0, 0.0, NAN], [1.0, 1.0, 1.0]])       # setup call: raises
+    msgs = _read_all(path)
+    state = [m for t, _, m, _, _ in msgs if t == "/sim/truth/state"]
+    assert len(state) == 1 and state[0]["position_m"] == [None, None, None]
+    assert not [t for t, *_ in msgs if t == "/tf"]             # NaN pose: no scene
+    assert [m["level"] for t, _, m, _, _ in msgs if t == "/log"] == [0]
+
+
+def test_background_flush_makes_quiet_data_readable_while_open(tmp_path):
+    path = tmp_path / "quiet.mcap"
+    with Recorder(path, flush_interval_s=0.2) as rec:
+        for k in range(10):
+            rec.truth(k * 1e-3, [0.0] * 3, [0.0] * 3, [1, 0, 0, 0], [0] * 3, [1] * 4, 0, 0.0,
+                      0.0)
+        time.sleep(0.6)                  # no more writes: only the flusher thread can flush
+        seen = [m for m in LogReader(path).messages() if m.topic == "/sim/truth/state"]
+        assert len(seen) == 10
+        assert rec.stats.flushes >= 1
+    assert rec.error is None
+    rec.truth(1.0, [0.0] * 3, [0.0] * 3, [1, 0, 0, 0], [0] * 3, [1] * 4, 0, 0.0, 0.0)
+    assert rec.stats.dropped == 5        # after close: state, attack, thrusts, tf, scene

@@ -1,0 +1,286 @@
+"""Attack detection, isolation and estimation from ESC rpm (pure math: no sockets, no files).
+
+Each control tick compares each rotor's measured speed with the speed its command should
+produce through the same motor model the vehicle has (``f = k_f ω²``, command clamped to
+[0, f_max], optional first-order lag on ω with time constant τ_m, held over the control
+period). An attacker who forces a rotor's thrust makes that rotor's speed leave the model.
+
+* **Residual** (rpm): the distance from ``ω_meas`` to the band of speeds the motor can have
+  if its true τ_m is anywhere within a factor ``1 + time_constant_tolerance`` of the
+  model's (five lag models run side by side; the band collapses to one speed when the
+  command is steady or τ_m = 0). It is normalised by the propagated std: ESC noise σ (plus
+  the uint16 rpm quantisation of ESC_TELEMETRY_1_TO_4) and, with lag, the uncertainty of
+  the band's start (taken from the first, noisy, measurement) decaying at the lag's rate.
+  ``z`` is then at most N(0, 1)-sized while the rotor obeys its command.
+* **Detection**: a two-sided CUSUM per rotor, ``S⁺ ← max(0, S⁺ + z − k)``, ``S⁻ ← max(0,
+  S⁻ − z − k)``; alarm when a statistic reaches ``h``. Each sample's contribution is capped
+  at ``k + h/min_ticks`` so one glitch can never alarm: at least ``min_ticks`` consecutive
+  anomalous samples are needed. Gaussian false-alarm rate (Siegmund's approximation,
+  ARL₀ ≈ e^{2k(h+1.166)}/(2k²)): k = 2, h = 8 gives ~10¹⁵ ticks per statistic.
+* **Isolation**: the rotor with the largest statistic on the alarm tick. Latched: an
+  attacker does not hand a rotor back.
+* **Estimation**: the attacked rotor's thrust from its own rpm, ``k_f ω²`` clamped to
+  [0, f_max]; a non-finite sample holds the last estimate, so no NaN leaves after detection.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass, field, fields
+from typing import Any
+
+__all__ = ["RPM_QUANTISATION_STD", "AttackDetector", "DetectorConfig", "DetectorOutput"]
+
+RPM_TO_RADPS = 2.0 * math.pi / 60.0
+RADPS_TO_RPM = 60.0 / (2.0 * math.pi)
+# ESC_TELEMETRY_1_TO_4 carries rpm as uint16: rounding adds uniform noise of std 1/√12 rpm.
+RPM_QUANTISATION_STD = 1.0 / math.sqrt(12.0)
+# A speed beyond any ESC's range is a corrupt sample, not a rotor state (rejected like NaN).
+RPM_VALID_LIMIT = 1.0e6
+_ALARM_TOL = 1e-9  # relative slack so min_ticks capped increments reach h despite rounding
+# The band of 5 models (τ spaced geometrically over [τ/(1+tol), τ(1+tol)]) is widened by this
+# fraction of its width on each side: ω(t; τ) is not monotone in τ under a varying command,
+# and on random sines, chirps and 0↔f_max square waves (τ = 5-80 ms, tol = 0.3) the response
+# for any τ in the range never left the band widened by 0.1 (0.25 keeps a margin).
+BAND_PAD = 0.25
+
+
+def _param(default: float, unit: str = "", *, lo: float | None = None,
+           hi: float | None = None, lo_open: bool = False, doc: str = "") -> Any:
+    """A config field with its bounds in the metadata (checked in ``__post_init__``)."""
+    meta = {"unit": unit, "lo": lo, "hi": hi, "lo_open": lo_open, "doc": doc}
+    return field(default=default, metadata=meta)
+
+
+@dataclass(frozen=True, slots=True)
+class DetectorConfig:
+    """Tuning of the detector; σ-denominated values are in units of the residual's std."""
+
+    rpm_noise_std: float = _param(10.0, "rpm", lo=0.0, hi=1000.0,
+                                  doc="ESC rpm noise std the detector assumes")
+    cusum_drift_sigma: float = _param(2.0, "sigma", lo=0.0, lo_open=True, hi=100.0,
+                                      doc="CUSUM drift k: shifts below k are ignored")
+    cusum_threshold_sigma: float = _param(8.0, "sigma", lo=0.0, lo_open=True, hi=1e4,
+                                          doc="CUSUM threshold h")
+    min_ticks: int = _param(3, "ticks", lo=1, hi=1000,
+                            doc="fewest consecutive anomalous samples that can alarm")
+    enabled: bool = True
+    model_time_constant_scale: float = _param(1.0, lo=0.0, hi=10.0,
+                                              doc="model tau = scale * motor tau")
+    time_constant_tolerance: float = _param(0.3, lo=0.0, hi=4.0,
+                                            doc="true tau within model tau x/÷ (1 + this)")
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            key, value = f"DetectorConfig.{f.name}", getattr(self, f.name)
+            if isinstance(f.default, bool):
+                if not isinstance(value, bool):
+                    raise ValueError(f"{key}: must be true or false, got {value!r}")
+            else:
+                _check(key, value, f.metadata, integer=isinstance(f.default, int))
+
+
+def _check(key: str, value: object, meta: object, *, integer: bool) -> None:
+    m = dict(meta)  # type: ignore[call-overload]
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{key}: must be a number, got {value!r}")
+    if integer and not isinstance(value, int):
+        raise ValueError(f"{key}: must be an integer, got {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{key}: must be finite, got {value!r}")
+    lo, hi = m["lo"], m["hi"]
+    if lo is not None and (value <= lo if m["lo_open"] else value < lo):
+        raise ValueError(f"{key}: must be {'>' if m['lo_open'] else '>='} {lo}, got {value!r}")
+    if hi is not None and value > hi:
+        raise ValueError(f"{key}: must be <= {hi}, got {value!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class DetectorOutput:
+    """The detector's verdict after one tick."""
+
+    detected_rotor: int                  # 0 = none, else 1-4 (latched)
+    estimate_n: float                    # attacked rotor's thrust from its rpm (N); NaN before
+    residuals_n: tuple[float, ...]       # k_f (ω_meas² − ω_model²) per rotor (N), ω_model the
+                                         # nearest speed of the lag band; for logs
+    cusum: tuple[float, ...]             # larger one-sided statistic (σ); sign + = faster
+    detection_time_s: float              # time of the alarm tick (s); NaN before
+    alarm: bool                          # True only on the tick of detection
+    rejected_samples: int = 0            # non-finite rpm/command samples and bad updates
+
+
+_ZERO4 = (0.0, 0.0, 0.0, 0.0)
+
+
+class AttackDetector:
+    """Per-rotor motor-model residual + two-sided CUSUM; see the module docstring.
+
+    ``k_f`` N/(rad/s)², ``thrust_max_n`` N, ``motor_time_constant_s`` the vehicle's τ_m (s;
+    the model uses ``config.model_time_constant_scale`` × it), ``dt_s`` the control period
+    (s; the lag is propagated over the elapsed ``time_s``, and over ``dt_s`` for a tick whose
+    time is not finite).
+    """
+
+    def __init__(self, k_f: float, thrust_max_n: float, motor_time_constant_s: float,
+                 dt_s: float, config: DetectorConfig | None = None) -> None:
+        for name, value, lo_open in (("k_f", k_f, True), ("thrust_max_n", thrust_max_n, True),
+                                     ("motor_time_constant_s", motor_time_constant_s, False),
+                                     ("dt_s", dt_s, True)):
+            _check(name, value, {"lo": 0.0, "hi": None, "lo_open": lo_open}, integer=False)
+        self.config = cfg = config if config is not None else DetectorConfig()
+        self.k_f = float(k_f)
+        self.thrust_max_n = float(thrust_max_n)
+        self.dt_s = float(dt_s)
+        self.tau_s = float(motor_time_constant_s) * cfg.model_time_constant_scale
+        self.sigma_rpm = math.hypot(cfg.rpm_noise_std, RPM_QUANTISATION_STD)
+        self.k = cfg.cusum_drift_sigma
+        self.h = cfg.cusum_threshold_sigma
+        self.z_cap = self.k + self.h / cfg.min_ticks
+        self._omega_max = math.sqrt(self.thrust_max_n / self.k_f)
+        tol = 1.0 + cfg.time_constant_tolerance
+        self._taus = tuple(self.tau_s * tol ** (j / 2) for j in range(-2, 3))
+        # Per rotor, the speed (rad/s) each model of the band predicts (τ/tol … τ·tol).
+        self._band = [[0.0] * len(self._taus) for _ in range(4)]
+        self._var = [0.0] * 4           # variance of the band's start (rpm²), decays with lag
+        self._decay_dt = math.nan
+        self._decay: list[float] = []
+        self._cmd = [0.0] * 4           # last valid command (N)
+        self._s_hi = [0.0] * 4
+        self._s_lo = [0.0] * 4
+        self._resid = list(_ZERO4)
+        self._z = list(_ZERO4)          # last normalised residual (σ), for isolation ties
+        self._rpm = list(_ZERO4)        # last finite rpm sample, for the estimate
+        self._last_time: float | None = None
+        self.rejected_samples = 0
+        self.detected_rotor = 0
+        self.detection_time_s = math.nan
+        self.estimate_n = math.nan
+        self._out = DetectorOutput(0, math.nan, _ZERO4, _ZERO4, math.nan, False)
+
+    # ------------------------------------------------------------------ model
+    def _omega_target(self, thrust_n: float) -> float:
+        """Steady speed (rad/s) for a command, clamped like the motor clamps it."""
+        return math.sqrt(min(max(thrust_n, 0.0), self.thrust_max_n) / self.k_f)
+
+    def _commands(self, thrust_cmd_n: Sequence[float]) -> list[float]:
+        out = []
+        for i, f in enumerate(thrust_cmd_n):
+            f = float(f)
+            if math.isfinite(f):
+                self._cmd[i] = f
+            else:           # the vehicle rejects a non-finite command and keeps the last one
+                self.rejected_samples += 1
+            out.append(self._cmd[i])
+        return out
+
+    def _start(self, rpm: list[float], cmd: list[float]) -> None:
+        """First tick: take the motor state from the measurement (ω before any lag acts)."""
+        for i in range(4):
+            if self.tau_s <= 0.0:
+                w, var = self._omega_target(cmd[i]), 0.0
+            elif not math.isnan(rpm[i]):
+                w, var = max(rpm[i], 0.0) * RPM_TO_RADPS, self.sigma_rpm ** 2
+            else:           # unknown start: the model is as uncertain as the rotor's range
+                w, var = self._omega_target(cmd[i]), (self._omega_max * RADPS_TO_RPM) ** 2
+            self._band[i] = [w] * len(self._taus)
+            self._var[i] = var
+
+    def _propagate(self, cmd: list[float], dt: float) -> None:
+        """Advance every model of the band over ``dt`` with each command held.
+
+        The exact solution of the vehicle's lag ``dω/dt = (ω_target − ω)/τ`` for a target
+        held over the period; with τ = 0 the speed is the target.
+        """
+        if self.tau_s <= 0.0:
+            for i in range(4):
+                self._band[i] = [self._omega_target(cmd[i])]
+            return
+        if dt != self._decay_dt:            # the period is usually constant: exp once
+            self._decay_dt = dt
+            self._decay = [math.exp(-dt / tau) for tau in self._taus]
+        decay = self._decay
+        for i in range(4):
+            c = self._omega_target(cmd[i])
+            self._band[i] = [c + (w - c) * e for w, e in zip(self._band[i], decay, strict=True)]
+            self._var[i] *= decay[-1] * decay[-1]     # the slowest model forgets slowest
+
+    # ------------------------------------------------------------------ update
+    def update(self, time_s: float, rpm_measured: Sequence[float],
+               thrust_cmd_n: Sequence[float]) -> DetectorOutput:
+        """One control tick.
+
+        ``rpm_measured``: the four ESC speeds (rpm) sampled at ``time_s`` (s);
+        ``thrust_cmd_n``: the four thrust commands (N) applied during the control period that
+        ended at ``time_s``. A non-finite (or beyond ±10⁶ rpm) rpm sample is skipped for that
+        rotor (counted). A non-finite ``time_s`` is taken as one ``dt_s`` after the previous
+        tick (counted); a ``time_s`` not after the previous one (a duplicate or out-of-order
+        sample) rejects the whole update (counted) and returns the previous verdict. Raises
+        ValueError only for a wrong number of values.
+        """
+        if len(rpm_measured) != 4:
+            raise ValueError(f"rpm_measured: expected 4 values, got {len(rpm_measured)}")
+        if len(thrust_cmd_n) != 4:
+            raise ValueError(f"thrust_cmd_n: expected 4 values, got {len(thrust_cmd_n)}")
+        t = float(time_s)
+        last = self._last_time
+        if not math.isfinite(t):
+            self.rejected_samples += 1
+            t = last + self.dt_s if last is not None else 0.0
+        elif last is not None and t <= last:
+            self.rejected_samples += 1
+            return self._reissue(alarm=False)
+        rpm = [r if abs(r) <= RPM_VALID_LIMIT else math.nan  # NaN fails the test too
+               for r in map(float, rpm_measured)]
+        cmd = self._commands(thrust_cmd_n)
+        if last is None:
+            self._start(rpm, cmd)
+        else:
+            self._propagate(cmd, t - last)
+        self._last_time = t
+
+        cfg = self.config
+        k, cap = self.k, self.z_cap
+        sig2 = self.sigma_rpm ** 2
+        for i in range(4):
+            r = rpm[i]
+            if math.isnan(r):
+                self.rejected_samples += 1
+                continue
+            band = self._band[i]
+            lo, hi = min(band), max(band)
+            pad = BAND_PAD * (hi - lo)
+            w = min(max(r * RPM_TO_RADPS, lo - pad), hi + pad)  # nearest speed in the band
+            z = (r - w * RADPS_TO_RPM) / math.sqrt(sig2 + self._var[i])
+            zc = min(max(z, -cap), cap)
+            self._s_hi[i] = max(0.0, self._s_hi[i] + zc - k)
+            self._s_lo[i] = max(0.0, self._s_lo[i] - zc - k)
+            self._z[i] = z
+            self._rpm[i] = r
+            wm = r * RPM_TO_RADPS
+            self._resid[i] = self.k_f * (wm * wm - w * w)
+
+        alarm = False
+        if cfg.enabled and not self.detected_rotor:
+            stat, _, rotor = max((max(self._s_hi[i], self._s_lo[i]), abs(self._z[i]), i + 1)
+                                 for i in range(4))
+            if stat >= self.h * (1.0 - _ALARM_TOL):
+                self.detected_rotor = rotor
+                self.detection_time_s = t
+                alarm = True
+        if self.detected_rotor:
+            w = max(self._rpm[self.detected_rotor - 1], 0.0) * RPM_TO_RADPS
+            self.estimate_n = min(self.k_f * w * w, self.thrust_max_n)
+        return self._reissue(alarm)
+
+    def _reissue(self, alarm: bool) -> DetectorOutput:
+        cusum = tuple(hi if hi >= lo else -lo for hi, lo in zip(self._s_hi, self._s_lo,
+                                                                strict=True))
+        self._out = DetectorOutput(self.detected_rotor, self.estimate_n, tuple(self._resid),
+                                   cusum, self.detection_time_s, alarm, self.rejected_samples)
+        return self._out
+
+    @property
+    def output(self) -> DetectorOutput:
+        """The latest verdict (what :meth:`update` last returned)."""
+        return self._out

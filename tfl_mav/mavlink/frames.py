@@ -1,0 +1,289 @@
+"""The ONE place where the paper frame (z up) and MAVLink's NED/FRD frames meet.
+
+Paper frame (physics and controller): inertial x, y, z with z **up**, treated as ENU
+(x = east, y = north, z = up); body b1 forward, b2 left, b3 up (FLU). Attitude is the
+rotation body (FLU) → inertial (ENU), ``R_enu_flu``; the Euler chart is the paper's ZYX
+(eq. roation_matrix_product: R = Rz(ψ) Ry(θ) Rx(φ)).
+
+MAVLink (on the wire): ``MAV_FRAME_LOCAL_NED`` (x = north, y = east, z = down) for position
+and velocity, ``MAV_FRAME_BODY_FRD`` for the body (forward, right, down).
+
+    vectors:      (x, y, z)_ENU  ↔  (y, x, −z)_NED          v_ned = P v_enu
+    body vectors: (a, b, c)_FLU  ↔  (a, −b, −c)_FRD          w_frd = Q w_flu
+    attitude:     R_ned_frd = P · R_enu_flu · Q
+    quaternion:   q_ned_frd = ((w+z), (x+y), (x−y), (w−z)) / √2   for q_enu_flu = (w, x, y, z)
+
+with P = [[0,1,0],[1,0,0],[0,0,−1]] (a proper rotation: 180° about (1,1,0)/√2) and
+Q = diag(1, −1, −1) (180° about b1). Both are their own inverses, so every conversion here is
+an involution: the same formula goes either way. Note the sign flip of pitch: in FLU a
+positive θ about b2 (left) puts the nose **down**; in FRD a positive pitch puts it **up**.
+
+``ODOMETRY`` carries the twist (linear velocity and body rates) in ``child_frame_id``
+(MAVLink spec, ROS REP 147). With ``child_frame_id = MAV_FRAME_BODY_FRD`` the velocity is
+therefore body-frame FRD, not NED; :func:`odometry_from_paper` and :func:`paper_from_odometry`
+get this right in both directions (and the latter also accepts a LOCAL_NED twist).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import NamedTuple
+
+import numpy as np
+
+__all__ = [
+    "MAV_FRAME_BODY_FRD",
+    "MAV_FRAME_LOCAL_NED",
+    "P_ENU_TO_NED",
+    "Q_FLU_TO_FRD",
+    "OdometryFields",
+    "PaperState",
+    "enu_to_ned",
+    "euler_zyx_from_rotation",
+    "flu_to_frd",
+    "frd_to_flu",
+    "ned_to_enu",
+    "odometry_from_paper",
+    "paper_from_odometry",
+    "quaternion_enu_flu_to_ned_frd",
+    "quaternion_from_rotation",
+    "quaternion_multiply",
+    "quaternion_ned_frd_to_enu_flu",
+    "rotation_enu_flu_to_ned_frd",
+    "rotation_from_euler_zyx",
+    "rotation_from_quaternion",
+    "rotation_ned_frd_to_enu_flu",
+]
+
+MAV_FRAME_LOCAL_NED = 1
+MAV_FRAME_BODY_FRD = 12
+
+P_ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
+Q_FLU_TO_FRD = np.diag([1.0, -1.0, -1.0])
+
+_SQRT1_2 = math.sqrt(0.5)
+
+
+# ---------------------------------------------------------------------------- vectors
+def enu_to_ned(v_enu: Sequence[float]) -> np.ndarray:
+    """Inertial vector ENU (x east, y north, z up) → NED: (x, y, z) ↦ (y, x, −z)."""
+    return np.array([v_enu[1], v_enu[0], -v_enu[2]], dtype=float)
+
+
+def ned_to_enu(v_ned: Sequence[float]) -> np.ndarray:
+    """Inertial vector NED → ENU: (n, e, d) ↦ (e, n, −d)."""
+    return np.array([v_ned[1], v_ned[0], -v_ned[2]], dtype=float)
+
+
+def flu_to_frd(w_flu: Sequence[float]) -> np.ndarray:
+    """Body vector FLU → FRD, e.g. body rates (p, q, r) ↦ (p, −q, −r)."""
+    return np.array([w_flu[0], -w_flu[1], -w_flu[2]], dtype=float)
+
+
+def frd_to_flu(w_frd: Sequence[float]) -> np.ndarray:
+    """Body vector FRD → FLU: (a, b, c) ↦ (a, −b, −c)."""
+    return np.array([w_frd[0], -w_frd[1], -w_frd[2]], dtype=float)
+
+
+# ---------------------------------------------------------------------------- attitude
+def rotation_enu_flu_to_ned_frd(R_enu_flu: np.ndarray) -> np.ndarray:
+    """R_ned_frd = P · R_enu_flu · Q (3×3, body → world)."""
+    return P_ENU_TO_NED @ np.asarray(R_enu_flu, dtype=float) @ Q_FLU_TO_FRD
+
+
+def rotation_ned_frd_to_enu_flu(R_ned_frd: np.ndarray) -> np.ndarray:
+    """R_enu_flu = P · R_ned_frd · Q (P, Q are involutions)."""
+    return P_ENU_TO_NED @ np.asarray(R_ned_frd, dtype=float) @ Q_FLU_TO_FRD
+
+
+def quaternion_enu_flu_to_ned_frd(q_enu_flu: Sequence[float]) -> np.ndarray:
+    """(w, x, y, z) of body FLU → ENU  ↦  (w, x, y, z) of body FRD → NED.
+
+    q_P ⊗ q ⊗ q_Q with q_P = (0, 1, 1, 0)/√2 and q_Q = (0, 1, 0, 0), simplified.
+    """
+    w, x, y, z = q_enu_flu
+    s = _SQRT1_2
+    return np.array([s * (w + z), s * (x + y), s * (x - y), s * (w - z)])
+
+
+def quaternion_ned_frd_to_enu_flu(q_ned_frd: Sequence[float]) -> np.ndarray:
+    """Inverse of :func:`quaternion_enu_flu_to_ned_frd` (the same involution)."""
+    return quaternion_enu_flu_to_ned_frd(q_ned_frd)
+
+
+def quaternion_multiply(a: Sequence[float], b: Sequence[float]) -> np.ndarray:
+    """Hamilton product a ⊗ b of (w, x, y, z) quaternions; R(a ⊗ b) = R(a) R(b)."""
+    aw, ax, ay, az = a
+    bw, bx, by, bz = b
+    return np.array([
+        aw * bw - ax * bx - ay * by - az * bz,
+        aw * bx + ax * bw + ay * bz - az * by,
+        aw * by - ax * bz + ay * bw + az * bx,
+        aw * bz + ax * by - ay * bx + az * bw,
+    ])
+
+
+def rotation_from_quaternion(q: Sequence[float]) -> np.ndarray:
+    """3×3 rotation of a unit quaternion (w, x, y, z); the quaternion is normalised first."""
+    w, x, y, z = np.asarray(q, dtype=float) / math.sqrt(sum(c * c for c in q))
+    return np.array([
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ])
+
+
+def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z), w ≥ 0, of a rotation matrix (Shepperd's method).
+
+    Picks the largest of 1 + trace and the diagonal terms as the pivot, so it stays
+    accurate for every rotation (including 180° ones, where w → 0).
+    """
+    R = np.asarray(R, dtype=float)
+    m00, m11, m22 = R[0, 0], R[1, 1], R[2, 2]
+    tr = m00 + m11 + m22
+    if tr >= max(m00, m11, m22):
+        s = 2.0 * math.sqrt(1.0 + tr)
+        q = np.array([0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s,
+                      (R[1, 0] - R[0, 1]) / s])
+    elif m00 >= m11 and m00 >= m22:
+        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
+        q = np.array([(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s,
+                      (R[0, 2] + R[2, 0]) / s])
+    elif m11 >= m22:
+        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
+        q = np.array([(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s,
+                      (R[1, 2] + R[2, 1]) / s])
+    else:
+        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
+        q = np.array([(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s,
+                      (R[1, 2] + R[2, 1]) / s, 0.25 * s])
+    q /= np.linalg.norm(q)
+    return -q if q[0] < 0 else q
+
+
+def rotation_from_euler_zyx(phi: float, theta: float, psi: float) -> np.ndarray:
+    """R = Rz(ψ) Ry(θ) Rx(φ) (eq. roation_matrix_product), angles in rad.
+
+    The same chart serves both frames: for R_enu_flu it gives the paper's (φ, θ, ψ); for
+    R_ned_frd it gives the aerospace (roll, pitch, yaw) that MAVLink's ATTITUDE carries.
+    """
+    cf, sf = math.cos(phi), math.sin(phi)
+    ct, st = math.cos(theta), math.sin(theta)
+    cp, sp = math.cos(psi), math.sin(psi)
+    return np.array([
+        [cp * ct, cp * st * sf - sp * cf, cp * st * cf + sp * sf],
+        [sp * ct, sp * st * sf + cp * cf, sp * st * cf - cp * sf],
+        [-st, ct * sf, ct * cf],
+    ])
+
+
+def euler_zyx_from_rotation(R: np.ndarray) -> tuple[float, float, float]:
+    """(φ, θ, ψ) in rad of R = Rz(ψ) Ry(θ) Rx(φ); θ ∈ [−π/2, π/2], φ, ψ ∈ (−π, π].
+
+    At the chart's singularity (|θ| = π/2, gimbal lock) only φ ∓ ψ is defined; φ = 0 is
+    returned there and ψ carries the whole rotation about the vertical.
+    """
+    R = np.asarray(R, dtype=float)
+    s = -R[2, 0]
+    theta = math.asin(max(-1.0, min(1.0, s)))
+    if abs(s) > 1.0 - 1e-12:
+        # cos θ = 0: R[0,1] = −sin(ψ ∓ φ), R[1,1] = cos(ψ ∓ φ); with φ = 0 both give ψ.
+        return 0.0, theta, math.atan2(-R[0, 1], R[1, 1])
+    return math.atan2(R[2, 1], R[2, 2]), theta, math.atan2(R[1, 0], R[0, 0])
+
+
+# ---------------------------------------------------------------------------- ODOMETRY
+@dataclass(frozen=True)
+class PaperState:
+    """Vehicle state in the paper frame, as decoded from one ODOMETRY message.
+
+    ``position_m``/``velocity_mps``: inertial ENU (z up); ``quaternion_wxyz``: body FLU →
+    ENU (unit, w ≥ 0 not enforced); ``body_rates_radps``: (p, q, r) about b1, b2, b3 (FLU).
+    """
+
+    time_usec: int
+    position_m: np.ndarray
+    velocity_mps: np.ndarray
+    quaternion_wxyz: np.ndarray
+    body_rates_radps: np.ndarray
+
+
+class OdometryFields(NamedTuple):
+    """The frame-dependent fields of ODOMETRY with ``frame_id = LOCAL_NED`` and
+    ``child_frame_id = BODY_FRD``: NED position (m), quaternion body FRD → NED, body-FRD
+    velocity (m/s) and body-FRD rates (rad/s). A NamedTuple: built every control tick."""
+
+    x: float
+    y: float
+    z: float
+    q: tuple[float, float, float, float]
+    vx: float
+    vy: float
+    vz: float
+    rollspeed: float
+    pitchspeed: float
+    yawspeed: float
+
+
+def odometry_from_paper(position_m: Sequence[float], velocity_mps: Sequence[float],
+                        quaternion_wxyz: Sequence[float],
+                        body_rates_radps: Sequence[float]) -> OdometryFields:
+    """Paper-frame state (ENU/FLU) → ODOMETRY fields (NED pose, body-FRD twist).
+
+    Plain float arithmetic: this runs every control tick in the simulator's hot path.
+    ``velocity_mps`` is inertial ENU; it is sent as the body-FRD velocity Q Rᵀ v because
+    ODOMETRY's twist is expressed in ``child_frame_id`` (BODY_FRD).
+    """
+    px, py, pz = position_m
+    vx, vy, vz = velocity_mps
+    w, x, y, z = quaternion_wxyz
+    p, q, r = body_rates_radps
+    # Rᵀ v with R = R(q) body FLU → ENU: body-frame velocity in FLU.
+    vb1 = (1 - 2 * (y * y + z * z)) * vx + 2 * (x * y + w * z) * vy + 2 * (x * z - w * y) * vz
+    vb2 = 2 * (x * y - w * z) * vx + (1 - 2 * (x * x + z * z)) * vy + 2 * (y * z + w * x) * vz
+    vb3 = 2 * (x * z + w * y) * vx + 2 * (y * z - w * x) * vy + (1 - 2 * (x * x + y * y)) * vz
+    s = _SQRT1_2
+    return OdometryFields(
+        py, px, -pz,
+        (s * (w + z), s * (x + y), s * (x - y), s * (w - z)),
+        vb1, -vb2, -vb3,
+        p, -q, -r,
+    )
+
+
+def paper_from_odometry(msg: object) -> PaperState:
+    """A decoded ODOMETRY message → :class:`PaperState` (ENU/FLU, SI units).
+
+    Accepts ``frame_id = MAV_FRAME_LOCAL_NED`` and a twist in ``child_frame_id`` =
+    ``MAV_FRAME_BODY_FRD`` (what our simulator sends) or ``MAV_FRAME_LOCAL_NED``. Raises
+    ValueError naming the field for any other frame, a non-finite value, or a quaternion
+    that is not (close to) unit length; the caller counts and drops the message.
+    """
+    m = msg
+    names = ("x", "y", "z", "vx", "vy", "vz", "rollspeed", "pitchspeed", "yawspeed")
+    for name in names:
+        if not math.isfinite(getattr(m, name)):
+            raise ValueError(f"ODOMETRY.{name}: not finite ({getattr(m, name)})")
+    if m.frame_id != MAV_FRAME_LOCAL_NED:
+        raise ValueError(f"ODOMETRY.frame_id: expected MAV_FRAME_LOCAL_NED (1), got {m.frame_id}")
+    qn = [float(c) for c in m.q]
+    if not all(math.isfinite(c) for c in qn):
+        raise ValueError(f"ODOMETRY.q: not finite ({qn})")
+    norm = math.sqrt(sum(c * c for c in qn))
+    if abs(norm - 1.0) > 1e-3:
+        raise ValueError(f"ODOMETRY.q: not a unit quaternion (|q| = {norm:.6f})")
+    q_ned_frd = [c / norm for c in qn]
+    q_enu_flu = quaternion_ned_frd_to_enu_flu(q_ned_frd)
+    position = ned_to_enu((m.x, m.y, m.z))
+    if m.child_frame_id == MAV_FRAME_BODY_FRD:
+        velocity = rotation_from_quaternion(q_enu_flu) @ frd_to_flu((m.vx, m.vy, m.vz))
+    elif m.child_frame_id == MAV_FRAME_LOCAL_NED:
+        velocity = ned_to_enu((m.vx, m.vy, m.vz))
+    else:
+        raise ValueError("ODOMETRY.child_frame_id: expected MAV_FRAME_BODY_FRD (12) or "
+                         f"MAV_FRAME_LOCAL_NED (1), got {m.child_frame_id}")
+    rates = frd_to_flu((m.rollspeed, m.pitchspeed, m.yawspeed))
+    return PaperState(int(m.time_usec), position, velocity, q_enu_flu, rates)

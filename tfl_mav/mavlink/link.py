@@ -1,0 +1,394 @@
+"""A MAVLink 2 link over UDP: one socket, one pinned peer, one packer, one parser.
+
+Small and explicit on purpose (STYLE.md: not like ``mavutil``):
+
+* **One peer.** Either fixed (:meth:`Link.connect`) or learned from the first valid
+  ``HEARTBEAT`` that reaches a listening socket (:meth:`Link.listen`). Datagrams from any
+  other address are counted (``foreign``) and dropped; nothing is ever sent anywhere but the
+  peer. Once the peer's system id is known (from its first HEARTBEAT, or pinned), frames
+  with another sysid are dropped too (``wrong_sysid``).
+* **MAVLink 2 only.** Frames with the MAVLink 1 magic (0xFE) are rejected and counted
+  (``mavlink1``): accepting them would let anyone downgrade a signed link to an unsigned
+  one later.
+* **One datagram at a time.** Each datagram is framed here and every frame is handed to
+  pymavlink's ``decode`` (which checks length, CRC and, once configured, the signature).
+  Nothing is carried over between datagrams, so a truncated datagram cannot swallow the
+  start of the next good one, as happens when datagrams are concatenated into one stream
+  parser (``parse_buffer``). Every rejection is counted by reason in :class:`LinkStats`;
+  nothing a peer sends can raise out of :meth:`Link.recv`.
+* **Recorder hook.** ``on_frame(direction, raw, msg, time_s)`` sees every frame in both
+  directions with the exact wire bytes: ``direction`` is ``"rx"`` or ``"tx"``, ``msg`` is
+  the decoded message, or ``None`` for a received datagram (or the unparsed rest of one)
+  that was rejected, and for :meth:`Link.send_raw`. ``time_s`` comes from ``clock``
+  (default wall time, ``time.time``). Exceptions raised by the hook propagate: a broken
+  recorder is a bug to see, not traffic to count.
+
+Signing (a later issue) plugs in at two seams: ``packer.signing`` (outgoing frames are
+signed by pymavlink's ``pack``) and :meth:`Link._decode_frame` (verify the signature there,
+*before* advancing the stream timestamp: FACTS.md describes pymavlink's flaw). Until then
+signed frames are accepted without checking their signature.
+
+Not thread-safe, by design: packing mutates the sequence number (and, later, the signing
+timestamp). Use one link from one thread.
+"""
+
+from __future__ import annotations
+
+import errno
+import math
+import select
+import socket
+import time
+from collections.abc import Callable, Iterable
+from dataclasses import asdict, dataclass
+from typing import Any
+
+from tfl_mav.mavlink.dialect import mav, new_mavlink
+
+__all__ = [
+    "Address",
+    "FrameHook",
+    "Link",
+    "LinkError",
+    "LinkStats",
+    "finite_fields",
+    "nonfinite_field",
+    "parse_address",
+]
+
+Address = tuple[str, int]
+FrameHook = Callable[[str, bytes, Any, float], None]
+
+MAGIC_V2 = 0xFD
+MAGIC_V1 = 0xFE
+_HEADER_LEN_V2 = 10
+_CRC_LEN = 2
+_SIGNATURE_LEN = 13
+_IFLAG_SIGNED = 0x01
+_MIN_FRAME_V2 = _HEADER_LEN_V2 + _CRC_LEN
+_MAX_DATAGRAM = 65535
+_HEARTBEAT_ID = mav.MAVLINK_MSG_ID_HEARTBEAT
+
+
+class LinkError(Exception):
+    """The link cannot work (bad address, port in use); the message says what to do."""
+
+
+@dataclass
+class LinkStats:
+    """Counters of one link. Every received datagram ends in exactly one place: accepted
+    frames in ``rx_frames``, everything else in one of the rejection counters."""
+
+    rx_datagrams: int = 0
+    rx_bytes: int = 0
+    rx_frames: int = 0          # accepted, decoded frames
+    tx_frames: int = 0
+    tx_bytes: int = 0
+    # rejections, by reason
+    garbage: int = 0            # first byte is not a MAVLink magic
+    mavlink1: int = 0           # MAVLink 1 frame (0xFE): downgrade protection
+    truncated: int = 0          # shorter than its header says
+    bad_flags: int = 0          # unknown incompatibility flags
+    bad_crc: int = 0
+    bad_signature: int = 0
+    malformed: int = 0          # decodes badly for another reason (length, payload)
+    unknown_id: int = 0         # message id not in the dialect
+    foreign: int = 0            # datagram from an address that is not the peer
+    wrong_sysid: int = 0        # from the peer's address, but another system id
+    no_peer: int = 0            # listening, peer not learned yet, and not a HEARTBEAT
+    # local trouble
+    recv_errors: int = 0
+    send_errors: int = 0
+    unsent_no_peer: int = 0     # send() before any peer was known
+
+    _REJECTIONS = ("garbage", "mavlink1", "truncated", "bad_flags", "bad_crc",
+                   "bad_signature", "malformed", "unknown_id", "foreign", "wrong_sysid",
+                   "no_peer")
+
+    @property
+    def rejected(self) -> int:
+        """Frames/datagrams dropped for any reason."""
+        return sum(getattr(self, name) for name in self._REJECTIONS)
+
+    def as_dict(self) -> dict[str, int]:
+        return asdict(self)
+
+    def summary(self) -> str:
+        """One line: traffic, then only the counters that are not zero."""
+        parts = [f"rx {self.rx_frames} tx {self.tx_frames}"]
+        parts += [f"{k} {v}" for k, v in self.as_dict().items()
+                  if v and k not in ("rx_datagrams", "rx_bytes", "rx_frames", "tx_frames",
+                                     "tx_bytes")]
+        return ", ".join(parts)
+
+
+def parse_address(text: str, field: str) -> Address:
+    """``"HOST:PORT"`` → (host, port); ValueError naming ``field`` if malformed."""
+    host, sep, port_text = text.rpartition(":")
+    if not sep or not host:
+        raise ValueError(f"{field}: expected HOST:PORT, got {text!r}")
+    try:
+        port = int(port_text)
+    except ValueError:
+        raise ValueError(f"{field}: port must be an integer, got {port_text!r}") from None
+    if not 0 <= port <= 65535:
+        raise ValueError(f"{field}: port must be 0-65535, got {port}")
+    return host, port
+
+
+def _resolve(address: Address, field: str) -> Address:
+    """Numeric IPv4 (host, port), so it compares equal to what ``recvfrom`` reports."""
+    host, port = address
+    try:
+        infos = socket.getaddrinfo(host, port, socket.AF_INET, socket.SOCK_DGRAM)
+    except socket.gaierror as exc:
+        raise LinkError(f"{field}: cannot resolve host {host!r} ({exc.strerror}); "
+                        "give an IPv4 address such as 127.0.0.1") from None
+    ip, resolved_port = infos[0][4][:2]
+    return ip, resolved_port
+
+
+def nonfinite_field(msg: Any, names: Iterable[str]) -> str | None:
+    """The first field of ``msg`` among ``names`` holding NaN/inf (``"controls[2]"``), or
+    None if all are finite. Array fields are checked element by element."""
+    for name in names:
+        value = getattr(msg, name)
+        if isinstance(value, (list, tuple)):
+            for i, v in enumerate(value):
+                if isinstance(v, float) and not math.isfinite(v):
+                    return f"{name}[{i}]"
+        elif isinstance(value, float) and not math.isfinite(value):
+            return name
+    return None
+
+
+def finite_fields(msg: Any, names: Iterable[str]) -> bool:
+    """Gate for NaN/inf: True iff every named field (and array element) is finite."""
+    return nonfinite_field(msg, names) is None
+
+
+class Link:
+    """One UDP socket talking MAVLink 2 to exactly one peer. See the module docstring."""
+
+    def __init__(self, sock: socket.socket, *, src_system: int, src_component: int,
+                 peer: Address | None = None, peer_sysid: int | None = None,
+                 on_frame: FrameHook | None = None,
+                 clock: Callable[[], float] = time.time,
+                 max_datagrams_per_recv: int = 256) -> None:
+        """Wrap a bound UDP socket (made non-blocking here).
+
+        ``peer``: fixed peer address, or None to learn it from the first valid HEARTBEAT.
+        ``peer_sysid``: pin the peer's system id; None learns it from its first HEARTBEAT.
+        ``max_datagrams_per_recv`` bounds one :meth:`recv` so a flood cannot starve the caller.
+        """
+        sock.setblocking(False)
+        self._sock = sock
+        self.packer = new_mavlink(src_system, src_component)
+        self.parser = new_mavlink(src_system, src_component)
+        self.peer: Address | None = peer
+        self.peer_sysid: int | None = peer_sysid
+        self.on_frame = on_frame
+        self.clock = clock
+        self.max_datagrams_per_recv = max_datagrams_per_recv
+        self.stats = LinkStats()
+        self._poll = select.poll()
+        self._poll.register(sock, select.POLLIN)
+        self._decode = self.parser.decode
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def listen(cls, bind: Address, *, src_system: int, src_component: int,
+               peer: Address | None = None, **kw: Any) -> Link:
+        """Bind ``bind`` and wait for a peer: the first valid HEARTBEAT's sender, unless
+        ``peer`` pins it. Raises :class:`LinkError` (e.g. port in use)."""
+        sock = _bound_socket(bind, "listen address")
+        pinned = _resolve(peer, "peer address") if peer is not None else None
+        return cls(sock, src_system=src_system, src_component=src_component, peer=pinned, **kw)
+
+    @classmethod
+    def connect(cls, peer: Address, *, src_system: int, src_component: int,
+                bind: Address | None = None, **kw: Any) -> Link:
+        """Talk to the fixed ``peer``, from ``bind`` (default: an ephemeral port on
+        127.0.0.1 for a loopback peer, else on all interfaces)."""
+        resolved = _resolve(peer, "peer address")
+        if bind is None:
+            bind = ("127.0.0.1" if resolved[0].startswith("127.") else "0.0.0.0", 0)
+        sock = _bound_socket(bind, "bind address")
+        return cls(sock, src_system=src_system, src_component=src_component, peer=resolved,
+                   **kw)
+
+    @property
+    def local_address(self) -> Address:
+        host, port = self._sock.getsockname()[:2]
+        return host, port
+
+    def fileno(self) -> int:
+        return self._sock.fileno()
+
+    def close(self) -> None:
+        self._sock.close()
+
+    def __enter__(self) -> Link:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ sending
+    def send(self, msg: Any) -> int:
+        """Pack ``msg`` (MAVLink 2, next sequence number) and send it to the peer.
+
+        Returns the bytes sent; 0 (counted) if no peer is known yet or the OS refused.
+        """
+        packer = self.packer
+        raw = msg.pack(packer)
+        packer.seq = (packer.seq + 1) & 0xFF
+        return self._sendto(raw, msg)
+
+    def send_raw(self, raw: bytes) -> int:
+        """Send bytes exactly as given (tests, replays). Returns the bytes sent, 0 if not."""
+        return self._sendto(bytes(raw), None)
+
+    def _sendto(self, raw: bytes, msg: Any) -> int:
+        st = self.stats
+        if self.peer is None:
+            st.unsent_no_peer += 1
+            return 0
+        try:
+            n = self._sock.sendto(raw, self.peer)
+        except OSError:
+            st.send_errors += 1
+            return 0
+        st.tx_frames += 1
+        st.tx_bytes += n
+        if self.on_frame is not None:
+            self.on_frame("tx", raw, msg, self.clock())
+        return n
+
+    # ------------------------------------------------------------------ receiving
+    def recv(self, timeout_s: float = 0.0) -> list[Any]:
+        """Accepted messages from datagrams that arrive within ``timeout_s`` (0 = poll).
+
+        Waits at most ``timeout_s`` for the first datagram, then drains whatever else is
+        already queued (up to ``max_datagrams_per_recv``) without waiting. May return an
+        empty list even before the timeout if only rejected traffic arrived.
+        """
+        out: list[Any] = []
+        sock = self._sock
+        try:
+            data, addr = sock.recvfrom(_MAX_DATAGRAM)
+        except BlockingIOError:
+            if timeout_s <= 0.0 or not self._poll.poll(max(1, math.ceil(timeout_s * 1000.0))):
+                return out
+            try:
+                data, addr = sock.recvfrom(_MAX_DATAGRAM)
+            except BlockingIOError:
+                return out
+            except OSError:
+                self.stats.recv_errors += 1
+                return out
+        except OSError:
+            self.stats.recv_errors += 1
+            return out
+        for _ in range(self.max_datagrams_per_recv):
+            self._ingest(data, addr, out)
+            try:
+                data, addr = sock.recvfrom(_MAX_DATAGRAM)
+            except BlockingIOError:
+                break
+            except OSError:
+                self.stats.recv_errors += 1
+                break
+        return out
+
+    def _reject(self, reason: str, raw: bytes) -> None:
+        setattr(self.stats, reason, getattr(self.stats, reason) + 1)
+        if self.on_frame is not None:
+            self.on_frame("rx", raw, None, self.clock())
+
+    def _ingest(self, data: bytes, addr: Any, out: list[Any]) -> None:
+        """Split one datagram into frames; append accepted messages to ``out``."""
+        st = self.stats
+        st.rx_datagrams += 1
+        n = len(data)
+        st.rx_bytes += n
+        peer = self.peer
+        addr = (addr[0], addr[1])
+        if peer is not None and addr != peer:
+            self._reject("foreign", data)
+            return
+        i = 0
+        while i < n:
+            magic = data[i]
+            if magic != MAGIC_V2:
+                # Cannot resynchronise inside a datagram: reject the rest of it.
+                self._reject("mavlink1" if magic == MAGIC_V1 else "garbage", data[i:])
+                return
+            if n - i < _MIN_FRAME_V2:
+                self._reject("truncated", data[i:])
+                return
+            incompat = data[i + 2]
+            if incompat & ~_IFLAG_SIGNED:
+                self._reject("bad_flags", data[i:])
+                return
+            end = i + _MIN_FRAME_V2 + data[i + 1] + (_SIGNATURE_LEN if incompat else 0)
+            if end > n:
+                self._reject("truncated", data[i:])
+                return
+            raw = data[i:end]
+            i = end
+            msg = self._decode_frame(raw)
+            if msg is None:
+                continue
+            sysid = msg.get_srcSystem()
+            if self.peer is None:
+                if msg.get_msgId() != _HEARTBEAT_ID or (
+                        self.peer_sysid is not None and sysid != self.peer_sysid):
+                    self._reject("no_peer", raw)
+                    continue
+                self.peer = peer = addr
+            if self.peer_sysid is None:
+                if msg.get_msgId() == _HEARTBEAT_ID:
+                    self.peer_sysid = sysid
+            elif sysid != self.peer_sysid:
+                self._reject("wrong_sysid", raw)
+                continue
+            st.rx_frames += 1
+            if self.on_frame is not None:
+                self.on_frame("rx", raw, msg, self.clock())
+            out.append(msg)
+
+    def _decode_frame(self, raw: bytes) -> Any:
+        """Decode one complete MAVLink 2 frame, or count why not and return None.
+
+        Signing seam: signature verification belongs here (verify, then advance).
+        """
+        try:
+            msg = self._decode(bytearray(raw))
+        except mav.MAVError as exc:
+            text = exc.message
+            reason = ("bad_crc" if "CRC" in text
+                      else "bad_signature" if "signature" in text else "malformed")
+            self._reject(reason, raw)
+            return None
+        except Exception:  # struct/ctor errors on hostile payloads must not escape
+            self._reject("malformed", raw)
+            return None
+        if isinstance(msg, mav.MAVLink_unknown):
+            self._reject("unknown_id", raw)
+            return None
+        return msg
+
+
+def _bound_socket(bind: Address, field: str) -> socket.socket:
+    host, port = _resolve(bind, field)
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        sock.bind((host, port))
+    except OSError as exc:
+        sock.close()
+        hint = ("another process is using it: stop it or pick another port"
+                if exc.errno == errno.EADDRINUSE else "check the address")
+        raise LinkError(f"cannot bind UDP {host}:{port} ({field}): {exc.strerror}; "
+                        f"{hint}") from None
+    return sock

@@ -1,0 +1,157 @@
+"""``tfl-mav fly``: run the offboard controller daemon against a vehicle (:mod:`tfl_mav.daemon`).
+
+SIGINT/SIGTERM stop the loop cleanly and finish the MCAP file. Exit codes: 0 the run
+ended (duration reached or the vehicle powered off), 1 the vehicle crashed, 2 usage or
+scenario error, 3 link or file error, 130/143 interrupted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import signal
+import sys
+from typing import Any
+
+from sitl.cli import apply_settings
+from tfl_mav.daemon import Daemon
+from tfl_mav.mavlink.link import LinkError, parse_address
+from tfl_mav.scenario import ScenarioError, load_scenario
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "fly", help="run the TFL controller daemon against a vehicle over MAVLink",
+        description="Fly SCENARIO's path with the TFL law as an offboard MAVLink controller: "
+                    "ODOMETRY + ESC_TELEMETRY_1_TO_4 in, HIL_ACTUATOR_CONTROLS out. The "
+                    "attack is found from ESC rpm; nobody tells the controller.",
+        epilog="exit codes: 0 run over, 1 vehicle crashed, 2 usage/scenario error, "
+               "3 link/file error, 130/143 interrupted (after a clean shutdown)")
+    p.add_argument("scenario", nargs="?", default="paper",
+                   help="built-in scenario name or .toml path (default: paper); must match "
+                        "the vehicle's")
+    p.add_argument("--vehicle", default="127.0.0.1:14540", metavar="HOST:PORT",
+                   help="the vehicle's control port (default 127.0.0.1:14540)")
+    p.add_argument("--bind", metavar="HOST:PORT", help="local address (default: ephemeral)")
+    p.add_argument("--mcap", metavar="FILE", help="record every frame and the controller's "
+                                                  "state to this MCAP file")
+    p.add_argument("--realtime", action="store_true",
+                   help="the vehicle runs in real time (commands not flagged lockstep)")
+    p.add_argument("--duration", type=float, metavar="S",
+                   help="sim seconds to fly (default: the scenario's run.duration_s)")
+    p.add_argument("--state-timeout", type=float, default=0.5, metavar="S",
+                   help="wall seconds without vehicle state before FAILSAFE (default 0.5)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="settings",
+                   help="override a scenario key (TOML value), repeatable")
+    p.add_argument("--summary-json", metavar="FILE", help="write the run summary as JSON")
+    p.add_argument("--quiet", action="store_true", help="no event lines on stderr")
+    p.add_argument("--progress", action="store_true",
+                   help="print 'progress T DURATION DISTANCE' on stderr every sim second "
+                        "(machine-readable; tfl-mav demo draws its progress bar from it)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    prog = "tfl-mav fly"
+    try:
+        scenario = apply_settings(load_scenario(args.scenario), args.settings)
+        vehicle = parse_address(args.vehicle, "--vehicle")
+        bind = parse_address(args.bind, "--bind") if args.bind else None
+    except (ScenarioError, ValueError, LinkError) as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        return 2
+    recorder = None
+    if args.mcap:
+        from tfl_mav.control.paths import PathError
+        from tfl_mav.controller_factory import scenario_path
+        from tfl_mav.mavlink.recorder import Recorder, RecorderError
+
+        try:
+            recorder = Recorder(args.mcap, thrust_max_n=scenario.vehicle.thrust_max_n,
+                                arm_m=scenario.vehicle.arm_m)
+            recorder.metadata("scenario", {"name": scenario.name, "role": "controller",
+                                           "toml": json.dumps(scenario.to_dict())})
+            recorder.path(scenario_path(scenario).sample(800))
+        except (RecorderError, PathError, ScenarioError) as exc:
+            print(f"{prog}: {exc}", file=sys.stderr)
+            return 3
+
+    def on_event(level: str, text: str, t: float) -> None:
+        if not args.quiet:
+            print(f"fly [t={t:8.3f} s] {level.upper()}: {text}", file=sys.stderr, flush=True)
+        if recorder is not None:
+            recorder.log(level if level != "critical" else "error", text, t)
+
+    duration = args.duration if args.duration is not None else scenario.run.duration_s
+    next_progress = [0.0]
+
+    def on_tick(t: float, state: dict[str, Any]) -> None:
+        if recorder is not None:
+            recorder.controller(t, state)
+        if args.progress and t >= next_progress[0]:
+            next_progress[0] = t + 1.0
+            print(f"progress {t:.3f} {duration:.3f} {state['path_distance_m']:.3e}",
+                  file=sys.stderr, flush=True)
+
+    try:
+        daemon = Daemon(scenario, vehicle=vehicle, bind=bind, realtime=args.realtime,
+                        state_timeout_s=args.state_timeout,
+                        on_frame=recorder.on_frame if recorder else None,
+                        on_tick=on_tick, on_event=on_event)
+    except (LinkError, ValueError) as exc:
+        print(f"{prog}: {exc}", file=sys.stderr)
+        if recorder is not None:
+            recorder.close()
+        return 3
+    got: dict[str, int] = {}
+
+    def on_signal(signum: int, _frame: Any) -> None:
+        got["signal"] = signum
+        daemon.stop()
+
+    previous = {s: signal.signal(s, on_signal) for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        if not args.quiet:
+            print(f"{prog}: controlling {vehicle[0]}:{vehicle[1]} from "
+                  f"{daemon.link.local_address[1]}, scenario {scenario.name!r}",
+                  file=sys.stderr, flush=True)
+        result = daemon.run(duration)
+    finally:
+        for s, h in previous.items():
+            signal.signal(s, h)
+        daemon.close()
+        if recorder is not None:
+            recorder.close()
+    summary = result.as_dict()
+    if args.summary_json:
+        with open(args.summary_json, "w") as fh:
+            json.dump(_clean(summary), fh, indent=2)
+    if not args.quiet:
+        det = (f"rotor {result.detected_rotor} at {result.detection_time_s:.3f} s"
+               if result.detected_rotor else "no attack detected")
+        dist = result.final_path_distance_m
+        print(f"{prog}: {result.reason} at t={result.sim_time_s:.3f} s; {det}; final path "
+              f"distance {dist:.2e} m; {result.stats.ticks} ticks, "
+              f"{result.stats.failsafes} failsafes, rejected "
+              f"{sum(v for k, v in result.stats.link.items() if k not in _OK_COUNTERS)}",
+              file=sys.stderr)
+    if "signal" in got:
+        return 128 + got["signal"]
+    return 1 if "crashed" in result.reason else 0
+
+
+_OK_COUNTERS = {"rx_datagrams", "rx_bytes", "rx_frames", "tx_frames", "tx_bytes"}
+
+
+def _clean(obj: Any) -> Any:
+    """JSON-safe copy: non-finite floats become null (JSON has no NaN)."""
+    if isinstance(obj, float):
+        return obj if math.isfinite(obj) else None
+    if isinstance(obj, dict):
+        return {k: _clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_clean(v) for v in obj]
+    return obj

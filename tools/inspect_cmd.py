@@ -1,0 +1,261 @@
+"""``tfl-mav inspect RUN.mcap``: what is in a flight log, and how the flight went.
+
+Channels with schema names, message counts, rates and time spans (log time = receipt
+clock, sim time = ``publish_time``), then a flight summary recomputed from the log alone:
+
+* path distance (m) from ``/sim/truth/state`` positions and the ``/scene/path`` polyline
+  (or ``/controller/state.path_distance_m`` when there is no ground truth);
+* the attack from ``/sim/truth/attack``; detection from ``/controller/state.detected_rotor``
+  (first non-zero value: time, latency after the attack, rotor, early alarms);
+* saturation: ``/controller/state.saturated`` if recorded, else the fraction of
+  HIL_ACTUATOR_CONTROLS whose rotor commands ``controls[0..3]`` sit at 0 or 1.
+
+Works on damaged files (reads up to the damage and says so); ``--recover OUT`` rewrites
+what is readable as a valid file.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+from collections import defaultdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tfl_mav.mavlink.logread import LogReader, recover
+from tfl_mav.mavlink.polyline import Polyline
+
+__all__ = ["add_parser", "inspect_log", "run"]
+
+_SUMMARY_TOPICS = {"/sim/truth/state", "/sim/truth/attack", "/sim/truth/thrusts",
+                   "/controller/state", "/scene/path"}
+_LAST_WINDOW_S = 10.0
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "inspect", help="channels, counts, rates and a flight summary of an MCAP log",
+        description="Show the channels of a recorded MCAP file (schema, count, rate, time "
+                    "span) and a flight summary recomputed from the log alone. Reads damaged "
+                    "files up to the damage.")
+    p.add_argument("mcap", help="recorded .mcap file")
+    p.add_argument("--json", action="store_true", help="print one JSON object")
+    p.add_argument("--recover", metavar="OUT",
+                   help="rewrite everything readable as a valid MCAP file OUT")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        if args.recover:
+            n, err = recover(args.mcap, args.recover)
+            msg = f"recovered {n} messages into {args.recover}"
+            msg += f" (input ends early: {err})" if err else " (input was complete)"
+            print(msg, file=sys.stderr if args.json else sys.stdout)
+        report = inspect_log(args.mcap)
+    except ValueError as exc:
+        print(f"tfl-mav inspect: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        print(f"tfl-mav inspect: {exc}", file=sys.stderr)
+        return 3
+    if args.json:
+        print(json.dumps(report, indent=2))
+    else:
+        print(_format(report))
+    return 0
+
+
+# ------------------------------------------------------------------ reading
+class _Channel:
+    __slots__ = ("count", "first_log", "first_pub", "last_log", "last_pub", "schema")
+
+    def __init__(self, schema: str) -> None:
+        self.schema = schema
+        self.count = 0
+        self.first_log = self.last_log = self.first_pub = self.last_pub = 0
+
+
+def inspect_log(path: str | Path) -> dict[str, Any]:
+    """The ``inspect --json`` report of ``path`` (see the module docstring)."""
+    reader = LogReader(path)
+    chans: dict[str, _Channel] = {}
+    series: dict[str, list[Any]] = defaultdict(list)
+    frames = {"rx": 0, "tx": 0, "rx_rejected": 0}
+    sat_hil = [0, 0]
+    path_points: list[list[float]] | None = None
+    for m in reader.messages():
+        c = chans.get(m.topic)
+        if c is None:
+            c = chans[m.topic] = _Channel(m.schema_name)
+            c.first_log, c.first_pub = m.log_time_ns, m.publish_time_ns
+        c.count += 1
+        c.last_log, c.last_pub = m.log_time_ns, m.publish_time_ns
+        if m.topic == "/mavlink/raw":
+            f = m.json()
+            frames[f["direction"]] += 1
+            frames["rx_rejected"] += f["direction"] == "rx" and not f["accepted"]
+        elif m.topic.endswith("/HIL_ACTUATOR_CONTROLS"):
+            controls = m.json()["controls"][:4]
+            sat_hil[0] += 1
+            sat_hil[1] += any(u is not None and (u <= 0.0 or u >= 1.0) for u in controls)
+        elif m.topic == "/scene/path":
+            ents = m.json()["entities"]
+            if ents and ents[0]["lines"]:
+                path_points = [[p["x"], p["y"], p["z"]] for p in ents[0]["lines"][0]["points"]]
+        elif m.topic in _SUMMARY_TOPICS:
+            series[m.topic].append(m.json())
+    log_first = min((c.first_log for c in chans.values()), default=0)
+    log_last = max((c.last_log for c in chans.values()), default=0)
+    pub_first = min((c.first_pub for c in chans.values()), default=0)
+    pub_last = max((c.last_pub for c in chans.values()), default=0)
+    report: dict[str, Any] = {
+        "file": str(path),
+        "complete": reader.complete,
+        "read_error": reader.error,
+        "messages": sum(c.count for c in chans.values()),
+        "log_time_span_s": (log_last - log_first) * 1e-9,
+        "sim_time_span_s": (pub_last - pub_first) * 1e-9,
+        "frames": frames,
+        "channels": {topic: _channel_report(c) for topic, c in sorted(chans.items())},
+        "metadata": {md.name: md.metadata for md in reader.metadata},
+    }
+    report["flight"] = _flight_summary(series, path_points, sat_hil)
+    return report
+
+
+def _channel_report(c: _Channel) -> dict[str, Any]:
+    log_span = (c.last_log - c.first_log) * 1e-9
+    pub_span = (c.last_pub - c.first_pub) * 1e-9
+    return {
+        "schema": c.schema,
+        "count": c.count,
+        "rate_hz": round((c.count - 1) / log_span, 3) if log_span > 0 else None,
+        "sim_rate_hz": round((c.count - 1) / pub_span, 3) if pub_span > 0 else None,
+        "log_time_span_s": log_span,
+        "sim_time_first_s": c.first_pub * 1e-9,
+        "sim_time_last_s": c.last_pub * 1e-9,
+    }
+
+
+# ------------------------------------------------------------------ flight summary
+def _f(x: float) -> float | None:
+    return float(x) if x is not None and math.isfinite(x) else None
+
+
+def _distance_stats(t: np.ndarray, d: np.ndarray, source: str) -> dict[str, Any]:
+    ok = np.isfinite(d)
+    t, d = t[ok], d[ok]
+    if len(d) == 0:
+        return {"path_distance_source": source}
+    last = t >= t[-1] - _LAST_WINDOW_S
+    return {
+        "path_distance_source": source,
+        "final_path_distance_m": _f(d[-1]),
+        "max_path_distance_m": _f(np.max(d)),
+        "mean_path_distance_m": _f(np.mean(d)),
+        "max_path_distance_last_10s_m": _f(np.max(d[last])),
+        "rms_path_distance_last_10s_m": _f(math.sqrt(float(np.mean(d[last] ** 2)))),
+    }
+
+
+def _flight_summary(series: dict[str, list[Any]], path_points: list[list[float]] | None,
+                    sat_hil: list[int]) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    state = series.get("/sim/truth/state", [])
+    ctl = series.get("/controller/state", [])
+    if state:
+        out["sim_time_s"] = state[-1]["t_s"]
+    elif ctl:
+        out["sim_time_s"] = ctl[-1]["t_s"]
+    # path distance
+    if state and path_points is not None and len(path_points) >= 2:
+        pos = np.array([[np.nan if v is None else v for v in s["position_m"]] for s in state])
+        t = np.array([s["t_s"] for s in state])
+        ok = np.all(np.isfinite(pos), axis=1)
+        d = np.full(len(pos), np.nan)
+        d[ok] = Polyline(path_points).distances(pos[ok])
+        out.update(_distance_stats(t, d, "truth position vs /scene/path"))
+    elif ctl and any("path_distance_m" in c for c in ctl):
+        rows = [c for c in ctl if "path_distance_m" in c]
+        t = np.array([c["t_s"] for c in rows])
+        d = np.array([np.nan if c["path_distance_m"] is None else c["path_distance_m"]
+                      for c in rows], dtype=float)
+        out.update(_distance_stats(t, d, "/controller/state.path_distance_m"))
+    # attack (truth)
+    attack = series.get("/sim/truth/attack", [])
+    start = next((a for a in attack if a["active"]), None)
+    out["attack_rotor"] = start["rotor"] if start else 0
+    out["attack_start_s"] = start["t_s"] if start else None
+    applied = [a["applied_n"] for a in attack if a["active"] and a["applied_n"] is not None]
+    out["attack_max_n"] = max(applied) if applied else None
+    thrusts = series.get("/sim/truth/thrusts", [])
+    values = [f for s in thrusts for f in s["thrust_n"] if f is not None]
+    out["thrust_true_min_n"] = min(values) if values else None
+    out["thrust_true_max_n"] = max(values) if values else None
+    # detection (controller)
+    out.update(_detection(ctl, out["attack_start_s"], out["attack_rotor"]))
+    # saturation
+    if any("saturated" in c for c in ctl):
+        flags = [bool(c["saturated"]) for c in ctl if "saturated" in c]
+        out["saturated_fraction"] = sum(flags) / len(flags)
+        out["saturation_source"] = "/controller/state.saturated"
+    elif sat_hil[0]:
+        out["saturated_fraction"] = sat_hil[1] / sat_hil[0]
+        out["saturation_source"] = "HIL_ACTUATOR_CONTROLS controls[0..3] at 0 or 1"
+    else:
+        out["saturated_fraction"] = None
+        out["saturation_source"] = None
+    return out
+
+
+def _detection(ctl: list[dict[str, Any]], attack_start_s: float | None,
+               attack_rotor: int) -> dict[str, Any]:
+    rows = [(c["t_s"], c.get("detected_rotor") or 0) for c in ctl if "detected_rotor" in c]
+    if not rows:
+        return {"detected_rotor": None, "detection_time_s": None, "detection_latency_s": None,
+                "false_alarms": None}
+    # alarms = rising edges of detected_rotor (0 → non-zero)
+    alarms = [(t, r) for (t, r), (_, prev) in zip(rows, [(0.0, 0), *rows[:-1]], strict=True)
+              if r and not prev]
+    early = [a for a in alarms if attack_start_s is None or a[0] < attack_start_s]
+    late = [a for a in alarms if attack_start_s is not None and a[0] >= attack_start_s]
+    first = late[0] if late else None
+    return {
+        "detected_rotor": first[1] if first else 0,
+        "detection_time_s": first[0] if first else None,
+        "detection_latency_s": first[0] - attack_start_s if first and attack_start_s is not None
+        else None,
+        "detection_correct": bool(first and first[1] == attack_rotor) if attack_rotor else None,
+        "false_alarms": len(early),
+    }
+
+
+# ------------------------------------------------------------------ text output
+def _num(x: Any, fmt: str = ".3f") -> str:
+    return "-" if x is None else format(x, fmt) if isinstance(x, float) else str(x)
+
+
+def _format(r: dict[str, Any]) -> str:
+    lines = [f"{r['file']}: {r['messages']} messages, log time {r['log_time_span_s']:.3f} s, "
+             f"sim time {r['sim_time_span_s']:.3f} s"]
+    if not r["complete"]:
+        lines.append(f"  NOT FINISHED (read up to: {r['read_error'] or 'end of file'}); "
+                     "`--recover OUT` writes a valid copy")
+    fr = r["frames"]
+    lines.append(f"  MAVLink frames: rx {fr['rx']} (rejected {fr['rx_rejected']}), "
+                 f"tx {fr['tx']}")
+    width = max((len(t) for t in r["channels"]), default=10)
+    lines.append(f"  {'channel':{width}s}  {'count':>8s}  {'Hz(log)':>9s}  {'Hz(sim)':>9s}  "
+                 "schema")
+    for topic, c in r["channels"].items():
+        lines.append(f"  {topic:{width}s}  {c['count']:8d}  {_num(c['rate_hz'], '.1f'):>9s}  "
+                     f"{_num(c['sim_rate_hz'], '.1f'):>9s}  {c['schema']}")
+    lines.append("  flight:")
+    for k, v in r["flight"].items():
+        lines.append(f"    {k:30s} {_num(v)}")
+    return "\n".join(lines)
