@@ -159,7 +159,7 @@ class VehicleStats:
     commands_denied: int = 0        # MAV_CMD_INJECT_FAILURE with bad parameters / disabled
     commands_unsupported: int = 0
     commands_not_for_us: int = 0    # addressed to another system/component: not answered
-    failures_injected: int = 0
+    failures_injected: int = 0      # accepted INJECT_FAILURE other than type 0 (OK = clear)
     statustexts_sent: int = 0
     statustexts_suppressed: int = 0  # repeats inside the per-reason rate limit
     control_link: LinkStats = field(default_factory=LinkStats)
@@ -369,11 +369,16 @@ class Vehicle:
             # Wait first: the reply is at least one round trip away, and select() returns
             # at once if it is already queued.
             self._wait(min(_WAIT_SLICE_S, deadline - time.monotonic()))
+            awaited = time_usec
             for msg in ctl.recv(0.0):
-                if self._dispatch(ctl, msg, time_usec) is not None:
-                    return True
+                # Handle the whole batch (a command may follow the reply); once the reply
+                # is consumed, a duplicate for the same tick is stale (-1 matches nothing).
+                if self._dispatch(ctl, msg, awaited) is not None:
+                    awaited = -1
             if self.gcs_link is not None:
                 self._drain_gcs()
+            if awaited == -1:
+                return True
             if self._stopped():
                 return False
             now = time.monotonic()
@@ -571,8 +576,12 @@ class Vehicle:
             return
         self._last_inject = key
         stats.commands_accepted += 1
-        stats.failures_injected += 1
         self._ack(link, msg, mav.MAV_RESULT_ACCEPTED)
+        if failure_type == 0:
+            self._status(mav.MAV_SEVERITY_NOTICE,
+                         f"failure cleared: rotor {rotor} at t = {self.sim.time_s:.3f} s")
+            return
+        stats.failures_injected += 1
         self._status(mav.MAV_SEVERITY_WARNING,
                      f"failure injected: rotor {rotor} {FAILURE_TYPES[failure_type].upper()} "
                      f"at t = {self.sim.time_s:.3f} s")

@@ -83,6 +83,7 @@ class Pilot:
         self.statustexts: list[str] = []
         self.acks: list = []
         self.heartbeats: list = []
+        self._chunks: dict[int, list[str]] = {}
 
     def hello(self) -> None:
         self.link.send(mav.MAVLink_heartbeat_message(
@@ -92,13 +93,22 @@ class Pilot:
         for m in self.link.recv(timeout_s):
             kind = m.get_type()
             if kind == "STATUSTEXT":
-                self.statustexts.append(m.text)
+                self._statustext(m)
             elif kind == "COMMAND_ACK":
                 self.acks.append(m)
             elif kind == "HEARTBEAT":
                 self.heartbeats.append(m)
             else:
                 self.queue.append(m)
+
+    def _statustext(self, m) -> None:
+        """Reassemble chunked STATUSTEXT (id ≠ 0; a chunk under 50 characters ends it)."""
+        if m.id == 0:
+            self.statustexts.append(m.text)
+            return
+        self._chunks.setdefault(m.id, []).append(m.text)
+        if len(m.text) < 50:
+            self.statustexts.append("".join(self._chunks.pop(m.id)))
 
     def state(self, timeout_s: float = 3.0):
         """The next (ODOMETRY, ESC_TELEMETRY_1_TO_4) pair."""
@@ -121,11 +131,12 @@ class Pilot:
         self.link.send(mav.MAVLink_hil_actuator_controls_message(
             t, [*values] + [0.0] * (16 - len(values)), mode, 1))
 
-    def fly(self, n_ticks: int, command: Callable[[object, object], Sequence[float]]) -> list:
+    def fly(self, n_ticks: int, command: Callable[[object, object], Sequence[float]],
+            timeout_s: float = 3.0) -> list:
         """Answer ``n_ticks`` states with ``command(odom, esc)``; return the states."""
         out = []
         for _ in range(n_ticks):
-            odom, esc = self.state()
+            odom, esc = self.state(timeout_s)
             self.reply(odom, command(odom, esc))
             out.append((odom, esc))
         return out
@@ -408,7 +419,7 @@ def test_crash_ends_the_run_with_the_reason(flight_factory):
     flight, pilot = flight_factory(sc)
     # Motors off from 0.1 m: the ground is ~0.14 s away (slightly more with drag).
     with pytest.raises(AssertionError, match="no state"):
-        pilot.fly(1000, lambda o, e: [0.0] * 4)
+        pilot.fly(1000, lambda o, e: [0.0] * 4, timeout_s=0.5)
     result = flight.finish()
     assert result.status is ExitStatus.CRASHED
     assert "hit the ground" in result.reason
@@ -571,7 +582,7 @@ def test_cli_exit_codes_for_interrupt_crash_and_port_in_use():
     try:
         pilot.hello()
         with pytest.raises(AssertionError, match="no state"):
-            pilot.fly(1000, lambda o, e: [0.0] * 4)
+            pilot.fly(1000, lambda o, e: [0.0] * 4, timeout_s=0.5)
         out, err = proc.communicate(timeout=10)
     finally:
         pilot.close()
