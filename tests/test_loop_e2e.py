@@ -117,3 +117,16 @@ def test_offline_detector_mode_finds_the_rotor(rotor):
                                            "vehicle.rpm_noise_std": 10.0})
     log = fly_offline(sc, attack_info="detector")
     assert not summarize(log)["crashed"]
+
+
+def test_report_from_the_log_alone(tmp_path):
+    m = _demo(tmp_path / "run", "--duration", "2")
+    assert not m["crashed"]
+    out = subprocess.run([*CLI, "report", str(tmp_path / "run" / "run.mcap"), "--out",
+                          str(tmp_path / "png"), "--json"], capture_output=True, text=True,
+                         timeout=120)
+    assert out.returncode == 0, out.stderr
+    rep = json.loads(out.stdout)
+    assert len(rep["plots"]) >= 6
+    # The same flight summarised from the log agrees with the demo's own summary.
+    assert rep["final_path_distance_m"] == pytest.approx(m["final_path_distance_m"], rel=1e-9)

@@ -1,0 +1,69 @@
+"""``tfl-mav report RUN.mcap --out DIR``: the report PNGs of a flight, from its log alone.
+
+The scenario comes from the log's ``scenario`` metadata (written by ``tfl-mav sim --mcap``)
+unless ``--scenario`` overrides it; ``ctl.mcap`` next to the log (or ``--ctl``) adds the
+controller's commands, mode and attack estimate.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from tfl_mav.mavlink.logread import LogReader
+from tfl_mav.scenario import Scenario, ScenarioError, load_scenario, scenario_from_dict
+from tools.flightlog import summarize
+from tools.logflight import flight_log_from_mcap
+from tools.plots import write_report
+
+__all__ = ["add_parser", "run"]
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser("report", help="write the report PNGs of a recorded flight",
+                       description=__doc__.split("\n\n")[0].split(": ", 1)[1])
+    p.add_argument("log", metavar="RUN.mcap", help="the vehicle's log (tfl-mav sim --mcap)")
+    p.add_argument("--out", required=True, metavar="DIR", help="where to write the PNGs")
+    p.add_argument("--ctl", metavar="CTL.mcap",
+                   help="the controller's log (default: ctl.mcap next to RUN.mcap, if any)")
+    p.add_argument("--scenario", help="scenario name or file (default: from the log)")
+    p.add_argument("--json", action="store_true", help="print the flight summary as JSON")
+    p.set_defaults(func=run)
+
+
+def _scenario_from_log(path: Path) -> Scenario:
+    reader = LogReader(path)
+    for _ in reader.records():   # metadata is written first: this stops early
+        for meta in reader.metadata:
+            if meta.name == "scenario" and "scenario_json" in meta.metadata:
+                data = json.loads(meta.metadata["scenario_json"])
+                data.pop("source", None)
+                return scenario_from_dict(data, source=f"{path} (metadata)")
+    raise ScenarioError("scenario", f"{path} has no scenario metadata: pass --scenario NAME")
+
+
+def run(args: argparse.Namespace) -> int:
+    log_path = Path(args.log)
+    if not log_path.exists():
+        print(f"tfl-mav report: {log_path}: no such file", file=sys.stderr)
+        return 3
+    try:
+        sc = load_scenario(args.scenario) if args.scenario else _scenario_from_log(log_path)
+    except (ScenarioError, OSError, ValueError) as exc:
+        print(f"tfl-mav report: {exc}", file=sys.stderr)
+        return 2
+    ctl = Path(args.ctl) if args.ctl else log_path.with_name("ctl.mcap")
+    log = flight_log_from_mcap(log_path, sc, ctl if ctl.exists() else None)
+    if len(log["t_s"]) == 0:
+        print(f"tfl-mav report: {log_path} has no /sim/truth data to plot", file=sys.stderr)
+        return 1
+    files = write_report(log, Path(args.out), title=sc.name)
+    m = summarize(log)
+    if args.json:
+        print(json.dumps({**m, "plots": [str(f) for f in files]}, indent=2))
+    else:
+        print(f"tfl-mav report: {len(files)} figures in {args.out}/ "
+              f"({m['sim_time_s']:.1f} s of flight)")
+    return 0
