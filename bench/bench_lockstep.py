@@ -1,0 +1,247 @@
+"""Lockstep speed of the simulated vehicle, against the bare ping-pong ceiling.
+
+Measures, on this machine:
+
+1. physics: µs per 1 ms RK4 step (``rk4_step`` alone) and per control tick of the
+   simulator (motors + attacker + RK4 + sensors), and the cost of packing one tick's state
+   (ODOMETRY + ESC_TELEMETRY_1_TO_4) with pymavlink;
+2. lockstep: ticks/s of ``tfl-mav sim`` (a subprocess, 1 kHz physics and control) flown by a
+   bare pymavlink client (raw UDP socket, ``ardupilotmega`` dialect, hover commands), without
+   and with ``--mcap`` recording;
+3. ceiling: a bare two-process pymavlink UDP ping-pong (ODOMETRY out, HIL_ACTUATOR_CONTROLS
+   back, nothing else), and the ratio of (2) to it.
+
+Usage: ``python bench/bench_lockstep.py [--ticks N] [--json FILE]`` from the repository root.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import os
+import platform
+import re
+import socket
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))
+
+from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
+
+WARMUP_TICKS = 200
+
+
+# ---------------------------------------------------------------------------- physics
+def bench_physics(n_steps: int) -> dict[str, float]:
+    from sitl.physics import mix, rk4_step
+    from sitl.vehicle import Vehicle
+    from tfl_mav.scenario import load_scenario
+
+    sc = load_scenario("paper").replace(**{"attack.rotor": 0})
+    vehicle = Vehicle(sc, listen=("127.0.0.1", 0))
+    sim = vehicle.sim
+    hover = [sc.vehicle.mass_kg * sc.vehicle.gravity_mps2 / 4.0] * 4
+    x = list(sim.state.as_list())
+    wrench = mix(sim.params, hover)
+    t0 = time.perf_counter()
+    for _ in range(n_steps):
+        x = rk4_step(sim.params, x, wrench, 1e-3)
+    rk4_us = (time.perf_counter() - t0) / n_steps * 1e6
+
+    sim.set_command(hover)
+    t0 = time.perf_counter()
+    for _ in range(n_steps):
+        sim.step_control_period()
+    tick_us = (time.perf_counter() - t0) / n_steps * 1e6
+
+    packer = mav.MAVLink(None, 1, 1)
+    vehicle.control_link.peer = None   # build messages only; nothing is sent
+    t0 = time.perf_counter()
+    for _ in range(n_steps):
+        vehicle._publish_state()        # builds ODOMETRY + ESC (send counted as unsent)
+        a, b = vehicle._state_msgs
+        a.pack(packer)
+        b.pack(packer)
+    publish_us = (time.perf_counter() - t0) / n_steps * 1e6
+    vehicle.close()
+    return {"rk4_step_us": rk4_us, "sim_tick_us": tick_us, "state_build_pack_us": publish_us}
+
+
+# ---------------------------------------------------------------------------- clients
+def _client_socket() -> socket.socket:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(10.0)
+    return sock
+
+
+def bare_lockstep_client(address: tuple[str, int], n_ticks: int, u: float) -> dict[str, float]:
+    """Fly ``n_ticks`` hover ticks against a lockstep vehicle; raw socket + pymavlink only."""
+    sock = _client_socket()
+    mv = mav.MAVLink(None, 1, 191)
+    sock.sendto(mav.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3).pack(mv), address)
+    controls = [u] * 4 + [0.0] * 12
+    ticks = 0
+    t_start = 0.0
+    while ticks < n_ticks:
+        data = sock.recv(65535)
+        for msg in mv.parse_buffer(data) or ():
+            if msg.get_msgId() == 331:
+                reply = mav.MAVLink_hil_actuator_controls_message(msg.time_usec, controls, 128, 1)
+                sock.sendto(reply.pack(mv), address)
+                ticks += 1
+                if ticks == WARMUP_TICKS:
+                    t_start = time.perf_counter()
+    elapsed = time.perf_counter() - t_start
+    sock.close()
+    measured = n_ticks - WARMUP_TICKS
+    return {"ticks": measured, "seconds": elapsed, "ticks_per_s": measured / elapsed}
+
+
+def pingpong_server(port_file: str, n_ticks: int) -> None:
+    """The 'vehicle' half of the ping-pong: ODOMETRY out, wait for the matching reply."""
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    Path(port_file).write_text(str(sock.getsockname()[1]))
+    mv = mav.MAVLink(None, 1, 1)
+    _, peer = sock.recvfrom(65535)          # the client's hello
+    cov = [0.0] * 21
+    for k in range(n_ticks):
+        t = k * 1000
+        odom = mav.MAVLink_odometry_message(t, 1, 12, 0.3, 1.5, -0.5,
+                                            [math.sqrt(0.5), 0.0, 0.0, math.sqrt(0.5)],
+                                            0.0, 0.0, 0.0, 0.0, 0.0, 0.0, cov, cov, 0, 6, 100)
+        sock.sendto(odom.pack(mv), peer)
+        while True:
+            data = sock.recv(65535)
+            msgs = mv.parse_buffer(data) or ()
+            if any(m.get_msgId() == 93 and m.time_usec == t for m in msgs):
+                break
+    sock.close()
+
+
+def bench_pingpong(n_ticks: int) -> dict[str, float]:
+    port_file = REPO / f".bench_pingpong_{os.getpid()}.port"
+    proc = subprocess.Popen([sys.executable, __file__, "--role", "pingpong-server",
+                             "--port-file", str(port_file), "--ticks", str(n_ticks)], cwd=REPO)
+    try:
+        deadline = time.monotonic() + 20
+        while not port_file.exists() or not port_file.read_text():
+            if time.monotonic() > deadline or proc.poll() is not None:
+                raise RuntimeError("ping-pong server did not start")
+            time.sleep(0.01)
+        address = ("127.0.0.1", int(port_file.read_text()))
+        sock = _client_socket()
+        mv = mav.MAVLink(None, 1, 191)
+        sock.sendto(b"hello", address)
+        controls = [0.34] * 4 + [0.0] * 12
+        ticks = 0
+        t_start = 0.0
+        while ticks < n_ticks:
+            data = sock.recv(65535)
+            for msg in mv.parse_buffer(data) or ():
+                if msg.get_msgId() == 331:
+                    reply = mav.MAVLink_hil_actuator_controls_message(msg.time_usec, controls,
+                                                                      128, 1)
+                    sock.sendto(reply.pack(mv), address)
+                    ticks += 1
+                    if ticks == WARMUP_TICKS:
+                        t_start = time.perf_counter()
+        elapsed = time.perf_counter() - t_start
+        sock.close()
+        proc.wait(timeout=10)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        port_file.unlink(missing_ok=True)
+    measured = n_ticks - WARMUP_TICKS
+    return {"ticks": measured, "seconds": elapsed, "ticks_per_s": measured / elapsed}
+
+
+def bench_vehicle(n_ticks: int, mcap: Path | None = None) -> dict[str, float]:
+    """``tfl-mav sim`` in a subprocess (recording to ``mcap`` if given), flown in lockstep
+    by the bare client."""
+    from tfl_mav.scenario import load_scenario
+
+    sc = load_scenario("paper")
+    u = sc.vehicle.mass_kg * sc.vehicle.gravity_mps2 / 4.0 / sc.vehicle.thrust_max_n
+    duration_s = n_ticks / 1000.0
+    extra = ["--mcap", str(mcap)] if mcap is not None else []
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "tools.cli", "sim", "paper", "--listen", "127.0.0.1:0",
+         "--set", "attack.rotor=0", "--set", "initial.position_m=[0, 0, 5]",
+         "--duration", f"{duration_s:g}", *extra],
+        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        line = proc.stdout.readline()
+        match = re.search(r"listening on ([\d.]+):(\d+)", line)
+        if not match:
+            raise RuntimeError(f"sim did not start: {line}{proc.stderr.read()}")
+        result = bare_lockstep_client((match.group(1), int(match.group(2))), n_ticks, u)
+        out, _ = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    if proc.returncode != 0:
+        raise RuntimeError(f"sim exited with {proc.returncode}: {out}")
+    result["real_time_factor"] = result["ticks_per_s"] / 1000.0
+    return result
+
+
+# ---------------------------------------------------------------------------- main
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--ticks", type=int, default=20000,
+                        help="lockstep ticks per network measurement (default 20000)")
+    parser.add_argument("--json", metavar="FILE", help="also write the numbers as JSON")
+    parser.add_argument("--role", help=argparse.SUPPRESS)
+    parser.add_argument("--port-file", help=argparse.SUPPRESS)
+    args = parser.parse_args()
+    if args.role == "pingpong-server":
+        pingpong_server(args.port_file, args.ticks)
+        return 0
+    if args.ticks <= WARMUP_TICKS:
+        parser.error(f"--ticks: must be > {WARMUP_TICKS}")
+
+    physics = bench_physics(20000)
+    vehicle = bench_vehicle(args.ticks)
+    with tempfile.TemporaryDirectory() as tmp:
+        recorded = bench_vehicle(args.ticks, Path(tmp) / "run.mcap")
+        recorded["mcap_bytes"] = (Path(tmp) / "run.mcap").stat().st_size
+    pingpong = bench_pingpong(args.ticks)
+    ratio = vehicle["ticks_per_s"] / pingpong["ticks_per_s"]
+    rows = [
+        ("physics: RK4 step (1 ms, rk4_step alone)", f"{physics['rk4_step_us']:.1f} µs"),
+        ("physics: simulator control tick (motors+attacker+RK4+sensors)",
+         f"{physics['sim_tick_us']:.1f} µs"),
+        ("vehicle: build + pack ODOMETRY + ESC_TELEMETRY",
+         f"{physics['state_build_pack_us']:.1f} µs"),
+        ("lockstep: tfl-mav sim + bare pymavlink client", f"{vehicle['ticks_per_s']:.0f} ticks/s"),
+        ("lockstep: real-time factor at 1 kHz", f"{vehicle['real_time_factor']:.1f}x"),
+        ("lockstep with --mcap (recorder child process)",
+         f"{recorded['ticks_per_s']:.0f} ticks/s"),
+        ("ceiling: bare pymavlink UDP ping-pong", f"{pingpong['ticks_per_s']:.0f} ticks/s"),
+        ("ratio lockstep / ceiling", f"{ratio:.2f}"),
+    ]
+    width = max(len(name) for name, _ in rows)
+    print(f"bench_lockstep ({args.ticks} ticks, python {platform.python_version()}, "
+          f"{os.cpu_count()} cpus)")
+    for name, value in rows:
+        print(f"  {name:<{width}}  {value:>14}")
+    if args.json:
+        Path(args.json).write_text(json.dumps({
+            "ticks": args.ticks, "python": platform.python_version(), "cpus": os.cpu_count(),
+            "physics": physics, "lockstep": vehicle, "lockstep_mcap": recorded,
+            "pingpong": pingpong,
+            "ratio_lockstep_to_pingpong": ratio}, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
