@@ -9,13 +9,15 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
-import importlib
+import json
 import math
 import signal
 import sys
 import textwrap
 import threading
 import tomllib
+from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from tfl_mav.scenario import Scenario, ScenarioError, load_scenario
@@ -80,6 +82,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "word is a string); repeatable")
     p.add_argument("--mcap", metavar="FILE",
                    help="record all traffic and ground truth to an MCAP file")
+    p.add_argument("--json", metavar="FILE",
+                   help="at exit, write the outcome and every counter as JSON to FILE")
     p.add_argument("--lockstep-timeout", type=float, default=2.0, metavar="S",
                    help="lockstep: wall seconds to wait for a reply before resending the "
                         "state and reporting it (default 2)")
@@ -166,7 +170,7 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
             lockstep_timeout_s=args.lockstep_timeout, command_timeout_s=args.command_timeout,
             gcs_rate_hz=args.gcs_rate, allow_failure_injection=not args.no_failure_injection,
             on_frame=recorder.on_frame if recorder is not None else None,
-            on_truth=recorder.on_truth if recorder is not None else None,
+            on_truth=_truth_hook(recorder) if recorder is not None else None,
             on_status=on_status)
     except LinkError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
@@ -196,17 +200,32 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
     finally:
         _restore_signals(previous)
         vehicle.close()
+    rtf = result.real_time_factor
+    speed = f" ({rtf:.1f}x real time)" if math.isfinite(rtf) else ""
     print(f"{prog}: {result.status.value}: {result.reason}; {result.ticks} ticks, "
-          f"{result.sim_time_s:.3f} s sim in {result.wall_time_s:.3f} s wall "
-          f"({result.real_time_factor:.1f}x real time)", flush=True)
+          f"{result.sim_time_s:.3f} s sim in {result.wall_time_s:.3f} s wall{speed}",
+          flush=True)
     print(f"{prog}: {vehicle.stats.summary()}", flush=True)
     if result.status is ExitStatus.CRASHED:
-        return EXIT_CRASHED
-    if result.status is ExitStatus.STOPPED:
-        if received and received[-1] == signal.SIGTERM:
-            return EXIT_SIGTERM
-        return EXIT_SIGINT
-    return EXIT_OK
+        code = EXIT_CRASHED
+    elif result.status is ExitStatus.STOPPED:
+        code = EXIT_SIGTERM if received and received[-1] == signal.SIGTERM else EXIT_SIGINT
+    else:
+        code = EXIT_OK
+    if args.json:
+        report = {"status": result.status.name.lower(), "reason": result.reason,
+                  "exit_code": code, "ticks": result.ticks, "sim_time_s": result.sim_time_s,
+                  "wall_time_s": result.wall_time_s,
+                  "real_time_factor": rtf if math.isfinite(rtf) else None,
+                  "scenario": scenario.name,
+                  "mode": "realtime" if args.realtime else "lockstep",
+                  "listen": [host, port], "stats": vehicle.stats.as_dict()}
+        try:
+            Path(args.json).write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+        except OSError as exc:
+            print(f"{prog}: --json: cannot write {args.json!r}: {exc.strerror}", file=sys.stderr)
+            return EXIT_LINK
+    return code
 
 
 def _duration(value: float | None, scenario: Scenario) -> float:
@@ -219,32 +238,39 @@ def _duration(value: float | None, scenario: Scenario) -> float:
 
 
 def _open_recorder(path: str, scenario: Scenario, prog: str) -> tuple[Any, int]:
-    """The MCAP recorder, imported only when asked for.
-
-    Contract: ``tfl_mav.mavlink.recorder.Recorder(path, scenario=...)`` with
-    ``on_frame(direction, raw, msg, time_s)``, ``on_truth(sim)`` and ``close()``; raising
-    OSError if the file cannot be written. Returns (recorder, 0) or (None, exit code).
-    """
+    """The MCAP recorder (``tfl_mav.mavlink.recorder_process``), imported only when asked
+    for. It runs in a child process so recording costs the lockstep loop ~1 µs per call,
+    and it finishes the file even if this process is killed. Returns (recorder, 0) or
+    (None, exit code) after printing why."""
     try:
-        recorder_module = importlib.import_module("sitl.recording")
+        from tfl_mav.mavlink.recorder import RecorderError
+        from tfl_mav.mavlink.recorder_process import RecorderProcess
     except ModuleNotFoundError as exc:
-        if exc.name not in ("sitl.recording", "tfl_mav.mavlink.recorder"):
-            raise
-        print(f"{prog}: --mcap: the MCAP recorder (tfl_mav.mavlink.recorder) is not part of "
-              "this build", file=sys.stderr)
+        print(f"{prog}: --mcap: the MCAP recorder is not available ({exc})", file=sys.stderr)
         return None, EXIT_USAGE
-    cls = getattr(recorder_module, "SimRecorder", None)
-    missing = [name for name in ("on_frame", "on_truth", "close")
-               if cls is None or not callable(getattr(cls, name, None))]
-    if missing:
-        print(f"{prog}: --mcap: tfl_mav.mavlink.recorder.Recorder lacks "
-              f"{', '.join(missing)}", file=sys.stderr)
-        return None, EXIT_USAGE
+    v = scenario.vehicle
     try:
-        return cls(path, scenario=scenario), EXIT_OK
-    except OSError as exc:
-        print(f"{prog}: --mcap: cannot write {path!r}: {exc.strerror or exc}", file=sys.stderr)
+        recorder = RecorderProcess(path, thrust_max_n=v.thrust_max_n, arm_m=v.arm_m)
+    except RecorderError as exc:
+        print(f"{prog}: --mcap: {exc}", file=sys.stderr)
         return None, EXIT_LINK
+    # tools/report.py rebuilds the scenario from "scenario_json" (Scenario.to_dict()).
+    recorder.metadata("scenario", {"name": scenario.name, "role": "vehicle",
+                                   "scenario_json": json.dumps(scenario.to_dict())})
+    return recorder, EXIT_OK
+
+
+def _truth_hook(recorder: Any) -> Callable[[Any], None]:
+    """``Vehicle.on_truth`` → ``Recorder.truth``: true state, rotor thrusts and attack."""
+
+    def on_truth(sim: Any) -> None:
+        st = sim.state
+        att = sim.attack
+        recorder.truth(sim.time_s, st.position_m.tolist(), st.velocity_mps.tolist(),
+                       st.quaternion_wxyz.tolist(), st.body_rates_radps.tolist(),
+                       sim.rotor_thrusts_n, att.rotor, att.applied_n, att.raw_n)
+
+    return on_truth
 
 
 def _install_signals(handler: Any) -> dict[int, Any]:

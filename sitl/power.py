@@ -69,21 +69,24 @@ class PowerModel:
         update explicit; at 1 kHz the difference is far below the telemetry resolution).
         """
         v_prev = max(self._voltage_v, 1.0)
-        kq = self.torque_coeff
-        denom = self.efficiency * v_prev
-        currents = tuple((kq * w * w * abs(w)) / denom + (self.idle_current_a if w > 0.0 else 0.0)
-                         for w in omega_radps)
-        hours = dt_s / 3600.0
-        consumed = [c + 1000.0 * i * hours for c, i in zip(self._consumed_mah, currents,
-                                                             strict=True)]
-        self._consumed_mah = consumed
-        soc = max(0.0, 1.0 - sum(consumed) / self.capacity_mah)
-        v_oc = self.empty_v + (self.full_v - self.empty_v) * soc
-        self._voltage_v = max(0.0, v_oc - self.r_int_ohm * sum(currents))
+        kq_per_w = self.torque_coeff / (self.efficiency * v_prev)   # A per (rad/s)^3
+        idle = self.idle_current_a
+        mah_per_a = 1000.0 * dt_s / 3600.0
         e = math.exp(-dt_s / self.thermal_tau_s)
         amb, k = self.ambient_c, self.heating_c_per_a
-        self._temps_c = [(amb + k * i) + (t - (amb + k * i)) * e
-                         for t, i in zip(self._temps_c, currents, strict=True)]
-        self.sample = PowerSample(self._voltage_v, currents, tuple(consumed),
-                                  tuple(self._temps_c), 100.0 * soc)
+        currents: list[float] = []
+        consumed = self._consumed_mah
+        temps = self._temps_c
+        for i, w in enumerate(omega_radps):
+            current = kq_per_w * w * w * abs(w) + (idle if w > 0.0 else 0.0)
+            currents.append(current)
+            consumed[i] += current * mah_per_a
+            settle = amb + k * current
+            temps[i] = settle + (temps[i] - settle) * e
+        total_a = sum(currents)
+        soc = max(0.0, 1.0 - sum(consumed) / self.capacity_mah)
+        v_oc = self.empty_v + (self.full_v - self.empty_v) * soc
+        self._voltage_v = max(0.0, v_oc - self.r_int_ohm * total_a)
+        self.sample = PowerSample(self._voltage_v, tuple(currents), tuple(consumed),
+                                  tuple(temps), 100.0 * soc)
         return self.sample

@@ -13,9 +13,10 @@ not advance, it sends HEARTBEAT at 1 Hz to the GCS (and to a pinned ``peer``), a
 answers commands on either port. The flight starts the moment that HEARTBEAT arrives.
 
 **Lockstep (default).** Tick k: send ``ODOMETRY`` (``time_usec`` = k·T, LOCAL_NED pose,
-BODY_FRD twist) and ``ESC_TELEMETRY_1_TO_4`` (true rotor speed as the ESC measures it),
-wait for ``HIL_ACTUATOR_CONTROLS`` whose ``time_usec`` equals k·T, apply it, integrate to
-k+1. Replies for another ``time_usec`` are counted (``stale_controls``) and ignored. No reply
+BODY_FRD twist) and ``ESC_TELEMETRY_1_TO_4`` (true rotor speed as the ESC measures it) in
+one datagram, ODOMETRY first (:meth:`~tfl_mav.mavlink.link.Link.send_many`), wait for
+``HIL_ACTUATOR_CONTROLS`` whose ``time_usec`` equals k·T, apply it, integrate to k+1.
+Replies for another ``time_usec`` are counted (``stale_controls``) and ignored. No reply
 within ``lockstep_timeout_s`` (wall time) is counted (``lockstep_timeouts``), announced by
 STATUSTEXT, and the state is sent again; the tick is never skipped, so a lockstep run is
 deterministic and runs as fast as both processes allow. The control port's HEARTBEAT is
@@ -44,9 +45,11 @@ are not ours and are left unanswered (MAVLink routing).
 
 **GCS telemetry** (paced by wall clock): ``ATTITUDE``, ``LOCAL_POSITION_NED`` (both NED/FRD
 from the same measured state as ODOMETRY), ``ACTUATOR_OUTPUT_STATUS`` (``actuator[0..3]`` =
-commanded thrust / f_max) and ``SYS_STATUS`` (battery from :mod:`sitl.power`;
+commanded thrust / f_max), ``SYS_STATUS`` (battery from :mod:`sitl.power`;
 ``errors_count1..4`` = rejected controls, lockstep timeouts, command timeouts, stale
-controls) at ``gcs_rate_hz`` (≤ 50 Hz), HEARTBEAT at 1 Hz, and every STATUSTEXT.
+controls) and the latest ``ESC_TELEMETRY_1_TO_4`` (so a GCS sees the attacked rotor's rpm)
+at ``gcs_rate_hz`` (≤ 50 Hz, one datagram each time), HEARTBEAT at 1 Hz, and every
+STATUSTEXT (ASCII; longer than 50 characters → MAVLink 2 chunks with a shared ``id``).
 
 **End.** The run ends when the duration is reached (:attr:`ExitStatus.COMPLETED`), when the
 simulator reports a crash (:attr:`ExitStatus.CRASHED`: STATUSTEXT EMERGENCY with the reason,
@@ -340,6 +343,9 @@ class Vehicle:
                 next_heartbeat = now + 1.0
             self._wait(min(_WAIT_SLICE_S, max(0.0, next_heartbeat - time.monotonic())))
             self._drain(None)
+        host, port = ctl.peer or ("?", 0)
+        self._status(mav.MAV_SEVERITY_INFO, f"controller {host}:{port} (sysid "
+                                            f"{ctl.peer_sysid}) connected: flight starts")
         return True
 
     def _run_lockstep(self, n_ticks: float) -> tuple[ExitStatus, str]:
@@ -635,10 +641,9 @@ class Vehicle:
         self._resend_state()
 
     def _resend_state(self) -> None:
+        """ODOMETRY then ESC_TELEMETRY_1_TO_4, in that order, in one datagram."""
         assert self._state_msgs is not None
-        ctl = self.control_link
-        ctl.send(self._state_msgs[0])
-        ctl.send(self._state_msgs[1])
+        self.control_link.send_many(self._state_msgs)
         self.stats.states_sent += 1
 
     def _gcs_periodic(self) -> None:
@@ -652,8 +657,7 @@ class Vehicle:
         if now >= self._next_gcs_heartbeat_s:
             gcs.send(self._heartbeat())
             self._next_gcs_heartbeat_s = max(self._next_gcs_heartbeat_s + 1.0, now)
-        for msg in self._gcs_messages():
-            gcs.send(msg)
+        gcs.send_many(self._gcs_messages())
 
     def _gcs_messages(self) -> list[Any]:
         sim = self.sim
@@ -672,7 +676,7 @@ class Vehicle:
         rejected = sum(s.rejected for s in links)
         sensors_health = _SENSORS & ~(mav.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
                                       if self._motors_cut else 0)
-        return [
+        msgs = [
             mav.MAVLink_attitude_message(t_ms, roll, pitch, yaw, f.rollspeed, f.pitchspeed,
                                          f.yawspeed),
             mav.MAVLink_local_position_ned_message(t_ms, f.x, f.y, f.z, float(v_ned[0]),
@@ -688,6 +692,9 @@ class Vehicle:
                 min(65535, st.rejected_controls), min(65535, st.lockstep_timeouts),
                 min(65535, st.command_timeouts), min(65535, st.stale_controls)),
         ]
+        if self._state_msgs is not None:
+            msgs.append(self._state_msgs[1])   # this tick's ESC_TELEMETRY_1_TO_4: rpm
+        return msgs
 
     def _status(self, severity: int, text: str, *, key: str | None = None) -> None:
         """STATUSTEXT to the controller and the GCS (chunked past 50 characters).
@@ -716,7 +723,7 @@ class Vehicle:
                     link.send(msg)
 
     def _statustext_messages(self, severity: int, text: str) -> list[Any]:
-        data = text.encode("ascii", errors="replace")
+        data = text.replace("°", " deg").encode("ascii", errors="replace")
         n = _STATUSTEXT_LEN
         if len(data) <= n:
             return [mav.MAVLink_statustext_message(severity, data, 0, 0)]

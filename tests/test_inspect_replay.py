@@ -201,6 +201,14 @@ def test_replay_sends_the_recorded_bytes(flight_file, tmp_path, capsys):
     assert f"sent {len(recorded)} frames" in capsys.readouterr().out
 
 
+def test_tools_refuse_a_file_that_is_not_mcap(tmp_path, capsys):
+    junk = tmp_path / "junk.mcap"
+    junk.write_text("not an mcap file\n")
+    assert cli_main(["inspect", str(junk)]) == 3
+    assert cli_main(["replay", str(junk), "--to", "127.0.0.1:9"]) == 3
+    assert capsys.readouterr().err.count("not a readable MCAP file") == 2
+
+
 def test_replay_rejects_bad_arguments(flight_file, capsys):
     assert cli_main(["replay", str(flight_file), "--to", "localhost"]) == 2
     assert cli_main(["replay", str(flight_file), "--to", "127.0.0.1:9", "--speed", "-1"]) == 2

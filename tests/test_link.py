@@ -205,6 +205,34 @@ def test_recorder_hook_sees_exact_bytes_both_ways(raw):
         link.close()
 
 
+def test_send_many_packs_frames_into_one_datagram_in_order(raw):
+    seen = []
+    link = Link.connect(raw.sock.getsockname(), src_system=1, src_component=1,
+                        on_frame=lambda d, b, m, t: seen.append((d, bytes(b), m)))
+    try:
+        msgs = [controls(time_usec=1), heartbeat(), controls(time_usec=2)]
+        n = link.send_many(msgs)
+        raw.sock.settimeout(WAIT_S)
+        datagram = raw.sock.recvfrom(4096)[0]
+        assert n == len(datagram) == sum(len(b) for _, b, _ in seen)
+        assert b"".join(b for _, b, _ in seen) == datagram
+        assert [m for _, _, m in seen] == msgs
+        assert [b[4] for _, b, _ in seen] == [0, 1, 2]           # consecutive sequence numbers
+        assert link.stats.tx_frames == 3
+        receiver = Link.listen(LOOPBACK, src_system=2, src_component=1)
+        try:
+            raw.send(frame(heartbeat(), sysid=1), receiver.local_address)
+            raw.send(datagram, receiver.local_address)
+            got = drain(receiver, 2)
+            assert [(m.get_type(), getattr(m, "time_usec", None)) for m in got] == [
+                ("HEARTBEAT", None), ("HIL_ACTUATOR_CONTROLS", 1), ("HEARTBEAT", None),
+                ("HIL_ACTUATOR_CONTROLS", 2)]
+        finally:
+            receiver.close()
+    finally:
+        link.close()
+
+
 def test_send_before_a_peer_is_known_is_counted_not_sent(vehicle_side):
     assert vehicle_side.send(heartbeat()) == 0
     assert vehicle_side.stats.unsent_no_peer == 1

@@ -106,13 +106,9 @@ def _read_all(path: Path) -> list[tuple[str, str, dict, int, int]]:
                 for sc, ch, m in reader.iter_messages(log_time_order=False)]
 
 
-def _same(json_value, wire_value) -> bool:
-    if isinstance(wire_value, list):
-        return len(json_value) == len(wire_value) and all(
-            _same(a, b) for a, b in zip(json_value, wire_value, strict=True))
-    if isinstance(wire_value, float) and not math.isfinite(wire_value):
-        return json_value is None
-    return json_value == wire_value
+def _finite(value) -> bool:
+    values = value if isinstance(value, list) else [value]
+    return all(not isinstance(v, float) or math.isfinite(v) for v in values)
 
 
 @pytest.mark.parametrize("side", ["veh", "ctl"])
@@ -142,7 +138,7 @@ def test_raw_bytes_reparse_to_the_decoded_messages(flight, side):
     parser = new_mavlink(200, 1)
     checked = 0
     for topic, _, f, _, _ in msgs:
-        if topic != "/mavlink/raw" or f["name"] is None:   # rejected, or sent with send_raw
+        if topic != "/mavlink/raw" or "name" not in f:   # rejected, or sent with send_raw
             continue
         raw = base64.b64decode(f["data"])
         assert len(raw) == f["len"]
@@ -153,7 +149,11 @@ def test_raw_bytes_reparse_to_the_decoded_messages(flight, side):
         rec = decoded[chan][cursor[chan]]
         cursor[chan] += 1
         for name in wire.get_fieldnames():
-            assert _same(rec[name], getattr(wire, name)), (chan, name, rec[name])
+            value = getattr(wire, name)
+            if _finite(value):
+                assert rec[name] == value, (chan, name, rec[name])
+            else:   # NaN/inf: left out of the JSON and listed
+                assert name not in rec and name in rec["_nonfinite"], (chan, name)
         checked += 1
     assert checked >= 2 * TICKS if side == "veh" else checked >= TICKS
     assert all(cursor[t] == len(v) for t, v in decoded.items()), "decoded without raw"
@@ -180,6 +180,44 @@ def test_every_message_validates_against_its_channel_schema(flight, side):
     assert expected <= topics
 
 
+def _foxglove_accepts(schema: dict, where: str = "") -> None:
+    """The rules of Foxglove's JSON-schema reader (``parseJsonSchema`` in foxglove/studio
+    packages/mcap-support): an object with properties; each property has a single ``type``
+    (or a ``oneOf`` of numeric consts); strings may be base64; array items typed likewise."""
+    assert schema.get("type") == "object", f"{where}: not an object"
+    for name, field in schema["properties"].items():
+        at = f"{where}.{name}"
+        if isinstance(field.get("oneOf"), list):
+            assert all(isinstance(alt.get("const"), int) for alt in field["oneOf"]), at
+            continue
+        kind = field.get("type")
+        if kind == "string":
+            assert field.get("contentEncoding") in (None, "base64"), at
+        elif kind == "object":
+            _foxglove_accepts(field, at)
+        elif kind == "array":
+            item = field["items"]
+            if item.get("type") == "object":
+                _foxglove_accepts(item, at)
+            else:
+                assert item.get("type") in ("boolean", "string", "number", "integer"), at
+                assert "contentEncoding" not in item, at
+        else:
+            assert kind in ("boolean", "number", "integer"), f"{at}: type {kind!r}"
+
+
+def test_every_schema_is_one_foxglove_can_read(flight):
+    from tfl_mav.mavlink import schemas
+
+    seen = {sc for path in flight[:2] for _, sc, *_ in _read_all(path)}
+    everything = [json.loads(sc) for sc in seen] + list(schemas.FOXGLOVE_SCHEMAS.values()) + [
+        schemas.RAW_FRAME, schemas.TRUTH_STATE, schemas.TRUTH_ATTACK, schemas.TRUTH_THRUSTS,
+        schemas.PATH_DISTANCE, schemas.CONTROLLER_STATE] + [
+        schemas.mavlink_schema(i) for i in mav.mavlink_map]
+    for sc in everything:
+        _foxglove_accepts(sc, sc["title"])
+
+
 def test_times_and_foxglove_content(flight):
     veh_file, _, _, _, t_start, t_end = flight
     msgs = _read_all(veh_file)
@@ -187,12 +225,14 @@ def test_times_and_foxglove_content(flight):
         assert t_start - 1e-3 <= log_ns * 1e-9 <= t_end + 1e-3, topic
         if topic == "/mavlink/1/1/ODOMETRY":
             assert pub_ns == m["time_usec"] * 1000          # sim time from the frame itself
-            assert m["pose_covariance"][0] is None          # NaN → null
+            assert m["_nonfinite"] == ["pose_covariance", "velocity_covariance"]
             assert m["vx"] == pytest.approx(0.1, abs=1e-8) and m["vx"] != 0.1  # float32 wire
         if topic == "/sim/truth/state":
             assert pub_ns == round(m["t_s"] * 1e9)
     attack = [m for t, _, m, _, _ in msgs if t == "/sim/truth/attack"]
-    assert [a["requested_n"] for a in attack if a["t_s"] == pytest.approx(0.06)] == [None]
+    at_60 = [a for a in attack if a["t_s"] == pytest.approx(0.06)]
+    assert len(at_60) == 1 and "requested_n" not in at_60[0]
+    assert at_60[0]["_nonfinite"] == ["requested_n"] and at_60[0]["applied_n"] == 1.5
     logs = [m["message"] for t, _, m, _, _ in msgs if t == "/log"]
     assert any("attack \ufffd on rotor 2" in text for text in logs)
     scenes = [m for t, _, m, _, _ in msgs if t == "/scene/vehicle"]
@@ -217,13 +257,20 @@ def test_path_distance_channel_is_distance_to_the_polyline(flight):
         assert d["distance_m"] == pytest.approx(exact, abs=2e-3)
 
 
+def schemas_bytes(name: str) -> bytes:
+    from tfl_mav.mavlink import schemas
+
+    return schemas.schema_bytes(getattr(schemas, name))
+
+
 CHILD = r"""
 import json, sys, time
 sys.path.insert(0, {repo!r})
 from tfl_mav.mavlink.dialect import mav
 from tfl_mav.mavlink.link import Link
 from tfl_mav.mavlink.recorder import Recorder
-rec = Recorder({path!r}, flush_interval_s={interval})
+from tfl_mav.mavlink.recorder_process import RecorderProcess
+rec = {cls}({path!r}, flush_interval_s={interval})
 with Link.listen(("127.0.0.1", 0), src_system=1, src_component=1) as a, \
         Link.connect(a.local_address, src_system=2, src_component=1) as b:
     rec.attach(a)
@@ -243,9 +290,10 @@ print(json.dumps({{"error": rec.error, "stats": rec.stats.as_dict(), "ticks": k}
 """
 
 
-def _start_child(path: Path, *, interval: float, duration: float,
-                 preexec=None) -> subprocess.Popen:
-    code = CHILD.format(repo=str(REPO), path=str(path), interval=interval, duration=duration)
+def _start_child(path: Path, *, interval: float, duration: float, preexec=None,
+                 cls: str = "Recorder") -> subprocess.Popen:
+    code = CHILD.format(repo=str(REPO), path=str(path), interval=interval, duration=duration,
+                        cls=cls)
     return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, cwd=REPO, preexec_fn=preexec)
 
@@ -327,9 +375,27 @@ def test_bad_input_is_counted_never_raised(tmp_path):
             rec.path([[0.0, 0.0, NAN], [1.0, 1.0, 1.0]])       # setup call: raises
     msgs = _read_all(path)
     state = [m for t, _, m, _, _ in msgs if t == "/sim/truth/state"]
-    assert len(state) == 1 and state[0]["position_m"] == [None, None, None]
+    assert len(state) == 1 and "position_m" not in state[0]
+    assert state[0]["_nonfinite"] == ["position_m"]
     assert not [t for t, *_ in msgs if t == "/tf"]             # NaN pose: no scene
     assert [m["level"] for t, _, m, _, _ in msgs if t == "/log"] == [0]
+
+
+def test_controller_state_keeps_free_keys_and_leaves_out_none_and_nan(tmp_path):
+    path = tmp_path / "ctl.mcap"
+    state = {"mode": "attacked", "detected_rotor": np.int64(2), "attack_estimate_n": None,
+             "path_distance_m": np.float32(0.25), "saturated": np.bool_(False),
+             "rotor_thrust_cmd_n": np.array([2.0, 0.0, 2.5, 3.0]),
+             "xi": [[0.1, NAN], [0.0, 1.0]], "cusum": (0.0, 1.5), "reason": "ok",
+             "nested": {"a": float("inf"), "b": 1}}
+    with Recorder(path) as rec:
+        rec.controller(1.25, state)
+    (msg,) = [m for t, _, m, _, _ in _read_all(path) if t == "/controller/state"]
+    assert msg == {"mode": "attacked", "detected_rotor": 2, "path_distance_m": 0.25,
+                   "saturated": False, "rotor_thrust_cmd_n": [2.0, 0.0, 2.5, 3.0],
+                   "cusum": [0.0, 1.5], "reason": "ok", "nested": {"b": 1}, "t_s": 1.25,
+                   "_nonfinite": ["attack_estimate_n", "xi", "nested.a"]}
+    jsonschema.validate(msg, json.loads(schemas_bytes("CONTROLLER_STATE")))
 
 
 def test_background_flush_makes_quiet_data_readable_while_open(tmp_path):
@@ -345,3 +411,96 @@ def test_background_flush_makes_quiet_data_readable_while_open(tmp_path):
     assert rec.error is None
     rec.truth(1.0, [0.0] * 3, [0.0] * 3, [1, 0, 0, 0], [0] * 3, [1] * 4, 0, 0.0, 0.0)
     assert rec.stats.dropped == 5        # after close: state, attack, thrusts, tf, scene
+
+
+# ---------------------------------------------------------------- RecorderProcess
+class _StepClock:
+    """A deterministic clock: 1 ms per reading."""
+
+    def __init__(self) -> None:
+        self.t = 1_000.0
+
+    def __call__(self) -> float:
+        self.t += 1e-3
+        return self.t
+
+
+def _feed(rec) -> None:
+    """The same calls, in the same order, for an in-process and a child-process recorder."""
+    packer = new_mavlink(1, 1)
+    rec.path([[0.0, 0.0, 1.0], [1.0, 0.0, 1.0], [2.0, 1.0, 1.0]])
+    for k in range(300):
+        for msg in (_odometry(k), _esc(k)):
+            raw = bytes(msg.pack(packer))
+            packer.seq = (packer.seq + 1) & 0xFF
+            rec.on_frame("tx", raw, msg, rec.clock())
+        rec.on_frame("rx", b"\x00junk", None, rec.clock())
+        rec.truth(k * 1e-3, np.array([0.01 * k, 0.5, 1.0]), [0.0] * 3, [1.0, 0.0, 0.0, 0.0],
+                  [0.0] * 3, np.array([2.0, 2.1, 2.2, 2.3]), 1, 2.0, NAN)
+        rec.controller(k * 1e-3, {"mode": "nominal", "xi": np.arange(3.0), "e": NAN})
+    rec.log("info", "done", 0.3)
+    rec.metadata("scenario", {"name": "test"})
+    rec.truth(0.0, [1.0], [0.0] * 3, [1, 0, 0, 0], [0] * 3, [1] * 4, 0, 0.0, 0.0)  # bad
+
+
+def test_recorder_process_writes_what_the_in_process_recorder_writes(tmp_path):
+    from tfl_mav.mavlink.recorder_process import RecorderProcess
+
+    a, b = tmp_path / "inproc.mcap", tmp_path / "child.mcap"
+    with Recorder(a, clock=_StepClock()) as rec_a:
+        _feed(rec_a)
+    with RecorderProcess(b, clock=_StepClock()) as rec_b:
+        _feed(rec_b)
+    assert rec_b.error is None and rec_a.error is None
+    assert rec_b.stats.bad_input == rec_a.stats.bad_input == 1
+    assert rec_b.last_bad_input == rec_a.last_bad_input
+
+    def content(path):   # path re-sends depend on flush timing: keep the first only
+        out, seen_path = [], False
+        for topic, _, m, log_ns, pub_ns in _read_all(path):
+            if topic == "/scene/path":
+                if seen_path:
+                    continue
+                seen_path = True
+            out.append((topic, m, log_ns, pub_ns))
+        return sorted(out, key=lambda x: (x[2], x[0], json.dumps(x[1])))
+
+    ca, cb = content(a), content(b)
+    assert len(ca) == len(cb) > 2000
+    assert ca == cb
+    with open(b, "rb") as f:
+        assert {m.name for m in make_reader(f).iter_metadata()} == {"tfl-mav", "scenario"}
+
+
+def test_recorder_process_finishes_the_file_when_the_flight_process_is_killed(tmp_path):
+    path = tmp_path / "child.mcap"
+    proc = _start_child(path, interval=1.0, duration=30.0, cls="RecorderProcess")
+    assert proc.stdout.readline().strip() == "ready", proc.stderr.read()
+    time.sleep(1.5)
+    t_kill = time.time()
+    os.kill(proc.pid, signal.SIGKILL)
+    proc.wait(5)
+    deadline = time.monotonic() + 15.0
+    while True:    # the orphaned recorder child reads end-of-file and finishes the file
+        try:
+            with open(path, "rb") as f:
+                summary = make_reader(f).get_summary()
+            if summary is not None:
+                break
+        except McapError:
+            pass
+        assert time.monotonic() < deadline, "the recorder child never finished the file"
+        time.sleep(0.1)
+    last = summary.statistics.message_end_time * 1e-9
+    assert t_kill - last <= 0.01 + 0.3, f"lost {t_kill - last:.3f} s"   # batch_s = 10 ms
+    assert summary.statistics.message_count > 1000
+
+
+def test_recorder_process_unwritable_path(tmp_path):
+    from tfl_mav.mavlink.recorder_process import RecorderProcess
+
+    missing = tmp_path / "missing" / "run.mcap"
+    with pytest.raises(RecorderError, match=str(missing)):
+        RecorderProcess(missing)
+    with pytest.raises(ValueError, match="flush_interval_s"):
+        RecorderProcess(tmp_path / "x.mcap", flush_interval_s=0)

@@ -4,7 +4,8 @@ Channels with schema names, message counts, rates and time spans (log time = rec
 clock, sim time = ``publish_time``), then a flight summary recomputed from the log alone:
 
 * path distance (m) from ``/sim/truth/state`` positions and the ``/scene/path`` polyline
-  (or ``/controller/state.path_distance_m`` when there is no ground truth);
+  (or ``/controller/state.path_distance_m`` when there is no ground truth); samples whose
+  values were not finite (left out of the log, see ``_nonfinite``) count as missing;
 * the attack from ``/sim/truth/attack``; detection from ``/controller/state.detected_rotor``
   (first non-zero value: time, latency after the attack, rotor, early alarms);
 * saturation: ``/controller/state.saturated`` if recorded, else the fraction of
@@ -100,15 +101,18 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
             frames[f["direction"]] += 1
             frames["rx_rejected"] += f["direction"] == "rx" and not f["accepted"]
         elif m.topic.endswith("/HIL_ACTUATOR_CONTROLS"):
-            controls = m.json()["controls"][:4]
-            sat_hil[0] += 1
-            sat_hil[1] += any(u is not None and (u <= 0.0 or u >= 1.0) for u in controls)
+            controls = m.json().get("controls")      # absent if it held NaN/inf
+            if controls is not None:
+                sat_hil[0] += 1
+                sat_hil[1] += any(u <= 0.0 or u >= 1.0 for u in controls[:4])
         elif m.topic == "/scene/path":
             ents = m.json()["entities"]
             if ents and ents[0]["lines"]:
                 path_points = [[p["x"], p["y"], p["z"]] for p in ents[0]["lines"][0]["points"]]
         elif m.topic in _SUMMARY_TOPICS:
             series[m.topic].append(m.json())
+    if not chans and reader.error:
+        raise OSError(f"{path}: not a readable MCAP file ({reader.error})")
     log_first = min((c.first_log for c in chans.values()), default=0)
     log_last = max((c.last_log for c in chans.values()), default=0)
     pub_first = min((c.first_pub for c in chans.values()), default=0)
@@ -174,7 +178,7 @@ def _flight_summary(series: dict[str, list[Any]], path_points: list[list[float]]
         out["sim_time_s"] = ctl[-1]["t_s"]
     # path distance
     if state and path_points is not None and len(path_points) >= 2:
-        pos = np.array([[np.nan if v is None else v for v in s["position_m"]] for s in state])
+        pos = np.array([s.get("position_m", [np.nan] * 3) for s in state], dtype=float)
         t = np.array([s["t_s"] for s in state])
         ok = np.all(np.isfinite(pos), axis=1)
         d = np.full(len(pos), np.nan)
@@ -183,18 +187,17 @@ def _flight_summary(series: dict[str, list[Any]], path_points: list[list[float]]
     elif ctl and any("path_distance_m" in c for c in ctl):
         rows = [c for c in ctl if "path_distance_m" in c]
         t = np.array([c["t_s"] for c in rows])
-        d = np.array([np.nan if c["path_distance_m"] is None else c["path_distance_m"]
-                      for c in rows], dtype=float)
+        d = np.array([c["path_distance_m"] for c in rows], dtype=float)
         out.update(_distance_stats(t, d, "/controller/state.path_distance_m"))
     # attack (truth)
     attack = series.get("/sim/truth/attack", [])
     start = next((a for a in attack if a["active"]), None)
     out["attack_rotor"] = start["rotor"] if start else 0
     out["attack_start_s"] = start["t_s"] if start else None
-    applied = [a["applied_n"] for a in attack if a["active"] and a["applied_n"] is not None]
+    applied = [a["applied_n"] for a in attack if a["active"] and "applied_n" in a]
     out["attack_max_n"] = max(applied) if applied else None
     thrusts = series.get("/sim/truth/thrusts", [])
-    values = [f for s in thrusts for f in s["thrust_n"] if f is not None]
+    values = [f for s in thrusts for f in s.get("thrust_n", ())]
     out["thrust_true_min_n"] = min(values) if values else None
     out["thrust_true_max_n"] = max(values) if values else None
     # detection (controller)

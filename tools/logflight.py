@@ -61,6 +61,11 @@ def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,
         if not {"state", "thrusts", "attack"} <= rec.keys():
             continue
         st, th, at = rec["state"], rec["thrusts"], rec["attack"]
+        # The recorder leaves non-finite values out (Foxglove cannot read null): a
+        # diverged sample has no position/thrust/attack and is not plotted.
+        if not ("position_m" in st and "quaternion_wxyz" in st and "thrust_n" in th
+                and "applied_n" in at):
+            continue
         pos = st["position_m"]
         w, x, y, z = st["quaternion_wxyz"]
         yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))

@@ -57,6 +57,10 @@ def run(args: argparse.Namespace) -> int:
         return 3
     print(f"replay: sent {sent} frames ({nbytes} bytes) to {target[0]}:{target[1]} "
           f"in {elapsed_s:.3f} s")
+    if error and sent == 0:
+        print(f"tfl-mav replay: {args.mcap}: not a readable MCAP file ({error})",
+              file=sys.stderr)
+        return 3
     if error:
         print(f"replay: the log ends early ({error}); sent what was readable", file=sys.stderr)
     return 0

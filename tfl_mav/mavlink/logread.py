@@ -107,7 +107,7 @@ def recover(src: str | Path, dst: str | Path) -> tuple[int, str | None]:
     count = 0
     with open(dst, "wb") as out:
         writer = Writer(out, compression=CompressionType.ZSTD,
-                        index_types=IndexType.CHUNK | IndexType.MESSAGE)
+                        index_types=IndexType.CHUNK | IndexType.MESSAGE | IndexType.METADATA)
         writer.start("tfl-mav", "tfl-mav recover")
         for rec in reader.records():
             if isinstance(rec, Schema):

@@ -24,19 +24,24 @@ Crash safety: chunked, zstd (or lz4) compressed; the chunk in progress is finish
 file flushed to the OS at least every ``flush_interval_s``: inline when messages keep
 coming, from a small background thread when they stop. A SIGKILLed process loses at most
 the last interval; everything before reads with a stream reader (``tfl-mav inspect
---recover``). No fsync: an OS crash or power loss can lose more.
+--recover``). A program that ends without :meth:`Recorder.close` (an uncaught exception)
+still finishes the file, at exit. No fsync: an OS crash or power loss can lose more.
+:class:`~tfl_mav.mavlink.recorder_process.RecorderProcess` runs the same recorder in a
+child process, which also finishes the file when the flight process is killed.
 
 Failure policy: an unwritable path raises :class:`RecorderError` (an ``OSError``) at
 construction. After that nothing raises into the flight loop: a write error (disk full)
 stops the recording, is counted (``stats.write_errors``) and described in
 :attr:`Recorder.error`; later messages are counted as ``dropped``. Bad arguments to the
 loop methods (wrong length, not a number, unknown direction) are counted
-(``stats.bad_input``) and described in :attr:`Recorder.last_bad_input`; NaN/inf are
-written as ``null``, never as invalid JSON.
+(``stats.bad_input``) and described in :attr:`Recorder.last_bad_input`. NaN/inf (and None)
+are never written (JSON has no NaN, Foxglove wants no null in a number field): such values
+are left out and listed in ``_nonfinite``.
 """
 
 from __future__ import annotations
 
+import atexit
 import base64
 import contextlib
 import json
@@ -96,17 +101,41 @@ def _jsonable(obj: Any) -> Any:
     raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
 
 
-def _finite(obj: Any) -> Any:
-    """A copy of ``obj`` with every non-finite float replaced by None."""
-    if isinstance(obj, float):
-        return obj if math.isfinite(obj) else None
-    if isinstance(obj, Mapping):
-        return {k: _finite(v) for k, v in obj.items()}
-    if isinstance(obj, (list, tuple)):
-        return [_finite(v) for v in obj]
-    if hasattr(obj, "tolist"):
-        return _finite(obj.tolist())
-    return obj
+def _all_finite(value: Any) -> bool:
+    """No NaN, inf or None anywhere in ``value`` (JSON would need null for them)."""
+    if isinstance(value, float):
+        return math.isfinite(value)
+    if value is None:
+        return False
+    if isinstance(value, Mapping):
+        return all(_all_finite(v) for v in value.values())
+    if isinstance(value, (list, tuple)):
+        try:                                        # flat list of numbers: the usual case
+            return all(map(math.isfinite, value))
+        except (TypeError, OverflowError):
+            return all(_all_finite(v) for v in value)
+    if hasattr(value, "tolist"):
+        return _all_finite(value.tolist())
+    return True
+
+
+def _drop_nonfinite(obj: Mapping[str, Any], prefix: str = "",
+                    dropped: list[str] | None = None) -> dict[str, Any]:
+    """A copy of ``obj`` without NaN/inf/None: such a value, or a list holding one, is left
+    out and its dotted key listed under ``_nonfinite`` (see :mod:`schemas`)."""
+    top = dropped is None
+    dropped = [] if dropped is None else dropped
+    out: dict[str, Any] = {}
+    for k, v in obj.items():
+        if isinstance(v, Mapping):
+            out[k] = _drop_nonfinite(v, f"{prefix}{k}.", dropped)
+        elif _all_finite(v):
+            out[k] = v
+        else:
+            dropped.append(f"{prefix}{k}")
+    if top and dropped:
+        out[schemas.NONFINITE_KEY] = dropped
+    return out
 
 
 def _floats(values: Any, n: int, field: str) -> list[float]:
@@ -127,7 +156,7 @@ class _MavChannel:
     name: str
     sim_time: bool          # time_usec of this message is sim time
     statustext: bool
-    has_text: bool          # has char[] fields (strings)
+    nonfinite: bool = False  # NaN/inf seen on this channel: check before encoding
 
 
 class Recorder:
@@ -191,7 +220,8 @@ class Recorder:
         try:
             self._writer = Writer(self._file, chunk_size=chunk_size_bytes,
                                   compression=_COMPRESSION[compression],
-                                  index_types=IndexType.CHUNK | IndexType.MESSAGE)
+                                  index_types=IndexType.CHUNK | IndexType.MESSAGE
+                                  | IndexType.METADATA)
             self._writer.start(profile, library=f"tfl-mav {__version__}; {LIBRARY_IDENTIFIER}")
             self._writer.add_metadata("tfl-mav", {
                 "log_time": "receipt time on the recorder clock, ns (Unix epoch by default)",
@@ -210,6 +240,7 @@ class Recorder:
         self._flusher = threading.Thread(target=self._flush_loop, name="mcap-flush",
                                          daemon=True)
         self._flusher.start()
+        atexit.register(self.close)     # an exception that ends the program still finishes
 
     # ------------------------------------------------------------------ lifecycle
     def __enter__(self) -> Recorder:
@@ -226,10 +257,13 @@ class Recorder:
 
     def close(self) -> None:
         """Finish the file (summary, indexes). Idempotent; never raises on I/O errors
-        (see :attr:`error`). Later calls to the loop methods are counted as dropped."""
+        (see :attr:`error`). Later calls to the loop methods are counted as dropped.
+        Not from a signal handler (it could interrupt a write): set a flag there and close
+        after the loop."""
         if self._closed:
             return
         self._closed = True
+        atexit.unregister(self.close)
         self._stop.set()
         self._flusher.join()
         with self._lock:
@@ -265,7 +299,9 @@ class Recorder:
     # ------------------------------------------------------------------ link hook
     def on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
         """The :class:`~tfl_mav.mavlink.link.Link` frame hook (``on_frame``): record one
-        frame; ``msg`` is the decoded message, or None for a rejected/raw frame."""
+        frame. ``msg`` is the decoded message, or None for a rejected rx frame or a
+        ``send_raw`` tx frame; only whether it is None matters, the fields are decoded
+        from ``raw``. ``time_s`` is the receipt time (s) on the recorder's clock."""
         try:
             log_ns = min(max(int(time_s * 1e9), 0), _MAX_NS)
         except (TypeError, ValueError, OverflowError):
@@ -284,8 +320,7 @@ class Recorder:
                 st.frames_rejected += 1
             accepted = "false" if direction == "rx" else "true"
             self._write(self._raw_channel(),
-                        f'{{"direction":"{direction}","accepted":{accepted},"name":null,'
-                        f'"msgid":null,"sysid":null,"compid":null,"seq":null,'
+                        f'{{"direction":"{direction}","accepted":{accepted},'
                         f'"len":{len(raw)},"data":"{data}"}}'.encode(), log_ns, self._sim_ns)
             return
         msgid = raw[7] | raw[8] << 8 | raw[9] << 16
@@ -300,7 +335,7 @@ class Recorder:
                 self._sim_ns = usec * 1000
                 self._sim_known = True
         pub_ns = self._sim_ns
-        name = chan.name if chan is not None else msg.get_type()
+        name = chan.name if chan is not None else f"#{msgid}"
         self._write(self._raw_channel(),
                     f'{{"direction":"{direction}","accepted":true,"name":"{name}",'
                     f'"msgid":{msgid},"sysid":{sysid},"compid":{compid},"seq":{raw[4]},'
@@ -308,8 +343,7 @@ class Recorder:
         if fields is None:
             self._bad(f"frame: {name} (#{msgid}) did not decode from its wire bytes")
             return
-        self._write(chan.channel_id, self._dumps(fields) if chan.has_text
-                    else self._dumps_numeric(fields), log_ns, pub_ns)
+        self._write(chan.channel_id, self._dumps_mav(fields, chan), log_ns, pub_ns)
         if chan.statustext:
             self._write(self._channel("/log", schemas.FOXGLOVE_SCHEMAS["foxglove.Log"]),
                         self._dumps(fg.log_entry(log_ns,
@@ -347,15 +381,15 @@ class Recorder:
         log_ns, pub_ns = self._now_ns(), self._sim_ns
         t = float(time_s)
         self._write(self._channel("/sim/truth/state", schemas.TRUTH_STATE),
-                    self._dumps_numeric({"t_s": t, "position_m": pos, "velocity_mps": vel,
+                    self._dumps({"t_s": t, "position_m": pos, "velocity_mps": vel,
                                  "quaternion_wxyz": quat, "body_rates_radps": rates}),
                     log_ns, pub_ns)
         self._write(self._channel("/sim/truth/attack", schemas.TRUTH_ATTACK),
-                    self._dumps_numeric({"t_s": t, "rotor": rotor, "active": rotor != 0,
+                    self._dumps({"t_s": t, "rotor": rotor, "active": rotor != 0,
                                  "applied_n": applied, "requested_n": requested}),
                     log_ns, pub_ns)
         self._write(self._channel("/sim/truth/thrusts", schemas.TRUTH_THRUSTS),
-                    self._dumps_numeric({"t_s": t, "thrust_n": thrust, "attack_rotor": rotor}),
+                    self._dumps({"t_s": t, "thrust_n": thrust, "attack_rotor": rotor}),
                     log_ns, pub_ns)
         # 1 µs slack so k·dt rounding does not push a sample to the next tick
         if self._last_scene_t <= t < self._last_scene_t + self._scene_period_s - 1e-6:
@@ -373,7 +407,7 @@ class Recorder:
                                                  self._thrust_max_n, rotor)), log_ns, pub_ns)
         if self._polyline is not None:
             self._write(self._channel("/sim/truth/path_distance", schemas.PATH_DISTANCE),
-                        self._dumps_numeric({"t_s": t, "distance_m": self._polyline.distance(pos)}),
+                        self._dumps({"t_s": t, "distance_m": self._polyline.distance(pos)}),
                         log_ns, pub_ns)
 
     def path(self, points_m: Any) -> None:
@@ -414,15 +448,20 @@ class Recorder:
                                              source)), log_ns, self._sim_ns)
 
     def controller(self, time_s: float, state: Mapping[str, Any]) -> None:
-        """Free-form controller state at sim time ``time_s`` (s) on ``/controller/state``
-        (keys the tools read: ``mode``, ``detected_rotor``, ``attack_estimate_n``,
-        ``path_distance_m``, ``saturated``, ``xi``, ``eta``). numpy values are fine."""
-        self.set_sim_time(time_s)
+        """Free-form controller state at sim time ``time_s`` (s) on ``/controller/state``.
+        Keys the tools and the layout read (typed in the schema): ``mode`` (str),
+        ``detected_rotor`` (int 0-4), ``attack_estimate_n``, ``path_distance_m`` (float),
+        ``saturated`` (bool), ``rotor_thrust_cmd_n`` (4 floats); any other key is kept as
+        is. numpy values are fine; NaN/inf/None values are left out (``_nonfinite``)."""
         try:
-            data = self._dumps({**state, "t_s": float(time_s)})
+            t = float(time_s)
+            if not math.isfinite(t):
+                raise ValueError(f"time_s: not finite ({time_s})")
+            data = self._dumps({**state, "t_s": t})
         except (TypeError, ValueError) as exc:
             self._bad(f"controller state: {exc}")
             return
+        self.set_sim_time(t)
         self._write(self._channel("/controller/state", schemas.CONTROLLER_STATE), data,
                     self._now_ns(), self._sim_ns)
 
@@ -452,19 +491,26 @@ class Recorder:
         self.stats.bad_input += 1
         self.last_bad_input = what
 
-    def _dumps(self, obj: Any) -> bytes:
-        """Compact JSON; non-finite floats become null (strings are left alone)."""
+    def _dumps(self, obj: Mapping[str, Any]) -> bytes:
+        """Compact JSON of a message; NaN/inf/None are left out (``_nonfinite`` lists them).
+        The second pass runs only when the fast one printed NaN/Infinity/null (or such
+        text)."""
         s = self._encode(obj)
-        if "NaN" in s or "Infinity" in s:
-            s = self._encode(_finite(obj))
+        if "NaN" in s or "Infinity" in s or "null" in s:
+            s = self._encode(_drop_nonfinite(obj))
         return s.encode()
 
-    def _dumps_numeric(self, obj: Any) -> bytes:
-        """:meth:`_dumps` for objects without strings, where "NaN"/"Infinity" in the
-        output can only be numbers: a string replace instead of a second pass."""
-        s = self._encode(obj)
-        if "N" in s or "I" in s:
-            s = s.replace("-Infinity", "null").replace("Infinity", "null").replace("NaN", "null")
+    def _dumps_mav(self, fields: dict[str, Any], chan: _MavChannel) -> bytes:
+        """:meth:`_dumps` that remembers per channel whether NaN shows up (ODOMETRY's
+        unknown covariances do, every frame), to skip the wasted first pass."""
+        if chan.nonfinite:
+            clean = _drop_nonfinite(fields)
+            chan.nonfinite = schemas.NONFINITE_KEY in clean
+            return self._encode(clean).encode()
+        s = self._encode(fields)
+        if "NaN" in s or "Infinity" in s:
+            chan.nonfinite = True
+            s = self._encode(_drop_nonfinite(fields))
         return s.encode()
 
     def _schema_id(self, schema: dict[str, Any]) -> int:
@@ -499,7 +545,7 @@ class Recorder:
         cid = self._channel(f"/mavlink/{sysid}/{compid}/{cls.msgname}",
                             schemas.mavlink_schema(msgid))
         chan = _MavChannel(cid, cls.msgname, msgid in self._sim_time_ids,
-                           msgid == _STATUSTEXT_ID, "char" in cls.fieldtypes)
+                           msgid == _STATUSTEXT_ID)
         self._mav_channels[(sysid, compid, msgid)] = chan
         return chan
 
@@ -511,7 +557,7 @@ class Recorder:
             with self._lock:
                 self._writer.add_message(channel_id, log_ns, data, pub_ns)
                 self._pending += 1
-            self.stats.messages += 1
+                self.stats.messages += 1
             if time.monotonic() >= self._next_flush:
                 self._flush()
         except Exception as exc:

@@ -4,12 +4,17 @@ Three families, all written by the project (DESIGN §6):
 
 * ``mavlink.<MSG>``: one schema per MAVLink message type, generated from pymavlink's field
   metadata (``fieldnames``, ``fieldtypes``, ``array_lengths``, units, enums). ``char[N]`` is
-  a string; ``float``/``double`` allow ``null``, which stands for NaN/inf on the wire (JSON
-  has no NaN); integers carry their C range.
+  a string; integers carry their C range.
 * ``foxglove.FrameTransform``, ``foxglove.SceneUpdate``, ``foxglove.Log``: Foxglove's
   well-known types, fully inlined the way Foxglove's own JSON schemas are, so its panels
   recognise the channels by schema name.
 * ``tfl_mav.*``: raw wire frames, simulator ground truth, controller state.
+
+NaN/inf: JSON has no such numbers, and Foxglove's JSON-schema reader accepts one plain
+``type`` per property (no ``["number", "null"]``, no property without ``type``; see its
+``parseJsonSchema``). So a float that is not finite, or an array holding one, is *left out*
+of the message and its key listed in ``_nonfinite``; float fields are therefore optional,
+everything else is required. The raw frame keeps the wire value.
 
 Schemas are plain dicts; :func:`schema_bytes` is what goes into the file.
 """
@@ -25,6 +30,7 @@ from tfl_mav.mavlink.dialect import mav
 __all__ = [
     "CONTROLLER_STATE",
     "FOXGLOVE_SCHEMAS",
+    "NONFINITE_KEY",
     "PATH_DISTANCE",
     "RAW_FRAME",
     "TRUTH_ATTACK",
@@ -38,7 +44,9 @@ __all__ = [
 Schema = dict[str, Any]
 
 # ---------------------------------------------------------------- building blocks
-_NUMBER_OR_NULL = ["number", "null"]
+NONFINITE_KEY = "_nonfinite"
+_NONFINITE: Schema = {"type": "array", "items": {"type": "string"},
+                      "description": "keys left out because they held NaN, inf or null"}
 _INT_RANGES = {
     "uint8_t": (0, 2**8 - 1), "int8_t": (-(2**7), 2**7 - 1),
     "uint16_t": (0, 2**16 - 1), "int16_t": (-(2**15), 2**15 - 1),
@@ -242,61 +250,76 @@ _T_S = {"type": "number", "description": "sim time (s)"}
 
 
 def _vec(n: int, description: str) -> Schema:
-    return _array({"type": _NUMBER_OR_NULL}, description + " (null = not finite)", n)
+    return _array({"type": "number"}, description, n)
+
+
+def _project(title: str, description: str, properties: dict[str, Schema],
+             required: list[str]) -> Schema:
+    return _obj(title, description, {**properties, NONFINITE_KEY: _NONFINITE}, required)
 
 
 RAW_FRAME: Schema = _obj(
-    "tfl_mav.MavlinkFrame", "One MAVLink frame exactly as it crossed the wire", {
-        "direction": {"enum": ["rx", "tx"], "description": "received or sent by the recorder's "
-                      "process"},
+    "tfl_mav.MavlinkFrame", "One MAVLink frame exactly as it crossed the wire; name, msgid, "
+    "sysid, compid and seq are present when the frame was decoded", {
+        "direction": {"type": "string", "enum": ["rx", "tx"],
+                      "description": "received or sent by the recording process"},
         "accepted": {"type": "boolean", "description": "rx: the link decoded and accepted it; "
                      "tx: it was sent"},
-        "name": {"type": ["string", "null"], "description": "message name, null if undecoded"},
-        "msgid": {"type": ["integer", "null"], "minimum": 0},
-        "sysid": {"type": ["integer", "null"], "minimum": 0, "maximum": 255},
-        "compid": {"type": ["integer", "null"], "minimum": 0, "maximum": 255},
-        "seq": {"type": ["integer", "null"], "minimum": 0, "maximum": 255},
+        "name": {"type": "string", "description": "message name"},
+        "msgid": {"type": "integer", "minimum": 0},
+        "sysid": {"type": "integer", "minimum": 0, "maximum": 255},
+        "compid": {"type": "integer", "minimum": 0, "maximum": 255},
+        "seq": {"type": "integer", "minimum": 0, "maximum": 255},
         "len": {"type": "integer", "minimum": 0, "description": "wire bytes"},
         "data": {"type": "string", "contentEncoding": "base64",
-                 "description": "the wire bytes, base64 (replayable byte for byte)"}})
+                 "description": "the wire bytes, base64 (replayable byte for byte)"}},
+    ["direction", "accepted", "len", "data"])
 
-TRUTH_STATE: Schema = _obj(
+TRUTH_STATE: Schema = _project(
     "tfl_mav.TruthState", "True rigid-body state from the simulator, paper frame "
     "(ENU, z up; body b3 along thrust)", {
         "t_s": _T_S,
         "position_m": _vec(3, "position x_q (m)"),
         "velocity_mps": _vec(3, "velocity v_q (m/s)"),
         "quaternion_wxyz": _vec(4, "attitude, body to world (w, x, y, z)"),
-        "body_rates_radps": _vec(3, "body rates (p, q, r) (rad/s)")})
+        "body_rates_radps": _vec(3, "body rates (p, q, r) (rad/s)")}, ["t_s"])
 
-TRUTH_ATTACK: Schema = _obj(
+TRUTH_ATTACK: Schema = _project(
     "tfl_mav.TruthAttack", "The attack as the simulator applies it", {
         "t_s": _T_S,
         "rotor": {"type": "integer", "minimum": 0, "maximum": 4,
                   "description": "attacked rotor 1-4, 0 = none"},
         "active": {"type": "boolean"},
-        "applied_n": {"type": _NUMBER_OR_NULL, "description": "thrust forced on the rotor (N), "
+        "applied_n": {"type": "number", "description": "thrust forced on the rotor (N), "
                       "clamped to [0, f_max]"},
-        "requested_n": {"type": _NUMBER_OR_NULL, "description": "what the attack signal asked "
-                        "for (N), null if not finite"}})
+        "requested_n": {"type": "number", "description": "what the attack signal asked "
+                        "for (N)"}}, ["t_s", "rotor", "active"])
 
-TRUTH_THRUSTS: Schema = _obj(
+TRUTH_THRUSTS: Schema = _project(
     "tfl_mav.TruthThrusts", "True rotor thrusts (N), rotors 1-4 in the paper's + layout", {
         "t_s": _T_S,
         "thrust_n": _vec(4, "true thrust of rotors 1-4 (N)"),
-        "attack_rotor": {"type": "integer", "minimum": 0, "maximum": 4}})
+        "attack_rotor": {"type": "integer", "minimum": 0, "maximum": 4}},
+    ["t_s", "attack_rotor"])
 
-PATH_DISTANCE: Schema = _obj(
+PATH_DISTANCE: Schema = _project(
     "tfl_mav.PathDistance", "Distance from the true position to the recorded path polyline", {
         "t_s": _T_S,
-        "distance_m": {"type": _NUMBER_OR_NULL, "description": "distance to the polyline "
-                       "given to Recorder.path (m)"}})
+        "distance_m": {"type": "number", "description": "distance to the polyline given to "
+                       "Recorder.path (m)"}}, ["t_s"])
 
-CONTROLLER_STATE: Schema = {
-    "title": "tfl_mav.ControllerState", "type": "object",
-    "description": "Free-form controller state (mode, xi, eta, detected rotor, ...); "
-                   "t_s is sim time (s); null stands for NaN/inf",
-    "properties": {"t_s": _T_S}, "required": ["t_s"]}
+CONTROLLER_STATE: Schema = _project(
+    "tfl_mav.ControllerState", "Controller state at sim time t_s; the keys below are the "
+    "ones the tools and the layout read, any other key may be added", {
+        "t_s": _T_S,
+        "mode": {"type": "string", "description": "nominal, attacked or failsafe"},
+        "detected_rotor": {"type": "integer", "minimum": 0, "maximum": 4,
+                           "description": "rotor the detector isolated, 0 = none"},
+        "attack_estimate_n": {"type": "number", "description": "estimated attack thrust (N)"},
+        "path_distance_m": {"type": "number", "description": "distance to the path (m)"},
+        "saturated": {"type": "boolean", "description": "a rotor command hit 0 or f_max"},
+        "rotor_thrust_cmd_n": _array({"type": "number"}, "rotor thrust commands 1-4 (N)")},
+    ["t_s"])
 
 
 # ---------------------------------------------------------------- MAVLink messages
@@ -314,7 +337,7 @@ def _field_schema(ctype: str, length: int, unit: str, enum: str) -> Schema:
     if ctype == "char":
         return {"type": "string", "maxLength": max(length, 1), "description": description}
     if ctype in ("float", "double"):
-        item: Schema = {"type": _NUMBER_OR_NULL}
+        item: Schema = {"type": "number"}
     else:
         lo, hi = _INT_RANGES[ctype]
         item = {"type": "integer", "minimum": lo, "maximum": hi}
@@ -332,9 +355,11 @@ def mavlink_schema(msg_id: int) -> Schema:
         name: _field_schema(ctype, lengths[name], cls.fieldunits_by_name.get(name, ""),
                             cls.fieldenums_by_name.get(name, ""))
         for name, ctype in zip(cls.fieldnames, cls.fieldtypes, strict=True)}
+    required = [n for n, t in zip(cls.fieldnames, cls.fieldtypes, strict=True)
+                if t not in ("float", "double")]
     return _obj(mavlink_schema_name(cls.msgname),
                 f"MAVLink message #{cls.id} {cls.msgname} (pymavlink ardupilotmega dialect)",
-                props)
+                {**props, NONFINITE_KEY: _NONFINITE}, required)
 
 
 def schema_bytes(schema: Schema) -> bytes:
