@@ -18,6 +18,7 @@ import numpy as np
 from sitl.attacker import Attacker, AttackSample
 from sitl.motors import RADPS_TO_RPM, MotorBank
 from sitl.physics import RigidBodyParams, RigidBodyState, mix, rk4_step
+from tfl_mav.mavlink.frames import quaternion_multiply
 from tfl_mav.scenario import Scenario
 
 __all__ = ["MeasuredState", "Simulator", "euler_to_quaternion"]
@@ -148,7 +149,7 @@ class Simulator:
             vel = vel + rng.normal(0.0, sens.velocity_noise_std_mps, 3)
         if sens.attitude_noise_std_rad > 0:
             dq = np.array([1.0, *(0.5 * rng.normal(0.0, sens.attitude_noise_std_rad, 3))])
-            q = _quat_mul(q, dq)
+            q = quaternion_multiply(q, dq)
             q = q / np.linalg.norm(q)
         if sens.rate_noise_std_radps > 0:
             w = w + rng.normal(0.0, sens.rate_noise_std_radps, 3)
@@ -203,13 +204,3 @@ class Simulator:
             return f"speed {speed:.0f} m/s exceeds {MAX_SPEED_MPS:.0f} m/s: runaway"
         return None
 
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return np.array([
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ])
