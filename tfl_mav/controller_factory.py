@@ -20,7 +20,8 @@ def model_params(sc: Scenario) -> ModelParams:
         mass_kg=v.mass_kg * c.model_mass_scale,
         inertia_kgm2=tuple(i * c.model_inertia_scale for i in v.inertia_kgm2),  # type: ignore[arg-type]
         arm_m=v.arm_m, drag_thrust_ratio_m=v.drag_thrust_ratio_m, k_t=v.k_t, k_r=v.k_r,
-        thrust_max_n=v.thrust_max_n, gravity_mps2=v.gravity_mps2)
+        thrust_max_n=v.thrust_max_n, gravity_mps2=v.gravity_mps2, k_f=v.k_f,
+        motor_time_constant_s=v.motor_time_constant_s * c.motor_time_constant_scale)
 
 
 def law_config(sc: Scenario) -> LawConfig:

@@ -78,7 +78,8 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
             estimate = v.k_f * w * w
             ctrl.set_attack(att.rotor, estimate)
         out = ctrl.update(StateEstimate(meas.position_m, meas.velocity_mps,
-                                        meas.quaternion_wxyz, meas.body_rates_radps))
+                                        meas.quaternion_wxyz, meas.body_rates_radps,
+                                        [r * TWO_PI_OVER_60 for r in rpm]))
         sim.set_command(out.rotor_thrust_n)
         last_cmd = list(sim.rotor_commands_n)
         st = sim.state

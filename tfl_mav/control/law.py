@@ -30,6 +30,7 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
+from tfl_mav.control.actuators import MotorLagInverter
 from tfl_mav.control.allocation import (
     RotorFrame,
     allocate_attacked,
@@ -55,6 +56,8 @@ class ModelParams:
     k_r: float
     thrust_max_n: float
     gravity_mps2: float = 9.81
+    k_f: float = 8.0e-6                 # N/(rad/s)², thrust = k_f ω²
+    motor_time_constant_s: float = 0.0  # first-order lag on ω; 0 = ideal actuators
 
 
 @dataclass(frozen=True)
@@ -87,13 +90,15 @@ class StateEstimate:
     velocity_mps: Sequence[float]
     quaternion_wxyz: Sequence[float]
     body_rates_radps: Sequence[float]
+    rotor_speed_radps: Sequence[float] | None = None   # measured ω (ESC rpm), rotors 1-4
 
 
 @dataclass
 class ControlOutput:
     """One control decision and the internals worth logging."""
 
-    rotor_thrust_n: list[float]          # saturated to [0, f_max], physical rotor order
+    rotor_thrust_n: list[float]          # command, in [0, f_max], physical rotor order (with
+                                         # motor lag: the lag inverse of the law's demand)
     mode: str                            # "nominal" | "attacked" | "fallback"
     saturated: list[bool]
     xi: tuple[tuple[float, ...], tuple[float, ...]]   # (α1, α̇1, α̈1, α⃛1), same for α2
@@ -176,6 +181,10 @@ class TFLController:
         self.dob = RateDisturbanceObserver(cfg.observer_tau_s)
         self._pred: tuple[float, float] | None = None   # model ṗ, q̇ for the last command
         self._last_out: list[float] = [model.mass_kg * model.gravity_mps2 / 4.0] * 4
+        self.lag_inverter = (MotorLagInverter(model.k_f, model.thrust_max_n,
+                                              model.motor_time_constant_s, dt_s)
+                             if model.motor_time_constant_s > 0.0 else None)
+        self.lag_clamped_count = 0
         self._set_gains(fine=False)
 
     # ------------------------------------------------------------------ configuration
@@ -203,6 +212,8 @@ class TFLController:
             self.frame = canonical_frame(rotor) if rotor else None
             self.dob.reset()
             self._pred = None
+            if self.lag_inverter is not None:
+                self.lag_inverter.reset()
         self.attack_estimate_n = estimate_n
 
     # ------------------------------------------------------------------ the law
@@ -349,16 +360,25 @@ class TFLController:
         if any(sat):
             self.saturation_count += 1
         applied_uf = sum(f)
-        # Predicted ṗ, q̇ for the observer (canonical axes), from the applied thrusts.
-        fc = [f[phys] for phys in frame.perm] if attacked else f
+        # Motor lag (#6): command what makes the rotors *reach* f; the estimators see what
+        # the rotors will deliver, not what was asked.
+        command = f
+        delivered = f
+        if self.lag_inverter is not None:
+            inv = self.lag_inverter.invert(f, s.rotor_speed_radps)
+            command, delivered = inv.command_n, inv.expected_mean_n
+            if attacked:
+                command[frame.perm[1]] = f[frame.perm[1]]
+                delivered[frame.perm[1]] = f[frame.perm[1]]
+            if any(inv.clamped):
+                self.lag_clamped_count += 1
+        # Predicted ṗ, q̇ for the observer (canonical axes), from the delivered thrusts.
+        fc = [delivered[phys] for phys in frame.perm] if attacked else delivered
         tp_app = m.arm_m * (fc[3] - fc[1])
         tq_app = m.arm_m * (fc[2] - fc[0])
         self._pred = ((tp_app - kr * pc - (iz - iy) * qc * rc) / ix,
                       (tq_app - kr * qc - (ix - iz) * pc * rc) / iy)
-        if attacked:
-            # The physical rotor under attack gets a don't-care command: the attacker owns it.
-            pass
-        self._last_out = f
+        self._last_out = delivered
 
         # Dynamic extension x13 = u_f, x14 = u̇_f, u_d = ü_f (eq. extended_system).
         if abs(applied_uf - uf) > 1e-9:
@@ -378,7 +398,7 @@ class TFLController:
         psi = math.atan2(R[1][0], R[0][0])
         mu2 = -p / m.inertia_kgm2[2] - m.arm_m * r / (2 * m.inertia_kgm2[0] * d)
         return ControlOutput(
-            rotor_thrust_n=f, mode=mode, saturated=sat,
+            rotor_thrust_n=command, mode=mode, saturated=sat,
             xi=(tuple(xi1[:4]), tuple(xi2[:4])), eta=tuple(eta[:4]), mu=(psi, mu2),
             path_distance_m=out.distance_m, lam=out.lam, cond_d=cond, thrust_n=uf,
             mass_estimate_kg=mass, disturbance_radps2=(self.dob.d_p, self.dob.d_q),

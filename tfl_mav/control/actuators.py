@@ -1,0 +1,108 @@
+"""Inverting the rotors' first-order speed lag so the law's thrusts are the ones flown (#6).
+
+Model (the simulator's, and a fair first model of a brushless motor + ESC): each rotor speed
+obeys dω/dt = (ω_c − ω)/τ_m with thrust f = k_f ω² and the command ω_c held over a control
+period h. The paper's law assumes f follows its demand instantly. Under attack the vehicle
+spins at ~60 rad/s, so the body-frame torques the law asks for rotate at ~10 Hz and a lag of
+τ_m = 20 ms costs ~50° of phase: the law flips the vehicle within two seconds.
+
+The ESC reports ω, so the lag can be inverted *per tick, in closed loop on the measured
+speed*. Over one period the lag's exact solution is ω(t+h) = ω_c + (ω(t) − ω_c) e^{−h/τ}, so
+the command that puts the rotor at ω* at the end of the period is
+
+    ω_c = (ω* − e^{−h/τ} ω(t)) / (1 − e^{−h/τ})                      (deadbeat inverse)
+
+Aiming the *end* of the period (not its mean) at the target is what keeps this stable: a
+mean-matching inverse overshoots by 2× and rings at the Nyquist rate. To get the ideal
+actuator's mean thrust back, the target is the law's demand extrapolated one period ahead,
+f* = f_d[k] + (f_d[k] − f_d[k−1]) (``lead_periods`` = 1): the thrust then ramps from f_d[k−1]
+to f*, whose mean is f_d[k], which is exactly what an instant actuator held over the period.
+
+Feedback on the measured ω makes the inverse forgiving: with τ_m off by a factor s the
+per-period error is multiplied by 1 − s (−0.2 … +0.2 for ±20 %), so it still converges in
+a period or two, and rpm noise passes to the rotor speed about one-to-one instead of being
+amplified by 1/(1 − e^{−h/τ}) ≈ τ/h. Commands are clamped to [0, ω_max]; what the rotor will
+really deliver over the period is returned so the law's estimators see the truth.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+__all__ = ["LagInversion", "MotorLagInverter"]
+
+
+@dataclass
+class LagInversion:
+    """One period's result (physical rotor order, N)."""
+
+    command_n: list[float]        # what to send: thrust whose steady ω is the command ω_c
+    expected_mean_n: list[float]  # model's mean thrust over the period for that command
+    clamped: list[bool]           # ω_c hit 0 or ω_max: the target is out of reach this period
+
+
+class MotorLagInverter:
+    """Deadbeat inverse of a first-order rotor-speed lag, closed on the measured speed."""
+
+    def __init__(self, k_f: float, thrust_max_n: float, time_constant_s: float, dt_s: float,
+                 *, lead_periods: float = 1.0) -> None:
+        if not time_constant_s > 0.0:
+            raise ValueError(f"time_constant_s must be > 0 (got {time_constant_s}); "
+                             "with no lag there is nothing to invert")
+        self.k_f = k_f
+        self.thrust_max_n = thrust_max_n
+        self.time_constant_s = time_constant_s
+        self.dt_s = dt_s
+        self.lead_periods = lead_periods
+        self.omega_max_radps = math.sqrt(thrust_max_n / k_f)
+        e1 = math.exp(-dt_s / time_constant_s)
+        self._e1 = e1
+        self._gain = 1.0 / (1.0 - e1)
+        self._m1 = time_constant_s * (1.0 - e1) / dt_s            # mean of e^{−t/τ}
+        self._m2 = time_constant_s * (1.0 - e1 * e1) / (2.0 * dt_s)  # mean of e^{−2t/τ}
+        self._prev_demand: list[float] | None = None
+        self._omega_model: list[float] | None = None
+
+    def reset(self) -> None:
+        """Forget the demand history (mode switch: the old demand is not a trend)."""
+        self._prev_demand = None
+
+    def invert(self, demand_n: Sequence[float],
+               omega_meas_radps: Sequence[float] | None) -> LagInversion:
+        """Commands for this period given the law's ``demand_n`` and the measured ω (rad/s).
+
+        Without a measurement the inverter's own model of ω is used (open loop).
+        """
+        kf = self.k_f
+        fmax = self.thrust_max_n
+        wmax = self.omega_max_radps
+        prev = self._prev_demand
+        lead = self.lead_periods
+        if omega_meas_radps is not None and all(math.isfinite(w) for w in omega_meas_radps):
+            omega = [max(w, 0.0) for w in omega_meas_radps]
+        elif self._omega_model is not None:
+            omega = self._omega_model
+        else:
+            omega = [math.sqrt(min(max(f, 0.0), fmax) / kf) for f in demand_n]
+        e1, gain, m1, m2 = self._e1, self._gain, self._m1, self._m2
+        cmd: list[float] = []
+        mean: list[float] = []
+        clamped: list[bool] = []
+        nxt: list[float] = []
+        for i, f in enumerate(demand_n):
+            target = f if prev is None else f + lead * (f - prev[i])
+            w_star = math.sqrt(min(max(target, 0.0), fmax) / kf)
+            w0 = omega[i]
+            c = (w_star - e1 * w0) * gain
+            hit = c < 0.0 or c > wmax
+            c = min(max(c, 0.0), wmax)
+            dw = w0 - c
+            cmd.append(kf * c * c)
+            mean.append(kf * (c * c + 2.0 * c * dw * m1 + dw * dw * m2))
+            clamped.append(hit)
+            nxt.append(c + dw * e1)
+        self._prev_demand = list(demand_n)
+        self._omega_model = nxt
+        return LagInversion(cmd, mean, clamped)
