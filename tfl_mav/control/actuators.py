@@ -64,16 +64,55 @@ class MotorLagInverter:
         self._m2 = time_constant_s * (1.0 - e1 * e1) / (2.0 * dt_s)  # mean of e^{−2t/τ}
         self._prev_demand: list[float] | None = None
         self._omega_model: list[float] | None = None
+        self._omega: list[float] | None = None   # latched by reachable() for invert()
 
     def reset(self) -> None:
         """Forget the demand history (mode switch: the old demand is not a trend)."""
         self._prev_demand = None
 
-    def invert(self, demand_n: Sequence[float],
-               omega_meas_radps: Sequence[float] | None) -> LagInversion:
-        """Commands for this period given the law's ``demand_n`` and the measured ω (rad/s).
+    def reachable(self, omega_meas_radps: Sequence[float] | None) -> tuple[list[float],
+                                                                           list[float]]:
+        """Per-rotor (lo, hi) *demand* (N) this period's command can honour, and latch ω.
 
-        Without a measurement the inverter's own model of ω is used (open loop).
+        A rotor at ω can end the period anywhere in [e ω, ω + (ω_max − ω)(1 − e)]
+        (e = e^{−h/τ}); with the lead this bounds the demand. Near zero thrust the range is
+        tiny (f ∝ ω²): a stopped rotor gains ~0.02 N in 1 ms at τ = 20 ms. Handing these
+        bounds to the allocation lets it keep u_f and τ_q exact and give up τ_r/τ_p, as it
+        does for the [0, f_max] limits, instead of the inverter clipping blindly.
+        """
+        kf = self.k_f
+        fmax = self.thrust_max_n
+        if omega_meas_radps is not None and all(math.isfinite(w) for w in omega_meas_radps):
+            omega = [min(max(w, 0.0), self.omega_max_radps) for w in omega_meas_radps]
+        elif self._omega_model is not None:
+            omega = self._omega_model
+        else:
+            omega = None
+        self._omega = omega
+        if omega is None:
+            return [0.0] * 4, [fmax] * 4
+        e1 = self._e1
+        wmax = self.omega_max_radps
+        prev = self._prev_demand
+        k = 1.0 + self.lead_periods
+        lo: list[float] = []
+        hi: list[float] = []
+        for i, w in enumerate(omega):
+            f_lo = kf * (e1 * w) ** 2
+            f_hi = kf * (w + (wmax - w) * (1.0 - e1)) ** 2
+            if prev is not None:
+                f_lo = (f_lo + self.lead_periods * prev[i]) / k
+                f_hi = (f_hi + self.lead_periods * prev[i]) / k
+            lo.append(min(max(f_lo, 0.0), fmax))
+            hi.append(min(max(f_hi, 0.0), fmax))
+        return lo, hi
+
+    def invert(self, demand_n: Sequence[float],
+               omega_meas_radps: Sequence[float] | None = None) -> LagInversion:
+        """Commands for this period given the law's ``demand_n``.
+
+        ω comes from ``omega_meas_radps`` if given, else from the last :meth:`reachable`,
+        else from the inverter's own model of the rotors (open loop).
         """
         kf = self.k_f
         fmax = self.thrust_max_n
@@ -81,11 +120,14 @@ class MotorLagInverter:
         prev = self._prev_demand
         lead = self.lead_periods
         if omega_meas_radps is not None and all(math.isfinite(w) for w in omega_meas_radps):
-            omega = [max(w, 0.0) for w in omega_meas_radps]
+            omega = [min(max(w, 0.0), wmax) for w in omega_meas_radps]
+        elif self._omega is not None:
+            omega = self._omega
         elif self._omega_model is not None:
             omega = self._omega_model
         else:
             omega = [math.sqrt(min(max(f, 0.0), fmax) / kf) for f in demand_n]
+        self._omega = None
         e1, gain, m1, m2 = self._e1, self._gain, self._m1, self._m2
         cmd: list[float] = []
         mean: list[float] = []
@@ -96,7 +138,7 @@ class MotorLagInverter:
             w_star = math.sqrt(min(max(target, 0.0), fmax) / kf)
             w0 = omega[i]
             c = (w_star - e1 * w0) * gain
-            hit = c < 0.0 or c > wmax
+            hit = c < -1e-6 * wmax or c > wmax * (1.0 + 1e-6)
             c = min(max(c, 0.0), wmax)
             dw = w0 - c
             cmd.append(kf * c * c)

@@ -11,9 +11,13 @@ Rotor layout (paper frame, body FLU): rotor 1 on +b1, 2 on −b2, 3 on −b1, 4 
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 
-__all__ = ["RotorFrame", "allocate_attacked", "allocate_nominal", "canonical_frame"]
+__all__ = ["Bounds", "RotorFrame", "allocate_attacked", "allocate_nominal", "canonical_frame"]
+
+Bounds = tuple[Sequence[float], Sequence[float]]
+"""Per-rotor (lower, upper) thrust limits (N) for one control period."""
 
 
 @dataclass(frozen=True)
@@ -51,33 +55,36 @@ def canonical_frame(rotor: int) -> RotorFrame:
 
 
 def allocate_nominal(uf: float, tau_p: float, tau_q: float, tau_r: float,
-                     arm_m: float, d_m: float, thrust_max_n: float = float("inf")
-                     ) -> list[float]:
+                     arm_m: float, d_m: float, thrust_max_n: float = float("inf"),
+                     bounds: Bounds | None = None) -> list[float]:
     """Invert eq. Uf_and_Utau_relation: rotor thrusts (N) for a wrench, all four healthy.
 
     With ``thrust_max_n`` the result is feasible: the yaw torque (the least important
     input: yaw does not move the position) is scaled down first, then each rotor is
-    clipped to [0, f_max].
+    clipped to [0, f_max]. ``bounds`` = (lo, hi) per rotor (N) replaces [0, f_max] with
+    what each rotor can reach this period (a lagging motor, see ``actuators``).
     """
+    lo4, hi4 = bounds if bounds is not None else ((0.0,) * 4, (thrust_max_n,) * 4)
     a = uf / 4.0
     hp, hq = tau_p / (2.0 * arm_m), tau_q / (2.0 * arm_m)
     r = tau_r / (4.0 * d_m)
     base = (a - hq, a - hp, a + hq, a + hp)
     signs = (1.0, -1.0, 1.0, -1.0)
     scale = 1.0
-    for b, sg in zip(base, signs, strict=True):
+    for b, sg, lo, hi in zip(base, signs, lo4, hi4, strict=True):
         f = b + sg * r
-        if f < 0.0 and sg * r < 0.0 and b > 0.0:
-            scale = min(scale, b / abs(r))
-        elif f > thrust_max_n and sg * r > 0.0 and b < thrust_max_n:
-            scale = min(scale, (thrust_max_n - b) / abs(r))
+        if f < lo and sg * r < 0.0 and b > lo:
+            scale = min(scale, (b - lo) / abs(r))
+        elif f > hi and sg * r > 0.0 and b < hi:
+            scale = min(scale, (hi - b) / abs(r))
     r *= scale
-    return [min(max(b + sg * r, 0.0), thrust_max_n) for b, sg in zip(base, signs, strict=True)]
+    return [min(max(b + sg * r, lo), hi)
+            for b, sg, lo, hi in zip(base, signs, lo4, hi4, strict=True)]
 
 
 def allocate_attacked(uf: float, tau_q: float, tau_r: float, attack_n: float,
-                      arm_m: float, d_m: float, thrust_max_n: float = float("inf")
-                      ) -> list[float]:
+                      arm_m: float, d_m: float, thrust_max_n: float = float("inf"),
+                      bounds: Bounds | None = None) -> list[float]:
     """Canonical rotor thrusts with rotor 2 forced to ``attack_n`` (eq. tau_p's mixer).
 
     With f2 = A the mixer gives f1 + f3 = (u_f + τ_r/d)/2, f3 − f1 = τ_q/l and
@@ -87,16 +94,20 @@ def allocate_attacked(uf: float, tau_q: float, tau_r: float, attack_n: float,
     importance: τ_r (hence τ_p) first — f4 is clipped and f1 + f3 absorb the difference so
     that u_f is kept — then τ_q, and u_f only when two rotors cannot carry it. When A ≈ 0
     (the paper's attack while climbing) f4 ≥ A means τ_p ≥ 0 only: the law's τ_p demand is
-    then physically unreachable and this keeps the rest of the wrench exact.
+    then physically unreachable and this keeps the rest of the wrench exact. ``bounds`` =
+    (lo, hi) per canonical rotor (N) replaces [0, f_max] (rotor 2's entry is ignored).
     """
-    # f4's range that leaves f1 + f3 = u_f − A − f4 within [0, 2 f_max] when possible.
+    lo, hi = bounds if bounds is not None else ((0.0,) * 4, (thrust_max_n,) * 4)
+    lo1, lo3, lo4 = lo[0], lo[2], lo[3]
+    hi1, hi3, hi4 = hi[0], hi[2], hi[3]
+    # f4's range that leaves f1 + f3 = u_f − A − f4 within [lo1 + lo3, hi1 + hi3] if possible.
     rest = uf - attack_n
-    hi = min(thrust_max_n, max(rest, 0.0))
-    lo = min(max(rest - 2.0 * thrust_max_n, 0.0), hi)
-    f4 = min(max(0.5 * (uf - tau_r / d_m) - attack_n, lo), hi)
-    s13 = min(max(uf - attack_n - f4, 0.0), 2.0 * thrust_max_n)
+    top = min(hi4, max(rest - (lo1 + lo3), lo4))
+    bottom = min(max(rest - (hi1 + hi3), lo4), top)
+    f4 = min(max(0.5 * (uf - tau_r / d_m) - attack_n, bottom), top)
+    s13 = min(max(rest - f4, lo1 + lo3), hi1 + hi3)
     half = 0.5 * tau_q / arm_m
-    # Keep f1 + f3 = s13 and reduce |f3 − f1| until both are within [0, f_max].
-    room = min(0.5 * s13, thrust_max_n - 0.5 * s13)
-    half = max(-room, min(room, half))
-    return [0.5 * s13 - half, attack_n, 0.5 * s13 + half, f4]
+    # Keep f1 + f3 = s13 and reduce |f3 − f1| until both are within their bounds.
+    m = 0.5 * s13
+    half = max(max(m - hi1, lo3 - m), min(min(m - lo1, hi3 - m), half))
+    return [m - half, attack_n, m + half, f4]

@@ -317,11 +317,17 @@ class TFLController:
         kr = m.k_r
         tau_p = ix * pdot + kr * pc + (iz - iy) * qc * rc
         tau_q = iy * qdot + kr * qc + (ix - iz) * pc * rc
+        # Motor lag: what each rotor can reach this period bounds the allocation.
+        bounds = (self.lag_inverter.reachable(s.rotor_speed_radps)
+                  if self.lag_inverter is not None else None)
         if attacked:
             a_n = self.attack_estimate_n
             tau_r = d * (uf - 2.0 * (tau_p + 2.0 * m.arm_m * a_n) / m.arm_m)   # eq. tau_p
             raw_c = allocate_attacked(uf, tau_q, tau_r, a_n, m.arm_m, d)
-            canon = allocate_attacked(uf, tau_q, tau_r, a_n, m.arm_m, d, m.thrust_max_n)
+            cb = None if bounds is None else tuple([b[phys] for phys in frame.perm]
+                                                   for b in bounds)
+            canon = allocate_attacked(uf, tau_q, tau_r, a_n, m.arm_m, d, m.thrust_max_n,
+                                      cb)  # type: ignore[arg-type]
             f = [0.0] * 4
             raw = [0.0] * 4
             for i, phys in enumerate(frame.perm):
@@ -345,7 +351,7 @@ class TFLController:
             rdot = ((psi_dd - drift) * cth - qdot * sph) / cph
             tau_r = iz * rdot + kr * rc + (iy - ix) * pc * qc
             raw = allocate_nominal(uf, tau_p, tau_q, tau_r, m.arm_m, d)
-            f = allocate_nominal(uf, tau_p, tau_q, tau_r, m.arm_m, d, m.thrust_max_n)
+            f = allocate_nominal(uf, tau_p, tau_q, tau_r, m.arm_m, d, m.thrust_max_n, bounds)
             mode = "nominal"
         if reason:
             mode = "fallback"
@@ -365,7 +371,7 @@ class TFLController:
         command = f
         delivered = f
         if self.lag_inverter is not None:
-            inv = self.lag_inverter.invert(f, s.rotor_speed_radps)
+            inv = self.lag_inverter.invert(f)
             command, delivered = inv.command_n, inv.expected_mean_n
             if attacked:
                 command[frame.perm[1]] = f[frame.perm[1]]
