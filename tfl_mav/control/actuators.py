@@ -13,10 +13,11 @@ the command that puts the rotor at ω* at the end of the period is
     ω_c = (ω* − e^{−h/τ} ω(t)) / (1 − e^{−h/τ})                      (deadbeat inverse)
 
 Aiming the *end* of the period (not its mean) at the target is what keeps this stable: a
-mean-matching inverse overshoots by 2× and rings at the Nyquist rate. To get the ideal
-actuator's mean thrust back, the target is the law's demand extrapolated one period ahead,
-f* = f_d[k] + (f_d[k] − f_d[k−1]) (``lead_periods`` = 1): the thrust then ramps from f_d[k−1]
-to f*, whose mean is f_d[k], which is exactly what an instant actuator held over the period.
+mean-matching inverse overshoots by 2× and rings at the Nyquist rate. The target is the
+law's demand extrapolated one period ahead, f* = f_d[k] + (f_d[k] − f_d[k−1])
+(``lead_periods`` = 1), so on a ramp the thrust runs from f_d[k] to f_d[k+1] over the
+period: its mean is the demand at mid-period, what the continuous-time law of the paper
+asks for (an ideal actuator held over the period lags that by h/2).
 
 Feedback on the measured ω makes the inverse forgiving: with τ_m off by a factor s the
 per-period error is multiplied by 1 − s (−0.2 … +0.2 for ±20 %), so it still converges in
