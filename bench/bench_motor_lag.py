@@ -124,7 +124,7 @@ def plot_sweep(rows: list[dict], path: Path) -> None:
             ax.semilogy(*zip(*ok, strict=True), style, label=label)
         if bad:
             ax.semilogy(bad, [1e3] * len(bad), "rx", ms=10,
-                        label=f"crashed ({label})")
+                        label="crashed" if att else "crashed (no attack)")
     ax.axhline(10.0, color="grey", lw=0.8, ls=":")
     ax.text(1, 11, "1 cm requirement", fontsize=8, color="grey")
     ax.set_xlabel("motor time constant τ_m (ms)")
