@@ -93,8 +93,11 @@ class Expr:
 def compile_expr(text: str, variables: Sequence[str], *, field: str) -> Expr:
     """Parse and compile ``text`` allowing only ``variables``; errors name ``field``.
 
-    Raises :class:`ExprError` for syntax errors, unknown names, disallowed constructs, and
-    expressions that do not evaluate to a finite number at a neutral point (all variables 0.5).
+    Raises :class:`ExprError` for syntax errors, unknown names, disallowed constructs,
+    numbers beyond float range, too long or too deeply nested text, expressions that do not
+    evaluate to a number at a neutral point (all variables 0.5), and expressions without
+    variables that cannot be evaluated or are not finite (``1/0``, ``9**9**9``): they would
+    fail at every tick. Evaluation cost is bounded by ``MAX_EXPR_NODES`` float operations.
     """
     if not isinstance(text, str):
         raise ExprError(field, f"expected an expression string, got {type(text).__name__}")
@@ -102,10 +105,15 @@ def compile_expr(text: str, variables: Sequence[str], *, field: str) -> Expr:
         raise ExprError(field, f"expression longer than {MAX_EXPR_LENGTH} characters")
     if not text.strip():
         raise ExprError(field, "empty expression")
+    if "\x00" in text:
+        raise ExprError(field, f"expression contains a NUL character: {text!r}")
     try:
         tree = ast.parse(text.strip(), mode="eval")
     except SyntaxError as exc:
-        raise ExprError(field, f"syntax error at column {exc.offset}: {text!r}") from None
+        where = f" at column {exc.offset}" if exc.offset else ""
+        raise ExprError(field, f"syntax error{where} ({exc.msg}): {text!r}") from None
+    except (RecursionError, MemoryError):   # nesting deeper than Python's parser allows
+        raise ExprError(field, "expression nested too deeply") from None
     nodes = sum(1 for _ in ast.walk(tree))
     if nodes > MAX_EXPR_NODES:
         raise ExprError(field, f"expression too complex ({nodes} nodes > {MAX_EXPR_NODES})")
@@ -113,12 +121,18 @@ def compile_expr(text: str, variables: Sequence[str], *, field: str) -> Expr:
     fn = _compile(tree.body, allowed, field)
     expr = Expr(text.strip(), allowed, fn)
     probe = dict.fromkeys(allowed, 0.5)
+    constant = not any(isinstance(n, ast.Name) and n.id in allowed for n in ast.walk(tree))
     try:
         value = expr(probe)
-    except (ArithmeticError, ValueError, TypeError):
+    except (ArithmeticError, ValueError, TypeError) as exc:
+        if constant:   # no variable can ever make it defined: say so now, not mid-flight
+            raise ExprError(field, f"constant expression cannot be evaluated ({exc}): "
+                                   f"{text!r}") from None
         return expr  # e.g. log(x - 1) is valid but undefined at the probe point
     if not isinstance(value, (int, float)):
         raise ExprError(field, f"expression does not evaluate to a number: {text!r}")
+    if constant and not math.isfinite(value):
+        raise ExprError(field, f"constant expression is not finite ({value}): {text!r}")
     return expr
 
 
@@ -126,7 +140,12 @@ def _compile(node: ast.AST, variables: tuple[str, ...], field: str) -> _Node:
     if isinstance(node, ast.Constant):
         if isinstance(node.value, bool) or not isinstance(node.value, (int, float)):
             raise ExprError(field, f"only numbers are allowed as constants, got {node.value!r}")
-        c = float(node.value)
+        try:
+            c = float(node.value)
+        except OverflowError:   # an integer literal beyond float range
+            raise ExprError(field, "number too large for a float (max ~1.8e308)") from None
+        if not math.isfinite(c):   # 1e999 parses as inf
+            raise ExprError(field, "number too large for a float (max ~1.8e308)")
         return lambda v, lib: c
     if isinstance(node, ast.Name):
         name = node.id

@@ -220,6 +220,12 @@ class Scenario:
             if "." in key:
                 sec, name = key.split(".", 1)
                 section = getattr(out, sec)
+                if isinstance(section, PathConfig):
+                    # kind, speed_mps and the path library's own keys share one table
+                    table = {"kind": section.kind, "speed_mps": section.speed_mps,
+                             **section.params, name: value}
+                    out = dataclasses.replace(out, path=_path_section(table, PathConfig()))
+                    continue
                 if isinstance(section, dict):
                     out = dataclasses.replace(out, **{sec: {**section, name: value}})
                     continue
