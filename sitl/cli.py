@@ -32,7 +32,8 @@ EXIT_SIGINT, EXIT_SIGTERM = 128 + signal.SIGINT, 128 + signal.SIGTERM
 EXIT_CODES = {
     EXIT_OK: "the run completed its duration",
     EXIT_CRASHED: "the vehicle crashed (the reason is printed and sent as STATUSTEXT)",
-    EXIT_USAGE: "usage or scenario error (bad option, bad --set, unknown scenario)",
+    EXIT_USAGE: "usage or scenario error (bad option, bad --set, unknown scenario, "
+                "unusable --key-file)",
     EXIT_LINK: "link or I/O error (port in use, unresolvable address, MCAP file not writable)",
     EXIT_SIGINT: "interrupted by SIGINT (Ctrl-C), after a clean shutdown",
     EXIT_SIGTERM: "terminated by SIGTERM, after a clean shutdown",
@@ -92,6 +93,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "are cut (default 0.25)")
     p.add_argument("--gcs-rate", type=float, default=50.0, metavar="HZ",
                    help="GCS telemetry rate, at most 50 Hz (default 50)")
+    p.add_argument("--key-file", metavar="PATH",
+                   help="MAVLink 2 signing key (64 hex digits or 32 raw bytes, mode 600): sign "
+                        "everything and accept only frames signed with it, on both ports; "
+                        "the controller needs the same file (docs/SIGNING.md)")
     p.add_argument("--no-failure-injection", action="store_true",
                    help="deny MAV_CMD_INJECT_FAILURE (the scenario's own attack still runs)")
     p.set_defaults(func=run)
@@ -121,6 +126,7 @@ def apply_settings(scenario: Scenario, settings: list[str]) -> Scenario:
 
 def run(args: argparse.Namespace) -> int:
     from tfl_mav.mavlink.link import parse_address
+    from tfl_mav.mavlink.signing import load_key
 
     prog = "tfl-mav sim"
     try:
@@ -135,6 +141,7 @@ def run(args: argparse.Namespace) -> int:
         gcs = parse_address(args.gcs, "--gcs") if args.gcs else None
         peer = parse_address(args.peer, "--peer") if args.peer else None
         duration = _duration(args.duration, scenario)
+        key = load_key(args.key_file) if args.key_file else None
     except ValueError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return EXIT_USAGE
@@ -145,15 +152,15 @@ def run(args: argparse.Namespace) -> int:
         if recorder is None:
             return code
     try:
-        return _fly(args, scenario, listen, gcs, peer, duration, recorder, prog)
+        return _fly(args, scenario, listen, gcs, peer, duration, key, recorder, prog)
     finally:
         if recorder is not None:
             recorder.close()
 
 
 def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
-         gcs: Address | None, peer: Address | None, duration: float, recorder: Any,
-         prog: str) -> int:
+         gcs: Address | None, peer: Address | None, duration: float, key: bytes | None,
+         recorder: Any, prog: str) -> int:
     from sitl.vehicle import ExitStatus, Vehicle
     from tfl_mav.mavlink.link import LinkError
 
@@ -169,7 +176,7 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
             scenario, listen=listen, gcs=gcs, peer=peer, realtime=args.realtime,
             lockstep_timeout_s=args.lockstep_timeout, command_timeout_s=args.command_timeout,
             gcs_rate_hz=args.gcs_rate, allow_failure_injection=not args.no_failure_injection,
-            on_frame=recorder.on_frame if recorder is not None else None,
+            key=key, on_frame=recorder.on_frame if recorder is not None else None,
             on_truth=_truth_hook(recorder) if recorder is not None else None,
             on_status=on_status)
     except LinkError as exc:
@@ -192,7 +199,8 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
         run_cfg = scenario.run
         length = "until interrupted" if math.isinf(duration) else f"{duration:g} s"
         gcs_text = f", GCS -> {gcs[0]}:{gcs[1]}" if gcs else ""
-        print(f"{prog}: listening on {host}:{port} (control port), {mode}, scenario "
+        signed = ", MAVLink 2 signing on" if key is not None else ""
+        print(f"{prog}: listening on {host}:{port} (control port), {mode}{signed}, scenario "
               f"{scenario.name!r}, physics {run_cfg.physics_hz:g} Hz, control "
               f"{1.0 / run_cfg.control_dt_s:g} Hz, {length}{gcs_text}; waiting for the "
               "controller's HEARTBEAT", flush=True)
@@ -219,6 +227,7 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
                   "real_time_factor": rtf if math.isfinite(rtf) else None,
                   "scenario": scenario.name,
                   "mode": "realtime" if args.realtime else "lockstep",
+                  "signed": key is not None,
                   "listen": [host, port], "stats": vehicle.stats.as_dict()}
         try:
             Path(args.json).write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")

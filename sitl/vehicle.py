@@ -56,6 +56,14 @@ simulator reports a crash (:attr:`ExitStatus.CRASHED`: STATUSTEXT EMERGENCY with
 HEARTBEAT ``MAV_STATE_EMERGENCY``) or on :meth:`Vehicle.stop` (:attr:`ExitStatus.STOPPED`).
 A last HEARTBEAT with ``MAV_STATE_POWEROFF`` (or EMERGENCY after a crash) tells both peers.
 
+**Signing** (``key``, 32 bytes): both ports sign everything they send (control port
+``link_id`` 0, GCS port ``link_id`` 1) and accept only frames that verify, with one
+replay-protection state shared by both ports (:mod:`tfl_mav.mavlink.signing`). The GCS port
+is signed too because MAV_CMD_INJECT_FAILURE moves a motor: a GCS without the key still
+reads the telemetry but cannot command. Until the controller connects, frames refused for
+their signature on the control port are reported by STATUSTEXT (at most once a second), so
+a key mismatch is visible at once.
+
 **Recorder hooks.** ``on_frame(direction, raw, msg, time_s)`` is given to both links (every
 frame, both directions, exact bytes); ``on_truth(sim)`` is called with the simulator at every
 control tick's state: once for the initial state and once after each step.
@@ -88,6 +96,7 @@ from tfl_mav.mavlink.frames import (
     rotation_from_quaternion,
 )
 from tfl_mav.mavlink.link import Address, FrameHook, Link, LinkStats
+from tfl_mav.mavlink.signing import Signing
 from tfl_mav.scenario import Scenario
 
 __all__ = [
@@ -106,6 +115,7 @@ _ID_HIL_ACTUATOR_CONTROLS = mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
 _ID_COMMAND_LONG = mav.MAVLINK_MSG_ID_COMMAND_LONG
 _ID_COMMAND_INT = mav.MAVLINK_MSG_ID_COMMAND_INT
 _ID_COMMANDS = (_ID_COMMAND_LONG, _ID_COMMAND_INT)
+_CONTROL_LINK_ID, _GCS_LINK_ID = 0, 1      # MAVLink signing link ids of our two ports
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
 _STATUSTEXT_LEN = 50
 _STATUSTEXT_MAX_CHUNKS = 4
@@ -194,7 +204,7 @@ class Vehicle:
                  realtime: bool = False, lockstep_timeout_s: float = 2.0,
                  command_timeout_s: float = 0.25, gcs_rate_hz: float = 50.0,
                  allow_failure_injection: bool = True, sysid: int = 1, compid: int = 1,
-                 on_frame: FrameHook | None = None,
+                 key: bytes | None = None, on_frame: FrameHook | None = None,
                  on_truth: Callable[[Simulator], None] | None = None,
                  on_status: Callable[[int, str], None] | None = None) -> None:
         """Bind the sockets (raises :class:`~tfl_mav.mavlink.link.LinkError`) and build the sim.
@@ -203,7 +213,8 @@ class Vehicle:
         ``gcs``: where a ground station listens, or None. ``peer``: pin the controller's
         address instead of learning it. ``lockstep_timeout_s``/``command_timeout_s``: wall
         seconds (see the module docstring). ``gcs_rate_hz``: GCS telemetry rate, at most
-        50 Hz. ``on_status(severity, text)`` sees every STATUSTEXT the vehicle sends.
+        50 Hz. ``key``: 32-byte MAVLink 2 signing secret for both ports, or None (unsigned).
+        ``on_status(severity, text)`` sees every STATUSTEXT the vehicle sends.
         """
         for name, value in (("lockstep_timeout_s", lockstep_timeout_s),
                             ("command_timeout_s", command_timeout_s)):
@@ -222,13 +233,16 @@ class Vehicle:
         self.compid = compid
         self.on_truth = on_truth
         self.on_status = on_status
+        self.signing = Signing(key) if key is not None else None
         self.control_link = Link.listen(listen, src_system=sysid, src_component=compid,
-                                        peer=peer, on_frame=on_frame)
+                                        peer=peer, on_frame=on_frame, signing=self.signing,
+                                        link_id=_CONTROL_LINK_ID)
         self.gcs_link: Link | None = None
         if gcs is not None:
             try:
                 self.gcs_link = Link.connect(gcs, src_system=sysid, src_component=compid,
-                                             on_frame=on_frame)
+                                             on_frame=on_frame, signing=self.signing,
+                                             link_id=_GCS_LINK_ID)
             except Exception:
                 self.control_link.close()
                 raise
@@ -252,6 +266,7 @@ class Vehicle:
         self._motors_cut = False
         self._system_status = mav.MAV_STATE_STANDBY
         self._controller_seen = False
+        self._refused_reported = 0
         self._last_controls_usec = -1
         self._esc_count = 0
         self._state_msgs: tuple[Any, Any] | None = None
@@ -343,10 +358,24 @@ class Vehicle:
                 next_heartbeat = now + 1.0
             self._wait(min(_WAIT_SLICE_S, max(0.0, next_heartbeat - time.monotonic())))
             self._drain(None)
+            if self.signing is not None:
+                self._report_refused_signatures()
         host, port = ctl.peer or ("?", 0)
         self._status(mav.MAV_SEVERITY_INFO, f"controller {host}:{port} (sysid "
                                             f"{ctl.peer_sysid}) connected: flight starts")
         return True
+
+    def _report_refused_signatures(self) -> None:
+        """Before the flight: say so when would-be controllers' frames fail signing."""
+        st = self.control_link.stats
+        refused = st.unsigned + st.bad_signature + st.replayed + st.bad_timestamp
+        if refused > self._refused_reported:
+            self._refused_reported = refused
+            self._status(mav.MAV_SEVERITY_WARNING,
+                         f"control port: {refused} frames refused by signing (bad_signature "
+                         f"{st.bad_signature}, unsigned {st.unsigned}, replayed {st.replayed}, "
+                         f"bad_timestamp {st.bad_timestamp}); same --key-file on both sides?",
+                         key="signing")
 
     def _run_lockstep(self, n_ticks: float) -> tuple[ExitStatus, str]:
         sim = self.sim

@@ -273,3 +273,28 @@ def test_nonfinite_fields_are_named_element_by_element():
     assert nonfinite_field(msg, ["time_usec", "controls"]) == "controls[1]"
     assert not finite_fields(msg, ["controls"])
     assert finite_fields(controls(), ["controls"])
+
+
+def test_every_rejection_counter_is_counted_in_rejected_and_summary():
+    """Adding a rejection reason (signing added four) must keep ``rejected``, ``as_dict``
+    and ``summary`` in step: each counter that is not traffic or local trouble is one."""
+    from tfl_mav.mavlink.link import LinkStats
+
+    traffic = {"rx_datagrams", "rx_bytes", "rx_frames", "tx_frames", "tx_bytes"}
+    local = {"recv_errors", "send_errors", "unsent_no_peer"}
+    names = set(LinkStats().as_dict()) - traffic - local
+    assert names == set(LinkStats._REJECTIONS)
+    for i, name in enumerate(sorted(names), start=1):
+        st = LinkStats(**{name: i})
+        assert st.rejected == i
+        assert f"{name} {i}" in st.summary()
+
+
+def test_signed_frames_are_accepted_unchecked_on_an_unsigned_link(vehicle_side, raw):
+    """Like any key-less MAVLink receiver: signing is opt-in on both ends."""
+    packer = new_mavlink(2, 191)
+    packer.signing.secret_key = bytes(range(1, 33))
+    packer.signing.sign_outgoing = True
+    raw.send(bytes(heartbeat().pack(packer)), vehicle_side.local_address)
+    assert [m.get_type() for m in drain(vehicle_side, 1)] == ["HEARTBEAT"]
+    assert vehicle_side.stats.rejected == 0

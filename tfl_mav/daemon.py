@@ -20,6 +20,15 @@ announced by STATUSTEXT; nothing is sent to the motors (a vehicle in lockstep wa
 real time cuts its motors after its own command timeout, like a real ESC). When states
 return the law resumes from the new state and says so.
 
+**Waiting.** Until the first state arrives, a warning event every 2 s (wall) says what
+has been received (and, on a signed link, how many frames were refused by signing), so a
+vehicle that is not running, or a key mismatch, is visible instead of a silent wait. A
+vehicle refuses an unsigned or wrongly signed controller *silently* (it answers no one it
+cannot authenticate), so on a signed link silence is the symptom of a wrong key.
+
+**Signing** (``key``): every frame sent is signed (``link_id`` 0) and only frames that
+verify are accepted (:mod:`tfl_mav.mavlink.signing`).
+
 Bad input (garbage, wrong peer or sysid, non-finite or malformed ODOMETRY, unknown
 messages) is counted in :class:`DaemonStats` and never stops the loop; nothing non-finite
 ever reaches a motor command.
@@ -40,7 +49,10 @@ from tfl_mav.detector_setup import build_detector
 from tfl_mav.mavlink.dialect import mav
 from tfl_mav.mavlink.frames import paper_from_odometry
 from tfl_mav.mavlink.link import Address, FrameHook, Link
+from tfl_mav.mavlink.signing import Signing
 from tfl_mav.scenario import Scenario
+
+_RPM_TO_RADPS = 2.0 * math.pi / 60.0   # ESC rpm → rotor speed ω (rad/s) for the lag inverse
 
 __all__ = ["MODES", "Daemon", "DaemonResult", "DaemonStats"]
 
@@ -49,6 +61,7 @@ TWO_PI_OVER_60 = 2.0 * math.pi / 60.0
 _TELEMETRY_PERIOD_S = 0.02        # ≤ 50 Hz of sim time
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
 _LOCKSTEP_FLAG = 1
+_WAITING_REPORT_PERIOD_S = 2.0
 
 
 @dataclass
@@ -93,11 +106,13 @@ class Daemon:
     def __init__(self, scenario: Scenario, *, vehicle: Address, bind: Address | None = None,
                  realtime: bool = False, state_timeout_s: float = 0.5, sysid: int = 1,
                  compid: int = mav.MAV_COMP_ID_ONBOARD_COMPUTER,
-                 vehicle_sysid: int | None = None, on_frame: FrameHook | None = None,
+                 vehicle_sysid: int | None = None, key: bytes | None = None,
+                 on_frame: FrameHook | None = None,
                  on_tick: Callable[[float, dict[str, Any]], None] | None = None,
                  on_event: Callable[[str, str, float], None] | None = None) -> None:
         """Open the socket towards ``vehicle`` (raises LinkError).
 
+        ``key``: 32-byte MAVLink 2 signing secret (the vehicle's), or None (unsigned).
         ``on_tick(sim_time_s, state)`` sees the controller's internals every tick (the
         recorder's ``/controller/state``); ``on_event(level, text, sim_time_s)`` every
         event also sent as STATUSTEXT.
@@ -109,8 +124,10 @@ class Daemon:
         self.state_timeout_s = state_timeout_s
         self.controller: TFLController = build_controller(scenario)
         self.detector = build_detector(scenario)
+        self.signing = Signing(key) if key is not None else None
         self.link = Link.connect(vehicle, src_system=sysid, src_component=compid, bind=bind,
-                                 peer_sysid=vehicle_sysid, on_frame=on_frame)
+                                 peer_sysid=vehicle_sysid, on_frame=on_frame,
+                                 signing=self.signing)
         self.on_tick = on_tick
         self.on_event = on_event
         self.stats = DaemonStats()
@@ -146,6 +163,7 @@ class Daemon:
         next_heartbeat = 0.0
         last_state_wall = time.monotonic()
         reason = "stopped"
+        next_waiting_report = wall0 + _WAITING_REPORT_PERIOD_S
         while not self._stop.is_set():
             now = time.monotonic()
             if now >= next_heartbeat:
@@ -171,6 +189,9 @@ class Daemon:
                 self.stats.failsafes += 1
                 self._event("critical", f"no vehicle state for {self.state_timeout_s:.2f} s: "
                                         "FAILSAFE, no commands sent")
+            if self.stats.ticks == 0 and now >= next_waiting_report:
+                next_waiting_report = now + _WAITING_REPORT_PERIOD_S
+                self._report_waiting(now - wall0)
             if self._vehicle_done:
                 reason = self._vehicle_done
                 break
@@ -183,6 +204,20 @@ class Daemon:
             detected_rotor=self._detected_rotor, detection_time_s=self._detection_time_s,
             attack_estimate_samples=self._est_n,
             final_path_distance_m=self._distance, mode=self._mode, stats=self.stats)
+
+    def _report_waiting(self, waited_s: float) -> None:
+        """Before the first tick: say (locally) what arrived and what to check."""
+        st = self.link.stats
+        host, port = self.link.peer or ("?", 0)
+        text = (f"no vehicle state after {waited_s:.0f} s: {st.rx_frames} frames accepted, "
+                f"{st.rejected} rejected from {host}:{port}")
+        if self.signing is not None:
+            text += (f" (signing: bad_signature {st.bad_signature}, unsigned {st.unsigned}, "
+                     f"replayed {st.replayed}, bad_timestamp {st.bad_timestamp}); is the "
+                     "vehicle running, with the same --key-file?")
+        else:
+            text += "; is the vehicle running there (tfl-mav sim)?"
+        self._event("warning", text, send=False)
 
     # ------------------------------------------------------------------ messages
     def _handle(self, msg: Any) -> bool:
@@ -234,7 +269,8 @@ class Daemon:
                                        f"t={t:.3f} s; attacked law engaged")
             ctrl.set_attack(det.detected_rotor, det.estimate_n)
         out = ctrl.update(StateEstimate(state.position_m, state.velocity_mps,
-                                        state.quaternion_wxyz, state.body_rates_radps))
+                                        state.quaternion_wxyz, state.body_rates_radps,
+                                        [r * _RPM_TO_RADPS for r in rpm]))
         fmax = self.thrust_max_n
         thrust = [min(max(f, 0.0), fmax) if math.isfinite(f) else 0.0
                   for f in out.rotor_thrust_n]

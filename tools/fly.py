@@ -17,6 +17,7 @@ from typing import Any
 from sitl.cli import apply_settings
 from tfl_mav.daemon import Daemon
 from tfl_mav.mavlink.link import LinkError, parse_address
+from tfl_mav.mavlink.signing import load_key
 from tfl_mav.scenario import ScenarioError, load_scenario
 
 __all__ = ["add_parser", "run"]
@@ -36,6 +37,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--vehicle", default="127.0.0.1:14540", metavar="HOST:PORT",
                    help="the vehicle's control port (default 127.0.0.1:14540)")
     p.add_argument("--bind", metavar="HOST:PORT", help="local address (default: ephemeral)")
+    p.add_argument("--key-file", metavar="PATH",
+                   help="MAVLink 2 signing key (64 hex digits or 32 raw bytes, mode 600), the "
+                        "same file as the vehicle's: sign everything, accept only frames "
+                        "signed with it (docs/SIGNING.md)")
     p.add_argument("--mcap", metavar="FILE", help="record every frame and the controller's "
                                                   "state to this MCAP file")
     p.add_argument("--realtime", action="store_true",
@@ -60,6 +65,7 @@ def run(args: argparse.Namespace) -> int:
         scenario = apply_settings(load_scenario(args.scenario), args.settings)
         vehicle = parse_address(args.vehicle, "--vehicle")
         bind = parse_address(args.bind, "--bind") if args.bind else None
+        key = load_key(args.key_file) if args.key_file else None
     except (ScenarioError, ValueError, LinkError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
@@ -98,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
 
     try:
         daemon = Daemon(scenario, vehicle=vehicle, bind=bind, realtime=args.realtime,
-                        state_timeout_s=args.state_timeout,
+                        state_timeout_s=args.state_timeout, key=key,
                         on_frame=recorder.on_frame if recorder else None,
                         on_tick=on_tick, on_event=on_event)
     except (LinkError, ValueError) as exc:
@@ -116,7 +122,8 @@ def run(args: argparse.Namespace) -> int:
     try:
         if not args.quiet:
             print(f"{prog}: controlling {vehicle[0]}:{vehicle[1]} from "
-                  f"{daemon.link.local_address[1]}, scenario {scenario.name!r}",
+                  f"{daemon.link.local_address[1]}, scenario {scenario.name!r}"
+                  f"{', MAVLink 2 signing on' if key is not None else ''}",
                   file=sys.stderr, flush=True)
         result = daemon.run(duration)
     finally:

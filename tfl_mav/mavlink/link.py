@@ -11,7 +11,7 @@ Small and explicit on purpose (STYLE.md: not like ``mavutil``):
   (``mavlink1``): accepting them would let anyone downgrade a signed link to an unsigned
   one later.
 * **One datagram at a time.** Each datagram is framed here and every frame is handed to
-  pymavlink's ``decode`` (which checks length, CRC and, once configured, the signature).
+  pymavlink's ``decode`` (which checks length and CRC; never the signature, see below).
   Nothing is carried over between datagrams, so a truncated datagram cannot swallow the
   start of the next good one, as happens when datagrams are concatenated into one stream
   parser (``parse_buffer``). Every rejection is counted by reason in :class:`LinkStats`;
@@ -22,14 +22,17 @@ Small and explicit on purpose (STYLE.md: not like ``mavutil``):
   that was rejected, and for :meth:`Link.send_raw`. ``time_s`` comes from ``clock``
   (default wall time, ``time.time``). Exceptions raised by the hook propagate: a broken
   recorder is a bug to see, not traffic to count.
+* **Signing** (``signing=``, a :class:`~tfl_mav.mavlink.signing.Signing`): every outgoing
+  frame is signed (pymavlink's packer, timestamp kept up with the wall clock) and every
+  received frame must carry a valid signature with a fresh timestamp, checked by our own
+  verify-then-advance code *before* pymavlink decodes it (pymavlink's own check advances
+  the stream before verifying: FACTS.md). Rejections are counted as ``unsigned``,
+  ``bad_signature``, ``replayed`` and ``bad_timestamp``. Only verified frames can pin the
+  peer or its system id. Without ``signing`` (the default) signed frames from others are
+  accepted unchecked, like any key-less MAVLink receiver does, and nothing is signed.
 
-Signing (a later issue) plugs in at two seams: ``packer.signing`` (outgoing frames are
-signed by pymavlink's ``pack``) and :meth:`Link._decode_frame` (verify the signature there,
-*before* advancing the stream timestamp: FACTS.md describes pymavlink's flaw). Until then
-signed frames are accepted without checking their signature.
-
-Not thread-safe, by design: packing mutates the sequence number (and, later, the signing
-timestamp). Use one link from one thread.
+Not thread-safe, by design: packing mutates the sequence number and the signing timestamp.
+Use one link from one thread.
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from dataclasses import asdict, dataclass
 from typing import Any
 
 from tfl_mav.mavlink.dialect import mav, new_mavlink
+from tfl_mav.mavlink.signing import Signing
 
 __all__ = [
     "Address",
@@ -90,7 +94,10 @@ class LinkStats:
     truncated: int = 0          # shorter than its header says
     bad_flags: int = 0          # unknown incompatibility flags
     bad_crc: int = 0
-    bad_signature: int = 0
+    bad_signature: int = 0      # signed link: signature does not verify (forged, wrong key)
+    unsigned: int = 0           # signed link: frame carries no signature
+    replayed: int = 0           # signed link: timestamp not newer than the stream's last
+    bad_timestamp: int = 0      # signed link: timestamp > 60 s from our clock (skew, old capture)
     malformed: int = 0          # decodes badly for another reason (length, payload)
     unknown_id: int = 0         # message id not in the dialect
     foreign: int = 0            # datagram from an address that is not the peer
@@ -102,8 +109,8 @@ class LinkStats:
     unsent_no_peer: int = 0     # send() before any peer was known
 
     _REJECTIONS = ("garbage", "mavlink1", "truncated", "bad_flags", "bad_crc",
-                   "bad_signature", "malformed", "unknown_id", "foreign", "wrong_sysid",
-                   "no_peer")
+                   "bad_signature", "unsigned", "replayed", "bad_timestamp", "malformed",
+                   "unknown_id", "foreign", "wrong_sysid", "no_peer")
 
     @property
     def rejected(self) -> int:
@@ -174,12 +181,15 @@ class Link:
                  peer: Address | None = None, peer_sysid: int | None = None,
                  on_frame: FrameHook | None = None,
                  clock: Callable[[], float] = time.time,
-                 max_datagrams_per_recv: int = 256) -> None:
+                 max_datagrams_per_recv: int = 256,
+                 signing: Signing | None = None, link_id: int = 0) -> None:
         """Wrap a bound UDP socket (made non-blocking here).
 
         ``peer``: fixed peer address, or None to learn it from the first valid HEARTBEAT.
         ``peer_sysid``: pin the peer's system id; None learns it from its first HEARTBEAT.
         ``max_datagrams_per_recv`` bounds one :meth:`recv` so a flood cannot starve the caller.
+        ``signing``: sign everything sent (with ``link_id``, 0-255) and accept only frames
+        that verify; None (default): neither.
         """
         sock.setblocking(False)
         self._sock = sock
@@ -194,6 +204,9 @@ class Link:
         self._poll = select.poll()
         self._poll.register(sock, select.POLLIN)
         self._decode = self.parser.decode
+        self.signing = signing
+        if signing is not None:
+            signing.configure_packer(self.packer, link_id)
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -241,6 +254,8 @@ class Link:
         Returns the bytes sent; 0 (counted) if no peer is known yet or the OS refused.
         """
         packer = self.packer
+        if self.signing is not None:
+            self.signing.stamp(packer)
         raw = msg.pack(packer)
         packer.seq = (packer.seq + 1) & 0xFF
         return self._sendto(raw, msg)
@@ -257,6 +272,8 @@ class Link:
         Returns the bytes sent; 0 (counted per frame) if no peer is known or the OS refused.
         """
         packer = self.packer
+        if self.signing is not None:
+            self.signing.stamp(packer)
         frames = []
         for msg in msgs:
             frames.append(msg.pack(packer))
@@ -394,8 +411,16 @@ class Link:
     def _decode_frame(self, raw: bytes) -> Any:
         """Decode one complete MAVLink 2 frame, or count why not and return None.
 
-        Signing seam: signature verification belongs here (verify, then advance).
+        On a signed link the signature and timestamp are checked first (verify, then
+        advance: :meth:`Signing.verify`), so forged or replayed frames cost one SHA-256
+        and never reach the decoder.
         """
+        signing = self.signing
+        if signing is not None:
+            reason = signing.verify(raw)
+            if reason is not None:
+                self._reject(reason, raw)
+                return None
         try:
             msg = self._decode(bytearray(raw))
         except mav.MAVError as exc:
