@@ -141,8 +141,6 @@ def test_link_counts_every_datagram_as_the_model_says(link_pair, data: bytes) ->
     assert sum(counted.values()) >= 1       # a datagram never vanishes uncounted
 
 
-@pytest.mark.xfail(strict=True, reason="link.py: an empty datagram increments rx_datagrams "
-                   "only; no rejection counter sees it (reported to the lead)")
 def test_an_empty_datagram_is_counted_as_a_reject(link_pair) -> None:
     link, raw = link_pair
     counted = _deliver(link, raw, b"")
@@ -158,7 +156,9 @@ def test_flood_from_a_non_peer_does_not_stop_a_lockstep_flight() -> None:
                                            "initial.position_m": [0.0, 0.0, 5.0]})
     hover = sc.vehicle.mass_kg * sc.vehicle.gravity_mps2 / 4.0 / sc.vehicle.thrust_max_n
     n_ticks = 300
-    vehicle = Vehicle(sc, listen=("127.0.0.1", 0))
+    # A reply lost to the flood (the kernel drops datagrams when the buffer is full) is
+    # recovered by the vehicle's state resend after lockstep_timeout_s: keep that short.
+    vehicle = Vehicle(sc, listen=("127.0.0.1", 0), lockstep_timeout_s=0.05)
     address = vehicle.listen_address
     result = []
     runner = threading.Thread(target=lambda: result.append(vehicle.run(n_ticks * 1e-3)),
@@ -166,7 +166,7 @@ def test_flood_from_a_non_peer_does_not_stop_a_lockstep_flight() -> None:
     runner.start()
     pilot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     pilot.bind(("127.0.0.1", 0))
-    pilot.settimeout(5.0)
+    pilot.settimeout(0.1)
     mv = new_mavlink(fuzzgen.FUZZER_SYSID, 191)
     pilot.sendto(mav.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3).pack(mv), address)
 
@@ -194,9 +194,16 @@ def test_flood_from_a_non_peer_does_not_stop_a_lockstep_flight() -> None:
     flooder.start()
     parser = new_mavlink(255, 0)
     ticks = 0
+    deadline = time.monotonic() + 60.0
     try:
-        while ticks < n_ticks:
-            for msg in parser.parse_buffer(pilot.recv(65535)) or ():
+        # Answer until the vehicle's run ends, not until n replies were sent: the last
+        # reply may be dropped and the state resent.
+        while runner.is_alive() and time.monotonic() < deadline:
+            try:
+                data = pilot.recv(65535)
+            except TimeoutError:
+                continue
+            for msg in parser.parse_buffer(data) or ():
                 if msg.get_msgId() == mav.MAVLINK_MSG_ID_ODOMETRY:
                     reply = mav.MAVLink_hil_actuator_controls_message(
                         msg.time_usec, [hover] * 4 + [0.0] * 12, 128, 1)

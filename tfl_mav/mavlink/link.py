@@ -367,6 +367,9 @@ class Link:
         if peer is not None and addr != peer:
             self._reject("foreign", data)
             return
+        if n == 0:   # a zero-length datagram holds no frame: count it, like a cut-off one
+            self._reject("truncated", data)
+            return
         i = 0
         while i < n:
             magic = data[i]
