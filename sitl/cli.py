@@ -156,6 +156,10 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if recorder is not None:
             recorder.close()
+            if recorder.error:   # the flight went on (flight before logging); say so
+                print(f"{prog}: --mcap {args.mcap}: recording stopped early: "
+                      f"{recorder.error}; the file holds what was flushed "
+                      "(`tfl-mav inspect --recover` makes it whole)", file=sys.stderr)
 
 
 def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
