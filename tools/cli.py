@@ -22,6 +22,7 @@ SUBCOMMANDS = (
     "tools.report",
     "tools.replay",
     "tools.scenarios_cmd",
+    "tools.relay",
 )
 
 

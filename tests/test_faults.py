@@ -1,0 +1,319 @@
+"""Faults on the control link (issue 5): the fault relay itself, then real ``tfl-mav sim`` /
+``tfl-mav fly`` processes on loopback UDP through it, and killed or silent peers.
+
+The process helpers (timestamped output lines, GCS position listener) are shared with
+``bench/bench_faults.py``, which measures the same runs over a range of loss rates.
+"""
+
+from __future__ import annotations
+
+import itertools
+import json
+import math
+import socket
+import sys
+import threading
+import time
+from pathlib import Path
+
+import pytest
+
+from tools.relay import Faults, Relay
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
+from bench_faults import (
+    Proc,
+    free_port,
+    start_sim,
+    start_sim_on,
+)
+
+
+# ---------------------------------------------------------------------------- the relay
+class Sink:
+    """The 'vehicle' of a relay unit test: a socket whose datagrams are read on a thread
+    (so the kernel queue never overflows) and stamped on arrival."""
+
+    def __init__(self) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.settimeout(0.05)
+        self.got: list[tuple[float, bytes]] = []
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    @property
+    def address(self) -> tuple[str, int]:
+        return self.sock.getsockname()
+
+    def _run(self) -> None:
+        while not self._stop.is_set():
+            try:
+                data = self.sock.recv(65535)
+            except TimeoutError:
+                continue
+            self.got.append((time.monotonic(), data))
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(timeout=2)
+        self.sock.close()
+
+
+def _pump(relay: Relay, n: int, *, burst: int = 100, pause_s: float = 0.002) -> socket.socket:
+    """Send datagrams 0..n-1 (4-byte sequence numbers) to the relay's daemon side."""
+    client = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    client.bind(("127.0.0.1", 0))
+    for i in range(n):
+        client.sendto(i.to_bytes(4, "big"), relay.listen_address)
+        if i % burst == burst - 1:
+            time.sleep(pause_s)
+    return client
+
+
+def _settle(relay: Relay, sink: Sink, expected: int, timeout_s: float = 10.0) -> None:
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline and (relay.pending or len(sink.got) < expected):
+        time.sleep(0.01)
+
+
+def _within(count: int, n: int, p: float, sigmas: float = 5.0) -> bool:
+    """|count − np| ≤ 5σ of Binomial(n, p): a seeded run can still fail if the relay draws
+    wrongly, and an honest one fails with probability < 1e-6."""
+    return abs(count - n * p) <= sigmas * math.sqrt(n * p * (1 - p)) + 1
+
+
+def test_relay_drop_duplicate_reorder_counts_are_binomial_and_conserved():
+    n, p_drop, p_dup, p_reo = 20_000, 0.10, 0.05, 0.05
+    sink = Sink()
+    faults = Faults(drop=p_drop, duplicate=p_dup, reorder=p_reo)
+    with Relay(sink.address, to_vehicle=faults, seed=7, max_hold_s=1.0) as relay:
+        client = _pump(relay, n)
+        st = relay.stats.to_vehicle
+        _settle(relay, sink, n - st.dropped + st.duplicated)
+        client.close()
+    sink.close()
+    kept = n - st.dropped
+    assert st.received == n
+    assert _within(st.dropped, n, p_drop)
+    assert _within(st.duplicated, kept, p_dup)
+    # A datagram arriving while another is held is its swap partner and is never held itself:
+    # the held fraction of a steady stream is p/(1+p) (two-state Markov chain).
+    assert _within(st.reordered, kept, p_reo / (1 + p_reo))
+    assert st.hold_expired <= 1                  # only the very last one can lack a successor
+    # Conservation, exactly: every datagram is dropped or forwarded, duplicates once more.
+    assert st.forwarded == kept + st.duplicated == len(sink.got)
+    seqs = [int.from_bytes(d, "big") for _t, d in sink.got]
+    assert len(set(seqs)) == kept
+    inversions = sum(a > b for a, b in itertools.pairwise(seqs))
+    assert st.reordered - st.hold_expired <= inversions <= st.reordered + st.duplicated
+    assert relay.stats.to_daemon.received == 0 and relay.stats.foreign == 0
+
+
+def test_relay_is_deterministic_per_seed():
+    def counts(seed: int) -> tuple[int, int, int]:
+        sink = Sink()
+        with Relay(sink.address, to_vehicle=Faults(drop=0.2, duplicate=0.1, reorder=0.1),
+                   seed=seed, max_hold_s=1.0) as relay:
+            client = _pump(relay, 3000)
+            st = relay.stats.to_vehicle
+            _settle(relay, sink, 3000 - st.dropped + st.duplicated)
+            client.close()
+        sink.close()
+        return st.dropped, st.duplicated, st.reordered
+
+    assert counts(1) == counts(1)
+    assert counts(1) != counts(2)
+
+
+def test_relay_delay_and_jitter_bounds_and_throughput():
+    """Every datagram waits delay_s + U(0, jitter_s); the mean is that to 5σ of the uniform
+    draw plus scheduling slack; and the timer heap keeps throughput far above what a
+    sleep-per-packet relay could do (n × mean delay = 20 s here)."""
+    delay, jitter, n = 0.005, 0.010, 2000
+    sink = Sink()
+    with Relay(sink.address, to_vehicle=Faults(delay_s=delay, jitter_s=jitter)) as relay:
+        client = _pump(relay, n, burst=50, pause_s=0.001)
+        _settle(relay, sink, n)
+        st = relay.stats.to_vehicle
+        assert st.forwarded == n
+        assert st.latency_min_s >= delay
+        sigma_mean = jitter / math.sqrt(12 * n)
+        assert abs(st.latency_mean_s - (delay + jitter / 2)) <= 5 * sigma_mean + 0.002
+        assert st.latency_max_s <= delay + jitter + 0.050
+        # Throughput: 20 000 datagrams with 2 ms jitter through in well under 20 s.
+        relay.set_faults(to_vehicle=Faults(jitter_s=0.002))
+        sink.got.clear()
+        t0 = time.monotonic()
+        client2 = _pump(relay, 20_000, burst=200, pause_s=0.001)
+        _settle(relay, sink, 20_000, timeout_s=20)
+        elapsed = time.monotonic() - t0
+        client.close()
+        client2.close()
+    sink.close()
+    assert len(sink.got) == 20_000
+    assert elapsed < 5.0, f"20 000 datagrams took {elapsed:.2f} s"
+
+
+def test_relay_in_order_jitter_never_reorders():
+    sink = Sink()
+    with Relay(sink.address, to_vehicle=Faults(jitter_s=0.003, in_order=True)) as relay:
+        client = _pump(relay, 2000, burst=20, pause_s=0.0005)
+        _settle(relay, sink, 2000)
+        client.close()
+    sink.close()
+    seqs = [int.from_bytes(d, "big") for _t, d in sink.got]
+    assert seqs == sorted(seqs) and len(seqs) == 2000
+
+
+def test_relay_survives_hostile_traffic_and_a_broken_tap():
+    sink = Sink()
+
+    def bad_tap(direction: str, data: bytes, t: float) -> None:
+        if data.startswith(b"boom"):
+            raise RuntimeError("observer bug")
+
+    with Relay(sink.address, tap=bad_tap) as relay:
+        a = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        b = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        for payload in (b"", b"boom", bytes(65_507), bytes(range(256))):
+            a.sendto(payload, relay.listen_address)
+        # The vehicle side accepts only the vehicle; a stranger is counted and dropped.
+        a.sendto(b"not the vehicle", relay.vehicle_side_address)
+        # A restarted daemon (new address) is followed at once.
+        b.sendto(b"hello", relay.listen_address)
+        _settle(relay, sink, 5)
+        sink.sock.sendto(b"reply", relay.vehicle_side_address)
+        b.settimeout(2.0)
+        assert b.recv(100) == b"reply"
+        a.close()
+        b.close()
+        st = relay.stats
+    sink.close()
+    assert st.tap_errors == 1
+    assert st.foreign == 1
+    assert st.daemon_changes == 1
+    assert st.to_vehicle.forwarded == 5 and len(sink.got) == 5
+    assert st.to_daemon.forwarded == 1
+
+
+def test_relay_rejects_bad_faults_naming_the_field():
+    with pytest.raises(ValueError, match="drop"):
+        Faults(drop=1.5)
+    with pytest.raises(ValueError, match="jitter_s"):
+        Faults(jitter_s=math.nan)
+
+
+# ---------------------------------------------------------------------------- closed loop
+def _sim_json(path: Path) -> dict:
+    return json.loads(path.read_text())
+
+
+def test_lockstep_through_a_lossy_relay_completes(tmp_path):
+    """Each lost datagram costs one --lockstep-timeout and a resend; the run still ends
+    with every tick integrated. Expected timeouts: a round trip survives with (1−p)², so
+    ≈ n·q/(1−q) with q = 1 − 0.95² (resends can be lost too)."""
+    n_ticks, p = 1000, 0.05
+    faults = Faults(drop=p, jitter_s=0.002)
+    sim, port = start_sim(["--duration", str(n_ticks / 1000), "--lockstep-timeout", "0.01",
+                           "--json", str(tmp_path / "sim.json")])
+    try:
+        with Relay(("127.0.0.1", port), to_vehicle=faults, to_daemon=faults,
+                   seed=3) as relay:
+            fly = Proc(["fly", "paper", "--quiet", "--vehicle",
+                        f"127.0.0.1:{relay.listen_address[1]}", "--duration",
+                        str(n_ticks / 1000), "--summary-json", str(tmp_path / "fly.json")])
+            assert sim.wait(60) == 0, sim.text()
+            assert fly.wait(30) == 0, fly.text()
+    finally:
+        sim.close()
+    st = _sim_json(tmp_path / "sim.json")["stats"]
+    assert st["ticks"] == n_ticks
+    q = 1 - (1 - p) ** 2
+    expected = n_ticks * q / (1 - q)
+    assert abs(st["lockstep_timeouts"] - expected) <= 5 * math.sqrt(expected) + 5, st
+    assert st["states_sent"] == n_ticks + st["lockstep_timeouts"]
+    summary = json.loads((tmp_path / "fly.json").read_text())
+    assert summary["stats"]["failsafes"] == 0
+
+
+def test_silent_vehicle_failsafe_then_recovery(tmp_path):
+    """The vehicle goes silent (the relay drops everything it sends): the daemon goes to
+    FAILSAFE after --state-timeout, says so, and resumes when states return."""
+    sim, port = start_sim(["--duration", "0"])
+    try:
+        with Relay(("127.0.0.1", port)) as relay:
+            fly = Proc(["fly", "paper", "--vehicle", f"127.0.0.1:{relay.listen_address[1]}",
+                        "--duration", "1000", "--state-timeout", "0.3", "--summary-json",
+                        str(tmp_path / "fly.json")])
+            fly.wait_for(r"ATTACK on rotor 2", 30)
+            relay.set_faults(to_daemon=Faults(drop=1.0))
+            t_silent = time.monotonic()
+            t_fs, _ = fly.wait_for(r"CRITICAL: no vehicle state for 0.30 s: FAILSAFE", 5)
+            assert 0.3 <= t_fs - t_silent < 1.0
+            relay.set_faults(to_daemon=Faults())
+            t_back = time.monotonic()
+            t_rec, _ = fly.wait_for(r"state received again: control resumed", 5)
+            assert t_rec - t_back < 2.5        # the vehicle resends within --lockstep-timeout
+            fly.popen.terminate()
+            fly.wait(20)
+    finally:
+        sim.close()
+    stats = json.loads((tmp_path / "fly.json").read_text())["stats"]
+    assert stats["failsafes"] == 1 and stats["recoveries"] == 1
+
+
+def test_killed_vehicle_failsafe_then_a_new_vehicle_is_reacquired():
+    sim, port = start_sim(["--duration", "0"])
+    sim2 = None
+    fly = Proc(["fly", "paper", "--vehicle", f"127.0.0.1:{port}", "--duration", "1000",
+                "--state-timeout", "0.3"])
+    try:
+        fly.wait_for(r"ATTACK on rotor 2", 30)
+        t_kill = sim.kill()
+        t_fs, _ = fly.wait_for(r"FAILSAFE", 5, after=t_kill)
+        assert 0.3 <= t_fs - t_kill < 1.0
+        t_start = time.monotonic()
+        sim2 = start_sim_on(port, ["--duration", "1"])
+        # The new vehicle starts its clock on the daemon's next HEARTBEAT (1 Hz).
+        t_rec, _ = fly.wait_for(r"control resumed", 5, after=t_kill)
+        assert t_rec - t_start < 4.0
+        sim2.wait_for(r"controller 127\.0\.0\.1:\d+ \(sysid 1\) connected", 5)
+    finally:
+        for p in (sim, sim2, fly):
+            if p is not None:
+                p.close()
+
+
+def test_killed_daemon_motors_cut_then_restarted_daemon_reacquires(tmp_path):
+    """Real time, no relay. SIGKILL the daemon: the vehicle cuts its motors after
+    --command-timeout (0.25 s) like an ESC that lost its signal; a new daemon bound to the
+    same address (the vehicle's peer pin is address + sysid) is accepted at once. Flown
+    on the path without an attack so the test is about the link, not the fall."""
+    bind = f"127.0.0.1:{free_port()}"
+    sets = ["--set", "initial.position_m=[0,1,4]"]
+    sim, port = start_sim(["--realtime", "--duration", "4", *sets, "--json",
+                           str(tmp_path / "sim.json")], "nominal")
+    fly_args = ["fly", "nominal", *sets, "--realtime", "--progress", "--vehicle",
+                f"127.0.0.1:{port}", "--bind", bind, "--duration", "4"]
+    fly2 = None
+    try:
+        fly = Proc(fly_args, realtime=True)
+        fly.wait_for(r"^progress 1\.", 20)
+        t_kill = fly.kill()
+        fly2 = Proc(fly_args, realtime=True)
+        t_cut, _ = sim.wait_for(r"motors cut", 5, after=t_kill)
+        assert 0.24 <= t_cut - t_kill <= 0.25 + 0.35   # + scheduling on 2 shared cores
+        t_res, _ = sim.wait_for(r"commands resumed: motors restored", 10, after=t_kill)
+        assert t_res - t_kill < 3.0
+        sim.wait(30)
+        fly2.wait(30)
+    finally:
+        for p in (sim, fly2):
+            if p is not None:
+                p.close()
+    st = _sim_json(tmp_path / "sim.json")["stats"]
+    assert st["command_timeouts"] == 1
+    assert st["control_link"]["foreign"] == 0          # same address: not a stranger
