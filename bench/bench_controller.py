@@ -15,9 +15,9 @@ import sys
 import time
 
 from sitl.simulator import Simulator
-from tfl_mav.control.law import StateEstimate
-from tfl_mav.controller_factory import build_controller
+from tfl_mav.build import build_controller
 from tfl_mav.scenario import load_scenario
+from tfl_mav.state import State
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -36,7 +36,7 @@ def main(argv: list[str] | None = None) -> int:
             m = sim.measured
             if sim.attack.rotor:
                 ctrl.set_attack(sim.attack.rotor, sim.attack.applied_n)
-            st = StateEstimate(m.position_m, m.velocity_mps, m.quaternion_wxyz,
+            st = State(m.position_m, m.velocity_mps, m.quaternion_wxyz,
                                m.body_rates_radps)
             t0 = time.perf_counter()
             out = ctrl.update(st)

@@ -31,7 +31,7 @@ from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
 from sitl.simulator import Simulator
-from tfl_mav.detector_setup import build_detector
+from tfl_mav.build import build_detector
 from tfl_mav.scenario import Scenario, load_scenario
 
 TAUS_S = (0.0, 0.02)
@@ -55,11 +55,11 @@ class Pilot:
     """Closed loop: the TFL controller, told of the attack only by the detector."""
 
     def __init__(self, sc: Scenario) -> None:
-        from tfl_mav.control.law import StateEstimate
-        from tfl_mav.controller_factory import build_controller
+        from tfl_mav.build import build_controller
+        from tfl_mav.state import State
 
         self.ctrl = build_controller(sc)
-        self.state_cls = StateEstimate
+        self.state_cls = State
 
     def __call__(self, sim: Simulator, detected_rotor: int, estimate_n: float) -> Sequence[float]:
         if detected_rotor:

@@ -45,9 +45,9 @@ from typing import Any
 REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
+from tfl_mav.build import scenario_path  # noqa: E402
 from tfl_mav.control.paths import PathTracker  # noqa: E402
-from tfl_mav.controller_factory import scenario_path  # noqa: E402
-from tfl_mav.mavlink.dialect import mav, new_mavlink  # noqa: E402
+from tfl_mav.link.dialect import mav, new_mavlink  # noqa: E402
 from tfl_mav.scenario import load_scenario  # noqa: E402
 from tools.relay import Faults, Relay  # noqa: E402
 

@@ -61,9 +61,9 @@ def demo_case(tau_s: float, mass_scale: float, inertia_scale: float,
 
 def sweep_case(args: tuple[float, bool]) -> dict:
     """One offline flight for the sweep (runs in a worker process)."""
+    from harness.offline import fly_offline
+    from tfl_mav.flightlog.flight import summarize
     from tfl_mav.scenario import load_scenario
-    from tools.flightlog import summarize
-    from tools.offline import fly_offline
 
     tau_ms, attacked = args
     sc = load_scenario("paper").replace(**{"vehicle.motor_time_constant_s": tau_ms / 1000.0})

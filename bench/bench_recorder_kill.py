@@ -1,11 +1,11 @@
 """What a SIGKILL mid-run costs the MCAP log of ``tfl-mav sim --mcap`` (issue #5, "Faults").
 
 ``tfl-mav sim --mcap`` records in a child process (``RecorderProcess``,
-``tfl_mav/mavlink/recorder_process.py``). A bare lockstep client (raw socket + pymavlink,
+``tfl_mav/flightlog/recorder_process.py``). A bare lockstep client (raw socket + pymavlink,
 hover commands) flies it; at tick ``--kill-at`` it sends SIGKILL to
 
 1. **the recorder child** only: the flight goes on to the end; the file is read back with
-   ``tfl_mav.mavlink.logread`` and compared with the frame counts the sim's control link
+   ``tfl_mav.flightlog.logread`` and compared with the frame counts the sim's control link
    reports in ``--json`` (every frame in either direction should be one ``/mavlink/raw``
    message);
 2. **the whole process group** (sim and recorder): nothing gets to finish the file; it is
@@ -41,7 +41,7 @@ sys.path.insert(0, str(REPO))
 
 from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
 
-from tfl_mav.mavlink.logread import LogReader  # noqa: E402
+from tfl_mav.flightlog.logread import LogReader  # noqa: E402
 
 
 def _recorder_child(sim_pid: int) -> int:

@@ -42,9 +42,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))
 
 from sitl.vehicle import Vehicle  # noqa: E402
-from tfl_mav.mavlink.dialect import mav, new_mavlink  # noqa: E402
-from tfl_mav.mavlink.link import Link  # noqa: E402
-from tfl_mav.mavlink.signing import Signing, mavlink_timestamp, signature48  # noqa: E402
+from tfl_mav.link.dialect import mav, new_mavlink  # noqa: E402
+from tfl_mav.link.signing import Signing, mavlink_timestamp, signature48  # noqa: E402
+from tfl_mav.link.transport import Link  # noqa: E402
 from tfl_mav.scenario import load_scenario  # noqa: E402
 
 KEY = bytes.fromhex("5a" * 8 + "c3" * 8 + "0f" * 8 + "e1" * 8)

@@ -25,7 +25,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["RigidBodyParams", "RigidBodyState", "mix", "rk4_step", "rotation_matrix"]
+from tfl_mav.airframe import mix
+from tfl_mav.geometry import rotation_from_quaternion
+
+__all__ = ["RigidBodyParams", "RigidBodyState", "mix", "rk4_step"]
 
 
 @dataclass(frozen=True)
@@ -62,24 +65,7 @@ class RigidBodyState:
     @property
     def rotation(self) -> np.ndarray:
         """R (3×3): body FLU → inertial (paper frame)."""
-        return rotation_matrix(self.quaternion_wxyz)
-
-
-def rotation_matrix(q: Sequence[float]) -> np.ndarray:
-    """Rotation matrix of a unit quaternion (w, x, y, z)."""
-    w, x, y, z = q
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def mix(p: RigidBodyParams, f: Sequence[float]) -> tuple[float, float, float, float]:
-    """Rotor thrusts (N) → (u_f N, τ_p, τ_q, τ_r N m); eq. Uf_and_Utau_relation."""
-    f1, f2, f3, f4 = f
-    ell, d = p.arm_m, p.drag_thrust_ratio_m
-    return (f1 + f2 + f3 + f4, ell * (f4 - f2), ell * (f3 - f1), d * (f1 - f2 + f3 - f4))
+        return rotation_from_quaternion(self.quaternion_wxyz)
 
 
 def derivative(p: RigidBodyParams, x: Sequence[float], wrench: Sequence[float]) -> list[float]:

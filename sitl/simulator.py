@@ -3,7 +3,7 @@
 One :class:`Simulator` owns sim time. A client sets rotor thrust commands and advances one
 control period (a whole number of fixed physics steps); it reads the measured state (with the
 scenario's seeded sensor noise) and the ESC rpm, and, for logs, the truth. Both the MAVLink
-endpoint (``sitl.vehicle``) and the in-process runner (``tools.offline``) drive this class,
+endpoint (``sitl.vehicle``) and the in-process runner (``harness.offline``) drive this class,
 so a lockstep flight over UDP and an offline flight integrate exactly the same physics.
 """
 
@@ -11,45 +11,21 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 
 import numpy as np
 
 from sitl.attacker import Attacker, AttackSample
 from sitl.motors import RADPS_TO_RPM, MotorBank
 from sitl.physics import RigidBodyParams, RigidBodyState, mix, rk4_step
-from tfl_mav.mavlink.frames import quaternion_multiply
+from tfl_mav.geometry import euler_to_quaternion, quaternion_multiply
 from tfl_mav.scenario import Scenario
+from tfl_mav.state import State
 
-__all__ = ["MeasuredState", "Simulator", "euler_to_quaternion"]
+__all__ = ["Simulator"]
 
 # Beyond these the run is over: the messages say why in words a user can act on.
 MAX_BODY_RATE_RADPS = 300.0
 MAX_SPEED_MPS = 100.0
-
-
-@dataclass(frozen=True)
-class MeasuredState:
-    """What the vehicle's estimator reports (truth + seeded noise), paper frame z up."""
-
-    time_s: float
-    position_m: np.ndarray
-    velocity_mps: np.ndarray
-    quaternion_wxyz: np.ndarray
-    body_rates_radps: np.ndarray
-
-
-def euler_to_quaternion(phi: float, theta: float, psi: float) -> np.ndarray:
-    """ZYX Euler angles (eq. roation_matrix_product: R = Rz(ψ) Ry(θ) Rx(φ)) → (w, x, y, z)."""
-    cr, sr = math.cos(phi / 2), math.sin(phi / 2)
-    cp, sp = math.cos(theta / 2), math.sin(theta / 2)
-    cy, sy = math.cos(psi / 2), math.sin(psi / 2)
-    return np.array([
-        cy * cp * cr + sy * sp * sr,
-        cy * cp * sr - sy * sp * cr,
-        cy * sp * cr + sy * cp * sr,
-        sy * cp * cr - cy * sp * sr,
-    ])
 
 
 class Simulator:
@@ -153,7 +129,7 @@ class Simulator:
             q = q / np.linalg.norm(q)
         if sens.rate_noise_std_radps > 0:
             w = w + rng.normal(0.0, sens.rate_noise_std_radps, 3)
-        self._measured = MeasuredState(self.time_s, pos, vel, q, w)
+        self._measured = State(pos, vel, q, w, self.time_usec)
 
     # ------------------------------------------------------------------ outputs
     @property
@@ -162,7 +138,7 @@ class Simulator:
         return RigidBodyState.from_list(self._x)
 
     @property
-    def measured(self) -> MeasuredState:
+    def measured(self) -> State:
         """State as the vehicle's estimator reports it (truth + sensor noise)."""
         return self._measured
 

@@ -4,7 +4,7 @@ One :class:`Vehicle` owns a :class:`~sitl.simulator.Simulator` and two links:
 
 * the **control port** (``listen``): the offboard controller. The peer is the sender of the
   first valid HEARTBEAT (or ``peer`` if pinned); everything else is counted and dropped by
-  :class:`~tfl_mav.mavlink.link.Link`.
+  :class:`~tfl_mav.link.transport.Link`.
 * the optional **GCS port** (``gcs``): a separate socket that sends to a ground station
   (MAVProxy, QGroundControl, mavsdk) and accepts its commands.
 
@@ -14,7 +14,7 @@ answers commands on either port. The flight starts the moment that HEARTBEAT arr
 
 **Lockstep (default).** Tick k: send ``ODOMETRY`` (``time_usec`` = k·T, LOCAL_NED pose,
 BODY_FRD twist) and ``ESC_TELEMETRY_1_TO_4`` (true rotor speed as the ESC measures it) in
-one datagram, ODOMETRY first (:meth:`~tfl_mav.mavlink.link.Link.send_many`), wait for
+one datagram, ODOMETRY first (:meth:`~tfl_mav.link.transport.Link.send_many`), wait for
 ``HIL_ACTUATOR_CONTROLS`` whose ``time_usec`` equals k·T, apply it, integrate to k+1.
 Replies for another ``time_usec`` are counted (``stale_controls``) and ignored. No reply
 within ``lockstep_timeout_s`` (wall time) is counted (``lockstep_timeouts``), announced by
@@ -58,7 +58,7 @@ A last HEARTBEAT with ``MAV_STATE_POWEROFF`` (or EMERGENCY after a crash) tells 
 
 **Signing** (``key``, 32 bytes): both ports sign everything they send (control port
 ``link_id`` 0, GCS port ``link_id`` 1) and accept only frames that verify, with one
-replay-protection state shared by both ports (:mod:`tfl_mav.mavlink.signing`). The GCS port
+replay-protection state shared by both ports (:mod:`tfl_mav.link.signing`). The GCS port
 is signed too because MAV_CMD_INJECT_FAILURE moves a motor: a GCS without the key still
 reads the telemetry but cannot command. Until the controller connects, frames refused for
 their signature on the control port are reported by STATUSTEXT (at most once a second), so
@@ -86,17 +86,16 @@ from typing import Any
 from sitl.attacker import FAILURE_TYPES
 from sitl.power import PowerModel
 from sitl.simulator import Simulator
-from tfl_mav.mavlink.dialect import mav
-from tfl_mav.mavlink.frames import (
+from tfl_mav.frames import (
     MAV_FRAME_BODY_FRD,
     MAV_FRAME_LOCAL_NED,
     enu_to_ned,
-    euler_zyx_from_rotation,
     odometry_from_paper,
-    rotation_from_quaternion,
 )
-from tfl_mav.mavlink.link import Address, FrameHook, Link, LinkStats
-from tfl_mav.mavlink.signing import Signing
+from tfl_mav.geometry import euler_zyx_from_rotation, rotation_from_quaternion
+from tfl_mav.link.dialect import mav
+from tfl_mav.link.signing import Signing
+from tfl_mav.link.transport import Address, FrameHook, Link, LinkStats
 from tfl_mav.scenario import Scenario
 
 __all__ = [
@@ -207,7 +206,7 @@ class Vehicle:
                  key: bytes | None = None, on_frame: FrameHook | None = None,
                  on_truth: Callable[[Simulator], None] | None = None,
                  on_status: Callable[[int, str], None] | None = None) -> None:
-        """Bind the sockets (raises :class:`~tfl_mav.mavlink.link.LinkError`) and build the sim.
+        """Bind the sockets (raises :class:`~tfl_mav.link.transport.LinkError`) and build the sim.
 
         ``listen``: control port to bind (port 0 = ephemeral, see :attr:`listen_address`).
         ``gcs``: where a ground station listens, or None. ``peer``: pin the controller's

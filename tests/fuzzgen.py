@@ -14,7 +14,7 @@ answer arrives the endpoint has handled the whole batch and its counters are qui
 the counters' change over the batch is exactly what the batch caused.
 
 **Accounting, exactly.** :class:`LinkModel` is a reference model of the framing rules that
-``tfl_mav/mavlink/link.py`` documents (MAVLink 2 only, one datagram at a time, nothing
+``tfl_mav/link/transport.py`` documents (MAVLink 2 only, one datagram at a time, nothing
 carried over, reasons ``garbage``/``mavlink1``/``truncated``/``bad_flags``/``bad_crc``/
 ``malformed``/``unknown_id``/``wrong_sysid``); it checks the CRC itself and asks pymavlink
 only to unpack payloads. :class:`VehicleModel` and :class:`DaemonModel` add what each
@@ -48,7 +48,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
-from tfl_mav.mavlink.dialect import mav, new_mavlink
+from tfl_mav.link.dialect import mav, new_mavlink
 
 __all__ = [
     "DAEMON_CATEGORIES",
@@ -166,7 +166,7 @@ def nonfinite_floats(msg: Any) -> list[str]:
 
 # ---------------------------------------------------------------------------- models
 class LinkModel:
-    """Reference model of :class:`~tfl_mav.mavlink.link.Link`'s documented accounting for
+    """Reference model of :class:`~tfl_mav.link.transport.Link`'s documented accounting for
     datagrams from the (already known) peer address: a list of outcomes per datagram, each
     a reason string or an accepted, decoded message."""
 
@@ -278,7 +278,7 @@ class DaemonModel:
     """What :class:`~tfl_mav.daemon.Daemon` counts for each datagram from its vehicle."""
 
     def __init__(self) -> None:
-        from tfl_mav.mavlink.frames import paper_from_odometry
+        from tfl_mav.frames import paper_from_odometry
 
         self.link = LinkModel(VEHICLE_SYSID)
         self._paper = paper_from_odometry
@@ -906,7 +906,7 @@ def fuzz_daemon(n_inputs: int, seed: int, *, batch: int = 16,
     """Fuzz a :class:`~tfl_mav.daemon.Daemon` with ``n_inputs`` hostile datagrams, the
     fuzzer acting as its vehicle (see the module docstring)."""
     from tfl_mav.daemon import Daemon
-    from tfl_mav.mavlink.frames import enu_to_ned
+    from tfl_mav.frames import enu_to_ned
     from tfl_mav.scenario import load_scenario
 
     sc = load_scenario("paper").replace(**{"attack.rotor": 0})

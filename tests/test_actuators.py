@@ -8,11 +8,11 @@ import math
 
 import pytest
 
+from harness.offline import fly_offline
 from sitl.motors import MotorBank
 from tfl_mav.control.actuators import MotorLagInverter
 from tfl_mav.control.allocation import allocate_attacked, allocate_nominal
 from tfl_mav.scenario import load_scenario
-from tools.offline import fly_offline
 
 KF = 8.0e-6
 FMAX = 8.0

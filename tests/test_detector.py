@@ -16,13 +16,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sitl.simulator import Simulator
+from tfl_mav.build import build_detector
 from tfl_mav.control.detector import (
     RPM_QUANTISATION_STD,
     AttackDetector,
     DetectorConfig,
     DetectorOutput,
 )
-from tfl_mav.detector_setup import build_detector
 from tfl_mav.scenario import Scenario, ScenarioError, load_scenario, scenario_from_dict
 
 BASE = load_scenario("paper")

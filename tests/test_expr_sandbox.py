@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from tfl_mav.controller_factory import scenario_path
+from tfl_mav.build import scenario_path
 from tfl_mav.expr import MAX_EXPR_LENGTH, ExprError, compile_expr
 from tfl_mav.scenario import ScenarioError, scenario_from_dict
 

@@ -9,26 +9,28 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from sitl.simulator import euler_to_quaternion
-from tfl_mav.mavlink.dialect import mav, new_mavlink
-from tfl_mav.mavlink.frames import (
+from tfl_mav.frames import (
     MAV_FRAME_BODY_FRD,
     MAV_FRAME_LOCAL_NED,
     enu_to_ned,
-    euler_zyx_from_rotation,
     flu_to_frd,
     frd_to_flu,
     ned_to_enu,
     odometry_from_paper,
     paper_from_odometry,
     quaternion_enu_flu_to_ned_frd,
-    quaternion_from_rotation,
-    quaternion_multiply,
     quaternion_ned_frd_to_enu_flu,
     rotation_enu_flu_to_ned_frd,
+)
+from tfl_mav.geometry import (
+    euler_to_quaternion,
+    euler_zyx_from_rotation,
+    quaternion_from_rotation,
+    quaternion_multiply,
     rotation_from_euler_zyx,
     rotation_from_quaternion,
 )
+from tfl_mav.link.dialect import mav, new_mavlink
 
 # float32 on the wire: relative resolution 2^-24 ≈ 6e-8; these states are O(10), so 1e-5
 # absolute is generous for rounding and still catches any sign or axis error.

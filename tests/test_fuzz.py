@@ -18,8 +18,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from sitl.vehicle import ExitStatus, Vehicle
-from tfl_mav.mavlink.dialect import mav, new_mavlink
-from tfl_mav.mavlink.link import Link
+from tfl_mav.link.dialect import mav, new_mavlink
+from tfl_mav.link.transport import Link
 from tfl_mav.scenario import load_scenario
 
 N_INPUTS = 3000

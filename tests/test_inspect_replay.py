@@ -13,9 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tfl_mav.mavlink.dialect import mav, new_mavlink
-from tfl_mav.mavlink.logread import LogReader
-from tfl_mav.mavlink.recorder import Recorder
+from tfl_mav.flightlog.logread import LogReader
+from tfl_mav.flightlog.recorder import Recorder
+from tfl_mav.link.dialect import mav, new_mavlink
 from tools.cli import main as cli_main
 
 RADIUS_M, HEIGHT_M = 2.0, 1.0

@@ -10,10 +10,11 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from sitl.physics import RigidBodyParams, mix
+from tfl_mav.build import build_controller
 from tfl_mav.control.allocation import allocate_attacked, allocate_nominal, canonical_frame
-from tfl_mav.control.law import StateEstimate, chain_gains
-from tfl_mav.controller_factory import build_controller
+from tfl_mav.control.law import chain_gains
 from tfl_mav.scenario import load_scenario
+from tfl_mav.state import State
 
 L, D, FMAX = 0.2656, 0.016, 8.0
 PARAMS = RigidBodyParams(1.1, (0.0020066, 0.0020038, 0.0013323), L, D, 0.05, 2.75e-3, 9.81)
@@ -70,7 +71,7 @@ def test_saturated_nominal_allocation_is_feasible(uf, tp, tq, tr):
 
 
 def _state(pos=(1.5, 0.3, 0.5), vel=(0, 0, 0), q=(1, 0, 0, 0), w=(0, 0, 0)):
-    return StateEstimate(pos, vel, q, w)
+    return State(pos, vel, q, w)
 
 
 @pytest.mark.parametrize("bad", [math.nan, math.inf])

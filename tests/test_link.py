@@ -7,8 +7,8 @@ import struct
 
 import pytest
 
-from tfl_mav.mavlink.dialect import mav, new_mavlink
-from tfl_mav.mavlink.link import Link, LinkError, finite_fields, nonfinite_field, parse_address
+from tfl_mav.link.dialect import mav, new_mavlink
+from tfl_mav.link.transport import Link, LinkError, finite_fields, nonfinite_field, parse_address
 
 LOOPBACK = ("127.0.0.1", 0)
 WAIT_S = 1.0
@@ -278,7 +278,7 @@ def test_nonfinite_fields_are_named_element_by_element():
 def test_every_rejection_counter_is_counted_in_rejected_and_summary():
     """Adding a rejection reason (signing added four) must keep ``rejected``, ``as_dict``
     and ``summary`` in step: each counter that is not traffic or local trouble is one."""
-    from tfl_mav.mavlink.link import LinkStats
+    from tfl_mav.link.transport import LinkStats
 
     traffic = {"rx_datagrams", "rx_bytes", "rx_frames", "tx_frames", "tx_bytes"}
     local = {"recv_errors", "send_errors", "unsent_no_peer"}

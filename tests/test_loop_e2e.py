@@ -13,7 +13,7 @@ import time
 import pytest
 from mcap.reader import make_reader
 
-from tfl_mav.mavlink.logread import LogReader
+from tfl_mav.flightlog.logread import LogReader
 
 CLI = [sys.executable, "-m", "tools.cli"]
 
@@ -122,9 +122,9 @@ def test_daemon_survives_garbage_and_stops_cleanly_on_sigterm(tmp_path):
 
 @pytest.mark.parametrize("rotor", [1, 4])
 def test_offline_detector_mode_finds_the_rotor(rotor):
+    from harness.offline import fly_offline
+    from tfl_mav.flightlog.flight import summarize
     from tfl_mav.scenario import load_scenario
-    from tools.flightlog import summarize
-    from tools.offline import fly_offline
 
     sc = load_scenario("paper").replace(**{"attack.rotor": rotor, "run.duration_s": 8.0,
                                            "vehicle.rpm_noise_std": 10.0})

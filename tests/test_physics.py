@@ -10,8 +10,10 @@ import pytest
 
 from sitl.attacker import Attacker
 from sitl.motors import RADPS_TO_RPM, MotorBank
-from sitl.physics import RigidBodyParams, derivative, mix, rk4_step, rotation_matrix
-from sitl.simulator import Simulator, euler_to_quaternion
+from sitl.physics import RigidBodyParams, derivative, mix, rk4_step
+from sitl.simulator import Simulator
+from tfl_mav.geometry import euler_to_quaternion
+from tfl_mav.geometry import rotation_from_quaternion as rotation_matrix
 from tfl_mav.scenario import AttackConfig, load_scenario
 
 G = 9.81

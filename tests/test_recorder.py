@@ -20,10 +20,10 @@ import pytest
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from tfl_mav.mavlink.dialect import mav, new_mavlink
-from tfl_mav.mavlink.link import Link
-from tfl_mav.mavlink.logread import LogReader
-from tfl_mav.mavlink.recorder import Recorder, RecorderError
+from tfl_mav.flightlog.logread import LogReader
+from tfl_mav.flightlog.recorder import Recorder, RecorderError
+from tfl_mav.link.dialect import mav, new_mavlink
+from tfl_mav.link.transport import Link
 from tools.cli import main as cli_main
 
 REPO = Path(__file__).resolve().parents[1]
@@ -207,7 +207,7 @@ def _foxglove_accepts(schema: dict, where: str = "") -> None:
 
 
 def test_every_schema_is_one_foxglove_can_read(flight):
-    from tfl_mav.mavlink import schemas
+    from tfl_mav.flightlog import schemas
 
     seen = {sc for path in flight[:2] for _, sc, *_ in _read_all(path)}
     everything = [json.loads(sc) for sc in seen] + list(schemas.FOXGLOVE_SCHEMAS.values()) + [
@@ -258,7 +258,7 @@ def test_path_distance_channel_is_distance_to_the_polyline(flight):
 
 
 def schemas_bytes(name: str) -> bytes:
-    from tfl_mav.mavlink import schemas
+    from tfl_mav.flightlog import schemas
 
     return schemas.schema_bytes(getattr(schemas, name))
 
@@ -266,10 +266,10 @@ def schemas_bytes(name: str) -> bytes:
 CHILD = r"""
 import json, sys, time
 sys.path.insert(0, {repo!r})
-from tfl_mav.mavlink.dialect import mav
-from tfl_mav.mavlink.link import Link
-from tfl_mav.mavlink.recorder import Recorder
-from tfl_mav.mavlink.recorder_process import RecorderProcess
+from tfl_mav.link.dialect import mav
+from tfl_mav.link.transport import Link
+from tfl_mav.flightlog.recorder import Recorder
+from tfl_mav.flightlog.recorder_process import RecorderProcess
 rec = {cls}({path!r}, flush_interval_s={interval})
 with Link.listen(("127.0.0.1", 0), src_system=1, src_component=1) as a, \
         Link.connect(a.local_address, src_system=2, src_component=1) as b:
@@ -444,7 +444,7 @@ def _feed(rec) -> None:
 
 
 def test_recorder_process_writes_what_the_in_process_recorder_writes(tmp_path):
-    from tfl_mav.mavlink.recorder_process import RecorderProcess
+    from tfl_mav.flightlog.recorder_process import RecorderProcess
 
     a, b = tmp_path / "inproc.mcap", tmp_path / "child.mcap"
     with Recorder(a, clock=_StepClock()) as rec_a:
@@ -497,7 +497,7 @@ def test_recorder_process_finishes_the_file_when_the_flight_process_is_killed(tm
 
 
 def test_recorder_process_unwritable_path(tmp_path):
-    from tfl_mav.mavlink.recorder_process import RecorderProcess
+    from tfl_mav.flightlog.recorder_process import RecorderProcess
 
     missing = tmp_path / "missing" / "run.mcap"
     with pytest.raises(RecorderError, match=str(missing)):

@@ -22,9 +22,8 @@ from pathlib import Path
 import pytest
 
 from sitl.vehicle import Vehicle
-from tfl_mav.mavlink.dialect import mav, new_mavlink
-from tfl_mav.mavlink.link import Link
-from tfl_mav.mavlink.signing import (
+from tfl_mav.link.dialect import mav, new_mavlink
+from tfl_mav.link.signing import (
     KEY_LEN,
     MAVLINK_EPOCH_UNIX_S,
     TIMESTAMP_UNITS_PER_S,
@@ -35,6 +34,7 @@ from tfl_mav.mavlink.signing import (
     parse_key,
     signature48,
 )
+from tfl_mav.link.transport import Link
 from tfl_mav.scenario import load_scenario
 
 LOOPBACK = ("127.0.0.1", 0)

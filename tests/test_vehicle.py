@@ -1,7 +1,7 @@
 """The vehicle endpoint over real UDP on loopback, flown by a bare pymavlink client.
 
 The vehicle runs in a thread (or, for the CLI, a subprocess); the client is our
-:class:`~tfl_mav.mavlink.link.Link` with pymavlink's message classes, nothing else.
+:class:`~tfl_mav.link.transport.Link` with pymavlink's message classes, nothing else.
 """
 
 from __future__ import annotations
@@ -23,8 +23,8 @@ from pathlib import Path
 import pytest
 
 from sitl.vehicle import ExitStatus, Vehicle, VehicleResult
-from tfl_mav.mavlink.dialect import mav, new_mavlink
-from tfl_mav.mavlink.link import Address, Link
+from tfl_mav.link.dialect import mav, new_mavlink
+from tfl_mav.link.transport import Address, Link
 from tfl_mav.scenario import Scenario, load_scenario
 
 LOOPBACK = ("127.0.0.1", 0)

@@ -4,7 +4,7 @@ One :class:`Daemon` talks MAVLink 2 over one UDP socket to one vehicle (DESIGN �
 
 * sends ``HEARTBEAT`` (``MAV_TYPE_ONBOARD_CONTROLLER``) at once and every second (the
   simulator starts its clock on the first one);
-* consumes ``ODOMETRY`` (converted NED/FRD → paper frame in :mod:`tfl_mav.mavlink.frames`,
+* consumes ``ODOMETRY`` (converted NED/FRD → paper frame in :mod:`tfl_mav.frames`,
   the one place frames meet) and ``ESC_TELEMETRY_1_TO_4`` (measured rpm). A control tick
   runs when a state and the ESC report that follows it have both arrived;
 * answers every state with ``HIL_ACTUATOR_CONTROLS`` (``controls[0..3]`` = rotor thrust /
@@ -27,7 +27,7 @@ vehicle refuses an unsigned or wrongly signed controller *silently* (it answers 
 cannot authenticate), so on a signed link silence is the symptom of a wrong key.
 
 **Signing** (``key``): every frame sent is signed (``link_id`` 0) and only frames that
-verify are accepted (:mod:`tfl_mav.mavlink.signing`).
+verify are accepted (:mod:`tfl_mav.link.signing`).
 
 Bad input (garbage, wrong peer or sysid, non-finite or malformed ODOMETRY, unknown
 messages) is counted in :class:`DaemonStats` and never stops the loop; nothing non-finite
@@ -43,21 +43,17 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from tfl_mav.control.law import StateEstimate, TFLController
-from tfl_mav.controller_factory import build_controller
-from tfl_mav.detector_setup import build_detector
-from tfl_mav.mavlink.dialect import mav
-from tfl_mav.mavlink.frames import paper_from_odometry
-from tfl_mav.mavlink.link import Address, FrameHook, Link
-from tfl_mav.mavlink.signing import Signing
+from tfl_mav.flight_computer import FlightComputer, TickResult
+from tfl_mav.frames import paper_from_odometry
+from tfl_mav.link.dialect import mav
+from tfl_mav.link.signing import Signing
+from tfl_mav.link.transport import Address, FrameHook, Link
+from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario
+from tfl_mav.state import State
 
-_RPM_TO_RADPS = 2.0 * math.pi / 60.0   # ESC rpm → rotor speed ω (rad/s) for the lag inverse
+__all__ = ["Daemon", "DaemonResult", "DaemonStats", "tick_state"]
 
-__all__ = ["MODES", "Daemon", "DaemonResult", "DaemonStats"]
-
-MODES = {"nominal": 0, "attacked": 1, "fallback": 2, "failsafe": 3}
-TWO_PI_OVER_60 = 2.0 * math.pi / 60.0
 _TELEMETRY_PERIOD_S = 0.02        # ≤ 50 Hz of sim time
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
 _LOCKSTEP_FLAG = 1
@@ -122,8 +118,7 @@ class Daemon:
         self.scenario = scenario
         self.realtime = realtime
         self.state_timeout_s = state_timeout_s
-        self.controller: TFLController = build_controller(scenario)
-        self.detector = build_detector(scenario)
+        self.computer = FlightComputer(scenario)
         self.signing = Signing(key) if key is not None else None
         self.link = Link.connect(vehicle, src_system=sysid, src_component=compid, bind=bind,
                                  peer_sysid=vehicle_sysid, on_frame=on_frame,
@@ -136,12 +131,10 @@ class Daemon:
         self._stop = threading.Event()
         self._pending_state: Any = None
         self._last_cmd = [scenario.vehicle.mass_kg * scenario.vehicle.gravity_mps2 / 4.0] * 4
-        self._mode = "nominal"
+        self._mode = Mode.NOMINAL
         self._failsafe = False
         self._next_telemetry_s = 0.0
         self._sim_time_s = 0.0
-        self._detected_rotor = 0
-        self._detection_time_s = math.nan
         self._est_n = 0
         self._distance = math.nan
         self._vehicle_done = ""
@@ -185,7 +178,7 @@ class Daemon:
             elif (not self._failsafe and self.stats.ticks > 0
                   and now - last_state_wall > self.state_timeout_s):
                 self._failsafe = True
-                self._mode = "failsafe"
+                self._mode = Mode.FAILSAFE
                 self.stats.failsafes += 1
                 self._event("critical", f"no vehicle state for {self.state_timeout_s:.2f} s: "
                                         "FAILSAFE, no commands sent")
@@ -201,9 +194,10 @@ class Daemon:
         self.stats.link = self.link.stats.as_dict()
         return DaemonResult(
             reason=reason, sim_time_s=self._sim_time_s, wall_time_s=time.monotonic() - wall0,
-            detected_rotor=self._detected_rotor, detection_time_s=self._detection_time_s,
+            detected_rotor=self.computer.detected_rotor,
+            detection_time_s=self.computer.detection_time_s,
             attack_estimate_samples=self._est_n,
-            final_path_distance_m=self._distance, mode=self._mode, stats=self.stats)
+            final_path_distance_m=self._distance, mode=str(self._mode), stats=self.stats)
 
     def _report_waiting(self, waited_s: float) -> None:
         """Before the first tick: say (locally) what arrived and what to check."""
@@ -255,59 +249,45 @@ class Daemon:
         self.stats.ignored_messages += 1
         return False
 
-    def _tick(self, state: Any, rpm: list[float]) -> None:
+    def _tick(self, state: State, rpm: list[float]) -> None:
         t = state.time_usec * 1e-6
         self._sim_time_s = t
         self.stats.ticks += 1
-        det = self.detector.update(t, rpm, self._last_cmd)
-        ctrl = self.controller
-        if det.detected_rotor:
-            if det.alarm:
-                self._detected_rotor = det.detected_rotor
-                self._detection_time_s = det.detection_time_s
-                self._event("warning", f"ATTACK on rotor {det.detected_rotor} detected at "
-                                       f"t={t:.3f} s; attacked law engaged")
-            ctrl.set_attack(det.detected_rotor, det.estimate_n)
-        out = ctrl.update(StateEstimate(state.position_m, state.velocity_mps,
-                                        state.quaternion_wxyz, state.body_rates_radps,
-                                        [r * _RPM_TO_RADPS for r in rpm]))
-        fmax = self.thrust_max_n
-        thrust = [min(max(f, 0.0), fmax) if math.isfinite(f) else 0.0
-                  for f in out.rotor_thrust_n]
+        res = self.computer.step(t, state, rpm, self._last_cmd)
+        out = res.law
+        if res.new_detection:
+            self._event("warning", f"ATTACK on rotor {res.attack_rotor} detected at "
+                                   f"t={t:.3f} s; attacked law engaged")
+        thrust = res.thrust_n
         self._last_cmd = thrust
+        fmax = self.thrust_max_n
         controls = [f / fmax for f in thrust] + [0.0] * 12
         self.link.send(mav.MAVLink_hil_actuator_controls_message(
             state.time_usec, controls, _ARMED, 0 if self.realtime else _LOCKSTEP_FLAG))
         self.stats.commands_sent += 1
         self._mode = out.mode
         self._distance = out.path_distance_m
-        if out.mode == "fallback":
+        if out.mode is Mode.FALLBACK:
             self.stats.fallback_ticks += 1
         if any(out.saturated):
             self.stats.saturated_ticks += 1
-        if det.detected_rotor and math.isfinite(det.estimate_n):
+        if res.attack_rotor and math.isfinite(res.attack_estimate_n):
             self._est_n += 1
-        tick_state = {
-            "mode": out.mode, "detected_rotor": det.detected_rotor,
-            "attack_estimate_n": det.estimate_n if math.isfinite(det.estimate_n) else None,
-            "path_distance_m": out.path_distance_m, "saturated": any(out.saturated),
-            "rotor_thrust_cmd_n": thrust, "xi": [list(out.xi[0]), list(out.xi[1])],
-            "eta": list(out.eta), "mass_estimate_kg": out.mass_estimate_kg,
-            "fine_gains": out.fine_gains, "reason": out.reason,
-            "cusum": list(det.cusum),
-        }
         if self.on_tick is not None:
-            self.on_tick(t, tick_state)
+            self.on_tick(t, tick_state(res))
         if t >= self._next_telemetry_s:
             self._next_telemetry_s = t + _TELEMETRY_PERIOD_S
-            self._telemetry(state.time_usec, out, det)
+            self._telemetry(state.time_usec, res)
 
-    def _telemetry(self, time_usec: int, out: Any, det: Any) -> None:
+    def _telemetry(self, time_usec: int, res: TickResult) -> None:
+        out = res.law
         ms = (time_usec // 1000) & 0xFFFFFFFF
-        est = det.estimate_n if math.isfinite(det.estimate_n) else 0.0
+        det = res.detection
+        est = det.estimate_n if det is not None else res.attack_estimate_n
+        est = est if math.isfinite(est) else 0.0
         dist = out.path_distance_m if math.isfinite(out.path_distance_m) else -1.0
-        for name, value in (("mode", float(MODES.get(out.mode, 2))),
-                            ("det_rotor", float(det.detected_rotor)),
+        for name, value in (("mode", float(out.mode)),
+                            ("det_rotor", float(res.attack_rotor)),
                             ("atk_est_n", est), ("path_m", dist)):
             self.link.send(mav.MAVLink_named_value_float_message(ms, name.encode(), value))
         arr = [*out.xi[0], *out.xi[1], *out.eta[1:]]
@@ -325,3 +305,18 @@ class Daemon:
         self._statustext_id = (self._statustext_id % 0xFFFF) + 1
         self.link.send(mav.MAVLink_statustext_message(severity, text[:50].encode(),
                                                       self._statustext_id, 0))
+
+
+def tick_state(res: TickResult) -> dict[str, Any]:
+    """The controller's internals of one tick, as the recorder's ``/controller/state``."""
+    out, det = res.law, res.detection
+    est = det.estimate_n if det is not None else res.attack_estimate_n
+    return {
+        "mode": str(out.mode), "detected_rotor": res.attack_rotor,
+        "attack_estimate_n": est if math.isfinite(est) else None,
+        "path_distance_m": out.path_distance_m, "saturated": any(out.saturated),
+        "rotor_thrust_cmd_n": res.thrust_n, "xi": [list(out.xi[0]), list(out.xi[1])],
+        "eta": list(out.eta), "mass_estimate_kg": out.mass_estimate_kg,
+        "fine_gains": out.fine_gains, "reason": out.reason,
+        "cusum": list(det.cusum) if det is not None else [],
+    }

@@ -31,6 +31,7 @@ __all__ = [
     "ScenarioError",
     "SensorConfig",
     "VehicleConfig",
+    "apply_overrides",
     "builtin_scenarios",
     "load_scenario",
     "scenario_from_dict",
@@ -407,3 +408,29 @@ def load_scenario(name_or_path: str | Path) -> Scenario:
         raise ScenarioError("", f"{source}: not valid TOML: {exc}") from None
     data.setdefault("name", candidate.stem if candidate.suffix else str(name_or_path))
     return scenario_from_dict(data, source=source)
+
+
+def apply_overrides(scenario: Scenario, overrides: list[str]) -> Scenario:
+    """Apply ``--set SECTION.KEY=VALUE`` overrides (VALUE in TOML syntax; a bare word is a
+    string, so ``controller.law=paper`` works). The one parser of ``--set`` for every command;
+    raises :class:`ScenarioError` naming the key."""
+    sections = [f.name for f in dataclasses.fields(Scenario)
+                if f.name not in ("name", "description", "source")]
+    for item in overrides:
+        key, sep, text = item.partition("=")
+        key = key.strip()
+        if not sep or "." not in key:
+            raise ScenarioError("--set", f"expected SECTION.KEY=VALUE, got {item!r}")
+        try:
+            value: Any = tomllib.loads(f"v = {text}")["v"]
+        except tomllib.TOMLDecodeError:
+            value = text.strip()
+        section = key.split(".", 1)[0]
+        if section not in sections:
+            raise ScenarioError(key, f"unknown section {section!r} (known: "
+                                     f"{', '.join(sections)})")
+        try:
+            scenario = scenario.replace(**{key: value})
+        except TypeError as exc:
+            raise ScenarioError(key, str(exc)) from None
+    return scenario

@@ -15,7 +15,7 @@ from tfl_mav import __version__
 # (module, what it adds). Each module has add_parser(subparsers) and its own run function.
 SUBCOMMANDS = (
     "tools.demo",
-    "sitl.cli",
+    "tools.sim",
     "tools.fly",
     "tools.offline",
     "tools.inspect_cmd",

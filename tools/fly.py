@@ -14,11 +14,10 @@ import signal
 import sys
 from typing import Any
 
-from sitl.cli import apply_settings
 from tfl_mav.daemon import Daemon
-from tfl_mav.mavlink.link import LinkError, parse_address
-from tfl_mav.mavlink.signing import load_key
-from tfl_mav.scenario import ScenarioError, load_scenario
+from tfl_mav.link.signing import load_key
+from tfl_mav.link.transport import LinkError, parse_address
+from tfl_mav.scenario import ScenarioError, apply_overrides, load_scenario
 
 __all__ = ["add_parser", "run"]
 
@@ -62,7 +61,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     prog = "tfl-mav fly"
     try:
-        scenario = apply_settings(load_scenario(args.scenario), args.settings)
+        scenario = apply_overrides(load_scenario(args.scenario), args.settings)
         vehicle = parse_address(args.vehicle, "--vehicle")
         bind = parse_address(args.bind, "--bind") if args.bind else None
         key = load_key(args.key_file) if args.key_file else None
@@ -71,9 +70,9 @@ def run(args: argparse.Namespace) -> int:
         return 2
     recorder = None
     if args.mcap:
+        from tfl_mav.build import scenario_path
         from tfl_mav.control.paths import PathError
-        from tfl_mav.controller_factory import scenario_path
-        from tfl_mav.mavlink.recorder import Recorder, RecorderError
+        from tfl_mav.flightlog.recorder import Recorder, RecorderError
 
         try:
             recorder = Recorder(args.mcap, thrust_max_n=scenario.vehicle.thrust_max_n,

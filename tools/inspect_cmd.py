@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from tfl_mav.mavlink.logread import LogReader, recover
-from tfl_mav.mavlink.polyline import Polyline
+from tfl_mav.flightlog.logread import LogReader, recover
+from tfl_mav.flightlog.polyline import Polyline
 
 __all__ = ["add_parser", "inspect_log", "run"]
 

@@ -14,102 +14,14 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import sys
-import time
-from collections.abc import Callable
 from pathlib import Path
 
-import numpy as np
+from harness.offline import fly_offline
+from tfl_mav.flightlog.flight import summarize
+from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
 
-from sitl.physics import mix
-from sitl.simulator import Simulator
-from tfl_mav.control.law import StateEstimate
-from tfl_mav.controller_factory import build_controller
-from tfl_mav.scenario import Scenario, ScenarioError, load_scenario
-from tools.flightlog import MODES, FlightLog, summarize
-
-__all__ = ["add_parser", "fly_offline", "run"]
-
-TWO_PI_OVER_60 = 2.0 * math.pi / 60.0
-
-
-def _yaw(q: np.ndarray) -> float:
-    w, x, y, z = q
-    return math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
-
-
-def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
-                progress: Callable[[float, float], None] | None = None,
-                duration_s: float | None = None) -> FlightLog:
-    """Fly ``sc`` and return its :class:`FlightLog` (finished, arrays)."""
-    sim = Simulator(sc)
-    ctrl = build_controller(sc)
-    detector = None
-    if attack_info == "detector":
-        from tfl_mav.detector_setup import build_detector
-
-        detector = build_detector(sc)
-    elif attack_info != "oracle":
-        raise ValueError(f"attack_info must be 'oracle' or 'detector', got {attack_info!r}")
-    v = sc.vehicle
-    log = FlightLog(thrust_max_n=v.thrust_max_n, attack_rotor=sc.attack.rotor,
-                    attack_start_s=sc.attack.start_s if sc.attack.rotor else math.nan)
-    log.path_points_m = ctrl.tracker.path.sample(400)
-    duration = sc.run.duration_s if duration_s is None else duration_s
-    n_ticks = round(duration / sim.control_dt_s)
-    yaw_prev = None
-    yaw_unwrapped = 0.0
-    last_cmd = list(sim.rotor_commands_n)
-    t0 = time.perf_counter()
-    next_progress = 0.0
-    for _ in range(n_ticks):
-        meas = sim.measured
-        rpm = sim.measured_rpm()
-        att = sim.attack
-        estimate = math.nan
-        if detector is not None:
-            det = detector.update(sim.time_s, rpm, last_cmd)
-            if det.detected_rotor:
-                estimate = det.estimate_n
-                ctrl.set_attack(det.detected_rotor, estimate)
-        elif att.rotor:
-            w = rpm[att.rotor - 1] * TWO_PI_OVER_60
-            estimate = v.k_f * w * w
-            ctrl.set_attack(att.rotor, estimate)
-        out = ctrl.update(StateEstimate(meas.position_m, meas.velocity_mps,
-                                        meas.quaternion_wxyz, meas.body_rates_radps,
-                                        [r * TWO_PI_OVER_60 for r in rpm]))
-        sim.set_command(out.rotor_thrust_n)
-        last_cmd = list(sim.rotor_commands_n)
-        st = sim.state
-        yaw = _yaw(st.quaternion_wxyz)
-        if yaw_prev is not None:
-            yaw_unwrapped += math.remainder(yaw - yaw_prev, math.tau)
-        else:
-            yaw_unwrapped = yaw
-        yaw_prev = yaw
-        true_f = sim.rotor_thrusts_n
-        uf, tp, tq, tr = mix(sim.params, true_f)
-        log.append(t_s=sim.time_s, position_m=st.position_m, velocity_mps=st.velocity_mps,
-                   body_rates_radps=st.body_rates_radps, yaw_rad=yaw_unwrapped,
-                   path_distance_m=out.path_distance_m, thrust_cmd_n=out.rotor_thrust_n,
-                   thrust_true_n=true_f, attack_true_n=att.applied_n if att.rotor else 0.0,
-                   attack_estimate_n=estimate, uf_n=uf, torque_nm=(tp, tq, tr),
-                   saturated=any(out.saturated), mode=MODES[out.mode])
-        sim.step_control_period()
-        reason = sim.crash_reason()
-        if reason:
-            log.crashed, log.crash_reason = True, reason
-            break
-        if progress and sim.time_s >= next_progress:
-            progress(sim.time_s, duration)
-            next_progress += 1.0
-    log.wall_time_s = time.perf_counter() - t0
-    log.events.append((0.0, f"fallbacks: {ctrl.fallback_count}, "
-                            f"saturated ticks: {ctrl.saturation_count}"))
-    return log.finish()
-
+__all__ = ["add_parser", "run"]
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -130,24 +42,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def apply_overrides(sc: Scenario, overrides: list[str]) -> Scenario:
-    """Apply ``section.key=value`` overrides (values parsed as TOML) to a scenario."""
-    import tomllib
-
-    for item in overrides:
-        if "=" not in item:
-            raise ScenarioError(item, "override must look like section.key=value")
-        key, raw = item.split("=", 1)
-        try:
-            value = tomllib.loads(f"v = {raw}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = raw  # a bare string such as controller.law=paper
-        if "." not in key:
-            raise ScenarioError(key, "override key must be section.key")
-        sc = sc.replace(**{key.strip(): value})
-    return sc
-
-
 def run(args: argparse.Namespace) -> int:
     try:
         sc = apply_overrides(load_scenario(args.scenario), args.set)
@@ -165,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
         print(file=sys.stderr)
     metrics = summarize(log)
     if args.plot:
-        from tools.plots import write_report
+        from tfl_mav.flightlog.plots import write_report
 
         files = write_report(log, Path(args.plot), title=sc.name)
         metrics["plots"] = [str(f) for f in files]

@@ -49,7 +49,7 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from tfl_mav.mavlink.link import Address, parse_address
+from tfl_mav.link.transport import Address, parse_address
 
 __all__ = ["DirectionStats", "Faults", "Relay", "RelayError", "RelayStats", "add_parser",
            "run"]

@@ -18,8 +18,8 @@ import socket
 import sys
 import time
 
-from tfl_mav.mavlink.link import parse_address
-from tfl_mav.mavlink.logread import LogReader
+from tfl_mav.flightlog.logread import LogReader
+from tfl_mav.link.transport import parse_address
 
 __all__ = ["add_parser", "replay", "run"]
 

@@ -12,11 +12,11 @@ import json
 import sys
 from pathlib import Path
 
-from tfl_mav.mavlink.logread import LogReader
+from tfl_mav.flightlog.flight import summarize
+from tfl_mav.flightlog.from_mcap import flight_log_from_mcap
+from tfl_mav.flightlog.logread import LogReader
+from tfl_mav.flightlog.plots import write_report
 from tfl_mav.scenario import Scenario, ScenarioError, load_scenario, scenario_from_dict
-from tools.flightlog import summarize
-from tools.logflight import flight_log_from_mcap
-from tools.plots import write_report
 
 __all__ = ["add_parser", "run"]
 

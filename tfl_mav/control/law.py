@@ -39,9 +39,11 @@ from tfl_mav.control.allocation import (
 )
 from tfl_mav.control.estimators import MassEstimator, RateDisturbanceObserver
 from tfl_mav.control.paths import Path, PathTracker
+from tfl_mav.geometry import rotation_rows
+from tfl_mav.modes import Mode
+from tfl_mav.state import State
 
-__all__ = ["ControlOutput", "LawConfig", "ModelParams", "StateEstimate", "TFLController",
-           "chain_gains"]
+__all__ = ["ControlOutput", "LawConfig", "ModelParams", "TFLController", "chain_gains"]
 
 
 @dataclass(frozen=True)
@@ -82,24 +84,13 @@ class LawConfig:
     max_cond: float = 1e8           # cond(Dφ) above this: fall back
 
 
-@dataclass(frozen=True)
-class StateEstimate:
-    """Controller input: measured state, paper frame (z up), body FLU rates."""
-
-    position_m: Sequence[float]
-    velocity_mps: Sequence[float]
-    quaternion_wxyz: Sequence[float]
-    body_rates_radps: Sequence[float]
-    rotor_speed_radps: Sequence[float] | None = None   # measured ω (ESC rpm), rotors 1-4
-
-
 @dataclass
 class ControlOutput:
     """One control decision and the internals worth logging."""
 
     rotor_thrust_n: list[float]          # command, in [0, f_max], physical rotor order (with
                                          # motor lag: the lag inverse of the law's demand)
-    mode: str                            # "nominal" | "attacked" | "fallback"
+    mode: Mode                           # NOMINAL | ATTACKED | FALLBACK
     saturated: list[bool]
     xi: tuple[tuple[float, ...], tuple[float, ...]]   # (α1, α̇1, α̈1, α⃛1), same for α2
     eta: tuple[float, ...]               # (π, π̇, π̈, π⃛)
@@ -119,17 +110,6 @@ def chain_gains(pole: float, order: int) -> tuple[float, ...]:
     """Gains k₀…k_{n−1} of (s − pole)ⁿ = sⁿ + k_{n−1}sⁿ⁻¹ + … + k₀ (pole < 0)."""
     a = -pole
     return tuple(math.comb(order, i) * a ** (order - i) for i in range(order))
-
-
-def _quat_to_rot(q: Sequence[float]) -> list[list[float]]:
-    w, x, y, z = q
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    w, x, y, z = w / n, x / n, y / n, z / n
-    return [
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ]
 
 
 def _solve3(A: Sequence[Sequence[float]], b: Sequence[float]) -> tuple[list[float], float]:
@@ -217,13 +197,15 @@ class TFLController:
         self.attack_estimate_n = estimate_n
 
     # ------------------------------------------------------------------ the law
-    def update(self, s: StateEstimate) -> ControlOutput:
-        """Compute the rotor thrusts (N) for this control period."""
+    def update(self, s: State,
+               rotor_speed_radps: Sequence[float] | None = None) -> ControlOutput:
+        """Compute the rotor thrusts (N) for this control period from the measured state
+        and, with motor lag, the measured rotor speeds ω (rad/s, from ESC rpm)."""
         self.ticks += 1
         m = self.model
         cfg = self.cfg
         dt = self.dt
-        R = _quat_to_rot(s.quaternion_wxyz)
+        R = rotation_rows(s.quaternion_wxyz)
         p, q, r = s.body_rates_radps
         v = list(s.velocity_mps)
         y = list(s.position_m)
@@ -318,7 +300,7 @@ class TFLController:
         tau_p = ix * pdot + kr * pc + (iz - iy) * qc * rc
         tau_q = iy * qdot + kr * qc + (ix - iz) * pc * rc
         # Motor lag: what each rotor can reach this period bounds the allocation.
-        bounds = (self.lag_inverter.reachable(s.rotor_speed_radps)
+        bounds = (self.lag_inverter.reachable(rotor_speed_radps)
                   if self.lag_inverter is not None else None)
         if attacked:
             a_n = self.attack_estimate_n
@@ -333,7 +315,7 @@ class TFLController:
             for i, phys in enumerate(frame.perm):
                 f[phys] = canon[i]
                 raw[phys] = raw_c[i]
-            mode = "attacked"
+            mode = Mode.ATTACKED
         else:
             # Nominal: yaw held by ψ̈ = −k₁ψ̇ − k₀(ψ − ψ_ref), exact through the Euler chart.
             phi_e = math.atan2(R[2][1], R[2][2])
@@ -352,9 +334,9 @@ class TFLController:
             tau_r = iz * rdot + kr * rc + (iy - ix) * pc * qc
             raw = allocate_nominal(uf, tau_p, tau_q, tau_r, m.arm_m, d)
             f = allocate_nominal(uf, tau_p, tau_q, tau_r, m.arm_m, d, m.thrust_max_n, bounds)
-            mode = "nominal"
+            mode = Mode.NOMINAL
         if reason:
-            mode = "fallback"
+            mode = Mode.FALLBACK
 
         # Saturate, and keep the dynamic extension consistent with what is applied.
         fmax = m.thrust_max_n

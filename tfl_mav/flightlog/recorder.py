@@ -1,6 +1,6 @@
 """MCAP recorder: every MAVLink frame, simulator ground truth and Foxglove scene, one file.
 
-Channels (JSON messages, one JSON Schema per channel, see :mod:`tfl_mav.mavlink.schemas`):
+Channels (JSON messages, one JSON Schema per channel, see :mod:`tfl_mav.flightlog.schemas`):
 
 * ``/mavlink/raw``: every frame the link saw, both directions, exact wire bytes (base64),
   with ``direction`` and ``accepted``: replayable byte for byte (``tfl-mav replay``).
@@ -26,7 +26,7 @@ coming, from a small background thread when they stop. A SIGKILLed process loses
 the last interval; everything before reads with a stream reader (``tfl-mav inspect
 --recover``). A program that ends without :meth:`Recorder.close` (an uncaught exception)
 still finishes the file, at exit. No fsync: an OS crash or power loss can lose more.
-:class:`~tfl_mav.mavlink.recorder_process.RecorderProcess` runs the same recorder in a
+:class:`~tfl_mav.flightlog.recorder_process.RecorderProcess` runs the same recorder in a
 child process, which also finishes the file when the flight process is killed.
 
 Failure policy: an unwritable path raises :class:`RecorderError` (an ``OSError``) at
@@ -56,11 +56,11 @@ from typing import Any
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType, Writer
 
 from tfl_mav import __version__
-from tfl_mav.mavlink import foxglove as fg
-from tfl_mav.mavlink import schemas
-from tfl_mav.mavlink.dialect import mav
-from tfl_mav.mavlink.payload import PayloadDecoder
-from tfl_mav.mavlink.polyline import Polyline
+from tfl_mav.flightlog.polyline import Polyline
+from tfl_mav.link.dialect import mav
+from tfl_mav.link.payload import PayloadDecoder
+from tfl_mav.flightlog import foxglove as fg
+from tfl_mav.flightlog import schemas
 
 __all__ = ["Recorder", "RecorderError", "RecorderStats"]
 
@@ -250,7 +250,7 @@ class Recorder:
         self.close()
 
     def attach(self, link: Any) -> None:
-        """Hook this recorder into a :class:`~tfl_mav.mavlink.link.Link` and give the link
+        """Hook this recorder into a :class:`~tfl_mav.link.transport.Link` and give the link
         the recorder's clock, so every ``log_time`` in the file is on one clock."""
         link.on_frame = self.on_frame
         link.clock = self.clock
@@ -298,7 +298,7 @@ class Recorder:
 
     # ------------------------------------------------------------------ link hook
     def on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
-        """The :class:`~tfl_mav.mavlink.link.Link` frame hook (``on_frame``): record one
+        """The :class:`~tfl_mav.link.transport.Link` frame hook (``on_frame``): record one
         frame. ``msg`` is the decoded message, or None for a rejected rx frame or a
         ``send_raw`` tx frame; only whether it is None matters, the fields are decoded
         from ``raw``. ``time_s`` is the receipt time (s) on the recorder's clock."""

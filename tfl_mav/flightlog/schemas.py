@@ -25,7 +25,7 @@ import json
 from functools import cache
 from typing import Any
 
-from tfl_mav.mavlink.dialect import mav
+from tfl_mav.link.dialect import mav
 
 __all__ = [
     "CONTROLLER_STATE",

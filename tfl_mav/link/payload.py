@@ -18,7 +18,7 @@ from dataclasses import dataclass
 from operator import itemgetter
 from typing import Any
 
-from tfl_mav.mavlink.dialect import mav
+from tfl_mav.link.dialect import mav
 
 __all__ = ["FrameHeader", "PayloadDecoder", "frame_header"]
 

@@ -1,4 +1,4 @@
-"""Rebuild a :class:`~tools.flightlog.FlightLog` from the MCAP files of a flight.
+"""Rebuild a :class:`~tfl_mav.flightlog.flight.FlightLog` from the MCAP files of a flight.
 
 The vehicle's log (``run.mcap``) holds the ground truth (``/sim/truth/state``,
 ``/sim/truth/thrusts``, ``/sim/truth/attack``) and every MAVLink frame; the controller's
@@ -15,12 +15,13 @@ from typing import Any
 
 import numpy as np
 
-from sitl.physics import RigidBodyParams, mix
+from tfl_mav.airframe import mix
+from tfl_mav.build import scenario_path
 from tfl_mav.control.paths import PathTracker
-from tfl_mav.controller_factory import scenario_path
-from tfl_mav.mavlink.logread import LogReader
+from tfl_mav.flightlog.flight import FlightLog
+from tfl_mav.flightlog.logread import LogReader
+from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario
-from tools.flightlog import MODES, FlightLog
 
 __all__ = ["controller_states", "flight_log_from_mcap"]
 
@@ -46,8 +47,6 @@ def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,
             {m.topic.rsplit("/", 1)[-1]: d})
     ctl = controller_states(ctl_path) if ctl_path and Path(ctl_path).exists() else {}
     v = scenario.vehicle
-    params = RigidBodyParams(v.mass_kg, v.inertia_kgm2, v.arm_m, v.drag_thrust_ratio_m,
-                             v.k_t, v.k_r, v.gravity_mps2)
     log = FlightLog(thrust_max_n=v.thrust_max_n, attack_rotor=scenario.attack.rotor,
                     attack_start_s=scenario.attack.start_s if scenario.attack.rotor
                     else math.nan)
@@ -74,7 +73,7 @@ def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,
         yaw_prev = yaw
         out = tracker.evaluate([[c, 0.0, 0.0, 0.0, 0.0] for c in pos])
         c = ctl.get(key, {})
-        uf, tp, tq, tr = mix(params, th["thrust_n"])
+        uf, tp, tq, tr = mix(v, th["thrust_n"])
         est = c.get("attack_estimate_n")
         log.append(t_s=st["t_s"], position_m=pos, velocity_mps=st["velocity_mps"],
                    body_rates_radps=st["body_rates_radps"], yaw_rad=yaw_unwrapped,
@@ -83,7 +82,7 @@ def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,
                    thrust_true_n=th["thrust_n"], attack_true_n=at["applied_n"],
                    attack_estimate_n=est if est is not None else math.nan, uf_n=uf,
                    torque_nm=(tp, tq, tr), saturated=bool(c.get("saturated", False)),
-                   mode=MODES.get(c.get("mode", "nominal"), 0))
+                   mode=int(Mode.parse(c.get("mode", "nominal"))))
     log.finish()
     if len(log["t_s"]):
         rates = np.abs(log["body_rates_radps"])

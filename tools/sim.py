@@ -8,24 +8,22 @@ is closed, and the summary is printed.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 import math
 import signal
 import sys
 import textwrap
 import threading
-import tomllib
 from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from tfl_mav.scenario import Scenario, ScenarioError, load_scenario
+from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
 
 if TYPE_CHECKING:
-    from tfl_mav.mavlink.link import Address
+    from tfl_mav.link.transport import Address
 
-__all__ = ["EXIT_CODES", "add_parser", "apply_settings", "run"]
+__all__ = ["EXIT_CODES", "add_parser", "run"]
 
 EXIT_OK, EXIT_CRASHED, EXIT_USAGE, EXIT_LINK = 0, 1, 2, 3
 EXIT_SIGINT, EXIT_SIGTERM = 128 + signal.SIGINT, 128 + signal.SIGTERM
@@ -39,8 +37,6 @@ EXIT_CODES = {
     EXIT_SIGTERM: "terminated by SIGTERM, after a clean shutdown",
 }
 
-_SECTIONS = tuple(f.name for f in dataclasses.fields(Scenario)
-                  if f.name not in ("name", "description", "source"))
 _SEVERITY = {0: "EMERGENCY", 1: "ALERT", 2: "CRITICAL", 3: "ERROR", 4: "WARNING",
              5: "NOTICE", 6: "INFO", 7: "DEBUG"}
 
@@ -102,35 +98,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def apply_settings(scenario: Scenario, settings: list[str]) -> Scenario:
-    """Apply ``--set section.key=value`` overrides; ScenarioError naming the key if bad."""
-    for item in settings:
-        key, sep, text = item.partition("=")
-        key = key.strip()
-        if not sep or "." not in key:
-            raise ScenarioError("--set", f"expected SECTION.KEY=VALUE, got {item!r}")
-        try:
-            value: Any = tomllib.loads(f"v = {text}")["v"]
-        except tomllib.TOMLDecodeError:
-            value = text.strip()
-        section = key.split(".", 1)[0]
-        if section not in _SECTIONS:
-            raise ScenarioError(key, f"unknown section {section!r} (known: "
-                                     f"{', '.join(_SECTIONS)})")
-        try:
-            scenario = scenario.replace(**{key: value})
-        except TypeError as exc:
-            raise ScenarioError(key, str(exc)) from None
-    return scenario
-
-
 def run(args: argparse.Namespace) -> int:
-    from tfl_mav.mavlink.link import parse_address
-    from tfl_mav.mavlink.signing import load_key
+    from tfl_mav.link.signing import load_key
+    from tfl_mav.link.transport import parse_address
 
     prog = "tfl-mav sim"
     try:
-        scenario = apply_settings(load_scenario(args.scenario), args.settings)
+        scenario = apply_overrides(load_scenario(args.scenario), args.settings)
         if args.seed is not None:
             scenario = scenario.replace(**{"run.seed": args.seed})
     except ScenarioError as exc:
@@ -166,7 +140,7 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
          gcs: Address | None, peer: Address | None, duration: float, key: bytes | None,
          recorder: Any, prog: str) -> int:
     from sitl.vehicle import ExitStatus, Vehicle
-    from tfl_mav.mavlink.link import LinkError
+    from tfl_mav.link.transport import LinkError
 
     holder: dict[str, Vehicle] = {}
 
@@ -251,13 +225,13 @@ def _duration(value: float | None, scenario: Scenario) -> float:
 
 
 def _open_recorder(path: str, scenario: Scenario, prog: str) -> tuple[Any, int]:
-    """The MCAP recorder (``tfl_mav.mavlink.recorder_process``), imported only when asked
+    """The MCAP recorder (``tfl_mav.flightlog.recorder_process``), imported only when asked
     for. It runs in a child process so recording costs the lockstep loop ~1 µs per call,
     and it finishes the file even if this process is killed. Returns (recorder, 0) or
     (None, exit code) after printing why."""
     try:
-        from tfl_mav.mavlink.recorder import RecorderError
-        from tfl_mav.mavlink.recorder_process import RecorderProcess
+        from tfl_mav.flightlog.recorder import RecorderError
+        from tfl_mav.flightlog.recorder_process import RecorderProcess
     except ModuleNotFoundError as exc:
         print(f"{prog}: --mcap: the MCAP recorder is not available ({exc})", file=sys.stderr)
         return None, EXIT_USAGE

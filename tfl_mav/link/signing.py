@@ -13,7 +13,7 @@ new timestamp *before* it checks the hash (FACTS.md), so one forged frame with a
 timestamp and a victim's (sysid, compid, link_id) makes every later genuine frame "too old"
 — a denial of service by anyone who can send one datagram. :meth:`Signing.verify` checks
 the hash first and advances the stream only for a frame that verifies. The pymavlink
-parser of a signed :class:`~tfl_mav.mavlink.link.Link` is left without a key, so it never
+parser of a signed :class:`~tfl_mav.link.transport.Link` is left without a key, so it never
 checks or advances anything itself.
 
 Policy (docs/SIGNING.md says the same for users):
@@ -168,7 +168,7 @@ class Signing:
     # ------------------------------------------------------------------ receiving
     def verify(self, frame: bytes | bytearray) -> str | None:
         """Check one complete MAVLink 2 frame: None if accepted (and its stream advanced),
-        else the reason, named as the :class:`~tfl_mav.mavlink.link.LinkStats` counter:
+        else the reason, named as the :class:`~tfl_mav.link.transport.LinkStats` counter:
         ``unsigned``, ``bad_signature``, ``bad_timestamp`` (beyond the window) or
         ``replayed`` (not newer than the stream's last accepted timestamp).
 

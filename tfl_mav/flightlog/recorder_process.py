@@ -1,4 +1,4 @@
-"""The :class:`~tfl_mav.mavlink.recorder.Recorder` API with the work in a child process.
+"""The :class:`~tfl_mav.flightlog.recorder.Recorder` API with the work in a child process.
 
 Why: recording costs ~12-28 µs of CPU per frame in-process (JSON + MCAP records), a large
 share of a 1 kHz lockstep tick. Here the flight process only stamps each call with its
@@ -15,7 +15,7 @@ and SIGTERM so a Ctrl-C or ``kill`` of the process group still lets the parent c
 Backpressure: if the child falls behind, the pipe fills and the flight process waits.
 Errors never raise into the loop: :attr:`error` reports the child's write error, or that
 the child died (later calls are counted in ``dropped``); :attr:`stats` is the child's
-final :class:`~tfl_mav.mavlink.recorder.RecorderStats`, filled in by :meth:`close`.
+final :class:`~tfl_mav.flightlog.recorder.RecorderStats`, filled in by :meth:`close`.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
-from tfl_mav.mavlink.recorder import Recorder, RecorderError, RecorderStats
+from tfl_mav.flightlog.recorder import Recorder, RecorderError, RecorderStats
 
 __all__ = ["RecorderProcess"]
 
@@ -98,7 +98,7 @@ def _child_main(conn: Connection, results: Connection, path: str,
 
 
 class RecorderProcess:
-    """Same methods as :class:`~tfl_mav.mavlink.recorder.Recorder`; the recording runs in
+    """Same methods as :class:`~tfl_mav.flightlog.recorder.Recorder`; the recording runs in
     a child process (see the module docstring). ``batch_s``: longest a call waits in the
     parent before it is sent; ``batch_max``: calls per batch. Other keywords go to the
     child's ``Recorder``. Raises :class:`RecorderError` if the file cannot be written."""
@@ -197,7 +197,7 @@ class RecorderProcess:
             _plain(attack_applied_n), _plain(attack_requested_n))))
 
     def path(self, points_m: Any) -> None:
-        from tfl_mav.mavlink.polyline import Polyline
+        from tfl_mav.flightlog.polyline import Polyline
 
         Polyline(points_m)       # same ValueError as Recorder.path, raised here
         self._put((_PATH, self.clock(), _plain(points_m)))

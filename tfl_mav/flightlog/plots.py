@@ -10,7 +10,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from tools.flightlog import FlightLog
+from tfl_mav.flightlog.flight import FlightLog
 
 __all__ = ["write_report"]
 

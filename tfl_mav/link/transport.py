@@ -22,7 +22,7 @@ Small and explicit on purpose (STYLE.md: not like ``mavutil``):
   that was rejected, and for :meth:`Link.send_raw`. ``time_s`` comes from ``clock``
   (default wall time, ``time.time``). Exceptions raised by the hook propagate: a broken
   recorder is a bug to see, not traffic to count.
-* **Signing** (``signing=``, a :class:`~tfl_mav.mavlink.signing.Signing`): every outgoing
+* **Signing** (``signing=``, a :class:`~tfl_mav.link.signing.Signing`): every outgoing
   frame is signed (pymavlink's packer, timestamp kept up with the wall clock) and every
   received frame must carry a valid signature with a fresh timestamp, checked by our own
   verify-then-advance code *before* pymavlink decodes it (pymavlink's own check advances
@@ -46,8 +46,8 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from tfl_mav.mavlink.dialect import mav, new_mavlink
-from tfl_mav.mavlink.signing import Signing
+from tfl_mav.link.dialect import mav, new_mavlink
+from tfl_mav.link.signing import Signing
 
 __all__ = [
     "Address",

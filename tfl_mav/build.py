@@ -1,16 +1,24 @@
-"""Build the controller a scenario describes (shared by the offline runner and the daemon).
+"""A scenario → the controller's parts: its (wrong on purpose) model, law, path, detector.
 
+Shared by the offline runner and the daemon through
+:class:`~tfl_mav.flight_computer.FlightComputer`.
 The controller's model is the scenario's vehicle scaled by ``model_mass_scale`` and
-``model_inertia_scale``: the controller never sees the true mass or inertia.
+``model_inertia_scale``: the controller never sees the true mass or inertia. The detector's
+motor model is the scenario's vehicle (``k_f``, ``thrust_max_n``, ``motor_time_constant_s``
+scaled by ``detector.model_time_constant_scale``); its noise level is
+``detector.rpm_noise_std``, or the vehicle's ``rpm_noise_std`` when that is 0 (the default),
+so a scenario that adds ESC noise need not repeat it.
 """
 
 from __future__ import annotations
 
+from tfl_mav.control.detector import AttackDetector, DetectorConfig
 from tfl_mav.control.law import LawConfig, ModelParams, TFLController
 from tfl_mav.control.paths import Path, build_path
 from tfl_mav.scenario import Scenario, ScenarioError
 
-__all__ = ["build_controller", "law_config", "model_params", "scenario_path"]
+__all__ = ["build_controller", "build_detector", "detector_config", "law_config",
+           "model_params", "scenario_path"]
 
 
 def model_params(sc: Scenario) -> ModelParams:
@@ -49,3 +57,20 @@ def scenario_path(sc: Scenario) -> Path:
 def build_controller(sc: Scenario) -> TFLController:
     return TFLController(model_params(sc), scenario_path(sc), law_config(sc),
                          sc.run.control_dt_s)
+
+
+def detector_config(sc: Scenario) -> DetectorConfig:
+    """The detector's tuning from the scenario's ``[detector]`` section."""
+    d = sc.detector
+    return DetectorConfig(
+        rpm_noise_std=d.rpm_noise_std or sc.vehicle.rpm_noise_std,
+        cusum_drift_sigma=d.cusum_drift_sigma, cusum_threshold_sigma=d.cusum_threshold_sigma,
+        min_ticks=d.min_ticks, enabled=d.enabled,
+        model_time_constant_scale=d.model_time_constant_scale,
+        time_constant_tolerance=d.time_constant_tolerance)
+
+
+def build_detector(sc: Scenario) -> AttackDetector:
+    v = sc.vehicle
+    return AttackDetector(v.k_f, v.thrust_max_n, v.motor_time_constant_s, sc.run.control_dt_s,
+                          detector_config(sc))

@@ -13,6 +13,8 @@ from typing import Any
 
 import numpy as np
 
+from tfl_mav.modes import Mode
+
 __all__ = ["FlightLog", "summarize"]
 
 SERIES = (
@@ -29,10 +31,9 @@ SERIES = (
     "uf_n",                     # (N,) total thrust u_f
     "torque_nm",                # (N,3) (τ_p, τ_q, τ_r) from the true thrusts
     "saturated",                # (N,) any rotor command saturated
-    "mode",                     # (N,) 0 nominal, 1 attacked, 2 fallback
+    "mode",                     # (N,) int(tfl_mav.modes.Mode)
 )
 
-MODES = {"nominal": 0, "attacked": 1, "fallback": 2}
 
 
 @dataclass
@@ -97,7 +98,7 @@ def summarize(log: FlightLog) -> dict[str, Any]:
         "attack_min_n": f(np.min(attacked[active])) if np.any(active) else None,
         "attack_max_n": f(np.max(attacked[active])) if np.any(active) else None,
         "max_yaw_rate_radps": float(np.max(np.abs(rates[:, 2]))),
-        "fallback_fraction": float(np.mean(log["mode"] == MODES["fallback"])),
+        "fallback_fraction": float(np.mean(log["mode"] == int(Mode.FALLBACK))),
         "wall_time_s": round(log.wall_time_s, 3),
         "real_time_factor": round(float(t[-1]) / log.wall_time_s, 2) if log.wall_time_s else None,
     }

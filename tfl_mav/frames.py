@@ -1,5 +1,7 @@
 """The ONE place where the paper frame (z up) and MAVLink's NED/FRD frames meet.
 
+Frame-free rotation math (quaternions, rotation matrices, Euler) is in :mod:`tfl_mav.geometry`.
+
 Paper frame (physics and controller): inertial x, y, z with z **up**, treated as ENU
 (x = east, y = north, z = up); body b1 forward, b2 left, b3 up (FLU). Attitude is the
 rotation body (FLU) → inertial (ENU), ``R_enu_flu``; the Euler chart is the paper's ZYX
@@ -28,10 +30,12 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
 from typing import NamedTuple
 
 import numpy as np
+
+from tfl_mav.geometry import rotation_from_quaternion
+from tfl_mav.state import State
 
 __all__ = [
     "MAV_FRAME_BODY_FRD",
@@ -39,21 +43,15 @@ __all__ = [
     "P_ENU_TO_NED",
     "Q_FLU_TO_FRD",
     "OdometryFields",
-    "PaperState",
     "enu_to_ned",
-    "euler_zyx_from_rotation",
     "flu_to_frd",
     "frd_to_flu",
     "ned_to_enu",
     "odometry_from_paper",
     "paper_from_odometry",
     "quaternion_enu_flu_to_ned_frd",
-    "quaternion_from_rotation",
-    "quaternion_multiply",
     "quaternion_ned_frd_to_enu_flu",
     "rotation_enu_flu_to_ned_frd",
-    "rotation_from_euler_zyx",
-    "rotation_from_quaternion",
     "rotation_ned_frd_to_enu_flu",
 ]
 
@@ -113,104 +111,7 @@ def quaternion_ned_frd_to_enu_flu(q_ned_frd: Sequence[float]) -> np.ndarray:
     return quaternion_enu_flu_to_ned_frd(q_ned_frd)
 
 
-def quaternion_multiply(a: Sequence[float], b: Sequence[float]) -> np.ndarray:
-    """Hamilton product a ⊗ b of (w, x, y, z) quaternions; R(a ⊗ b) = R(a) R(b)."""
-    aw, ax, ay, az = a
-    bw, bx, by, bz = b
-    return np.array([
-        aw * bw - ax * bx - ay * by - az * bz,
-        aw * bx + ax * bw + ay * bz - az * by,
-        aw * by - ax * bz + ay * bw + az * bx,
-        aw * bz + ax * by - ay * bx + az * bw,
-    ])
-
-
-def rotation_from_quaternion(q: Sequence[float]) -> np.ndarray:
-    """3×3 rotation of a unit quaternion (w, x, y, z); the quaternion is normalised first."""
-    w, x, y, z = np.asarray(q, dtype=float) / math.sqrt(sum(c * c for c in q))
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-    ])
-
-
-def quaternion_from_rotation(R: np.ndarray) -> np.ndarray:
-    """Unit quaternion (w, x, y, z), w ≥ 0, of a rotation matrix (Shepperd's method).
-
-    Picks the largest of 1 + trace and the diagonal terms as the pivot, so it stays
-    accurate for every rotation (including 180° ones, where w → 0).
-    """
-    R = np.asarray(R, dtype=float)
-    m00, m11, m22 = R[0, 0], R[1, 1], R[2, 2]
-    tr = m00 + m11 + m22
-    if tr >= max(m00, m11, m22):
-        s = 2.0 * math.sqrt(1.0 + tr)
-        q = np.array([0.25 * s, (R[2, 1] - R[1, 2]) / s, (R[0, 2] - R[2, 0]) / s,
-                      (R[1, 0] - R[0, 1]) / s])
-    elif m00 >= m11 and m00 >= m22:
-        s = 2.0 * math.sqrt(1.0 + m00 - m11 - m22)
-        q = np.array([(R[2, 1] - R[1, 2]) / s, 0.25 * s, (R[0, 1] + R[1, 0]) / s,
-                      (R[0, 2] + R[2, 0]) / s])
-    elif m11 >= m22:
-        s = 2.0 * math.sqrt(1.0 + m11 - m00 - m22)
-        q = np.array([(R[0, 2] - R[2, 0]) / s, (R[0, 1] + R[1, 0]) / s, 0.25 * s,
-                      (R[1, 2] + R[2, 1]) / s])
-    else:
-        s = 2.0 * math.sqrt(1.0 + m22 - m00 - m11)
-        q = np.array([(R[1, 0] - R[0, 1]) / s, (R[0, 2] + R[2, 0]) / s,
-                      (R[1, 2] + R[2, 1]) / s, 0.25 * s])
-    q /= np.linalg.norm(q)
-    return -q if q[0] < 0 else q
-
-
-def rotation_from_euler_zyx(phi: float, theta: float, psi: float) -> np.ndarray:
-    """R = Rz(ψ) Ry(θ) Rx(φ) (eq. roation_matrix_product), angles in rad.
-
-    The same chart serves both frames: for R_enu_flu it gives the paper's (φ, θ, ψ); for
-    R_ned_frd it gives the aerospace (roll, pitch, yaw) that MAVLink's ATTITUDE carries.
-    """
-    cf, sf = math.cos(phi), math.sin(phi)
-    ct, st = math.cos(theta), math.sin(theta)
-    cp, sp = math.cos(psi), math.sin(psi)
-    return np.array([
-        [cp * ct, cp * st * sf - sp * cf, cp * st * cf + sp * sf],
-        [sp * ct, sp * st * sf + cp * cf, sp * st * cf - cp * sf],
-        [-st, ct * sf, ct * cf],
-    ])
-
-
-def euler_zyx_from_rotation(R: np.ndarray) -> tuple[float, float, float]:
-    """(φ, θ, ψ) in rad of R = Rz(ψ) Ry(θ) Rx(φ); θ ∈ [−π/2, π/2], φ, ψ ∈ (−π, π].
-
-    At the chart's singularity (|θ| = π/2, gimbal lock) only φ ∓ ψ is defined; φ = 0 is
-    returned there and ψ carries the whole rotation about the vertical.
-    """
-    R = np.asarray(R, dtype=float)
-    s = -R[2, 0]
-    theta = math.asin(max(-1.0, min(1.0, s)))
-    if abs(s) > 1.0 - 1e-12:
-        # cos θ = 0: R[0,1] = −sin(ψ ∓ φ), R[1,1] = cos(ψ ∓ φ); with φ = 0 both give ψ.
-        return 0.0, theta, math.atan2(-R[0, 1], R[1, 1])
-    return math.atan2(R[2, 1], R[2, 2]), theta, math.atan2(R[1, 0], R[0, 0])
-
-
 # ---------------------------------------------------------------------------- ODOMETRY
-@dataclass(frozen=True)
-class PaperState:
-    """Vehicle state in the paper frame, as decoded from one ODOMETRY message.
-
-    ``position_m``/``velocity_mps``: inertial ENU (z up); ``quaternion_wxyz``: body FLU →
-    ENU (unit, w ≥ 0 not enforced); ``body_rates_radps``: (p, q, r) about b1, b2, b3 (FLU).
-    """
-
-    time_usec: int
-    position_m: np.ndarray
-    velocity_mps: np.ndarray
-    quaternion_wxyz: np.ndarray
-    body_rates_radps: np.ndarray
-
-
 class OdometryFields(NamedTuple):
     """The frame-dependent fields of ODOMETRY with ``frame_id = LOCAL_NED`` and
     ``child_frame_id = BODY_FRD``: NED position (m), quaternion body FRD → NED, body-FRD
@@ -254,8 +155,8 @@ def odometry_from_paper(position_m: Sequence[float], velocity_mps: Sequence[floa
     )
 
 
-def paper_from_odometry(msg: object) -> PaperState:
-    """A decoded ODOMETRY message → :class:`PaperState` (ENU/FLU, SI units).
+def paper_from_odometry(msg: object) -> State:
+    """A decoded ODOMETRY message → :class:`~tfl_mav.state.State` (ENU/FLU, SI units).
 
     Accepts ``frame_id = MAV_FRAME_LOCAL_NED`` and a twist in ``child_frame_id`` =
     ``MAV_FRAME_BODY_FRD`` (what our simulator sends) or ``MAV_FRAME_LOCAL_NED``. Raises
@@ -286,4 +187,4 @@ def paper_from_odometry(msg: object) -> PaperState:
         raise ValueError("ODOMETRY.child_frame_id: expected MAV_FRAME_BODY_FRD (12) or "
                          f"MAV_FRAME_LOCAL_NED (1), got {m.child_frame_id}")
     rates = frd_to_flu((m.rollspeed, m.pitchspeed, m.yawspeed))
-    return PaperState(int(m.time_usec), position, velocity, q_enu_flu, rates)
+    return State(position, velocity, q_enu_flu, rates, int(m.time_usec))

@@ -1,0 +1,78 @@
+"""Fly a scenario in-process: the sitl simulator ↔ the flight computer, no network.
+
+The controller runs at ``control_hz`` with a zero-order hold on the sitl physics, seeing the
+measured state (with the scenario's sensor noise). How it learns about the attack is chosen
+by ``attack_info`` (:class:`~tfl_mav.flight_computer.FlightComputer`): ``"oracle"`` (the
+paper's assumption: told which rotor once the attack starts, thrust from its rpm) or
+``"detector"`` (found from ESC rpm, as the daemon does).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+
+from sitl.simulator import Simulator
+from tfl_mav.airframe import mix
+from tfl_mav.flight_computer import FlightComputer
+from tfl_mav.flightlog.flight import FlightLog
+from tfl_mav.geometry import yaw_from_quaternion
+from tfl_mav.scenario import Scenario
+
+__all__ = ["fly_offline"]
+
+
+def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
+                progress: Callable[[float, float], None] | None = None,
+                duration_s: float | None = None) -> FlightLog:
+    """Fly ``sc`` and return its :class:`FlightLog` (finished, arrays)."""
+    fc = FlightComputer(sc, attack_info=attack_info)
+    sim = Simulator(sc)
+    ctrl = fc.controller
+    v = sc.vehicle
+    log = FlightLog(thrust_max_n=v.thrust_max_n, attack_rotor=sc.attack.rotor,
+                    attack_start_s=sc.attack.start_s if sc.attack.rotor else math.nan)
+    log.path_points_m = ctrl.tracker.path.sample(400)
+    duration = sc.run.duration_s if duration_s is None else duration_s
+    n_ticks = round(duration / sim.control_dt_s)
+    yaw_prev = None
+    yaw_unwrapped = 0.0
+    applied = list(sim.rotor_commands_n)
+    t0 = time.perf_counter()
+    next_progress = 0.0
+    for _ in range(n_ticks):
+        att = sim.attack
+        if attack_info == "oracle":
+            fc.tell_attack(att.rotor)
+        res = fc.step(sim.time_s, sim.measured, sim.measured_rpm(), applied)
+        out = res.law
+        sim.set_command(res.thrust_n)
+        applied = list(sim.rotor_commands_n)
+        st = sim.state
+        yaw = yaw_from_quaternion(st.quaternion_wxyz)
+        if yaw_prev is not None:
+            yaw_unwrapped += math.remainder(yaw - yaw_prev, math.tau)
+        else:
+            yaw_unwrapped = yaw
+        yaw_prev = yaw
+        true_f = sim.rotor_thrusts_n
+        uf, tp, tq, tr = mix(sim.params, true_f)
+        log.append(t_s=sim.time_s, position_m=st.position_m, velocity_mps=st.velocity_mps,
+                   body_rates_radps=st.body_rates_radps, yaw_rad=yaw_unwrapped,
+                   path_distance_m=out.path_distance_m, thrust_cmd_n=out.rotor_thrust_n,
+                   thrust_true_n=true_f, attack_true_n=att.applied_n if att.rotor else 0.0,
+                   attack_estimate_n=res.attack_estimate_n, uf_n=uf, torque_nm=(tp, tq, tr),
+                   saturated=any(out.saturated), mode=int(out.mode))
+        sim.step_control_period()
+        reason = sim.crash_reason()
+        if reason:
+            log.crashed, log.crash_reason = True, reason
+            break
+        if progress and sim.time_s >= next_progress:
+            progress(sim.time_s, duration)
+            next_progress += 1.0
+    log.wall_time_s = time.perf_counter() - t0
+    log.events.append((0.0, f"fallbacks: {ctrl.fallback_count}, "
+                            f"saturated ticks: {ctrl.saturation_count}"))
+    return log.finish()

@@ -1,0 +1,27 @@
+"""The X-quadrotor airframe: rotor thrusts → total thrust and body torques (paper eq. (3)).
+
+Rotors 1-4 sit on the b2-, b1-, b2+... arms as in the paper's Fig. 1: with arm length l and
+drag-to-thrust ratio d, u_f = Σ fᵢ, τ_p = l (f4 − f2), τ_q = l (f3 − f1),
+τ_r = d (f1 − f2 + f3 − f4). The physics integrates it; the logs use it to turn true rotor
+thrusts into the wrench the vehicle felt. The control law inverts it in
+:mod:`tfl_mav.control.allocation`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Protocol
+
+__all__ = ["Airframe", "mix"]
+
+
+class Airframe(Protocol):
+    arm_m: float                 # l: rotor arm length (m)
+    drag_thrust_ratio_m: float   # d: rotor drag torque / thrust (m)
+
+
+def mix(p: Airframe, f: Sequence[float]) -> tuple[float, float, float, float]:
+    """Rotor thrusts (N) → (u_f N, τ_p, τ_q, τ_r N m); eq. (3)."""
+    f1, f2, f3, f4 = f
+    ell, d = p.arm_m, p.drag_thrust_ratio_m
+    return (f1 + f2 + f3 + f4, ell * (f4 - f2), ell * (f3 - f1), d * (f1 - f2 + f3 - f4))

@@ -1,0 +1,1 @@
+"""The flight log: MCAP recorder, Foxglove schemas, reading logs back, summaries, plots."""

@@ -1,1 +1,0 @@
-"""MAVLink plumbing shared by the simulator and the controller: link, frames, recorder."""

@@ -1,0 +1,34 @@
+"""The vehicle state every part of tfl-mav passes around, in the paper frame.
+
+Physics produces it (``sitl.simulator``), the wire decodes into it
+(:func:`tfl_mav.frames.paper_from_odometry`), the flight computer and the law consume it.
+One type, so a field means the same thing wherever it is read.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+__all__ = ["State"]
+
+
+@dataclass(frozen=True, slots=True)
+class State:
+    """Measured vehicle state, paper frame (§II): inertial ENU with z **up**, body FLU.
+
+    ``position_m``/``velocity_mps``: inertial (x, y, z) and its rate; ``quaternion_wxyz``:
+    body FLU → inertial ENU (unit); ``body_rates_radps``: (p, q, r) about b1, b2, b3;
+    ``time_usec``: the sim time it was sampled at (µs, the wire's ``time_usec``; 0 when the
+    caller keeps time itself).
+    """
+
+    position_m: Sequence[float]
+    velocity_mps: Sequence[float]
+    quaternion_wxyz: Sequence[float]
+    body_rates_radps: Sequence[float]
+    time_usec: int = 0
+
+    @property
+    def time_s(self) -> float:
+        return self.time_usec * 1e-6
