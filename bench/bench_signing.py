@@ -13,7 +13,7 @@ Measures, on this machine, over real UDP on loopback:
    vehicle applied or accepted from them.
 3. **the future-timestamp attack**: one forged frame with a far-future timestamp, then
    genuine frames: how many genuine ones pymavlink 2.4.50's own verifier accepts (its flaw,
-   FACTS.md) and how many ours does.
+   measured here) and how many ours does.
 4. **cost**: µs per frame to sign (stamp + pack) and to verify, against packing/decoding
    unsigned; lockstep ticks/s of ``tfl-mav sim`` flown by our Link, signed vs unsigned.
 

@@ -1,6 +1,6 @@
 """Rigid-body quadrotor dynamics, integrated singularity-free (unit quaternion, RK4).
 
-Equivalent to the paper's model (eq. quad-eular) but without the Euler chart, which is the
+Equivalent to the paper's model (eq. (3)) but without the Euler chart, which is the
 controller's business, not the plant's:
 
     ẋ_q = v_q
@@ -9,7 +9,7 @@ controller's business, not the plant's:
     J Ω̇ = τ − k_r Ω − Ω × JΩ
 
 Frame: the paper's inertial frame, z **up** (treated as ENU), body b1 forward, b2 left,
-b3 up (FLU). Rotor layout ("+", eq. Uf_and_Utau_relation): rotor 1 on +b1 (front),
+b3 up (FLU). Rotor layout ("+", eq. (4)): rotor 1 on +b1 (front),
 rotor 2 on −b2 (right), rotor 3 on −b1 (back), rotor 4 on +b2 (left); rotors 1 and 3
 react +d·f about b3, rotors 2 and 4 −d·f. MAVLink actuator index i is rotor i+1.
 

@@ -1,4 +1,4 @@
-"""The simulated vehicle's MAVLink endpoint and clock (DESIGN.md §3, §4).
+"""The simulated vehicle's MAVLink endpoint and clock (docs/design.md, "The wire" and "Time").
 
 One :class:`Vehicle` owns a :class:`~sitl.simulator.Simulator` and two links:
 

@@ -269,7 +269,7 @@ class VehicleModel:
 
 
 def _inject_ok(p1: float, p2: float, p3: float) -> bool:
-    """MAV_CMD_INJECT_FAILURE parameters the vehicle accepts (DESIGN §3, sitl.attacker)."""
+    """MAV_CMD_INJECT_FAILURE parameters the vehicle accepts (docs/design.md; sitl.attacker)."""
     whole = all(math.isfinite(p) and p == math.floor(p) for p in (p1, p2, p3))
     return whole and p1 == 101 and int(p2) in (0, 1, 2, 4, 8) and 1 <= p3 <= 4
 

@@ -34,7 +34,7 @@ def test_nominal_allocation_inverts_the_mixer():
 @pytest.mark.parametrize("rotor", [1, 2, 3, 4])
 def test_attacked_allocation_for_any_rotor(rotor):
     """Relabelled allocation → physical rotors → the physical mixer reproduces, in the
-    canonical frame, u_f, τ_q, τ_r and τ_p = (u_f − τ_r/d')l/2 − 2lA (eq. tau_p)."""
+    canonical frame, u_f, τ_q, τ_r and τ_p = (u_f − τ_r/d')l/2 − 2lA (eq. (6))."""
     frame = canonical_frame(rotor)
     uf, tq, tr, a = 10.0, 0.05, 0.08, 1.3
     d_c = D * frame.d_sign

@@ -127,7 +127,7 @@ def test_rotational_energy_decays_with_drag_and_is_conserved_without():
 
 
 def paper_euler_rhs(p: RigidBodyParams, euler, rates, vel, wrench):
-    """eq. quad-eular, written from the paper: Φ̇ = Y⁻¹Ω, JΩ̇ = τ − k_rΩ − Ω×JΩ, v̇ = …"""
+    """eq. (3), written from the paper: Φ̇ = Y⁻¹Ω, JΩ̇ = τ − k_rΩ − Ω×JΩ, v̇ = …"""
     phi, th, _psi = euler
     Yinv = np.array([[1, math.sin(phi) * math.tan(th), math.cos(phi) * math.tan(th)],
                      [0, math.cos(phi), -math.sin(phi)],

@@ -12,6 +12,8 @@ so a scenario that adds ESC noise need not repeat it.
 
 from __future__ import annotations
 
+import dataclasses
+
 from tfl_mav.control.detector import AttackDetector, DetectorConfig
 from tfl_mav.control.law import LawConfig, ModelParams, TFLController
 from tfl_mav.control.paths import Path, build_path
@@ -60,14 +62,10 @@ def build_controller(sc: Scenario) -> TFLController:
 
 
 def detector_config(sc: Scenario) -> DetectorConfig:
-    """The detector's tuning from the scenario's ``[detector]`` section."""
+    """The scenario's ``[detector]`` section, with ``rpm_noise_std = 0`` meaning the
+    vehicle's ESC noise."""
     d = sc.detector
-    return DetectorConfig(
-        rpm_noise_std=d.rpm_noise_std or sc.vehicle.rpm_noise_std,
-        cusum_drift_sigma=d.cusum_drift_sigma, cusum_threshold_sigma=d.cusum_threshold_sigma,
-        min_ticks=d.min_ticks, enabled=d.enabled,
-        model_time_constant_scale=d.model_time_constant_scale,
-        time_constant_tolerance=d.time_constant_tolerance)
+    return dataclasses.replace(d, rpm_noise_std=d.rpm_noise_std or sc.vehicle.rpm_noise_std)
 
 
 def build_detector(sc: Scenario) -> AttackDetector:

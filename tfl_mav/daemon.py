@@ -1,6 +1,6 @@
 """The offboard controller daemon: link → state → attack detector → TFL law → link.
 
-One :class:`Daemon` talks MAVLink 2 over one UDP socket to one vehicle (DESIGN §3, §4):
+One :class:`Daemon` talks MAVLink 2 over one UDP socket to one vehicle (docs/design.md, "The wire"):
 
 * sends ``HEARTBEAT`` (``MAV_TYPE_ONBOARD_CONTROLLER``) at once and every second (the
   simulator starts its clock on the first one);

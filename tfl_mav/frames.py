@@ -5,7 +5,7 @@ Frame-free rotation math (quaternions, rotation matrices, Euler) is in :mod:`tfl
 Paper frame (physics and controller): inertial x, y, z with z **up**, treated as ENU
 (x = east, y = north, z = up); body b1 forward, b2 left, b3 up (FLU). Attitude is the
 rotation body (FLU) → inertial (ENU), ``R_enu_flu``; the Euler chart is the paper's ZYX
-(eq. roation_matrix_product: R = Rz(ψ) Ry(θ) Rx(φ)).
+(eq. (1): R = Rz(ψ) Ry(θ) Rx(φ)).
 
 MAVLink (on the wire): ``MAV_FRAME_LOCAL_NED`` (x = north, y = east, z = down) for position
 and velocity, ``MAV_FRAME_BODY_FRD`` for the body (forward, right, down).

@@ -20,10 +20,11 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
+from tfl_mav.control.detector import DetectorConfig
+
 __all__ = [
     "AttackConfig",
     "ControllerConfig",
-    "DetectionConfig",
     "InitialConfig",
     "PathConfig",
     "RunConfig",
@@ -158,25 +159,6 @@ class SensorConfig:
 
 
 @dataclass(frozen=True)
-class DetectionConfig:
-    """``[detector]``: finding the attacked rotor from ESC rpm (tfl_mav.control.detector)."""
-
-    enabled: bool = _f(True, doc="False = never declare an attack")
-    rpm_noise_std: float = _f(0.0, "rpm", lo=0.0, hi=1000.0,
-                              doc="ESC rpm noise std the detector assumes; 0 = vehicle's")
-    cusum_drift_sigma: float = _f(2.0, "sigma", lo=0.0, lo_open=True, hi=100.0,
-                                  doc="CUSUM drift k: residual shifts below k sigma are ignored")
-    cusum_threshold_sigma: float = _f(8.0, "sigma", lo=0.0, lo_open=True, hi=1e4,
-                                      doc="CUSUM threshold h")
-    min_ticks: int = _f(3, "ticks", lo=1, hi=1000,
-                        doc="fewest consecutive anomalous rpm samples that can alarm")
-    model_time_constant_scale: float = _f(1.0, lo=0.0, hi=10.0,
-                                          doc="detector's tau = scale * motor_time_constant_s")
-    time_constant_tolerance: float = _f(0.3, lo=0.0, hi=4.0,
-                                        doc="true tau within the detector's x/÷ (1 + this)")
-
-
-@dataclass(frozen=True)
 class RunConfig:
     """Run length, rates and seed."""
 
@@ -211,7 +193,7 @@ class Scenario:
     controller: ControllerConfig = field(default_factory=ControllerConfig)
     sensors: SensorConfig = field(default_factory=SensorConfig)
     run: RunConfig = field(default_factory=RunConfig)
-    detector: DetectionConfig = field(default_factory=DetectionConfig)
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
     source: str = "<defaults>"
 
     def replace(self, **sections: Any) -> Scenario:
@@ -251,7 +233,7 @@ _SECTIONS: dict[str, type] = {
     "controller": ControllerConfig,
     "sensors": SensorConfig,
     "run": RunConfig,
-    "detector": DetectionConfig,
+    "detector": DetectorConfig,
 }
 
 

@@ -1,7 +1,7 @@
 """Rotor allocation: from (u_f, τ_p, τ_q, τ_r) or the attacked law's inputs to rotor thrusts.
 
-The paper derives the attacked law for rotor 2 (eq. tau_p). Any other rotor maps onto that
-case by relabelling the body axes by a multiple of 90° about b3 (DESIGN §5): in the
+The paper derives the attacked law for rotor 2 (eq. (6)). Any other rotor maps onto that
+case by relabelling the body axes by a multiple of 90° about b3 (docs/design.md, "The law"): in the
 relabelled ("canonical") frame the attacked rotor sits on −b2' like rotor 2. Rotors 1 and 3
 spin the other way from 2 and 4, so relabelling by an odd number of quarter turns also flips
 the sign of the yaw reaction: the canonical frame then has d' = −d.
@@ -57,7 +57,7 @@ def canonical_frame(rotor: int) -> RotorFrame:
 def allocate_nominal(uf: float, tau_p: float, tau_q: float, tau_r: float,
                      arm_m: float, d_m: float, thrust_max_n: float = float("inf"),
                      bounds: Bounds | None = None) -> list[float]:
-    """Invert eq. Uf_and_Utau_relation: rotor thrusts (N) for a wrench, all four healthy.
+    """Invert eq. (4): rotor thrusts (N) for a wrench, all four healthy.
 
     With ``thrust_max_n`` the result is feasible: the yaw torque (the least important
     input: yaw does not move the position) is scaled down first, then each rotor is
@@ -85,10 +85,10 @@ def allocate_nominal(uf: float, tau_p: float, tau_q: float, tau_r: float,
 def allocate_attacked(uf: float, tau_q: float, tau_r: float, attack_n: float,
                       arm_m: float, d_m: float, thrust_max_n: float = float("inf"),
                       bounds: Bounds | None = None) -> list[float]:
-    """Canonical rotor thrusts with rotor 2 forced to ``attack_n`` (eq. tau_p's mixer).
+    """Canonical rotor thrusts with rotor 2 forced to ``attack_n`` (eq. (6)'s mixer).
 
     With f2 = A the mixer gives f1 + f3 = (u_f + τ_r/d)/2, f3 − f1 = τ_q/l and
-    f4 = (u_f − τ_r/d)/2 − A, so τ_p = (u_f − τ_r/d) l/2 − 2lA (eq. tau_p) follows.
+    f4 = (u_f − τ_r/d)/2 − A, so τ_p = (u_f − τ_r/d) l/2 − 2lA (eq. (6)) follows.
 
     With ``thrust_max_n`` the result is feasible, sacrificing inputs in reverse order of
     importance: τ_r (hence τ_p) first — f4 is clipped and f1 + f3 absorb the difference so

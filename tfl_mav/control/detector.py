@@ -55,10 +55,13 @@ def _param(default: float, unit: str = "", *, lo: float | None = None,
 
 @dataclass(frozen=True, slots=True)
 class DetectorConfig:
-    """Tuning of the detector; σ-denominated values are in units of the residual's std."""
+    """Tuning of the detector, and the scenario's ``[detector]`` section (one type for both).
 
-    rpm_noise_std: float = _param(10.0, "rpm", lo=0.0, hi=1000.0,
-                                  doc="ESC rpm noise std the detector assumes")
+    σ-denominated values are in units of the residual's std."""
+
+    rpm_noise_std: float = _param(0.0, "rpm", lo=0.0, hi=1000.0,
+                                  doc="ESC rpm noise std the detector assumes (besides the "
+                                      "uint16 quantisation); in a scenario 0 = the vehicle's")
     cusum_drift_sigma: float = _param(2.0, "sigma", lo=0.0, lo_open=True, hi=100.0,
                                       doc="CUSUM drift k: shifts below k are ignored")
     cusum_threshold_sigma: float = _param(8.0, "sigma", lo=0.0, lo_open=True, hi=1e4,

@@ -1,21 +1,21 @@
 """The transverse-feedback-linearizing path-following law (paper §V), nominal and attacked.
 
-Structure used (DESIGN §5). With y the position and the dynamic extension x13 = u_f,
-x14 = u̇_f (eq. extended_system), the fourth derivative of the position is affine in the
+Structure used (docs/design.md, "The law"). With y the position and the dynamic extension x13 = u_f,
+x14 = u̇_f (eq. (9)), the fourth derivative of the position is affine in the
 *virtual inputs* w = (ü_f, ṗ, q̇):
 
     y⁽⁴⁾ = a₀(x) + B₀(x) w,   B₀ = [b3/m, −(u_f/m) b2, (u_f/m) b1]      (bᵢ = R eᵢ)
 
-so for the virtual output φ(y) = (α1, α2, π) (eq. virtual_output_fn),
+so for the virtual output φ(y) = (α1, α2, π) (eq. (14)),
 φ⁽⁴⁾ = L_f⁴φ + Dφ(y) B₀ w, where L_f⁴φ is φ⁽⁴⁾ evaluated with y⁽⁴⁾ = a₀ (computed with
 Taylor jets by the path library) and Dφ is φ's Jacobian. The paper's decoupling matrix
-(eq. decoupling_matrix_general) is D = Dφ B₀ T with T the constant map from (u_d, u_r, u_q)
-to w; solving eq. regular_feedback_transformation for w first and then for the rotor
+(eq. (15)) is D = Dφ B₀ T with T the constant map from (u_d, u_r, u_q)
+to w; solving eq. (21) for w first and then for the rotor
 commands keeps one formula for both laws:
 
 * attacked (rotor 2 in the canonical frame, see ``allocation``): τ_q from q̇, τ_r from ṗ via
-  eq. tau_p (τ_p = (u_f − τ_r/d) l/2 − 2lA), f2 = A (the *estimated* attack thrust);
-  yaw is internal dynamics (μ1 = ψ, eq. internal_states) — no Euler angle is used at all,
+  eq. (6) (τ_p = (u_f − τ_r/d) l/2 − 2lA), f2 = A (the *estimated* attack thrust);
+  yaw is internal dynamics (μ1 = ψ, eq. (18)) — no Euler angle is used at all,
   so the law has no trouble with a vehicle spinning at tens of rad/s;
 * nominal: τ_p, τ_q from ṗ, q̇, and τ_r from a second-order yaw loop (ψ held).
 
@@ -94,7 +94,7 @@ class ControlOutput:
     saturated: list[bool]
     xi: tuple[tuple[float, ...], tuple[float, ...]]   # (α1, α̇1, α̈1, α⃛1), same for α2
     eta: tuple[float, ...]               # (π, π̇, π̈, π⃛)
-    mu: tuple[float, float]              # (ψ, μ2) internal states, eq. internal_states
+    mu: tuple[float, float]              # (ψ, μ2) internal states, eq. (18)
     path_distance_m: float
     lam: float
     cond_d: float
@@ -246,7 +246,7 @@ class TFLController:
         kt = m.k_t / mass
         uf, duf = self.x13, self.x14
 
-        # Derivatives of y from the model (eq. quad-eular with the extension).
+        # Derivatives of y from the model (eq. (3) with the extension).
         ydd = [uf / mass * b3[i] - kt * v[i] for i in range(3)]
         ydd[2] -= g
         db3 = [qc * b1[i] - pc * b2[i] for i in range(3)]
@@ -263,7 +263,7 @@ class TFLController:
         eta = out.pi.derivatives()
         J = out.jacobian
 
-        # Auxiliary inputs: eqs. linear-xi-controller, linear-eta-controller.
+        # Auxiliary inputs: eqs. (23), (24).
         kx, ke = self.k_xi, self.k_eta
         v_xi1 = -(kx[0] * xi1[0] + kx[1] * xi1[1] + kx[2] * xi1[2] + kx[3] * xi1[3])
         v_xi2 = -(kx[0] * xi2[0] + kx[1] * xi2[1] + kx[2] * xi2[2] + kx[3] * xi2[3])
@@ -304,7 +304,7 @@ class TFLController:
                   if self.lag_inverter is not None else None)
         if attacked:
             a_n = self.attack_estimate_n
-            tau_r = d * (uf - 2.0 * (tau_p + 2.0 * m.arm_m * a_n) / m.arm_m)   # eq. tau_p
+            tau_r = d * (uf - 2.0 * (tau_p + 2.0 * m.arm_m * a_n) / m.arm_m)   # eq. (6)
             raw_c = allocate_attacked(uf, tau_q, tau_r, a_n, m.arm_m, d)
             cb = None if bounds is None else tuple([b[phys] for phys in frame.perm]
                                                    for b in bounds)
@@ -368,7 +368,7 @@ class TFLController:
                       (tq_app - kr * qc - (ix - iz) * pc * rc) / iy)
         self._last_out = delivered
 
-        # Dynamic extension x13 = u_f, x14 = u̇_f, u_d = ü_f (eq. extended_system).
+        # Dynamic extension x13 = u_f, x14 = u̇_f, u_d = ü_f (eq. (9)).
         if abs(applied_uf - uf) > 1e-9:
             self.x13 = applied_uf
             if (applied_uf - uf) * duf < 0:

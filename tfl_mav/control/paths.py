@@ -1,12 +1,12 @@
 """Paths as zero sets, and the virtual output (α, π) with its time derivatives (paper §IV).
 
-A path is the zero set of ``s: R³ → R²`` (eq. path_defining_fn) together with a regular
+A path is the zero set of ``s: R³ → R²`` (§IV, eq. (7)) together with a regular
 parameterisation ``σ(λ)``. Both are written once as ordinary code that works on floats,
 numpy arrays and Taylor jets (:mod:`jets`), so every derivative the law needs comes from
 evaluating the same code on jets: α = s(y) and its derivatives up to order 4 from one jet
 evaluation on the position's Taylor series.
 
-π (eq. virtual_output_fn's ϖ) is the arc length of the closest path point. Its time
+π (eq. (14)'s ϖ) is the arc length of the closest path point. Its time
 derivatives come from implicitly differentiating the projection condition
 
     g(λ, y) = ⟨y − σ(λ), σ'(λ)⟩ = 0,
@@ -73,7 +73,7 @@ class Path:
 class PathOutput:
     """The virtual output at one instant (see :meth:`PathTracker.evaluate`).
 
-    ``alpha``: jets of α1, α2 (eq. virtual_output_fn), ``pi``: jet of π (arc length, m);
+    ``alpha``: jets of α1, α2 (eq. (14)), ``pi``: jet of π (arc length, m);
     ``jacobian``: rows ∂α1/∂y, ∂α2/∂y, ∂π/∂y (3 × 3); ``lam``: λ of the closest point;
     ``distance_m``: |y − σ(λ)|; ``in_tube``: the projection is unique and well conditioned
     (else ``reason`` says why, and the derivatives must not be used).

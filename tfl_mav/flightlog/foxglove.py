@@ -1,7 +1,7 @@
 """Foxglove well-known messages (as JSON-ready dicts) for the vehicle, its path and logs.
 
 Frames: Foxglove's 3-D panel is z-up; the paper frame is ENU z-up too, so positions and
-attitude go in unchanged under ``world`` (DESIGN §2). ``base_link`` is the body frame
+attitude go in unchanged under ``world`` (docs/design.md, "Frames"). ``base_link`` is the body frame
 (b1 forward, b3 along thrust). Rotor positions in the body follow the paper's "+" layout as
 fixed by the mixer rows ``τ_p = l(f4 − f2)``, ``τ_q = l(f3 − f1)``: rotor 1 on +b1, 2 on −b2,
 3 on −b1, 4 on +b2.

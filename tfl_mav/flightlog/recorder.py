@@ -16,7 +16,7 @@ Time: ``log_time`` is the receipt time on the recorder's ``clock`` (ns; frames u
 ``time_s`` the link hook passes, so give the link the same clock: :meth:`Recorder.attach`
 does). ``publish_time`` is **sim time** (ns): the latest of :meth:`set_sim_time`, the
 ``time_s`` given to ``truth``/``controller``/``log``, and ``time_usec`` of the messages in
-``sim_time_messages`` (ODOMETRY and HIL_ACTUATOR_CONTROLS carry sim time, DESIGN §3), taken
+``sim_time_messages`` (ODOMETRY and HIL_ACTUATOR_CONTROLS carry sim time), taken
 when they pass, so a received state is stamped with its own time even before the caller
 reacts. 0 until a sim time is known.
 
@@ -56,11 +56,11 @@ from typing import Any
 from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType, Writer
 
 from tfl_mav import __version__
+from tfl_mav.flightlog import foxglove as fg
+from tfl_mav.flightlog import schemas
 from tfl_mav.flightlog.polyline import Polyline
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.payload import PayloadDecoder
-from tfl_mav.flightlog import foxglove as fg
-from tfl_mav.flightlog import schemas
 
 __all__ = ["Recorder", "RecorderError", "RecorderStats"]
 

@@ -1,6 +1,6 @@
 """JSON Schemas of every channel the recorder writes (MCAP ``jsonschema`` encoding).
 
-Three families, all written by the project (DESIGN §6):
+Three families, all written by the project (docs/design.md, "The flight log"):
 
 * ``mavlink.<MSG>``: one schema per MAVLink message type, generated from pymavlink's field
   metadata (``fieldnames``, ``fieldtypes``, ``array_lengths``, units, enums). ``char[N]`` is

@@ -1,8 +1,8 @@
 """The one MAVLink dialect of the project, imported once, explicitly.
 
 ``pymavlink.dialects.v20.ardupilotmega`` is a superset of ``common`` that also carries
-``ESC_TELEMETRY_1_TO_4`` (FACTS.md). Importing the dialect module directly, instead of going
-through ``mavutil``, avoids its process-wide choice of dialect and wire version made from
+``ESC_TELEMETRY_1_TO_4`` (pymavlink 2.4.50). Importing the dialect module directly, instead
+of going through ``mavutil``, avoids its process-wide choice of dialect and wire version made from
 environment variables at import time: everything here speaks MAVLink 2.
 """
 

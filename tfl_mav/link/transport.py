@@ -1,6 +1,7 @@
 """A MAVLink 2 link over UDP: one socket, one pinned peer, one packer, one parser.
 
-Small and explicit on purpose (STYLE.md: not like ``mavutil``):
+Small and explicit on purpose (unlike pymavlink's ``mavutil``, which hides sockets, peers and
+retries behind one object):
 
 * **One peer.** Either fixed (:meth:`Link.connect`) or learned from the first valid
   ``HEARTBEAT`` that reaches a listening socket (:meth:`Link.listen`). Datagrams from any
@@ -26,7 +27,7 @@ Small and explicit on purpose (STYLE.md: not like ``mavutil``):
   frame is signed (pymavlink's packer, timestamp kept up with the wall clock) and every
   received frame must carry a valid signature with a fresh timestamp, checked by our own
   verify-then-advance code *before* pymavlink decodes it (pymavlink's own check advances
-  the stream before verifying: FACTS.md). Rejections are counted as ``unsigned``,
+  the stream before verifying, measured in bench/bench_signing.py). Rejections are counted as ``unsigned``,
   ``bad_signature``, ``replayed`` and ``bad_timestamp``. Only verified frames can pin the
   peer or its system id. Without ``signing`` (the default) signed frames from others are
   accepted unchecked, like any key-less MAVLink receiver does, and nothing is signed.
