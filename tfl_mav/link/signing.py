@@ -12,9 +12,9 @@ Why our own receive side: pymavlink 2.4.50's ``MAVLink.check_signature`` stores 
 new timestamp *before* it checks the hash (bench/bench_signing.py shows it), so one forged
 frame with a far-future timestamp and a victim's (sysid, compid, link_id) makes every later
 genuine frame "too old" — a denial of service by anyone who can send one datagram.
-:meth:`Signing.verify` checks the hash first and advances the stream only for a frame that verifies. The pymavlink
-parser of a signed :class:`~tfl_mav.link.transport.Link` is left without a key, so it never
-checks or advances anything itself.
+:meth:`Signing.verify` checks the hash first and advances the stream only for a frame that
+verifies. The pymavlink parser of a signed :class:`~tfl_mav.link.transport.Link` is left
+without a key, so it never checks or advances anything itself.
 
 Policy (docs/SIGNING.md says the same for users):
 
