@@ -29,9 +29,9 @@ retries behind one object):
   verify-then-advance code *before* pymavlink decodes it (pymavlink's own check advances
   the stream before verifying, measured in bench/bench_signing.py). Rejections are counted
   as ``unsigned``, ``bad_signature``, ``replayed`` and ``bad_timestamp``. Only verified
-  frames can pin the peer or its system id. Without ``signing`` (the default) signed frames from
-  others are
-  accepted unchecked, like any key-less MAVLink receiver does, and nothing is signed.
+  frames can pin the peer or its system id. Without ``signing`` (the default) signed frames
+  from others are accepted unchecked, like any key-less MAVLink receiver does, and nothing
+  is signed.
 
 Not thread-safe, by design: packing mutates the sequence number and the signing timestamp.
 Use one link from one thread.
