@@ -13,8 +13,8 @@ from sitl.physics import RigidBodyParams, mix
 from tfl_mav.build import build_controller
 from tfl_mav.control.allocation import allocate_attacked, allocate_nominal, canonical_frame
 from tfl_mav.control.law import chain_gains
-from tfl_mav.scenario import load_scenario
 from tfl_mav.modes import Mode
+from tfl_mav.scenario import load_scenario
 from tfl_mav.state import State
 
 L, D, FMAX = 0.2656, 0.016, 8.0
