@@ -1,6 +1,6 @@
 """The attacker: seizes one rotor from a start time and forces its thrust to A(t, x, y, z).
 
-The paper's false-data-injection model (Definition adversarial_signal): the rotor's thrust is
+The paper's false-data-injection model (§III-A, Definition 3): the rotor's thrust is
 fully the attacker's. Built-in signals and any safe expression in ``t`` (sim time, s), ``tau``
 (time since the attack started, s) and ``x, y, z`` (position, m, paper frame z up) are
 supported. The applied value is clamped to [0, f_max]; the raw value and the clamping are

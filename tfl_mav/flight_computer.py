@@ -12,7 +12,7 @@ How the computer learns of the attack (``attack_info``):
 * ``"detector"`` — from ESC rpm alone (:mod:`tfl_mav.control.detector`), as in flight;
 * ``"oracle"`` — the paper's assumption (§III): the caller says which rotor is attacked
   (:meth:`FlightComputer.tell_attack`), and its thrust is read from its measured speed,
-  f = k_f ω² (eq. (4)).
+  f = k_f ω² (§VI).
 
 Nothing non-finite ever leaves :meth:`FlightComputer.step`: thrusts are clamped to
 [0, f_max] and a NaN becomes 0 N.

@@ -3,7 +3,7 @@
 Used alike by the physics (``sitl``), the control law and the wire conversion
 (:mod:`tfl_mav.frames`), so each formula exists once. A quaternion maps body → world;
 R(q) is the matrix of the same rotation; the Euler chart is the paper's ZYX
-(§II, eq. (1): R = Rz(ψ) Ry(θ) Rx(φ)).
+(§III, eq. (1): R = Rz(ψ) Ry(θ) Rx(φ)).
 """
 
 from __future__ import annotations

@@ -15,7 +15,7 @@ __all__ = ["State"]
 
 @dataclass(frozen=True, slots=True)
 class State:
-    """Measured vehicle state, paper frame (§II): inertial ENU with z **up**, body FLU.
+    """Measured vehicle state, paper frame (§III): inertial ENU with z **up**, body FLU.
 
     ``position_m``/``velocity_mps``: inertial (x, y, z) and its rate; ``quaternion_wxyz``:
     body FLU → inertial ENU (unit); ``body_rates_radps``: (p, q, r) about b1, b2, b3;
