@@ -14,7 +14,6 @@ import signal
 import sys
 import textwrap
 import threading
-from collections.abc import Callable
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -139,7 +138,7 @@ def run(args: argparse.Namespace) -> int:
 def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
          gcs: Address | None, peer: Address | None, duration: float, key: bytes | None,
          recorder: Any, prog: str) -> int:
-    from sitl.vehicle import ExitStatus, Vehicle
+    from sitl.vehicle import ExitStatus, Vehicle, truth_hook
     from tfl_mav.link.transport import LinkError
 
     holder: dict[str, Vehicle] = {}
@@ -155,7 +154,7 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
             lockstep_timeout_s=args.lockstep_timeout, command_timeout_s=args.command_timeout,
             gcs_rate_hz=args.gcs_rate, allow_failure_injection=not args.no_failure_injection,
             key=key, on_frame=recorder.on_frame if recorder is not None else None,
-            on_truth=_truth_hook(recorder) if recorder is not None else None,
+            on_truth=truth_hook(recorder) if recorder is not None else None,
             on_status=on_status)
     except LinkError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
@@ -245,19 +244,6 @@ def _open_recorder(path: str, scenario: Scenario, prog: str) -> tuple[Any, int]:
     recorder.metadata("scenario", {"name": scenario.name, "role": "vehicle",
                                    "scenario_json": json.dumps(scenario.to_dict())})
     return recorder, EXIT_OK
-
-
-def _truth_hook(recorder: Any) -> Callable[[Any], None]:
-    """``Vehicle.on_truth`` → ``Recorder.truth``: true state, rotor thrusts and attack."""
-
-    def on_truth(sim: Any) -> None:
-        st = sim.state
-        att = sim.attack
-        recorder.truth(sim.time_s, st.position_m.tolist(), st.velocity_mps.tolist(),
-                       st.quaternion_wxyz.tolist(), st.body_rates_radps.tolist(),
-                       sim.rotor_thrusts_n, att.rotor, att.applied_n, att.raw_n)
-
-    return on_truth
 
 
 def _install_signals(handler: Any) -> dict[int, Any]:

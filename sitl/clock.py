@@ -1,0 +1,213 @@
+"""The vehicle's two clocks: lockstep (default) and real time (docs/design.md, "Time").
+
+Both run the same tick: HEARTBEAT to the controller on every whole second of sim time, then
+the tick's state (:mod:`sitl.state_report`), then wait for the controller's command, then
+integrate one control period. They differ only in what they wait for.
+
+**Lockstep** (:class:`LockstepClock`). Tick k: send ``ODOMETRY`` (``time_usec`` = k·T,
+LOCAL_NED pose, BODY_FRD twist) and ``ESC_TELEMETRY_1_TO_4`` (true rotor speed as the ESC
+measures it) in one datagram, ODOMETRY first (:meth:`~tfl_mav.link.transport.Link.send_many`),
+wait for ``HIL_ACTUATOR_CONTROLS`` whose ``time_usec`` equals k·T, apply it, integrate to
+k+1. Replies for another ``time_usec`` are counted (``stale_controls``) and ignored. No reply
+within ``lockstep_timeout_s`` (wall time) is counted (``lockstep_timeouts``), announced by
+STATUSTEXT, and the state is sent again; the tick is never skipped, so a lockstep run is
+deterministic and runs as fast as both processes allow. The control port's HEARTBEAT is
+paced by sim time (every 1 s of it), so the control port's traffic is a pure function of the
+scenario and the controller's replies.
+
+**Real time** (:class:`RealtimeClock`). Physics follows the wall clock; the latest valid
+command is held (zero-order hold, :class:`HeldCommand`); replies older than the newest
+applied one are ``stale``. The run starts with the rotors at hover thrust (part of the
+initial state). If no valid command arrives for ``command_timeout_s`` the vehicle does what
+a real ESC does when its signal stops: **the motors are cut to zero thrust** (counted in
+``command_timeouts``, STATUSTEXT EMERGENCY); the next valid command restores them. Falling
+behind the wall clock by more than 0.1 s re-anchors the clock (counted in ``overruns``)
+instead of racing to catch up.
+
+A clock drives the vehicle only through :class:`Paced`, so pacing can change without
+touching what goes on the wire.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+from sitl.results import ExitStatus, VehicleStats
+from sitl.simulator import Simulator
+from tfl_mav.link.dialect import mav
+from tfl_mav.link.transport import Link
+
+__all__ = ["WAIT_SLICE_S", "Clock", "HeldCommand", "LockstepClock", "Paced", "RealtimeClock"]
+
+WAIT_SLICE_S = 0.05   # longest uninterrupted wait: bounds the reaction to Vehicle.stop()
+_OVERRUN_S = 0.1      # real time: re-anchor the clock when this far behind
+
+
+@dataclass
+class HeldCommand:
+    """The rotor command the motors hold, and since when.
+
+    Written by :class:`~sitl.commands.ActuatorControls` when it applies or cuts a command;
+    read by the clocks (real time: how long the controller has been silent) and the GCS
+    telemetry (motor health).
+    """
+
+    time_usec: int = -1       # time_usec of the newest applied HIL_ACTUATOR_CONTROLS (-1: none)
+    since_s: float = 0.0      # wall time (time.monotonic) it was applied; real time: the
+    #                           flight's start until the first one (the initial hover command)
+    motors_cut: bool = False  # real time: cut to zero thrust after command_timeout_s silence
+
+
+class Paced(Protocol):
+    """What a clock drives (implemented by :class:`~sitl.vehicle.Vehicle`)."""
+
+    sim: Simulator
+    stats: VehicleStats
+    held: HeldCommand
+    control_link: Link
+
+    def send_heartbeat(self) -> None:
+        """HEARTBEAT to the controller."""
+
+    def publish_state(self) -> None:
+        """Build the current tick's state and send it to the controller."""
+
+    def resend_state(self) -> None:
+        """Send the current tick's state again."""
+
+    def dispatch(self, msg: Any, awaited_usec: int | None) -> bool:
+        """Handle one message from the control port; True if it is the reply that completes
+        the awaited tick (lockstep, ``awaited_usec`` given)."""
+
+    def gcs_periodic(self) -> None:
+        """GCS telemetry and HEARTBEAT, if due (nothing without a GCS)."""
+
+    def serve_gcs(self) -> None:
+        """Handle what the GCS sent (nothing without a GCS)."""
+
+    def wait(self, timeout_s: float) -> None:
+        """Sleep until a datagram arrives on either port or ``timeout_s`` passes."""
+
+    def stopped(self) -> bool:
+        """True once a stop was requested."""
+
+    def step(self) -> str | None:
+        """Integrate one control period; the crash reason, if any."""
+
+    def status(self, severity: int, text: str, *, key: str | None = None) -> None:
+        """STATUSTEXT to both peers (rate-limited per ``key``)."""
+
+    def cut_motors(self, silent_s: float, timeout_s: float) -> None:
+        """Real-time link loss: zero thrust until the next valid command."""
+
+
+class Clock(Protocol):
+    def run(self, n_ticks: float) -> tuple[ExitStatus, str]:
+        """Fly ``n_ticks`` control periods (``math.inf``: until stopped or crashed)."""
+        ...
+
+
+class LockstepClock:
+    """Sim time advances only when the controller has answered the current tick."""
+
+    def __init__(self, vehicle: Paced, timeout_s: float) -> None:
+        self.vehicle = vehicle
+        self.timeout_s = timeout_s   # wall seconds to wait for a reply before resending
+
+    def run(self, n_ticks: float) -> tuple[ExitStatus, str]:
+        v = self.vehicle
+        sim = v.sim
+        stats = v.stats
+        ticks_per_heartbeat = max(1, round(1.0 / sim.control_dt_s))
+        while stats.ticks < n_ticks:
+            if stats.ticks % ticks_per_heartbeat == 0:
+                v.send_heartbeat()
+            v.publish_state()
+            v.gcs_periodic()
+            if not self._await_reply(sim.time_usec):
+                return ExitStatus.STOPPED, "stopped on request"
+            crash = v.step()
+            if crash is not None:
+                return ExitStatus.CRASHED, crash
+        return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
+
+    def _await_reply(self, time_usec: int) -> bool:
+        """Block until the reply for ``time_usec`` is consumed; False if stopped."""
+        v = self.vehicle
+        ctl = v.control_link
+        deadline = time.monotonic() + self.timeout_s
+        while True:
+            # Wait first: the reply is at least one round trip away, and select() returns
+            # at once if it is already queued.
+            v.wait(min(WAIT_SLICE_S, deadline - time.monotonic()))
+            awaited = time_usec
+            for msg in ctl.recv(0.0):
+                # Handle the whole batch (a command may follow the reply); once the reply
+                # is consumed, a duplicate for the same tick is stale (-1 matches nothing).
+                if v.dispatch(msg, awaited):
+                    awaited = -1
+            v.serve_gcs()
+            if awaited == -1:
+                return True
+            if v.stopped():
+                return False
+            now = time.monotonic()
+            if now >= deadline:
+                v.stats.lockstep_timeouts += 1
+                v.status(mav.MAV_SEVERITY_WARNING,
+                         f"lockstep: no HIL_ACTUATOR_CONTROLS for time_usec {time_usec} "
+                         f"within {self.timeout_s:g} s; state resent", key="lockstep_timeout")
+                v.send_heartbeat()
+                v.resend_state()
+                deadline = now + self.timeout_s
+                v.gcs_periodic()
+
+
+class RealtimeClock:
+    """Sim time follows the wall clock; the latest valid command is held."""
+
+    def __init__(self, vehicle: Paced, command_timeout_s: float) -> None:
+        self.vehicle = vehicle
+        self.command_timeout_s = command_timeout_s   # wall seconds of silence → motors cut
+
+    def run(self, n_ticks: float) -> tuple[ExitStatus, str]:
+        v = self.vehicle
+        sim = v.sim
+        stats = v.stats
+        held = v.held
+        dt = sim.control_dt_s
+        ticks_per_heartbeat = max(1, round(1.0 / dt))
+        ctl = v.control_link
+        t0 = time.monotonic()
+        held.since_s = t0   # the initial hover command is held from the flight's start
+        k0 = 0              # tick at which the clock was last anchored at t0
+        while stats.ticks < n_ticks:
+            if stats.ticks % ticks_per_heartbeat == 0:
+                v.send_heartbeat()
+            v.publish_state()
+            target = t0 + (stats.ticks + 1 - k0) * dt
+            while True:
+                for msg in ctl.recv(0.0):
+                    v.dispatch(msg, None)
+                v.gcs_periodic()
+                v.serve_gcs()
+                if v.stopped():
+                    return ExitStatus.STOPPED, "stopped on request"
+                now = time.monotonic()
+                if now >= target:
+                    break
+                v.wait(min(WAIT_SLICE_S, target - now))
+            if not held.motors_cut and now - held.since_s > self.command_timeout_s:
+                v.cut_motors(now - held.since_s, self.command_timeout_s)
+            crash = v.step()
+            if crash is not None:
+                return ExitStatus.CRASHED, crash
+            if now - target > _OVERRUN_S:
+                stats.overruns += 1
+                t0, k0 = now, stats.ticks
+                v.status(mav.MAV_SEVERITY_WARNING,
+                         f"real time: physics fell {now - target:.3f} s behind the wall "
+                         "clock; clock re-anchored", key="overrun")
+        return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"

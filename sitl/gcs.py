@@ -1,0 +1,184 @@
+"""What the vehicle says about itself: HEARTBEAT, STATUSTEXT and the GCS telemetry.
+
+**HEARTBEAT** (:class:`FlightStatus`): ``MAV_TYPE_QUADROTOR``, ``MAV_AUTOPILOT_GENERIC``,
+``base_mode`` = HIL_ENABLED | SAFETY_ARMED (as the controller's last applied command says),
+``system_status`` STANDBY before the flight, ACTIVE during it, EMERGENCY while the motors are
+cut or after a crash, POWEROFF at the end. Who sends it when is the caller's business (the
+clocks on the control port, :class:`GcsTelemetry` on the GCS port).
+
+**GCS telemetry** (:class:`GcsTelemetry`, paced by wall clock): ``ATTITUDE``,
+``LOCAL_POSITION_NED`` (both NED/FRD from the same measured state as ODOMETRY),
+``ACTUATOR_OUTPUT_STATUS`` (``actuator[0..3]`` = commanded thrust / f_max), ``SYS_STATUS``
+(battery from :mod:`sitl.power`; ``errors_count1..4`` = rejected controls, lockstep timeouts,
+command timeouts, stale controls) and the latest ``ESC_TELEMETRY_1_TO_4`` (so a GCS sees the
+attacked rotor's rpm) at ``gcs_rate_hz`` (≤ 50 Hz, one datagram each time), HEARTBEAT at
+1 Hz. A new message for the GCS goes in :meth:`GcsTelemetry.messages`.
+
+**STATUSTEXT** (:class:`StatusText`): every one goes to both peers that are known (ASCII;
+longer than 50 characters → MAVLink 2 chunks with a shared ``id``); repeats of one reason
+can be rate-limited to one a second (wall), with the count of those suppressed.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from sitl.clock import HeldCommand
+from sitl.power import PowerModel
+from sitl.results import VehicleStats
+from sitl.simulator import Simulator
+from sitl.state_report import StateReport
+from tfl_mav.frames import enu_to_ned, odometry_from_paper
+from tfl_mav.geometry import euler_zyx_from_rotation, rotation_from_quaternion
+from tfl_mav.link.dialect import mav
+from tfl_mav.link.transport import Link
+
+__all__ = ["FlightStatus", "GcsTelemetry", "StatusText"]
+
+_ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
+_STATUSTEXT_LEN = 50
+_STATUSTEXT_MAX_CHUNKS = 4
+_STATUS_MIN_INTERVAL_S = 1.0   # per-reason rate limit of repeated STATUSTEXTs (wall time)
+_SENSORS = (mav.MAV_SYS_STATUS_SENSOR_3D_GYRO | mav.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+            | mav.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mav.MAV_SYS_STATUS_SENSOR_BATTERY)
+
+
+@dataclass
+class FlightStatus:
+    """What HEARTBEAT reports: armed (by the controller's mode bit) and ``MAV_STATE_*``."""
+
+    armed: bool = False
+    system_status: int = mav.MAV_STATE_STANDBY
+
+    def heartbeat(self) -> Any:
+        base_mode = mav.MAV_MODE_FLAG_HIL_ENABLED | (_ARMED if self.armed else 0)
+        return mav.MAVLink_heartbeat_message(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_GENERIC,
+                                             base_mode, 0, self.system_status, 3)
+
+
+class StatusText:
+    """STATUSTEXT to the controller and the GCS, whichever have a peer; counted in ``stats``.
+
+    ``on_status(severity, text)`` sees every text that goes out (after rate limiting).
+    """
+
+    def __init__(self, links: Sequence[Link | None], stats: VehicleStats,
+                 on_status: Callable[[int, str], None] | None = None) -> None:
+        self.links = tuple(link for link in links if link is not None)
+        self.stats = stats
+        self.on_status = on_status
+        self._last_s: dict[str, float] = {}       # reason → wall time it last went out
+        self._suppressed: dict[str, int] = {}     # reason → repeats held back since
+        self._chunk_id = 0                        # last MAVLink 2 STATUSTEXT.id used
+
+    def send(self, severity: int, text: str, *, key: str | None = None) -> None:
+        """Send ``text`` (chunked past 50 characters).
+
+        With ``key``, repeats of the same reason within 1 s (wall) are suppressed and
+        counted; the next one that goes out says how many were suppressed.
+        """
+        if key is not None:
+            now = time.monotonic()
+            last = self._last_s.get(key)
+            if last is not None and now - last < _STATUS_MIN_INTERVAL_S:
+                self.stats.statustexts_suppressed += 1
+                self._suppressed[key] = self._suppressed.get(key, 0) + 1
+                return
+            self._last_s[key] = now
+            skipped = self._suppressed.pop(key, 0)
+            if skipped:
+                text += f" (+{skipped} suppressed)"
+        self.stats.statustexts_sent += 1
+        if self.on_status is not None:
+            self.on_status(severity, text)
+        msgs = self.messages(severity, text)
+        for link in self.links:
+            if link.peer is not None:
+                for msg in msgs:
+                    link.send(msg)
+
+    def messages(self, severity: int, text: str) -> list[Any]:
+        """``text`` as STATUSTEXT messages: one, or up to 4 chunks sharing a fresh ``id``."""
+        data = text.replace("°", " deg").encode("ascii", errors="replace")
+        n = _STATUSTEXT_LEN
+        if len(data) <= n:
+            return [mav.MAVLink_statustext_message(severity, data, 0, 0)]
+        data = data[:n * _STATUSTEXT_MAX_CHUNKS]
+        self._chunk_id = self._chunk_id % 0xFFFF + 1
+        chunks = [data[i:i + n] for i in range(0, len(data), n)]
+        if len(chunks[-1]) == n and len(chunks) < _STATUSTEXT_MAX_CHUNKS:
+            chunks.append(b"")   # a full last chunk needs an empty terminator (MAVLink spec)
+        return [mav.MAVLink_statustext_message(severity, c, self._chunk_id, i)
+                for i, c in enumerate(chunks)]
+
+
+class GcsTelemetry:
+    """The GCS port's periodic traffic: telemetry at ``period_s`` and HEARTBEAT at 1 Hz,
+    both on the wall clock (a GCS draws in real time even when lockstep runs faster)."""
+
+    def __init__(self, link: Link, period_s: float, *, sim: Simulator, power: PowerModel,
+                 stats: VehicleStats, held: HeldCommand, flight: FlightStatus,
+                 report: StateReport) -> None:
+        self.link = link
+        self.period_s = period_s
+        self.sim = sim
+        self.power = power
+        self.stats = stats
+        self.held = held
+        self.flight = flight
+        self.report = report
+        self._next_s = 0.0             # wall time the next telemetry datagram is due
+        self._next_heartbeat_s = 0.0   # wall time the next HEARTBEAT is due
+
+    def periodic(self) -> None:
+        """Send what is due now, if anything."""
+        now = time.monotonic()
+        if now < self._next_s:
+            return
+        self._next_s = max(self._next_s + self.period_s, now)
+        if now >= self._next_heartbeat_s:
+            self.link.send(self.flight.heartbeat())
+            self._next_heartbeat_s = max(self._next_heartbeat_s + 1.0, now)
+        self.link.send_many(self.messages())
+
+    def messages(self) -> list[Any]:
+        """One telemetry datagram's messages, from the current tick's measured state."""
+        sim = self.sim
+        m = sim.measured
+        t_ms = int(sim.time_s * 1000.0) & 0xFFFFFFFF
+        f = odometry_from_paper(m.position_m.tolist(), m.velocity_mps.tolist(),
+                                m.quaternion_wxyz.tolist(), m.body_rates_radps.tolist())
+        roll, pitch, yaw = euler_zyx_from_rotation(rotation_from_quaternion(f.q))
+        v_ned = enu_to_ned(m.velocity_mps)
+        fmax = sim.thrust_max_n
+        actuators = [c / fmax for c in sim.rotor_commands_n] + [0.0] * 28
+        p = self.power.sample
+        st = self.stats
+        links = [s for s in (st.control_link, st.gcs_link) if s is not None]
+        rx = sum(s.rx_datagrams for s in links)
+        rejected = sum(s.rejected for s in links)
+        sensors_health = _SENSORS & ~(mav.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
+                                      if self.held.motors_cut else 0)
+        msgs = [
+            mav.MAVLink_attitude_message(t_ms, roll, pitch, yaw, f.rollspeed, f.pitchspeed,
+                                         f.yawspeed),
+            mav.MAVLink_local_position_ned_message(t_ms, f.x, f.y, f.z, float(v_ned[0]),
+                                                   float(v_ned[1]), float(v_ned[2])),
+            mav.MAVLink_actuator_output_status_message(sim.time_usec, 4, actuators),
+            mav.MAVLink_sys_status_message(
+                _SENSORS, _SENSORS, sensors_health, 0,
+                min(65535, round(p.voltage_v * 1000.0)),
+                min(32767, round(p.total_current_a * 100.0)),
+                max(0, min(100, round(p.remaining_pct))),
+                min(10000, round(10000.0 * rejected / rx)) if rx else 0,
+                min(65535, rejected),
+                min(65535, st.rejected_controls), min(65535, st.lockstep_timeouts),
+                min(65535, st.command_timeouts), min(65535, st.stale_controls)),
+        ]
+        esc = self.report.esc
+        if esc is not None:
+            msgs.append(esc)   # this tick's ESC_TELEMETRY_1_TO_4: rpm
+        return msgs

@@ -1,0 +1,81 @@
+"""The state the controller receives every control tick: ODOMETRY + ESC_TELEMETRY_1_TO_4.
+
+``ODOMETRY``: ``time_usec`` = the tick's sim time, LOCAL_NED pose and BODY_FRD twist of the
+*measured* state (the scenario's seeded sensor noise), covariances σ² on the diagonal from
+the scenario's noise levels, estimator MOCAP, quality 100.
+
+``ESC_TELEMETRY_1_TO_4``: per ESC the true rotor speed as the ESC measures it (rpm, with the
+scenario's rpm noise), battery voltage (cV), current (cA), consumed charge (mAh) and
+temperature (°C) from :mod:`sitl.power`, and a message counter (the same for all four,
+wrapping at 2¹⁶). Every field is clamped to its wire type.
+
+The pair is built once per tick (:meth:`StateReport.update`) and kept, so a lockstep resend
+sends the same messages again and the GCS telemetry can forward the tick's ESC message.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from sitl.power import PowerModel
+from sitl.simulator import Simulator
+from tfl_mav.frames import MAV_FRAME_BODY_FRD, MAV_FRAME_LOCAL_NED, odometry_from_paper
+from tfl_mav.link.dialect import mav
+from tfl_mav.scenario import SensorConfig
+
+__all__ = ["StateReport"]
+
+# ODOMETRY covariance arrays: upper triangle of a 6×6 matrix, row-major; diagonal indices.
+_COV_DIAGONAL = (0, 6, 11, 15, 18, 20)
+
+
+class StateReport:
+    """Builds and keeps the current tick's (ODOMETRY, ESC_TELEMETRY_1_TO_4)."""
+
+    def __init__(self, sim: Simulator, power: PowerModel, sensors: SensorConfig) -> None:
+        self.sim = sim
+        self.power = power
+        self._pose_cov = _covariance((sensors.position_noise_std_m,) * 3
+                                     + (sensors.attitude_noise_std_rad,) * 3)
+        self._vel_cov = _covariance((sensors.velocity_noise_std_mps,) * 3
+                                    + (sensors.rate_noise_std_radps,) * 3)
+        self._esc_count = 0
+        self.latest: tuple[Any, Any] | None = None
+        """The last tick's (ODOMETRY, ESC_TELEMETRY_1_TO_4), or None before the first."""
+
+    @property
+    def esc(self) -> Any | None:
+        """The last tick's ESC_TELEMETRY_1_TO_4, or None before the first tick."""
+        return self.latest[1] if self.latest is not None else None
+
+    def update(self) -> tuple[Any, Any]:
+        """Build the current tick's pair from the simulator and the power model."""
+        sim = self.sim
+        m = sim.measured
+        f = odometry_from_paper(m.position_m.tolist(), m.velocity_mps.tolist(),
+                                m.quaternion_wxyz.tolist(), m.body_rates_radps.tolist())
+        odometry = mav.MAVLink_odometry_message(
+            sim.time_usec, MAV_FRAME_LOCAL_NED, MAV_FRAME_BODY_FRD, f.x, f.y, f.z, f.q,
+            f.vx, f.vy, f.vz, f.rollspeed, f.pitchspeed, f.yawspeed, self._pose_cov,
+            self._vel_cov, 0, mav.MAV_ESTIMATOR_TYPE_MOCAP, 100)
+        p = self.power.sample
+        self._esc_count = (self._esc_count + 1) & 0xFFFF
+        count = self._esc_count
+        cv = min(65535, round(p.voltage_v * 100.0))
+        esc = mav.MAVLink_esc_telemetry_1_to_4_message(
+            [min(255, max(0, round(t))) for t in p.temperatures_c],
+            [cv, cv, cv, cv],
+            [min(65535, round(i * 100.0)) for i in p.currents_a],
+            [min(65535, round(c)) for c in p.consumed_mah],
+            [min(65535, round(r)) for r in sim.measured_rpm().tolist()],
+            [count, count, count, count])
+        self.latest = (odometry, esc)
+        return self.latest
+
+
+def _covariance(stds: tuple[float, ...]) -> list[float]:
+    """ODOMETRY covariance array (21 floats, 6×6 upper triangle) with σ² on the diagonal."""
+    cov = [0.0] * 21
+    for index, std in zip(_COV_DIAGONAL, stds, strict=True):
+        cov[index] = std * std
+    return cov
