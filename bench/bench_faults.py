@@ -1,7 +1,7 @@
 """Faults on the control link: loss rates survived and recovery times after restarts.
 
 Real processes (``tfl-mav sim`` and ``tfl-mav fly``, real UDP on loopback) with the fault
-relay of :mod:`tools.relay` in between, the paper scenario throughout:
+relay of :mod:`harness.relay` in between, the paper scenario throughout:
 
 1. **real time** through the relay at 0-20 % loss per direction with 0-2 ms jitter:
    converged (not crashed, path distance over the last ``--window`` s below ``--tol``),
@@ -28,9 +28,7 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import os
 import re
-import signal
 import socket
 import subprocess
 import sys
@@ -42,127 +40,19 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from harness.ports import free_udp_port
+from harness.processes import Proc, raise_priority, start_sim, start_sim_on
+from harness.relay import Faults, Relay
+from tfl_mav.build import scenario_path
+from tfl_mav.control.paths import PathTracker
+from tfl_mav.link.dialect import mav, new_mavlink
+from tfl_mav.scenario import load_scenario
 
-from tfl_mav.build import scenario_path  # noqa: E402
-from tfl_mav.control.paths import PathTracker  # noqa: E402
-from tfl_mav.link.dialect import mav, new_mavlink  # noqa: E402
-from tfl_mav.scenario import load_scenario  # noqa: E402
-from tools.relay import Faults, Relay  # noqa: E402
-
-CLI = [sys.executable, "-m", "tools.cli"]
 LOSS_RATES = (0.0, 0.01, 0.02, 0.05, 0.10, 0.15, 0.20)
-_LISTEN_RE = re.compile(r"listening on [\d.]+:(\d+)")
 
 
 def log(text: str) -> None:
     print(f"bench_faults: {text}", file=sys.stderr, flush=True)
-
-
-REALTIME_NICE = -10
-
-
-def raise_priority(tid: int = 0) -> bool:
-    """Run the calling process (or thread ``tid``) at nice ``REALTIME_NICE`` if allowed.
-
-    Why: a real-time loop at 1 kHz tolerates ~4 ms of delay (offline, 6 ticks of command
-    delay flip the paper scenario), and on 2 shared cores other jobs add scheduling delays
-    of that size that the relay did not ask for. A flight stack runs its loop at real-time
-    priority for the same reason. Without the privilege the run goes on at normal priority.
-    """
-    try:
-        os.setpriority(os.PRIO_PROCESS, tid, REALTIME_NICE)
-        return True
-    except OSError:
-        return False
-
-
-def free_port() -> int:
-    """A loopback UDP port that was free a moment ago (for ``--bind`` of a restartable
-    daemon, which needs a fixed address)."""
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class Proc:
-    """A ``tfl-mav`` subprocess whose output lines are read on threads and stamped with
-    ``time.monotonic()`` when they arrive, so events can be timed from outside."""
-
-    def __init__(self, args: Sequence[str], *, realtime: bool = False) -> None:
-        self.popen = subprocess.Popen([*CLI, *args], stdout=subprocess.PIPE,
-                                      stderr=subprocess.PIPE, text=True, cwd=REPO,
-                                      preexec_fn=raise_priority if realtime else None)
-        self.lines: list[tuple[float, str]] = []
-        self._cv = threading.Condition()
-        for stream in (self.popen.stdout, self.popen.stderr):
-            threading.Thread(target=self._read, args=(stream,), daemon=True).start()
-
-    def _read(self, stream: Any) -> None:
-        for line in stream:
-            with self._cv:
-                self.lines.append((time.monotonic(), line.rstrip("\n")))
-                self._cv.notify_all()
-
-    def wait_for(self, pattern: str, timeout_s: float, after: float = 0.0
-                 ) -> tuple[float, re.Match[str]]:
-        """(arrival time, match) of the first line at/after ``after`` matching ``pattern``;
-        TimeoutError if none within ``timeout_s``."""
-        rx = re.compile(pattern)
-        deadline = time.monotonic() + timeout_s
-        with self._cv:
-            while True:
-                for t, line in self.lines:
-                    if t >= after and (m := rx.search(line)):
-                        return t, m
-                left = deadline - time.monotonic()
-                if left <= 0:
-                    raise TimeoutError(f"no line matching {pattern!r} within {timeout_s} s:\n"
-                                       + "\n".join(x for _, x in self.lines[-20:]))
-                self._cv.wait(left)
-
-    def text(self) -> str:
-        with self._cv:
-            return "\n".join(line for _, line in self.lines)
-
-    def kill(self) -> float:
-        """SIGKILL now; returns the time it was sent."""
-        t = time.monotonic()
-        self.popen.send_signal(signal.SIGKILL)
-        self.popen.wait(timeout=10)
-        return t
-
-    def wait(self, timeout_s: float) -> int:
-        return self.popen.wait(timeout=timeout_s)
-
-    def close(self) -> None:
-        if self.popen.poll() is None:
-            self.popen.kill()
-            self.popen.wait(timeout=10)
-
-
-def start_sim(args: Sequence[str], scenario: str = "paper") -> tuple[Proc, int]:
-    sim = Proc(["sim", scenario, "--listen", "127.0.0.1:0", *args],
-               realtime="--realtime" in args)
-    _, m = sim.wait_for(_LISTEN_RE.pattern, 30.0)
-    return sim, int(m.group(1))
-
-
-def start_sim_on(port: int, args: Sequence[str], scenario: str = "paper",
-                 timeout_s: float = 10.0) -> Proc:
-    """A vehicle on a fixed port (a restarted one), retrying while the port is busy."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        sim = Proc(["sim", scenario, "--listen", f"127.0.0.1:{port}", *args],
-                   realtime="--realtime" in args)
-        try:
-            sim.wait_for(_LISTEN_RE.pattern, 30.0)
-            return sim
-        except TimeoutError:
-            sim.close()
-            if time.monotonic() > deadline:
-                raise
 
 
 @dataclass
@@ -322,7 +212,7 @@ def daemon_restart(kill_at_s: float, duration_s: float, scenario: str = "paper",
                    sets: Sequence[str] = ()) -> dict[str, Any]:
     """Real time, no relay: SIGKILL the daemon at ``kill_at_s`` of sim time and restart it
     at once on the same ``--bind`` address. ``sets``: ``--set`` overrides for both."""
-    bind = f"127.0.0.1:{free_port()}"
+    bind = f"127.0.0.1:{free_udp_port()}"
     gcs = GcsListener(scenario)
     sets = [a for kv in sets for a in ("--set", kv)]
     sim, port = start_sim(["--realtime", "--duration", str(duration_s), "--gcs", gcs.address,

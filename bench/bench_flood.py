@@ -30,7 +30,6 @@ import argparse
 import json
 import os
 import platform
-import re
 import signal
 import socket
 import subprocess
@@ -38,11 +37,12 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
+from harness.pilot import Pilot, hover_controls
+from harness.processes import popen_sim
 
 WARMUP_TICKS = 200
 PILOT_SYSID, PILOT_COMPID = 1, 191
@@ -79,15 +79,17 @@ def flooder(address: tuple[str, int], sysid: int, fd: int | None) -> None:
     print(json.dumps({"sent": sent, "send_errors": errors}), flush=True)
 
 
-def _start_flooder(address: tuple[str, int], sysid: int, sock: socket.socket | None
+def _start_flooder(address: tuple[str, int], sysid: int, sock: Any | None
                    ) -> subprocess.Popen:
+    """The flooder process; ``sock`` (anything with ``fileno()``): send from that socket
+    (shared with the pilot, so from the pinned address)."""
     args = [sys.executable, __file__, "--role", "flooder", "--target",
             f"{address[0]}:{address[1]}", "--sysid", str(sysid)]
     pass_fds: tuple[int, ...] = ()
     if sock is not None:
         args += ["--fd", str(sock.fileno())]
         pass_fds = (sock.fileno(),)
-    proc = subprocess.Popen(args, cwd=REPO, stdout=subprocess.PIPE, text=True,
+    proc = subprocess.Popen(args, stdout=subprocess.PIPE, text=True,
                             pass_fds=pass_fds)
     assert proc.stdout is not None
     if proc.stdout.readline().strip() != "ready":
@@ -108,60 +110,35 @@ def run(n_ticks: int, flood: str | None, lockstep_timeout_s: float = 2.0) -> dic
     from tfl_mav.scenario import load_scenario
 
     sc = load_scenario("paper")
-    u = sc.vehicle.mass_kg * sc.vehicle.gravity_mps2 / 4.0 / sc.vehicle.thrust_max_n
     with tempfile.TemporaryDirectory() as tmp:
         out_json = Path(tmp) / "sim.json"
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "tools.cli", "sim", "paper", "--listen", "127.0.0.1:0",
-             "--set", "attack.rotor=0", "--set", "initial.position_m=[0, 0, 5]",
+        proc, address = popen_sim(
+            ["--set", "attack.rotor=0", "--set", "initial.position_m=[0, 0, 5]",
              "--duration", f"{n_ticks / 1000.0:g}", "--json", str(out_json),
-             "--lockstep-timeout", f"{lockstep_timeout_s:g}"],
-            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             "--lockstep-timeout", f"{lockstep_timeout_s:g}"], "paper")
         flood_proc = None
-        sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        sock.bind(("127.0.0.1", 0))
-        sock.settimeout(10.0)
+        pilot = Pilot(address, sysid=PILOT_SYSID, compid=PILOT_COMPID)
+        times = {"start": 0.0, "end": 0.0}
+
+        def on_tick(k: int, _odom: object, _esc: object) -> None:
+            nonlocal flood_proc
+            if k == 0 and flood is not None:   # the peer is pinned by now
+                # wrong_sysid: from the pilot's own socket (pinned address, other sysid)
+                flood_proc = _start_flooder(
+                    address, FLOOD_WRONG_SYSID if flood == "wrong_sysid" else PILOT_SYSID,
+                    pilot.link if flood == "wrong_sysid" else None)
+            if k + 1 == WARMUP_TICKS:
+                times["start"] = time.perf_counter()
+            if k + 1 == n_ticks:
+                times["end"] = time.perf_counter()
+
         try:
-            assert proc.stdout is not None
-            line = proc.stdout.readline()
-            match = re.search(r"listening on ([\d.]+):(\d+)", line)
-            if not match:
-                raise RuntimeError(f"sim did not start: {line}{proc.stderr.read()}")
-            address = (match.group(1), int(match.group(2)))
-            mv = mav.MAVLink(None, PILOT_SYSID, PILOT_COMPID)
-            sock.sendto(mav.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3).pack(mv), address)
-            controls = [u] * 4 + [0.0] * 12
-            ticks = 0
-            last_usec = -1
-            t_start = t_end = time.perf_counter()
-            done = False
-            while not done:
-                data = sock.recv(65535)
-                for msg in mv.parse_buffer(data) or ():
-                    mid = msg.get_msgId()
-                    if mid == mav.MAVLINK_MSG_ID_HEARTBEAT and msg.system_status in (
-                            mav.MAV_STATE_POWEROFF, mav.MAV_STATE_EMERGENCY):
-                        done = True     # the vehicle's last word: the run is over
-                    if mid != mav.MAVLINK_MSG_ID_ODOMETRY:
-                        continue
-                    # Answer every state, resends too: a reply the kernel dropped under
-                    # the flood is resent by the vehicle after its lockstep timeout.
-                    reply = mav.MAVLink_hil_actuator_controls_message(msg.time_usec,
-                                                                      controls, 128, 1)
-                    sock.sendto(reply.pack(mv), address)
-                    if msg.time_usec <= last_usec:
-                        continue
-                    last_usec = msg.time_usec
-                    ticks += 1
-                    if ticks == 1 and flood is not None:   # the peer is pinned by now
-                        flood_proc = _start_flooder(
-                            address, FLOOD_WRONG_SYSID if flood == "wrong_sysid"
-                            else PILOT_SYSID, sock if flood == "wrong_sysid" else None)
-                    if ticks == WARMUP_TICKS:
-                        t_start = time.perf_counter()
-                    if ticks == n_ticks:
-                        t_end = time.perf_counter()
-            elapsed = t_end - t_start
+            pilot.hello()
+            # Answer every state, resends too (the Pilot does): a reply the kernel dropped
+            # under the flood is resent by the vehicle after its lockstep timeout. Fly
+            # until the vehicle's last word (HEARTBEAT POWEROFF).
+            pilot.fly(None, hover_controls(sc), timeout_s=10.0, keep=False, on_tick=on_tick)
+            elapsed = times["end"] - times["start"]
             flood_stats = _stop_flooder(flood_proc) if flood_proc is not None else {}
             flood_proc = None
             proc.communicate(timeout=30)
@@ -170,7 +147,7 @@ def run(n_ticks: int, flood: str | None, lockstep_timeout_s: float = 2.0) -> dic
                 flood_proc.kill()
             if proc.poll() is None:
                 proc.kill()
-            sock.close()
+            pilot.close()
         if proc.returncode != 0:
             raise RuntimeError(f"sim exited with {proc.returncode}")
         sim = json.loads(out_json.read_text())

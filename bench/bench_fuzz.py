@@ -5,7 +5,7 @@ each run in a thread on a real UDP socket; the fuzzer is their pinned peer and f
 lockstep while it sends random bytes, mutated frames (with and without a recomputed CRC),
 truncated and oversize datagrams, MAVLink 1, unknown ids, wrong sysids and targets, garbage
 commands, non-finite and out-of-range controls, bad and absurd states. The generators, the
-reference model of the counters and the invariants are in ``tests/fuzzgen.py``.
+reference model of the counters and the invariants are in ``tests/fuzz.py``.
 
 Per endpoint and category the table gives: datagrams sent, rejections counted by reason,
 frames accepted, and whether every batch's counters matched the model exactly. Below it:
@@ -26,11 +26,7 @@ import time
 import warnings
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(REPO / "tests"))
-
-import fuzzgen  # noqa: E402
+from harness import fuzz
 
 _SHORT = {"garbage": "garb", "mavlink1": "v1", "truncated": "trunc", "bad_flags": "flags",
           "bad_crc": "crc", "bad_signature": "sig", "malformed": "malf", "unknown_id": "unk",
@@ -53,18 +49,18 @@ def _progress(label: str):
     return report
 
 
-def _table(r: fuzzgen.EndpointReport) -> str:
+def _table(r: fuzz.EndpointReport) -> str:
     rows = [("category", "sent", "arrived", "rejected", "accepted", "exact", "rejections")]
     for name, c in r.categories.items():
-        reasons = fuzzgen.reject_reasons(c, r.endpoint)
+        reasons = fuzz.reject_reasons(c, r.endpoint)
         text = " ".join(f"{_SHORT.get(k, k)}={v}" for k, v in reasons.most_common())
         exact = "yes" if c.mismatched_batches == 0 else f"NO ({c.mismatched_batches})"
         if c.lost_batches:
             exact += f", {c.lost_batches} lost"
-        rows.append((name, str(c.sent), str(c.arrived), str(fuzzgen.rejected_total(c,
+        rows.append((name, str(c.sent), str(c.arrived), str(fuzz.rejected_total(c,
                      r.endpoint)), str(c.counted.get("rx_frames", 0)), exact, text))
     total_sent = sum(c.sent for c in r.categories.values())
-    total_rej = sum(fuzzgen.rejected_total(c, r.endpoint) for c in r.categories.values())
+    total_rej = sum(fuzz.rejected_total(c, r.endpoint) for c in r.categories.values())
     total_acc = sum(c.counted.get("rx_frames", 0) for c in r.categories.values())
     total_arr = sum(c.arrived for c in r.categories.values())
     bad = sum(c.mismatched_batches for c in r.categories.values())
@@ -90,7 +86,7 @@ def _table(r: fuzzgen.EndpointReport) -> str:
     return "\n".join(lines)
 
 
-def _as_json(r: fuzzgen.EndpointReport) -> dict:
+def _as_json(r: fuzz.EndpointReport) -> dict:
     return {
         "endpoint": r.endpoint, "seed": r.seed, "sent": r.sent, "ticks": r.ticks,
         "elapsed_s": r.elapsed_s, "inputs_per_s": r.inputs_per_s, "completed": r.completed,
@@ -98,7 +94,7 @@ def _as_json(r: fuzzgen.EndpointReport) -> dict:
         "nan_to_motors": r.nan_to_motors, "nonfinite_tx": r.nonfinite_tx,
         "mismatches": r.mismatches,
         "categories": {name: {"sent": c.sent, "arrived": c.arrived,
-                              "rejected": fuzzgen.rejected_total(c, r.endpoint),
+                              "rejected": fuzz.rejected_total(c, r.endpoint),
                               "counted": dict(c.counted), "expected": dict(c.expected),
                               "batches": c.batches, "mismatched_batches": c.mismatched_batches,
                               "lost_batches": c.lost_batches, "skipped": c.skipped}
@@ -118,8 +114,8 @@ def main() -> int:
     # Absurd (finite) states overflow inside the control law by design of the test: the
     # daemon must turn that into a finite command, which is what is checked.
     warnings.simplefilter("ignore", RuntimeWarning)
-    reports = [fuzzgen.fuzz_vehicle(args.n, args.seed, progress=_progress("vehicle")),
-               fuzzgen.fuzz_daemon(args.n, args.seed, progress=_progress("daemon"))]
+    reports = [fuzz.fuzz_vehicle(args.n, args.seed, progress=_progress("vehicle")),
+               fuzz.fuzz_daemon(args.n, args.seed, progress=_progress("daemon"))]
     print(f"bench_fuzz (seed {args.seed}, python {platform.python_version()}, "
           f"{os.cpu_count()} cpus)")
     ok = True

@@ -5,9 +5,9 @@ Measures, on this machine:
 1. physics: µs per 1 ms RK4 step (``rk4_step`` alone) and per control tick of the
    simulator (motors + attacker + RK4 + sensors), and the cost of packing one tick's state
    (ODOMETRY + ESC_TELEMETRY_1_TO_4) with pymavlink;
-2. lockstep: ticks/s of ``tfl-mav sim`` (a subprocess, 1 kHz physics and control) flown by a
-   bare pymavlink client (raw UDP socket, ``ardupilotmega`` dialect, hover commands), without
-   and with ``--mcap`` recording;
+2. lockstep: ticks/s of ``tfl-mav sim`` (a subprocess, 1 kHz physics and control) flown by
+   the lockstep client of the tests (:class:`harness.pilot.Pilot`: our Link, hover
+   commands), without and with ``--mcap`` recording;
 3. ceiling: a bare two-process pymavlink UDP ping-pong (ODOMETRY out, HIL_ACTUATOR_CONTROLS
    back, nothing else), and the ratio of (2) to it.
 
@@ -21,7 +21,6 @@ import json
 import math
 import os
 import platform
-import re
 import socket
 import subprocess
 import sys
@@ -29,10 +28,10 @@ import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
+from harness.pilot import Pilot, hover_controls
+from harness.processes import popen_sim
 
 WARMUP_TICKS = 200
 
@@ -77,25 +76,17 @@ def _client_socket() -> socket.socket:
     return sock
 
 
-def bare_lockstep_client(address: tuple[str, int], n_ticks: int, u: float) -> dict[str, float]:
-    """Fly ``n_ticks`` hover ticks against a lockstep vehicle; raw socket + pymavlink only."""
-    sock = _client_socket()
-    mv = mav.MAVLink(None, 1, 191)
-    sock.sendto(mav.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3).pack(mv), address)
-    controls = [u] * 4 + [0.0] * 12
-    ticks = 0
-    t_start = 0.0
-    while ticks < n_ticks:
-        data = sock.recv(65535)
-        for msg in mv.parse_buffer(data) or ():
-            if msg.get_msgId() == 331:
-                reply = mav.MAVLink_hil_actuator_controls_message(msg.time_usec, controls, 128, 1)
-                sock.sendto(reply.pack(mv), address)
-                ticks += 1
-                if ticks == WARMUP_TICKS:
-                    t_start = time.perf_counter()
-    elapsed = time.perf_counter() - t_start
-    sock.close()
+def lockstep_client(address: tuple[str, int], n_ticks: int, scenario: object
+                    ) -> dict[str, float]:
+    """Fly ``n_ticks`` hover ticks against a lockstep vehicle with the tests' Pilot; the
+    first ``WARMUP_TICKS`` are not timed."""
+    with Pilot(address) as pilot:
+        pilot.hello()
+        hover = hover_controls(scenario)
+        pilot.fly(WARMUP_TICKS, hover, timeout_s=10.0, keep=False)
+        t_start = time.perf_counter()
+        pilot.fly(n_ticks - WARMUP_TICKS, hover, timeout_s=10.0, keep=False)
+        elapsed = time.perf_counter() - t_start
     measured = n_ticks - WARMUP_TICKS
     return {"ticks": measured, "seconds": elapsed, "ticks_per_s": measured / elapsed}
 
@@ -123,9 +114,10 @@ def pingpong_server(port_file: str, n_ticks: int) -> None:
 
 
 def bench_pingpong(n_ticks: int) -> dict[str, float]:
-    port_file = REPO / f".bench_pingpong_{os.getpid()}.port"
+    tmp = tempfile.TemporaryDirectory()
+    port_file = Path(tmp.name) / "pingpong.port"
     proc = subprocess.Popen([sys.executable, __file__, "--role", "pingpong-server",
-                             "--port-file", str(port_file), "--ticks", str(n_ticks)], cwd=REPO)
+                             "--port-file", str(port_file), "--ticks", str(n_ticks)])
     try:
         deadline = time.monotonic() + 20
         while not port_file.exists() or not port_file.read_text():
@@ -155,31 +147,24 @@ def bench_pingpong(n_ticks: int) -> dict[str, float]:
     finally:
         if proc.poll() is None:
             proc.kill()
-        port_file.unlink(missing_ok=True)
+        tmp.cleanup()
     measured = n_ticks - WARMUP_TICKS
     return {"ticks": measured, "seconds": elapsed, "ticks_per_s": measured / elapsed}
 
 
 def bench_vehicle(n_ticks: int, mcap: Path | None = None) -> dict[str, float]:
     """``tfl-mav sim`` in a subprocess (recording to ``mcap`` if given), flown in lockstep
-    by the bare client."""
+    by the Pilot."""
     from tfl_mav.scenario import load_scenario
 
     sc = load_scenario("paper")
-    u = sc.vehicle.mass_kg * sc.vehicle.gravity_mps2 / 4.0 / sc.vehicle.thrust_max_n
     duration_s = n_ticks / 1000.0
     extra = ["--mcap", str(mcap)] if mcap is not None else []
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tools.cli", "sim", "paper", "--listen", "127.0.0.1:0",
-         "--set", "attack.rotor=0", "--set", "initial.position_m=[0, 0, 5]",
-         "--duration", f"{duration_s:g}", *extra],
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc, address = popen_sim(["--set", "attack.rotor=0", "--set",
+                               "initial.position_m=[0, 0, 5]", "--duration",
+                               f"{duration_s:g}", *extra], "paper")
     try:
-        line = proc.stdout.readline()
-        match = re.search(r"listening on ([\d.]+):(\d+)", line)
-        if not match:
-            raise RuntimeError(f"sim did not start: {line}{proc.stderr.read()}")
-        result = bare_lockstep_client((match.group(1), int(match.group(2))), n_ticks, u)
+        result = lockstep_client(address, n_ticks, sc)
         out, _ = proc.communicate(timeout=20)
     finally:
         if proc.poll() is None:
@@ -218,7 +203,8 @@ def main() -> int:
          f"{physics['sim_tick_us']:.1f} µs"),
         ("vehicle: build + pack ODOMETRY + ESC_TELEMETRY",
          f"{physics['state_build_pack_us']:.1f} µs"),
-        ("lockstep: tfl-mav sim + bare pymavlink client", f"{vehicle['ticks_per_s']:.0f} ticks/s"),
+        ("lockstep: tfl-mav sim + harness Pilot (our Link)",
+         f"{vehicle['ticks_per_s']:.0f} ticks/s"),
         ("lockstep: real-time factor at 1 kHz", f"{vehicle['real_time_factor']:.1f}x"),
         ("lockstep with --mcap (recorder child process)",
          f"{recorded['ticks_per_s']:.0f} ticks/s"),

@@ -27,9 +27,6 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT))
-
 CORNERS = [(0.98, 0.9), (0.98, 1.1), (1.02, 0.9), (1.02, 1.1)]
 SWEEP_TAUS_MS = [0, 10, 20, 30, 40, 50, 60, 70, 80]
 
@@ -47,7 +44,7 @@ def demo_case(tau_s: float, mass_scale: float, inertia_scale: float,
         for k, v in sets.items():
             cmd += ["--set", f"{k}={v}"]
         t0 = time.perf_counter()
-        proc = subprocess.run(cmd, capture_output=True, text=True, cwd=ROOT, timeout=900)
+        proc = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
         wall = time.perf_counter() - t0
     try:
         summary = json.loads(proc.stdout)

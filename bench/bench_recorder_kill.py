@@ -24,24 +24,20 @@ from __future__ import annotations
 
 import argparse
 import base64
+import contextlib
 import json
 import os
 import platform
-import re
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from pymavlink.dialects.v20 import ardupilotmega as mav  # noqa: E402
-
-from tfl_mav.flightlog.logread import LogReader  # noqa: E402
+from harness.pilot import NoStateError, Pilot, hover_controls
+from harness.processes import CLI, popen_sim
+from tfl_mav.flightlog.logread import LogReader
 
 
 def _recorder_child(sim_pid: int) -> int:
@@ -75,73 +71,49 @@ def run(n_ticks: int, kill_at: int, target: str, tmp: Path) -> dict[str, object]
     from tfl_mav.scenario import load_scenario
 
     sc = load_scenario("paper")
-    u = sc.vehicle.mass_kg * sc.vehicle.gravity_mps2 / 4.0 / sc.vehicle.thrust_max_n
     mcap = tmp / f"{target}.mcap"
     out_json = tmp / f"{target}.json"
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tools.cli", "sim", "paper", "--listen", "127.0.0.1:0",
-         "--set", "attack.rotor=0", "--set", "initial.position_m=[0, 0, 5]",
-         "--duration", f"{n_ticks / 1000.0:g}", "--mcap", str(mcap), "--json", str(out_json)],
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-        start_new_session=True)
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.bind(("127.0.0.1", 0))
-    sock.settimeout(5.0)
-    client = {"tx_frames": 0, "tx_bytes": 0, "rx_frames": 0, "rx_bytes": 0}
+    proc, address = popen_sim(["--set", "attack.rotor=0", "--set",
+                               "initial.position_m=[0, 0, 5]", "--duration",
+                               f"{n_ticks / 1000.0:g}", "--mcap", str(mcap), "--json",
+                               str(out_json)], "paper", start_new_session=True)
+    pilot = Pilot(address)
+    stats = pilot.link.stats
+
+    def traffic() -> dict[str, int]:
+        return {"tx_frames": stats.tx_frames, "tx_bytes": stats.tx_bytes,
+                "rx_frames": stats.rx_frames, "rx_bytes": stats.rx_bytes}
+
     kill_wall_s = 0.0
-    at_kill = dict(client)
+    at_kill = traffic()
+    ticks = 0
     output = ""
+
+    def on_tick(k: int, _odom: object, _esc: object) -> bool:
+        nonlocal kill_wall_s, at_kill, ticks
+        ticks = k + 1
+        if ticks != kill_at:
+            return False
+        kill_wall_s = time.time()
+        at_kill = traffic()
+        if target == "recorder":
+            os.kill(_recorder_child(proc.pid), signal.SIGKILL)
+            return False
+        os.killpg(proc.pid, signal.SIGKILL)
+        return True                         # the sim is gone: stop flying
+
     try:
-        assert proc.stdout is not None
-        line = proc.stdout.readline()
-        match = re.search(r"listening on ([\d.]+):(\d+)", line)
-        if not match:
-            raise RuntimeError(f"sim did not start: {line}{proc.stderr.read()}")
-        address = (match.group(1), int(match.group(2)))
-        mv = mav.MAVLink(None, 1, 191)
-
-        def send(msg: object) -> None:
-            raw = msg.pack(mv)   # type: ignore[attr-defined]
-            sock.sendto(raw, address)
-            client["tx_frames"] += 1
-            client["tx_bytes"] += len(raw)
-
-        send(mav.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3))
-        controls = [u] * 4 + [0.0] * 12
-        ticks = 0
-        done = False
-        while not done:
-            try:
-                data = sock.recv(65535)
-            except TimeoutError:
-                break                       # the sim is gone (group kill)
-            for msg in mv.parse_buffer(data) or ():
-                client["rx_frames"] += 1
-                client["rx_bytes"] += len(msg.get_msgbuf())
-                mid = msg.get_msgId()
-                if mid == mav.MAVLINK_MSG_ID_HEARTBEAT and msg.system_status in (
-                        mav.MAV_STATE_POWEROFF, mav.MAV_STATE_EMERGENCY):
-                    done = True
-                if mid != mav.MAVLINK_MSG_ID_ODOMETRY:
-                    continue
-                send(mav.MAVLink_hil_actuator_controls_message(msg.time_usec, controls,
-                                                               128, 1))
-                ticks += 1
-                if ticks == kill_at:
-                    kill_wall_s = time.time()
-                    at_kill = dict(client)
-                    if target == "recorder":
-                        os.kill(_recorder_child(proc.pid), signal.SIGKILL)
-                    else:
-                        os.killpg(proc.pid, signal.SIGKILL)
-                        done = True
-                        break
+        pilot.hello()
+        # Fly until the vehicle's last word (HEARTBEAT POWEROFF), or the group kill.
+        with contextlib.suppress(NoStateError):
+            pilot.fly(None, hover_controls(sc), timeout_s=5.0, keep=False, on_tick=on_tick)
+        client = traffic()
         out, err = proc.communicate(timeout=60)
         output = out + err
     finally:
         if proc.poll() is None:
             proc.kill()
-        sock.close()
+        pilot.close()
     time.sleep(0.2)   # let the killed processes' file descriptors close
     result: dict[str, object] = {"target": target, "ticks": ticks, "kill_at": kill_at,
                                  "exit_code": proc.returncode, "client": client}
@@ -174,9 +146,8 @@ def run(n_ticks: int, kill_at: int, target: str, tmp: Path) -> dict[str, object]
     result["gap_before_kill_s"] = kill_wall_s - float(read["last_raw_log_time_s"]) \
         if read["raw_frames"] else None
     recovered = tmp / f"{target}.recovered.mcap"
-    rec = subprocess.run([sys.executable, "-m", "tools.cli", "inspect", str(mcap),
-                          "--recover", str(recovered), "--json"],
-                         cwd=REPO, capture_output=True, text=True, timeout=120)
+    rec = subprocess.run([*CLI, "inspect", str(mcap), "--recover", str(recovered), "--json"],
+                         capture_output=True, text=True, timeout=120)
     result["recover_exit_code"] = rec.returncode
     result["recover_says"] = rec.stderr.strip().splitlines()[-1] if rec.stderr.strip() else ""
     if recovered.exists():

@@ -24,12 +24,11 @@ repository root.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import os
 import platform
-import re
 import statistics
-import subprocess
 import sys
 import tempfile
 import threading
@@ -38,14 +37,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from sitl.vehicle import Vehicle  # noqa: E402
-from tfl_mav.link.dialect import mav, new_mavlink  # noqa: E402
-from tfl_mav.link.signing import Signing, mavlink_timestamp, signature48  # noqa: E402
-from tfl_mav.link.transport import Link  # noqa: E402
-from tfl_mav.scenario import load_scenario  # noqa: E402
+from harness.pilot import NoStateError, Pilot, hover_controls, hover_fraction
+from harness.processes import popen_sim
+from sitl.vehicle import Vehicle
+from tfl_mav.link.dialect import mav, new_mavlink
+from tfl_mav.link.signing import Signing, mavlink_timestamp, signature48
+from tfl_mav.link.transport import Link
+from tfl_mav.scenario import load_scenario
 
 KEY = bytes.fromhex("5a" * 8 + "c3" * 8 + "0f" * 8 + "e1" * 8)
 WRONG_KEY = bytes(range(1, 33))
@@ -158,52 +156,53 @@ def _drain(link: Link, expect_datagrams: int, timeout_s: float = 2.0) -> list[An
 def bench_vehicle_under_attack(n_ticks: int) -> dict[str, Any]:
     """A signed vehicle in lockstep; one hostile frame before every genuine reply."""
     sc = load_scenario("paper").replace(**{"attack.rotor": 0})
-    v = sc.vehicle
-    hover = v.mass_kg * v.gravity_mps2 / 4.0 / v.thrust_max_n
+    hover = hover_fraction(sc)
     vehicle = Vehicle(sc, listen=LOOPBACK, key=KEY)
     result: dict[str, Any] = {}
     thread = threading.Thread(
         target=lambda: result.update(r=vehicle.run(n_ticks * sc.run.control_dt_s)),
         daemon=True)
     thread.start()
-    link = Link.connect(vehicle.listen_address, src_system=CONTROLLER_IDS[0],
-                        src_component=CONTROLLER_IDS[1], signing=Signing(KEY))
-    last_reply = b""
-    captured: list[bytes] = []
-    link.on_frame = lambda d, b, m, t: captured.append(bytes(b)) if d == "tx" else None
+    last_tx = [b""]           # the last frame we sent: the previous tick's genuine reply
+
+    def keep_tx(direction: str, raw: bytes, _msg: Any, _t: float) -> None:
+        if direction == "tx":
+            last_tx[0] = bytes(raw)
+
+    pilot = Pilot(vehicle.listen_address, sysid=CONTROLLER_IDS[0], compid=CONTROLLER_IDS[1],
+                  key=KEY, on_frame=keep_tx)
     hostile = {"unsigned": 0, "wrong_key": 0, "forged_signature": 0, "replayed": 0}
     kinds = list(hostile)
-    link.send(mav.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3))
-    answered = 0
-    deadline = time.monotonic() + 60.0
+    answered = [0]
+
+    def attack_then_hover(odom: Any, _esc: Any) -> list[float]:
+        """Inject one hostile frame, then answer genuinely (the Pilot sends the reply)."""
+        k = answered[0]
+        kind = kinds[k % len(kinds)]
+        attack = COMMANDS[k % 3](odom.time_usec // 1000)
+        if kind == "unsigned":
+            frame = pack(attack, key=None)
+        elif kind == "wrong_key":
+            frame = pack(attack, key=WRONG_KEY)
+        elif kind == "forged_signature":
+            frame = forged(attack)
+        else:                               # replay our own last genuine reply
+            frame = last_tx[0] if k else pack(attack, key=None)
+        pilot.link.send_raw(frame)
+        hostile[kind] += 1
+        answered[0] += 1
+        return [hover] * 4
+
+    pilot.hello()
     try:
-        while answered < n_ticks and time.monotonic() < deadline:
-            for m in link.recv(0.05):
-                if m.get_msgId() != mav.MAVLINK_MSG_ID_ODOMETRY:
-                    continue
-                t = m.time_usec
-                kind = kinds[answered % len(kinds)]
-                attack = COMMANDS[answered % 3](t // 1000)
-                if kind == "unsigned":
-                    frame = pack(attack, key=None)
-                elif kind == "wrong_key":
-                    frame = pack(attack, key=WRONG_KEY)
-                elif kind == "forged_signature":
-                    frame = forged(attack)
-                else:
-                    frame = last_reply or pack(attack, key=None)
-                link.send_raw(frame)
-                hostile[kind] += 1
-                captured.clear()
-                link.send(controls(t, hover))
-                last_reply = captured[-1]
-                answered += 1
+        with contextlib.suppress(NoStateError):    # the run ended: counted below
+            pilot.fly(n_ticks, attack_then_hover, timeout_s=10.0, keep=False)
         thread.join(10.0)
     finally:
         vehicle.stop()
         thread.join(5.0)
         vehicle.close()
-        link.close()
+        pilot.close()
     st = vehicle.stats
     return {"ticks": result["r"].ticks if "r" in result else 0, "hostile_sent": hostile,
             "hostile_total": sum(hostile.values()), "controls_applied": st.controls_applied,
@@ -310,34 +309,19 @@ def bench_link_path(batches: int = 9, n: int = 100) -> dict[str, float]:
 def lockstep_ticks_per_s(n_ticks: int, key_file: str | None) -> float:
     """``tfl-mav sim`` (hover, 1 kHz) flown by our Link; signed iff ``key_file``."""
     sc = load_scenario("paper")
-    u = sc.vehicle.mass_kg * sc.vehicle.gravity_mps2 / 4.0 / sc.vehicle.thrust_max_n
     extra = ["--key-file", key_file] if key_file else []
-    proc = subprocess.Popen(
-        [sys.executable, "-m", "tools.cli", "sim", "paper", "--listen", "127.0.0.1:0",
-         "--set", "attack.rotor=0", "--set", "initial.position_m=[0, 0, 5]",
-         "--duration", f"{n_ticks / 1000.0:g}", *extra],
-        cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    proc, address = popen_sim(["--set", "attack.rotor=0", "--set",
+                               "initial.position_m=[0, 0, 5]", "--duration",
+                               f"{n_ticks / 1000.0:g}", *extra], "paper")
+    warmup = 200
     try:
-        line = proc.stdout.readline() if proc.stdout else ""
-        match = re.search(r"listening on ([\d.]+):(\d+)", line)
-        if not match:
-            raise RuntimeError(f"sim did not start: {line}")
-        signing = Signing(KEY) if key_file else None
-        link = Link.connect((match.group(1), int(match.group(2))),
-                            src_system=CONTROLLER_IDS[0], src_component=CONTROLLER_IDS[1],
-                            signing=signing)
-        link.send(mav.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3))
-        warmup = 200
-        ticks, t0 = 0, 0.0
-        while ticks < n_ticks:
-            for m in link.recv(2.0):
-                if m.get_msgId() == mav.MAVLINK_MSG_ID_ODOMETRY:
-                    link.send(controls(m.time_usec, u))
-                    ticks += 1
-                    if ticks == warmup:
-                        t0 = time.perf_counter()
-        elapsed = time.perf_counter() - t0
-        link.close()
+        with Pilot(address, sysid=CONTROLLER_IDS[0], compid=CONTROLLER_IDS[1],
+                   key=KEY if key_file else None) as pilot:
+            pilot.hello()
+            pilot.fly(warmup, hover_controls(sc), keep=False)
+            t0 = time.perf_counter()
+            pilot.fly(n_ticks - warmup, hover_controls(sc), keep=False)
+            elapsed = time.perf_counter() - t0
         proc.communicate(timeout=20)
     finally:
         if proc.poll() is None:

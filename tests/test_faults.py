@@ -1,8 +1,13 @@
 """Faults on the control link (issue 5): the fault relay itself, then real ``tfl-mav sim`` /
 ``tfl-mav fly`` processes on loopback UDP through it, and killed or silent peers.
 
-The process helpers (timestamped output lines, GCS position listener) are shared with
+The process helpers (:mod:`harness.processes`: timestamped output lines) are shared with
 ``bench/bench_faults.py``, which measures the same runs over a range of loss rates.
+
+Every test here is ``slow``: each either pushes tens of thousands of datagrams through the
+relay's thread or flies real processes, and all of them time wall-clock events. Their
+wall-clock bounds are one-sided where physics allows, and upper bounds carry
+:data:`LOAD_SLACK_S` so they hold on a loaded 2-core machine.
 """
 
 from __future__ import annotations
@@ -11,22 +16,23 @@ import itertools
 import json
 import math
 import socket
-import sys
 import threading
 import time
 from pathlib import Path
 
 import pytest
 
-from tools.relay import Faults, Relay
+from harness.processes import Proc, start_sim_on
+from harness.relay import Faults, Relay
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "bench"))
-from bench_faults import (
-    Proc,
-    free_port,
-    start_sim,
-    start_sim_on,
-)
+# How late a wall-clock event may come on a 2-core machine shared by ~8 busy jobs: each
+# wake-up of a runnable thread can wait a few scheduler periods (CFS targets ~24 ms per
+# core, ~4 runnable tasks per core: ≲100 ms), and an event seen here is a chain of ~5
+# wake-ups (relay thread, sim or daemon loop, its print, our reader thread): ≲0.5 s.
+# Four times that is generous, and still far below what a broken timeout would show.
+LOAD_SLACK_S = 2.0
+SIM_LOCKSTEP_TIMEOUT_S = 2.0     # tfl-mav sim's default --lockstep-timeout
+HEARTBEAT_PERIOD_S = 1.0         # the daemon's HEARTBEAT rate (1 Hz)
 
 
 # ---------------------------------------------------------------------------- the relay
@@ -85,6 +91,7 @@ def _within(count: int, n: int, p: float, sigmas: float = 5.0) -> bool:
     return abs(count - n * p) <= sigmas * math.sqrt(n * p * (1 - p)) + 1
 
 
+@pytest.mark.slow
 def test_relay_drop_duplicate_reorder_counts_are_binomial_and_conserved():
     n, p_drop, p_dup, p_reo = 20_000, 0.10, 0.05, 0.05
     sink = Sink()
@@ -112,6 +119,7 @@ def test_relay_drop_duplicate_reorder_counts_are_binomial_and_conserved():
     assert relay.stats.to_daemon.received == 0 and relay.stats.foreign == 0
 
 
+@pytest.mark.slow
 def test_relay_is_deterministic_per_seed():
     def counts(seed: int) -> tuple[int, int, int]:
         sink = Sink()
@@ -128,10 +136,13 @@ def test_relay_is_deterministic_per_seed():
     assert counts(1) != counts(2)
 
 
+@pytest.mark.slow
 def test_relay_delay_and_jitter_bounds_and_throughput():
-    """Every datagram waits delay_s + U(0, jitter_s); the mean is that to 5σ of the uniform
-    draw plus scheduling slack; and the timer heap keeps throughput far above what a
-    sleep-per-packet relay could do (n × mean delay = 20 s here)."""
+    """Every datagram waits delay_s + U(0, jitter_s): never less (one-sided, exact); the
+    mean is that to 5σ of the uniform draw, plus scheduling slack on the late side only
+    (a busy machine delays the relay's thread, it never makes it early); and the timer
+    heap keeps throughput far above what a sleep-per-packet relay could do (n × mean
+    delay = 20 s here)."""
     delay, jitter, n = 0.005, 0.010, 2000
     sink = Sink()
     with Relay(sink.address, to_vehicle=Faults(delay_s=delay, jitter_s=jitter)) as relay:
@@ -141,9 +152,11 @@ def test_relay_delay_and_jitter_bounds_and_throughput():
         assert st.forwarded == n
         assert st.latency_min_s >= delay
         sigma_mean = jitter / math.sqrt(12 * n)
-        assert abs(st.latency_mean_s - (delay + jitter / 2)) <= 5 * sigma_mean + 0.002
-        assert st.latency_max_s <= delay + jitter + 0.050
-        # Throughput: 20 000 datagrams with 2 ms jitter through in well under 20 s.
+        assert st.latency_mean_s - (delay + jitter / 2) >= -5 * sigma_mean
+        assert st.latency_mean_s - (delay + jitter / 2) <= 5 * sigma_mean + LOAD_SLACK_S
+        assert st.latency_max_s <= delay + jitter + LOAD_SLACK_S
+        # Throughput: 20 000 datagrams with 2 ms jitter (1 ms mean) take ≥ 20 s through a
+        # relay that sleeps per packet; the heap must do it in half that even when loaded.
         relay.set_faults(to_vehicle=Faults(jitter_s=0.002))
         sink.got.clear()
         t0 = time.monotonic()
@@ -154,9 +167,10 @@ def test_relay_delay_and_jitter_bounds_and_throughput():
         client2.close()
     sink.close()
     assert len(sink.got) == 20_000
-    assert elapsed < 5.0, f"20 000 datagrams took {elapsed:.2f} s"
+    assert elapsed < 10.0, f"20 000 datagrams took {elapsed:.2f} s"
 
 
+@pytest.mark.slow
 def test_relay_in_order_jitter_never_reorders():
     sink = Sink()
     with Relay(sink.address, to_vehicle=Faults(jitter_s=0.003, in_order=True)) as relay:
@@ -211,24 +225,24 @@ def _sim_json(path: Path) -> dict:
     return json.loads(path.read_text())
 
 
-def test_lockstep_through_a_lossy_relay_completes(tmp_path):
+@pytest.mark.slow
+def test_lockstep_through_a_lossy_relay_completes(tmp_path, sim_factory):
     """Each lost datagram costs one --lockstep-timeout and a resend; the run still ends
     with every tick integrated. Expected timeouts: a round trip survives with (1−p)², so
     ≈ n·q/(1−q) with q = 1 − 0.95² (resends can be lost too)."""
     n_ticks, p = 1000, 0.05
     faults = Faults(drop=p, jitter_s=0.002)
-    sim, port = start_sim(["--duration", str(n_ticks / 1000), "--lockstep-timeout", "0.01",
-                           "--json", str(tmp_path / "sim.json")])
-    try:
-        with Relay(("127.0.0.1", port), to_vehicle=faults, to_daemon=faults,
-                   seed=3) as relay:
-            fly = Proc(["fly", "paper", "--quiet", "--vehicle",
-                        f"127.0.0.1:{relay.listen_address[1]}", "--duration",
-                        str(n_ticks / 1000), "--summary-json", str(tmp_path / "fly.json")])
+    sim, port = sim_factory(["--duration", str(n_ticks / 1000), "--lockstep-timeout",
+                             "0.01", "--json", str(tmp_path / "sim.json")])
+    with Relay(("127.0.0.1", port), to_vehicle=faults, to_daemon=faults, seed=3) as relay:
+        fly = Proc(["fly", "paper", "--quiet", "--vehicle",
+                    f"127.0.0.1:{relay.listen_address[1]}", "--duration",
+                    str(n_ticks / 1000), "--summary-json", str(tmp_path / "fly.json")])
+        try:
             assert sim.wait(60) == 0, sim.text()
             assert fly.wait(30) == 0, fly.text()
-    finally:
-        sim.close()
+        finally:
+            fly.close()
     st = _sim_json(tmp_path / "sim.json")["stats"]
     assert st["ticks"] == n_ticks
     q = 1 - (1 - p) ** 2
@@ -239,63 +253,72 @@ def test_lockstep_through_a_lossy_relay_completes(tmp_path):
     assert summary["stats"]["failsafes"] == 0
 
 
-def test_silent_vehicle_failsafe_then_recovery(tmp_path):
+@pytest.mark.slow
+def test_silent_vehicle_failsafe_then_recovery(tmp_path, sim_factory):
     """The vehicle goes silent (the relay drops everything it sends): the daemon goes to
     FAILSAFE after --state-timeout, says so, and resumes when states return."""
-    sim, port = start_sim(["--duration", "0"])
-    try:
-        with Relay(("127.0.0.1", port)) as relay:
-            fly = Proc(["fly", "paper", "--vehicle", f"127.0.0.1:{relay.listen_address[1]}",
-                        "--duration", "1000", "--state-timeout", "0.3", "--summary-json",
-                        str(tmp_path / "fly.json")])
+    _sim, port = sim_factory(["--duration", "0"])
+    with Relay(("127.0.0.1", port)) as relay:
+        fly = Proc(["fly", "paper", "--vehicle", f"127.0.0.1:{relay.listen_address[1]}",
+                    "--duration", "1000", "--state-timeout", "0.3", "--summary-json",
+                    str(tmp_path / "fly.json")])
+        try:
             fly.wait_for(r"ATTACK on rotor 2", 30)
             relay.set_faults(to_daemon=Faults(drop=1.0))
             t_silent = time.monotonic()
-            t_fs, _ = fly.wait_for(r"CRITICAL: no vehicle state for 0.30 s: FAILSAFE", 5)
-            assert 0.3 <= t_fs - t_silent < 1.0
+            t_fs, _ = fly.wait_for(r"CRITICAL: no vehicle state for 0.30 s: FAILSAFE",
+                                   5 + LOAD_SLACK_S)
+            assert 0.3 <= t_fs - t_silent < 0.3 + LOAD_SLACK_S
             relay.set_faults(to_daemon=Faults())
             t_back = time.monotonic()
-            t_rec, _ = fly.wait_for(r"state received again: control resumed", 5)
-            assert t_rec - t_back < 2.5        # the vehicle resends within --lockstep-timeout
+            t_rec, _ = fly.wait_for(r"state received again: control resumed",
+                                    5 + LOAD_SLACK_S)
+            # The vehicle resends its state within its --lockstep-timeout.
+            assert t_rec - t_back < SIM_LOCKSTEP_TIMEOUT_S + LOAD_SLACK_S
             fly.popen.terminate()
             fly.wait(20)
-    finally:
-        sim.close()
+        finally:
+            fly.close()
     stats = json.loads((tmp_path / "fly.json").read_text())["stats"]
     assert stats["failsafes"] == 1 and stats["recoveries"] == 1
 
 
-def test_killed_vehicle_failsafe_then_a_new_vehicle_is_reacquired():
-    sim, port = start_sim(["--duration", "0"])
+@pytest.mark.slow
+def test_killed_vehicle_failsafe_then_a_new_vehicle_is_reacquired(sim_factory):
+    sim, port = sim_factory(["--duration", "0"])
     sim2 = None
     fly = Proc(["fly", "paper", "--vehicle", f"127.0.0.1:{port}", "--duration", "1000",
                 "--state-timeout", "0.3"])
     try:
         fly.wait_for(r"ATTACK on rotor 2", 30)
         t_kill = sim.kill()
-        t_fs, _ = fly.wait_for(r"FAILSAFE", 5, after=t_kill)
-        assert 0.3 <= t_fs - t_kill < 1.0
-        t_start = time.monotonic()
+        t_fs, _ = fly.wait_for(r"FAILSAFE", 5 + LOAD_SLACK_S, after=t_kill)
+        assert 0.3 <= t_fs - t_kill < 0.3 + LOAD_SLACK_S
         sim2 = start_sim_on(port, ["--duration", "1"])
-        # The new vehicle starts its clock on the daemon's next HEARTBEAT (1 Hz).
-        t_rec, _ = fly.wait_for(r"control resumed", 5, after=t_kill)
-        assert t_rec - t_start < 4.0
+        t_listening = time.monotonic()
+        # The new vehicle starts its clock on the daemon's next HEARTBEAT (1 Hz). Timed
+        # from when it listens: how long a cold interpreter takes to start is not the
+        # daemon's business (and can be many seconds on a loaded machine).
+        t_rec, _ = fly.wait_for(r"control resumed", 5 + LOAD_SLACK_S, after=t_kill)
+        assert t_rec - t_listening < HEARTBEAT_PERIOD_S + LOAD_SLACK_S
         sim2.wait_for(r"controller 127\.0\.0\.1:\d+ \(sysid 1\) connected", 5)
     finally:
-        for p in (sim, sim2, fly):
+        for p in (sim2, fly):
             if p is not None:
                 p.close()
 
 
-def test_killed_daemon_motors_cut_then_restarted_daemon_reacquires(tmp_path):
+@pytest.mark.slow
+def test_killed_daemon_motors_cut_then_restarted_daemon_reacquires(tmp_path, sim_factory,
+                                                                   free_port):
     """Real time, no relay. SIGKILL the daemon: the vehicle cuts its motors after
     --command-timeout (0.25 s) like an ESC that lost its signal; a new daemon bound to the
     same address (the vehicle's peer pin is address + sysid) is accepted at once. Flown
     on the path without an attack so the test is about the link, not the fall."""
-    bind = f"127.0.0.1:{free_port()}"
+    bind = f"127.0.0.1:{free_port}"
     sets = ["--set", "initial.position_m=[0,1,4]"]
-    sim, port = start_sim(["--realtime", "--duration", "4", *sets, "--json",
-                           str(tmp_path / "sim.json")], "nominal")
+    sim, port = sim_factory(["--realtime", "--duration", "4", *sets, "--json",
+                             str(tmp_path / "sim.json")], "nominal")
     fly_args = ["fly", "nominal", *sets, "--realtime", "--progress", "--vehicle",
                 f"127.0.0.1:{port}", "--bind", bind, "--duration", "4"]
     fly2 = None
@@ -304,16 +327,17 @@ def test_killed_daemon_motors_cut_then_restarted_daemon_reacquires(tmp_path):
         fly.wait_for(r"^progress 1\.", 20)
         t_kill = fly.kill()
         fly2 = Proc(fly_args, realtime=True)
-        t_cut, _ = sim.wait_for(r"motors cut", 5, after=t_kill)
-        assert 0.24 <= t_cut - t_kill <= 0.25 + 0.35   # + scheduling on 2 shared cores
-        t_res, _ = sim.wait_for(r"commands resumed: motors restored", 10, after=t_kill)
-        assert t_res - t_kill < 3.0
+        t_cut, _ = sim.wait_for(r"motors cut", 5 + LOAD_SLACK_S, after=t_kill)
+        assert 0.24 <= t_cut - t_kill <= 0.25 + LOAD_SLACK_S
+        t_res, _ = sim.wait_for(r"commands resumed: motors restored", 10 + LOAD_SLACK_S,
+                                after=t_kill)
+        # The new daemon's start (a cold interpreter) plus its first command.
+        assert t_res - t_kill < 3.0 + LOAD_SLACK_S
         sim.wait(30)
         fly2.wait(30)
     finally:
-        for p in (sim, fly2):
-            if p is not None:
-                p.close()
+        if fly2 is not None:
+            fly2.close()
     st = _sim_json(tmp_path / "sim.json")["stats"]
     assert st["command_timeouts"] == 1
     assert st["control_link"]["foreign"] == 0          # same address: not a stranger

@@ -1,6 +1,6 @@
 """Bad input at both UDP endpoints, over real loopback sockets (issue #5).
 
-A small seeded run of the fuzzer in ``tests/fuzzgen.py`` against a lockstep vehicle and the
+A small seeded run of the fuzzer in ``tests/fuzz.py`` against a lockstep vehicle and the
 daemon (``bench/bench_fuzz.py`` runs ≥ 100 000 inputs per endpoint), a hypothesis property
 of the link's counters, and a flood from a non-peer during a lockstep flight.
 """
@@ -12,11 +12,12 @@ import socket
 import threading
 import time
 
-import fuzzgen
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from harness import fuzz
+from harness.pilot import Pilot, hover_controls
 from sitl.vehicle import ExitStatus, Vehicle
 from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.link.transport import Link
@@ -26,7 +27,7 @@ N_INPUTS = 3000
 SEED = 20240605
 
 
-def _check(r: fuzzgen.EndpointReport) -> None:
+def _check(r: fuzz.EndpointReport) -> None:
     assert r.crashes == []
     assert r.completed, "the endpoint stopped answering"
     assert r.mismatches == [], "counters differ from the model:\n" + "\n".join(r.mismatches)
@@ -39,7 +40,7 @@ def _check(r: fuzzgen.EndpointReport) -> None:
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
 def test_vehicle_survives_fuzzing_and_counts_every_reject() -> None:
-    r = fuzzgen.fuzz_vehicle(N_INPUTS, SEED)
+    r = fuzz.fuzz_vehicle(N_INPUTS, SEED)
     _check(r)
     assert r.nan_to_physics == 0
     cats = r.categories
@@ -58,12 +59,12 @@ def test_vehicle_survives_fuzzing_and_counts_every_reject() -> None:
     assert bad["rejected_controls"] > 0
     # Random bytes never yield a frame the vehicle acts on.
     assert cats["random"].counted["rx_frames"] == 0
-    assert fuzzgen.rejected_total(cats["random"], "vehicle") >= cats["random"].sent
+    assert fuzz.rejected_total(cats["random"], "vehicle") >= cats["random"].sent
 
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
 def test_daemon_survives_fuzzing_and_never_commands_a_nan() -> None:
-    r = fuzzgen.fuzz_daemon(N_INPUTS, SEED)
+    r = fuzz.fuzz_daemon(N_INPUTS, SEED)
     _check(r)
     assert r.nan_to_motors == 0
     cats = r.categories
@@ -83,7 +84,7 @@ def link_pair():
     raw = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     raw.bind(("127.0.0.1", 0))
     hb = mav.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3).pack(
-        new_mavlink(fuzzgen.FUZZER_SYSID, 191))
+        new_mavlink(fuzz.FUZZER_SYSID, 191))
     raw.sendto(hb, link.local_address)
     assert link.recv(1.0)
     yield link, raw
@@ -92,7 +93,7 @@ def link_pair():
 
 
 def _counters(link: Link) -> dict[str, int]:
-    return {k: getattr(link.stats, k) for k in ("rx_frames", *fuzzgen.LINK_REASONS)}
+    return {k: getattr(link.stats, k) for k in ("rx_frames", *fuzz.LINK_REASONS)}
 
 
 def _deliver(link: Link, raw: socket.socket, data: bytes) -> dict[str, int]:
@@ -111,7 +112,7 @@ _frames = st.sampled_from([
     mav.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3),
     mav.MAVLink_hil_actuator_controls_message(7, [0.5] * 16, 128, 1),
     mav.MAVLink_command_long_message(1, 1, 420, 0, 101, 1, 2, 0, 0, 0, 0),
-]).map(lambda m: m.pack(new_mavlink(fuzzgen.FUZZER_SYSID, 191)))
+]).map(lambda m: m.pack(new_mavlink(fuzz.FUZZER_SYSID, 191)))
 
 
 @st.composite
@@ -131,7 +132,7 @@ def _datagrams(draw) -> bytes:
 @given(data=_datagrams())
 def test_link_counts_every_datagram_as_the_model_says(link_pair, data: bytes) -> None:
     link, raw = link_pair
-    outcomes = fuzzgen.LinkModel(fuzzgen.FUZZER_SYSID).outcomes(data)
+    outcomes = fuzz.LinkModel(fuzz.FUZZER_SYSID).outcomes(data)
     expected: dict[str, int] = {}
     for o in outcomes:
         key = o if isinstance(o, str) else "rx_frames"
@@ -164,11 +165,8 @@ def test_flood_from_a_non_peer_does_not_stop_a_lockstep_flight() -> None:
     runner = threading.Thread(target=lambda: result.append(vehicle.run(n_ticks * 1e-3)),
                               daemon=True)
     runner.start()
-    pilot = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    pilot.bind(("127.0.0.1", 0))
-    pilot.settimeout(0.1)
-    mv = new_mavlink(fuzzgen.FUZZER_SYSID, 191)
-    pilot.sendto(mav.MAVLink_heartbeat_message(18, 8, 0, 0, 0, 3).pack(mv), address)
+    pilot = Pilot(address, sysid=fuzz.FUZZER_SYSID)
+    pilot.hello()
 
     stop = threading.Event()
     sent = [0]
@@ -177,7 +175,7 @@ def test_flood_from_a_non_peer_does_not_stop_a_lockstep_flight() -> None:
         """Same sysid and compid as the pilot, every tick's time_usec, motors at full."""
         s = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         s.bind(("127.0.0.1", 0))
-        fm = new_mavlink(fuzzgen.FUZZER_SYSID, 191)
+        fm = new_mavlink(fuzz.FUZZER_SYSID, 191)
         frames = [mav.MAVLink_hil_actuator_controls_message(k * 1000, [1.0] * 16, 128,
                                                             1).pack(fm)
                   for k in range(n_ticks)]
@@ -192,23 +190,10 @@ def test_flood_from_a_non_peer_does_not_stop_a_lockstep_flight() -> None:
 
     flooder = threading.Thread(target=flood, daemon=True)
     flooder.start()
-    parser = new_mavlink(255, 0)
-    ticks = 0
-    deadline = time.monotonic() + 60.0
     try:
-        # Answer until the vehicle's run ends, not until n replies were sent: the last
-        # reply may be dropped and the state resent.
-        while runner.is_alive() and time.monotonic() < deadline:
-            try:
-                data = pilot.recv(65535)
-            except TimeoutError:
-                continue
-            for msg in parser.parse_buffer(data) or ():
-                if msg.get_msgId() == mav.MAVLINK_MSG_ID_ODOMETRY:
-                    reply = mav.MAVLink_hil_actuator_controls_message(
-                        msg.time_usec, [hover] * 4 + [0.0] * 12, 128, 1)
-                    pilot.sendto(reply.pack(mv), address)
-                    ticks += 1
+        # Answer until the vehicle ends the run, not until n replies were sent: the last
+        # reply may be dropped and the state resent (the pilot answers resends too).
+        pilot.fly(None, hover_controls(sc), keep=False, timeout_s=60.0)
     finally:
         stop.set()
         flooder.join(5.0)

@@ -9,15 +9,13 @@ behaviour recaptures them and says so in its commit.
 from __future__ import annotations
 
 import json
-import sys
 from pathlib import Path
 
 import pytest
 
-GOLDEN = Path(__file__).resolve().parent / "golden"
-sys.path.insert(0, str(GOLDEN))
+from harness.golden import LOCKSTEP_CASES, OFFLINE_CASES, fly_lockstep, fly_offline_case
 
-from golden_cases import LOCKSTEP_CASES, OFFLINE_CASES, fly_lockstep, fly_offline_case  # noqa: E402
+GOLDEN = Path(__file__).resolve().parent / "golden"
 
 _OFFLINE = json.loads((GOLDEN / "offline.json").read_text())
 _LOCKSTEP = json.loads((GOLDEN / "lockstep.json").read_text())

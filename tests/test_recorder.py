@@ -264,8 +264,7 @@ def schemas_bytes(name: str) -> bytes:
 
 
 CHILD = r"""
-import json, sys, time
-sys.path.insert(0, {repo!r})
+import json, time
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.transport import Link
 from tfl_mav.flightlog.recorder import Recorder
@@ -292,8 +291,7 @@ print(json.dumps({{"error": rec.error, "stats": rec.stats.as_dict(), "ticks": k}
 
 def _start_child(path: Path, *, interval: float, duration: float, preexec=None,
                  cls: str = "Recorder") -> subprocess.Popen:
-    code = CHILD.format(repo=str(REPO), path=str(path), interval=interval, duration=duration,
-                        cls=cls)
+    code = CHILD.format(path=str(path), interval=interval, duration=duration, cls=cls)
     return subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, cwd=REPO, preexec_fn=preexec)
 

@@ -21,6 +21,7 @@ from pathlib import Path
 
 import pytest
 
+from harness.pilot import Pilot
 from sitl.vehicle import Vehicle
 from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.link.signing import (
@@ -375,28 +376,11 @@ def test_a_restarted_sender_is_accepted_without_restarting_the_receiver():
 
 
 # ---------------------------------------------------------------------------- peer takeover
-class Controller:
-    """A minimal lockstep controller: HEARTBEAT, then hover for every state."""
-
-    def __init__(self, address, *, key: bytes | None, sysid: int = 2) -> None:
-        signing = Signing(key) if key is not None else None
-        self.link = Link.connect(address, src_system=sysid, src_component=191,
-                                 signing=signing)
-        self.link.send(heartbeat())
-
-    def fly(self, n_ticks: int, u: float, timeout_s: float = 3.0) -> int:
-        """Answer ``n_ticks`` ODOMETRY states; return the last time_usec answered."""
-        answered = 0
-        last = -1
-        deadline = time.monotonic() + timeout_s
-        while answered < n_ticks:
-            assert time.monotonic() < deadline, "no state from the vehicle"
-            for m in self.link.recv(0.05):
-                if m.get_type() == "ODOMETRY":
-                    self.link.send(controls(m.time_usec, u))
-                    last = m.time_usec
-                    answered += 1
-        return last
+def controller(address, *, key: bytes | None, sysid: int = 2) -> Pilot:
+    """A lockstep controller (the harness Pilot) that has said HEARTBEAT."""
+    pilot = Pilot(address, sysid=sysid, key=key)
+    pilot.hello()
+    return pilot
 
 
 @pytest.mark.parametrize("key", [None, KEY], ids=["unsigned", "signed"])
@@ -408,13 +392,14 @@ def test_a_second_sender_cannot_take_over_the_control_port(key):
     result = {}
     thread = threading.Thread(target=lambda: result.update(r=vehicle.run(0.2)), daemon=True)
     thread.start()
-    pilot = Controller(vehicle.listen_address, key=key)
+    pilot = controller(vehicle.listen_address, key=key)
+    hold = lambda o, e: [hover] * 4   # noqa: E731
     pilot_address = pilot.link.local_address
     intruder = None
     try:
-        last = pilot.fly(20, hover)
+        last = pilot.fly(20, hold)[-1][0].time_usec
         # The intruder even holds the key (an insider on another host), same system id.
-        intruder = Controller(vehicle.listen_address, key=key, sysid=2)
+        intruder = controller(vehicle.listen_address, key=key, sysid=2)
         for k in range(1, 30):         # full throttle for every upcoming tick, and an attack
             intruder.link.send(controls(last + 1000 * k, 1.0))
         intruder.link.send(inject_failure())
@@ -422,7 +407,7 @@ def test_a_second_sender_cannot_take_over_the_control_port(key):
         # From the pilot's own address, another system id (a second system behind a router).
         for msg in (controls(last + 1000, 1.0), inject_failure()):
             pilot.link.send_raw(packed(msg, sysid=9, key=key))
-        pilot.fly(180, hover)
+        pilot.fly(180, hold)
         thread.join(5.0)
         assert not thread.is_alive()
         assert intruder.link.recv(0.1) == []            # never answered

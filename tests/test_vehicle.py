@@ -9,26 +9,23 @@ from __future__ import annotations
 import collections
 import json
 import math
-import os
-import re
 import signal
 import socket
 import subprocess
-import sys
 import threading
 import time
-from collections.abc import Callable, Sequence
-from pathlib import Path
+from collections.abc import Callable
 
 import pytest
 
+from harness.pilot import Pilot
+from harness.ports import LOOPBACK
+from harness.processes import CLI, popen_sim
 from sitl.vehicle import ExitStatus, Vehicle, VehicleResult
 from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.link.transport import Address, Link
 from tfl_mav.scenario import Scenario, load_scenario
 
-LOOPBACK = ("127.0.0.1", 0)
-REPO = Path(__file__).resolve().parents[1]
 RPM_PER_RADPS = 60.0 / (2.0 * math.pi)
 # Float32 on the wire: relative resolution 6e-8. Over 1 s the float32 rounding of the
 # hover command (≤ 6e-8·g of acceleration) moves the vehicle < 1e-6 m; 1e-5 m is generous.
@@ -72,88 +69,6 @@ class Flight:
         result = self.finish()
         self.vehicle.close()
         return result
-
-
-class Pilot:
-    """The controller side: HEARTBEAT, then one HIL_ACTUATOR_CONTROLS per state."""
-
-    def __init__(self, address: Address, *, sysid: int = 1, compid: int = 191,
-                 bind: Address | None = None) -> None:
-        self.link = Link.connect(address, src_system=sysid, src_component=compid, bind=bind)
-        self.queue: collections.deque = collections.deque()
-        self.statustexts: list[str] = []
-        self.acks: list = []
-        self.heartbeats: list = []
-        self._chunks: dict[int, list[str]] = {}
-
-    def hello(self) -> None:
-        self.link.send(mav.MAVLink_heartbeat_message(
-            mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
-
-    def _pump(self, timeout_s: float) -> None:
-        for m in self.link.recv(timeout_s):
-            kind = m.get_type()
-            if kind == "STATUSTEXT":
-                self._statustext(m)
-            elif kind == "COMMAND_ACK":
-                self.acks.append(m)
-            elif kind == "HEARTBEAT":
-                self.heartbeats.append(m)
-            else:
-                self.queue.append(m)
-
-    def _statustext(self, m) -> None:
-        """Reassemble chunked STATUSTEXT (id ≠ 0; a chunk under 50 characters ends it)."""
-        if m.id == 0:
-            self.statustexts.append(m.text)
-            return
-        self._chunks.setdefault(m.id, []).append(m.text)
-        if len(m.text) < 50:
-            self.statustexts.append("".join(self._chunks.pop(m.id)))
-
-    def state(self, timeout_s: float = 3.0):
-        """The next (ODOMETRY, ESC_TELEMETRY_1_TO_4) pair."""
-        deadline = time.monotonic() + timeout_s
-        while True:
-            while len(self.queue) >= 2:
-                odom = self.queue.popleft()
-                if odom.get_type() != "ODOMETRY":
-                    continue
-                esc = self.queue.popleft()
-                assert esc.get_type() == "ESC_TELEMETRY_1_TO_4"
-                return odom, esc
-            remaining = deadline - time.monotonic()
-            assert remaining > 0, "no state from the vehicle"
-            self._pump(remaining)
-
-    def reply(self, odom, values: Sequence[float], mode: int = 128,
-              time_usec: int | None = None) -> None:
-        t = odom.time_usec if time_usec is None else time_usec
-        self.link.send(mav.MAVLink_hil_actuator_controls_message(
-            t, [*values] + [0.0] * (16 - len(values)), mode, 1))
-
-    def fly(self, n_ticks: int, command: Callable[[object, object], Sequence[float]],
-            timeout_s: float = 3.0) -> list:
-        """Answer ``n_ticks`` states with ``command(odom, esc)``; return the states."""
-        out = []
-        for _ in range(n_ticks):
-            odom, esc = self.state(timeout_s)
-            self.reply(odom, command(odom, esc))
-            out.append((odom, esc))
-        return out
-
-    def wait_ack(self, command: int, timeout_s: float = 3.0):
-        deadline = time.monotonic() + timeout_s
-        while True:
-            for ack in self.acks:
-                if ack.command == command:
-                    self.acks.remove(ack)
-                    return ack
-            assert time.monotonic() < deadline, f"no COMMAND_ACK for {command}"
-            self._pump(0.05)
-
-    def close(self) -> None:
-        self.link.close()
 
 
 def inject(link: Link, rotor: float, failure_type: float = 4, unit: float = 101,
@@ -414,7 +329,7 @@ def test_duration_ends_the_run_with_completed(flight_factory):
     pilot.fly(50, lambda o, e: [u] * 4)
     result = flight.finish()
     assert (result.status, result.ticks, result.sim_time_s) == (ExitStatus.COMPLETED, 50, 0.05)
-    pilot._pump(0.2)
+    pilot.pump(0.2)
     assert pilot.heartbeats[-1].system_status == mav.MAV_STATE_POWEROFF
 
 
@@ -428,7 +343,7 @@ def test_crash_ends_the_run_with_the_reason(flight_factory):
     assert result.status is ExitStatus.CRASHED
     assert "hit the ground" in result.reason
     assert 140 <= result.ticks <= 150
-    pilot._pump(0.1)
+    pilot.pump(0.1)
     assert any(s.startswith("crashed: hit the ground") for s in pilot.statustexts)
 
 
@@ -497,7 +412,7 @@ def test_bad_datagrams_and_bad_controls_are_survived_counted_and_never_applied(
             link.wrong_sysid, link.foreign) == (1, 1, 1, 1, 1, 1, 1)
     st = vehicle.stats
     assert (st.rejected_controls, st.stale_controls) == (4, 1)
-    pilot._pump(0.05)
+    pilot.pump(0.05)
     assert any("controls[0]: not finite (nan)" in s for s in pilot.statustexts)
     assert flight.thread.is_alive()
 
@@ -540,7 +455,7 @@ def test_realtime_holds_the_last_command_and_cuts_the_motors_on_link_loss(flight
     deadline = time.monotonic() + 2.0
     while pilot.state()[1].rpm != pytest.approx([half] * 4, abs=RPM_TOL):
         assert time.monotonic() < deadline, "motors not restored"
-    pilot._pump(0.05)
+    pilot.pump(0.05)
     assert any("commands resumed" in s for s in pilot.statustexts)
 
 
@@ -553,7 +468,7 @@ def test_pinned_peer_gets_heartbeats_before_the_flight_and_nobody_else_can_start
     pilot = Pilot(flight.vehicle.listen_address, bind=address)
     try:
         intruder.hello()
-        pilot._pump(1.0)
+        pilot.pump(1.0)
         assert pilot.heartbeats and pilot.heartbeats[0].system_status == mav.MAV_STATE_STANDBY
         assert not pilot.queue                         # no state: the flight has not started
         assert flight.vehicle.stats.control_link.foreign == 1
@@ -578,14 +493,7 @@ def test_stop_before_the_controller_connects():
 
 # ---------------------------------------------------------------------------- CLI
 def _start_cli(*args: str) -> tuple[subprocess.Popen, Address]:
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen([sys.executable, "-m", "tools.cli", "sim", "--listen",
-                             "127.0.0.1:0", *args], cwd=REPO, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
-    line = proc.stdout.readline()
-    match = re.search(r"listening on ([\d.]+):(\d+)", line)
-    assert match, line + proc.stderr.read()
-    return proc, (match.group(1), int(match.group(2)))
+    return popen_sim(args)
 
 
 def test_cli_flies_and_exits_cleanly_on_sigterm(tmp_path):
@@ -648,9 +556,8 @@ def test_cli_exit_codes_for_interrupt_crash_and_port_in_use():
     busy.bind(LOOPBACK)
     try:
         port = busy.getsockname()[1]
-        done = subprocess.run([sys.executable, "-m", "tools.cli", "sim", "--listen",
-                               f"127.0.0.1:{port}"], cwd=REPO, capture_output=True,
-                              text=True, timeout=20)
+        done = subprocess.run([*CLI, "sim", "--listen", f"127.0.0.1:{port}"],
+                              capture_output=True, text=True, timeout=20)
     finally:
         busy.close()
     assert done.returncode == 3

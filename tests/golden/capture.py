@@ -11,14 +11,12 @@ must leave these files untouched (tests/test_golden.py compares).
 from __future__ import annotations
 
 import json
-import sys
 import tempfile
 from pathlib import Path
 
-HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
+from harness.golden import LOCKSTEP_CASES, OFFLINE_CASES, fly_lockstep, fly_offline_case
 
-from golden_cases import LOCKSTEP_CASES, OFFLINE_CASES, fly_lockstep, fly_offline_case  # noqa: E402
+HERE = Path(__file__).resolve().parent
 
 
 def main() -> None:

@@ -48,6 +48,7 @@ from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
+from harness.pilot import NoStateError, Pilot
 from tfl_mav.link.dialect import mav, new_mavlink
 
 __all__ = [
@@ -82,6 +83,7 @@ _NASTY_FLOATS = (math.nan, -math.nan, math.inf, -math.inf, 1e38, -1e38, 3.4e38, 
 _BAD_CONTROLS = (math.nan, math.inf, -math.inf, -0.5, 1.5, 1e30, -1e30, 1.0 + 2e-4,
                  -2e-4, 3.4e38)
 
+STATE_TIMEOUT_S = 5.0       # an endpoint silent this long has stalled
 FUZZER_SYSID = 42           # the fuzzer as a controller (vehicle side)
 FUZZER_COMPID = 191
 VEHICLE_SYSID = 1           # the fuzzer as a vehicle (daemon side)
@@ -716,12 +718,9 @@ def _schedule(categories: tuple[str, ...], n_inputs: int, rng: random.Random,
 
 
 class _Endpoint:
-    """The fuzzer's socket and the endpoint's thread."""
+    """The endpoint's thread, and what escaped from it."""
 
     def __init__(self) -> None:
-        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-        self.sock.bind(("127.0.0.1", 0))
-        self.sock.settimeout(5.0)
         self.crashes: list[str] = []
         self.thread: threading.Thread | None = None
 
@@ -753,10 +752,10 @@ class _Batch:
 class _Runner:
     """Send batches, wait for the endpoint's answer, compare its counters with the model."""
 
-    def __init__(self, endpoint: str, model: Any, ep: _Endpoint, address: Any,
+    def __init__(self, endpoint: str, model: Any, send: Callable[[bytes], Any],
                  counters: list[tuple[Any, tuple[str, ...]]],
                  wait: Callable[[], bool], categories: tuple[str, ...]) -> None:
-        self.endpoint, self.model, self.ep, self.address = endpoint, model, ep, address
+        self.endpoint, self.model, self.send = endpoint, model, send
         self.counters, self.wait = counters, wait
         self.reports = {c: CategoryReport() for c in categories}
         self.mismatches: list[str] = []
@@ -785,10 +784,9 @@ class _Runner:
             expected += e
         done_expect = model.expect(b.done)
         before = self._snapshot()
-        sock = self.ep.sock
         for data in send:
-            sock.sendto(data, self.address)
-        sock.sendto(b.done, self.address)
+            self.send(data)
+        self.send(b.done)
         answered = self.wait()
         after = self._snapshot()
         delta = Counter({k: after[k] - before[k] for k in after if after[k] != before[k]})
@@ -850,31 +848,30 @@ def fuzz_vehicle(n_inputs: int, seed: int, *, batch: int = 16,
 
     vehicle = Vehicle(sc, listen=("127.0.0.1", 0), on_truth=on_truth, on_frame=on_frame)
     ep.start(lambda: vehicle.run(math.inf))
-    sock = ep.sock
-    parser = new_mavlink(255, 0)
+    # The fuzzer is the vehicle's controller: the lockstep client, sending the hostile
+    # datagrams from its own (pinned) address and reading the states it gets back.
+    pilot = Pilot(vehicle.listen_address, sysid=FUZZER_SYSID, compid=FUZZER_COMPID)
     awaited = [-1]
 
     def next_state() -> bool:
-        """Receive until the vehicle's ODOMETRY for the tick after ``awaited``."""
+        """Receive until the vehicle's state for the tick after ``awaited``."""
         while True:
             try:
-                data = sock.recv(65535)
-            except (TimeoutError, OSError):
+                odom, _esc = pilot.state(STATE_TIMEOUT_S)
+            except (NoStateError, OSError):
                 return False
-            for msg in parser.parse_buffer(data) or ():
-                if msg.get_msgId() == mav.MAVLINK_MSG_ID_ODOMETRY and msg.time_usec > awaited[0]:
-                    awaited[0] = msg.time_usec
-                    return True
+            if odom.time_usec > awaited[0]:
+                awaited[0] = odom.time_usec
+                return True
 
     model = VehicleModel()
-    runner = _Runner("vehicle", model, ep, vehicle.listen_address,
+    runner = _Runner("vehicle", model, pilot.link.send_raw,
                      [(vehicle.stats.control_link, _LINK_FIELDS),
                       (vehicle.stats, (*VEHICLE_REJECTS, *VEHICLE_ACCEPTS))],
                      next_state, VEHICLE_CATEGORIES)
     t0 = time.perf_counter()
-    sock.sendto(gen.pack(mav.MAVLink_heartbeat_message(
-        mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)),
-        vehicle.listen_address)
+    pilot.link.send_raw(gen.pack(mav.MAVLink_heartbeat_message(
+        mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3)))
     completed = next_state()
     for category, size in _schedule(VEHICLE_CATEGORIES, n_inputs, rng, batch):
         if not completed or not ep.alive():
@@ -895,7 +892,7 @@ def fuzz_vehicle(n_inputs: int, seed: int, *, batch: int = 16,
         ep.crashes.append("vehicle thread did not stop within 5 s")
     ticks = vehicle.stats.ticks
     vehicle.close()
-    sock.close()
+    pilot.close()
     return EndpointReport("vehicle", seed, runner.reports, ep.crashes, nan_ticks[0], 0,
                           nonfinite_tx, runner.mismatches, ticks, elapsed,
                           completed and not ep.crashes)
@@ -917,6 +914,9 @@ def fuzz_daemon(n_inputs: int, seed: int, *, batch: int = 16,
     rng = random.Random(seed)
     gen = DaemonGen(random.Random(rng.randrange(2**32)), hover_rpm, position_ned)
     ep = _Endpoint()
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)   # the fuzzer, as the vehicle
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(STATE_TIMEOUT_S)
     bad_cmds = [0]
     nonfinite_tx: list[str] = []
 
@@ -932,10 +932,9 @@ def fuzz_daemon(n_inputs: int, seed: int, *, batch: int = 16,
                     and all(u == 0.0 for u in c[4:])):
                 bad_cmds[0] += 1
 
-    daemon = Daemon(sc, vehicle=ep.sock.getsockname(), on_frame=on_frame)
+    daemon = Daemon(sc, vehicle=sock.getsockname(), on_frame=on_frame)
     address = daemon.link.local_address
     ep.start(lambda: daemon.run(math.inf))
-    sock = ep.sock
     parser = new_mavlink(255, 0)
     tick = [1]
 
@@ -953,7 +952,7 @@ def fuzz_daemon(n_inputs: int, seed: int, *, batch: int = 16,
                     return True
 
     model = DaemonModel()
-    runner = _Runner("daemon", model, ep, address,
+    runner = _Runner("daemon", model, lambda data: sock.sendto(data, address),
                      [(daemon.link.stats, _LINK_FIELDS),
                       (daemon.stats, (*DAEMON_REJECTS, *DAEMON_ACCEPTS))],
                      await_reply, DAEMON_CATEGORIES)

@@ -1,4 +1,8 @@
-"""The golden flights: which they are and how one is reduced to comparable numbers."""
+"""The golden flights: which they are and how one is reduced to comparable numbers.
+
+Used by ``tests/test_golden.py`` (compare) and ``tests/golden/capture.py`` (recapture);
+the captured results live in ``tests/golden/*.json``.
+"""
 
 from __future__ import annotations
 

@@ -1,0 +1,83 @@
+"""Fixtures shared by the tests: free ports, simulator subprocesses, pilots, output dirs.
+
+Everything here is the real thing (loopback UDP, ``tfl-mav`` subprocesses); the fixtures
+only make sure each test gets its own ports and files and that nothing it started
+outlives it. The library behind them is :mod:`harness` (also used by bench/).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterator, Sequence
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from harness.pilot import Pilot
+from harness.ports import free_udp_port
+from harness.processes import Proc, start_sim
+from tfl_mav.link.transport import Address
+
+SimFactory = Callable[..., tuple[Proc, int]]
+PilotFactory = Callable[..., Pilot]
+
+
+@pytest.fixture
+def free_port() -> int:
+    """A loopback UDP port that was free a moment ago (for a fixed ``--bind``)."""
+    return free_udp_port()
+
+
+@pytest.fixture
+def out_dir(tmp_path: Path) -> Path:
+    """An empty directory for the test's output files (logs, reports)."""
+    out = tmp_path / "out"
+    out.mkdir()
+    return out
+
+
+@pytest.fixture
+def sim_factory() -> Iterator[SimFactory]:
+    """``start(args, scenario="paper") -> (proc, port)``: ``tfl-mav sim`` subprocesses on
+    free ports, each stopped (SIGTERM, then SIGKILL) when the test ends."""
+    started: list[Proc] = []
+
+    def start(args: Sequence[str] = (), scenario: str = "paper", **kw: Any
+              ) -> tuple[Proc, int]:
+        proc, port = start_sim(list(args), scenario, **kw)
+        started.append(proc)
+        return proc, port
+
+    yield start
+    for proc in started:
+        proc.stop()
+
+
+@pytest.fixture
+def sim(sim_factory: SimFactory) -> int:
+    """The port of a lockstep ``tfl-mav sim paper`` without an attack, waiting for its
+    controller, that runs until the test ends."""
+    _proc, port = sim_factory(["--set", "attack.rotor=0", "--duration", "0"])
+    return port
+
+
+@pytest.fixture
+def pilot_factory() -> Iterator[PilotFactory]:
+    """``make(address, **kw) -> Pilot`` (HEARTBEAT already sent); closed at the end."""
+    made: list[Pilot] = []
+
+    def make(address: Address, **kw: Any) -> Pilot:
+        pilot = Pilot(address, **kw)
+        made.append(pilot)
+        pilot.hello()
+        return pilot
+
+    yield make
+    for pilot in made:
+        pilot.close()
+
+
+@pytest.fixture
+def pilot(sim: int, pilot_factory: PilotFactory) -> Pilot:
+    """A pilot connected to the :func:`sim` vehicle (its flight has started)."""
+    return pilot_factory(("127.0.0.1", sim))
