@@ -46,8 +46,7 @@ def _err(message: str) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.spec == "report":
         return _report(args)
-    from harness.campaign import (CampaignDirError, ExecutorError, SpecError, load_spec,
-                                  run_campaign)
+    from harness.campaign import CampaignDirError, ExecutorError, SpecError, load_spec, run_campaign
 
     if args.dir is not None:
         _err(f"unexpected argument {args.dir!r} (the campaign directory is --out DIR)")
@@ -70,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
         summary = run_campaign(spec, Path(args.out), executor=args.executor,
                                workers=args.workers, ray_address=args.ray_address,
                                progress=not args.quiet)
-    except CampaignDirError as exc:
+    except (CampaignDirError, SpecError) as exc:
         _err(str(exc))
         return 2
     except (ExecutorError, OSError) as exc:

@@ -9,6 +9,7 @@ and envelope maps) is redrawn at the end.
 from __future__ import annotations
 
 import json
+import math
 import os
 import sys
 import time
@@ -16,10 +17,16 @@ from pathlib import Path
 from typing import Any, TextIO
 
 from harness.campaign.executors import run_local, run_ray
-from harness.campaign.results import (ResultsWriter, header_for, read_results, summarize_rows,
-                                      write_json)
+from harness.campaign.results import (
+    ResultsWriter,
+    header_for,
+    read_results,
+    summarize_rows,
+    write_json,
+)
 from harness.campaign.run import Run
 from harness.campaign.spec import CampaignSpec, SpecError
+from tfl_mav.scenario import ScenarioError
 
 __all__ = ["CampaignDirError", "Progress", "run_campaign"]
 
@@ -65,10 +72,10 @@ class Progress:
 
 
 def _hms(s: float) -> str:
-    if s != s:
+    if not math.isfinite(s):
         return "?"
-    s = int(round(s))
-    return f"{s // 3600}:{s // 60 % 60:02d}:{s % 60:02d}"
+    n = round(s)
+    return f"{n // 3600}:{n // 60 % 60:02d}:{n % 60:02d}"
 
 
 def run_campaign(spec: CampaignSpec, out: Path, *, executor: str = "local",
@@ -89,7 +96,10 @@ def run_campaign(spec: CampaignSpec, out: Path, *, executor: str = "local",
     write_json(meta_path, meta)
     if spec.text:
         (out / "spec.toml").write_text(spec.text, encoding="utf-8")
-    runs = spec.runs(out)
+    try:
+        runs = spec.runs(out)
+    except (ScenarioError, ValueError) as exc:   # e.g. the base file is gone since loading
+        raise SpecError(str(exc)) from None
     header = header_for(spec.columns)
     try:
         writer = ResultsWriter(out / "results.csv", header)

@@ -79,7 +79,7 @@ def run_ray(runs: Sequence[Run], workers: int | None, on_row: OnRow,
                     t0 = time.monotonic()
                     try:
                         row = ray.get(ref)
-                    except Exception as exc:  # noqa: BLE001 - a lost task is a failed row
+                    except Exception as exc:
                         text = str(exc).strip().splitlines()
                         row = failed_row(f"Ray task failed: {type(exc).__name__}: "
                                          f"{text[0] if text else ''}",

@@ -69,23 +69,21 @@ def execute(run: Run) -> dict[str, Any]:
     """Fly ``run`` in this process and return its measured columns."""
     t0 = time.perf_counter()
     sc = apply_overrides(load_scenario(run.base), list(run.settings))
-    if run.mode == "offline":
-        metrics = _fly_offline(sc, run.attack_info)
-    else:
-        metrics = _fly_mavlink(sc, run)
+    fly = _fly_offline if run.mode == "offline" else _fly_mavlink
+    metrics = fly(sc, run)
     ok, reason = run_outcome(metrics, sc, max_distance_m=run.success_max_distance_m)
     row = {k: metrics.get(k) for k in RESULT_COLUMNS}
     row.update(success=ok, reason=reason, wall_time_s=round(time.perf_counter() - t0, 3))
     return row
 
 
-def _fly_offline(sc: Scenario, attack_info: str) -> dict[str, Any]:
+def _fly_offline(sc: Scenario, run: Run) -> dict[str, Any]:
     from harness.offline import detections, fly_offline
     from tfl_mav.flightlog.flight import summarize
 
-    log = fly_offline(sc, attack_info=attack_info)
+    log = fly_offline(sc, attack_info=run.attack_info)
     metrics = summarize(log)
-    if attack_info == "detector":
+    if run.attack_info == "detector":
         metrics.update(detection_metrics(sc, detections(log)))
     return metrics
 
@@ -130,7 +128,7 @@ def _child_main(run: Run, conn: Connection) -> None:
     t0 = time.perf_counter()
     try:
         row = execute(run)
-    except BaseException as exc:  # noqa: BLE001 - any failure is a row, never a dead campaign
+    except BaseException as exc:
         text = str(exc).strip().splitlines()
         row = failed_row(f"{type(exc).__name__}: {text[0] if text else 'no message'}",
                          round(time.perf_counter() - t0, 3))

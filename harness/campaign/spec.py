@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from tfl_mav.build import build_controller
 from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
 
 __all__ = ["SUCCESS_MAX_DISTANCE_M", "CampaignSpec", "Run", "SpecError", "builtin_specs",
@@ -118,6 +119,7 @@ class CampaignSpec:
                     point = {**vset, **dict(zip(grid_keys, gp, strict=True)), **sample}
                     settings = common + [f"{k}={toml_value(v)}" for k, v in point.items()]
                     sc = apply_overrides(base, settings)
+                    build_controller(sc)     # path and law errors now, not mid-campaign
                     values = {c: scenario_value(sc, c) for c in cols if c != "variant"}
                     if self.variants:
                         values = {"variant": variant["name"], **values}
@@ -338,7 +340,9 @@ def _spec_from_dict(data: dict[str, Any], source: str, text: str) -> CampaignSpe
         _need(isinstance(pair, list) and len(pair) == 2 and all(k in spec.columns for k in pair),
               "report.maps", f"each map is [KEY, KEY] of swept keys ({', '.join(spec.columns)})"
                              f", got {pair!r}")
-    return dataclasses.replace(spec, maps=[tuple(p) for p in maps])
+    spec = dataclasses.replace(spec, maps=[tuple(p) for p in maps])
+    spec.runs()          # every combination must build (e.g. path keys of its path kind)
+    return spec
 
 
 def _check(sc: Scenario, values: dict[str, Any], where: str) -> Scenario:
