@@ -47,7 +47,7 @@ def run_outcome(metrics: dict[str, Any], scenario: Scenario, *,
         return False, f"crashed: {metrics.get('crash_reason') or 'no reason logged'}"
     dist = metrics.get("max_path_distance_last_10s_m")
     if dist is None or not math.isfinite(dist):
-        return False, "no finite path distance was logged"
+        return False, "the path distance was not finite over the last 10 s (path lost)"
     if dist > max_distance_m:
         return False, (f"off the path: {dist:.3g} m max distance over the last 10 s "
                        f"> {max_distance_m:g} m")
