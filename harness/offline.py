@@ -10,6 +10,7 @@ paper's assumption: told which rotor once the attack starts, thrust from its rpm
 from __future__ import annotations
 
 import math
+import re
 import time
 from collections.abc import Callable
 
@@ -20,7 +21,20 @@ from tfl_mav.flightlog.flight import FlightLog
 from tfl_mav.geometry import yaw_from_quaternion
 from tfl_mav.scenario import Scenario
 
-__all__ = ["fly_offline"]
+__all__ = ["DETECTION_EVENT", "detections", "fly_offline"]
+
+# The event a detector alarm leaves in ``FlightLog.events`` (rotor 1-4, sim time in s).
+DETECTION_EVENT = "attack detected on rotor {rotor}"
+_DETECTION_RE = re.compile(r"^attack detected on rotor (\d)$")
+
+
+def detections(log: FlightLog) -> list[tuple[float, int]]:
+    """The detector's alarms of an offline flight as (sim time s, rotor 1-4), in order."""
+    out = []
+    for t_s, text in log.events:
+        if match := _DETECTION_RE.match(text):
+            out.append((t_s, int(match.group(1))))
+    return out
 
 
 def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
@@ -46,6 +60,9 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
         if attack_info == "oracle":
             fc.tell_attack(att.rotor)
         res = fc.step(sim.time_s, sim.measured, sim.measured_rpm(), applied)
+        if res.new_detection:
+            log.events.append((fc.detection_time_s,
+                               DETECTION_EVENT.format(rotor=fc.detected_rotor)))
         out = res.law
         sim.set_command(res.thrust_n)
         applied = list(sim.rotor_commands_n)

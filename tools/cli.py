@@ -23,6 +23,7 @@ SUBCOMMANDS = (
     "tools.replay",
     "tools.scenarios_cmd",
     "tools.relay",
+    "tools.campaign",
 )
 
 

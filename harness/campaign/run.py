@@ -1,0 +1,198 @@
+"""One campaign run: fly it, judge it, and keep a hung or crashing run from hurting the rest.
+
+:func:`execute` is the flight itself — ``offline``: exactly
+:func:`harness.offline.fly_offline` + :func:`tfl_mav.flightlog.flight.summarize`, as
+``tfl-mav offline --set ...``; ``mavlink``: :func:`harness.demo.run_demo`, as
+``tfl-mav demo --set ...`` — and returns the row of the results table. :class:`Child` runs
+it in a forked process of its own session, so a timeout kills the run *and* whatever it
+started (the sim and daemon of a MAVLink run), and a segfault is a failed row. Both
+executors use it, so the table does not depend on the executor.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import multiprocessing as mp
+import os
+import shutil
+import signal
+import time
+from multiprocessing.connection import Connection
+from pathlib import Path
+from typing import Any
+
+from harness.campaign.spec import SUCCESS_MAX_DISTANCE_M, Run
+from tfl_mav.scenario import Scenario, apply_overrides, load_scenario
+
+__all__ = ["RESULT_COLUMNS", "Child", "execute", "failed_row", "run_isolated", "run_outcome"]
+
+# The measured columns of results.csv, after run_id, the swept keys and seed.
+RESULT_COLUMNS = ("success", "crashed", "max_path_distance_last_10s_m",
+                  "final_path_distance_m", "rms_path_distance_last_10s_m", "detected_rotor",
+                  "detection_latency_s", "false_alarms", "thrust_min_n", "thrust_max_n",
+                  "saturated_fraction", "sim_time_s", "wall_time_s", "reason")
+
+
+def run_outcome(metrics: dict[str, Any], scenario: Scenario, *,
+                max_distance_m: float = SUCCESS_MAX_DISTANCE_M) -> tuple[bool, str]:
+    """Did the run succeed, and if not, why (in words)?
+
+    The campaign's definition until a shared one of "converged" lands (issues #14/#15):
+    not crashed, the largest distance to the path over the last 10 s ≤ ``max_distance_m``,
+    and — when the attack was detected from rpm (``detected_rotor`` present) — the detected
+    rotor is the attacked one (0 when there is no attack) with no false alarm.
+    """
+    if metrics.get("crashed"):
+        return False, f"crashed: {metrics.get('crash_reason') or 'no reason logged'}"
+    dist = metrics.get("max_path_distance_last_10s_m")
+    if dist is None or not math.isfinite(dist):
+        return False, "the path distance was not finite over the last 10 s (path lost)"
+    if dist > max_distance_m:
+        return False, (f"off the path: {dist:.3g} m max distance over the last 10 s "
+                       f"> {max_distance_m:g} m")
+    if metrics.get("detected_rotor") is not None:
+        attacked = scenario.attack.rotor
+        detected = int(metrics["detected_rotor"])
+        if detected != attacked:
+            if not detected:
+                return False, f"the attack on rotor {attacked} was not detected"
+            if not attacked:
+                return False, f"false alarm: rotor {detected} detected, no attack"
+            return False, f"wrong rotor: detected {detected}, attacked {attacked}"
+        if metrics.get("false_alarms"):
+            return False, f"{metrics['false_alarms']} false alarm(s) before the detection"
+    return True, ""
+
+
+def execute(run: Run) -> dict[str, Any]:
+    """Fly ``run`` in this process and return its measured columns."""
+    t0 = time.perf_counter()
+    sc = apply_overrides(load_scenario(run.base), list(run.settings))
+    fly = _fly_offline if run.mode == "offline" else _fly_mavlink
+    metrics = fly(sc, run)
+    ok, reason = run_outcome(metrics, sc, max_distance_m=run.success_max_distance_m)
+    row = {k: metrics.get(k) for k in RESULT_COLUMNS}
+    row.update(success=ok, reason=reason, wall_time_s=round(time.perf_counter() - t0, 3))
+    return row
+
+
+def _fly_offline(sc: Scenario, run: Run) -> dict[str, Any]:
+    from harness.offline import detections, fly_offline
+    from tfl_mav.flightlog.flight import summarize
+
+    log = fly_offline(sc, attack_info=run.attack_info)
+    metrics = summarize(log)
+    if run.attack_info == "detector":
+        metrics.update(detection_metrics(sc, detections(log)))
+    return metrics
+
+
+def detection_metrics(sc: Scenario, alarms: list[tuple[float, int]]) -> dict[str, Any]:
+    """``tfl-mav demo``'s detection columns from the detector's alarms (time s, rotor).
+
+    As the daemon reports it, the detection is the last alarm; an alarm on a rotor that is
+    not attacked, or before the attack started, is a false alarm.
+    """
+    attacked, start = sc.attack.rotor, sc.attack.start_s
+    false = sum(1 for t, r in alarms if not attacked or r != attacked or t < start - 1e-9)
+    if not alarms:
+        return {"detected_rotor": 0, "detection_time_s": None, "detection_latency_s": None,
+                "false_alarms": false}
+    t_s, rotor = alarms[-1]
+    latency = t_s - start if attacked and rotor == attacked else None
+    return {"detected_rotor": rotor, "detection_time_s": t_s, "detection_latency_s": latency,
+            "false_alarms": false}
+
+
+def _fly_mavlink(sc: Scenario, run: Run) -> dict[str, Any]:
+    from harness.demo import run_demo
+
+    out = Path(run.out_dir)
+    try:
+        return run_demo(run.base, out, settings=list(run.settings), plots=False, scenario=sc)
+    finally:
+        if not run.keep_logs:
+            shutil.rmtree(out, ignore_errors=True)
+
+
+def failed_row(reason: str, wall_time_s: float | None = None) -> dict[str, Any]:
+    """The row of a run that produced no metrics (it raised, hung or its process died)."""
+    row: dict[str, Any] = dict.fromkeys(RESULT_COLUMNS)
+    row.update(success=False, reason=reason, wall_time_s=wall_time_s)
+    return row
+
+
+def _child_main(run: Run, conn: Connection) -> None:
+    os.setsid()          # its own process group: a timeout kills the run and its children
+    t0 = time.perf_counter()
+    try:
+        row = execute(run)
+    except BaseException as exc:
+        text = str(exc).strip().splitlines()
+        row = failed_row(f"{type(exc).__name__}: {text[0] if text else 'no message'}",
+                         round(time.perf_counter() - t0, 3))
+    conn.send(row)
+    conn.close()
+
+
+class Child:
+    """One run in a forked process; :meth:`result` is None until it is over."""
+
+    def __init__(self, run: Run) -> None:
+        ctx = mp.get_context("fork")
+        self.run = run
+        self.conn, writer = ctx.Pipe(duplex=False)
+        self.proc = ctx.Process(target=_child_main, args=(run, writer), daemon=True,
+                                name=f"campaign-run-{run.run_id}")
+        self.t0 = time.monotonic()
+        self.proc.start()
+        writer.close()
+
+    @property
+    def overdue(self) -> bool:
+        return time.monotonic() - self.t0 > self.run.timeout_s
+
+    def result(self) -> dict[str, Any] | None:
+        """The row once the child sent it or died, a timeout row once it is overdue."""
+        if self.conn.poll():
+            try:
+                row = self.conn.recv()
+            except EOFError:
+                self.proc.join(timeout=5)
+                row = failed_row(f"the run's process died (exit code {self.proc.exitcode})",
+                                 round(time.monotonic() - self.t0, 3))
+            self.close()
+            return row
+        if self.overdue:
+            self.kill()
+            return failed_row(f"timed out after {self.run.timeout_s:g} s",
+                              round(self.run.timeout_s, 3))
+        return None
+
+    def kill(self) -> None:
+        """Kill the run's whole process group (a MAVLink run's sim and daemon too)."""
+        with contextlib.suppress(ProcessLookupError, PermissionError):
+            os.killpg(self.proc.pid, signal.SIGKILL)
+        with contextlib.suppress(ProcessLookupError):
+            self.proc.kill()
+        self.close()
+
+    def close(self) -> None:
+        self.proc.join(timeout=5)
+        self.conn.close()
+
+
+def run_isolated(run: Run) -> dict[str, Any]:
+    """Fly ``run`` in a child process with its timeout; always returns a row."""
+    child = Child(run)
+    try:
+        while True:
+            left = run.timeout_s - (time.monotonic() - child.t0)
+            child.conn.poll(max(0.0, min(left, 1.0)))
+            row = child.result()
+            if row is not None:
+                return row
+    except BaseException:
+        child.kill()
+        raise
