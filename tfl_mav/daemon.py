@@ -323,14 +323,14 @@ TICK_SCHEMA = schemas.record_schema(
         "path_distance_m": {"type": "number", "description": "distance to the path (m)"},
         "saturated": {"type": "boolean", "description": "a rotor command hit 0 or f_max"},
         "rotor_thrust_cmd_n": schemas.vec(4, "rotor thrust commands 1-4 (N)"),
-        "xi": {"type": "array", "items": schemas.vec(None, "chain"),
-               "description": "transversal chains ξ1, ξ2"},
         "eta": schemas.vec(None, "tangential chain η"),
         "mass_estimate_kg": {"type": "number", "description": "estimated mass (kg)"},
         "fine_gains": {"type": "boolean", "description": "fine gains engaged"},
         "reason": {"type": "string", "description": "why the law fell back, if it did"},
         "cusum": schemas.vec(None, "detector CUSUM statistic per rotor")}, [])
-"""JSON Schema of ``/controller/state`` as the daemon records it."""
+"""JSON Schema of ``/controller/state`` as the daemon records it (``xi``, the transversal
+chains ξ1, ξ2 as two lists, is left untyped: Foxglove's JSON-schema reader takes no array of
+arrays)."""
 
 
 def tick_state(res: TickResult) -> tuple[Any, ...]:
