@@ -80,7 +80,10 @@ def _start_pair(tmp_path, duration: str = "30"):
 def test_daemon_killed_mid_run_leaves_a_readable_log(tmp_path):
     sim, fly = _start_pair(tmp_path)
     try:
-        time.sleep(4.0)
+        deadline = time.monotonic() + 60      # started (its recorder child is up), then fly
+        while "controlling" not in fly.stderr.readline() and time.monotonic() < deadline:
+            pass
+        time.sleep(3.0)
         fly.send_signal(signal.SIGKILL)
         fly.wait(timeout=10)
     finally:
