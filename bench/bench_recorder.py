@@ -15,13 +15,15 @@ Measures, on this machine, in one run:
 
 ``--before FILE``: a JSON written by an earlier run (e.g. on the commit before the change)
 printed side by side. Usage: ``python bench/bench_recorder.py [--seconds S] [--repeats N]
-[--json FILE] [--before FILE]`` from the repository root.
+[--json FILE] [--before FILE] [--skip control|files --merge FILE]`` from the repository
+root. The machine is shared: compare ratios within one run, and read the load it prints.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import platform
 import re
@@ -174,10 +176,10 @@ class _LiveClient:
         deadline = time.monotonic() + 30
         while not self._stop.is_set() and time.monotonic() < deadline:
             try:
-                ws = connect(f"ws://127.0.0.1:{self.port}",
-                             subprotocols=["foxglove.websocket.v1"], open_timeout=1)
+                ws = connect(f"ws://127.0.0.1:{self.port}", open_timeout=1,
+                             subprotocols=["foxglove.websocket.v1", "foxglove.sdk.v1"])
                 break
-            except OSError:
+            except Exception:           # not listening yet (or refused): try again
                 time.sleep(0.05)
         else:
             return
@@ -200,6 +202,55 @@ class _LiveClient:
                         ws.send(json.dumps({"op": "subscribe", "subscriptions": subs}))
                 else:
                     self.count += 1
+
+
+def bench_child_cost(ticks: int = 3000) -> dict[str, float]:
+    """The recording child's own work per tick (decode, encode, write; + live publishing
+    to one client subscribed to everything): the CPU the live server adds beside the loop."""
+    from tfl_mav.airframe import rotor_xy_m
+    from tfl_mav.flightlog.recorder import Recorder
+    from tfl_mav.link.dialect import mav, new_mavlink
+    from tfl_mav.scenario import load_scenario
+
+    v = load_scenario("paper").vehicle
+    packer = new_mavlink(1, 1)
+    frames = []
+    for k in range(ticks):
+        for msg in (mav.MAVLink_odometry_message(
+                k * 1000, 1, 12, 0.1, 0.2, -1.5, [1.0, 0.0, 0.0, 0.0], 0.1, 0.2, 0.3, 0.0, 0.0,
+                0.0, [math.nan] + [0.0] * 20, [math.nan] + [0.0] * 20, 0, 0, 100),
+                mav.MAVLink_esc_telemetry_1_to_4_message([30] * 4, [1600] * 4, [500] * 4,
+                                                         [10] * 4, [6000] * 4, [0] * 4)):
+            frames.append(bytes(msg.pack(packer)))
+    out: dict[str, float] = {}
+    with tempfile.TemporaryDirectory() as d:
+        for live in (False, True):
+            port = _free_port()
+            rec = Recorder(Path(d) / f"c{live}.mcap", rotor_xy_m=rotor_xy_m(v),
+                           thrust_max_n=v.thrust_max_n,
+                           live=("127.0.0.1", port) if live else None)
+            client = None
+            if live:
+                client = _LiveClient(port)
+                client.start()
+                rec.path([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+                time.sleep(1.0)           # connected and subscribed to what is advertised
+            t0 = time.process_time()
+            for k in range(ticks):
+                t = k * 1e-3
+                rec.on_frame("rx", frames[2 * k], True, time.time())
+                rec.on_frame("rx", frames[2 * k + 1], True, time.time())
+                rec.truth(t, [0.1, 0.2, 1.5], [0.0] * 3, [1.0, 0.0, 0.0, 0.0], [0.0] * 3,
+                          [2.7, 2.6, 2.8, 2.7], 2, 1.0, 1.0)
+            cpu = time.process_time() - t0
+            rec.close()
+            if client is not None:
+                client.stop()
+            out["child_cpu_us_per_tick_live" if live else "child_cpu_us_per_tick"] = \
+                cpu / ticks * 1e6
+    out["live_extra_cpu_fraction"] = (out["child_cpu_us_per_tick_live"]
+                                      / out["child_cpu_us_per_tick"] - 1.0)
+    return out
 
 
 def _free_port() -> int:
@@ -238,6 +289,9 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--json", metavar="FILE", help="also write the numbers as JSON")
     ap.add_argument("--before", metavar="FILE", help="earlier --json output to compare")
+    ap.add_argument("--skip", choices=["control", "files"], action="append", default=[],
+                    help="leave out a part (its numbers come from --merge)")
+    ap.add_argument("--merge", metavar="FILE", help="take the skipped parts from this JSON")
     args = ap.parse_args()
     import tools.demo as demo_cmd
 
@@ -245,8 +299,16 @@ def main() -> int:
     res: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),
                                        "load_1min": os.getloadavg()[0]},
                            "seconds": args.seconds, "repeats": args.repeats}
-    res["control_path"] = bench_control_path(args.seconds, args.repeats)
-    res["files"] = bench_files_and_live(args.seconds, args.repeats, live)
+    merged = json.loads(Path(args.merge).read_text()) if args.merge else {}
+    if merged:
+        res["seconds"], res["repeats"] = merged["seconds"], merged["repeats"]
+        args.seconds, args.repeats = merged["seconds"], merged["repeats"]
+    res["control_path"] = (merged.get("control_path", {}) if "control" in args.skip
+                           else bench_control_path(args.seconds, args.repeats))
+    res["files"] = (merged.get("files", {}) if "files" in args.skip
+                    else bench_files_and_live(args.seconds, args.repeats, live))
+    if live:
+        res["child"] = bench_child_cost()
     before = json.loads(Path(args.before).read_text()) if args.before else None
     rows = [("recorder hand-off on the fly control path, µs/tick",
              ("control_path", "hook_us_per_tick"), ".1f"),
@@ -259,7 +321,13 @@ def main() -> int:
             ("ctl.mcap MiB per flight-minute", ("files", "ctl_mcap_mib_per_min"), ".2f"),
             ("demo wall s (lockstep)", ("files", "demo_wall_s"), ".2f"),
             ("demo wall s with --foxglove + client", ("files", "demo_wall_s_live"), ".2f"),
-            ("live server slowdown of the loop", ("files", "live_slowdown"), "+.1%")]
+            ("live server slowdown of the loop", ("files", "live_slowdown"), "+.1%"),
+            ("recording child CPU µs/tick (sim side)", ("child", "child_cpu_us_per_tick"),
+             ".1f"),
+            ("... with the live server + 1 client", ("child", "child_cpu_us_per_tick_live"),
+             ".1f"),
+            ("live server's extra CPU in the child", ("child", "live_extra_cpu_fraction"),
+             "+.1%")]
 
     def get(d: dict[str, Any] | None, key: tuple[str, str]) -> str:
         return "" if d is None or key[1] not in d.get(key[0], {}) else d[key[0]][key[1]]

@@ -239,7 +239,7 @@ class Recorder(McapOutput):
               quaternion_wxyz: Sequence[float], body_rates_radps: Sequence[float],
               rotor_thrust_n: Sequence[float], attack_rotor: int, attack_applied_n: float,
               attack_requested_n: float) -> None:
-        """Simulator ground truth at sim time ``time_s`` (s), paper frame (ENU, z up):
+        """Simulator ground truth at sim time ``time_s`` (s), world frame ENU (z up):
         position (m), velocity (m/s), attitude quaternion body → world (w, x, y, z), body
         rates (rad/s), true rotor thrusts 1-4 (N), attacked rotor (1-4, 0 = none), applied
         and requested attack thrust (N). Also drives ``/tf``, ``/scene/vehicle`` and
@@ -293,7 +293,7 @@ class Recorder(McapOutput):
                         log_ns, pub_ns)
 
     def path(self, points_m: Any) -> None:
-        """The path as sampled points (N, 3) in m, paper frame: ``/scene/path`` now and with
+        """The path as sampled points (N, 3) in m, world frame ENU: ``/scene/path`` now and with
         every periodic flush after. More than 2000 points are thinned evenly. Raises
         ValueError naming ``points_m`` if the array is not (N ≥ 2, 3) and finite (a setup
         call, not a loop call)."""
