@@ -34,9 +34,11 @@ def _cli() -> list[str]:
 
 def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
              duration_s: float | None = None, plots: bool = True, progress: bool = False,
-             scenario: Any = None, key_file: str | None = None) -> dict[str, Any]:
+             scenario: Any = None, key_file: str | None = None,
+             foxglove: str | None = None) -> dict[str, Any]:
     """Fly ``name`` over MAVLink in two processes; returns the summary dict. ``key_file``:
-    sign the link (both processes get ``--key-file``)."""
+    sign the link (both processes get ``--key-file``); ``foxglove``: the simulator serves
+    the live view there (``--foxglove``)."""
     settings = list(settings or [])
     scenario = scenario or apply_overrides(load_scenario(name), settings)
     duration = duration_s if duration_s is not None else scenario.run.duration_s
@@ -50,7 +52,7 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
     t0 = time.perf_counter()
     sim = subprocess.Popen(
         [*_cli(), "sim", name, "--listen", "127.0.0.1:0", "--duration", str(duration),
-         "--mcap", str(run_mcap), *shared],
+         "--mcap", str(run_mcap), *shared, *(["--foxglove", foxglove] if foxglove else [])],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:
         port = _await_port(sim)

@@ -48,7 +48,8 @@ def flight_file(tmp_path_factory) -> Path:
     clock = _Clock()
     packer = new_mavlink(2, 1)
     s = np.linspace(0.0, 2.0 * math.pi, 721)
-    with Recorder(path, clock=clock) as rec:
+    with Recorder(path, clock=clock, rotor_xy_m=((0.25, 0.0), (0.0, -0.25), (-0.25, 0.0),
+                                                  (0.0, 0.25)), thrust_max_n=8.0) as rec:
         rec.path(np.c_[RADIUS_M * np.cos(s), RADIUS_M * np.sin(s), np.full_like(s, HEIGHT_M)])
         n = round(DURATION_S / DT_S)
         for k in range(n + 1):

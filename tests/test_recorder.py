@@ -28,6 +28,7 @@ from tools.cli import main as cli_main
 
 REPO = Path(__file__).resolve().parents[1]
 NAN = float("nan")
+ROTORS = ((0.25, 0.0), (0.0, -0.25), (-0.25, 0.0), (0.0, 0.25))   # + layout, 0.25 m arms
 TICKS = 150
 
 
@@ -53,7 +54,8 @@ def _fly_link_pair(tmp_path: Path) -> tuple[Path, Path, Link, Link, float, float
     t_start = time.time()
     with Link.listen(("127.0.0.1", 0), src_system=1, src_component=1) as veh, \
             Link.connect(veh.local_address, src_system=2, src_component=1) as ctl, \
-            Recorder(veh_file) as rec_v, Recorder(ctl_file) as rec_c, \
+            Recorder(veh_file, rotor_xy_m=ROTORS, thrust_max_n=8.0) as rec_v, \
+            Recorder(ctl_file) as rec_c, \
             socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as stranger:
         rec_v.attach(veh)
         rec_c.attach(ctl)
@@ -97,12 +99,30 @@ def flight(tmp_path_factory):
     return _fly_link_pair(tmp_path_factory.mktemp("flight"))
 
 
+def _decode(sc, ch, data: bytes) -> tuple[str, dict]:
+    """(schema text, message as a dict): JSON channels as they are; Foxglove's protobuf
+    channels decoded with the official classes (foxglove-schemas-protobuf), the schema as
+    ``protobuf:<name>``."""
+    if ch.message_encoding == "json":
+        return sc.data.decode(), json.loads(data)
+    from google.protobuf.json_format import MessageToDict
+
+    assert ch.message_encoding == "protobuf" and sc.encoding == "protobuf"
+    module = __import__(f"foxglove_schemas_protobuf.{sc.name.split('.')[1]}_pb2",
+                        fromlist=["x"])
+    cls = getattr(module, sc.name.split(".")[1])
+    return f"protobuf:{sc.name}", MessageToDict(cls.FromString(data),
+                                                preserving_proto_field_name=True,
+                                                use_integers_for_enums=True,
+                                                always_print_fields_with_no_presence=True)
+
+
 def _read_all(path: Path) -> list[tuple[str, str, dict, int, int]]:
-    """(topic, schema json, message, log_time, publish_time) in log-time order, via the
+    """(topic, schema, message, log_time, publish_time) in log-time order, via the
     mcap reader (which refuses unfinished files)."""
     with open(path, "rb") as f:
         reader = make_reader(f)
-        return [(ch.topic, sc.data.decode(), json.loads(m.data), m.log_time, m.publish_time)
+        return [(ch.topic, *_decode(sc, ch, m.data), m.log_time, m.publish_time)
                 for sc, ch, m in reader.iter_messages(log_time_order=False)]
 
 
@@ -165,13 +185,15 @@ def test_every_message_validates_against_its_channel_schema(flight, side):
     validators: dict[str, jsonschema.protocols.Validator] = {}
     topics = set()
     for topic, schema, m, _, _ in _read_all(path):
+        topics.add(topic)
+        if schema.startswith("protobuf:"):      # decoded by the official class: typed
+            continue
         v = validators.get(schema)
         if v is None:
             s = json.loads(schema)
             jsonschema.validators.validator_for(s).check_schema(s)
             v = validators[schema] = jsonschema.validators.validator_for(s)(s)
         v.validate(m)
-        topics.add(topic)
     expected = ({"/mavlink/raw", "/mavlink/1/1/ODOMETRY", "/mavlink/1/1/ESC_TELEMETRY_1_TO_4",
                  "/mavlink/2/1/HIL_ACTUATOR_CONTROLS", "/mavlink/1/1/STATUSTEXT", "/log",
                  "/sim/truth/state", "/sim/truth/attack", "/sim/truth/thrusts", "/tf",
@@ -207,12 +229,14 @@ def _foxglove_accepts(schema: dict, where: str = "") -> None:
 
 
 def test_every_schema_is_one_foxglove_can_read(flight):
+    from tfl_mav.daemon import TICK_SCHEMA
     from tfl_mav.flightlog import schemas
 
-    seen = {sc for path in flight[:2] for _, sc, *_ in _read_all(path)}
-    everything = [json.loads(sc) for sc in seen] + list(schemas.FOXGLOVE_SCHEMAS.values()) + [
+    seen = {sc for path in flight[:2] for _, sc, *_ in _read_all(path)
+            if not sc.startswith("protobuf:")}
+    everything = [json.loads(sc) for sc in seen] + [
         schemas.RAW_FRAME, schemas.TRUTH_STATE, schemas.TRUTH_ATTACK, schemas.TRUTH_THRUSTS,
-        schemas.PATH_DISTANCE, schemas.CONTROLLER_STATE] + [
+        schemas.PATH_DISTANCE, TICK_SCHEMA] + [
         schemas.mavlink_schema(i) for i in mav.mavlink_map]
     for sc in everything:
         _foxglove_accepts(sc, sc["title"])
@@ -239,6 +263,10 @@ def test_times_and_foxglove_content(flight):
     ent = scenes[-1]["entities"][0]
     assert ent["frame_id"] == "base_link" and len(ent["cubes"]) == 5
     assert ent["cubes"][2]["color"]["r"] == 1.0 and ent["cubes"][2]["color"]["g"] < 0.1
+    # attacked rotor 2 (on -y): red marker sphere over it; one thrust arrow per rotor
+    assert [(s["pose"]["position"]["x"], s["pose"]["position"]["y"]) for s in ent["spheres"]] \
+        == [(0.0, -0.25)]
+    assert len(ent["arrows"]) == 4
     tfs = [m for t, _, m, _, _ in msgs if t == "/tf"]
     assert tfs[-1]["translation"]["x"] == pytest.approx(0.1 * (TICKS - 1), abs=0.1 * 20 + 1e-9)
     # /tf and /scene/vehicle follow scene_hz (50 Hz sim time) over 0.149 s of sim: 8 each
@@ -255,12 +283,6 @@ def test_path_distance_channel_is_distance_to_the_polyline(flight):
         exact = float(np.min(np.hypot(xs - x, np.cos(xs) - 0.2)))
         # 50 samples: chord sag <= h^2/8 * max|cos''| = 0.102^2/8 = 1.3 mm
         assert d["distance_m"] == pytest.approx(exact, abs=2e-3)
-
-
-def schemas_bytes(name: str) -> bytes:
-    from tfl_mav.flightlog import schemas
-
-    return schemas.schema_bytes(getattr(schemas, name))
 
 
 CHILD = r"""
@@ -393,12 +415,33 @@ def test_controller_state_keeps_free_keys_and_leaves_out_none_and_nan(tmp_path):
                    "saturated": False, "rotor_thrust_cmd_n": [2.0, 0.0, 2.5, 3.0],
                    "cusum": [0.0, 1.5], "reason": "ok", "nested": {"b": 1}, "t_s": 1.25,
                    "_nonfinite": ["attack_estimate_n", "xi", "nested.a"]}
-    jsonschema.validate(msg, json.loads(schemas_bytes("CONTROLLER_STATE")))
+    from tfl_mav.daemon import TICK_SCHEMA
+
+    jsonschema.validate(msg, TICK_SCHEMA)
+
+
+def test_controller_record_is_named_by_the_callers_fields(tmp_path):
+    """The compact per-tick record (a tuple) is named by ``controller_fields`` in the
+    recorder, described by the caller's schema; a wrong length is counted, not raised."""
+    from tfl_mav.daemon import TICK_FIELDS, TICK_SCHEMA
+
+    path = tmp_path / "ctl.mcap"
+    record = ("attacked", 2, NAN, 0.25, False, [2.0, 0.0, 2.5, 3.0], ((0.1, 0.2), (0.0, 1.0)),
+              (1.0, 0.5), 1.1, True, "", (0.0, 1.5, 0.0, 0.0))
+    with Recorder(path, controller_fields=TICK_FIELDS, controller_schema=TICK_SCHEMA) as rec:
+        rec.controller(0.5, record)
+        rec.controller(0.6, record[:3])
+        assert rec.stats.bad_input == 1 and "expected 12 values" in rec.last_bad_input
+    ((_, schema, msg, _, _),) = [r for r in _read_all(path) if r[0] == "/controller/state"]
+    assert json.loads(schema)["title"] == "tfl_mav.ControllerState"
+    assert msg["detected_rotor"] == 2 and msg["xi"] == [[0.1, 0.2], [0.0, 1.0]]
+    assert msg["_nonfinite"] == ["attack_estimate_n"] and msg["t_s"] == 0.5
+    jsonschema.validate(msg, TICK_SCHEMA)
 
 
 def test_background_flush_makes_quiet_data_readable_while_open(tmp_path):
     path = tmp_path / "quiet.mcap"
-    with Recorder(path, flush_interval_s=0.2) as rec:
+    with Recorder(path, flush_interval_s=0.2, rotor_xy_m=ROTORS) as rec:
         for k in range(10):
             rec.truth(k * 1e-3, [0.0] * 3, [0.0] * 3, [1, 0, 0, 0], [0] * 3, [1] * 4, 0, 0.0,
                       0.0)

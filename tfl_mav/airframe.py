@@ -13,7 +13,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 from typing import Protocol
 
-__all__ = ["Airframe", "mix"]
+__all__ = ["Airframe", "mix", "rotor_xy_m"]
 
 
 class Airframe(Protocol):
@@ -26,3 +26,11 @@ def mix(p: Airframe, f: Sequence[float]) -> tuple[float, float, float, float]:
     f1, f2, f3, f4 = f
     ell, d = p.arm_m, p.drag_thrust_ratio_m
     return (f1 + f2 + f3 + f4, ell * (f4 - f2), ell * (f3 - f1), d * (f1 - f2 + f3 - f4))
+
+
+def rotor_xy_m(p: Airframe) -> tuple[tuple[float, float], ...]:
+    """Rotor positions (x forward, y left; m) in the body frame, rotors 1-4, where eq. (3)
+    puts them: τ_p = l (f4 − f2) and τ_q = l (f3 − f1) place rotor 1 on +b1, 2 on −b2,
+    3 on −b1, 4 on +b2 (what the flight log draws)."""
+    ell = p.arm_m
+    return ((ell, 0.0), (0.0, -ell), (-ell, 0.0), (0.0, ell))

@@ -44,6 +44,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 from tfl_mav.flight_computer import FlightComputer, TickResult
+from tfl_mav.flightlog import schemas
 from tfl_mav.frames import paper_from_odometry
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.signing import Signing
@@ -52,7 +53,7 @@ from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario
 from tfl_mav.state import State
 
-__all__ = ["Daemon", "DaemonResult", "DaemonStats", "tick_state"]
+__all__ = ["TICK_FIELDS", "TICK_SCHEMA", "Daemon", "DaemonResult", "DaemonStats", "tick_state"]
 
 _TELEMETRY_PERIOD_S = 0.02        # ≤ 50 Hz of sim time
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
@@ -104,13 +105,14 @@ class Daemon:
                  compid: int = mav.MAV_COMP_ID_ONBOARD_COMPUTER,
                  vehicle_sysid: int | None = None, key: bytes | None = None,
                  on_frame: FrameHook | None = None,
-                 on_tick: Callable[[float, dict[str, Any]], None] | None = None,
+                 on_tick: Callable[[float, tuple[Any, ...]], None] | None = None,
                  on_event: Callable[[str, str, float], None] | None = None) -> None:
         """Open the socket towards ``vehicle`` (raises LinkError).
 
         ``key``: 32-byte MAVLink 2 signing secret (the vehicle's), or None (unsigned).
-        ``on_tick(sim_time_s, state)`` sees the controller's internals every tick (the
-        recorder's ``/controller/state``); ``on_event(level, text, sim_time_s)`` every
+        ``on_tick(sim_time_s, record)`` sees the controller's internals every tick as a
+        compact tuple (:func:`tick_state`, fields :data:`TICK_FIELDS`; the recorder's
+        ``/controller/state``); ``on_event(level, text, sim_time_s)`` every
         event also sent as STATUSTEXT.
         """
         if not (math.isfinite(state_timeout_s) and state_timeout_s > 0):
@@ -307,16 +309,35 @@ class Daemon:
                                                       self._statustext_id, 0))
 
 
-def tick_state(res: TickResult) -> dict[str, Any]:
-    """The controller's internals of one tick, as the recorder's ``/controller/state``."""
+TICK_FIELDS = ("mode", "detected_rotor", "attack_estimate_n", "path_distance_m", "saturated",
+               "rotor_thrust_cmd_n", "xi", "eta", "mass_estimate_kg", "fine_gains", "reason",
+               "cusum")
+"""Names of the values of :func:`tick_state`, in order (the recorder's ``controller_fields``)."""
+
+TICK_SCHEMA = schemas.record_schema(
+    "tfl_mav.ControllerState", "The controller's internals of one tick at sim time t_s", {
+        "mode": {"type": "string", "description": "nominal, attacked, fallback or failsafe"},
+        "detected_rotor": {"type": "integer", "minimum": 0, "maximum": 4,
+                           "description": "rotor the detector isolated, 0 = none"},
+        "attack_estimate_n": {"type": "number", "description": "estimated attack thrust (N)"},
+        "path_distance_m": {"type": "number", "description": "distance to the path (m)"},
+        "saturated": {"type": "boolean", "description": "a rotor command hit 0 or f_max"},
+        "rotor_thrust_cmd_n": schemas.vec(4, "rotor thrust commands 1-4 (N)"),
+        "eta": schemas.vec(None, "tangential chain η"),
+        "mass_estimate_kg": {"type": "number", "description": "estimated mass (kg)"},
+        "fine_gains": {"type": "boolean", "description": "fine gains engaged"},
+        "reason": {"type": "string", "description": "why the law fell back, if it did"},
+        "cusum": schemas.vec(None, "detector CUSUM statistic per rotor")}, [])
+"""JSON Schema of ``/controller/state`` as the daemon records it (``xi``, the transversal
+chains ξ1, ξ2 as two lists, is left untyped: Foxglove's JSON-schema reader takes no array of
+arrays)."""
+
+
+def tick_state(res: TickResult) -> tuple[Any, ...]:
+    """The controller's internals of one tick, compact: plain values in
+    :data:`TICK_FIELDS` order (the recording child names them and encodes JSON)."""
     out, det = res.law, res.detection
     est = det.estimate_n if det is not None else res.attack_estimate_n
-    return {
-        "mode": str(out.mode), "detected_rotor": res.attack_rotor,
-        "attack_estimate_n": est if math.isfinite(est) else None,
-        "path_distance_m": out.path_distance_m, "saturated": any(out.saturated),
-        "rotor_thrust_cmd_n": res.thrust_n, "xi": [list(out.xi[0]), list(out.xi[1])],
-        "eta": list(out.eta), "mass_estimate_kg": out.mass_estimate_kg,
-        "fine_gains": out.fine_gains, "reason": out.reason,
-        "cusum": list(det.cusum) if det is not None else [],
-    }
+    return (out.mode.name.lower(), res.attack_rotor, est, out.path_distance_m,
+            any(out.saturated), res.thrust_n, out.xi, out.eta, out.mass_estimate_kg,
+            out.fine_gains, out.reason, det.cusum if det is not None else ())

@@ -39,6 +39,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="override a scenario key (TOML value), repeatable")
     p.add_argument("--key-file", metavar="PATH",
                    help="MAVLink 2 signing key for both processes (docs/SIGNING.md)")
+    p.add_argument("--foxglove", metavar="[HOST:]PORT",
+                   help="watch it live: the vehicle serves its channels (scene, truth, all "
+                        "MAVLink incl. the controller's telemetry and events) on a Foxglove "
+                        "WebSocket (Open connection, ws://localhost:PORT); default off")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG report")
     p.set_defaults(func=run)
@@ -49,6 +53,10 @@ def run(args: argparse.Namespace) -> int:
         scenario = apply_overrides(load_scenario(args.scenario), args.settings)
         if args.key_file:
             load_key(args.key_file)      # fail here, once, rather than in both children
+        if args.foxglove:
+            from tfl_mav.flightlog.live import parse_live_address
+
+            parse_live_address(args.foxglove)
     except (ScenarioError, ValueError) as exc:
         print(f"tfl-mav demo: {exc}", file=sys.stderr)
         return 2
@@ -56,7 +64,7 @@ def run(args: argparse.Namespace) -> int:
         summary = run_demo(args.scenario, Path(args.out), settings=args.settings,
                            duration_s=args.duration, plots=not args.no_plots,
                            progress=not args.json, scenario=scenario,
-                           key_file=args.key_file)
+                           key_file=args.key_file, foxglove=args.foxglove)
     except RuntimeError as exc:
         print(f"tfl-mav demo: {exc}", file=sys.stderr)
         return 3

@@ -14,12 +14,12 @@ import signal
 import sys
 from typing import Any
 
-from tfl_mav.daemon import Daemon
+from tfl_mav.daemon import TICK_FIELDS, TICK_SCHEMA, Daemon
 from tfl_mav.link.signing import load_key
 from tfl_mav.link.transport import LinkError, parse_address
 from tfl_mav.scenario import ScenarioError, apply_overrides, load_scenario
 
-__all__ = ["add_parser", "run"]
+__all__ = ["add_parser", "open_recorder", "run"]
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -42,6 +42,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "signed with it (docs/SIGNING.md)")
     p.add_argument("--mcap", metavar="FILE", help="record every frame and the controller's "
                                                   "state to this MCAP file")
+    p.add_argument("--foxglove", metavar="[HOST:]PORT",
+                   help="serve the same channels live on a Foxglove WebSocket (open Foxglove, "
+                        "Open connection, ws://localhost:PORT); default off")
     p.add_argument("--realtime", action="store_true",
                    help="the vehicle runs in real time (commands not flagged lockstep)")
     p.add_argument("--duration", type=float, metavar="S",
@@ -65,22 +68,21 @@ def run(args: argparse.Namespace) -> int:
         vehicle = parse_address(args.vehicle, "--vehicle")
         bind = parse_address(args.bind, "--bind") if args.bind else None
         key = load_key(args.key_file) if args.key_file else None
+        live = None
+        if args.foxglove:
+            from tfl_mav.flightlog.live import parse_live_address
+
+            live = parse_live_address(args.foxglove)
     except (ScenarioError, ValueError, LinkError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
     recorder = None
-    if args.mcap:
-        from tfl_mav.build import scenario_path
+    if args.mcap or live:
         from tfl_mav.control.paths import PathError
-        from tfl_mav.flightlog.recorder import Recorder, RecorderError
 
         try:
-            recorder = Recorder(args.mcap, thrust_max_n=scenario.vehicle.thrust_max_n,
-                                arm_m=scenario.vehicle.arm_m)
-            recorder.metadata("scenario", {"name": scenario.name, "role": "controller",
-                                           "toml": json.dumps(scenario.to_dict())})
-            recorder.path(scenario_path(scenario).sample(800))
-        except (RecorderError, PathError, ScenarioError) as exc:
+            recorder = open_recorder(scenario, args.mcap, live)
+        except (OSError, PathError, ScenarioError) as exc:
             print(f"{prog}: {exc}", file=sys.stderr)
             return 3
 
@@ -93,12 +95,12 @@ def run(args: argparse.Namespace) -> int:
     duration = args.duration if args.duration is not None else scenario.run.duration_s
     next_progress = [0.0]
 
-    def on_tick(t: float, state: dict[str, Any]) -> None:
+    def on_tick(t: float, record: tuple[Any, ...]) -> None:
         if recorder is not None:
-            recorder.controller(t, state)
+            recorder.controller(t, record)
         if args.progress and t >= next_progress[0]:
             next_progress[0] = t + 1.0
-            print(f"progress {t:.3f} {duration:.3f} {state['path_distance_m']:.3e}",
+            print(f"progress {t:.3f} {duration:.3f} {record[_DISTANCE]:.3e}",
                   file=sys.stderr, flush=True)
 
     try:
@@ -131,6 +133,8 @@ def run(args: argparse.Namespace) -> int:
         daemon.close()
         if recorder is not None:
             recorder.close()
+            if recorder.error:
+                print(f"{prog}: recording stopped early: {recorder.error}", file=sys.stderr)
     summary = result.as_dict()
     if args.summary_json:
         with open(args.summary_json, "w") as fh:
@@ -147,6 +151,30 @@ def run(args: argparse.Namespace) -> int:
     if "signal" in got:
         return 128 + got["signal"]
     return 1 if "crashed" in result.reason else 0
+
+
+_DISTANCE = TICK_FIELDS.index("path_distance_m")
+
+
+def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None) -> Any:
+    """The controller's recorder: a :class:`~tfl_mav.flightlog.recorder_process.
+    RecorderProcess` (a child process: the daemon hands it raw datagrams and compact tick
+    tuples, the child decodes and encodes), told what to draw: the airframe's rotors, the
+    path, the names and schema of :func:`~tfl_mav.daemon.tick_state`. Raises OSError (a
+    RecorderError) if the file or the live port is unusable, PathError for a bad path."""
+    from tfl_mav.airframe import rotor_xy_m
+    from tfl_mav.build import scenario_path
+    from tfl_mav.flightlog.recorder_process import RecorderProcess
+
+    path = scenario_path(scenario).sample(800)
+    rec = RecorderProcess(mcap, rotor_xy_m=rotor_xy_m(scenario.vehicle),
+                          thrust_max_n=scenario.vehicle.thrust_max_n,
+                          controller_fields=TICK_FIELDS, controller_schema=TICK_SCHEMA,
+                          live=live)
+    rec.metadata("scenario", {"name": scenario.name, "role": "controller",
+                              "toml": json.dumps(scenario.to_dict())})
+    rec.path(path)
+    return rec
 
 
 _OK_COUNTERS = {"rx_datagrams", "rx_bytes", "rx_frames", "tx_frames", "tx_bytes"}

@@ -106,9 +106,7 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
                 sat_hil[0] += 1
                 sat_hil[1] += any(u <= 0.0 or u >= 1.0 for u in controls[:4])
         elif m.topic == "/scene/path":
-            ents = m.json()["entities"]
-            if ents and ents[0]["lines"]:
-                path_points = [[p["x"], p["y"], p["z"]] for p in ents[0]["lines"][0]["points"]]
+            path_points = _path_points(m.data) or path_points
         elif m.topic in _SUMMARY_TOPICS:
             series[m.topic].append(m.json())
     if not chans and reader.error:
@@ -130,6 +128,19 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
     }
     report["flight"] = _flight_summary(series, path_points, sat_hil)
     return report
+
+
+def _path_points(data: bytes) -> list[list[float]] | None:
+    """The first line strip of a ``foxglove.SceneUpdate`` (protobuf; JSON in old files)."""
+    if data[:1] == b"{":
+        ents = json.loads(data)["entities"]
+        lines = ents[0]["lines"] if ents else []
+        return [[p["x"], p["y"], p["z"]] for p in lines[0]["points"]] if lines else None
+    from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+
+    ents = SceneUpdate.FromString(data).entities
+    lines = ents[0].lines if ents else []
+    return [[p.x, p.y, p.z] for p in lines[0].points] if lines else None
 
 
 def _channel_report(c: _Channel) -> dict[str, Any]:

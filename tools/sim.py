@@ -78,6 +78,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "word is a string); repeatable")
     p.add_argument("--mcap", metavar="FILE",
                    help="record all traffic and ground truth to an MCAP file")
+    p.add_argument("--foxglove", metavar="[HOST:]PORT",
+                   help="serve the same channels as --mcap live on a Foxglove WebSocket "
+                        "(Foxglove: Open connection, ws://localhost:PORT); default off")
     p.add_argument("--json", metavar="FILE",
                    help="at exit, write the outcome and every counter as JSON to FILE")
     p.add_argument("--lockstep-timeout", type=float, default=2.0, metavar="S",
@@ -115,13 +118,18 @@ def run(args: argparse.Namespace) -> int:
         peer = parse_address(args.peer, "--peer") if args.peer else None
         duration = _duration(args.duration, scenario)
         key = load_key(args.key_file) if args.key_file else None
+        live = None
+        if args.foxglove:
+            from tfl_mav.flightlog.live import parse_live_address
+
+            live = parse_live_address(args.foxglove)
     except ValueError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return EXIT_USAGE
 
     recorder = None
-    if args.mcap:
-        recorder, code = _open_recorder(args.mcap, scenario, prog)
+    if args.mcap or live:
+        recorder, code = _open_recorder(args.mcap, scenario, prog, live)
         if recorder is None:
             return code
     try:
@@ -223,23 +231,36 @@ def _duration(value: float | None, scenario: Scenario) -> float:
     return math.inf if value == 0 else value
 
 
-def _open_recorder(path: str, scenario: Scenario, prog: str) -> tuple[Any, int]:
+def _open_recorder(path: str | None, scenario: Scenario, prog: str,
+                   live: tuple[str, int] | None = None) -> tuple[Any, int]:
     """The MCAP recorder (``tfl_mav.flightlog.recorder_process``), imported only when asked
     for. It runs in a child process so recording costs the lockstep loop ~1 µs per call,
     and it finishes the file even if this process is killed. Returns (recorder, 0) or
-    (None, exit code) after printing why."""
+    (None, exit code) after printing why. ``live``: also serve a Foxglove WebSocket there
+    (from the recorder's child, off the loop's process)."""
     try:
         from tfl_mav.flightlog.recorder import RecorderError
         from tfl_mav.flightlog.recorder_process import RecorderProcess
     except ModuleNotFoundError as exc:
         print(f"{prog}: --mcap: the MCAP recorder is not available ({exc})", file=sys.stderr)
         return None, EXIT_USAGE
+    from tfl_mav.airframe import rotor_xy_m
+
     v = scenario.vehicle
     try:
-        recorder = RecorderProcess(path, thrust_max_n=v.thrust_max_n, arm_m=v.arm_m)
+        recorder = RecorderProcess(path, rotor_xy_m=rotor_xy_m(v), thrust_max_n=v.thrust_max_n,
+                                   live=live)
     except RecorderError as exc:
-        print(f"{prog}: --mcap: {exc}", file=sys.stderr)
+        print(f"{prog}: {'--mcap: ' if path and 'foxglove' not in str(exc) else ''}{exc}",
+              file=sys.stderr)
         return None, EXIT_LINK
+    from tfl_mav.build import scenario_path
+    from tfl_mav.control.paths import PathError
+
+    try:
+        recorder.path(scenario_path(scenario).sample(800))   # what the 3-D view draws
+    except PathError as exc:
+        recorder.log("error", f"path not recorded: {exc}")
     # tools/report.py rebuilds the scenario from "scenario_json" (Scenario.to_dict()).
     recorder.metadata("scenario", {"name": scenario.name, "role": "vehicle",
                                    "scenario_json": json.dumps(scenario.to_dict())})

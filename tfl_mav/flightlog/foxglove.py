@@ -1,10 +1,15 @@
-"""Foxglove well-known messages (as JSON-ready dicts) for the vehicle, its path and logs.
+"""Foxglove well-known messages for the vehicle, its path and logs, built with Foxglove's SDK.
 
-Frames: Foxglove's 3-D panel is z-up; the paper frame is ENU z-up too, so positions and
-attitude go in unchanged under ``world`` (docs/design.md, "Frames"). ``base_link`` is the body frame
-(b1 forward, b3 along thrust). Rotor positions in the body follow the paper's "+" layout as
-fixed by the mixer rows ``τ_p = l(f4 − f2)``, ``τ_q = l(f3 − f1)``: rotor 1 on +b1, 2 on −b2,
-3 on −b1, 4 on +b2.
+Nothing here is a hand-written schema: every message is a ``foxglove.messages`` class of
+the official ``foxglove-sdk`` and goes into the file (and onto the live server) as the
+protobuf bytes its ``encode()`` gives, under the schema its ``get_schema()`` gives (a
+protobuf ``FileDescriptorSet`` named ``foxglove.<Type>``), so any Foxglove-aware reader
+decodes it with the official classes (``foxglove-schemas-protobuf``).
+
+Frames: Foxglove's 3-D panel is z-up; the recorder's world frame is ENU z-up too, so
+positions and attitude go in unchanged under ``world``. ``base_link`` is the body frame
+(x forward, z along thrust). Where the rotors sit is the caller's knowledge
+(``rotor_xy_m``, body frame, m); this module only draws them.
 
 Timestamps inside these messages are the *log* time (the clock Foxglove plays by), so
 transforms and entities line up with the playback cursor; sim time is in ``publish_time``.
@@ -12,103 +17,133 @@ transforms and entities line up with the playback cursor; sim time is in ``publi
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
-from typing import Any
+
+from foxglove import messages as fm
 
 __all__ = [
     "LOG_LEVELS",
-    "ROTOR_DIRECTIONS",
+    "SCHEMA_TYPES",
     "frame_transform",
     "log_entry",
     "mav_severity_to_level",
     "path_scene",
+    "schema",
     "stamp",
     "vehicle_scene",
 ]
 
 WORLD = "world"
 BODY = "base_link"
-ROTOR_DIRECTIONS = ((1.0, 0.0), (0.0, -1.0), (-1.0, 0.0), (0.0, 1.0))   # unit (b1, b2)
 
 LOG_LEVELS = {"unknown": 0, "debug": 1, "info": 2, "warning": 3, "error": 4, "fatal": 5}
+_LEVEL = {int(lv.value): lv for lv in (fm.LogLevel.Unknown, fm.LogLevel.Debug,
+                                       fm.LogLevel.Info, fm.LogLevel.Warning,
+                                       fm.LogLevel.Error, fm.LogLevel.Fatal)}
 
-_IDENTITY = {"x": 0.0, "y": 0.0, "z": 0.0, "w": 1.0}
-_ZERO_DURATION = {"sec": 0, "nsec": 0}
-_RED = {"r": 1.0, "g": 0.05, "b": 0.05, "a": 1.0}
-_BODY_COLOR = {"r": 0.25, "g": 0.25, "b": 0.3, "a": 1.0}
-_PATH_COLOR = {"r": 0.1, "g": 0.8, "b": 1.0, "a": 1.0}
+SCHEMA_TYPES = {"foxglove.FrameTransform": fm.FrameTransform,
+                "foxglove.SceneUpdate": fm.SceneUpdate, "foxglove.Log": fm.Log}
+
+_IDENTITY = fm.Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+_UP = fm.Quaternion(x=0.0, y=-math.sqrt(0.5), z=0.0, w=math.sqrt(0.5))   # +x → +z
+_ZERO_DURATION = fm.Duration(sec=0, nsec=0)
+_RED_RGB = (1.0, 0.05, 0.05)
+_RED = fm.Color(r=1.0, g=0.05, b=0.05, a=1.0)
+_BODY_COLOR = fm.Color(r=0.25, g=0.25, b=0.3, a=1.0)
+_PATH_COLOR = fm.Color(r=0.1, g=0.8, b=1.0, a=1.0)
 
 
-def stamp(ns: int) -> dict[str, int]:
-    """Nanoseconds → Foxglove ``time`` {sec, nsec} (never negative)."""
+def schema(name: str) -> tuple[str, str, bytes]:
+    """(name, encoding, data) of the official schema ``name`` (a key of SCHEMA_TYPES)."""
+    s = SCHEMA_TYPES[name].get_schema()
+    return s.name, s.encoding, bytes(s.data)
+
+
+def stamp(ns: int) -> fm.Timestamp:
+    """Nanoseconds → Foxglove ``Timestamp`` (never negative)."""
     sec, nsec = divmod(max(ns, 0), 1_000_000_000)
-    return {"sec": sec, "nsec": nsec}
+    return fm.Timestamp(sec=sec, nsec=nsec)
 
 
-def _vec(x: float, y: float, z: float) -> dict[str, float]:
-    return {"x": x, "y": y, "z": z}
+def _vec(x: float, y: float, z: float) -> fm.Vector3:
+    return fm.Vector3(x=x, y=y, z=z)
 
 
-def _pose(x: float, y: float, z: float) -> dict[str, Any]:
-    return {"position": _vec(x, y, z), "orientation": _IDENTITY}
+def _pose(x: float, y: float, z: float, q: fm.Quaternion = _IDENTITY) -> fm.Pose:
+    return fm.Pose(position=_vec(x, y, z), orientation=q)
 
 
 def frame_transform(ns: int, position_m: Sequence[float],
-                    quaternion_wxyz: Sequence[float]) -> dict[str, Any]:
+                    quaternion_wxyz: Sequence[float]) -> bytes:
     """``world`` → ``base_link``: the body's position (m, ENU) and attitude (body → world)."""
     w, x, y, z = quaternion_wxyz
-    return {"timestamp": stamp(ns), "parent_frame_id": WORLD, "child_frame_id": BODY,
-            "translation": _vec(*position_m), "rotation": {"x": x, "y": y, "z": z, "w": w}}
+    return fm.FrameTransform(timestamp=stamp(ns), parent_frame_id=WORLD, child_frame_id=BODY,
+                             translation=_vec(*position_m),
+                             rotation=fm.Quaternion(x=x, y=y, z=z, w=w)).encode()
 
 
-def _thrust_color(fraction: float) -> dict[str, float]:
+def _thrust_rgb(fraction: float) -> tuple[float, float, float]:
     """Blue at 0 thrust → yellow at f_max (red is kept for the attacked rotor)."""
     u = min(max(fraction, 0.0), 1.0)
-    return {"r": u, "g": 0.4 + 0.5 * u, "b": 1.0 - u, "a": 1.0}
+    return u, 0.4 + 0.5 * u, 1.0 - u
 
 
-def _entity(ns: int, frame_id: str, entity_id: str, **primitives: list[Any]) -> dict[str, Any]:
-    out: dict[str, Any] = {
-        "timestamp": stamp(ns), "frame_id": frame_id, "id": entity_id,
-        "lifetime": _ZERO_DURATION, "frame_locked": True, "metadata": [],
-        "arrows": [], "cubes": [], "spheres": [], "cylinders": [], "lines": [],
-        "triangles": [], "texts": [], "models": []}
-    out.update(primitives)
-    return out
+def vehicle_scene(ns: int, rotor_xy_m: Sequence[Sequence[float]],
+                  rotor_thrust_n: Sequence[float], thrust_max_n: float,
+                  attack_rotor: int) -> bytes:
+    """The vehicle in ``base_link``: a body, an arm, disc and thrust arrow per rotor
+    (arrow length ∝ thrust, colour by thrust fraction of ``thrust_max_n``), and the
+    attacked rotor (1-based, 0 = none) drawn red with a red marker sphere and label."""
+    arm = max(math.hypot(*xy) for xy in rotor_xy_m)
+    arm_w, disc_d = 0.02, 0.7 * arm
+    cubes = [fm.CubePrimitive(pose=_pose(0.0, 0.0, 0.0), size=_vec(0.12, 0.12, 0.05),
+                              color=_BODY_COLOR)]
+    cylinders, arrows, spheres, texts = [], [], [], []
+    for i, (x, y) in enumerate(rotor_xy_m):
+        frac = rotor_thrust_n[i] / thrust_max_n
+        attacked = attack_rotor == i + 1
+        r, g, b = _RED_RGB if attacked else _thrust_rgb(frac)
+        color = fm.Color(r=r, g=g, b=b, a=1.0)
+        yaw = math.atan2(y, x)
+        cubes.append(fm.CubePrimitive(
+            pose=_pose(0.5 * x, 0.5 * y, 0.0, fm.Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2),
+                                                            w=math.cos(yaw / 2))),
+            size=_vec(math.hypot(x, y), arm_w, 0.015), color=color))
+        cylinders.append(fm.CylinderPrimitive(
+            pose=_pose(x, y, 0.02), size=_vec(disc_d, disc_d, 0.01), bottom_scale=1.0,
+            top_scale=1.0, color=fm.Color(r=r, g=g, b=b, a=0.6)))
+        length = max(min(frac, 1.5), 0.0) * 2.0 * arm
+        if length > 0.0:
+            arrows.append(fm.ArrowPrimitive(
+                pose=_pose(x, y, 0.03, _UP), shaft_length=0.75 * length, shaft_diameter=0.015,
+                head_length=0.25 * length, head_diameter=0.04, color=color))
+        if attacked:
+            spheres.append(fm.SpherePrimitive(pose=_pose(x, y, 0.25 * arm),
+                                              size=_vec(0.08, 0.08, 0.08), color=_RED))
+            texts.append(fm.TextPrimitive(pose=_pose(x, y, 0.25 * arm + 0.08), billboard=True,
+                                          font_size=14.0, scale_invariant=True, color=_RED,
+                                          text=f"attack: rotor {attack_rotor}"))
+    entity = fm.SceneEntity(timestamp=stamp(ns), frame_id=BODY, id="vehicle",
+                            lifetime=_ZERO_DURATION, frame_locked=True, cubes=cubes,
+                            cylinders=cylinders, arrows=arrows, spheres=spheres, texts=texts)
+    return fm.SceneUpdate(entities=[entity]).encode()
 
 
-def vehicle_scene(ns: int, arm_m: float, rotor_thrust_n: Sequence[float],
-                  thrust_max_n: float, attack_rotor: int) -> dict[str, Any]:
-    """The quadrotor in ``base_link``: a body, four arms and four rotor discs, each rotor
-    coloured by its thrust fraction of ``thrust_max_n``; the attacked rotor (1-4) red."""
-    arm_w, disc_d = 0.02, 0.35 * arm_m * 2.0
-    cubes = [{"pose": _pose(0.0, 0.0, 0.0), "size": _vec(0.12, 0.12, 0.05),
-              "color": _BODY_COLOR}]
-    cylinders = []
-    for i, (dx, dy) in enumerate(ROTOR_DIRECTIONS):
-        color = _RED if attack_rotor == i + 1 else _thrust_color(rotor_thrust_n[i] / thrust_max_n)
-        half = 0.5 * arm_m
-        cubes.append({"pose": _pose(dx * half, dy * half, 0.0),
-                      "size": _vec(arm_m if dx else arm_w, arm_m if dy else arm_w, 0.015),
-                      "color": color})
-        cylinders.append({"pose": _pose(dx * arm_m, dy * arm_m, 0.02),
-                          "size": _vec(disc_d, disc_d, 0.01), "bottom_scale": 1.0,
-                          "top_scale": 1.0, "color": {**color, "a": 0.6}})
-    return {"deletions": [], "entities": [_entity(ns, BODY, "vehicle", cubes=cubes,
-                                                  cylinders=cylinders)]}
-
-
-def path_scene(ns: int, points_m: Sequence[Sequence[float]]) -> dict[str, Any]:
+def path_scene(ns: int, points_m: Sequence[Sequence[float]]) -> bytes:
     """The path as one line strip in ``world`` (points in m, ENU)."""
-    line = {"type": 0, "pose": _pose(0.0, 0.0, 0.0), "thickness": 3.0,
-            "scale_invariant": True, "points": [_vec(*p) for p in points_m],
-            "color": _PATH_COLOR, "colors": [], "indices": []}
-    return {"deletions": [], "entities": [_entity(ns, WORLD, "path", lines=[line])]}
+    line = fm.LinePrimitive(type=fm.LinePrimitiveLineType.LineStrip, pose=_pose(0.0, 0.0, 0.0),
+                            thickness=3.0, scale_invariant=True,
+                            points=[fm.Point3(x=p[0], y=p[1], z=p[2]) for p in points_m],
+                            color=_PATH_COLOR)
+    entity = fm.SceneEntity(timestamp=stamp(ns), frame_id=WORLD, id="path",
+                            lifetime=_ZERO_DURATION, frame_locked=True, lines=[line])
+    return fm.SceneUpdate(entities=[entity]).encode()
 
 
-def log_entry(ns: int, level: int, message: str, name: str) -> dict[str, Any]:
-    return {"timestamp": stamp(ns), "level": level, "message": message, "name": name,
-            "file": "", "line": 0}
+def log_entry(ns: int, level: int, message: str, name: str) -> bytes:
+    return fm.Log(timestamp=stamp(ns), level=_LEVEL.get(level, fm.LogLevel.Unknown),
+                  message=message, name=name, file="", line=0).encode()
 
 
 def mav_severity_to_level(severity: int) -> int:

@@ -1,6 +1,6 @@
-"""MCAP recorder: every MAVLink frame, simulator ground truth and Foxglove scene, one file.
+"""MCAP recorder: every MAVLink frame, simulator ground truth and the scene, one file.
 
-Channels (JSON messages, one JSON Schema per channel, see :mod:`tfl_mav.flightlog.schemas`):
+Channels (docs/design.md, "The flight log"):
 
 * ``/mavlink/raw``: every frame the link saw, both directions, exact wire bytes (base64),
   with ``direction`` and ``accepted``: replayable byte for byte (``tfl-mav replay``).
@@ -9,8 +9,22 @@ Channels (JSON messages, one JSON Schema per channel, see :mod:`tfl_mav.flightlo
 * ``/sim/truth/state``, ``/sim/truth/attack``, ``/sim/truth/thrusts`` (every
   :meth:`Recorder.truth` call) and ``/sim/truth/path_distance``, ``/tf``,
   ``/scene/vehicle`` (at most ``scene_hz`` in sim time); ``/scene/path`` (on
-  :meth:`Recorder.path`, then again with every periodic flush so it survives seeking);
-  ``/log`` (:meth:`Recorder.log` and every STATUSTEXT seen); ``/controller/state``.
+  :meth:`Recorder.path`, then again with every periodic flush so it survives seeking and
+  reaches a viewer who connects late); ``/log`` (:meth:`Recorder.log` and every STATUSTEXT
+  seen); ``/controller/state`` (:meth:`Recorder.controller`).
+
+Encodings: MAVLink, truth and controller channels are JSON with JSON Schemas
+(:mod:`~tfl_mav.flightlog.schemas`, MAVLink ones generated from pymavlink's definitions);
+``/tf``, the scene and ``/log`` are Foxglove's well-known types as protobuf, built with
+Foxglove's SDK (:mod:`~tfl_mav.flightlog.foxglove`).
+
+What to draw is the caller's: ``rotor_xy_m`` (where the rotors sit in the body frame),
+``thrust_max_n`` (the thrust scale), the path polyline (:meth:`Recorder.path`), and the
+field names and schema of the controller's per-tick record (``controller_fields``,
+``controller_schema``). The recorder knows no control law.
+
+Live view: ``live=(host, port)`` also serves every channel on a Foxglove WebSocket
+(:mod:`~tfl_mav.flightlog.live`); ``path=None`` serves without a file.
 
 Time: ``log_time`` is the receipt time on the recorder's ``clock`` (ns; frames use the
 ``time_s`` the link hook passes, so give the link the same clock: :meth:`Recorder.attach`
@@ -29,113 +43,39 @@ still finishes the file, at exit. No fsync: an OS crash or power loss can lose m
 :class:`~tfl_mav.flightlog.recorder_process.RecorderProcess` runs the same recorder in a
 child process, which also finishes the file when the flight process is killed.
 
-Failure policy: an unwritable path raises :class:`RecorderError` (an ``OSError``) at
-construction. After that nothing raises into the flight loop: a write error (disk full)
-stops the recording, is counted (``stats.write_errors``) and described in
+Failure policy: an unwritable path (or a live port in use) raises :class:`RecorderError`
+(an ``OSError``) at construction. After that nothing raises into the flight loop: a write
+error (disk full) stops the recording, is counted (``stats.write_errors``) and described in
 :attr:`Recorder.error`; later messages are counted as ``dropped``. Bad arguments to the
 loop methods (wrong length, not a number, unknown direction) are counted
 (``stats.bad_input``) and described in :attr:`Recorder.last_bad_input`. NaN/inf (and None)
-are never written (JSON has no NaN, Foxglove wants no null in a number field): such values
-are left out and listed in ``_nonfinite``.
+are never written to a JSON channel: such values are left out and listed in
+``_nonfinite`` (:mod:`~tfl_mav.flightlog.jsonenc`).
 """
 
 from __future__ import annotations
 
-import atexit
 import base64
-import contextlib
-import json
 import math
-import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType, Writer
-
-from tfl_mav import __version__
 from tfl_mav.flightlog import foxglove as fg
 from tfl_mav.flightlog import schemas
+from tfl_mav.flightlog.jsonenc import JsonEncoder
+from tfl_mav.flightlog.mcapout import MAX_NS, McapOutput, RecorderError, RecorderStats
 from tfl_mav.flightlog.polyline import Polyline
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.payload import PayloadDecoder
 
 __all__ = ["Recorder", "RecorderError", "RecorderStats"]
 
-_COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
-                "none": CompressionType.NONE}
-_MAX_NS = 2**63 - 1
+_MAX_NS = MAX_NS
 _STATUSTEXT_ID = mav.MAVLINK_MSG_ID_STATUSTEXT
 _MAX_PATH_POINTS = 2000
-
-
-class RecorderError(OSError):
-    """The recording cannot start (path not writable); the message names the path."""
-
-
-@dataclass
-class RecorderStats:
-    messages: int = 0           # MCAP messages written, all channels
-    frames_rx: int = 0          # rx frames recorded (accepted + rejected)
-    frames_tx: int = 0
-    frames_rejected: int = 0    # rx frames the link rejected (raw channel only)
-    flushes: int = 0
-    write_errors: int = 0       # 0 or 1: the first error stops the recording
-    dropped: int = 0            # messages not written: file failed or already closed
-    bad_input: int = 0          # loop-method calls refused or partly refused
-
-    def as_dict(self) -> dict[str, int]:
-        return asdict(self)
-
-
-def _jsonable(obj: Any) -> Any:
-    """``default`` hook of the encoder: numpy arrays/scalars, tuples-likes, bytes."""
-    if hasattr(obj, "tolist"):
-        return obj.tolist()
-    if isinstance(obj, (bytes, bytearray)):
-        return base64.b64encode(obj).decode("ascii")
-    if isinstance(obj, Iterable):
-        return list(obj)
-    raise TypeError(f"{type(obj).__name__} is not JSON serialisable")
-
-
-def _all_finite(value: Any) -> bool:
-    """No NaN, inf or None anywhere in ``value`` (JSON would need null for them)."""
-    if isinstance(value, float):
-        return math.isfinite(value)
-    if value is None:
-        return False
-    if isinstance(value, Mapping):
-        return all(_all_finite(v) for v in value.values())
-    if isinstance(value, (list, tuple)):
-        try:                                        # flat list of numbers: the usual case
-            return all(map(math.isfinite, value))
-        except (TypeError, OverflowError):
-            return all(_all_finite(v) for v in value)
-    if hasattr(value, "tolist"):
-        return _all_finite(value.tolist())
-    return True
-
-
-def _drop_nonfinite(obj: Mapping[str, Any], prefix: str = "",
-                    dropped: list[str] | None = None) -> dict[str, Any]:
-    """A copy of ``obj`` without NaN/inf/None: such a value, or a list holding one, is left
-    out and its dotted key listed under ``_nonfinite`` (see :mod:`schemas`)."""
-    top = dropped is None
-    dropped = [] if dropped is None else dropped
-    out: dict[str, Any] = {}
-    for k, v in obj.items():
-        if isinstance(v, Mapping):
-            out[k] = _drop_nonfinite(v, f"{prefix}{k}.", dropped)
-        elif _all_finite(v):
-            out[k] = v
-        else:
-            dropped.append(f"{prefix}{k}")
-    if top and dropped:
-        out[schemas.NONFINITE_KEY] = dropped
-    return out
 
 
 def _floats(values: Any, n: int, field: str) -> list[float]:
@@ -159,95 +99,59 @@ class _MavChannel:
     nonfinite: bool = False  # NaN/inf seen on this channel: check before encoding
 
 
-class Recorder:
+_DEFAULT_RECORD = schemas.record_schema("tfl_mav.Record", "a caller's record", {}, [])
+
+
+class Recorder(McapOutput):
     """Writes one MCAP file; see the module docstring. Use as a context manager."""
 
-    def __init__(self, path: str | Path, *, clock: Callable[[], float] = time.time,
+    def __init__(self, path: str | Path | None, *, clock: Callable[[], float] = time.time,
                  flush_interval_s: float = 1.0, profile: str = "tfl-mav",
                  compression: str = "zstd", chunk_size_bytes: int = 1 << 20,
-                 scene_hz: float = 50.0, arm_m: float = 0.2656, thrust_max_n: float = 8.0,
+                 scene_hz: float = 50.0, rotor_xy_m: Sequence[Sequence[float]] = (),
+                 thrust_max_n: float = 1.0, controller_fields: Sequence[str] = (),
+                 controller_schema: Mapping[str, Any] | None = None,
                  sim_time_messages: Iterable[str] = ("ODOMETRY", "HIL_ACTUATOR_CONTROLS"),
-                 ) -> None:
-        """Open ``path`` for writing and start the file.
+                 live: tuple[str, int] | None = None) -> None:
+        """Open ``path`` for writing (None: no file) and start the file.
 
         ``clock``: seconds, the receipt clock of ``log_time``. ``scene_hz``: max rate (sim
-        time) of ``/tf``, ``/scene/vehicle`` and ``/sim/truth/path_distance``. ``arm_m``,
-        ``thrust_max_n``: vehicle geometry and thrust scale for drawing only.
+        time) of ``/tf``, ``/scene/vehicle`` and ``/sim/truth/path_distance``.
+        ``rotor_xy_m``: rotor positions (x, y) in the body frame (m), rotors 1..n, and
+        ``thrust_max_n`` the thrust that draws a full-length arrow: drawing only (no
+        rotors: no ``/scene/vehicle``). ``controller_fields``: the names of the values of
+        a sequence given to :meth:`controller`; ``controller_schema``: the JSON Schema of
+        that record (:func:`~tfl_mav.flightlog.schemas.record_schema`). ``live``: also
+        serve everything on a Foxglove WebSocket at (host, port).
         Raises ValueError for a bad setting, :class:`RecorderError` if the file cannot be
-        written.
+        written or the live port cannot be bound.
         """
-        if not (math.isfinite(flush_interval_s) and flush_interval_s > 0.0):
-            raise ValueError(f"flush_interval_s: must be > 0, got {flush_interval_s}")
-        if compression not in _COMPRESSION:
-            raise ValueError(f"compression: must be one of {sorted(_COMPRESSION)}, "
-                             f"got {compression!r}")
         if not (math.isfinite(scene_hz) and scene_hz > 0.0):
             raise ValueError(f"scene_hz: must be > 0, got {scene_hz}")
-        if not (arm_m > 0.0 and thrust_max_n > 0.0):
-            raise ValueError(f"arm_m, thrust_max_n: must be > 0, got {arm_m}, {thrust_max_n}")
-        self.file_path = Path(path)
-        self.clock = clock
-        self.stats = RecorderStats()
-        self.error: str | None = None
-        self.last_bad_input: str | None = None
-        self._interval_s = flush_interval_s
+        rotors = [(float(x), float(y)) for x, y in rotor_xy_m]
+        if not all(math.isfinite(x) and math.isfinite(y) for x, y in rotors) or (
+                rotors and max(math.hypot(x, y) for x, y in rotors) <= 0.0):
+            raise ValueError(f"rotor_xy_m: expected finite (x, y) pairs, got {rotor_xy_m!r}")
+        if not thrust_max_n > 0.0:
+            raise ValueError(f"thrust_max_n: must be > 0, got {thrust_max_n}")
         self._scene_period_s = 1.0 / scene_hz
-        self._arm_m = arm_m
+        self._rotor_xy_m = rotors
         self._thrust_max_n = thrust_max_n
+        self._controller_fields = tuple(controller_fields)
+        self._controller_schema = dict(controller_schema or _DEFAULT_RECORD)
         self._sim_time_ids = {mav_id for mav_id, cls in mav.mavlink_map.items()
                               if cls.msgname in set(sim_time_messages)
                               and "time_usec" in cls.fieldnames}
-        self._encode = json.JSONEncoder(separators=(",", ":"), default=_jsonable).encode
+        self._json = JsonEncoder()
+        self._dumps = self._json.dumps
         self._decoder = PayloadDecoder()
-        self._schema_ids: dict[str, int] = {}
-        self._channel_ids: dict[str, int] = {}
         self._mav_channels: dict[tuple[int, int, int], _MavChannel] = {}
         self._sim_ns = 0
         self._sim_known = False
         self._last_scene_t = -math.inf
         self._polyline: Polyline | None = None
-        self._path_data: bytes | None = None
-        self._path_cid = 0
-        self._pending = 0
-        self._open = True           # accepting messages
-        self._closed = False
-        self._lock = threading.RLock()
-        try:
-            self._file = open(self.file_path, "wb")  # noqa: SIM115 -- closed in close()
-        except OSError as exc:
-            raise RecorderError(f"cannot write MCAP file {self.file_path}: "
-                                f"{exc.strerror or exc}") from None
-        try:
-            self._writer = Writer(self._file, chunk_size=chunk_size_bytes,
-                                  compression=_COMPRESSION[compression],
-                                  index_types=IndexType.CHUNK | IndexType.MESSAGE
-                                  | IndexType.METADATA)
-            self._writer.start(profile, library=f"tfl-mav {__version__}; {LIBRARY_IDENTIFIER}")
-            self._writer.add_metadata("tfl-mav", {
-                "log_time": "receipt time on the recorder clock, ns (Unix epoch by default)",
-                "publish_time": "sim time, ns; 0 = not known yet",
-                "world_frame": "paper frame = ENU, z up (Foxglove world); body = base_link",
-                "mavlink": "MAVLink 2, pymavlink ardupilotmega dialect",
-                "version": __version__})
-            self._file.flush()
-        except OSError as exc:
-            with contextlib.suppress(OSError):   # closing re-flushes and fails the same way
-                self._file.close()
-            raise RecorderError(f"cannot write MCAP file {self.file_path}: "
-                                f"{exc.strerror or exc}") from None
-        self._next_flush = time.monotonic() + flush_interval_s
-        self._stop = threading.Event()
-        self._flusher = threading.Thread(target=self._flush_loop, name="mcap-flush",
-                                         daemon=True)
-        self._flusher.start()
-        atexit.register(self.close)     # an exception that ends the program still finishes
-
-    # ------------------------------------------------------------------ lifecycle
-    def __enter__(self) -> Recorder:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+        super().__init__(path, clock=clock, flush_interval_s=flush_interval_s, profile=profile,
+                         compression=compression, chunk_size_bytes=chunk_size_bytes, live=live)
 
     def attach(self, link: Any) -> None:
         """Hook this recorder into a :class:`~tfl_mav.link.transport.Link` and give the link
@@ -255,29 +159,8 @@ class Recorder:
         link.on_frame = self.on_frame
         link.clock = self.clock
 
-    def close(self) -> None:
-        """Finish the file (summary, indexes). Idempotent; never raises on I/O errors
-        (see :attr:`error`). Later calls to the loop methods are counted as dropped.
-        Not from a signal handler (it could interrupt a write): set a flag there and close
-        after the loop."""
-        if self._closed:
-            return
-        self._closed = True
-        atexit.unregister(self.close)
-        self._stop.set()
-        self._flusher.join()
-        with self._lock:
-            was_open, self._open = self._open, False
-            if was_open:
-                try:
-                    self._writer.finish()
-                except Exception as exc:
-                    self._failed(exc)
-            try:
-                self._file.close()
-            except OSError as exc:
-                if self.error is None:
-                    self._failed(exc)
+    def _pub_ns(self) -> int:
+        return self._sim_ns
 
     @property
     def sim_time_s(self) -> float:
@@ -343,21 +226,20 @@ class Recorder:
         if fields is None:
             self._bad(f"frame: {name} (#{msgid}) did not decode from its wire bytes")
             return
-        self._write(chan.channel_id, self._dumps_mav(fields, chan), log_ns, pub_ns)
+        data, chan.nonfinite = self._json.dumps_sticky(fields, chan.nonfinite)
+        self._write(chan.channel_id, data, log_ns, pub_ns)
         if chan.statustext:
-            self._write(self._channel("/log", schemas.FOXGLOVE_SCHEMAS["foxglove.Log"]),
-                        self._dumps(fg.log_entry(log_ns,
-                                                 fg.mav_severity_to_level(fields["severity"]),
-                                                 self._with_time(fields["text"]),
-                                                 f"mavlink/{sysid}/{compid} {direction}")),
-                        log_ns, pub_ns)
+            self._write(self._fg_channel("/log", "foxglove.Log"),
+                        fg.log_entry(log_ns, fg.mav_severity_to_level(fields["severity"]),
+                                     self._with_time(fields["text"]),
+                                     f"mavlink/{sysid}/{compid} {direction}"), log_ns, pub_ns)
 
     # ------------------------------------------------------------------ ground truth, scene
     def truth(self, time_s: float, position_m: Sequence[float], velocity_mps: Sequence[float],
               quaternion_wxyz: Sequence[float], body_rates_radps: Sequence[float],
               rotor_thrust_n: Sequence[float], attack_rotor: int, attack_applied_n: float,
               attack_requested_n: float) -> None:
-        """Simulator ground truth at sim time ``time_s`` (s), paper frame (ENU, z up):
+        """Simulator ground truth at sim time ``time_s`` (s), world frame ENU (z up):
         position (m), velocity (m/s), attitude quaternion body → world (w, x, y, z), body
         rates (rad/s), true rotor thrusts 1-4 (N), attacked rotor (1-4, 0 = none), applied
         and requested attack thrust (N). Also drives ``/tf``, ``/scene/vehicle`` and
@@ -399,19 +281,19 @@ class Recorder:
             self._bad(f"truth: position/attitude/thrust not finite at t = {t} s; "
                       "scene not drawn")
             return
-        self._write(self._channel("/tf", schemas.FOXGLOVE_SCHEMAS["foxglove.FrameTransform"]),
-                    self._dumps(fg.frame_transform(log_ns, pos, quat)), log_ns, pub_ns)
-        self._write(self._channel("/scene/vehicle",
-                                  schemas.FOXGLOVE_SCHEMAS["foxglove.SceneUpdate"]),
-                    self._dumps(fg.vehicle_scene(log_ns, self._arm_m, thrust,
-                                                 self._thrust_max_n, rotor)), log_ns, pub_ns)
+        self._write(self._fg_channel("/tf", "foxglove.FrameTransform"),
+                    fg.frame_transform(log_ns, pos, quat), log_ns, pub_ns)
+        if self._rotor_xy_m:
+            self._write(self._fg_channel("/scene/vehicle", "foxglove.SceneUpdate"),
+                        fg.vehicle_scene(log_ns, self._rotor_xy_m, thrust, self._thrust_max_n,
+                                         rotor), log_ns, pub_ns)
         if self._polyline is not None:
             self._write(self._channel("/sim/truth/path_distance", schemas.PATH_DISTANCE),
                         self._dumps({"t_s": t, "distance_m": self._polyline.distance(pos)}),
                         log_ns, pub_ns)
 
     def path(self, points_m: Any) -> None:
-        """The path as sampled points (N, 3) in m, paper frame: ``/scene/path`` now and with
+        """The path as sampled points (N, 3) in m, world frame ENU: ``/scene/path`` now and with
         every periodic flush after. More than 2000 points are thinned evenly. Raises
         ValueError naming ``points_m`` if the array is not (N ≥ 2, 3) and finite (a setup
         call, not a loop call)."""
@@ -421,12 +303,10 @@ class Recorder:
             step = math.ceil(len(pts) / _MAX_PATH_POINTS)
             pts = pts[::step] if (len(pts) - 1) % step == 0 else [*pts[::step], pts[-1]]
         log_ns = self._now_ns()
-        data = self._dumps(fg.path_scene(log_ns, [list(map(float, p)) for p in pts]))
-        self._path_cid = self._channel("/scene/path",
-                                       schemas.FOXGLOVE_SCHEMAS["foxglove.SceneUpdate"])
+        data = fg.path_scene(log_ns, [list(map(float, p)) for p in pts])
         self._polyline = poly
-        self._path_data = data
-        self._write(self._path_cid, data, log_ns, self._sim_ns)
+        self.latch(self._fg_channel("/scene/path", "foxglove.SceneUpdate"), data, log_ns,
+                   self._sim_ns)
 
     # ------------------------------------------------------------------ logs, controller
     def log(self, level: int | str, text: str, time_s: float | None = None, *,
@@ -443,96 +323,36 @@ class Recorder:
         if time_s is not None:
             self.set_sim_time(time_s)
         log_ns = self._now_ns()
-        self._write(self._channel("/log", schemas.FOXGLOVE_SCHEMAS["foxglove.Log"]),
-                    self._dumps(fg.log_entry(log_ns, lvl, self._with_time(str(text)),
-                                             source)), log_ns, self._sim_ns)
+        self._write(self._fg_channel("/log", "foxglove.Log"),
+                    fg.log_entry(log_ns, lvl, self._with_time(str(text)), source),
+                    log_ns, self._sim_ns)
 
-    def controller(self, time_s: float, state: Mapping[str, Any]) -> None:
-        """Free-form controller state at sim time ``time_s`` (s) on ``/controller/state``.
-        Keys the tools and the layout read (typed in the schema): ``mode`` (str),
-        ``detected_rotor`` (int 0-4), ``attack_estimate_n``, ``path_distance_m`` (float),
-        ``saturated`` (bool), ``rotor_thrust_cmd_n`` (4 floats); any other key is kept as
-        is. numpy values are fine; NaN/inf/None values are left out (``_nonfinite``)."""
+    def controller(self, time_s: float, state: Mapping[str, Any] | Sequence[Any]) -> None:
+        """The controller's record at sim time ``time_s`` (s) on ``/controller/state``:
+        a sequence of values named by ``controller_fields`` (the compact per-tick form), or
+        a mapping. numpy values are fine; NaN/inf/None values are left out
+        (``_nonfinite``)."""
         try:
             t = float(time_s)
             if not math.isfinite(t):
                 raise ValueError(f"time_s: not finite ({time_s})")
+            if not isinstance(state, Mapping):
+                if len(state) != len(self._controller_fields):
+                    raise ValueError(f"record: expected {len(self._controller_fields)} values "
+                                     f"({', '.join(self._controller_fields)}), got "
+                                     f"{len(state)}")
+                state = dict(zip(self._controller_fields, state, strict=True))
             data = self._dumps({**state, "t_s": t})
         except (TypeError, ValueError) as exc:
             self._bad(f"controller state: {exc}")
             return
         self.set_sim_time(t)
-        self._write(self._channel("/controller/state", schemas.CONTROLLER_STATE), data,
+        self._write(self._channel("/controller/state", self._controller_schema), data,
                     self._now_ns(), self._sim_ns)
 
-    def metadata(self, name: str, values: Mapping[str, str]) -> None:
-        """A named MCAP metadata record (e.g. the scenario), strings only."""
-        items = {str(k): str(v) for k, v in values.items()}
-        with self._lock:
-            if not self._open:
-                self.stats.dropped += 1
-                return
-            try:
-                self._writer.add_metadata(name, items)
-            except Exception as exc:
-                self._failed(exc)
-
     # ------------------------------------------------------------------ internals
-    def _now_ns(self) -> int:
-        try:
-            return min(max(int(self.clock() * 1e9), 0), _MAX_NS)
-        except (TypeError, ValueError, OverflowError):
-            return 0
-
     def _with_time(self, text: str) -> str:
         return f"[t={self._sim_ns * 1e-9:.3f}s] {text}" if self._sim_known else text
-
-    def _bad(self, what: str) -> None:
-        self.stats.bad_input += 1
-        self.last_bad_input = what
-
-    def _dumps(self, obj: Mapping[str, Any]) -> bytes:
-        """Compact JSON of a message; NaN/inf/None are left out (``_nonfinite`` lists them).
-        The second pass runs only when the fast one printed NaN/Infinity/null (or such
-        text)."""
-        s = self._encode(obj)
-        if "NaN" in s or "Infinity" in s or "null" in s:
-            s = self._encode(_drop_nonfinite(obj))
-        return s.encode()
-
-    def _dumps_mav(self, fields: dict[str, Any], chan: _MavChannel) -> bytes:
-        """:meth:`_dumps` that remembers per channel whether NaN shows up (ODOMETRY's
-        unknown covariances do, every frame), to skip the wasted first pass."""
-        if chan.nonfinite:
-            clean = _drop_nonfinite(fields)
-            chan.nonfinite = schemas.NONFINITE_KEY in clean
-            return self._encode(clean).encode()
-        s = self._encode(fields)
-        if "NaN" in s or "Infinity" in s:
-            chan.nonfinite = True
-            s = self._encode(_drop_nonfinite(fields))
-        return s.encode()
-
-    def _schema_id(self, schema: dict[str, Any]) -> int:
-        name = schema["title"]
-        sid = self._schema_ids.get(name)
-        if sid is None:
-            sid = self._schema_ids[name] = self._writer.register_schema(
-                name, "jsonschema", schemas.schema_bytes(schema))
-        return sid
-
-    def _channel(self, topic: str, schema: dict[str, Any]) -> int:
-        """Channel id of ``topic``, registered on first use (0 if the file has failed)."""
-        cid = self._channel_ids.get(topic)
-        if cid is None:
-            try:
-                with self._lock:
-                    cid = self._channel_ids[topic] = self._writer.register_channel(
-                        topic, "json", self._schema_id(schema))
-            except Exception as exc:   # registering may finish a chunk, i.e. write
-                self._failed(exc)
-                return 0
-        return cid
 
     def _raw_channel(self) -> int:
         cid = self._channel_ids.get("/mavlink/raw")
@@ -549,50 +369,3 @@ class Recorder:
         self._mav_channels[(sysid, compid, msgid)] = chan
         return chan
 
-    def _write(self, channel_id: int, data: bytes, log_ns: int, pub_ns: int) -> None:
-        if not self._open:
-            self.stats.dropped += 1
-            return
-        try:
-            with self._lock:
-                self._writer.add_message(channel_id, log_ns, data, pub_ns)
-                self._pending += 1
-                self.stats.messages += 1
-            if time.monotonic() >= self._next_flush:
-                self._flush()
-        except Exception as exc:
-            self._failed(exc)
-
-    def _flush(self) -> None:
-        """Finish the chunk in progress (with a fresh copy of the path) and flush the file."""
-        with self._lock:
-            if not self._open or self._pending == 0:
-                return
-            if self._path_data is not None:
-                self._writer.add_message(self._path_cid, self._now_ns(),
-                                         self._path_data, self._sim_ns)
-                self.stats.messages += 1
-            self._writer.flush()
-            self._pending = 0
-            self.stats.flushes += 1
-            self._next_flush = time.monotonic() + self._interval_s
-
-    def _flush_loop(self) -> None:
-        """Background flush for when the loop goes quiet (no writes, nothing flushes)."""
-        while not self._stop.wait(self._interval_s / 4.0):
-            if self._pending and time.monotonic() >= self._next_flush:
-                try:
-                    self._flush()
-                except Exception as exc:
-                    self._failed(exc)
-
-    def _failed(self, exc: BaseException) -> None:
-        """First write error: stop recording, keep the reason; never raise."""
-        self._open = False
-        self.stats.write_errors += 1
-        self.stats.dropped += 1
-        if self.error is None:
-            reason = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
-            self.error = (f"MCAP write to {self.file_path} failed ({reason}); recording stopped, "
-                          "the flight goes on; the file reads up to its last complete chunk "
-                          "(tfl-mav inspect FILE --recover OUT)")

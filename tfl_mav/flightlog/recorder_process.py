@@ -2,9 +2,13 @@
 
 Why: recording costs ~12-28 µs of CPU per frame in-process (JSON + MCAP records), a large
 share of a 1 kHz lockstep tick. Here the flight process only stamps each call with its
-clock and queues it (~1.5 µs); batches go over a pipe to a child that runs a real
-``Recorder`` with that clock reading as ``log_time``, on the other core, while the flight
-process waits for its peer. The messages are the ones an in-process recording writes
+clock and appends a tuple to a queue: raw datagrams as ``bytes``, the controller's record
+as the caller's compact tuple, no dict building and no JSON on the control path. A
+background thread pickles the queue in batches (every ``batch_s``, while the flight loop
+waits for its peer) and sends it over a pipe to a child that runs a real ``Recorder``
+with that clock reading as ``log_time``, on the other core: it decodes the frames, names
+the record's fields, encodes JSON and protobuf, writes the file and feeds the live
+Foxglove server (``live=``). The messages are the ones an in-process recording writes
 (only the periodic copies of ``/scene/path`` follow the child's flush timing).
 
 Crash safety is better than in-process: if the flight process dies (even SIGKILL) the
@@ -12,7 +16,9 @@ child reads end-of-file and *finishes* the file. Queued calls reach the child wi
 ``batch_s`` (a background thread sends a batch that went stale). The child ignores SIGINT
 and SIGTERM so a Ctrl-C or ``kill`` of the process group still lets the parent close it.
 
-Backpressure: if the child falls behind, the pipe fills and the flight process waits.
+Backpressure: if the queue grows past ``batch_max`` × 8 calls (the sender thread starved),
+the flight thread sends inline; if the child falls behind, the pipe fills and the flight
+process waits.
 Errors never raise into the loop: :attr:`error` reports the child's write error, or that
 the child died (later calls are counted in ``dropped``); :attr:`stats` is the child's
 final :class:`~tfl_mav.flightlog.recorder.RecorderStats`, filled in by :meth:`close`.
@@ -46,7 +52,7 @@ def _plain(x: Any) -> Any:
     return x.tolist() if hasattr(x, "tolist") else x
 
 
-def _child_main(conn: Connection, results: Connection, path: str,
+def _child_main(conn: Connection, results: Connection, path: str | None,
                 kwargs: dict[str, Any]) -> None:
     """The child: one Recorder whose clock is the parent's stamp of the call at hand."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
@@ -103,25 +109,25 @@ class RecorderProcess:
     parent before it is sent; ``batch_max``: calls per batch. Other keywords go to the
     child's ``Recorder``. Raises :class:`RecorderError` if the file cannot be written."""
 
-    def __init__(self, path: str | Path, *, clock: Callable[[], float] = time.time,
+    def __init__(self, path: str | Path | None, *, clock: Callable[[], float] = time.time,
                  batch_s: float = 0.01, batch_max: int = 512, **recorder_kw: Any) -> None:
-        self.file_path = Path(path)
+        self.file_path = Path(path) if path is not None else None
         self.clock = clock
         self.stats = RecorderStats()
         self.last_bad_input: str | None = None
         self._error: str | None = None
         self._batch_s = batch_s
-        self._batch_max = batch_max
+        self._backlog_max = 8 * batch_max
         self._queue: collections.deque[tuple[Any, ...]] = collections.deque()
         self._send_lock = threading.Lock()
-        self._due = 0.0
         self._alive = True
         self._closed = False
         ctx = multiprocessing.get_context("spawn")   # no inherited sockets or threads
         child_conn, self._conn = ctx.Pipe(duplex=False)
         self._results, child_results = ctx.Pipe(duplex=False)
         self._proc = ctx.Process(target=_child_main, name="tfl-mav-recorder",
-                                 args=(child_conn, child_results, str(path), recorder_kw))
+                                 args=(child_conn, child_results,
+                                       str(path) if path is not None else None, recorder_kw))
         self._proc.start()
         child_conn.close()
         child_results.close()
@@ -132,8 +138,8 @@ class RecorderProcess:
         except (EOFError, OSError):
             self._proc.kill()
             self._proc.join()
-            raise RecorderError(f"recorder process for {path} did not start (exit code "
-                                f"{self._proc.exitcode})") from None
+            raise RecorderError(f"recorder process for {path or 'the live view'} did not "
+                                f"start (exit code {self._proc.exitcode})") from None
         if reply[0] == "fail":
             self._proc.join()
             raise (RecorderError if reply[1] else ValueError)(reply[2])
@@ -206,8 +212,10 @@ class RecorderProcess:
             source: str = "tfl-mav") -> None:
         self._put((_LOG, self.clock(), level, str(text), time_s, source))
 
-    def controller(self, time_s: float, state: Mapping[str, Any]) -> None:
-        self._put((_CONTROLLER, self.clock(), time_s, {k: _plain(v) for k, v in state.items()}))
+    def controller(self, time_s: float, state: Mapping[str, Any] | Sequence[Any]) -> None:
+        """Queue the caller's record as it is (a compact tuple of plain values is cheapest
+        to pickle); the child names its fields (``controller_fields``) and encodes it."""
+        self._put((_CONTROLLER, self.clock(), time_s, state))
 
     def set_sim_time(self, time_s: float) -> None:
         self._put((_SIM_TIME, self.clock(), time_s))
@@ -222,14 +230,13 @@ class RecorderProcess:
             return
         q = self._queue
         q.append(item)
-        if len(q) >= self._batch_max or time.monotonic() >= self._due:
+        if len(q) >= self._backlog_max:       # the sender thread is starved: send here
             self._send()
 
     def _send(self) -> None:
         with self._send_lock:
             q = self._queue
             items = [q.popleft() for _ in range(len(q))]
-            self._due = time.monotonic() + self._batch_s
             if not items:
                 return
             if not self._alive:
@@ -243,9 +250,9 @@ class RecorderProcess:
                                 "the flight goes on unrecorded")
 
     def _send_stale(self) -> None:
-        """Background: send a batch that waited longer than batch_s (quiet loop)."""
+        """Background: send what is queued every ``batch_s`` (the batch hand-off)."""
         while not self._stop.wait(self._batch_s):
-            if self._queue and time.monotonic() >= self._due:
+            if self._queue:
                 self._send()
 
     def _poll_results(self, timeout_s: float = 0.0) -> bool:

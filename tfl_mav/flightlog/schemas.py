@@ -5,10 +5,11 @@ Three families, all written by the project (docs/design.md, "The flight log"):
 * ``mavlink.<MSG>``: one schema per MAVLink message type, generated from pymavlink's field
   metadata (``fieldnames``, ``fieldtypes``, ``array_lengths``, units, enums). ``char[N]`` is
   a string; integers carry their C range.
-* ``foxglove.FrameTransform``, ``foxglove.SceneUpdate``, ``foxglove.Log``: Foxglove's
-  well-known types, fully inlined the way Foxglove's own JSON schemas are, so its panels
-  recognise the channels by schema name.
-* ``tfl_mav.*``: raw wire frames, simulator ground truth, controller state.
+* ``tfl_mav.*``: raw wire frames and simulator ground truth; a caller's own records (the
+  controller's state) are described by the caller with :func:`record_schema`.
+
+The Foxglove well-known types (``/tf``, the scene, ``/log``) are not here: they are
+protobuf, from Foxglove's own SDK (:mod:`tfl_mav.flightlog.foxglove`).
 
 NaN/inf: JSON has no such numbers, and Foxglove's JSON-schema reader accepts one plain
 ``type`` per property (no ``["number", "null"]``, no property without ``type``; see its
@@ -28,8 +29,6 @@ from typing import Any
 from tfl_mav.link.dialect import mav
 
 __all__ = [
-    "CONTROLLER_STATE",
-    "FOXGLOVE_SCHEMAS",
     "NONFINITE_KEY",
     "PATH_DISTANCE",
     "RAW_FRAME",
@@ -38,7 +37,9 @@ __all__ = [
     "TRUTH_THRUSTS",
     "mavlink_schema",
     "mavlink_schema_name",
+    "record_schema",
     "schema_bytes",
+    "vec",
 ]
 
 Schema = dict[str, Any]
@@ -73,178 +74,6 @@ def _array(items: Schema, description: str, length: int | None = None) -> Schema
     return out
 
 
-def _time(description: str) -> Schema:
-    return {"type": "object", "title": "time", "description": description,
-            "properties": {"sec": {"type": "integer", "minimum": 0},
-                           "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}}}
-
-
-def _duration(description: str) -> Schema:
-    return {"type": "object", "title": "duration", "description": description,
-            "properties": {"sec": {"type": "integer"},
-                           "nsec": {"type": "integer", "minimum": 0, "maximum": 999_999_999}}}
-
-
-def _vector3(description: str) -> Schema:
-    return _obj("foxglove.Vector3", description,
-                {a: _num(f"{a} coordinate length") for a in "xyz"})
-
-
-def _point3(description: str = "A point representing a position in 3D space") -> Schema:
-    return _obj("foxglove.Point3", description,
-                {a: _num(f"{a} coordinate position") for a in "xyz"})
-
-
-def _quaternion(description: str) -> Schema:
-    return _obj("foxglove.Quaternion", description, {a: _num(f"{a} value") for a in "xyzw"})
-
-
-def _pose(description: str) -> Schema:
-    return _obj("foxglove.Pose", description, {
-        "position": _vector3("Point denoting position in 3D space"),
-        "orientation": _quaternion("Quaternion denoting orientation in 3D space")})
-
-
-def _color(description: str) -> Schema:
-    names = {"r": "Red", "g": "Green", "b": "Blue", "a": "Alpha"}
-    return _obj("foxglove.Color", description,
-                {k: _num(f"{v} value between 0 and 1") for k, v in names.items()})
-
-
-def _enum(title: str, description: str, values: list[tuple[str, int, str]]) -> Schema:
-    return {"title": title, "description": description,
-            "oneOf": [{"title": n, "const": v, "description": d} for n, v, d in values]}
-
-
-def _indices() -> Schema:
-    return _array({"type": "integer", "minimum": 0},
-                  "Indices into the `points` and `colors` attribute arrays")
-
-
-# ---------------------------------------------------------------- Foxglove well-known types
-def _scene_entity() -> Schema:
-    pose = _pose
-    primitives: dict[str, Schema] = {
-        "arrows": _obj("foxglove.ArrowPrimitive", "A primitive representing an arrow", {
-            "pose": pose("Position of the arrow's tail and orientation of the arrow"),
-            "shaft_length": _num("Length of the arrow shaft"),
-            "shaft_diameter": _num("Diameter of the arrow shaft"),
-            "head_length": _num("Length of the arrow head"),
-            "head_diameter": _num("Diameter of the arrow head"),
-            "color": _color("Color of the arrow")}),
-        "cubes": _obj("foxglove.CubePrimitive", "A primitive representing a cube or "
-                      "rectangular prism", {
-                          "pose": pose("Position of the center of the cube and its orientation"),
-                          "size": _vector3("Size of the cube along each axis"),
-                          "color": _color("Color of the cube")}),
-        "spheres": _obj("foxglove.SpherePrimitive", "A primitive representing a sphere or "
-                        "ellipsoid", {
-                            "pose": pose("Position of the center of the sphere"),
-                            "size": _vector3("Size (diameter) of the sphere along each axis"),
-                            "color": _color("Color of the sphere")}),
-        "cylinders": _obj("foxglove.CylinderPrimitive", "A primitive representing a cylinder, "
-                          "elliptic cylinder, or truncated cone", {
-                              "pose": pose("Center of the cylinder; flat faces normal to z"),
-                              "size": _vector3("Size of the cylinder's bounding box"),
-                              "bottom_scale": _num("0-1, ratio of the bottom face diameter"),
-                              "top_scale": _num("0-1, ratio of the top face diameter"),
-                              "color": _color("Color of the cylinder")}),
-        "lines": _obj("foxglove.LinePrimitive", "A primitive representing a series of points "
-                      "connected by lines", {
-                          "type": _enum("foxglove.LineType", "Drawing primitive to use for lines",
-                                        [("LINE_STRIP", 0, "Connected line segments"),
-                                         ("LINE_LOOP", 1, "Closed polygon"),
-                                         ("LINE_LIST", 2, "Individual line segments")]),
-                          "pose": pose("Origin of lines relative to reference frame"),
-                          "thickness": _num("Line thickness"),
-                          "scale_invariant": {"type": "boolean", "description":
-                                              "thickness in screen pixels (true) or world units"},
-                          "points": _array(_point3(), "Points along the line"),
-                          "color": _color("Solid color for the whole line"),
-                          "colors": _array(_color("A color in RGBA format"), "Per-point colors"),
-                          "indices": _indices()}),
-        "triangles": _obj("foxglove.TriangleListPrimitive", "A primitive representing a set "
-                          "of triangles or a surface tiled by triangles", {
-                              "pose": pose("Origin of triangles relative to reference frame"),
-                              "points": _array(_point3(), "Vertices, as triples"),
-                              "color": _color("Solid color for the whole shape"),
-                              "colors": _array(_color("A color in RGBA format"),
-                                               "Per-vertex colors"),
-                              "indices": _indices()}),
-        "texts": _obj("foxglove.TextPrimitive", "A primitive representing a text label", {
-            "pose": pose("Position of the center of the text box"),
-            "billboard": {"type": "boolean", "description": "Always face the camera"},
-            "font_size": _num("Font size (height of one line of text)"),
-            "scale_invariant": {"type": "boolean", "description": "font_size in pixels"},
-            "color": _color("Color of the text"),
-            "text": {"type": "string", "description": "Text"}}),
-        "models": _obj("foxglove.ModelPrimitive", "A primitive representing a 3D model file", {
-            "pose": pose("Origin of model relative to reference frame"),
-            "scale": _vector3("Scale factor to apply to the model along each axis"),
-            "color": _color("Solid color if override_color is true"),
-            "override_color": {"type": "boolean", "description": "Use color, not materials"},
-            "url": {"type": "string", "description": "URL pointing to model file"},
-            "media_type": {"type": "string", "description": "Media type of embedded model"},
-            "data": {"type": "string", "contentEncoding": "base64",
-                     "description": "Embedded model"}}),
-    }
-    props: dict[str, Schema] = {
-        "timestamp": _time("Timestamp of the entity"),
-        "frame_id": {"type": "string", "description": "Frame of reference"},
-        "id": {"type": "string", "description": "Identifier for the entity; replaces any "
-               "prior entity on the same topic with the same id"},
-        "lifetime": _duration("Time after which the entity is removed; zero = never"),
-        "frame_locked": {"type": "boolean", "description": "Follow frame_id as it moves"},
-        "metadata": _array(_obj("foxglove.KeyValuePair", "A key with its associated value", {
-            "key": {"type": "string", "description": "Key"},
-            "value": {"type": "string", "description": "Value"}}), "Additional metadata"),
-    }
-    for name, item in primitives.items():
-        props[name] = _array(item, f"{name.capitalize()} primitives")
-    return _obj("foxglove.SceneEntity", "A visual element in a 3D scene", props)
-
-
-def _scene_update() -> Schema:
-    deletion = _obj("foxglove.SceneEntityDeletion", "Command to remove published entities", {
-        "timestamp": _time("Only matching entities earlier than this are deleted"),
-        "type": _enum("foxglove.SceneEntityDeletionType", "Type of deletion action",
-                      [("MATCHING_ID", 0, "Delete the entity with the provided id"),
-                       ("ALL", 1, "Delete all existing entities on the same topic")]),
-        "id": {"type": "string", "description": "Identifier which must match for MATCHING_ID"}})
-    return _obj("foxglove.SceneUpdate", "An update to the entities displayed in a 3D scene", {
-        "deletions": _array(deletion, "Scene entities to delete"),
-        "entities": _array(_scene_entity(), "Scene entities to add or replace")})
-
-
-def _frame_transform() -> Schema:
-    return _obj("foxglove.FrameTransform", "A transform between two reference frames in 3D "
-                "space: the pose of the child frame in the parent frame", {
-                    "timestamp": _time("Timestamp of transform"),
-                    "parent_frame_id": {"type": "string", "description": "Parent frame"},
-                    "child_frame_id": {"type": "string", "description": "Child frame"},
-                    "translation": _vector3("Child frame origin in the parent frame"),
-                    "rotation": _quaternion("Child frame orientation in the parent frame")})
-
-
-def _log() -> Schema:
-    return _obj("foxglove.Log", "A log message", {
-        "timestamp": _time("Timestamp of log message"),
-        "level": _enum("foxglove.LogLevel", "Log level",
-                       [("UNKNOWN", 0, "Unknown log level"), ("DEBUG", 1, "Debug log level"),
-                        ("INFO", 2, "Info log level"), ("WARNING", 3, "Warning log level"),
-                        ("ERROR", 4, "Error log level"), ("FATAL", 5, "Fatal log level")]),
-        "message": {"type": "string", "description": "Log message"},
-        "name": {"type": "string", "description": "Process or node name"},
-        "file": {"type": "string", "description": "Filename"},
-        "line": {"type": "integer", "minimum": 0, "description": "Line number in the file"}})
-
-
-FOXGLOVE_SCHEMAS: dict[str, Schema] = {
-    "foxglove.FrameTransform": _frame_transform(),
-    "foxglove.SceneUpdate": _scene_update(),
-    "foxglove.Log": _log(),
-}
-
 # ---------------------------------------------------------------- project channels
 _T_S = {"type": "number", "description": "sim time (s)"}
 
@@ -276,8 +105,8 @@ RAW_FRAME: Schema = _obj(
     ["direction", "accepted", "len", "data"])
 
 TRUTH_STATE: Schema = _project(
-    "tfl_mav.TruthState", "True rigid-body state from the simulator, paper frame "
-    "(ENU, z up; body b3 along thrust)", {
+    "tfl_mav.TruthState", "True rigid-body state from the simulator, world frame "
+    "ENU (z up), body frame x forward, z along thrust", {
         "t_s": _T_S,
         "position_m": _vec(3, "position x_q (m)"),
         "velocity_mps": _vec(3, "velocity v_q (m/s)"),
@@ -296,7 +125,7 @@ TRUTH_ATTACK: Schema = _project(
                         "for (N)"}}, ["t_s", "rotor", "active"])
 
 TRUTH_THRUSTS: Schema = _project(
-    "tfl_mav.TruthThrusts", "True rotor thrusts (N), rotors 1-4 in the paper's + layout", {
+    "tfl_mav.TruthThrusts", "True rotor thrusts (N), rotors 1-4", {
         "t_s": _T_S,
         "thrust_n": _vec(4, "true thrust of rotors 1-4 (N)"),
         "attack_rotor": {"type": "integer", "minimum": 0, "maximum": 4}},
@@ -308,18 +137,16 @@ PATH_DISTANCE: Schema = _project(
         "distance_m": {"type": "number", "description": "distance to the polyline given to "
                        "Recorder.path (m)"}}, ["t_s"])
 
-CONTROLLER_STATE: Schema = _project(
-    "tfl_mav.ControllerState", "Controller state at sim time t_s; the keys below are the "
-    "ones the tools and the layout read, any other key may be added", {
-        "t_s": _T_S,
-        "mode": {"type": "string", "description": "nominal, attacked or failsafe"},
-        "detected_rotor": {"type": "integer", "minimum": 0, "maximum": 4,
-                           "description": "rotor the detector isolated, 0 = none"},
-        "attack_estimate_n": {"type": "number", "description": "estimated attack thrust (N)"},
-        "path_distance_m": {"type": "number", "description": "distance to the path (m)"},
-        "saturated": {"type": "boolean", "description": "a rotor command hit 0 or f_max"},
-        "rotor_thrust_cmd_n": _array({"type": "number"}, "rotor thrust commands 1-4 (N)")},
-    ["t_s"])
+def record_schema(title: str, description: str, properties: dict[str, Schema],
+                  required: list[str]) -> Schema:
+    """A caller's own JSON record schema (e.g. the controller's ``/controller/state``),
+    with ``t_s`` and the ``_nonfinite`` list the recorder adds."""
+    return _project(title, description, {"t_s": _T_S, **properties}, ["t_s", *required])
+
+
+def vec(n: int | None, description: str) -> Schema:
+    """An array of ``n`` numbers (any length if None)."""
+    return _array({"type": "number"}, description, n)
 
 
 # ---------------------------------------------------------------- MAVLink messages

@@ -1,0 +1,173 @@
+"""Foxglove's official schemas in the files and on the live WebSocket (issue #17).
+
+The scene, ``/tf`` and ``/log`` are protobuf from Foxglove's SDK; here every such message in
+a real MCAP file, and every message a real WebSocket client receives from a running
+``tfl-mav sim --foxglove`` flown by ``tfl-mav fly``, is decoded with the *official* protobuf
+classes (``foxglove-schemas-protobuf``), independent of the SDK that wrote it.
+"""
+
+from __future__ import annotations
+
+import base64
+import json
+import math
+import socket
+import struct
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from foxglove_schemas_protobuf.FrameTransform_pb2 import FrameTransform
+from foxglove_schemas_protobuf.Log_pb2 import Log
+from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
+from google.protobuf.descriptor_pb2 import FileDescriptorSet
+from mcap.reader import make_reader
+
+from tfl_mav.flightlog.recorder import Recorder
+
+REPO = Path(__file__).resolve().parents[1]
+OFFICIAL = {"foxglove.FrameTransform": FrameTransform, "foxglove.SceneUpdate": SceneUpdate,
+            "foxglove.Log": Log}
+ROTORS = ((0.25, 0.0), (0.0, -0.25), (-0.25, 0.0), (0.0, 0.25))
+
+
+def _check_schema(name: str, data: bytes) -> None:
+    """The schema is a FileDescriptorSet that defines exactly the official message."""
+    fds = FileDescriptorSet.FromString(data)
+    pkg_types = {f"{f.package}.{m.name}" for f in fds.file for m in f.message_type}
+    assert name in pkg_types
+    assert OFFICIAL[name].DESCRIPTOR.full_name == name
+
+
+def test_every_foxglove_message_in_the_file_decodes_with_the_official_classes(tmp_path):
+    path = tmp_path / "run.mcap"
+    with Recorder(path, rotor_xy_m=ROTORS, thrust_max_n=8.0) as rec:
+        rec.path(np.c_[np.linspace(0, 5, 20), np.zeros(20), np.full(20, 2.0)])
+        for k in range(100):
+            rec.truth(k * 1e-3, [0.01 * k, 0.0, 2.0], [0.0] * 3, [1.0, 0.0, 0.0, 0.0],
+                      [0.0] * 3, [2.0, 1.0, 2.0, 2.0], 2 if k >= 40 else 0, 1.0, 1.0)
+        rec.log("warning", "ATTACK on rotor 2", 0.04)
+    seen: dict[str, int] = {}
+    with open(path, "rb") as f:
+        for sc, ch, m in make_reader(f).iter_messages():
+            if not sc.name.startswith("foxglove."):
+                assert ch.message_encoding == "json" and sc.encoding == "jsonschema"
+                continue
+            assert ch.message_encoding == sc.encoding == "protobuf"
+            _check_schema(sc.name, sc.data)
+            msg = OFFICIAL[sc.name].FromString(m.data)      # raises if not that message
+            seen[ch.topic] = seen.get(ch.topic, 0) + 1
+            if ch.topic == "/tf":
+                assert (msg.parent_frame_id, msg.child_frame_id) == ("world", "base_link")
+                assert msg.timestamp.ToNanoseconds() == m.log_time
+            elif ch.topic == "/scene/path":
+                assert len(msg.entities[0].lines[0].points) == 20
+            elif ch.topic == "/scene/vehicle":
+                ent = msg.entities[0]
+                assert len(ent.arrows) == 4 and len(ent.cylinders) == 4
+                assert len(ent.spheres) == (1 if m.publish_time >= 40_000_000 else 0)
+            elif ch.topic == "/log":
+                assert msg.level == Log.WARNING and msg.message.endswith("ATTACK on rotor 2")
+    # 100 ticks of 1 ms at 50 Hz scene rate: t = 0, 20, ..., 80 ms
+    assert seen == {"/scene/path": 1, "/tf": 5, "/scene/vehicle": 5, "/log": 1}
+
+
+def _free_port(kind: int = socket.SOCK_STREAM) -> int:
+    with socket.socket(socket.AF_INET, kind) as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def _cli(*args: str, **kw) -> subprocess.Popen[str]:
+    return subprocess.Popen([sys.executable, "-m", "tools.cli", *args], cwd=REPO, text=True,
+                            **kw)
+
+
+def test_a_port_in_use_is_a_one_line_error(tmp_path):
+    with socket.socket() as busy:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        port = busy.getsockname()[1]
+        proc = _cli("sim", "--listen", "127.0.0.1:0", "--foxglove", f"127.0.0.1:{port}",
+                    stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+        out, err = proc.communicate(timeout=60)
+    assert proc.returncode == 3, (out, err)
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and f"--foxglove 127.0.0.1:{port}" in lines[0], err
+    assert "Traceback" not in err
+
+
+@pytest.mark.slow
+def test_live_websocket_serves_the_scene_while_it_flies(tmp_path):
+    """A real Foxglove WebSocket client on a running flight (``tfl-mav sim --foxglove``
+    flown by ``tfl-mav fly``, lockstep: a loaded machine cannot crash it by falling behind
+    the wall clock, and it runs near real time anyway): the FrameTransform and SceneUpdate
+    channels are advertised with the official schemas; subscribed, their messages decode
+    with the official protobuf classes and follow the flight."""
+    from websockets.sync.client import connect
+
+    ws_port, seconds = _free_port(), 60.0      # ended by SIGTERM once the client has seen it
+    sim = _cli("sim", "--listen", "127.0.0.1:0", "--duration", f"{seconds:g}",
+               "--foxglove", f"127.0.0.1:{ws_port}", stdout=subprocess.PIPE,
+               stderr=subprocess.DEVNULL)
+    fly = None
+    try:
+        assert sim.stdout is not None
+        line = sim.stdout.readline()
+        assert "listening on" in line, line
+        udp_port = int(line.split("listening on ")[1].split()[0].rsplit(":", 1)[1])
+        fly = _cli("fly", "--vehicle", f"127.0.0.1:{udp_port}", "--duration",
+                   f"{seconds:g}", "--quiet", stdout=subprocess.DEVNULL,
+                   stderr=subprocess.DEVNULL)
+        # Foxglove's WebSocket protocol: "foxglove.websocket.v1" is its historical name;
+        # foxglove-sdk >= 0.30 negotiates it as "foxglove.sdk.v1" (same messages)
+        with connect(f"ws://127.0.0.1:{ws_port}", open_timeout=10,
+                     subprotocols=["foxglove.websocket.v1", "foxglove.sdk.v1"]) as ws:
+            assert ws.subprotocol in ("foxglove.websocket.v1", "foxglove.sdk.v1")
+            channels: dict[str, dict] = {}
+            deadline = time.monotonic() + 20.0
+            while not {"/tf", "/scene/vehicle", "/scene/path"} <= channels.keys():
+                assert time.monotonic() < deadline, f"advertised only {sorted(channels)}"
+                msg = ws.recv(timeout=20)
+                if isinstance(msg, str) and json.loads(msg)["op"] == "advertise":
+                    for ch in json.loads(msg)["channels"]:
+                        channels[ch["topic"]] = ch
+            for topic, name in (("/tf", "foxglove.FrameTransform"),
+                                ("/scene/vehicle", "foxglove.SceneUpdate"),
+                                ("/scene/path", "foxglove.SceneUpdate")):
+                ch = channels[topic]
+                assert (ch["schemaName"], ch["encoding"]) == (name, "protobuf")
+                _check_schema(name, base64.b64decode(ch["schema"]))
+            subs = {1: "/tf", 2: "/scene/vehicle", 3: "/scene/path"}
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": i, "channelId": channels[t]["id"]} for i, t in subs.items()]}))
+            got: dict[str, list] = {t: [] for t in subs.values()}
+            deadline = time.monotonic() + 20.0
+            # the path is re-sent with every flush (1 s); /tf and the vehicle at 50 Hz
+            while not (len(got["/tf"]) >= 20 and got["/scene/vehicle"] and got["/scene/path"]):
+                assert time.monotonic() < deadline, {t: len(v) for t, v in got.items()}
+                msg = ws.recv(timeout=20)
+                if isinstance(msg, str):
+                    continue
+                op, sub_id, ts_ns = struct.unpack_from("<BIQ", msg)
+                assert op == 1
+                topic = subs[sub_id]
+                cls = FrameTransform if topic == "/tf" else SceneUpdate
+                decoded = cls.FromString(msg[13:])
+                got[topic].append((ts_ns, decoded))
+    finally:
+        for p in (fly, sim):
+            if p is not None and p.poll() is None:
+                p.terminate()                   # a clean stop (SIGTERM): exit 143
+                p.wait(timeout=60)
+    tfs = got["/tf"]
+    assert all(tf.child_frame_id == "base_link" for _, tf in tfs)
+    # the vehicle moves: positions are finite and the log times increase
+    assert all(math.isfinite(tf.translation.z) for _, tf in tfs)
+    assert [ts for ts, _ in tfs] == sorted(ts for ts, _ in tfs)
+    ent = got["/scene/vehicle"][0][1].entities[0]
+    assert ent.frame_id == "base_link" and len(ent.arrows) + len(ent.spheres) >= 3
+    assert len(got["/scene/path"][0][1].entities[0].lines[0].points) >= 2
