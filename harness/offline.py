@@ -25,8 +25,13 @@ __all__ = ["fly_offline"]
 
 def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
                 progress: Callable[[float, float], None] | None = None,
-                duration_s: float | None = None) -> FlightLog:
-    """Fly ``sc`` and return its :class:`FlightLog` (finished, arrays)."""
+                duration_s: float | None = None,
+                hook: Callable[[Simulator], None] | None = None) -> FlightLog:
+    """Fly ``sc`` and return its :class:`FlightLog` (finished, arrays).
+
+    ``hook(sim)`` is called before every control tick (benches use it to inject failures
+    mid-flight, as MAV_CMD_INJECT_FAILURE does on the link).
+    """
     fc = FlightComputer(sc, attack_info=attack_info)
     sim = Simulator(sc)
     ctrl = fc.controller
@@ -42,6 +47,8 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
     t0 = time.perf_counter()
     next_progress = 0.0
     for _ in range(n_ticks):
+        if hook is not None:
+            hook(sim)
         att = sim.attack
         if attack_info == "oracle":
             fc.tell_attack(att.rotor)
