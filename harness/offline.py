@@ -54,6 +54,8 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
             fc.tell_attack(att.rotor)
         res = fc.step(sim.time_s, sim.measured, sim.measured_rpm(), applied)
         out = res.law
+        for text in res.events:
+            log.events.append((sim.time_s, text))
         sim.set_command(res.thrust_n)
         applied = list(sim.rotor_commands_n)
         st = sim.state
@@ -67,7 +69,9 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
         uf, tp, tq, tr = mix(sim.params, true_f)
         log.append(t_s=sim.time_s, position_m=st.position_m, velocity_mps=st.velocity_mps,
                    body_rates_radps=st.body_rates_radps, yaw_rad=yaw_unwrapped,
-                   path_distance_m=out.path_distance_m, thrust_cmd_n=out.rotor_thrust_n,
+                   path_distance_m=out.path_distance_m, thrust_cmd_n=res.thrust_n,
+                   thrust_req_n=(res.thrust_requested_n if res.thrust_requested_n is not None
+                                 else res.thrust_n),
                    thrust_true_n=true_f, attack_true_n=att.applied_n if att.rotor else 0.0,
                    attack_estimate_n=res.attack_estimate_n, uf_n=uf, torque_nm=(tp, tq, tr),
                    saturated=any(out.saturated), mode=int(out.mode))
