@@ -47,6 +47,7 @@ from dataclasses import dataclass
 
 from tfl_mav.build import build_controller, build_detector, model_params, scenario_path
 from tfl_mav.control.detector import AttackDetector, DetectorOutput
+from tfl_mav.control.feasibility import attack_limit_n
 from tfl_mav.control.law import ControlOutput, TFLController
 from tfl_mav.control.recovery import RecoveryLaw, RecoveryOutput
 from tfl_mav.geometry import rotation_rows
@@ -61,6 +62,8 @@ RPM_TO_RADPS = 2.0 * math.pi / 60.0   # ESC rpm → rotor speed ω (rad/s)
 
 A_ENTER_N = 0.3        # attacked rotor below this: the TFL law has no τ_p authority
 A_EXIT_N = 0.6         # … above this (for HANDBACK_S) it has it again
+A_LIMIT_MARGIN_N = 0.15  # enter the safe law this far below the feasibility limit …
+A_LIMIT_BAND_N = 0.3     # … and hand back this far below that
 HANDBACK_S = 0.5       # conditions for handing back must hold this long
 HANDBACK_DIST_M = 0.15  # … including being this close to the path
 HOLD_BEFORE_PATH_S = 1.0  # take-over / lost path: level and hold this long, then fly back
@@ -116,6 +119,12 @@ class FlightComputer:
                                     mp.gravity_mps2, scenario.run.control_dt_s,
                                     scenario_path(scenario), scenario.path.speed_mps)
         self.speed_mps = scenario.path.speed_mps
+        # Beyond this attack thrust the path cannot be flown at all (feasibility module):
+        # the TFL law would flip trying; the reduced-attitude law keeps the attitude.
+        try:
+            self.attack_limit_n = attack_limit_n(scenario) - A_LIMIT_MARGIN_N
+        except Exception:  # an unusable path is reported by the law's own checks
+            self.attack_limit_n = mp.mass_kg * mp.gravity_mps2 / 2.0 - A_LIMIT_MARGIN_N
         self.law_name = "tfl"          # "tfl" | "recovery" | "lost_rotor"
         self.switches = 0
         self._ticks = 0
@@ -171,6 +180,11 @@ class FlightComputer:
                 and self.law_name != "lost_rotor":
             self._enter("lost_rotor", state, f"rotor {rotor} at {estimate:.2f} N < "
                         f"{A_ENTER_N} N: no roll authority, reduced-attitude law", events,
+                        hold=self.law_name == "recovery")
+        if rotor and math.isfinite(estimate) and estimate > self.attack_limit_n \
+                and self.law_name != "lost_rotor":
+            self._enter("lost_rotor", state, f"rotor {rotor} at {estimate:.2f} N: beyond what "
+                        "the path allows; keeping attitude, cannot follow the path", events,
                         hold=self.law_name == "recovery")
         if self.law_name == "tfl":
             out = ctrl.update(state, omega)
@@ -234,7 +248,8 @@ class FlightComputer:
         out = rec.update(state, rotor if self.law_name == "lost_rotor" else 0, a_n)
         ok = (rec.hold_m is None and math.isfinite(out.path_distance_m)
               and out.path_distance_m < HANDBACK_DIST_M and not self._calm_fail(state, rotor)
-              and (not rotor or (math.isfinite(estimate) and estimate > A_EXIT_N)))
+              and (not rotor or (math.isfinite(estimate) and A_EXIT_N < estimate
+                                 < self.attack_limit_n - A_LIMIT_BAND_N)))
         self._good_s = self._good_s + dt if ok else 0.0
         if self._good_s >= HANDBACK_S:
             self._hand_back(state, out, events)
