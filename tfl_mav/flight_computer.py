@@ -119,6 +119,7 @@ class FlightComputer:
                                     mp.gravity_mps2, scenario.run.control_dt_s,
                                     scenario_path(scenario), scenario.path.speed_mps)
         self.speed_mps = scenario.path.speed_mps
+        self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
         # Beyond this attack thrust the path cannot be flown at all (feasibility module):
         # the TFL law would flip trying; the reduced-attitude law keeps the attitude.
         try:
@@ -148,12 +149,18 @@ class FlightComputer:
         that ended at ``t_s`` — what the rpm answers to, not what was last sent.
         """
         ctrl = self.controller
+        events_pre: list[str] = []
         detection = None
         new = False
         estimate = math.nan
         rotor = 0
         if self.detector is not None:
             detection = self.detector.update(t_s, rpm, applied_n)
+            if detection.released:
+                ctrl.set_attack(0, 0.0)
+                self.detected_rotor = 0
+                events_pre.append("rotor obeys its commands again: attack over, "
+                                  "four-rotor law")
             if detection.detected_rotor:
                 rotor, estimate = detection.detected_rotor, detection.estimate_n
                 if detection.alarm:
@@ -169,7 +176,9 @@ class FlightComputer:
         omega = [r * RPM_TO_RADPS for r in rpm]
         dt = ctrl.dt if self._last_t is None else max(t_s - self._last_t, 0.0) or ctrl.dt
         self._last_t = t_s
-        events: list[str] = []
+        events: list[str] = events_pre
+        if new:
+            events.append(f"attack on rotor {rotor} detected ({estimate:.2f} N)")
         first = self._ticks == 0
         self._ticks += 1
         if first:
@@ -300,4 +309,11 @@ class FlightComputer:
         fmax = self.thrust_max_n
         applied = [min(max(f, 0.0), fmax) if math.isfinite(f) else 0.0 for f in thrust]
         req = [f if math.isfinite(f) else 0.0 for f in requested]
+        if rotor and self.detector is not None:
+            # The attacked rotor's command is not ours to use: send it a probe away from its
+            # estimate, so that a rotor the attacker lets go shows it by following (detector).
+            est = estimate if math.isfinite(estimate) else 0.0
+            probe = self._hover_share_n if abs(self._hover_share_n - est) > 1.0 \
+                else min(self._hover_share_n + 1.5, fmax)
+            applied[rotor - 1] = probe
         return TickResult(applied, out, detection, rotor, estimate, new, req, tuple(events))
