@@ -45,7 +45,13 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from tfl_mav.build import build_controller, build_detector, model_params, scenario_path
+from tfl_mav.build import (
+    build_controller,
+    build_detector,
+    detector_config,
+    model_params,
+    scenario_path,
+)
 from tfl_mav.control.detector import AttackDetector, DetectorOutput
 from tfl_mav.control.feasibility import attack_limit_n
 from tfl_mav.control.law import ControlOutput, TFLController
@@ -120,6 +126,8 @@ class FlightComputer:
                                     scenario_path(scenario), scenario.path.speed_mps)
         self.speed_mps = scenario.path.speed_mps
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
+        if self.controller.lag_inverter is not None:   # ESC noise: filter ω (actuators)
+            self.controller.lag_inverter.set_rpm_noise(detector_config(scenario).rpm_noise_std)
         # Beyond this attack thrust the path cannot be flown at all (feasibility module):
         # the TFL law would flip trying; the reduced-attitude law keeps the attitude.
         try:
