@@ -185,8 +185,6 @@ class FlightComputer:
         dt = ctrl.dt if self._last_t is None else max(t_s - self._last_t, 0.0) or ctrl.dt
         self._last_t = t_s
         events: list[str] = events_pre
-        if new:
-            events.append(f"attack on rotor {rotor} detected ({estimate:.2f} N)")
         first = self._ticks == 0
         self._ticks += 1
         if first:
