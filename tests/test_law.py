@@ -13,6 +13,7 @@ from sitl.physics import RigidBodyParams, mix
 from tfl_mav.build import build_controller
 from tfl_mav.control.allocation import allocate_attacked, allocate_nominal, canonical_frame
 from tfl_mav.control.law import chain_gains
+from tfl_mav.modes import Mode
 from tfl_mav.scenario import load_scenario
 from tfl_mav.state import State
 
@@ -80,7 +81,7 @@ def test_controller_never_outputs_nan(bad):
     ctrl.set_attack(2, 1.0)
     out = ctrl.update(_state(vel=(bad, 0, 0)))
     assert all(math.isfinite(x) and 0 <= x <= FMAX for x in out.rotor_thrust_n)
-    assert out.mode == "fallback" and out.reason
+    assert out.mode == Mode.FALLBACK and out.reason
     ok = ctrl.update(_state())
     assert all(math.isfinite(x) for x in ok.rotor_thrust_n)
 
@@ -96,7 +97,7 @@ def test_attacked_output_gives_the_attacked_rotor_its_estimate():
     ctrl = build_controller(load_scenario("paper"))
     ctrl.set_attack(3, 2.25)
     out = ctrl.update(_state())
-    assert out.mode == "attacked"
+    assert out.mode == Mode.ATTACKED
     assert out.rotor_thrust_n[2] == 2.25
 
 
@@ -105,6 +106,6 @@ def test_far_from_the_path_falls_back_safely():
     sc = load_scenario("circle")
     ctrl = build_controller(sc)
     out = ctrl.update(_state(pos=(0.0, 0.0, 5.0)))
-    assert out.mode == "fallback"
+    assert out.mode == Mode.FALLBACK
     assert "tube" in out.reason
     assert all(math.isfinite(x) and 0 <= x <= FMAX for x in out.rotor_thrust_n)

@@ -36,10 +36,11 @@ from tfl_mav.control.series import sqrt_series
 if TYPE_CHECKING:
     from tfl_mav.control.paths import Path
 
-__all__ = ["MIN_TUBE_MARGIN", "PathOutput", "PathTracker", "VirtualOutput", "pi_rates"]
+__all__ = ["MIN_TUBE_MARGIN", "PathOutput", "PathTracker", "VirtualOutput", "newton_on_poly",
+           "pi_rates", "poly_arc", "poly_g"]
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(slots=True)
 class VirtualOutput:
     """What the law needs of the virtual output at one instant, as derivatives.
 
@@ -151,14 +152,18 @@ class PathTracker:
             if abs(delta) < 1e-10:
                 self.lam = lam
                 return c
-            self._arc_m += _poly_arc(c, delta)
+            self._arc_m += poly_arc(c, delta)
             lam += delta
         return None
 
     # ------------------------------------------------------------------ evaluation
     def virtual_output(self, taylor: Sequence[Sequence[float]]) -> VirtualOutput:
         """:meth:`evaluate` as derivatives, the form the law consumes."""
-        out = self.evaluate(taylor)
+        try:
+            out = self.evaluate(taylor)
+        except (ValueError, ZeroDivisionError, OverflowError) as exc:
+            y0 = (taylor[0][0], taylor[1][0], taylor[2][0])
+            out = self._lost(y0, f"path evaluation failed: {exc}")
         return VirtualOutput(out.alpha[0].derivatives(), out.alpha[1].derivatives(),
                              out.pi.derivatives(), out.jacobian, out.lam, out.distance_m,
                              out.in_tube, out.reason)
@@ -217,25 +222,30 @@ class PathTracker:
         return PathOutput((zero, zero), zero, ident, lam, distance, False, reason)
 
 
-def _poly_newton(c: Sequence[Sequence[float]], y0: Sequence[float],
-                 max_step: float = 0.05) -> float | None:
-    """δ with ⟨y0 − S(δ), S'(δ)⟩ = 0 for S(δ) = Σ c_j δʲ, |δ| ≤ ``max_step`` (where the
-    degree-5 polynomial stands for σ to ~1e-8 relative); None if not found there."""
+def poly_g(c: Sequence[Sequence[Any]], y0: Sequence[Any], x: Any) -> tuple[Any, Any]:
+    """g(x) = ⟨y0 − S(x), S'(x)⟩ and g'(x) for the polynomial S(x) = Σ_j c_j xʲ (j ≤ 5)."""
+    s = [0.0, 0.0, 0.0]
+    ds = [0.0, 0.0, 0.0]
+    dds = [0.0, 0.0, 0.0]
+    for i in range(3):
+        c0, c1, c2, c3, c4, c5 = (c[0][i], c[1][i], c[2][i], c[3][i], c[4][i], c[5][i])
+        s[i] = c0 + x * (c1 + x * (c2 + x * (c3 + x * (c4 + x * c5))))
+        ds[i] = c1 + x * (2 * c2 + x * (3 * c3 + x * (4 * c4 + x * 5 * c5)))
+        dds[i] = 2 * c2 + x * (6 * c3 + x * (12 * c4 + x * 20 * c5))
+    e = [y0[i] - s[i] for i in range(3)]
+    g = e[0] * ds[0] + e[1] * ds[1] + e[2] * ds[2]
+    dg = (e[0] * dds[0] + e[1] * dds[1] + e[2] * dds[2]
+          - (ds[0] * ds[0] + ds[1] * ds[1] + ds[2] * ds[2]))
+    return g, dg
+
+
+def newton_on_poly(g_dg: Callable[[float], tuple[float, float]],
+                   max_step: float = 0.05) -> float | None:
+    """δ with g(δ) = 0 by Newton from 0, |δ| ≤ ``max_step`` (where the degree-5 polynomial
+    stands for σ to ~1e-8 relative); None if not found there. ``g_dg(δ)`` = (g, g')."""
     delta = 0.0
     for _ in range(8):
-        s = [0.0, 0.0, 0.0]
-        ds = [0.0, 0.0, 0.0]
-        dds = [0.0, 0.0, 0.0]
-        for i in range(3):
-            c0, c1, c2, c3, c4, c5 = (c[0][i], c[1][i], c[2][i], c[3][i], c[4][i], c[5][i])
-            x = delta
-            s[i] = c0 + x * (c1 + x * (c2 + x * (c3 + x * (c4 + x * c5))))
-            ds[i] = c1 + x * (2 * c2 + x * (3 * c3 + x * (4 * c4 + x * 5 * c5)))
-            dds[i] = 2 * c2 + x * (6 * c3 + x * (12 * c4 + x * 20 * c5))
-        e = [y0[i] - s[i] for i in range(3)]
-        g = e[0] * ds[0] + e[1] * ds[1] + e[2] * ds[2]
-        dg = (e[0] * dds[0] + e[1] * dds[1] + e[2] * dds[2]
-              - (ds[0] * ds[0] + ds[1] * ds[1] + ds[2] * ds[2]))
+        g, dg = g_dg(delta)
         if not dg < 0.0:
             return None
         step = -g / dg
@@ -247,15 +257,21 @@ def _poly_newton(c: Sequence[Sequence[float]], y0: Sequence[float],
     return delta if abs(step) < 1e-9 else None
 
 
-def _poly_arc(c: Sequence[Sequence[float]], delta: float) -> float:
+def _poly_newton(c: Sequence[Sequence[float]], y0: Sequence[float]) -> float | None:
+    """δ with ⟨y0 − S(δ), S'(δ)⟩ = 0 for S(δ) = Σ c_j δʲ (see :func:`newton_on_poly`)."""
+    return newton_on_poly(lambda x: poly_g(c, y0, x))
+
+
+def poly_arc(c: Sequence[Sequence[Any]], delta: Any,
+             sqrt: Callable[[Any], Any] = math.sqrt) -> Any:
     """∫₀^δ |S'(u)| du by Simpson's rule (signed: negative for δ < 0)."""
-    def speed(x: float) -> float:
+    def speed(x: Any) -> Any:
         acc = 0.0
         for i in range(3):
             d = c[1][i] + x * (2 * c[2][i] + x * (3 * c[3][i] + x * (4 * c[4][i]
                                                                    + x * 5 * c[5][i])))
             acc += d * d
-        return math.sqrt(acc)
+        return sqrt(acc)
 
     return delta / 6.0 * (speed(0.0) + 4.0 * speed(0.5 * delta) + speed(delta))
 
