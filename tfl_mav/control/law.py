@@ -33,18 +33,22 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+
+import numpy as np
 
 from tfl_mav.control.actuators import MotorLagInverter
 from tfl_mav.control.allocation import (
     Bounds,
     RotorFrame,
+    _max,
+    _min,
     allocate_attacked,
     allocate_nominal,
     canonical_frame,
 )
 from tfl_mav.control.compiled import make_tracker
 from tfl_mav.control.estimators import MassEstimator, RateDisturbanceObserver
+from tfl_mav.control.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
 from tfl_mav.control.paths import Path
 from tfl_mav.control.tracker import VirtualOutput
 from tfl_mav.geometry import rotation_rows
@@ -54,70 +58,9 @@ from tfl_mav.state import State
 __all__ = ["ControlOutput", "LawConfig", "ModelParams", "TFLController", "chain_gains"]
 
 
-@dataclass(frozen=True)
-class ModelParams:
-    """The controller's model of the vehicle (deliberately not the truth), SI units."""
-
-    mass_kg: float
-    inertia_kgm2: tuple[float, float, float]
-    arm_m: float
-    drag_thrust_ratio_m: float
-    k_t: float
-    k_r: float
-    thrust_max_n: float
-    gravity_mps2: float = 9.81
-    k_f: float = 8.0e-6                 # N/(rad/s)², thrust = k_f ω²
-    motor_time_constant_s: float = 0.0  # first-order lag on ω; 0 = ideal actuators
-
-
-@dataclass(frozen=True)
-class LawConfig:
-    """Gains and robustness switches (mirrors the scenario's ``[controller]`` table)."""
-
-    speed_mps: float = 0.5
-    xi_pole: float = -2.5
-    eta_pole: float = -2.0
-    xi_pole_fine: float = -4.0
-    eta_pole_fine: float = -2.5
-    yaw_pole: float = -4.0
-    robust: bool = True
-    mass_estimator: bool = True
-    disturbance_observer: bool = True
-    gain_switch: bool = True
-    observer_tau_s: float = 0.004
-    aware_of_attack: bool = True
-    settle_alpha: float = 0.01      # |α| below this …
-    settle_time_s: float = 1.0      # … for this long switches to the fine poles
-    min_thrust_n: float = 0.5       # u_f below this makes D singular: fall back
-    max_cond: float = 1e8           # cond(Dφ) above this: fall back
-
-
-@dataclass(slots=True)
-class ControlOutput:
-    """One control decision and the internals worth logging."""
-
-    rotor_thrust_n: list[float]          # command, in [0, f_max], physical rotor order (with
-                                         # motor lag: the lag inverse of the law's demand)
-    mode: Mode                           # NOMINAL | ATTACKED | FALLBACK
-    saturated: list[bool]
-    xi: tuple[tuple[float, ...], tuple[float, ...]]   # (α1, α̇1, α̈1, α⃛1), same for α2
-    eta: tuple[float, ...]               # (π, π̇, π̈, π⃛)
-    mu: tuple[float, float]              # (ψ, μ2) internal states, eq. (18)
-    path_distance_m: float
-    lam: float
-    cond_d: float
-    thrust_n: float                      # u_f = x13
-    mass_estimate_kg: float
-    disturbance_radps2: tuple[float, float]
-    fine_gains: bool
-    reason: str = ""                     # why a fallback was taken
-    extra: dict[str, float] = field(default_factory=dict)
-
-
-def chain_gains(pole: float, order: int) -> tuple[float, ...]:
-    """Gains k₀…k_{n−1} of (s − pole)ⁿ = sⁿ + k_{n−1}sⁿ⁻¹ + … + k₀ (pole < 0)."""
-    a = -pole
-    return tuple(math.comb(order, i) * a ** (order - i) for i in range(order))
+def _floats(x: Sequence[float]) -> Sequence[float]:
+    """``x`` with Python floats (``tolist`` of a numpy array; other sequences as they are)."""
+    return x.tolist() if type(x) is np.ndarray else x
 
 
 def _solve3(A: Sequence[Sequence[float]], b: Sequence[float]) -> tuple[list[float], float]:
@@ -237,14 +180,17 @@ class TFLController:
         """Compute the rotor thrusts (N) for this control period from the measured state
         and, with motor lag, the measured rotor speeds ω (rad/s, from ESC rpm)."""
         self.ticks += 1
-        R = rotation_rows(s.quaternion_wxyz)
+        # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
+        y, v, quat, rates = (_floats(s.position_m), _floats(s.velocity_mps),
+                             _floats(s.quaternion_wxyz), _floats(s.body_rates_radps))
+        R = rotation_rows(quat)
         if self.psi_ref is None:
             self.psi_ref = math.atan2(R[1][0], R[0][0])
-        b1, b2, b3, pc, qc, rc = self._canonical_axes(R, s.body_rates_radps)
-        mass = self._update_estimators(s.velocity_mps, R, pc, qc)
+        b1, b2, b3, pc, qc, rc = self._canonical_axes(R, rates)
+        mass = self._update_estimators(v, R, pc, qc)
         uf, duf = self.x13, self.x14
-        vo = self.tracker.virtual_output(
-            self._output_taylor(s.position_m, s.velocity_mps, b1, b2, b3, pc, qc, rc, mass))
+        vo = self.tracker.virtual_output(self._output_taylor(y, v, b1, b2, b3, pc, qc, rc,
+                                                             mass))
         reason, udd, pdot, qdot, cond = self._decoupling_solve(vo, b1, b2, b3, mass, uf, duf,
                                                                pc, qc)
         tau_p, tau_q = self._torques(pdot, qdot, pc, qc, rc)
@@ -261,7 +207,7 @@ class TFLController:
         command, sat, applied_uf = self._saturate_and_apply(f, raw, pc, qc, rc)
         self._advance_extension(applied_uf, uf, duf, udd)
         self._settle(vo, reason)
-        p, _, r = s.body_rates_radps
+        p, _, r = rates
         m = self.model
         return ControlOutput(
             rotor_thrust_n=command, mode=mode, saturated=sat,
@@ -426,8 +372,9 @@ class TFLController:
         m = self.model
         fmax = m.thrust_max_n
         last = self._last_out
-        sat = [not (-1e-9 <= fi <= fmax + 1e-9) for fi in raw]
-        f = [min(max(fi, 0.0), fmax) if math.isfinite(fi) else last[i]
+        hi = fmax + 1e-9
+        sat = [not (-1e-9 <= fi <= hi) for fi in raw]
+        f = [_min(_max(fi, 0.0), fmax) if math.isfinite(fi) else last[i]
              for i, fi in enumerate(f)]
         frame = self.frame
         if frame is not None:
