@@ -117,17 +117,27 @@ def allocate_attacked(uf: float, tau_q: float, tau_r: float, attack_n: float,
     hi1, hi3, hi4 = hi[0], hi[2], hi[3]
     # f4's range that leaves f1 + f3 = u_f − A − f4 within [lo1 + lo3, hi1 + hi3] if possible.
     rest = uf - attack_n
+    # min/max written out (same results, NaN and ties included): this runs twice a tick.
     x = rest - (lo1 + lo3)
-    top = _min(hi4, lo4 if lo4 > x else x)
+    x = lo4 if lo4 > x else x
+    top = x if x < hi4 else hi4
     x = rest - (hi1 + hi3)
-    bottom = _min(lo4 if lo4 > x else x, top)
+    x = lo4 if lo4 > x else x
+    bottom = top if top < x else x
     x = 0.5 * (uf - tau_r / d_m) - attack_n
-    f4 = _min(bottom if bottom > x else x, top)
+    x = bottom if bottom > x else x
+    f4 = top if top < x else x
     x = rest - f4
     s_lo, s_hi = lo1 + lo3, hi1 + hi3
-    s13 = _min(s_lo if s_lo > x else x, s_hi)
+    x = s_lo if s_lo > x else x
+    s13 = s_hi if s_hi < x else x
     half = 0.5 * tau_q / arm_m
     # Keep f1 + f3 = s13 and reduce |f3 − f1| until both are within their bounds.
     m = 0.5 * s13
-    half = _max(_max(m - hi1, lo3 - m), _min(_min(m - lo1, hi3 - m), half))
+    a, b = m - hi1, lo3 - m
+    lower = b if b > a else a
+    a, b = m - lo1, hi3 - m
+    upper = b if b < a else a
+    upper = half if half < upper else upper
+    half = upper if upper > lower else lower
     return [m - half, attack_n, m + half, f4]

@@ -40,8 +40,6 @@ from tfl_mav.control.actuators import MotorLagInverter
 from tfl_mav.control.allocation import (
     Bounds,
     RotorFrame,
-    _max,
-    _min,
     allocate_attacked,
     allocate_nominal,
     canonical_frame,
@@ -374,8 +372,15 @@ class TFLController:
         last = self._last_out
         hi = fmax + 1e-9
         sat = [not (-1e-9 <= fi <= hi) for fi in raw]
-        f = [_min(_max(fi, 0.0), fmax) if math.isfinite(fi) else last[i]
-             for i, fi in enumerate(f)]
+        clipped = []
+        for i in range(4):
+            fi = f[i]
+            if math.isfinite(fi):
+                fi = 0.0 if fi < 0.0 else fi          # max(fi, 0), min(·, f_max) written out
+                clipped.append(fmax if fmax < fi else fi)
+            else:
+                clipped.append(last[i])
+        f = clipped
         frame = self.frame
         if frame is not None:
             f[frame.perm[1]] = self.attack_estimate_n
