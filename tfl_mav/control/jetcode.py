@@ -17,12 +17,19 @@ expression) becomes a run-time select on the value, exactly as the jets choose. 
 that compares a traced value any other way raises :class:`TraceError`; the caller then keeps
 the reference jets for that path.
 
-Kernels made here (``c[j]`` = σ⁽ʲ⁾(λ)/j!, ``y[i][k]`` = the position's Taylor coefficients):
+Kernels made here (by :mod:`compiled`; ``c[j]`` = σ⁽ʲ⁾(λ)/j!, ``y[i][k]`` = the position's
+Taylor coefficients):
 
-* ``sigma5(λ)`` → the 18 numbers c[j][i], j = 0..5 (j-major): σ's Taylor polynomial (§V (13));
+* ``sigma2(λ)``, ``sigma5(λ)`` → σ's Taylor coefficients to order 2 (Newton) and 5
+  (j-major), for the projection (§V (13));
 * ``s4(y)`` → α1, α2 and their derivatives to order 4, and ∂s/∂y (§V (8), (14), (15));
-* ``lambda_pi(c, y, slope)`` → π̇ … π⁽⁴⁾ from the implicit projection condition (§V (13)),
+* ``pi_rates(c, y, slope)`` → π̇ … π⁽⁴⁾ from the implicit projection condition (§V (13)),
   traced from the reference :func:`tracker.pi_rates`, path independent.
+
+The generated source holds only temporaries, the kernel's inputs, float literals (``repr``),
+arithmetic, comparisons and the whitelisted math functions: scenario text never reaches
+:func:`compile` (expressions are parsed and checked by :mod:`tfl_mav.expr` and run here as
+closures), which tests/test_compiled.py checks.
 """
 
 from __future__ import annotations
