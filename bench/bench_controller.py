@@ -1,64 +1,246 @@
-"""Controller cost per evaluation and the offline real-time factor.
+"""Controller cost per evaluation (reference jets vs compiled path), its breakdown, and the
+offline loop against a plain numpy RK4 physics-only loop — all in the same run.
 
-    python bench/bench_controller.py [--scenario paper] [--ticks 5000] [--json FILE]
+    python bench/bench_controller.py [--scenario paper] [--ticks 4000] [--json FILE]
 
-Times ``TFLController.update`` alone (median and p90 µs over a closed-loop flight, so the
-projection is warm-started as in real use), the physics step, and the whole offline loop.
+1. ``TFLController.update`` alone, median and p90 µs over a closed-loop flight (so the
+   projection is warm-started as in real use), with the path evaluated by the reference jets
+   (``compiled_path=False``, the law before #13) and by the compiled tracker (the default).
+2. Where an update's time goes, per step of :meth:`TFLController.update` (exclusive µs per
+   tick, by wrapping each step with a timer: absolute numbers include the wrapper's cost,
+   use the shares).
+3. Issue #13's table row 2: the offline loop (physics + law + detector at 1 kHz,
+   ``harness.offline.fly_offline``, and the whole ``tfl-mav offline`` process) against a
+   plain numpy RK4 loop of the same rigid body with the physics only, as the ratio of
+   simulated seconds per CPU second (> 1: the full loop is faster).
+
+Times are this thread's CPU time (``time.thread_time``), so being preempted on a shared
+machine does not count; the loop ratios use CPU time as well (the CLI's from the child's
+rusage). Absolute times still depend on the machine; the ratios are measured side by side.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import resource
 import statistics
+import subprocess
 import sys
 import time
+from collections import defaultdict
+from collections.abc import Callable
+from typing import Any
 
+import numpy as np
+
+from harness.offline import fly_offline
 from sitl.simulator import Simulator
 from tfl_mav.build import build_controller
-from tfl_mav.scenario import load_scenario
+from tfl_mav.control import actuators, compiled, law, tracker
+from tfl_mav.control.compiled import compile_path
+from tfl_mav.control.law import TFLController
+from tfl_mav.scenario import Scenario, load_scenario
 from tfl_mav.state import State
+
+_cpu = time.thread_time
+
+
+def _controller(sc: Scenario, compiled_path: bool) -> TFLController:
+    ctrl = build_controller(sc)
+    if not compiled_path:
+        ctrl.tracker, ctrl.path_eval = compiled.make_tracker(ctrl.tracker.path, False)
+    return ctrl
+
+
+def time_law(sc: Scenario, ticks: int, compiled_path: bool) -> list[float]:
+    """Seconds per ``update`` over a closed-loop flight of ``ticks`` control periods."""
+    sim, ctrl = Simulator(sc), _controller(sc, compiled_path)
+    out_s = []
+    for _ in range(ticks):
+        m = sim.measured
+        if sim.attack.rotor:
+            ctrl.set_attack(sim.attack.rotor, sim.attack.applied_n)
+        st = State(m.position_m, m.velocity_mps, m.quaternion_wxyz, m.body_rates_radps)
+        t0 = _cpu()
+        out = ctrl.update(st)
+        out_s.append(_cpu() - t0)
+        sim.set_command(out.rotor_thrust_n)
+        sim.step_control_period()
+    return out_s
+
+
+# ----- breakdown ----------------------------------------------------------------------------
+STEPS: list[tuple[str, Any, str]] = [
+    ("body axes (R, canonical frame)", law.TFLController, "_canonical_axes"),
+    ("estimators (mass, rate DOB)", law.TFLController, "_update_estimators"),
+    ("model derivatives ÿ…y⁽⁴⁾ (3), (9)", law.TFLController, "_output_taylor"),
+    ("path: projection + σ Taylor (13)", compiled.CompiledPathTracker, "_project_compiled"),
+    ("path: projection + σ Taylor (13)", tracker.PathTracker, "_project"),
+    ("path: α jets, Dφ, π rates (8), (14)", compiled.CompiledPathTracker, "virtual_output"),
+    ("path: α jets, Dφ, π rates (8), (14)", tracker.PathTracker, "virtual_output"),
+    ("aux inputs + decoupling (15), (21)", law.TFLController, "_decoupling_solve"),
+    ("torques (3)", law.TFLController, "_torques"),
+    ("allocation (4), (6) + yaw (2)", law.TFLController, "_allocate_attacked"),
+    ("allocation (4), (6) + yaw (2)", law.TFLController, "_allocate_nominal"),
+    ("lag inverse (#6)", actuators.MotorLagInverter, "reachable"),
+    ("lag inverse (#6)", actuators.MotorLagInverter, "invert"),
+    ("saturation, applied, ṗ/q̇ prediction", law.TFLController, "_saturate_and_apply"),
+    ("extension (9) + settling", law.TFLController, "_advance_extension"),
+    ("extension (9) + settling", law.TFLController, "_settle"),
+    ("update: the rest (output record)", law.TFLController, "update"),
+]
+
+
+def breakdown(sc: Scenario, ticks: int, compiled_path: bool) -> dict[str, float]:
+    """Exclusive µs per tick of each step (wrapped with timers, restored afterwards)."""
+    acc: dict[str, float] = defaultdict(float)
+    stack: list[float] = []
+    saved = []
+
+    def wrap(label: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+        def timed(*a: Any, **k: Any) -> Any:
+            t0 = _cpu()
+            stack.append(0.0)
+            try:
+                return fn(*a, **k)
+            finally:
+                el = _cpu() - t0
+                acc[label] += el - stack.pop()
+                if stack:
+                    stack[-1] += el
+        return timed
+
+    for label, owner, name in STEPS:
+        fn = owner.__dict__.get(name)
+        if fn is not None:
+            saved.append((owner, name, fn))
+            setattr(owner, name, wrap(label, fn))
+    try:
+        time_law(sc, ticks, compiled_path)
+    finally:
+        for owner, name, fn in saved:
+            setattr(owner, name, fn)
+    return {k: 1e6 * v / ticks for k, v in acc.items()}
+
+
+# ----- offline loop vs a plain numpy RK4 -----------------------------------------------------
+def numpy_rk4_rtf(sc: Scenario, sim_s: float) -> float:
+    """Simulated s per wall s of the rigid body (§III eq. (3)) integrated by RK4 with numpy
+    arrays — the plain way to write the physics — at hover thrust, physics only (per CPU s)."""
+    v = sc.vehicle
+    m, g = v.mass_kg, 9.81
+    J = np.array(v.inertia_kgm2)
+    kt, kr = v.k_t, v.k_r
+    wrench = np.array([m * g, 0.0, 0.0, 0.0])
+    e3 = np.array([0.0, 0.0, 1.0])
+
+    def f(x: np.ndarray) -> np.ndarray:
+        vel, q, w = x[3:6], x[6:10], x[10:13]
+        qw, qx, qy, qz = q
+        b3 = np.array([2 * (qx * qz + qw * qy), 2 * (qy * qz - qw * qx),
+                       1 - 2 * (qx * qx + qy * qy)])
+        acc = wrench[0] / m * b3 - g * e3 - kt / m * vel
+        omega = np.array([0.0, *w])
+        qdot = 0.5 * np.array([
+            q[0] * omega[0] - q[1] * omega[1] - q[2] * omega[2] - q[3] * omega[3],
+            q[0] * omega[1] + q[1] * omega[0] + q[2] * omega[3] - q[3] * omega[2],
+            q[0] * omega[2] - q[1] * omega[3] + q[2] * omega[0] + q[3] * omega[1],
+            q[0] * omega[3] + q[1] * omega[2] - q[2] * omega[1] + q[3] * omega[0]])
+        wdot = (wrench[1:] - kr * w - np.cross(w, J * w)) / J
+        return np.concatenate([vel, acc, qdot, wdot])
+
+    h = sc.run.physics_dt_s
+    n = round(sim_s / h)
+    x = np.array([0.0, 0.0, 1.0, 0, 0, 0, 1.0, 0, 0, 0, 0, 0, 0])
+    t0 = _cpu()
+    for _ in range(n):
+        k1 = f(x)
+        k2 = f(x + 0.5 * h * k1)
+        k3 = f(x + 0.5 * h * k2)
+        k4 = f(x + h * k3)
+        x = x + h / 6.0 * (k1 + 2 * k2 + 2 * k3 + k4)
+        x[6:10] /= np.linalg.norm(x[6:10])
+    return sim_s / (_cpu() - t0)
+
+
+def offline_rtf(sc: Scenario, sim_s: float) -> float:
+    """Simulated s per CPU s of ``fly_offline`` (physics + detector + law, in-process)."""
+    t0 = _cpu()
+    log = fly_offline(sc, attack_info="detector", duration_s=sim_s)
+    wall = _cpu() - t0
+    return float(log["t_s"][-1] + sc.run.control_dt_s) / wall
+
+
+def cli_rtf(scenario: str, sim_s: float) -> float:
+    """Simulated s per CPU s of the whole ``tfl-mav offline`` process (start-up included)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
+    subprocess.run([sys.executable, "-m", "tools.cli", "offline", scenario, "--json",
+                    "--attack-info", "detector", "--duration", str(sim_s)],
+                   check=True, capture_output=True)
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime + after.ru_stime) - (before.ru_utime + before.ru_stime)
+    return sim_s / cpu
 
 
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="paper")
-    ap.add_argument("--ticks", type=int, default=5000)
+    ap.add_argument("--ticks", type=int, default=4000)
+    ap.add_argument("--offline-s", type=float, default=5.0, help="simulated s per loop run")
+    ap.add_argument("--no-offline", action="store_true", help="skip the offline-loop table")
     ap.add_argument("--json", metavar="FILE")
     args = ap.parse_args(argv)
+    sc0 = load_scenario(args.scenario)
+    result: dict[str, Any] = {"scenario": args.scenario, "ticks": args.ticks}
+
+    t0 = _cpu()
+    kernels = compile_path(build_controller(sc0).tracker.path)
+    result["codegen_ms"] = {"path": 1e3 * kernels.build_s,
+                            "controller_build": 1e3 * (_cpu() - t0)}
+
     rows = []
-    for law in ("robust", "paper"):
-        sc = load_scenario(args.scenario).replace(**{"controller.law": law})
-        sim, ctrl = Simulator(sc), build_controller(sc)
-        ctl_s, phys_s = [], []
-        t_all = time.perf_counter()
-        for _ in range(args.ticks):
-            m = sim.measured
-            if sim.attack.rotor:
-                ctrl.set_attack(sim.attack.rotor, sim.attack.applied_n)
-            st = State(m.position_m, m.velocity_mps, m.quaternion_wxyz,
-                               m.body_rates_radps)
-            t0 = time.perf_counter()
-            out = ctrl.update(st)
-            t1 = time.perf_counter()
-            sim.set_command(out.rotor_thrust_n)
-            sim.step_control_period()
-            phys_s.append(time.perf_counter() - t1)
-            ctl_s.append(t1 - t0)
-        wall = time.perf_counter() - t_all
-        ctl_s.sort()
-        rows.append({"law": law, "controller_median_us": 1e6 * statistics.median(ctl_s),
-                     "controller_p90_us": 1e6 * ctl_s[int(0.9 * len(ctl_s))],
-                     "physics_per_tick_us": 1e6 * statistics.median(phys_s),
-                     "offline_rtf": args.ticks * sim.control_dt_s / wall})
-    print(f"{'law':8s} {'ctl median µs':>13s} {'ctl p90 µs':>10s} {'physics µs':>10s} "
-          f"{'offline RTF':>11s}")
-    for r in rows:
-        print(f"{r['law']:8s} {r['controller_median_us']:13.1f} {r['controller_p90_us']:10.1f} "
-              f"{r['physics_per_tick_us']:10.1f} {r['offline_rtf']:11.2f}")
+    print(f"{'law':8s} {'jets median µs':>14s} {'compiled µs':>11s} {'speed-up':>8s} "
+          f"{'jets p90':>8s} {'compiled p90':>12s}")
+    for law_name in ("robust", "paper"):
+        sc = sc0.replace(**{"controller.law": law_name})
+        ref = sorted(time_law(sc, args.ticks, False))
+        fast = sorted(time_law(sc, args.ticks, True))
+        r = {"law": law_name, "jets_median_us": 1e6 * statistics.median(ref),
+             "compiled_median_us": 1e6 * statistics.median(fast),
+             "jets_p90_us": 1e6 * ref[int(0.9 * len(ref))],
+             "compiled_p90_us": 1e6 * fast[int(0.9 * len(fast))]}
+        r["speedup"] = r["jets_median_us"] / r["compiled_median_us"]
+        rows.append(r)
+        print(f"{law_name:8s} {r['jets_median_us']:14.1f} {r['compiled_median_us']:11.1f} "
+              f"{r['speedup']:7.2f}x {r['jets_p90_us']:8.1f} {r['compiled_p90_us']:12.1f}")
+    result["controller"] = rows
+    print(f"(path code generation at start-up: {result['codegen_ms']['path']:.1f} ms)")
+
+    print(f"\nbreakdown, robust law, exclusive µs per tick (timer wrappers included)\n"
+          f"{'step':40s} {'jets':>8s} {'compiled':>9s}")
+    sc = sc0.replace(**{"controller.law": "robust"})
+    n = max(500, args.ticks // 2)
+    b_ref, b_fast = breakdown(sc, n, False), breakdown(sc, n, True)
+    for label in dict.fromkeys(label for label, _, _ in STEPS):
+        print(f"{label:40s} {b_ref.get(label, 0.0):8.1f} {b_fast.get(label, 0.0):9.1f}")
+    print(f"{'total':40s} {sum(b_ref.values()):8.1f} {sum(b_fast.values()):9.1f}")
+    result["breakdown_us"] = {"jets": b_ref, "compiled": b_fast}
+
+    if not args.no_offline:
+        rk4 = numpy_rk4_rtf(sc0, args.offline_s)
+        off = offline_rtf(sc0, args.offline_s)
+        cli = cli_rtf(args.scenario, args.offline_s)
+        result["offline"] = {"numpy_rk4_rtf": rk4, "offline_loop_rtf": off,
+                             "cli_process_rtf": cli, "loop_vs_numpy": off / rk4,
+                             "cli_vs_numpy": cli / rk4}
+        print(f"\n{'loop (simulated s per CPU s)':44s} {'RTF':>6s} {'vs numpy RK4':>12s}")
+        print(f"{'plain numpy RK4, physics only':44s} {rk4:6.2f} {1.0:11.2f}x")
+        print(f"{'fly_offline: physics + detector + law':44s} {off:6.2f} {off / rk4:11.2f}x")
+        print(f"{'tfl-mav offline, whole process':44s} {cli:6.2f} {cli / rk4:11.2f}x")
     if args.json:
         with open(args.json, "w") as fh:
-            json.dump(rows, fh, indent=2)
+            json.dump(result, fh, indent=2)
     return 0
 
 

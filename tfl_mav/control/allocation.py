@@ -69,17 +69,32 @@ def allocate_nominal(uf: float, tau_p: float, tau_q: float, tau_r: float,
     hp, hq = tau_p / (2.0 * arm_m), tau_q / (2.0 * arm_m)
     r = tau_r / (4.0 * d_m)
     base = (a - hq, a - hp, a + hq, a + hp)
-    signs = (1.0, -1.0, 1.0, -1.0)
     scale = 1.0
-    for b, sg, lo, hi in zip(base, signs, lo4, hi4, strict=True):
-        f = b + sg * r
-        if f < lo and sg * r < 0.0 and b > lo:
+    for i in range(4):   # rotors 1, 3 react +d f (sign +1), 2, 4 −d f (sign −1)
+        b, lo, hi = base[i], lo4[i], hi4[i]
+        sr = r if i % 2 == 0 else -r
+        f = b + sr
+        if f < lo and sr < 0.0 and b > lo:
             scale = min(scale, (b - lo) / abs(r))
-        elif f > hi and sg * r > 0.0 and b < hi:
+        elif f > hi and sr > 0.0 and b < hi:
             scale = min(scale, (hi - b) / abs(r))
     r *= scale
-    return [min(max(b + sg * r, lo), hi)
-            for b, sg, lo, hi in zip(base, signs, lo4, hi4, strict=True)]
+    out = []
+    for i in range(4):
+        f = base[i] + (r if i % 2 == 0 else -r)
+        f = _max(f, lo4[i])
+        out.append(_min(f, hi4[i]))
+    return out
+
+
+def _max(a: float, b: float) -> float:
+    """``max(a, b)`` (same result, NaN and ties included) without the call overhead."""
+    return b if b > a else a
+
+
+def _min(a: float, b: float) -> float:
+    """``min(a, b)``, likewise."""
+    return b if b < a else a
 
 
 def allocate_attacked(uf: float, tau_q: float, tau_r: float, attack_n: float,
@@ -102,12 +117,27 @@ def allocate_attacked(uf: float, tau_q: float, tau_r: float, attack_n: float,
     hi1, hi3, hi4 = hi[0], hi[2], hi[3]
     # f4's range that leaves f1 + f3 = u_f − A − f4 within [lo1 + lo3, hi1 + hi3] if possible.
     rest = uf - attack_n
-    top = min(hi4, max(rest - (lo1 + lo3), lo4))
-    bottom = min(max(rest - (hi1 + hi3), lo4), top)
-    f4 = min(max(0.5 * (uf - tau_r / d_m) - attack_n, bottom), top)
-    s13 = min(max(rest - f4, lo1 + lo3), hi1 + hi3)
+    # min/max written out (same results, NaN and ties included): this runs twice a tick.
+    x = rest - (lo1 + lo3)
+    x = lo4 if lo4 > x else x
+    top = x if x < hi4 else hi4
+    x = rest - (hi1 + hi3)
+    x = lo4 if lo4 > x else x
+    bottom = top if top < x else x
+    x = 0.5 * (uf - tau_r / d_m) - attack_n
+    x = bottom if bottom > x else x
+    f4 = top if top < x else x
+    x = rest - f4
+    s_lo, s_hi = lo1 + lo3, hi1 + hi3
+    x = s_lo if s_lo > x else x
+    s13 = s_hi if s_hi < x else x
     half = 0.5 * tau_q / arm_m
     # Keep f1 + f3 = s13 and reduce |f3 − f1| until both are within their bounds.
     m = 0.5 * s13
-    half = max(max(m - hi1, lo3 - m), min(min(m - lo1, hi3 - m), half))
+    a, b = m - hi1, lo3 - m
+    lower = b if b > a else a
+    a, b = m - lo1, hi3 - m
+    upper = b if b < a else a
+    upper = half if half < upper else upper
+    half = upper if upper > lower else lower
     return [m - half, attack_n, m + half, f4]

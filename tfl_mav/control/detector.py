@@ -267,11 +267,18 @@ class AttackDetector:
             band = self._band[i]
             lo, hi = min(band), max(band)
             pad = BAND_PAD * (hi - lo)
-            w = min(max(r * RPM_TO_RADPS, lo - pad), hi + pad)  # nearest speed in the band
+            # min/max of two written out (same results, NaN included): runs 4× a tick.
+            w, lim = r * RPM_TO_RADPS, lo - pad
+            w = lim if lim > w else w
+            lim = hi + pad
+            w = lim if lim < w else w                # nearest speed in the band
             z = (r - w * RADPS_TO_RPM) / math.sqrt(sig2 + self._var[i])
-            zc = min(max(z, -cap), cap)
-            self._s_hi[i] = max(0.0, self._s_hi[i] + zc - k)
-            self._s_lo[i] = max(0.0, self._s_lo[i] - zc - k)
+            zc = -cap if -cap > z else z
+            zc = cap if cap < zc else zc
+            s_hi = self._s_hi[i] + zc - k
+            self._s_hi[i] = s_hi if s_hi > 0.0 else 0.0
+            s_lo = self._s_lo[i] - zc - k
+            self._s_lo[i] = s_lo if s_lo > 0.0 else 0.0
             self._z[i] = z
             self._rpm[i] = r
             wm = r * RPM_TO_RADPS

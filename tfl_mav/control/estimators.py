@@ -52,19 +52,25 @@ class MassEstimator:
                                                                          strict=True)]
             self._g_lp = self.g
             return self.mass_kg
-        a = dt / (self.accel_tau_s + dt)
+        # Unrolled over x, y, z (runs every tick); same operations as the vector form.
+        tau_dt = self.accel_tau_s + dt
+        a = dt / tau_dt
+        vx, vy, vz = velocity_mps
+        lx, ly, lz = self._v_lp
         # Filtered acceleration = (v − LP(v))/τ is LP(v̇); the regressor gets the same LP.
-        acc = [(v - vl) / (self.accel_tau_s + dt) for v, vl in zip(velocity_mps, self._v_lp,
-                                                                   strict=True)]
-        self._v_lp = [vl + a * (v - vl) for v, vl in zip(velocity_mps, self._v_lp, strict=True)]
-        phi = [thrust_n * b - self.k_t * v for b, v in zip(b3, velocity_mps, strict=True)]
-        self._phi_lp = [pl + a * (p - pl) for p, pl in zip(phi, self._phi_lp, strict=True)]
-        lhs = [acc[0], acc[1], acc[2] + self.g]
-        den = lhs[0] ** 2 + lhs[1] ** 2 + lhs[2] ** 2
+        ax, ay, az = (vx - lx) / tau_dt, (vy - ly) / tau_dt, (vz - lz) / tau_dt
+        self._v_lp = [lx + a * (vx - lx), ly + a * (vy - ly), lz + a * (vz - lz)]
+        kt = self.k_t
+        fx, fy, fz = thrust_n * b3[0] - kt * vx, thrust_n * b3[1] - kt * vy, \
+            thrust_n * b3[2] - kt * vz
+        px, py, pz = self._phi_lp
+        px, py, pz = px + a * (fx - px), py + a * (fy - py), pz + a * (fz - pz)
+        self._phi_lp = [px, py, pz]
+        az += self.g
+        den = ax ** 2 + ay ** 2 + az ** 2
         if den < self.min_excitation ** 2 or not math.isfinite(den):
             return self.mass_kg  # free fall or nonsense: nothing to learn from
-        m_inst = (self._phi_lp[0] * lhs[0] + self._phi_lp[1] * lhs[1]
-                  + self._phi_lp[2] * lhs[2]) / den
+        m_inst = (px * ax + py * ay + pz * az) / den
         if not math.isfinite(m_inst):
             return self.mass_kg
         b = dt / (self.ratio_tau_s + dt)

@@ -7,11 +7,11 @@ holds the Taylor coefficients ``c[k] = f⁽ᵏ⁾(t₀)/k!`` for k = 0..N, and e
 is the truncated power-series version of the float one (standard recurrences, e.g. Griewank
 & Walther, *Evaluating Derivatives*, ch. 13).
 
-Speed matters more than generality here: the controller evaluates a handful of jets every
-tick within a budget of tens of µs, so coefficients are plain float tuples (numpy is slower
-for 5 elements), the class has ``__slots__``, nothing is validated per operation, and the
-order-4 product and sine/cosine are unrolled. Jets of different orders combine to the
-smaller order (``zip`` truncation).
+These jets are the *reference*: the law's fast path (:mod:`tfl_mav.control.jetcode`) runs
+the same recurrences (:mod:`series`) once at start-up on symbols and compiles them to
+straight-line float code, and is tested against this class. Coefficients are plain float
+tuples (numpy is slower for 5 elements), the class has ``__slots__`` and nothing is validated
+per operation. Jets of different orders combine to the smaller order (``zip`` truncation).
 
 Functions (``sin``, ``cos``, ..., ``step``) accept jets, plain floats (via :mod:`math`) and
 numpy arrays (via numpy, for vectorised sampling of paths); :data:`JET_LIB` maps exactly the
@@ -21,7 +21,7 @@ names of :data:`tfl_mav.expr.FUNCTION_NAMES` to them so a compiled expression ru
 
 Domain errors mirror :mod:`math`: ``ValueError`` (log of a non-positive value, sqrt at or
 below 0, fractional power of a negative base), ``ZeroDivisionError`` (division by a jet whose
-value is 0).
+value is 0). Functions also hand a :class:`SymbolicJet` to its own method.
 """
 
 from __future__ import annotations
@@ -34,9 +34,22 @@ from typing import Any
 
 import numpy as np
 
+from tfl_mav.control.series import (
+    atan_series,
+    div_series,
+    exp_series,
+    log_series,
+    mul,
+    pow_series,
+    sincos_series,
+    sqrt_series,
+    tan_like_series,
+)
+
 __all__ = [
     "JET_LIB",
     "Jet",
+    "SymbolicJet",
     "abs_",
     "atan",
     "clip",
@@ -56,6 +69,7 @@ __all__ = [
 _add = operator.add
 _sub = operator.sub
 _REAL = (int, float)
+_mul = mul
 
 
 class Jet:
@@ -170,42 +184,12 @@ class Jet:
     def __abs__(self) -> Jet:
         return -self if self.c[0] < 0.0 else self
 
-    # ----- elementary functions -----------------------------------------------------------
+    # ----- elementary functions (value by math, coefficients by series) ----------------
     def sincos(self) -> tuple[Jet, Jet]:
         """(sin f, cos f) by the coupled recurrence s' = f'c, c' = −f's."""
         a = self.c
-        a0 = a[0]
-        s0 = math.sin(a0)
-        c0 = math.cos(a0)
-        n = len(a)
-        if n == 2:
-            return Jet((s0, a[1] * c0)), Jet((c0, -a[1] * s0))
-        if n == 5:
-            _, a1, a2, a3, a4 = a
-            b2 = 2.0 * a2
-            b3 = 3.0 * a3
-            b4 = 4.0 * a4
-            s1 = a1 * c0
-            c1 = -a1 * s0
-            s2 = 0.5 * (a1 * c1 + b2 * c0)
-            c2 = -0.5 * (a1 * s1 + b2 * s0)
-            s3 = (a1 * c2 + b2 * c1 + b3 * c0) / 3.0
-            c3 = -(a1 * s2 + b2 * s1 + b3 * s0) / 3.0
-            s4 = 0.25 * (a1 * c3 + b2 * c2 + b3 * c1 + b4 * c0)
-            c4 = -0.25 * (a1 * s3 + b2 * s2 + b3 * s1 + b4 * s0)
-            return Jet((s0, s1, s2, s3, s4)), Jet((c0, c1, c2, c3, c4))
-        ja = [j * a[j] for j in range(n)]
-        s = [s0]
-        c = [c0]
-        for k in range(1, n):
-            ss = 0.0
-            cc = 0.0
-            for j in range(1, k + 1):
-                ss += ja[j] * c[k - j]
-                cc += ja[j] * s[k - j]
-            s.append(ss / k)
-            c.append(-cc / k)
-        return Jet(tuple(s)), Jet(tuple(c))
+        s, c = sincos_series(a, math.sin(a[0]), math.cos(a[0]))
+        return Jet(s), Jet(c)
 
     def sin(self) -> Jet:
         return self.sincos()[0]
@@ -215,37 +199,22 @@ class Jet:
 
     def tan(self) -> Jet:
         """tan f from t' = f'(1 + t²)."""
-        return Jet(_tan_like(self.c, math.tan(self.c[0]), 1.0))
+        return Jet(tan_like_series(self.c, math.tan(self.c[0]), 1.0))
 
     def tanh(self) -> Jet:
         """tanh f from t' = f'(1 − t²)."""
-        return Jet(_tan_like(self.c, math.tanh(self.c[0]), -1.0))
+        return Jet(tan_like_series(self.c, math.tanh(self.c[0]), -1.0))
 
     def exp(self) -> Jet:
         """exp f from b' = f'b."""
-        a = self.c
-        n = len(a)
-        b = [math.exp(a[0])]
-        for k in range(1, n):
-            acc = 0.0
-            for j in range(1, k + 1):
-                acc += j * a[j] * b[k - j]
-            b.append(acc / k)
-        return Jet(tuple(b))
+        return Jet(exp_series(self.c, math.exp(self.c[0])))
 
     def log(self) -> Jet:
         """log f from f·b' = f'; needs f(t₀) > 0."""
-        a = self.c
-        a0 = a[0]
+        a0 = self.c[0]
         if not a0 > 0.0:
             raise ValueError(f"log of a jet with value {a0!r} <= 0")
-        b = [math.log(a0)]
-        for k in range(1, len(a)):
-            acc = 0.0
-            for j in range(1, k):
-                acc += j * b[j] * a[k - j]
-            b.append((a[k] - acc / k) / a0)
-        return Jet(tuple(b))
+        return Jet(log_series(self.c, math.log(a0)))
 
     def sqrt(self) -> Jet:
         """sqrt f from b² = f; needs f(t₀) > 0 (derivatives are unbounded at 0)."""
@@ -255,67 +224,20 @@ class Jet:
             if a0 == 0.0 and len(a) == 1:
                 return Jet((0.0,))
             raise ValueError(f"sqrt of a jet with value {a0!r} <= 0 has no derivatives")
-        b0 = math.sqrt(a0)
-        inv = 0.5 / b0
-        b = [b0]
-        for k in range(1, len(a)):
-            acc = 0.0
-            for j in range(1, k):
-                acc += b[j] * b[k - j]
-            b.append((a[k] - acc) * inv)
-        return Jet(tuple(b))
+        return Jet(sqrt_series(a, math.sqrt(a0)))
 
     def atan(self) -> Jet:
         """atan f from b'·(1 + f²) = f'."""
-        a = self.c
-        w = _mul(a, a)
-        w0 = 1.0 + w[0]
-        b = [math.atan(a[0])]
-        for k in range(1, len(a)):
-            acc = 0.0
-            for j in range(1, k):
-                acc += j * b[j] * w[k - j]
-            b.append((a[k] - acc / k) / w0)
-        return Jet(tuple(b))
+        return Jet(atan_series(self.c, math.atan(self.c[0])))
 
 
-# ----- coefficient-level kernels (tuples in, tuple out) ------------------------------------
-def _mul(a: tuple[float, ...], b: tuple[float, ...]) -> tuple[float, ...]:
-    """Cauchy product truncated to the shorter order."""
-    n = min(len(a), len(b))
-    if n == 5:
-        a0, a1, a2, a3, a4 = a[:5] if len(a) > 5 else a
-        b0, b1, b2, b3, b4 = b[:5] if len(b) > 5 else b
-        return (
-            a0 * b0,
-            a0 * b1 + a1 * b0,
-            a0 * b2 + a1 * b1 + a2 * b0,
-            a0 * b3 + a1 * b2 + a2 * b1 + a3 * b0,
-            a0 * b4 + a1 * b3 + a2 * b2 + a3 * b1 + a4 * b0,
-        )
-    out = []
-    for k in range(n):
-        acc = 0.0
-        for i in range(k + 1):
-            acc += a[i] * b[k - i]
-        out.append(acc)
-    return tuple(out)
-
-
+# ----- coefficient-level kernels with domain checks (tuples in, tuple out) -----------------
 def _div(a: tuple[float, ...], b: tuple[float, ...]) -> tuple[float, ...]:
-    """Quotient a/b: q_k = (a_k − Σ_{j≥1} b_j q_{k−j}) / b₀."""
+    """Quotient a/b; b₀ must not be 0."""
     b0 = b[0]
     if b0 == 0.0:
         raise ZeroDivisionError("division by a jet whose value is 0")
-    inv = 1.0 / b0
-    n = min(len(a), len(b))
-    q = [a[0] * inv]
-    for k in range(1, n):
-        acc = a[k]
-        for j in range(1, k + 1):
-            acc -= b[j] * q[k - j]
-        q.append(acc * inv)
-    return tuple(q)
+    return div_series(a, b, 1.0 / b0)
 
 
 def _pow(a: tuple[float, ...], p: float) -> tuple[float, ...]:
@@ -345,33 +267,17 @@ def _pow(a: tuple[float, ...], p: float) -> tuple[float, ...]:
             return result
     elif a0 <= 0.0:
         raise ValueError(f"jet ** {p!r} needs a positive value, got {a0!r}")
-    b = [a0**p if integral else math.pow(a0, p)]
-    inv = 1.0 / a0
-    for k in range(1, n):
-        acc = 0.0
-        for j in range(1, k + 1):
-            acc += (p * j - (k - j)) * a[j] * b[k - j]
-        b.append(acc * inv / k)
-    return tuple(b)
-
-
-def _tan_like(a: tuple[float, ...], t0: float, sign: float) -> tuple[float, ...]:
-    """Series of t with t' = a'·(1 + sign·t²): tan (sign +1) and tanh (sign −1)."""
-    t = [t0]
-    u = [1.0 + sign * t0 * t0]
-    for k in range(1, len(a)):
-        acc = 0.0
-        for j in range(1, k + 1):
-            acc += j * a[j] * u[k - j]
-        t.append(acc / k)
-        sq = 0.0
-        for i in range(k + 1):
-            sq += t[i] * t[k - i]
-        u.append(sign * sq)
-    return tuple(t)
+    return pow_series(a, p, a0**p if integral else math.pow(a0, p), 1.0 / a0)
 
 
 # ----- functions on Jet | float | ndarray --------------------------------------------------
+class SymbolicJet:
+    """Base of jets whose coefficients are symbols, not floats (:mod:`jetcode` traces paths
+    with them); the smooth functions below and ``abs_`` hand such a jet to its own method."""
+
+    __slots__ = ()
+
+
 Number = Jet | float
 
 
@@ -385,6 +291,8 @@ def sin(x: Any) -> Any:
         return x.sincos()[0]
     if isinstance(x, _REAL):
         return math.sin(x)
+    if isinstance(x, SymbolicJet):
+        return x.sin()
     return np.sin(x)
 
 
@@ -393,6 +301,8 @@ def cos(x: Any) -> Any:
         return x.sincos()[1]
     if isinstance(x, _REAL):
         return math.cos(x)
+    if isinstance(x, SymbolicJet):
+        return x.cos()
     return np.cos(x)
 
 
@@ -401,6 +311,8 @@ def tan(x: Any) -> Any:
         return x.tan()
     if isinstance(x, _REAL):
         return math.tan(x)
+    if isinstance(x, SymbolicJet):
+        return x.tan()
     return np.tan(x)
 
 
@@ -409,6 +321,8 @@ def exp(x: Any) -> Any:
         return x.exp()
     if isinstance(x, _REAL):
         return math.exp(x)
+    if isinstance(x, SymbolicJet):
+        return x.exp()
     return np.exp(x)
 
 
@@ -417,6 +331,8 @@ def log(x: Any) -> Any:
         return x.log()
     if isinstance(x, _REAL):
         return math.log(x)
+    if isinstance(x, SymbolicJet):
+        return x.log()
     return np.log(x)
 
 
@@ -425,6 +341,8 @@ def sqrt(x: Any) -> Any:
         return x.sqrt()
     if isinstance(x, _REAL):
         return math.sqrt(x)
+    if isinstance(x, SymbolicJet):
+        return x.sqrt()
     return np.sqrt(x)
 
 
@@ -433,6 +351,8 @@ def atan(x: Any) -> Any:
         return x.atan()
     if isinstance(x, _REAL):
         return math.atan(x)
+    if isinstance(x, SymbolicJet):
+        return x.atan()
     return np.arctan(x)
 
 
@@ -441,6 +361,8 @@ def tanh(x: Any) -> Any:
         return x.tanh()
     if isinstance(x, _REAL):
         return math.tanh(x)
+    if isinstance(x, SymbolicJet):
+        return x.tanh()
     return np.tanh(x)
 
 
@@ -449,6 +371,8 @@ def abs_(x: Any) -> Any:
     if type(x) is Jet:
         return -x if x.c[0] < 0.0 else x
     if isinstance(x, _REAL):
+        return abs(x)
+    if isinstance(x, SymbolicJet):
         return abs(x)
     return np.abs(x)
 

@@ -19,26 +19,36 @@ commands keeps one formula for both laws:
   so the law has no trouble with a vehicle spinning at tens of rad/s;
 * nominal: τ_p, τ_q from ṗ, q̇, and τ_r from a second-order yaw loop (ψ held).
 
-The ξ and η loops are eqs. linear-xi-controller and linear-eta-controller with repeated
-poles. The robust variant adds the estimators of :mod:`estimators` and a one-time switch to
-faster poles once the vehicle has settled on the path.
+The ξ and η loops are eqs. (23) and (24) with repeated poles. The robust variant adds the
+estimators of :mod:`estimators` and a one-time switch to faster poles once the vehicle has
+settled on the path.
+
+:meth:`TFLController.update` is the tick, one small step per idea, in the order the paper
+builds the law. The path's derivatives come from :class:`compiled.CompiledPathTracker`
+(straight-line code generated at start-up; ``compiled_path=False`` flies the reference jets,
+which give the same numbers, for the benchmark and the tests).
 """
 
 from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+
+import numpy as np
 
 from tfl_mav.control.actuators import MotorLagInverter
 from tfl_mav.control.allocation import (
+    Bounds,
     RotorFrame,
     allocate_attacked,
     allocate_nominal,
     canonical_frame,
 )
+from tfl_mav.control.compiled import make_tracker
 from tfl_mav.control.estimators import MassEstimator, RateDisturbanceObserver
-from tfl_mav.control.paths import Path, PathTracker
+from tfl_mav.control.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
+from tfl_mav.control.paths import Path
+from tfl_mav.control.tracker import VirtualOutput
 from tfl_mav.geometry import rotation_rows
 from tfl_mav.modes import Mode
 from tfl_mav.state import State
@@ -46,70 +56,9 @@ from tfl_mav.state import State
 __all__ = ["ControlOutput", "LawConfig", "ModelParams", "TFLController", "chain_gains"]
 
 
-@dataclass(frozen=True)
-class ModelParams:
-    """The controller's model of the vehicle (deliberately not the truth), SI units."""
-
-    mass_kg: float
-    inertia_kgm2: tuple[float, float, float]
-    arm_m: float
-    drag_thrust_ratio_m: float
-    k_t: float
-    k_r: float
-    thrust_max_n: float
-    gravity_mps2: float = 9.81
-    k_f: float = 8.0e-6                 # N/(rad/s)², thrust = k_f ω²
-    motor_time_constant_s: float = 0.0  # first-order lag on ω; 0 = ideal actuators
-
-
-@dataclass(frozen=True)
-class LawConfig:
-    """Gains and robustness switches (mirrors the scenario's ``[controller]`` table)."""
-
-    speed_mps: float = 0.5
-    xi_pole: float = -2.5
-    eta_pole: float = -2.0
-    xi_pole_fine: float = -4.0
-    eta_pole_fine: float = -2.5
-    yaw_pole: float = -4.0
-    robust: bool = True
-    mass_estimator: bool = True
-    disturbance_observer: bool = True
-    gain_switch: bool = True
-    observer_tau_s: float = 0.004
-    aware_of_attack: bool = True
-    settle_alpha: float = 0.01      # |α| below this …
-    settle_time_s: float = 1.0      # … for this long switches to the fine poles
-    min_thrust_n: float = 0.5       # u_f below this makes D singular: fall back
-    max_cond: float = 1e8           # cond(Dφ) above this: fall back
-
-
-@dataclass
-class ControlOutput:
-    """One control decision and the internals worth logging."""
-
-    rotor_thrust_n: list[float]          # command, in [0, f_max], physical rotor order (with
-                                         # motor lag: the lag inverse of the law's demand)
-    mode: Mode                           # NOMINAL | ATTACKED | FALLBACK
-    saturated: list[bool]
-    xi: tuple[tuple[float, ...], tuple[float, ...]]   # (α1, α̇1, α̈1, α⃛1), same for α2
-    eta: tuple[float, ...]               # (π, π̇, π̈, π⃛)
-    mu: tuple[float, float]              # (ψ, μ2) internal states, eq. (18)
-    path_distance_m: float
-    lam: float
-    cond_d: float
-    thrust_n: float                      # u_f = x13
-    mass_estimate_kg: float
-    disturbance_radps2: tuple[float, float]
-    fine_gains: bool
-    reason: str = ""                     # why a fallback was taken
-    extra: dict[str, float] = field(default_factory=dict)
-
-
-def chain_gains(pole: float, order: int) -> tuple[float, ...]:
-    """Gains k₀…k_{n−1} of (s − pole)ⁿ = sⁿ + k_{n−1}sⁿ⁻¹ + … + k₀ (pole < 0)."""
-    a = -pole
-    return tuple(math.comb(order, i) * a ** (order - i) for i in range(order))
+def _floats(x: Sequence[float]) -> Sequence[float]:
+    """``x`` with Python floats (``tolist`` of a numpy array; other sequences as they are)."""
+    return x.tolist() if type(x) is np.ndarray else x
 
 
 def _solve3(A: Sequence[Sequence[float]], b: Sequence[float]) -> tuple[list[float], float]:
@@ -140,11 +89,12 @@ class TFLController:
     (rates damped, thrust held) and says why.
     """
 
-    def __init__(self, model: ModelParams, path: Path, cfg: LawConfig, dt_s: float) -> None:
+    def __init__(self, model: ModelParams, path: Path, cfg: LawConfig, dt_s: float, *,
+                 compiled_path: bool = True) -> None:
         self.model = model
         self.cfg = cfg
         self.dt = dt_s
-        self.tracker = PathTracker(path)
+        self.tracker, self.path_eval = make_tracker(path, compiled_path)
         self.mass_kg = model.mass_kg
         self.x13 = model.mass_kg * model.gravity_mps2   # u_f
         self.x14 = 0.0                                  # u̇_f
@@ -165,6 +115,10 @@ class TFLController:
                                               model.motor_time_constant_s, dt_s)
                              if model.motor_time_constant_s > 0.0 else None)
         self.lag_clamped_count = 0
+        self._use_mass = cfg.robust and cfg.mass_estimator
+        self._use_dob = cfg.robust and cfg.disturbance_observer
+        self._use_switch = cfg.robust and cfg.gain_switch
+        self._set_frame(None)
         self._set_gains(fine=False)
 
     # ------------------------------------------------------------------ configuration
@@ -174,6 +128,28 @@ class TFLController:
         self.k_xi = chain_gains(c.xi_pole_fine if fine else c.xi_pole, 4)
         self.k_eta = chain_gains(c.eta_pole_fine if fine else c.eta_pole, 3)
         self.k_yaw = chain_gains(c.yaw_pole, 2)
+
+    def _set_frame(self, frame: RotorFrame | None) -> None:
+        """Canonical body axes for ``frame`` (None: the body axes themselves).
+
+        ``rot`` is a signed permutation, so b1' = ±b_m and p' = ±Ω_m: kept as (m, sign)
+        pairs, which gives R' = R rotᵀ and Ω' = rot Ω exactly, without 3×3 products.
+        """
+        self.frame = frame
+        m = self.model
+        ix, iy, iz = m.inertia_kgm2
+        if frame is None:
+            self._axes = ((0, 1.0), (1, 1.0))
+            self._ixyz = (ix, iy, iz)
+            self._d = m.drag_thrust_ratio_m
+            return
+        axes = []
+        for row in frame.rot[:2]:
+            k = next(i for i, v in enumerate(row) if v)
+            axes.append((k, float(row[k])))
+        self._axes = (axes[0], axes[1])
+        self._ixyz = (iy, ix, iz) if frame.swap_xy else (ix, iy, iz)
+        self._d = m.drag_thrust_ratio_m * frame.d_sign
 
     def set_attack(self, rotor: int, estimate_n: float) -> None:
         """Declare rotor (1-4) attacked with the given thrust estimate (N); 0 = none.
@@ -189,7 +165,7 @@ class TFLController:
         estimate_n = min(max(estimate_n, 0.0), self.model.thrust_max_n)
         if rotor != self.attacked_rotor:
             self.attacked_rotor = rotor
-            self.frame = canonical_frame(rotor) if rotor else None
+            self._set_frame(canonical_frame(rotor) if rotor else None)
             self.dob.reset()
             self._pred = None
             if self.lag_inverter is not None:
@@ -202,173 +178,240 @@ class TFLController:
         """Compute the rotor thrusts (N) for this control period from the measured state
         and, with motor lag, the measured rotor speeds ω (rad/s, from ESC rpm)."""
         self.ticks += 1
-        m = self.model
-        cfg = self.cfg
-        dt = self.dt
-        R = rotation_rows(s.quaternion_wxyz)
-        p, q, r = s.body_rates_radps
-        v = list(s.velocity_mps)
-        y = list(s.position_m)
+        # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
+        y, v, quat, rates = (_floats(s.position_m), _floats(s.velocity_mps),
+                             _floats(s.quaternion_wxyz), _floats(s.body_rates_radps))
+        R = rotation_rows(quat)
         if self.psi_ref is None:
             self.psi_ref = math.atan2(R[1][0], R[0][0])
-
-        frame = self.frame
-        attacked = frame is not None
-        # Canonical body axes: R' = R rotᵀ, Ω' = rot Ω (identity when not attacked).
-        if attacked:
-            rot = frame.rot
-            Rc = [[sum(R[i][k] * rot[j][k] for k in range(3)) for j in range(3)]
-                  for i in range(3)]
-            pc = rot[0][0] * p + rot[0][1] * q + rot[0][2] * r
-            qc = rot[1][0] * p + rot[1][1] * q + rot[1][2] * r
-            ix, iy = ((m.inertia_kgm2[1], m.inertia_kgm2[0]) if frame.swap_xy
-                      else (m.inertia_kgm2[0], m.inertia_kgm2[1]))
-            d = m.drag_thrust_ratio_m * frame.d_sign
-        else:
-            Rc = R
-            pc, qc = p, q
-            ix, iy = m.inertia_kgm2[0], m.inertia_kgm2[1]
-            d = m.drag_thrust_ratio_m
-        iz = m.inertia_kgm2[2]
-        rc = r
-        b1 = (Rc[0][0], Rc[1][0], Rc[2][0])
-        b2 = (Rc[0][1], Rc[1][1], Rc[2][1])
-        b3 = (Rc[0][2], Rc[1][2], Rc[2][2])
-
-        # Robust add-ons: estimators fed with what was applied over the last period.
-        if cfg.robust and cfg.mass_estimator:
-            applied_uf = sum(self._last_out)
-            self.mass_kg = self.mass_est.update(dt, v, applied_uf, (R[0][2], R[1][2], R[2][2]))
-        if cfg.robust and cfg.disturbance_observer and self._pred is not None:
-            self.dob.update(dt, pc, qc, self._pred[0], self._pred[1])
-        mass = self.mass_kg
-        g = m.gravity_mps2
-        kt = m.k_t / mass
+        b1, b2, b3, pc, qc, rc = self._canonical_axes(R, rates)
+        mass = self._update_estimators(v, R, pc, qc)
         uf, duf = self.x13, self.x14
+        vo = self.tracker.virtual_output(self._output_taylor(y, v, b1, b2, b3, pc, qc, rc,
+                                                             mass))
+        reason, udd, pdot, qdot, cond = self._decoupling_solve(vo, b1, b2, b3, mass, uf, duf,
+                                                               pc, qc)
+        tau_p, tau_q = self._torques(pdot, qdot, pc, qc, rc)
+        bounds = (self.lag_inverter.reachable(rotor_speed_radps)
+                  if self.lag_inverter is not None else None)
+        if self.frame is not None:
+            f, raw = self._allocate_attacked(uf, tau_p, tau_q, bounds)
+            mode = Mode.ATTACKED
+        else:
+            f, raw = self._allocate_nominal(R, uf, tau_p, tau_q, qdot, pc, qc, rc, bounds)
+            mode = Mode.NOMINAL
+        if reason:
+            mode = Mode.FALLBACK
+        command, sat, applied_uf = self._saturate_and_apply(f, raw, pc, qc, rc)
+        self._advance_extension(applied_uf, uf, duf, udd)
+        self._settle(vo, reason)
+        p, _, r = rates
+        m = self.model
+        return ControlOutput(
+            rotor_thrust_n=command, mode=mode, saturated=sat,
+            xi=(tuple(vo.xi1[:4]), tuple(vo.xi2[:4])), eta=tuple(vo.eta[:4]),
+            mu=(math.atan2(R[1][0], R[0][0]),
+                -p / m.inertia_kgm2[2] - m.arm_m * r / (2 * m.inertia_kgm2[0] * self._d)),
+            path_distance_m=vo.distance_m, lam=vo.lam, cond_d=cond, thrust_n=uf,
+            mass_estimate_kg=mass, disturbance_radps2=(self.dob.d_p, self.dob.d_q),
+            fine_gains=self.fine, reason=reason,
+        )
 
-        # Derivatives of y from the model (eq. (3) with the extension).
-        ydd = [uf / mass * b3[i] - kt * v[i] for i in range(3)]
-        ydd[2] -= g
-        db3 = [qc * b1[i] - pc * b2[i] for i in range(3)]
-        yddd = [duf / mass * b3[i] + uf / mass * db3[i] - kt * ydd[i] for i in range(3)]
+    # ------------------------------------------------------------------ the steps
+    def _canonical_axes(self, R: list[list[float]], rates: Sequence[float]
+                        ) -> tuple[tuple[float, float, float], tuple[float, float, float],
+                                   tuple[float, float, float], float, float, float]:
+        """Body axes b1, b2, b3 (columns of R, eq. (1)) and rates (p, q, r), relabelled to
+        the canonical frame of the attacked rotor (:mod:`allocation`)."""
+        (m1, s1), (m2, s2) = self._axes
+        r0, r1, r2 = R
+        b1 = (s1 * r0[m1], s1 * r1[m1], s1 * r2[m1])
+        b2 = (s2 * r0[m2], s2 * r1[m2], s2 * r2[m2])
+        b3 = (r0[2], r1[2], r2[2])
+        return b1, b2, b3, s1 * rates[m1], s2 * rates[m2], rates[2]
+
+    def _update_estimators(self, v: Sequence[float], R: list[list[float]], pc: float,
+                           qc: float) -> float:
+        """Robust add-ons fed with what was applied over the last period; returns the mass
+        (kg) the law uses this tick."""
+        if self._use_mass:
+            lo = self._last_out
+            self.mass_kg = self.mass_est.update(self.dt, v, lo[0] + lo[1] + lo[2] + lo[3],
+                                                (R[0][2], R[1][2], R[2][2]))
+        if self._use_dob and self._pred is not None:
+            self.dob.update(self.dt, pc, qc, self._pred[0], self._pred[1])
+        return self.mass_kg
+
+    def _output_taylor(self, y: Sequence[float], v: Sequence[float], b1: Sequence[float],
+                       b2: Sequence[float], b3: Sequence[float], pc: float, qc: float,
+                       rc: float, mass: float) -> tuple[tuple[float, ...], ...]:
+        """Taylor rows (y, ẏ, ÿ/2, y⃛/6, a₀/24) of the output y = x_q (eq. (5)) from the
+        model (eq. (3)) with the extension x13 = u_f, x14 = u̇_f (eq. (9)): ÿ = (u_f/m) b3
+        − g e3 − (k_t/m) ẏ, and a₀ = y⁽⁴⁾ at ü_f = ṗ = q̇ = 0 (the drift L_f⁴ of eq. (10))."""
+        uf, duf = self.x13, self.x14
+        kt = self.model.k_t / mass
+        ufm = uf / mass
+        dufm = duf / mass
+        dufm2 = 2.0 * duf / mass
+        pr, qr = pc * rc, qc * rc
         pq2 = pc * pc + qc * qc
-        a0 = [2.0 * duf / mass * db3[i]
-              + uf / mass * (pc * rc * b1[i] + qc * rc * b2[i] - pq2 * b3[i])
-              - kt * yddd[i] for i in range(3)]
-        taylor = [[y[i], v[i], ydd[i] / 2.0, yddd[i] / 6.0, a0[i] / 24.0] for i in range(3)]
+        rows = []
+        for i in range(3):
+            ydd = ufm * b3[i] - kt * v[i]
+            if i == 2:
+                ydd -= self.model.gravity_mps2
+            db3 = qc * b1[i] - pc * b2[i]
+            yddd = dufm * b3[i] + ufm * db3 - kt * ydd
+            a0 = dufm2 * db3 + ufm * (pr * b1[i] + qr * b2[i] - pq2 * b3[i]) - kt * yddd
+            rows.append((y[i], v[i], ydd / 2.0, yddd / 6.0, a0 / 24.0))
+        return tuple(rows)
 
-        out = self.tracker.evaluate(taylor)
-        xi1 = out.alpha[0].derivatives()
-        xi2 = out.alpha[1].derivatives()
-        eta = out.pi.derivatives()
-        J = out.jacobian
-
-        # Auxiliary inputs: eqs. (23), (24).
+    def _decoupling_solve(self, vo: VirtualOutput, b1: Sequence[float], b2: Sequence[float],
+                          b3: Sequence[float], mass: float, uf: float, duf: float,
+                          pc: float, qc: float) -> tuple[str, float, float, float, float]:
+        """The regular feedback (eq. (21)): w = (ü_f, ṗ, q̇) with Dφ B₀ w = v − L_f⁴φ, where
+        v are the linear ξ, η controllers (eqs. (23), (24)) and Dφ B₀ is the decoupling
+        matrix (eq. (15)). Returns (fallback reason or "", ü_f, ṗ, q̇, cond Dφ)."""
+        cfg = self.cfg
+        xi1, xi2, eta = vo.xi1, vo.xi2, vo.eta
         kx, ke = self.k_xi, self.k_eta
         v_xi1 = -(kx[0] * xi1[0] + kx[1] * xi1[1] + kx[2] * xi1[2] + kx[3] * xi1[3])
         v_xi2 = -(kx[0] * xi2[0] + kx[1] * xi2[1] + kx[2] * xi2[2] + kx[3] * xi2[3])
         v_eta = -(ke[0] * (eta[1] - cfg.speed_mps) + ke[1] * eta[2] + ke[2] * eta[3])
-        rhs = [v_xi1 - xi1[4], v_xi2 - xi2[4], v_eta - eta[4]]
-
+        rhs = (v_xi1 - xi1[4], v_xi2 - xi2[4], v_eta - eta[4])
         reason = ""
-        if not out.in_tube:
-            reason = f"left the projection tube: {out.reason}"
+        if not vo.in_tube:
+            reason = f"left the projection tube: {vo.reason}"
         elif uf < cfg.min_thrust_n:
             reason = f"total thrust {uf:.2f} N too small: D(x) singular"
-        # Solve Dφ · B₀ w = rhs: first Dφ z = rhs (z = B₀ w = the commanded snap part)…
-        z, rel = _solve3(J, rhs)
+        # First Dφ z = rhs (z = B₀ w, the commanded snap) …
+        z, rel = _solve3(vo.jacobian, rhs)
         cond = 1.0 / rel if rel > 0 else math.inf
         if not reason and cond > cfg.max_cond:
             reason = f"decoupling matrix ill-conditioned (cond {cond:.1e})"
-        # … then B₀ w = z with B₀ = [b3/m, −(u_f/m) b2, (u_f/m) b1] orthogonal columns.
-        udd = mass * (z[0] * b3[0] + z[1] * b3[1] + z[2] * b3[2])
-        pdot = -mass / uf * (z[0] * b2[0] + z[1] * b2[1] + z[2] * b2[2]) if uf > 0 else 0.0
-        qdot = mass / uf * (z[0] * b1[0] + z[1] * b1[1] + z[2] * b1[2]) if uf > 0 else 0.0
-
-        if not reason and not all(math.isfinite(c) for c in (udd, pdot, qdot)):
+        # … then B₀ w = z with B₀ = [b3/m, −(u_f/m) b2, (u_f/m) b1]: orthogonal columns.
+        z0, z1, z2 = z
+        udd = mass * (z0 * b3[0] + z1 * b3[1] + z2 * b3[2])
+        pdot = -mass / uf * (z0 * b2[0] + z1 * b2[1] + z2 * b2[2]) if uf > 0 else 0.0
+        qdot = mass / uf * (z0 * b1[0] + z1 * b1[1] + z2 * b1[2]) if uf > 0 else 0.0
+        if not reason and not (math.isfinite(udd) and math.isfinite(pdot)
+                               and math.isfinite(qdot)):
             reason = "non-finite control (numerical failure)"
         if reason:
             self.fallback_count += 1
             udd, pdot, qdot = -4.0 * duf, -20.0 * pc, -20.0 * qc
-
-        if cfg.robust and cfg.disturbance_observer:
+        if self._use_dob:
             pdot -= self.dob.d_p
             qdot -= self.dob.d_q
+        return reason, udd, pdot, qdot, cond
 
-        # Model torques for the demanded angular accelerations (Euler's equation).
-        kr = m.k_r
-        tau_p = ix * pdot + kr * pc + (iz - iy) * qc * rc
-        tau_q = iy * qdot + kr * qc + (ix - iz) * pc * rc
-        # Motor lag: what each rotor can reach this period bounds the allocation.
-        bounds = (self.lag_inverter.reachable(rotor_speed_radps)
-                  if self.lag_inverter is not None else None)
-        if attacked:
-            a_n = self.attack_estimate_n
-            tau_r = d * (uf - 2.0 * (tau_p + 2.0 * m.arm_m * a_n) / m.arm_m)   # eq. (6)
-            raw_c = allocate_attacked(uf, tau_q, tau_r, a_n, m.arm_m, d)
-            cb = None if bounds is None else tuple([b[phys] for phys in frame.perm]
-                                                   for b in bounds)
-            canon = allocate_attacked(uf, tau_q, tau_r, a_n, m.arm_m, d, m.thrust_max_n,
-                                      cb)  # type: ignore[arg-type]
-            f = [0.0] * 4
-            raw = [0.0] * 4
-            for i, phys in enumerate(frame.perm):
-                f[phys] = canon[i]
-                raw[phys] = raw_c[i]
-            mode = Mode.ATTACKED
-        else:
-            # Nominal: yaw held by ψ̈ = −k₁ψ̇ − k₀(ψ − ψ_ref), exact through the Euler chart.
-            phi_e = math.atan2(R[2][1], R[2][2])
-            th_e = -math.asin(max(-1.0, min(1.0, R[2][0])))
-            psi_e = math.atan2(R[1][0], R[0][0])
-            sph, cph = math.sin(phi_e), math.cos(phi_e)
-            cth, sth = math.cos(th_e), math.sin(th_e)
-            dphi = pc + (qc * sph + rc * cph) * sth / cth
-            dth = qc * cph - rc * sph
-            dpsi = (qc * sph + rc * cph) / cth
-            err = math.remainder(psi_e - self.psi_ref, math.tau)
-            psi_dd = -self.k_yaw[1] * dpsi - self.k_yaw[0] * err
-            drift = (qc * cph * dphi - rc * sph * dphi) / cth + (qc * sph + rc * cph) * sth \
-                * dth / (cth * cth)
-            rdot = ((psi_dd - drift) * cth - qdot * sph) / cph
-            tau_r = iz * rdot + kr * rc + (iy - ix) * pc * qc
-            raw = allocate_nominal(uf, tau_p, tau_q, tau_r, m.arm_m, d)
-            f = allocate_nominal(uf, tau_p, tau_q, tau_r, m.arm_m, d, m.thrust_max_n, bounds)
-            mode = Mode.NOMINAL
-        if reason:
-            mode = Mode.FALLBACK
+    def _torques(self, pdot: float, qdot: float, pc: float, qc: float, rc: float
+                 ) -> tuple[float, float]:
+        """τ_p, τ_q for the demanded ṗ, q̇ by Euler's equation with rate damping (eq. (3))."""
+        ix, iy, iz = self._ixyz
+        kr = self.model.k_r
+        return (ix * pdot + kr * pc + (iz - iy) * qc * rc,
+                iy * qdot + kr * qc + (ix - iz) * pc * rc)
 
-        # Saturate, and keep the dynamic extension consistent with what is applied.
+    def _allocate_attacked(self, uf: float, tau_p: float, tau_q: float,
+                           bounds: Bounds | None) -> tuple[list[float], list[float]]:
+        """Rotor thrusts with f₂ = A (eq. (6)): τ_r from τ_p, rotor order restored.
+        Returns (feasible thrusts, unbounded thrusts) in physical order."""
+        m = self.model
+        frame = self.frame
+        assert frame is not None
+        d = self._d
+        a_n = self.attack_estimate_n
+        tau_r = d * (uf - 2.0 * (tau_p + 2.0 * m.arm_m * a_n) / m.arm_m)   # eq. (6)
+        raw_c = allocate_attacked(uf, tau_q, tau_r, a_n, m.arm_m, d)
+        perm = frame.perm
+        cb = None if bounds is None else tuple([b[phys] for phys in perm] for b in bounds)
+        canon = allocate_attacked(uf, tau_q, tau_r, a_n, m.arm_m, d, m.thrust_max_n,
+                                  cb)  # type: ignore[arg-type]
+        f = [0.0] * 4
+        raw = [0.0] * 4
+        for i, phys in enumerate(perm):
+            f[phys] = canon[i]
+            raw[phys] = raw_c[i]
+        return f, raw
+
+    def _allocate_nominal(self, R: list[list[float]], uf: float, tau_p: float, tau_q: float,
+                          qdot: float, pc: float, qc: float, rc: float,
+                          bounds: Bounds | None) -> tuple[list[float], list[float]]:
+        """All four rotors (inverse of eq. (4)); τ_r from the yaw loop ψ̈ = −k₁ψ̇ −
+        k₀(ψ − ψ_ref), exact through the Euler chart (eq. (2)). (feasible, unbounded)."""
+        m = self.model
+        ix, iy, iz = self._ixyz
+        phi_e = math.atan2(R[2][1], R[2][2])
+        th_e = -math.asin(max(-1.0, min(1.0, R[2][0])))
+        psi_e = math.atan2(R[1][0], R[0][0])
+        sph, cph = math.sin(phi_e), math.cos(phi_e)
+        cth, sth = math.cos(th_e), math.sin(th_e)
+        dphi = pc + (qc * sph + rc * cph) * sth / cth
+        dth = qc * cph - rc * sph
+        dpsi = (qc * sph + rc * cph) / cth
+        assert self.psi_ref is not None
+        err = math.remainder(psi_e - self.psi_ref, math.tau)
+        psi_dd = -self.k_yaw[1] * dpsi - self.k_yaw[0] * err
+        drift = (qc * cph * dphi - rc * sph * dphi) / cth + (qc * sph + rc * cph) * sth \
+            * dth / (cth * cth)
+        rdot = ((psi_dd - drift) * cth - qdot * sph) / cph
+        tau_r = iz * rdot + m.k_r * rc + (iy - ix) * pc * qc
+        d = self._d
+        raw = allocate_nominal(uf, tau_p, tau_q, tau_r, m.arm_m, d)
+        f = allocate_nominal(uf, tau_p, tau_q, tau_r, m.arm_m, d, m.thrust_max_n, bounds)
+        return f, raw
+
+    def _saturate_and_apply(self, f: list[float], raw: list[float], pc: float, qc: float,
+                            rc: float) -> tuple[list[float], list[bool], float]:
+        """Clip to [0, f_max], give the attacked rotor what it is (not ours to command),
+        invert the motor lag (#6), and predict ṗ, q̇ for the observer from what the rotors
+        will deliver. Returns (command, saturated, applied u_f)."""
+        m = self.model
         fmax = m.thrust_max_n
-        sat = [not (-1e-9 <= fi <= fmax + 1e-9) for fi in raw]
-        f = [min(max(fi, 0.0), fmax) if math.isfinite(fi) else self._last_out[i]
-             for i, fi in enumerate(f)]
-        if attacked:
-            f[frame.perm[1]] = self.attack_estimate_n  # not ours to command; what it is
-        if any(sat):
+        last = self._last_out
+        hi = fmax + 1e-9
+        sat = [not (-1e-9 <= fi <= hi) for fi in raw]
+        clipped = []
+        for i in range(4):
+            fi = f[i]
+            if math.isfinite(fi):
+                fi = 0.0 if fi < 0.0 else fi          # max(fi, 0), min(·, f_max) written out
+                clipped.append(fmax if fmax < fi else fi)
+            else:
+                clipped.append(last[i])
+        f = clipped
+        frame = self.frame
+        if frame is not None:
+            f[frame.perm[1]] = self.attack_estimate_n
+        if sat[0] or sat[1] or sat[2] or sat[3]:
             self.saturation_count += 1
-        applied_uf = sum(f)
-        # Motor lag (#6): command what makes the rotors *reach* f; the estimators see what
-        # the rotors will deliver, not what was asked.
+        applied_uf = f[0] + f[1] + f[2] + f[3]
         command = f
         delivered = f
         if self.lag_inverter is not None:
             inv = self.lag_inverter.invert(f)
             command, delivered = inv.command_n, inv.expected_mean_n
-            if attacked:
+            if frame is not None:
                 command[frame.perm[1]] = f[frame.perm[1]]
                 delivered[frame.perm[1]] = f[frame.perm[1]]
             if any(inv.clamped):
                 self.lag_clamped_count += 1
-        # Predicted ṗ, q̇ for the observer (canonical axes), from the delivered thrusts.
-        fc = [delivered[phys] for phys in frame.perm] if attacked else delivered
+        fc = [delivered[phys] for phys in frame.perm] if frame is not None else delivered
+        ix, iy, iz = self._ixyz
+        kr = m.k_r
         tp_app = m.arm_m * (fc[3] - fc[1])
         tq_app = m.arm_m * (fc[2] - fc[0])
         self._pred = ((tp_app - kr * pc - (iz - iy) * qc * rc) / ix,
                       (tq_app - kr * qc - (ix - iz) * pc * rc) / iy)
         self._last_out = delivered
+        return command, sat, applied_uf
 
-        # Dynamic extension x13 = u_f, x14 = u̇_f, u_d = ü_f (eq. (9)).
+    def _advance_extension(self, applied_uf: float, uf: float, duf: float,
+                           udd: float) -> None:
+        """Dynamic extension x13 = u_f, x14 = u̇_f, u_d = ü_f (eq. (9)), kept consistent
+        with the thrust actually applied (anti-windup at the limits)."""
+        dt = self.dt
         if abs(applied_uf - uf) > 1e-9:
             self.x13 = applied_uf
             if (applied_uf - uf) * duf < 0:
@@ -376,19 +419,13 @@ class TFLController:
         self.x13 += dt * self.x14 + 0.5 * dt * dt * udd
         self.x14 += dt * udd
 
-        # Settling detector for the one-time gain switch (robust law).
-        alpha_norm = math.hypot(xi1[0], xi2[0])
-        if cfg.robust and cfg.gain_switch and not self.fine and not reason:
-            self._settled_s = self._settled_s + dt if alpha_norm < cfg.settle_alpha else 0.0
+    def _settle(self, vo: VirtualOutput, reason: str) -> None:
+        """The robust law's one-time switch to the fine ξ, η poles once |α| has stayed
+        below ``settle_alpha`` for ``settle_time_s``."""
+        cfg = self.cfg
+        if self._use_switch and not self.fine and not reason:
+            alpha_norm = math.hypot(vo.xi1[0], vo.xi2[0])
+            self._settled_s = self._settled_s + self.dt if alpha_norm < cfg.settle_alpha \
+                else 0.0
             if self._settled_s >= cfg.settle_time_s:
                 self._set_gains(fine=True)
-
-        psi = math.atan2(R[1][0], R[0][0])
-        mu2 = -p / m.inertia_kgm2[2] - m.arm_m * r / (2 * m.inertia_kgm2[0] * d)
-        return ControlOutput(
-            rotor_thrust_n=command, mode=mode, saturated=sat,
-            xi=(tuple(xi1[:4]), tuple(xi2[:4])), eta=tuple(eta[:4]), mu=(psi, mu2),
-            path_distance_m=out.distance_m, lam=out.lam, cond_d=cond, thrust_n=uf,
-            mass_estimate_kg=mass, disturbance_radps2=(self.dob.d_p, self.dob.d_q),
-            fine_gains=self.fine, reason=reason,
-        )
