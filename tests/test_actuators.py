@@ -132,6 +132,7 @@ def test_bounds_equal_to_the_limits_change_nothing():
             allocate_attacked(*args, 0.2656, 0.016, FMAX)
 
 
+@pytest.mark.slow
 def test_zero_lag_flies_bit_for_bit_as_before_the_lag_work():
     """Golden values recorded with the law of commit fa5a0d5 (before #6): with
     ``motor_time_constant_s = 0`` the controller has no inverter and nothing changed."""
@@ -144,6 +145,7 @@ def test_zero_lag_flies_bit_for_bit_as_before_the_lag_work():
                                                   5.36636261754342, 0.0]
 
 
+@pytest.mark.slow
 def test_lag_unaware_law_flips_and_the_lag_aware_law_does_not():
     """τ_m = 20 ms under the paper's attack: ignoring the lag flips the vehicle within
     ~2 s (measured 1.7 s); inverting it keeps the vehicle upright and closing in."""
