@@ -148,6 +148,7 @@ def test_zero_lag_flies_without_an_inverter():
     assert np.array_equal(a["thrust_cmd_n"], b["thrust_cmd_n"])
 
 
+@pytest.mark.slow
 def test_lag_unaware_law_flips_and_the_lag_aware_law_does_not():
     """τ_m = 20 ms under the paper's attack: ignoring the lag flips the vehicle within
     ~2 s (measured 1.7 s); inverting it keeps the vehicle upright and closing in."""

@@ -321,9 +321,9 @@ def test_killed_daemon_motors_cut_then_restarted_daemon_reacquires(tmp_path, sim
                              str(tmp_path / "sim.json")], "nominal")
     fly_args = ["fly", "nominal", *sets, "--realtime", "--progress", "--vehicle",
                 f"127.0.0.1:{port}", "--bind", bind, "--duration", "4"]
+    fly = Proc(fly_args, realtime=True)
     fly2 = None
     try:
-        fly = Proc(fly_args, realtime=True)
         fly.wait_for(r"^progress 1\.", 20)
         t_kill = fly.kill()
         fly2 = Proc(fly_args, realtime=True)
@@ -336,8 +336,9 @@ def test_killed_daemon_motors_cut_then_restarted_daemon_reacquires(tmp_path, sim
         sim.wait(30)
         fly2.wait(30)
     finally:
-        if fly2 is not None:
-            fly2.close()
+        for p in (fly, fly2):
+            if p is not None:
+                p.close()
     st = _sim_json(tmp_path / "sim.json")["stats"]
     assert st["command_timeouts"] == 1
     assert st["control_link"]["foreign"] == 0          # same address: not a stranger

@@ -39,6 +39,7 @@ def _check(r: fuzz.EndpointReport) -> None:
 
 
 @pytest.mark.filterwarnings("ignore::RuntimeWarning")
+@pytest.mark.slow
 def test_vehicle_survives_fuzzing_and_counts_every_reject() -> None:
     r = fuzz.fuzz_vehicle(N_INPUTS, SEED)
     _check(r)

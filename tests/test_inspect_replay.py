@@ -167,6 +167,7 @@ class _Sink:
         self.sock.close()
 
 
+@pytest.mark.slow
 def test_replay_sends_the_recorded_bytes(flight_file, tmp_path, capsys):
     # a file with both directions and a rejected frame
     path = tmp_path / "mixed.mcap"

@@ -25,6 +25,7 @@ def _demo(tmp_path, *extra: str) -> dict:
     return json.loads(out.stdout)
 
 
+@pytest.mark.slow
 def test_demo_paper_converges_and_detects_rotor_2(tmp_path):
     m = _demo(tmp_path, "--duration", "12", "--set", "vehicle.rpm_noise_std=10")
     assert not m["crashed"], m["crash_reason"]
@@ -42,6 +43,7 @@ def test_demo_paper_converges_and_detects_rotor_2(tmp_path):
     assert m["messages_logged"] >= m["messages_sent"] > 12_000
 
 
+@pytest.mark.slow
 def test_demo_detects_another_rotor(tmp_path):
     m = _demo(tmp_path, "--duration", "6", "--set", "attack.rotor=3",
               "--set", "attack.start_s=2.0", "--set", "attack.signal=\"constant\"")
@@ -51,6 +53,7 @@ def test_demo_detects_another_rotor(tmp_path):
     assert 0.0 <= m["detection_latency_s"] <= 0.020
 
 
+@pytest.mark.slow
 def test_demo_with_20ms_motor_lag_converges_and_detects_rotor_2(tmp_path):
     """#6: real motors (τ_m = 20 ms, controller's τ_m 20 % long, noisy rpm) over MAVLink.
     Ignoring the lag flips the vehicle within 2 s (tests/test_actuators.py)."""
@@ -77,6 +80,7 @@ def _start_pair(tmp_path, duration: str = "30"):
     return sim, fly
 
 
+@pytest.mark.slow
 def test_daemon_killed_mid_run_leaves_a_readable_log(tmp_path):
     sim, fly = _start_pair(tmp_path)
     try:
@@ -99,6 +103,7 @@ def test_daemon_killed_mid_run_leaves_a_readable_log(tmp_path):
     assert reader.complete              # the daemon's recorder child saw EOF and finished it
 
 
+@pytest.mark.slow
 def test_daemon_survives_garbage_and_stops_cleanly_on_sigterm(tmp_path):
     sim, fly = _start_pair(tmp_path)
     try:
@@ -128,6 +133,7 @@ def test_daemon_survives_garbage_and_stops_cleanly_on_sigterm(tmp_path):
 
 
 @pytest.mark.parametrize("rotor", [1, 4])
+@pytest.mark.slow
 def test_offline_detector_mode_finds_the_rotor(rotor):
     from harness.offline import fly_offline
     from tfl_mav.flightlog.flight import summarize
@@ -139,6 +145,7 @@ def test_offline_detector_mode_finds_the_rotor(rotor):
     assert not summarize(log)["crashed"]
 
 
+@pytest.mark.slow
 def test_report_from_the_log_alone(tmp_path):
     m = _demo(tmp_path / "run", "--duration", "2")
     assert not m["crashed"]

@@ -318,6 +318,7 @@ def _start_child(path: Path, *, interval: float, duration: float, preexec=None,
                             stderr=subprocess.PIPE, text=True, cwd=REPO, preexec_fn=preexec)
 
 
+@pytest.mark.slow
 def test_sigkill_leaves_a_readable_file_missing_at_most_the_last_second(tmp_path):
     path = tmp_path / "killed.mcap"
     proc = _start_child(path, interval=1.0, duration=30.0)
@@ -344,6 +345,7 @@ def test_sigkill_leaves_a_readable_file_missing_at_most_the_last_second(tmp_path
     assert n > 1000
 
 
+@pytest.mark.slow
 def test_write_error_mid_run_is_counted_and_flight_goes_on(tmp_path):
     """A file-size limit (RLIMIT_FSIZE, the kernel's EFBIG) stands in for a full disk."""
     import resource
@@ -513,6 +515,7 @@ def test_recorder_process_writes_what_the_in_process_recorder_writes(tmp_path):
         assert {m.name for m in make_reader(f).iter_metadata()} == {"tfl-mav", "scenario"}
 
 
+@pytest.mark.slow
 def test_recorder_process_finishes_the_file_when_the_flight_process_is_killed(tmp_path):
     path = tmp_path / "child.mcap"
     proc = _start_child(path, interval=1.0, duration=30.0, cls="RecorderProcess")
@@ -537,6 +540,7 @@ def test_recorder_process_finishes_the_file_when_the_flight_process_is_killed(tm
     assert summary.statistics.message_count > 1000
 
 
+@pytest.mark.slow
 def test_recorder_process_unwritable_path(tmp_path):
     from tfl_mav.flightlog.recorder_process import RecorderProcess
 

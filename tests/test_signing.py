@@ -484,6 +484,7 @@ def _start_sim(tmp_path, key_file: str, duration: str):
     return sim, int(match.group(1))
 
 
+@pytest.mark.slow
 def test_cli_pair_with_the_same_key_flies_in_lockstep(tmp_path):
     k1, _ = _key_files(tmp_path)
     sim, port = _start_sim(tmp_path, k1, "1")
@@ -506,6 +507,7 @@ def test_cli_pair_with_the_same_key_flies_in_lockstep(tmp_path):
     assert link["rx_frames"] >= 2000 and link["bad_signature"] == link["unsigned"] == 0
 
 
+@pytest.mark.slow
 def test_cli_controller_with_the_wrong_key_never_flies_the_vehicle(tmp_path):
     k1, k2 = _key_files(tmp_path)
     sim, port = _start_sim(tmp_path, k1, "1")

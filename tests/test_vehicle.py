@@ -235,6 +235,7 @@ def test_gcs_commands_are_answered_before_the_flight_starts(gcs):
     assert result.status is ExitStatus.STOPPED and result.ticks == 0
 
 
+@pytest.mark.slow
 def test_gcs_sees_telemetry_at_most_50_hz(flight_factory, gcs):
     sc = hover_scenario()
     _flight, pilot = flight_factory(sc, gcs=gcs.link.local_address, gcs_rate_hz=50.0)
@@ -418,6 +419,7 @@ def test_bad_datagrams_and_bad_controls_are_survived_counted_and_never_applied(
 
 
 # ---------------------------------------------------------------------------- real time
+@pytest.mark.slow
 def test_realtime_holds_the_last_command_and_cuts_the_motors_on_link_loss(flight_factory):
     """Wall-clock assertions are one-sided or loose: the test must hold on a loaded machine
     (the vehicle then falls behind and says so in ``overruns``)."""
@@ -482,6 +484,7 @@ def test_pinned_peer_gets_heartbeats_before_the_flight_and_nobody_else_can_start
         intruder.close()
 
 
+@pytest.mark.slow
 def test_stop_before_the_controller_connects():
     flight = Flight(hover_scenario())
     time.sleep(0.05)
@@ -496,6 +499,7 @@ def _start_cli(*args: str) -> tuple[subprocess.Popen, Address]:
     return popen_sim(args)
 
 
+@pytest.mark.slow
 def test_cli_flies_and_exits_cleanly_on_sigterm(tmp_path):
     report, run_mcap = tmp_path / "sim.json", tmp_path / "run.mcap"
     proc, address = _start_cli("--set", "attack.rotor=0", "--duration", "0",
@@ -533,6 +537,7 @@ def test_cli_flies_and_exits_cleanly_on_sigterm(tmp_path):
     assert counts["/mavlink/raw"] == link["rx_frames"] + link["tx_frames"]
 
 
+@pytest.mark.slow
 def test_cli_exit_codes_for_interrupt_crash_and_port_in_use():
     proc, address = _start_cli()                     # waiting for a controller
     proc.send_signal(signal.SIGINT)
