@@ -45,6 +45,8 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+import numpy as np
+
 from tfl_mav.build import (
     build_controller,
     build_detector,
@@ -137,6 +139,7 @@ class FlightComputer:
         self.law_name = "tfl"          # "tfl" | "recovery" | "lost_rotor"
         self.switches = 0
         self._ticks = 0
+        self.internal_errors = 0   # ticks a law raised (held the last command)
         self._since_s = 0.0            # time in the current safe law
         self._good_s = 0.0             # time the hand-back conditions have held
         self._last_t: float | None = None
@@ -155,7 +158,29 @@ class FlightComputer:
         ``t_s``: sim time of ``state`` (s); ``rpm``: measured ESC rpm of rotors 1-4 at that
         time; ``applied_n``: the rotor thrust commands (N) the vehicle held over the period
         that ended at ``t_s`` — what the rpm answers to, not what was last sent.
+
+        A numerical failure inside a law (an input no flight produces: the fuzzer finds
+        them) never escapes: the tick holds the applied command, in mode FALLBACK, and says
+        why — the daemon's loop must not die.
         """
+        try:
+            return self._step(t_s, state, rpm, applied_n)
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+            self.internal_errors += 1
+            fmax = self.thrust_max_n
+            hold = [min(max(f, 0.0), fmax) if math.isfinite(f) else 0.0 for f in applied_n]
+            zero4 = (0.0, 0.0, 0.0, 0.0)
+            why = f"internal error ({type(exc).__name__}: {exc}); last command held"
+            out = ControlOutput(
+                rotor_thrust_n=hold, mode=Mode.FALLBACK, saturated=[False] * 4,
+                xi=(zero4, zero4), eta=zero4, mu=(0.0, 0.0), path_distance_m=math.nan,
+                lam=math.nan, cond_d=math.nan, thrust_n=sum(hold),
+                mass_estimate_kg=self.controller.mass_kg, disturbance_radps2=(0.0, 0.0),
+                fine_gains=False, reason=why)
+            return TickResult(hold, out, None, 0, math.nan, False, list(hold), (why,))
+
+    def _step(self, t_s: float, state: State, rpm: Sequence[float],
+              applied_n: Sequence[float]) -> TickResult:
         ctrl = self.controller
         events_pre: list[str] = []
         detection = None

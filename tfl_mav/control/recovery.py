@@ -58,6 +58,7 @@ ATT_KD = 20.0                       # … critically damped
 YAW_DAMP = 2.0                      # healthy: r decays at 2 /s
 # LQR weights on (h1, h2, p, q) and (τ_p, τ_q): Bryson's rule with 0.1 of h (≈ 6°),
 # 10 rad/s of p, q and 0.2 N m of τ_q; τ_p costs 100× (one-sided, only for a slow spin).
+LQR_MAX_SPIN_RADPS = 150.0   # gain schedule range (see RecoveryLaw._lqr)
 LQR_Q = (100.0, 100.0, 0.01, 0.01)
 LQR_R = (2500.0, 25.0)
 
@@ -183,6 +184,11 @@ class RecoveryLaw:
 
     # ------------------------------------------------------------------ gains
     def _lqr(self, r: float, ix: float, iy: float) -> np.ndarray:
+        # Gains are scheduled on the spin rate in 0.5 rad/s steps; beyond ±LQR_MAX_SPIN the
+        # airframe has long come apart (the simulator ends a run at 300 rad/s), so a measured
+        # rate out there (a glitch, a fuzzed message) uses the edge's gains: bounded cache,
+        # and no overflow in expm.
+        r = min(max(r, -LQR_MAX_SPIN_RADPS), LQR_MAX_SPIN_RADPS) if math.isfinite(r) else 0.0
         key = (round(r * 2.0), ix > iy)
         k = self._gains.get(key)
         if k is not None:
