@@ -56,6 +56,7 @@ from tfl_mav.control.detector import AttackDetector, DetectorOutput
 from tfl_mav.control.feasibility import attack_limit_n
 from tfl_mav.control.law import ControlOutput, TFLController
 from tfl_mav.control.recovery import RecoveryLaw, RecoveryOutput
+from tfl_mav.control.state_filter import StateFilter
 from tfl_mav.geometry import rotation_rows
 from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario
@@ -134,6 +135,17 @@ class FlightComputer:
             self.attack_limit_n = attack_limit_n(scenario) - A_LIMIT_MARGIN_N
         except Exception:  # an unusable path is reported by the law's own checks
             self.attack_limit_n = mp.mass_kg * mp.gravity_mps2 / 2.0 - A_LIMIT_MARGIN_N
+        sens = scenario.sensors
+        trans = sens.position_noise_std_m > 0.0 or sens.velocity_noise_std_mps > 0.0
+        rot = sens.rate_noise_std_radps > 0.0
+        # Noisy sensors: fuse with the model (state_filter). Gated on the scenario's noise so
+        # a noise-free flight is untouched (bit-identical), not merely close.
+        self.state_filter: StateFilter | None = (
+            StateFilter(mp, scenario.run.control_dt_s,
+                        position_std_m=sens.position_noise_std_m,
+                        velocity_std_mps=sens.velocity_noise_std_mps,
+                        rate_std_radps=sens.rate_noise_std_radps,
+                        translation=trans, rotation=rot) if trans or rot else None)
         self.law_name = "tfl"          # "tfl" | "recovery" | "lost_rotor"
         self.switches = 0
         self._ticks = 0
@@ -184,6 +196,11 @@ class FlightComputer:
         omega = [r * RPM_TO_RADPS for r in rpm]
         dt = ctrl.dt if self._last_t is None else max(t_s - self._last_t, 0.0) or ctrl.dt
         self._last_t = t_s
+        if self.state_filter is not None:
+            # The thrusts that acted over the last period: what the ESCs report (f = k_f ω²),
+            # the attacked rotor's included.
+            k_f = self.k_f
+            state = self.state_filter.update(state, [k_f * w * w for w in omega], dt)
         events: list[str] = events_pre
         first = self._ticks == 0
         self._ticks += 1
