@@ -41,6 +41,7 @@ to [0, f_max] and a NaN becomes 0 N.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -53,7 +54,7 @@ from tfl_mav.build import (
     scenario_path,
 )
 from tfl_mav.control.detector import AttackDetector, DetectorOutput
-from tfl_mav.control.feasibility import attack_limit_n
+from tfl_mav.control.feasibility import attack_limit_n, feasible_speed_mps, path_demand
 from tfl_mav.control.law import ControlOutput, TFLController
 from tfl_mav.control.recovery import RecoveryLaw, RecoveryOutput
 from tfl_mav.control.state_filter import StateFilter
@@ -121,11 +122,15 @@ class FlightComputer:
         self.detected_rotor = 0
         self.detection_time_s = math.nan
         mp = model_params(scenario)
+        self._pending_events: list[str] = []
+        self.speed_mps = self._flyable_speed(scenario)
+        if self.speed_mps != scenario.path.speed_mps:
+            self.controller.cfg = dataclasses.replace(self.controller.cfg,
+                                                      speed_mps=self.speed_mps)
         self.recovery = RecoveryLaw(mp.mass_kg, mp.inertia_kgm2, mp.arm_m,
                                     mp.drag_thrust_ratio_m, mp.k_t, mp.k_r, mp.thrust_max_n,
                                     mp.gravity_mps2, scenario.run.control_dt_s,
-                                    scenario_path(scenario), scenario.path.speed_mps)
-        self.speed_mps = scenario.path.speed_mps
+                                    scenario_path(scenario), self.speed_mps)
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
         if self.controller.lag_inverter is not None:   # ESC noise: filter ω (actuators)
             self.controller.lag_inverter.set_rpm_noise(detector_config(scenario).rpm_noise_std)
@@ -153,6 +158,21 @@ class FlightComputer:
         self._good_s = 0.0             # time the hand-back conditions have held
         self._last_t: float | None = None
         self._last_tfl: ControlOutput | None = None
+
+    def _flyable_speed(self, sc: Scenario) -> float:
+        """The path speed to fly: the scenario's, or the highest the vehicle can fly when the
+        path's bends ask for more than the rotors can give (feasibility); said in words."""
+        try:
+            s_ok = feasible_speed_mps(sc)
+        except Exception:  # an unusable path is reported by the law's own checks
+            return sc.path.speed_mps
+        if s_ok < sc.path.speed_mps:
+            d = path_demand(sc)
+            self._pending_events.append(
+                f"path at {sc.path.speed_mps:g} m/s needs {-d.min_vertical_mps2:.1f} m/s^2 "
+                f"downward at its tightest bend (more than the rotors can give): "
+                f"flying it at {s_ok:.2f} m/s, the highest speed the vehicle can")
+        return s_ok
 
     def tell_attack(self, rotor: int) -> None:
         """Oracle only: rotor 1-4 is attacked from now on (0: none)."""
@@ -203,6 +223,8 @@ class FlightComputer:
             state = self.state_filter.update(state, [k_f * w * w for w in omega], dt)
         events: list[str] = events_pre
         first = self._ticks == 0
+        if first and self._pending_events:
+            events[:0] = self._pending_events
         self._ticks += 1
         if first:
             why = self._not_benign(state, rotor)
