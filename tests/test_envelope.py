@@ -123,3 +123,16 @@ def test_too_fast_path_is_flown_at_the_highest_feasible_speed() -> None:
     t = log["t_s"]
     speed = np.linalg.norm(log["velocity_mps"][t >= t[-1] - WINDOW_S], axis=1)
     assert abs(float(np.mean(speed)) - s_ok) <= 0.05 * s_ok
+
+
+@pytest.mark.slow
+def test_gyro_range_saturated_yaw_rate_is_replaced_by_the_model() -> None:
+    """A 2000°/s gyro (34.9 rad/s) on the attacked flight, which spins at ~60 rad/s: the
+    flight computer says it substitutes the model's yaw rate, and the flight meets the same
+    5 mm model-error bound as with an ideal gyro (tests/test_offline.py)."""
+    sc = apply_overrides(load_scenario("paper"), ["sensors.gyro_range_radps=34.9"])
+    log = fly_offline(sc, attack_info="detector")
+    assert not log.crashed, log.crash_reason
+    assert any("gyro's range" in text for _, text in log.events)
+    assert float(np.max(np.abs(log["body_rates_radps"][:, 2]))) > 34.9   # it really spun
+    assert _last_max(log) <= 5e-3

@@ -1,4 +1,4 @@
-"""Model-based state filter and sample-and-hold prediction for the flight computer (#14).
+"""Model-based state filter for the flight computer (#14).
 
 The TFL law differentiates the output four times; the measured velocity enters y' and the
 rates enter y''' directly, and the law's rate-disturbance observer differences the rates
@@ -17,10 +17,6 @@ the ESCs report (f = k_f ω², which is also the attacked rotor's true thrust). 
   the scenario's sensor standard deviations. Attitude is passed through (its noise is not
   the problem measured). The flight computer builds a filter only for the parts whose
   scenario noise is > 0: a noise-free flight never touches it (bit-identical).
-
-* :func:`predict_state` — the rigid-body model integrated over ``horizon_s`` with given
-  rotor thrusts held: the flight computer evaluates the law at the state the held command
-  will act on (sample-and-hold, :meth:`FlightComputer.step`).
 """
 
 from __future__ import annotations
@@ -34,7 +30,7 @@ from tfl_mav.control.law_types import ModelParams
 from tfl_mav.geometry import rotation_rows
 from tfl_mav.state import State
 
-__all__ = ["StateFilter", "predict_state"]
+__all__ = ["StateFilter"]
 
 # Model-error budget (process noise), white densities per √s:
 ACCEL_WHITE_MPS2 = 0.3     # unmodelled acceleration: ESC-noise thrust (0.2 N/1.1 kg) + drag
@@ -149,37 +145,3 @@ class StateFilter:
             self._w = w
         return State(out_p, out_v, quat, out_w, state.time_usec)
 
-
-def predict_state(state: State, thrust_n: Sequence[float], horizon_s: float,
-                  model: ModelParams, steps: int = 2) -> State:
-    """``state`` advanced by ``horizon_s`` under eq. (3) with ``thrust_n`` (N) held (RK2 per
-    sub-step). The sample-and-hold prediction of :meth:`FlightComputer.step`."""
-    m = model
-    ix, iy, iz = m.inertia_kgm2
-    f1, f2, f3, f4 = thrust_n
-    uf = f1 + f2 + f3 + f4
-    tau = (m.arm_m * (f4 - f2), m.arm_m * (f3 - f1), m.drag_thrust_ratio_m * (f1 - f2 + f3 - f4))
-    kr, ktm, g, mass = m.k_r, m.k_t / m.mass_kg, m.gravity_mps2, m.mass_kg
-
-    def deriv(x: list[float]) -> list[float]:
-        _, _, _, vx, vy, vz, qw, qx, qy, qz, p, q, r = x
-        b3 = (2 * (qx * qz + qw * qy), 2 * (qy * qz - qw * qx), 1 - 2 * (qx * qx + qy * qy))
-        a = uf / mass
-        return [vx, vy, vz,
-                a * b3[0] - ktm * vx, a * b3[1] - ktm * vy, a * b3[2] - ktm * vz - g,
-                0.5 * (-qx * p - qy * q - qz * r), 0.5 * (qw * p + qy * r - qz * q),
-                0.5 * (qw * q + qz * p - qx * r), 0.5 * (qw * r + qx * q - qy * p),
-                (tau[0] - kr * p - (iz - iy) * q * r) / ix,
-                (tau[1] - kr * q - (ix - iz) * p * r) / iy,
-                (tau[2] - kr * r - (iy - ix) * p * q) / iz]
-
-    x = [*map(float, state.position_m), *map(float, state.velocity_mps),
-         *map(float, state.quaternion_wxyz), *map(float, state.body_rates_radps)]
-    h = horizon_s / steps
-    for _ in range(steps):
-        k1 = deriv(x)
-        mid = [xi + 0.5 * h * ki for xi, ki in zip(x, k1, strict=True)]
-        k2 = deriv(mid)
-        x = [xi + h * ki for xi, ki in zip(x, k2, strict=True)]
-    n = math.sqrt(x[6] ** 2 + x[7] ** 2 + x[8] ** 2 + x[9] ** 2)
-    return State(x[0:3], x[3:6], [c / n for c in x[6:10]], x[10:13], state.time_usec)
