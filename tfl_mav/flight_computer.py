@@ -34,6 +34,12 @@ Which law flies (issue #14; :mod:`tfl_mav.control.recovery` says why a second la
   from in every scenario (hover, still) with a margin, and the recovery law's own tilt
   limit (30°): anything outside is a state nobody has shown the TFL law converges from.
 
+Before the law (issue #14): with sensor noise in the scenario the state is filtered with the
+model (:mod:`tfl_mav.control.state_filter`; noise-free flights skip it); a yaw rate at the
+gyro's range (``sensors.gyro_range_radps``) is replaced by the model's; a path speed the
+vehicle cannot fly is lowered once to the highest feasible one
+(:func:`~tfl_mav.control.feasibility.feasible_speed_mps`), said on the first tick.
+
 Every switch produces an event in words (:attr:`TickResult.events`, the daemon sends them as
 STATUSTEXT). Nothing non-finite ever leaves :meth:`FlightComputer.step`: thrusts are clamped
 to [0, f_max] and a NaN becomes 0 N.
