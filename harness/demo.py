@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from tfl_mav.build import scenario_path
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.flightlog.from_mcap import flight_log_from_mcap
 from tfl_mav.flightlog.logread import LogReader
@@ -41,6 +42,7 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
     the live view there (``--foxglove``)."""
     settings = list(settings or [])
     scenario = scenario or apply_overrides(load_scenario(name), settings)
+    scenario_path(scenario)   # ScenarioError for a bad path now, before any process starts
     duration = duration_s if duration_s is not None else scenario.run.duration_s
     out.mkdir(parents=True, exist_ok=True)
     run_mcap, ctl_mcap, fly_json = out / "run.mcap", out / "ctl.mcap", out / "fly.json"

@@ -129,6 +129,8 @@ class Simulator:
             q = q / np.linalg.norm(q)
         if sens.rate_noise_std_radps > 0:
             w = w + rng.normal(0.0, sens.rate_noise_std_radps, 3)
+        if sens.gyro_range_radps > 0:     # a real gyro saturates at its range
+            w = np.clip(w, -sens.gyro_range_radps, sens.gyro_range_radps)
         self._measured = State(pos, vel, q, w, self.time_usec)
 
     # ------------------------------------------------------------------ outputs

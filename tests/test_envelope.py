@@ -101,3 +101,38 @@ def test_feasibility_flags_the_impossible_and_passes_the_paper() -> None:
     assert any("cannot be followed" in w for w in check_scenario(fast))
     strong = apply_overrides(paper, ["attack.signal=constant", "attack.value_n=5.0"])
     assert any("cannot follow the path" in w for w in check_scenario(strong))
+
+
+@pytest.mark.slow
+def test_too_fast_path_is_flown_at_the_highest_feasible_speed() -> None:
+    """The paper path at 2 m/s needs 16 m/s² downward at its top bend (impossible). The
+    flight computer says so and flies it slower. At the top bend (y1 = π) κN = (0, 1, −4),
+    so the thrust needs m·s²·(0, 1, −4) + m g e3 (the drag k_t s is along the tangent, 0 there
+    for the vertical); keeping it ≥ m g/2 (feasibility's margin) gives
+    s⁴ + (g − 4 s²)² = g²/4, i.e. s² = g (8 − √13)/34. At that speed the law is the nominal
+    one on a flyable path, so it must meet the nominal bound of tests/test_offline.py
+    (5 mm with the 2 %/10 % model error), and fly at that speed (±5 %)."""
+    sc = apply_overrides(load_scenario("paper"), ["path.speed_mps=2.0", "attack.rotor=0"])
+    g = sc.vehicle.gravity_mps2
+    s_ok = math.sqrt(g * (8.0 - math.sqrt(13.0)) / 34.0)
+    log = fly_offline(sc, attack_info="detector")
+    assert not log.crashed, log.crash_reason
+    said = [text for _, text in log.events if "the highest speed" in text]
+    assert said and f"{s_ok:.2f} m/s" in said[0], log.events
+    assert _last_max(log) <= 5e-3
+    t = log["t_s"]
+    speed = np.linalg.norm(log["velocity_mps"][t >= t[-1] - WINDOW_S], axis=1)
+    assert abs(float(np.mean(speed)) - s_ok) <= 0.05 * s_ok
+
+
+@pytest.mark.slow
+def test_gyro_range_saturated_yaw_rate_is_replaced_by_the_model() -> None:
+    """A 2000°/s gyro (34.9 rad/s) on the attacked flight, which spins at ~60 rad/s: the
+    flight computer says it substitutes the model's yaw rate, and the flight meets the same
+    5 mm model-error bound as with an ideal gyro (tests/test_offline.py)."""
+    sc = apply_overrides(load_scenario("paper"), ["sensors.gyro_range_radps=34.9"])
+    log = fly_offline(sc, attack_info="detector")
+    assert not log.crashed, log.crash_reason
+    assert any("gyro's range" in text for _, text in log.events)
+    assert float(np.max(np.abs(log["body_rates_radps"][:, 2]))) > 34.9   # it really spun
+    assert _last_max(log) <= 5e-3

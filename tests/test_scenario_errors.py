@@ -256,3 +256,20 @@ def test_cli_sim_bad_scenario_exits_2_with_one_line(tmp_path: Path, text: str,
     lines = proc.stderr.strip().splitlines()
     assert len(lines) == 1, proc.stderr
     assert key in lines[0]
+
+
+@pytest.mark.parametrize("command", ["offline", "demo"])
+@pytest.mark.parametrize(("setting", "key"), [("path.kind=nonsense", "path.kind"),
+                                              ("path.radius_m=0", "path.radius_m")])
+def test_cli_bad_path_exits_2_with_one_line_before_flying(tmp_path: Path, command: str,
+                                                          setting: str, key: str) -> None:
+    """#14: a bad path is a scenario error found at load: ``offline`` prints one line and
+    exits 2 (no traceback); ``demo`` does so before starting any process (no hang)."""
+    args = ["--out", str(tmp_path / "out")] if command == "demo" else []
+    proc = subprocess.run([sys.executable, "-m", "tools.cli", command, "paper", "--set",
+                           setting, *args], cwd=REPO, capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 2, proc.stderr
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert key in lines[0]

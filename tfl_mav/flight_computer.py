@@ -34,6 +34,12 @@ Which law flies (issue #14; :mod:`tfl_mav.control.recovery` says why a second la
   from in every scenario (hover, still) with a margin, and the recovery law's own tilt
   limit (30°): anything outside is a state nobody has shown the TFL law converges from.
 
+Before the law (issue #14): with sensor noise in the scenario the state is filtered with the
+model (:mod:`tfl_mav.control.state_filter`; noise-free flights skip it); a yaw rate at the
+gyro's range (``sensors.gyro_range_radps``) is replaced by the model's; a path speed the
+vehicle cannot fly is lowered once to the highest feasible one
+(:func:`~tfl_mav.control.feasibility.feasible_speed_mps`), said on the first tick.
+
 Every switch produces an event in words (:attr:`TickResult.events`, the daemon sends them as
 STATUSTEXT). Nothing non-finite ever leaves :meth:`FlightComputer.step`: thrusts are clamped
 to [0, f_max] and a NaN becomes 0 N.
@@ -41,6 +47,7 @@ to [0, f_max] and a NaN becomes 0 N.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -55,9 +62,10 @@ from tfl_mav.build import (
     scenario_path,
 )
 from tfl_mav.control.detector import AttackDetector, DetectorOutput
-from tfl_mav.control.feasibility import attack_limit_n
+from tfl_mav.control.feasibility import attack_limit_n, feasible_speed_mps, path_demand
 from tfl_mav.control.law import ControlOutput, TFLController
 from tfl_mav.control.recovery import RecoveryLaw, RecoveryOutput
+from tfl_mav.control.state_filter import StateFilter
 from tfl_mav.geometry import rotation_rows
 from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario
@@ -122,11 +130,15 @@ class FlightComputer:
         self.detected_rotor = 0
         self.detection_time_s = math.nan
         mp = model_params(scenario)
+        self._pending_events: list[str] = []
+        self.speed_mps = self._flyable_speed(scenario)
+        if self.speed_mps != scenario.path.speed_mps:
+            self.controller.cfg = dataclasses.replace(self.controller.cfg,
+                                                      speed_mps=self.speed_mps)
         self.recovery = RecoveryLaw(mp.mass_kg, mp.inertia_kgm2, mp.arm_m,
                                     mp.drag_thrust_ratio_m, mp.k_t, mp.k_r, mp.thrust_max_n,
                                     mp.gravity_mps2, scenario.run.control_dt_s,
-                                    scenario_path(scenario), scenario.path.speed_mps)
-        self.speed_mps = scenario.path.speed_mps
+                                    scenario_path(scenario), self.speed_mps)
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
         if self.controller.lag_inverter is not None:   # ESC noise: filter ω (actuators)
             self.controller.lag_inverter.set_rpm_noise(detector_config(scenario).rpm_noise_std)
@@ -136,6 +148,23 @@ class FlightComputer:
             self.attack_limit_n = attack_limit_n(scenario) - A_LIMIT_MARGIN_N
         except Exception:  # an unusable path is reported by the law's own checks
             self.attack_limit_n = mp.mass_kg * mp.gravity_mps2 / 2.0 - A_LIMIT_MARGIN_N
+        sens = scenario.sensors
+        trans = sens.position_noise_std_m > 0.0 or sens.velocity_noise_std_mps > 0.0
+        rot = sens.rate_noise_std_radps > 0.0
+        # Noisy sensors: fuse with the model (state_filter). Gated on the scenario's noise so
+        # a noise-free flight is untouched (bit-identical), not merely close.
+        self.state_filter: StateFilter | None = (
+            StateFilter(mp, scenario.run.control_dt_s,
+                        position_std_m=sens.position_noise_std_m,
+                        velocity_std_mps=sens.velocity_noise_std_mps,
+                        rate_std_radps=sens.rate_noise_std_radps,
+                        translation=trans, rotation=rot) if trans or rot else None)
+        # A gyro saturates at its range (the attacked vehicle spins near 60 rad/s, beyond
+        # 2000 deg/s): past it the yaw rate comes from the model (_unclip_yaw_rate).
+        self.gyro_range_radps = sens.gyro_range_radps
+        self._model = mp
+        self._r_hat: float | None = None
+        self.yaw_rate_substituted_ticks = 0
         self.law_name = "tfl"          # "tfl" | "recovery" | "lost_rotor"
         self.switches = 0
         self._ticks = 0
@@ -144,6 +173,21 @@ class FlightComputer:
         self._good_s = 0.0             # time the hand-back conditions have held
         self._last_t: float | None = None
         self._last_tfl: ControlOutput | None = None
+
+    def _flyable_speed(self, sc: Scenario) -> float:
+        """The path speed to fly: the scenario's, or the highest the vehicle can fly when the
+        path's bends ask for more than the rotors can give (feasibility); said in words."""
+        try:
+            s_ok = feasible_speed_mps(sc)
+        except Exception:  # an unusable path is reported by the law's own checks
+            return sc.path.speed_mps
+        if s_ok < sc.path.speed_mps:
+            d = path_demand(sc)
+            self._pending_events.append(
+                f"path at {sc.path.speed_mps:g} m/s needs {-d.min_vertical_mps2:.1f} m/s^2 "
+                f"downward at its tightest bend (more than the rotors can give): "
+                f"flying it at {s_ok:.2f} m/s, the highest speed the vehicle can")
+        return s_ok
 
     def tell_attack(self, rotor: int) -> None:
         """Oracle only: rotor 1-4 is attacked from now on (0: none)."""
@@ -209,8 +253,17 @@ class FlightComputer:
         omega = [r * RPM_TO_RADPS for r in rpm]
         dt = ctrl.dt if self._last_t is None else max(t_s - self._last_t, 0.0) or ctrl.dt
         self._last_t = t_s
+        if self.state_filter is not None:
+            # The thrusts that acted over the last period: what the ESCs report (f = k_f ω²),
+            # the attacked rotor's included.
+            k_f = self.k_f
+            state = self.state_filter.update(state, [k_f * w * w for w in omega], dt)
+        if self.gyro_range_radps > 0.0:
+            state = self._unclip_yaw_rate(state, omega, dt, events_pre)
         events: list[str] = events_pre
         first = self._ticks == 0
+        if first and self._pending_events:
+            events[:0] = self._pending_events
         self._ticks += 1
         if first:
             why = self._not_benign(state, rotor)
@@ -242,6 +295,33 @@ class FlightComputer:
         out = self._as_output(rec, ctrl)
         return self._result(rec.thrust_n, rec.requested_n, out, detection, rotor, estimate,
                             new, events)
+
+    def _unclip_yaw_rate(self, state: State, omega: Sequence[float], dt: float,
+                         events: list[str]) -> State:
+        """A yaw rate at the gyro's range is a lower bound, not a measurement: integrate
+        ṙ = (τ_r − k_r r − (I_y − I_x) p q)/I_z (eq. (3)) from the ESC-reported thrusts
+        instead, starting from the last unsaturated reading. The spin's steady value τ_r/k_r
+        does not depend on the (uncertain) inertia."""
+        p, q, r = (float(c) for c in state.body_rates_radps)
+        rng = self.gyro_range_radps
+        if abs(r) < 0.99 * rng or not math.isfinite(r):
+            self._r_hat = r
+            return state
+        m = self._model
+        f1, f2, f3, f4 = (self.k_f * w * w for w in omega)
+        ix, iy, iz = m.inertia_kgm2
+        r_hat = r if self._r_hat is None else self._r_hat
+        tau_r = m.drag_thrust_ratio_m * (f1 - f2 + f3 - f4)
+        r_hat += dt * (tau_r - m.k_r * r_hat - (iy - ix) * p * q) / iz
+        if r_hat * r <= 0.0 or abs(r_hat) < abs(r):
+            r_hat = r                    # the true rate is at least what the gyro shows
+        if self.yaw_rate_substituted_ticks == 0:
+            events.append(f"yaw rate at the gyro's range (±{rng:g} rad/s): using the "
+                          "model's yaw-rate estimate while it is saturated")
+        self.yaw_rate_substituted_ticks += 1
+        self._r_hat = r_hat
+        return State(state.position_m, state.velocity_mps, state.quaternion_wxyz,
+                     (p, q, r_hat), state.time_usec)
 
     # ------------------------------------------------------------------ switching
     def _not_benign(self, state: State, rotor: int) -> str:

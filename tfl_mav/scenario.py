@@ -156,6 +156,8 @@ class SensorConfig:
     velocity_noise_std_mps: float = _f(0.0, "m/s", lo=0.0)
     attitude_noise_std_rad: float = _f(0.0, "rad", lo=0.0)
     rate_noise_std_radps: float = _f(0.0, "rad/s", lo=0.0)
+    gyro_range_radps: float = _f(0.0, "rad/s", lo=0.0, hi=1000.0,
+                                 doc="measured rates clip at ± this (34.9 = 2000 deg/s); 0 = off")
 
 
 @dataclass(frozen=True)

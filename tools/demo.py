@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.demo import run_demo
+from tfl_mav.build import scenario_path
 from tfl_mav.control.feasibility import check_scenario
 from tfl_mav.link.signing import load_key
 from tfl_mav.scenario import ScenarioError, apply_overrides, load_scenario
@@ -52,6 +53,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     try:
         scenario = apply_overrides(load_scenario(args.scenario), args.settings)
+        scenario_path(scenario)      # a bad path fails here, before any process starts
         if args.key_file:
             load_key(args.key_file)      # fail here, once, rather than in both children
         if args.foxglove:

@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from harness.offline import fly_offline
+from tfl_mav.build import scenario_path
 from tfl_mav.control.feasibility import check_scenario
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
@@ -46,6 +47,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     try:
         sc = apply_overrides(load_scenario(args.scenario), args.set)
+        scenario_path(sc)            # a bad path is a scenario error, found before flying
     except (ScenarioError, TypeError) as exc:
         print(f"tfl-mav offline: scenario error: {exc}", file=sys.stderr)
         return 2

@@ -26,7 +26,7 @@ import numpy as np
 
 from tfl_mav.scenario import Scenario
 
-__all__ = ["PathDemand", "attack_limit_n", "check_scenario", "path_demand"]
+__all__ = ["PathDemand", "attack_limit_n", "check_scenario", "feasible_speed_mps", "path_demand"]
 
 
 @dataclass(frozen=True)
@@ -70,6 +70,39 @@ def path_demand(sc: Scenario, n: int = 4001) -> PathDemand:
     tilt = np.arccos(np.clip(f[2] / np.maximum(fn, 1e-12), -1.0, 1.0))
     return PathDemand(float(np.max(np.linalg.norm(a, axis=0))), float(np.min(a[2])),
                       float(np.min(u)), float(np.max(u)), float(np.max(tilt)))
+
+
+# The margins a speed must leave to be flown (feasible_speed_mps): the least thrust along the
+# path at least half the hover thrust (the law needs room to correct downward), the most at
+# most 80 % of 4 f_max, the thrust at most 45° from vertical.
+MIN_THRUST_HOVER_FRACTION = 0.5
+MAX_THRUST_FRACTION = 0.8
+MAX_TILT_RAD = math.radians(45.0)
+
+
+def _speed_ok(sc: Scenario, d: PathDemand) -> bool:
+    v = sc.vehicle
+    mg = v.mass_kg * v.gravity_mps2
+    return (d.min_thrust_n >= MIN_THRUST_HOVER_FRACTION * mg
+            and d.max_thrust_n <= MAX_THRUST_FRACTION * 4.0 * v.thrust_max_n
+            and d.max_tilt_rad <= MAX_TILT_RAD)
+
+
+def feasible_speed_mps(sc: Scenario) -> float:
+    """The scenario's path speed if the vehicle can fly it with the margins above, else the
+    highest speed (to 1 %) that it can: the path's acceleration grows as s² κ, so slowing
+    down is the one way to make a too-tight bend flyable. Never above the asked speed."""
+    s_req = sc.path.speed_mps
+    if s_req <= 0.0 or _speed_ok(sc, path_demand(sc)):
+        return s_req
+    lo, hi = 0.0, s_req
+    for _ in range(12):
+        mid = 0.5 * (lo + hi)
+        if _speed_ok(sc, path_demand(sc.replace(**{"path.speed_mps": mid}), n=1001)):
+            lo = mid
+        else:
+            hi = mid
+    return lo
 
 
 def attack_limit_n(sc: Scenario, demand: PathDemand | None = None) -> float:
@@ -120,7 +153,8 @@ def check_scenario(sc: Scenario) -> list[str]:
     if d.min_thrust_n <= 0.0:
         out.append(f"path at {sc.path.speed_mps:g} m/s needs {-d.min_vertical_mps2:.1f} m/s^2 "
                    f"downward at its top bend (> g = {v.gravity_mps2:g}): rotors cannot pull, "
-                   "the path cannot be followed")
+                   f"the path cannot be followed at that speed; it will be flown at "
+                   f"{feasible_speed_mps(sc):.2f} m/s")
     elif d.max_tilt_rad > math.radians(60.0):
         out.append(f"path at {sc.path.speed_mps:g} m/s needs a {math.degrees(d.max_tilt_rad):.0f}"
                    " deg tilt: beyond what the controllers are made for")
