@@ -12,7 +12,8 @@ The vehicle wires the parts together and runs the flight; each part has its own 
 
 * :mod:`sitl.clock` — lockstep (default) and real-time pacing, and the held command;
 * :mod:`sitl.commands` — HIL_ACTUATOR_CONTROLS and COMMAND_LONG/COMMAND_INT;
-* :mod:`sitl.state_report` — the per-tick ODOMETRY + ESC_TELEMETRY_1_TO_4;
+* :mod:`sitl.state_report` — the per-tick ODOMETRY, ACTUATOR_OUTPUT_STATUS (which command
+  the rpm answer) and ESC_TELEMETRY_1_TO_4;
 * :mod:`sitl.gcs` — HEARTBEAT, STATUSTEXT and the GCS telemetry;
 * :mod:`sitl.results` — the outcome and counters of a run.
 
@@ -270,14 +271,15 @@ class Vehicle:
         self.control_link.send(self.flight.heartbeat())
 
     def publish_state(self) -> None:
-        """ODOMETRY + ESC_TELEMETRY_1_TO_4 of the current tick to the controller."""
-        self.report.update()
+        """ODOMETRY, ACTUATOR_OUTPUT_STATUS, ESC_TELEMETRY_1_TO_4 of the current tick to the
+        controller (:mod:`sitl.state_report`)."""
+        self.report.update(self.held.applied_usec)
         self.resend_state()
 
     _publish_state = publish_state   # bench/bench_lockstep.py times it under this name
 
     def resend_state(self) -> None:
-        """ODOMETRY then ESC_TELEMETRY_1_TO_4, in that order, in one datagram."""
+        """The current tick's messages again, in order, in one datagram."""
         assert self.report.latest is not None
         self.control_link.send_many(self.report.latest)
         self.stats.states_sent += 1

@@ -84,12 +84,14 @@ class FlightComputer:
         self._told_rotor = rotor
 
     def step(self, t_s: float, state: State, rpm: Sequence[float],
-             applied_n: Sequence[float]) -> TickResult:
+             applied_n: Sequence[float], *, dt_s: float | None = None) -> TickResult:
         """One control tick.
 
         ``t_s``: sim time of ``state`` (s); ``rpm``: measured ESC rpm of rotors 1-4 at that
         time; ``applied_n``: the rotor thrust commands (N) the vehicle held over the period
-        that ended at ``t_s`` — what the rpm answers to, not what was last sent.
+        that ended at ``t_s`` — what the rpm answers to, not what was last sent. ``dt_s``:
+        the time since the last tick when it is not one control period (a real-time daemon
+        that skipped states): the law's internal states integrate over it.
         """
         ctrl = self.controller
         detection = None
@@ -110,7 +112,16 @@ class FlightComputer:
             w = rpm[rotor - 1] * RPM_TO_RADPS
             estimate = self.k_f * w * w
             ctrl.set_attack(rotor, estimate)
-        out = ctrl.update(state, [r * RPM_TO_RADPS for r in rpm])
+        omega = [r * RPM_TO_RADPS for r in rpm]
+        if dt_s is None:
+            out = ctrl.update(state, omega)
+        else:
+            period = ctrl.dt
+            ctrl.dt = dt_s
+            try:
+                out = ctrl.update(state, omega)
+            finally:
+                ctrl.dt = period
         fmax = self.thrust_max_n
         thrust = [min(max(f, 0.0), fmax) if math.isfinite(f) else 0.0
                   for f in out.rotor_thrust_n]
