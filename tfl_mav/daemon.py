@@ -136,7 +136,8 @@ class Daemon:
     """The offboard controller for one vehicle. See the module docstring."""
 
     def __init__(self, scenario: Scenario, *, vehicle: Address, bind: Address | None = None,
-                 realtime: bool = False, state_timeout_s: float = 0.5, sysid: int = 1,
+                 realtime: bool = False, state_timeout_s: float = 0.5,
+                 silence_end_s: float | None = None, sysid: int = 1,
                  compid: int = mav.MAV_COMP_ID_ONBOARD_COMPUTER,
                  vehicle_sysid: int | None = None, key: bytes | None = None,
                  on_frame: FrameHook | None = None,
@@ -145,6 +146,9 @@ class Daemon:
         """Open the socket towards ``vehicle`` (raises LinkError).
 
         ``key``: 32-byte MAVLink 2 signing secret (the vehicle's), or None (unsigned).
+        ``silence_end_s``: after the flight started, end the run when no state has arrived
+        for this many wall seconds (the vehicle is gone even if its goodbye was lost);
+        None waits for the vehicle forever (failsafe, then resume when it returns).
         ``on_tick(sim_time_s, state)`` sees the controller's internals every tick (the
         recorder's ``/controller/state``); ``on_event(level, text, sim_time_s)`` every
         event also sent as STATUSTEXT.
@@ -154,6 +158,11 @@ class Daemon:
         self.scenario = scenario
         self.realtime = realtime
         self.state_timeout_s = state_timeout_s
+        if silence_end_s is not None and not (math.isfinite(silence_end_s)
+                                              and silence_end_s > state_timeout_s):
+            raise ValueError(f"silence_end_s: must be > state_timeout_s "
+                             f"({state_timeout_s} s), got {silence_end_s}")
+        self.silence_end_s = silence_end_s
         self.computer = self._new_computer()
         self.signing = Signing(key) if key is not None else None
         self.link = Link.connect(vehicle, src_system=sysid, src_component=compid, bind=bind,
@@ -208,7 +217,8 @@ class Daemon:
     # ------------------------------------------------------------------ main loop
     def run(self, duration_s: float | None = None) -> DaemonResult:
         """Fly until ``duration_s`` of sim time (None: the scenario's), the vehicle says it is
-        done (HEARTBEAT POWEROFF/EMERGENCY) or :meth:`stop`."""
+        done (HEARTBEAT POWEROFF/EMERGENCY, or its "crashed"/"simulation ended" STATUSTEXT),
+        stays silent for ``silence_end_s`` or :meth:`stop`."""
         duration = self.scenario.run.duration_s if duration_s is None else duration_s
         wall0 = time.monotonic()
         next_heartbeat = 0.0
@@ -244,6 +254,10 @@ class Daemon:
                 self._report_waiting(now - wall0)
             if self._vehicle_done:
                 reason = self._vehicle_done
+                break
+            if (self.silence_end_s is not None and self.stats.ticks > 0
+                    and now - last_state_wall > self.silence_end_s):
+                reason = f"vehicle silent for {self.silence_end_s:g} s (gone)"
                 break
             if self._sim_time_s >= duration - 1e-9 and self.stats.ticks > 0:
                 reason = "duration reached"
@@ -306,7 +320,13 @@ class Daemon:
                                       else "vehicle powered off (run over)")
             return
         if mid == mav.MAVLINK_MSG_ID_STATUSTEXT:
-            self._event("info", f"vehicle: {msg.text}", send=False)
+            text = msg.text
+            self._event("info", f"vehicle: {text}", send=False)
+            if self.stats.ticks > 0 and not self._vehicle_done:
+                if text.startswith("crashed:"):
+                    self._vehicle_done = "vehicle reported EMERGENCY (crashed)"
+                elif text.startswith("simulation ended"):
+                    self._vehicle_done = "vehicle powered off (run over)"
             return
         self.stats.ignored_messages += 1
 
