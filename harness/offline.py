@@ -39,8 +39,13 @@ def detections(log: FlightLog) -> list[tuple[float, int]]:
 
 def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
                 progress: Callable[[float, float], None] | None = None,
-                duration_s: float | None = None) -> FlightLog:
-    """Fly ``sc`` and return its :class:`FlightLog` (finished, arrays)."""
+                duration_s: float | None = None,
+                hook: Callable[[Simulator], None] | None = None) -> FlightLog:
+    """Fly ``sc`` and return its :class:`FlightLog` (finished, arrays).
+
+    ``hook(sim)`` is called before every control tick (benches use it to inject failures
+    mid-flight, as MAV_CMD_INJECT_FAILURE does on the link).
+    """
     fc = FlightComputer(sc, attack_info=attack_info)
     sim = Simulator(sc)
     ctrl = fc.controller
@@ -56,6 +61,8 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
     t0 = time.perf_counter()
     next_progress = 0.0
     for _ in range(n_ticks):
+        if hook is not None:
+            hook(sim)
         att = sim.attack
         if attack_info == "oracle":
             fc.tell_attack(att.rotor)
@@ -64,6 +71,8 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
             log.events.append((fc.detection_time_s,
                                DETECTION_EVENT.format(rotor=fc.detected_rotor)))
         out = res.law
+        for text in res.events:
+            log.events.append((sim.time_s, text))
         sim.set_command(res.thrust_n)
         applied = list(sim.rotor_commands_n)
         st = sim.state
@@ -77,7 +86,9 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
         uf, tp, tq, tr = mix(sim.params, true_f)
         log.append(t_s=sim.time_s, position_m=st.position_m, velocity_mps=st.velocity_mps,
                    body_rates_radps=st.body_rates_radps, yaw_rad=yaw_unwrapped,
-                   path_distance_m=out.path_distance_m, thrust_cmd_n=out.rotor_thrust_n,
+                   path_distance_m=out.path_distance_m, thrust_cmd_n=res.thrust_n,
+                   thrust_req_n=(res.thrust_requested_n if res.thrust_requested_n is not None
+                                 else res.thrust_n),
                    thrust_true_n=true_f, attack_true_n=att.applied_n if att.rotor else 0.0,
                    attack_estimate_n=res.attack_estimate_n, uf_n=uf, torque_nm=(tp, tq, tr),
                    saturated=any(out.saturated), mode=int(out.mode))

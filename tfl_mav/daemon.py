@@ -429,6 +429,8 @@ class Daemon:
         if res.new_detection:
             self._event("warning", f"ATTACK on rotor {res.attack_rotor} detected at "
                                    f"t={t:.3f} s; attacked law engaged")
+        for text in res.events:              # law switches, in words (#14)
+            self._event("warning", text)
         thrust = res.thrust_n
         self._last_cmd = thrust
         history = self._history

@@ -14,8 +14,29 @@ How the computer learns of the attack (``attack_info``):
   (:meth:`FlightComputer.tell_attack`), and its thrust is read from its measured speed,
   f = k_f ω² (§VI).
 
-Nothing non-finite ever leaves :meth:`FlightComputer.step`: thrusts are clamped to
-[0, f_max] and a NaN becomes 0 N.
+Which law flies (issue #14; :mod:`tfl_mav.control.recovery` says why a second law exists):
+
+* **TFL** (``nominal``/``attacked``) whenever it has authority: four healthy rotors, or an
+  attacked rotor whose thrust A is at least ``A_EXIT_N`` (then the opposite rotor can make
+  τ_p of both signs around f4 = A);
+* **lost_rotor** (reduced attitude on three rotors, spinning) when the attacked rotor's
+  estimated thrust falls below ``A_ENTER_N`` — the dead-rotor region — and until it has
+  been above ``A_EXIT_N`` for ``HANDBACK_S`` *and* the vehicle is back near the path
+  (``HANDBACK_DIST_M``) and calm: so the TFL law takes over a state it was designed for and
+  the hand-back leaves no transient off the path. The band [0.3, 0.6] N is hysteresis: the
+  paper's signal wanders across it with ESC noise on the estimate;
+* **recovery** (reduced attitude on four rotors) on the first tick when the state is not
+  benign (a controller restarted mid-flight: tilt > 30°, |v| > max(2, 2 × speed) m/s,
+  |(p, q)| > 2 rad/s, or |r| > 2 rad/s with no attack known), and whenever the TFL law has
+  no valid answer (left the projection tube, D(x) singular). It levels the vehicle and holds
+  the altitude where it took over (never the old frozen 1.9 g), then flies back to the path
+  and hands back under the same conditions. The limits are those the TFL law is started
+  from in every scenario (hover, still) with a margin, and the recovery law's own tilt
+  limit (30°): anything outside is a state nobody has shown the TFL law converges from.
+
+Every switch produces an event in words (:attr:`TickResult.events`, the daemon sends them as
+STATUSTEXT). Nothing non-finite ever leaves :meth:`FlightComputer.step`: thrusts are clamped
+to [0, f_max] and a NaN becomes 0 N.
 """
 
 from __future__ import annotations
@@ -24,9 +45,18 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from tfl_mav.build import build_controller, build_detector
+from tfl_mav.build import (
+    build_controller,
+    build_detector,
+    detector_config,
+    model_params,
+    scenario_path,
+)
 from tfl_mav.control.detector import AttackDetector, DetectorOutput
+from tfl_mav.control.feasibility import attack_limit_n
 from tfl_mav.control.law import ControlOutput, TFLController
+from tfl_mav.control.recovery import RecoveryLaw, RecoveryOutput
+from tfl_mav.geometry import rotation_rows
 from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario
 from tfl_mav.state import State
@@ -35,6 +65,17 @@ __all__ = ["ATTACK_INFO", "FlightComputer", "TickResult"]
 
 ATTACK_INFO = ("detector", "oracle")
 RPM_TO_RADPS = 2.0 * math.pi / 60.0   # ESC rpm → rotor speed ω (rad/s)
+
+A_ENTER_N = 0.3        # attacked rotor below this: the TFL law has no τ_p authority
+A_EXIT_N = 0.6         # … above this (for HANDBACK_S) it has it again
+A_LIMIT_MARGIN_N = 0.15  # enter the safe law this far below the feasibility limit …
+A_LIMIT_BAND_N = 0.3     # … and hand back this far below that
+HANDBACK_S = 0.5       # conditions for handing back must hold this long
+HANDBACK_DIST_M = 0.15  # … including being this close to the path
+HOLD_BEFORE_PATH_S = 1.0  # take-over / lost path: level and hold this long, then fly back
+TAKEOVER_TILT_RAD = math.radians(30.0)
+TAKEOVER_RATE_RADPS = 2.0
+HANDBACK_TILT_RAD = math.radians(20.0)
 
 
 @dataclass(frozen=True)
@@ -53,6 +94,8 @@ class TickResult:
     attack_rotor: int
     attack_estimate_n: float
     new_detection: bool
+    thrust_requested_n: list[float] | None = None   # what the law asked (may leave [0, f_max])
+    events: tuple[str, ...] = ()                    # law switches etc., in words
 
     @property
     def mode(self) -> Mode:
@@ -76,6 +119,28 @@ class FlightComputer:
         self._told_rotor = 0
         self.detected_rotor = 0
         self.detection_time_s = math.nan
+        mp = model_params(scenario)
+        self.recovery = RecoveryLaw(mp.mass_kg, mp.inertia_kgm2, mp.arm_m,
+                                    mp.drag_thrust_ratio_m, mp.k_t, mp.k_r, mp.thrust_max_n,
+                                    mp.gravity_mps2, scenario.run.control_dt_s,
+                                    scenario_path(scenario), scenario.path.speed_mps)
+        self.speed_mps = scenario.path.speed_mps
+        self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
+        if self.controller.lag_inverter is not None:   # ESC noise: filter ω (actuators)
+            self.controller.lag_inverter.set_rpm_noise(detector_config(scenario).rpm_noise_std)
+        # Beyond this attack thrust the path cannot be flown at all (feasibility module):
+        # the TFL law would flip trying; the reduced-attitude law keeps the attitude.
+        try:
+            self.attack_limit_n = attack_limit_n(scenario) - A_LIMIT_MARGIN_N
+        except Exception:  # an unusable path is reported by the law's own checks
+            self.attack_limit_n = mp.mass_kg * mp.gravity_mps2 / 2.0 - A_LIMIT_MARGIN_N
+        self.law_name = "tfl"          # "tfl" | "recovery" | "lost_rotor"
+        self.switches = 0
+        self._ticks = 0
+        self._since_s = 0.0            # time in the current safe law
+        self._good_s = 0.0             # time the hand-back conditions have held
+        self._last_t: float | None = None
+        self._last_tfl: ControlOutput | None = None
 
     def tell_attack(self, rotor: int) -> None:
         """Oracle only: rotor 1-4 is attacked from now on (0: none)."""
@@ -94,12 +159,18 @@ class FlightComputer:
         that skipped states): the law's internal states integrate over it.
         """
         ctrl = self.controller
+        events_pre: list[str] = []
         detection = None
         new = False
         estimate = math.nan
         rotor = 0
         if self.detector is not None:
             detection = self.detector.update(t_s, rpm, applied_n)
+            if detection.released:
+                ctrl.set_attack(0, 0.0)
+                self.detected_rotor = 0
+                events_pre.append("rotor obeys its commands again: attack over, "
+                                  "four-rotor law")
             if detection.detected_rotor:
                 rotor, estimate = detection.detected_rotor, detection.estimate_n
                 if detection.alarm:
@@ -113,16 +184,152 @@ class FlightComputer:
             estimate = self.k_f * w * w
             ctrl.set_attack(rotor, estimate)
         omega = [r * RPM_TO_RADPS for r in rpm]
-        if dt_s is None:
-            out = ctrl.update(state, omega)
-        else:
-            period = ctrl.dt
-            ctrl.dt = dt_s
-            try:
+        dt = ctrl.dt if self._last_t is None else max(t_s - self._last_t, 0.0) or ctrl.dt
+        self._last_t = t_s
+        events: list[str] = events_pre
+        first = self._ticks == 0
+        self._ticks += 1
+        if first:
+            why = self._not_benign(state, rotor)
+            if why:
+                self._enter("recovery", state, f"take-over: {why}", events, hold=True)
+        if rotor and math.isfinite(estimate) and estimate < A_ENTER_N \
+                and self.law_name != "lost_rotor":
+            self._enter("lost_rotor", state, f"rotor {rotor} at {estimate:.2f} N < "
+                        f"{A_ENTER_N} N: no roll authority, reduced-attitude law", events,
+                        hold=self.law_name == "recovery")
+        if rotor and math.isfinite(estimate) and estimate > self.attack_limit_n \
+                and self.law_name != "lost_rotor":
+            self._enter("lost_rotor", state, f"rotor {rotor} at {estimate:.2f} N: beyond what "
+                        "the path allows; keeping attitude, cannot follow the path", events,
+                        hold=self.law_name == "recovery")
+        if self.law_name == "tfl":
+            if dt_s is None:
                 out = ctrl.update(state, omega)
-            finally:
-                ctrl.dt = period
+            else:   # states were skipped: integrate the law's states over the real gap
+                period = ctrl.dt
+                ctrl.dt = dt_s
+                try:
+                    out = ctrl.update(state, omega)
+                finally:
+                    ctrl.dt = period
+            self._last_tfl = out
+            if out.mode is Mode.FALLBACK:
+                self._enter("recovery", state, f"TFL: {out.reason}; level, hold altitude",
+                            events, hold=True)
+            else:
+                req = list(out.extra.get("requested_n", out.rotor_thrust_n)) \
+                    if isinstance(out.extra.get("requested_n"), list) else \
+                    list(out.rotor_thrust_n)
+                return self._result(out.rotor_thrust_n, req, out, detection, rotor,
+                                    estimate, new, events)
+        rec = self._fly_safe(t_s, dt, state, rotor, estimate, events)
+        out = self._as_output(rec, ctrl)
+        return self._result(rec.thrust_n, rec.requested_n, out, detection, rotor, estimate,
+                            new, events)
+
+    # ------------------------------------------------------------------ switching
+    def _not_benign(self, state: State, rotor: int) -> str:
+        """Why the state is not one the TFL law may be started from ('' if it is)."""
+        R = rotation_rows(state.quaternion_wxyz)
+        tilt = math.acos(max(-1.0, min(1.0, R[2][2])))
+        p, q, r = state.body_rates_radps
+        speed = math.sqrt(sum(c * c for c in state.velocity_mps))
+        vmax = max(2.0, 2.0 * self.speed_mps)
+        if not all(math.isfinite(c) for c in (tilt, p, q, r, speed)):
+            return "state not finite"
+        if tilt > TAKEOVER_TILT_RAD:
+            return f"tilted {math.degrees(tilt):.0f} deg"
+        if speed > vmax:
+            return f"moving at {speed:.1f} m/s"
+        if math.hypot(p, q) > TAKEOVER_RATE_RADPS or (not rotor
+                                                      and abs(r) > TAKEOVER_RATE_RADPS):
+            return f"rotating at {math.sqrt(p * p + q * q + r * r):.1f} rad/s"
+        return ""
+
+    def _enter(self, law: str, state: State, why: str, events: list[str], *,
+               hold: bool) -> None:
+        if self.law_name != law:
+            self.switches += 1
+            events.append(f"{law}: {why}")
+        self.law_name = law
+        self._since_s = 0.0
+        self._good_s = 0.0
+        rec = self.recovery
+        if hold:
+            rec.hold(state.position_m)
+        else:
+            rec.follow_path()
+
+    def _fly_safe(self, t_s: float, dt: float, state: State, rotor: int, estimate: float,
+                  events: list[str]) -> RecoveryOutput:
+        rec = self.recovery
+        self._since_s += dt
+        if rec.hold_m is not None and self._since_s >= HOLD_BEFORE_PATH_S \
+                and not self._not_benign(state, rotor) and rec.projector is not None:
+            rec.projector.lam = None          # a fresh global search: we may be far away
+            rec.follow_path()
+        a_n = estimate if rotor and math.isfinite(estimate) else 0.0
+        out = rec.update(state, rotor if self.law_name == "lost_rotor" else 0, a_n)
+        ok = (rec.hold_m is None and math.isfinite(out.path_distance_m)
+              and out.path_distance_m < HANDBACK_DIST_M and not self._calm_fail(state, rotor)
+              and (not rotor or (math.isfinite(estimate) and A_EXIT_N < estimate
+                                 < self.attack_limit_n - A_LIMIT_BAND_N)))
+        self._good_s = self._good_s + dt if ok else 0.0
+        if self._good_s >= HANDBACK_S:
+            self._hand_back(state, out, events)
+        return out
+
+    def _calm_fail(self, state: State, rotor: int) -> bool:
+        R = rotation_rows(state.quaternion_wxyz)
+        tilt = math.acos(max(-1.0, min(1.0, R[2][2])))
+        p, q, r = state.body_rates_radps
+        return (tilt > HANDBACK_TILT_RAD or math.hypot(p, q) > TAKEOVER_RATE_RADPS
+                or (not rotor and abs(r) > TAKEOVER_RATE_RADPS))
+
+    def _hand_back(self, state: State, out: RecoveryOutput, events: list[str]) -> None:
+        """Back to TFL, bumpless: its dynamic extension starts at the thrust now applied."""
+        ctrl = self.controller
+        events.append(f"tfl: handed back after {self._since_s:.1f} s "
+                      f"({out.path_distance_m * 1000:.0f} mm from the path)")
+        self.law_name = "tfl"
+        self.switches += 1
+        ctrl.x13 = sum(out.thrust_n)
+        ctrl.x14 = 0.0
+        ctrl.dob.reset()
+        ctrl._pred = None
+        ctrl._last_out = list(out.thrust_n)
+        if ctrl.lag_inverter is not None:
+            ctrl.lag_inverter.reset()
+        tracker = getattr(ctrl, "tracker", None)
+        if tracker is not None and self.recovery.projector is not None \
+                and self.recovery.projector.lam is not None:
+            tracker.lam = self.recovery.projector.lam
+
+    def _as_output(self, rec: RecoveryOutput, ctrl: TFLController) -> ControlOutput:
+        mode = Mode.LOST_ROTOR if self.law_name == "lost_rotor" else Mode.RECOVERY
         fmax = self.thrust_max_n
-        thrust = [min(max(f, 0.0), fmax) if math.isfinite(f) else 0.0
-                  for f in out.rotor_thrust_n]
-        return TickResult(thrust, out, detection, rotor, estimate, new)
+        zero4 = (0.0, 0.0, 0.0, 0.0)
+        return ControlOutput(
+            rotor_thrust_n=list(rec.thrust_n), mode=mode,
+            saturated=[not (-1e-9 <= f <= fmax + 1e-9) for f in rec.requested_n],
+            xi=(zero4, zero4), eta=zero4, mu=(0.0, 0.0),
+            path_distance_m=rec.path_distance_m, lam=math.nan, cond_d=math.nan,
+            thrust_n=rec.uf_n, mass_estimate_kg=ctrl.mass_kg,
+            disturbance_radps2=(0.0, 0.0), fine_gains=False,
+            reason=f"{mode}: tilt error {math.degrees(rec.tilt_error_rad):.0f} deg")
+
+    def _result(self, thrust: Sequence[float], requested: Sequence[float], out: ControlOutput,
+                detection: DetectorOutput | None, rotor: int, estimate: float, new: bool,
+                events: list[str]) -> TickResult:
+        fmax = self.thrust_max_n
+        applied = [min(max(f, 0.0), fmax) if math.isfinite(f) else 0.0 for f in thrust]
+        req = [f if math.isfinite(f) else 0.0 for f in requested]
+        if rotor and self.detector is not None:
+            # The attacked rotor's command is not ours to use: send it a probe away from its
+            # estimate, so that a rotor the attacker lets go shows it by following (detector).
+            est = estimate if math.isfinite(estimate) else 0.0
+            probe = self._hover_share_n if abs(self._hover_share_n - est) > 1.0 \
+                else min(self._hover_share_n + 1.5, fmax)
+            applied[rotor - 1] = probe
+        return TickResult(applied, out, detection, rotor, estimate, new, req, tuple(events))

@@ -16,6 +16,10 @@ class Mode(IntEnum):
     ATTACKED = 1    # one rotor seized: the attacked TFL law on three rotors, yaw internal
     FALLBACK = 2    # the law has no valid answer this tick (left the tube, D(x) singular)
     FAILSAFE = 3    # the daemon has no vehicle state: nothing is sent to the motors
+    RECOVERY = 4    # the reduced-attitude safe law on four rotors: a take-over from an
+                    # unknown state, or the TFL law lost the path (level, hold altitude)
+    LOST_ROTOR = 5  # the reduced-attitude law on three rotors (relaxed hover, spinning):
+                    # the attack is where the TFL attacked law has no authority (A ≈ 0)
 
     def __str__(self) -> str:
         return self.name.lower()

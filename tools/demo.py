@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from harness.demo import run_demo
+from tfl_mav.control.feasibility import check_scenario
 from tfl_mav.link.signing import load_key
 from tfl_mav.scenario import ScenarioError, apply_overrides, load_scenario
 
@@ -56,6 +57,8 @@ def run(args: argparse.Namespace) -> int:
     except (ScenarioError, ValueError) as exc:
         print(f"tfl-mav demo: {exc}", file=sys.stderr)
         return 2
+    for warning in check_scenario(scenario):
+        print(f"tfl-mav demo: warning: {warning}", file=sys.stderr)
     try:
         summary = run_demo(args.scenario, Path(args.out), settings=args.settings,
                            duration_s=args.duration, plots=not args.no_plots,

@@ -14,6 +14,7 @@ import signal
 import sys
 from typing import Any
 
+from tfl_mav.control.feasibility import check_scenario
 from tfl_mav.daemon import Daemon
 from tfl_mav.link.signing import load_key
 from tfl_mav.link.transport import LinkError, parse_address
@@ -69,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
     except (ScenarioError, ValueError, LinkError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
+    for warning in check_scenario(scenario):
+        print(f"tfl-mav fly: warning: {warning}", file=sys.stderr)
     recorder = None
     if args.mcap:
         from tfl_mav.build import scenario_path

@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from harness.offline import fly_offline
+from tfl_mav.control.feasibility import check_scenario
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
 
@@ -48,6 +49,8 @@ def run(args: argparse.Namespace) -> int:
     except (ScenarioError, TypeError) as exc:
         print(f"tfl-mav offline: scenario error: {exc}", file=sys.stderr)
         return 2
+    for warning in check_scenario(sc):
+        print(f"tfl-mav offline: warning: {warning}", file=sys.stderr)
 
     def progress(t: float, total: float) -> None:
         if not args.json and sys.stderr.isatty():

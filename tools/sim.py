@@ -17,6 +17,7 @@ import threading
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from tfl_mav.control.feasibility import check_scenario
 from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
 
 if TYPE_CHECKING:
@@ -109,6 +110,8 @@ def run(args: argparse.Namespace) -> int:
     except ScenarioError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return EXIT_USAGE
+    for warning in check_scenario(scenario):
+        print(f"tfl-mav sim: warning: {warning}", file=sys.stderr)
     try:
         listen = parse_address(args.listen, "--listen")
         gcs = parse_address(args.gcs, "--gcs") if args.gcs else None

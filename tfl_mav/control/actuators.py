@@ -22,7 +22,13 @@ asks for (an ideal actuator held over the period lags that by h/2).
 Feedback on the measured ω makes the inverse forgiving: with τ_m off by a factor s the
 per-period error is multiplied by 1 − s (−0.2 … +0.2 for ±20 %), so it still converges in
 a period or two, and rpm noise passes to the rotor speed about one-to-one instead of being
-amplified by 1/(1 − e^{−h/τ}) ≈ τ/h. Commands are clamped to [0, ω_max]; what the rotor will
+amplified by 1/(1 − e^{−h/τ}) ≈ τ/h. "About one-to-one" is still too much for ESC noise of
+100 rpm (10 rad/s): the deadbeat command jumps by τ/h × that every period, and the vehicle
+hits the ground within a second (issue #14). So with noise (:meth:`set_rpm_noise`) the
+speed the inverse closes on is a steady-state Kalman estimate ω̂ from the same motor model
+and the command actually sent, ω̂ = ω̂⁻ + L (ω_meas − ω̂⁻), with a process noise of
+``PROCESS_STD_RADPS`` per period (the model's own error: τ_m off by ~20 %); without noise
+L = 1 and the measurement is used as before. Commands are clamped to [0, ω_max]; what the rotor will
 really deliver over the period is returned so the law's estimators see the truth.
 """
 
@@ -32,7 +38,9 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-__all__ = ["LagInversion", "MotorLagInverter"]
+__all__ = ["PROCESS_STD_RADPS", "LagInversion", "MotorLagInverter"]
+
+PROCESS_STD_RADPS = 1.0   # per-period model error of ω (rad/s): 20 % of a 5 rad/s step
 
 
 @dataclass
@@ -66,6 +74,29 @@ class MotorLagInverter:
         self._prev_demand: list[float] | None = None
         self._omega_model: list[float] | None = None
         self._omega: list[float] | None = None   # latched by reachable() for invert()
+        self.gain = 1.0                            # Kalman gain on measured ω (1 = trust it)
+
+    def set_rpm_noise(self, rpm_std: float) -> None:
+        """ESC noise (rpm std): filter the measured speed with the steady Kalman gain."""
+        if not rpm_std > 0.0:
+            self.gain = 1.0
+            return
+        r = (rpm_std * 2.0 * math.pi / 60.0) ** 2
+        q = PROCESS_STD_RADPS ** 2
+        e2 = self._e1 * self._e1
+        p = q
+        for _ in range(200):                       # scalar Riccati to its fixed point
+            p = e2 * p * r / (p + r) + q
+        self.gain = p / (p + r)
+
+    def _measured(self, omega_meas_radps: Sequence[float]) -> list[float]:
+        wmax = self.omega_max_radps
+        meas = [min(max(w, 0.0), wmax) for w in omega_meas_radps]
+        pred = self._omega_model
+        if self.gain >= 1.0 or pred is None:
+            return meas
+        g = self.gain
+        return [wp + g * (wm - wp) for wm, wp in zip(meas, pred, strict=True)]
 
     def reset(self) -> None:
         """Forget the demand history (mode switch: the old demand is not a trend)."""
@@ -84,7 +115,7 @@ class MotorLagInverter:
         kf = self.k_f
         fmax = self.thrust_max_n
         if omega_meas_radps is not None and all(math.isfinite(w) for w in omega_meas_radps):
-            omega = [min(max(w, 0.0), self.omega_max_radps) for w in omega_meas_radps]
+            omega = self._measured(omega_meas_radps)
         elif self._omega_model is not None:
             omega = self._omega_model
         else:
@@ -121,7 +152,7 @@ class MotorLagInverter:
         prev = self._prev_demand
         lead = self.lead_periods
         if omega_meas_radps is not None and all(math.isfinite(w) for w in omega_meas_radps):
-            omega = [min(max(w, 0.0), wmax) for w in omega_meas_radps]
+            omega = self._measured(omega_meas_radps)
         elif self._omega is not None:
             omega = self._omega
         elif self._omega_model is not None:

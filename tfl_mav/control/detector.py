@@ -17,8 +17,14 @@ period). An attacker who forces a rotor's thrust makes that rotor's speed leave 
   at ``k + h/min_ticks`` so one glitch can never alarm: at least ``min_ticks`` consecutive
   anomalous samples are needed. Gaussian false-alarm rate (Siegmund's approximation,
   ARL₀ ≈ e^{2k(h+1.166)}/(2k²)): k = 2, h = 8 gives ~10¹⁵ ticks per statistic.
-* **Isolation**: the rotor with the largest statistic on the alarm tick. Latched: an
-  attacker does not hand a rotor back.
+* **Isolation**: the rotor with the largest statistic on the alarm tick. Latched, but it
+  follows the attacker (issue #14): the other rotors' statistics keep running, and when one
+  of them alarms the attacker has moved (MAV_CMD_INJECT_FAILURE on another rotor) and the
+  verdict moves with it (a new alarm). The latched rotor is released with evidence: the
+  flight computer commands it a probe thrust away from its estimate, and when its speed
+  follows that command (|z| < k) for ``RELEASE_TICKS`` ticks in a row it obeys its commands
+  again — the attack stopped — and the verdict returns to 0 (``released``). If it was only
+  a coincidence (an attacker holding the probe value) the next deviation alarms again.
 * **Estimation**: the attacked rotor's thrust from its own rpm, ``k_f ω²`` clamped to
   [0, f_max]; a non-finite sample holds the last estimate, so no NaN leaves after detection.
 """
@@ -44,6 +50,10 @@ _ALARM_TOL = 1e-9  # relative slack so min_ticks capped increments reach h despi
 # and on random sines, chirps and 0↔f_max square waves (τ = 5-80 ms, tol = 0.3) the response
 # for any τ in the range never left the band widened by 0.1 (0.25 keeps a margin).
 BAND_PAD = 0.25
+# Consecutive obeying samples that release a latched rotor: 50 ticks (50 ms at 1 kHz) of
+# |z| < k is a false-release probability of ~P(|N(0,1)| < 2)^50 ≈ 0.1 for a rotor whose
+# speed merely sits near the probe by chance, and none while it is held elsewhere.
+RELEASE_TICKS = 50
 
 
 def _param(default: float, unit: str = "", *, lo: float | None = None,
@@ -111,6 +121,7 @@ class DetectorOutput:
     detection_time_s: float              # time of the alarm tick (s); NaN before
     alarm: bool                          # True only on the tick of detection
     rejected_samples: int = 0            # non-finite rpm/command samples and bad updates
+    released: bool = False               # True only on the tick a latched rotor was released
 
 
 _ZERO4 = (0.0, 0.0, 0.0, 0.0)
@@ -159,6 +170,9 @@ class AttackDetector:
         self.detected_rotor = 0
         self.detection_time_s = math.nan
         self.estimate_n = math.nan
+        self._obey = 0
+        self.moves = 0
+        self.releases = 0
         self._out = DetectorOutput(0, math.nan, _ZERO4, _ZERO4, math.nan, False)
 
     # ------------------------------------------------------------------ model
@@ -264,23 +278,48 @@ class AttackDetector:
             self._resid[i] = self.k_f * (wm * wm - w * w)
 
         alarm = False
+        released = False
         if cfg.enabled and not self.detected_rotor:
             stat, _, rotor = max((max(self._s_hi[i], self._s_lo[i]), abs(self._z[i]), i + 1)
                                  for i in range(4))
             if stat >= self.h * (1.0 - _ALARM_TOL):
-                self.detected_rotor = rotor
-                self.detection_time_s = t
+                self._latch(rotor, t)
                 alarm = True
+        elif cfg.enabled:
+            d = self.detected_rotor
+            stat, _, rotor = max((max(self._s_hi[i], self._s_lo[i]), abs(self._z[i]), i + 1)
+                                 for i in range(4) if i + 1 != d)
+            if stat >= self.h * (1.0 - _ALARM_TOL):     # the attacker moved
+                self.moves += 1
+                self._latch(rotor, t)
+                alarm = True
+            else:
+                self._obey = self._obey + 1 if abs(self._z[d - 1]) < k else 0
+                if self._obey >= RELEASE_TICKS:             # it follows its commands again
+                    self.releases += 1
+                    self.detected_rotor = 0
+                    self.estimate_n = math.nan
+                    self._s_hi = [0.0] * 4
+                    self._s_lo = [0.0] * 4
+                    released = True
         if self.detected_rotor:
             w = max(self._rpm[self.detected_rotor - 1], 0.0) * RPM_TO_RADPS
             self.estimate_n = min(self.k_f * w * w, self.thrust_max_n)
-        return self._reissue(alarm)
+        return self._reissue(alarm, released)
 
-    def _reissue(self, alarm: bool) -> DetectorOutput:
+    def _latch(self, rotor: int, t: float) -> None:
+        self.detected_rotor = rotor
+        self.detection_time_s = t
+        self._obey = 0
+        self._s_hi = [0.0] * 4      # a fresh start: the old rotor's evidence is spent
+        self._s_lo = [0.0] * 4
+
+    def _reissue(self, alarm: bool, released: bool = False) -> DetectorOutput:
         cusum = tuple(hi if hi >= lo else -lo for hi, lo in zip(self._s_hi, self._s_lo,
                                                                 strict=True))
         self._out = DetectorOutput(self.detected_rotor, self.estimate_n, tuple(self._resid),
-                                   cusum, self.detection_time_s, alarm, self.rejected_samples)
+                                   cusum, self.detection_time_s, alarm, self.rejected_samples,
+                                   released)
         return self._out
 
     @property

@@ -25,6 +25,8 @@ SERIES = (
     "yaw_rad",                  # (N,) ψ, unwrapped
     "path_distance_m",          # (N,) distance to the path
     "thrust_cmd_n",             # (N,4) commanded rotor thrusts (after saturation)
+    "thrust_req_n",             # (N,4) what the law asked for, before clamping to [0, f_max]
+                                # (may be empty: logs that predate it, or read from MCAP)
     "thrust_true_n",            # (N,4) true rotor thrusts
     "attack_true_n",            # (N,) applied attack thrust (0 when none)
     "attack_estimate_n",        # (N,) controller's estimate (NaN when none)
@@ -75,6 +77,9 @@ def summarize(log: FlightLog) -> dict[str, Any]:
         return {"crashed": log.crashed, "crash_reason": log.crash_reason, "sim_time_s": 0.0}
     last = _last_window(t, 10.0)
     cmd = log["thrust_cmd_n"]
+    req = log.data.get("thrust_req_n")
+    if req is not None and len(req) == len(t):
+        cmd = req       # a request outside [0, f_max] must show: it is a violation
     att = log["attack_true_n"]
     attacked = att[log["attack_true_n"] > -1] if len(att) else att
     active = t >= log.attack_start_s if math.isfinite(log.attack_start_s) else np.zeros_like(t,

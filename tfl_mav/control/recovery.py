@@ -1,0 +1,262 @@
+"""A safe reduced-attitude law: a dead rotor, a take-over from an unknown state, a lost path.
+
+Why another law. The TFL attacked law (:mod:`tfl_mav.control.law`) needs τ_p of both signs
+from the rotor opposite the attacked one: f4 = A + τ_p/l (canonical frame, see
+:mod:`tfl_mav.control.allocation`). With A ≈ 0 (a dead rotor, or the paper's signal
+clamped to 0 while 3.2 < z < 6.2) f4 ≥ 0 allows τ_p ≥ 0 only, so the law's τ_p demand is
+physically out of reach and the vehicle flips within seconds. This law never asks for τ_p.
+
+The idea is Mueller & D'Andrea's relaxed hover (ICRA 2014, "Stability and control of a
+quadrocopter despite the complete loss of one, two, or three propellers"): with f4 = A the
+pair 2-4 makes no roll torque, and the yaw torque d(f1 + f3 − 2A) is unbalanced, so the
+vehicle spins about b3 at r̄ = d(u_f − 4A)/k_r (≈ 63 rad/s at A = 0 for the paper
+vehicle). One does not control its yaw; one controls only the *direction* of the thrust
+axis b3 — a two-DoF reduced attitude — and the total thrust. In body axes let
+h = Rᵀ n_des (n_des the wanted thrust direction, inertial); b3 = n_des means h = (0, 0, 1).
+Linearised about the spin (h3 ≈ 1, r ≈ const):
+
+    ḣ1 = r h2 − q,  ḣ2 = p − r h1,
+    I_x ṗ = τ_p − k_r p − (I_z − I_y) q r,  I_y q̇ = τ_q − k_r q − (I_x − I_z) p r.
+
+With r ≠ 0 this 4-state system is controllable from τ_q = l(f3 − f1) alone (the spin carries
+the body axes round, so one torque axis reaches both tilt directions). A discrete LQR on
+the zero-order-hold model at the control period (so a 250 Hz loop is designed for what it
+is) gives the gain; it is recomputed when the measured r moves by more than 0.5 rad/s
+(gain scheduling on r). τ_p stays an input with a cost 100× τ_q's: it is needed only when
+the spin is slow (right after a take-over), and its one-sided range is clipped.
+
+With four healthy rotors (a take-over, a lost projection) the same reduced attitude is
+flown with a PD on (−h2, h1) through both torques and a yaw-rate damper.
+
+The outer loop is a reduced-bandwidth PD on position (ω_n = 1 rad/s, ζ = 0.9) towards a
+target: the closest point of the path with its velocity (speed × tangent) and centripetal
+acceleration, or a held point (altitude hold, velocity zero). The wanted acceleration is
+limited to a 30° tilt and ±0.5 g vertically: a safe law does not chase the path hard.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from tfl_mav.control.allocation import allocate_nominal, canonical_frame
+from tfl_mav.control.paths import Path
+from tfl_mav.geometry import rotation_rows
+from tfl_mav.state import State
+
+__all__ = ["PathProjector", "RecoveryLaw", "RecoveryOutput"]
+
+MAX_TILT_RAD = math.radians(30.0)   # outer loop: horizontal acceleration ≤ g tan 30°
+MAX_VERTICAL_G = 0.5                # outer loop: |vertical acceleration| ≤ 0.5 g
+POS_OMEGA = 1.0                     # outer-loop natural frequency (rad/s)
+POS_ZETA = 0.9
+ATT_KP = 100.0                      # healthy reduced attitude: (10 rad/s)²
+ATT_KD = 20.0                       # … critically damped
+YAW_DAMP = 2.0                      # healthy: r decays at 2 /s
+# LQR weights on (h1, h2, p, q) and (τ_p, τ_q): Bryson's rule with 0.1 of h (≈ 6°),
+# 10 rad/s of p, q and 0.2 N m of τ_q; τ_p costs 100× (one-sided, only for a slow spin).
+LQR_Q = (100.0, 100.0, 0.01, 0.01)
+LQR_R = (2500.0, 25.0)
+
+
+class PathProjector:
+    """Closest point of a path (float evaluations of σ only), kept between calls."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.lam: float | None = None
+
+    def _d(self, lam: float) -> tuple[list[float], list[float], list[float]]:
+        h = 1e-4
+        s = self.path.sigma
+        p0 = [float(c) for c in s(lam)]
+        pp = [float(c) for c in s(lam + h)]
+        pm = [float(c) for c in s(lam - h)]
+        d1 = [(a - b) / (2 * h) for a, b in zip(pp, pm, strict=True)]
+        d2 = [(a - 2 * c + b) / (h * h) for a, b, c in zip(pp, pm, p0, strict=True)]
+        return p0, d1, d2
+
+    def project(self, y: Sequence[float]) -> tuple[list[float], list[float], list[float],
+                                                     float] | None:
+        """(point, unit tangent, curvature vector κN, distance) or None if not found."""
+        if self.lam is None:
+            lo, hi = self.path.lam_range
+            lam = np.linspace(lo, hi, 2001)
+            x, yy, z = self.path.sigma(lam)
+            d2 = (x - y[0]) ** 2 + (yy - y[1]) ** 2 + (z - y[2]) ** 2
+            self.lam = float(lam[int(np.argmin(d2))])
+        lam = self.lam
+        for _ in range(8):
+            p0, d1, d2 = self._d(lam)
+            e = [y[i] - p0[i] for i in range(3)]
+            g = sum(e[i] * d1[i] for i in range(3))
+            dg = -sum(c * c for c in d1) + sum(e[i] * d2[i] for i in range(3))
+            step = -g / dg if dg < 0.0 else -0.1 * math.copysign(1.0, g)
+            step = max(-0.5, min(0.5, step))
+            lam += step
+            if abs(step) < 1e-9:
+                break
+        if not math.isfinite(lam):
+            return None
+        self.lam = lam
+        p0, d1, d2 = self._d(lam)
+        s1 = math.sqrt(sum(c * c for c in d1))
+        if not s1 > 0.0:
+            return None
+        t = [c / s1 for c in d1]
+        # κN = (σ'' − (σ''·T) T)/|σ'|²
+        a = sum(d2[i] * t[i] for i in range(3))
+        kn = [(d2[i] - a * t[i]) / (s1 * s1) for i in range(3)]
+        dist = math.sqrt(sum((y[i] - p0[i]) ** 2 for i in range(3)))
+        return p0, t, kn, dist
+
+
+@dataclass
+class RecoveryOutput:
+    """One decision of the recovery law (physical rotor order, N)."""
+
+    requested_n: list[float]     # what the law asked for (may be outside [0, f_max])
+    thrust_n: list[float]        # clipped to [0, f_max] (the attacked rotor: its estimate)
+    tilt_error_rad: float        # angle between b3 and the wanted thrust direction
+    path_distance_m: float       # NaN when holding a point without a path
+    uf_n: float
+
+
+class RecoveryLaw:
+    """Reduced-attitude + position law for 4, or 3 (one at A, opposite held at A) rotors."""
+
+    def __init__(self, mass_kg: float, inertia_kgm2: Sequence[float], arm_m: float,
+                 drag_thrust_ratio_m: float, k_t: float, k_r: float, thrust_max_n: float,
+                 gravity_mps2: float, dt_s: float, path: Path | None,
+                 speed_mps: float) -> None:
+        self.mass_kg = mass_kg
+        self.inertia = tuple(inertia_kgm2)
+        self.arm_m = arm_m
+        self.d_m = drag_thrust_ratio_m
+        self.k_t = k_t
+        self.k_r = k_r
+        self.fmax = thrust_max_n
+        self.g = gravity_mps2
+        self.dt = dt_s
+        self.speed = speed_mps
+        self.projector = PathProjector(path) if path is not None else None
+        self.hold_m: list[float] | None = None    # held point (None: follow the path)
+        self._gains: dict[tuple[int, bool], np.ndarray] = {}
+
+    # ------------------------------------------------------------------ targets
+    def hold(self, position_m: Sequence[float]) -> None:
+        """Hold this point (altitude hold, velocity zero) instead of the path."""
+        self.hold_m = [float(c) for c in position_m]
+
+    def follow_path(self) -> None:
+        self.hold_m = None
+
+    def _accel_demand(self, y: Sequence[float], v: Sequence[float]) -> tuple[list[float],
+                                                                             float]:
+        kp = POS_OMEGA * POS_OMEGA
+        kd = 2.0 * POS_ZETA * POS_OMEGA
+        dist = math.nan
+        proj = None
+        if self.hold_m is None and self.projector is not None:
+            proj = self.projector.project(y)
+        if proj is not None:
+            p0, t, kn, dist = proj
+            vref = [self.speed * c for c in t]
+            ff = [self.speed * self.speed * c for c in kn]
+            a = [kp * (p0[i] - y[i]) + kd * (vref[i] - v[i]) + ff[i] for i in range(3)]
+        else:
+            tgt = self.hold_m if self.hold_m is not None else list(y)
+            if self.hold_m is None:
+                self.hold_m = tgt
+            a = [kp * (tgt[i] - y[i]) - kd * v[i] for i in range(3)]
+        az = max(-MAX_VERTICAL_G * self.g, min(MAX_VERTICAL_G * self.g, a[2]))
+        ah = math.hypot(a[0], a[1])
+        amax = (self.g + az) * math.tan(MAX_TILT_RAD)
+        if ah > amax:
+            a[0] *= amax / ah
+            a[1] *= amax / ah
+        a[2] = az
+        return a, dist
+
+    # ------------------------------------------------------------------ gains
+    def _lqr(self, r: float, ix: float, iy: float) -> np.ndarray:
+        key = (round(r * 2.0), ix > iy)
+        k = self._gains.get(key)
+        if k is not None:
+            return k
+        from scipy.linalg import expm, solve_discrete_are
+
+        rr = key[0] / 2.0
+        iz, kr = self.inertia[2], self.k_r
+        a = np.array([[0.0, rr, 0.0, -1.0],
+                      [-rr, 0.0, 1.0, 0.0],
+                      [0.0, 0.0, -kr / ix, -(iz - iy) * rr / ix],
+                      [0.0, 0.0, -(ix - iz) * rr / iy, -kr / iy]])
+        b = np.array([[0.0, 0.0], [0.0, 0.0], [1.0 / ix, 0.0], [0.0, 1.0 / iy]])
+        m = np.zeros((6, 6))
+        m[:4, :4] = a * self.dt
+        m[:4, 4:] = b * self.dt
+        e = expm(m)
+        ad, bd = e[:4, :4], e[:4, 4:]
+        q, rw = np.diag(LQR_Q), np.diag(LQR_R)
+        p = solve_discrete_are(ad, bd, q, rw)
+        k = np.linalg.solve(rw + bd.T @ p @ bd, bd.T @ p @ ad)
+        self._gains[key] = k
+        return k
+
+    # ------------------------------------------------------------------ the law
+    def update(self, s: State, attacked_rotor: int = 0,
+               attack_n: float = 0.0) -> RecoveryOutput:
+        """Rotor thrusts for this period; ``attacked_rotor`` 0 = four healthy rotors."""
+        R = rotation_rows(s.quaternion_wxyz)
+        y, v = list(s.position_m), list(s.velocity_mps)
+        p, q, r = s.body_rates_radps
+        a, dist = self._accel_demand(y, v)
+        m = self.mass_kg
+        F = [m * a[0] + self.k_t * v[0], m * a[1] + self.k_t * v[1],
+             m * (a[2] + self.g) + self.k_t * v[2]]
+        fn = math.sqrt(F[0] ** 2 + F[1] ** 2 + F[2] ** 2)
+        n = [c / fn for c in F] if fn > 1e-9 else [0.0, 0.0, 1.0]
+        h = [R[0][i] * n[0] + R[1][i] * n[1] + R[2][i] * n[2] for i in range(3)]
+        tilt_err = math.acos(max(-1.0, min(1.0, h[2])))
+        # Thrust along b3: the component of F there; never negative (upside down: idle).
+        uf = max(fn * h[2], 0.0)
+        ix, iy, iz = self.inertia
+        ell, fmax = self.arm_m, self.fmax
+        if not attacked_rotor:
+            tau_p = ix * (ATT_KP * -h[1] - ATT_KD * p) + (iz - iy) * q * r + self.k_r * p
+            tau_q = iy * (ATT_KP * h[0] - ATT_KD * q) + (ix - iz) * p * r + self.k_r * q
+            tau_r = -iz * YAW_DAMP * r + self.k_r * r
+            req = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m)
+            f = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m, fmax)
+            return RecoveryOutput(req, f, tilt_err, dist, uf)
+        fr = canonical_frame(attacked_rotor)
+        rot = fr.rot
+        hc = [sum(rot[i][k] * h[k] for k in range(3)) for i in range(3)]
+        w = (p, q, r)
+        wc = [sum(rot[i][k] * w[k] for k in range(3)) for i in range(3)]
+        ixc, iyc = (iy, ix) if fr.swap_xy else (ix, iy)
+        k = self._lqr(wc[2], ixc, iyc)
+        x = (hc[0], hc[1], wc[0], wc[1])
+        tau_p = -float(k[0, 0] * x[0] + k[0, 1] * x[1] + k[0, 2] * x[2] + k[0, 3] * x[3])
+        tau_q = -float(k[1, 0] * x[0] + k[1, 1] * x[1] + k[1, 2] * x[2] + k[1, 3] * x[3])
+        an = min(max(attack_n, 0.0), fmax)
+        f4 = an + tau_p / ell
+        s13 = uf - an - f4
+        half = 0.5 * tau_q / ell
+        canon_req = [0.5 * s13 - half, an, 0.5 * s13 + half, f4]
+        f4c = min(max(f4, 0.0), fmax)
+        s13c = min(max(uf - an - f4c, 0.0), 2.0 * fmax)
+        mid = 0.5 * s13c
+        halfc = max(-mid, min(mid, half)) if mid <= 0.5 * fmax else \
+            max(-(fmax - mid), min(fmax - mid, half))
+        canon = [mid - halfc, an, mid + halfc, f4c]
+        req = [0.0] * 4
+        f = [0.0] * 4
+        for i, phys in enumerate(fr.perm):
+            req[phys] = canon_req[i]
+            f[phys] = canon[i]
+        return RecoveryOutput(req, f, tilt_err, dist, uf)
