@@ -65,6 +65,8 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+import numpy as np
+
 from tfl_mav.flight_computer import FlightComputer, TickResult
 from tfl_mav.frames import paper_from_odometry
 from tfl_mav.geometry import euler_to_quaternion
@@ -111,6 +113,7 @@ class DaemonStats:
     applied_from_wire: int = 0   # applied command = ACTUATOR_OUTPUT_STATUS.actuator × f_max
     applied_unknown: int = 0     # no ACTUATOR_OUTPUT_STATUS: last command sent assumed
     rebuilds: int = 0            # vehicle time went backwards: flight computer rebuilt
+    law_errors: int = 0          # a tick the laws raised on: no command sent that tick
     link: dict[str, int] = field(default_factory=dict)
 
 
@@ -424,7 +427,15 @@ class Daemon:
         t = state.time_usec * 1e-6
         self._sim_time_s = t
         self.stats.ticks += 1
-        res = self.computer.step(t, state, rpm, applied, dt_s=dt_s)
+        try:
+            res = self.computer.step(t, state, rpm, applied, dt_s=dt_s)
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+            # A state the laws cannot digest (e.g. a fuzzed one with huge values): no
+            # command this tick (the vehicle holds the last), the loop goes on.
+            self.stats.law_errors += 1
+            self._event("critical", f"control tick failed at t={t:.3f} s: "
+                                    f"{type(exc).__name__}: {exc}", quiet=self.stats.law_errors > 1)
+            return
         out = res.law
         if res.new_detection:
             self._event("warning", f"ATTACK on rotor {res.attack_rotor} detected at "
