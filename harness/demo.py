@@ -1,8 +1,8 @@
 """Fly a scenario end to end over MAVLink: simulator and controller daemon as two processes.
 
 The library behind ``tfl-mav demo`` (and the golden lockstep tests): starts ``tfl-mav sim``
-and ``tfl-mav fly`` on free loopback ports in lockstep, both recording MCAP, then rebuilds
-the flight from the logs and returns the summary dict.
+and ``tfl-mav fly`` on free loopback ports in lockstep (or real time), both recording MCAP,
+then rebuilds the flight from the logs and returns the summary dict.
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from harness.processes import raise_priority
 from tfl_mav.build import scenario_path
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.flightlog.from_mcap import flight_log_from_mcap
@@ -36,10 +37,11 @@ def _cli() -> list[str]:
 def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
              duration_s: float | None = None, plots: bool = True, progress: bool = False,
              scenario: Any = None, key_file: str | None = None,
-             foxglove: str | None = None) -> dict[str, Any]:
+             foxglove: str | None = None, realtime: bool = False) -> dict[str, Any]:
     """Fly ``name`` over MAVLink in two processes; returns the summary dict. ``key_file``:
     sign the link (both processes get ``--key-file``); ``foxglove``: the simulator serves
-    the live view there (``--foxglove``)."""
+    the live view there (``--foxglove``); ``realtime``: both run with ``--realtime`` (paced
+    by the wall clock, at raised priority when allowed) instead of lockstep."""
     settings = list(settings or [])
     scenario = scenario or apply_overrides(load_scenario(name), settings)
     scenario_path(scenario)   # ScenarioError for a bad path now, before any process starts
@@ -51,18 +53,21 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
     shared = [a for s in settings for a in ("--set", s)]
     if key_file:
         shared += ["--key-file", str(key_file)]
+    if realtime:
+        shared += ["--realtime"]
+    pre = raise_priority if realtime else None
     t0 = time.perf_counter()
     sim = subprocess.Popen(
         [*_cli(), "sim", name, "--listen", "127.0.0.1:0", "--duration", str(duration),
          "--mcap", str(run_mcap), *shared, *(["--foxglove", foxglove] if foxglove else [])],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=pre)
     try:
         port = _await_port(sim)
         fly = subprocess.Popen(
             [*_cli(), "fly", name, "--vehicle", f"127.0.0.1:{port}", "--duration",
              str(duration), "--mcap", str(ctl_mcap), "--summary-json", str(fly_json),
              "--progress", *shared],
-            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, preexec_fn=pre)
         fly_err = _follow(fly, duration, progress)
         fly_code = fly.wait(timeout=60)
         sim_out, sim_err = sim.communicate(timeout=60)

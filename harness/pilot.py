@@ -1,7 +1,8 @@
 """The one lockstep client: a controller that answers every vehicle state with controls.
 
 A lockstep vehicle (``tfl-mav sim`` or an in-process :class:`~sitl.vehicle.Vehicle`) sends
-one ODOMETRY + ESC_TELEMETRY_1_TO_4 per control tick and waits for the
+one ODOMETRY + ACTUATOR_OUTPUT_STATUS + ESC_TELEMETRY_1_TO_4 per control tick (the last
+ACTUATOR_OUTPUT_STATUS is kept in :attr:`Pilot.applied`) and waits for the
 HIL_ACTUATOR_CONTROLS stamped with that tick's ``time_usec``. :class:`Pilot` is that
 controller for the tests and the benchmarks, over our own
 :class:`~tfl_mav.link.transport.Link` (so it signs when given a key, and counts what it
@@ -78,6 +79,7 @@ class Pilot:
         self.heartbeats: list[Any] = []
         self.ended = False            # the vehicle said POWEROFF or EMERGENCY
         self.last_usec = -1           # time_usec of the newest state answered
+        self.applied: Any = None      # the last state's ACTUATOR_OUTPUT_STATUS
         self._chunks: dict[int, list[str]] = {}
 
     # ------------------------------------------------------------------ link
@@ -116,10 +118,15 @@ class Pilot:
         within ``timeout_s`` or the vehicle ended the run with none left to read."""
         deadline = time.monotonic() + timeout_s
         while True:
-            while len(self.queue) >= 2:
+            while len(self.queue) >= 3:
                 odom = self.queue.popleft()
                 if odom.get_type() != "ODOMETRY":
                     continue
+                applied = self.queue.popleft()
+                if applied.get_type() != "ACTUATOR_OUTPUT_STATUS":
+                    raise NoStateError(f"ODOMETRY followed by {applied.get_type()}, not "
+                                       "ACTUATOR_OUTPUT_STATUS")
+                self.applied = applied
                 esc = self.queue.popleft()
                 if esc.get_type() != "ESC_TELEMETRY_1_TO_4":
                     raise NoStateError(f"ODOMETRY followed by {esc.get_type()}, not the ESC report")
@@ -152,7 +159,7 @@ class Pilot:
         out: list[tuple[Any, Any]] = []
         k = 0
         while n_ticks is None or k < n_ticks:
-            if n_ticks is None and self.ended and len(self.queue) < 2:
+            if n_ticks is None and self.ended and len(self.queue) < 3:
                 break
             try:
                 odom, esc = self.state(timeout_s)

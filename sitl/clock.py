@@ -15,10 +15,16 @@ deterministic and runs as fast as both processes allow. The control port's HEART
 paced by sim time (every 1 s of it), so the control port's traffic is a pure function of the
 scenario and the controller's replies.
 
-**Real time** (:class:`RealtimeClock`). Physics follows the wall clock; the latest valid
-command is held (zero-order hold, :class:`HeldCommand`); replies older than the newest
-applied one are ``stale``. The run starts with the rotors at hover thrust (part of the
-initial state). If no valid command arrives for ``command_timeout_s`` the vehicle does what
+**Real time** (:class:`RealtimeClock`). Sim time starts only once commands flow: after the
+controller's HEARTBEAT the vehicle sends the t = 0 state every 10 ms (time not advancing,
+``start_wait_states``) until the first valid HIL_ACTUATOR_CONTROLS for it is applied, so a
+controller still warming up costs nothing. Then physics follows the wall clock; the latest
+valid command is held (zero-order hold, :class:`HeldCommand`); replies not newer than the
+held one are ``stale``, replies applied after their own tick was integrated are ``late``
+(``late_controls``), and the vehicle keeps histograms of the command age at application and
+of the held command's age at every control period (``command_age``, ``held_age``). The
+rotors start at hover thrust (part of the initial state). If, after the first command, no
+valid command arrives for ``command_timeout_s`` the vehicle does what
 a real ESC does when its signal stops: **the motors are cut to zero thrust** (counted in
 ``command_timeouts``, STATUSTEXT EMERGENCY); the next valid command restores them. Falling
 behind the wall clock by more than 0.1 s re-anchors the clock (counted in ``overruns``)
@@ -39,10 +45,12 @@ from sitl.simulator import Simulator
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.transport import Link
 
-__all__ = ["WAIT_SLICE_S", "Clock", "HeldCommand", "LockstepClock", "Paced", "RealtimeClock"]
+__all__ = ["START_RESEND_S", "WAIT_SLICE_S", "Clock", "HeldCommand", "LockstepClock", "Paced",
+           "RealtimeClock"]
 
 WAIT_SLICE_S = 0.05   # longest uninterrupted wait: bounds the reaction to Vehicle.stop()
 _OVERRUN_S = 0.1      # real time: re-anchor the clock when this far behind
+START_RESEND_S = 0.01  # real time: the t = 0 state is resent this often until commands flow
 
 
 @dataclass
@@ -55,9 +63,16 @@ class HeldCommand:
     """
 
     time_usec: int = -1       # time_usec of the newest applied HIL_ACTUATOR_CONTROLS (-1: none)
-    since_s: float = 0.0      # wall time (time.monotonic) it was applied; real time: the
-    #                           flight's start until the first one (the initial hover command)
+    since_s: float = 0.0      # wall time (time.monotonic) it was applied
     motors_cut: bool = False  # real time: cut to zero thrust after command_timeout_s silence
+    armed: bool = True        # False after a disarming command (zero thrust)
+
+    @property
+    def applied_usec(self) -> int:
+        """What ACTUATOR_OUTPUT_STATUS.time_usec says the motors held: this command's
+        time_usec, or 0 when none drives them (none yet, cut, disarmed)."""
+        return 0 if self.time_usec < 0 or self.motors_cut or not self.armed \
+            else self.time_usec
 
 
 class Paced(Protocol):
@@ -180,13 +195,17 @@ class RealtimeClock:
         dt = sim.control_dt_s
         ticks_per_heartbeat = max(1, round(1.0 / dt))
         ctl = v.control_link
-        t0 = time.monotonic()
-        held.since_s = t0   # the initial hover command is held from the flight's start
-        k0 = 0              # tick at which the clock was last anchored at t0
+        if not self._await_first_command():
+            return ExitStatus.STOPPED, "stopped on request"
+        t0 = time.monotonic()   # sim time starts with the first command applied
+        k0 = 0                  # tick at which the clock was last anchored at t0
+        first = True
         while stats.ticks < n_ticks:
-            if stats.ticks % ticks_per_heartbeat == 0:
-                v.send_heartbeat()
-            v.publish_state()
+            if not first:
+                if stats.ticks % ticks_per_heartbeat == 0:
+                    v.send_heartbeat()
+                v.publish_state()
+            first = False
             target = t0 + (stats.ticks + 1 - k0) * dt
             while True:
                 for msg in ctl.recv(0.0):
@@ -201,6 +220,7 @@ class RealtimeClock:
                 v.wait(min(WAIT_SLICE_S, target - now))
             if not held.motors_cut and now - held.since_s > self.command_timeout_s:
                 v.cut_motors(now - held.since_s, self.command_timeout_s)
+            stats.held_age.add(sim.time_usec - held.time_usec)
             crash = v.step()
             if crash is not None:
                 return ExitStatus.CRASHED, crash
@@ -211,3 +231,34 @@ class RealtimeClock:
                          f"real time: physics fell {now - target:.3f} s behind the wall "
                          "clock; clock re-anchored", key="overrun")
         return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
+
+    def _await_first_command(self) -> bool:
+        """Send the t = 0 state every ``START_RESEND_S`` until a valid command for it is
+        applied; False if stopped first. Sim time has not started, so a controller that is
+        slow to start costs nothing and the command timeout cannot cut the motors."""
+        v = self.vehicle
+        ctl = v.control_link
+        held = v.held
+        next_heartbeat = next_state = 0.0
+        first = True
+        while held.time_usec < 0:
+            now = time.monotonic()
+            if now >= next_heartbeat:
+                v.send_heartbeat()
+                next_heartbeat = now + 1.0
+            if now >= next_state:
+                if first:
+                    v.publish_state()
+                    first = False
+                else:
+                    v.resend_state()
+                v.stats.start_wait_states += 1
+                next_state = now + START_RESEND_S
+            v.wait(min(WAIT_SLICE_S, max(0.0, next_state - time.monotonic())))
+            for msg in ctl.recv(0.0):
+                v.dispatch(msg, None)
+            v.gcs_periodic()
+            v.serve_gcs()
+            if v.stopped():
+                return False
+        return True

@@ -67,7 +67,8 @@ class ActuatorControls:
 
     def on_controls(self, msg: Any, awaited_usec: int | None) -> Outcome:
         """Validate and apply one HIL_ACTUATOR_CONTROLS. Lockstep (``awaited_usec`` given):
-        only the awaited time_usec counts. Real time: newest wins, never the future."""
+        only the awaited time_usec counts. Real time: newest wins (an older or repeated
+        time_usec is stale), never the future; one applied after its own tick is late."""
         stats = self.stats
         held = self.held
         t = msg.time_usec
@@ -78,7 +79,8 @@ class ActuatorControls:
                                  f"HIL_ACTUATOR_CONTROLS.time_usec: {t} is not the awaited "
                                  f"{awaited_usec}; ignored", key="stale")
                 return Outcome.STALE
-        elif t < held.time_usec or t > self.sim.time_usec:
+        elif t <= held.time_usec or t > self.sim.time_usec:
+            # Older than (or a duplicate of) the held one, or for a tick not yet sent.
             stats.stale_controls += 1
             return Outcome.STALE
         controls = msg.controls
@@ -90,8 +92,13 @@ class ActuatorControls:
                              key="rejected_controls")
             return Outcome.REJECTED
         held.time_usec = t
+        age_usec = self.sim.time_usec - t   # > 0: its own tick was already integrated
+        stats.command_age.add(age_usec)
+        if age_usec > 0:
+            stats.late_controls += 1
         flight = self.flight
         armed = bool(msg.mode & _ARMED)
+        held.armed = armed
         if armed != flight.armed:
             flight.armed = armed
             self.status.send(mav.MAV_SEVERITY_NOTICE,

@@ -1,4 +1,5 @@
-"""The state the controller receives every control tick: ODOMETRY + ESC_TELEMETRY_1_TO_4.
+"""The state the controller receives every control tick: ODOMETRY, ACTUATOR_OUTPUT_STATUS,
+ESC_TELEMETRY_1_TO_4, in that order, in one datagram (the ESC report completes the tick).
 
 ``ODOMETRY``: ``time_usec`` = the tick's sim time, LOCAL_NED pose and BODY_FRD twist of the
 *measured* state (the scenario's seeded sensor noise), covariances σ² on the diagonal from
@@ -9,7 +10,14 @@ scenario's rpm noise), battery voltage (cV), current (cA), consumed charge (mAh)
 temperature (°C) from :mod:`sitl.power`, and a message counter (the same for all four,
 wrapping at 2¹⁶). Every field is clamped to its wire type.
 
-The pair is built once per tick (:meth:`StateReport.update`) and kept, so a lockstep resend
+``ACTUATOR_OUTPUT_STATUS`` says which command the rpm answer to (issue #12): ``time_usec`` =
+the ``time_usec`` of the HIL_ACTUATOR_CONTROLS held over the period that just ended (0 =
+none: before the first command, motors cut, disarmed), ``actuator[0..3]`` = the thrust
+fractions actually driven (0 when cut), ``active`` = 0b1111 (PX4 streams the same message
+for its outputs). A late, lost or reordered command is then never mistaken for a rotor that
+disobeys.
+
+The triple is built once per tick (:meth:`StateReport.update`) and kept, so a lockstep resend
 sends the same messages again and the GCS telemetry can forward the tick's ESC message.
 """
 
@@ -27,6 +35,8 @@ __all__ = ["StateReport"]
 
 # ODOMETRY covariance arrays: upper triangle of a 6×6 matrix, row-major; diagonal indices.
 _COV_DIAGONAL = (0, 6, 11, 15, 18, 20)
+_ACTIVE = 0b1111          # ACTUATOR_OUTPUT_STATUS.active: outputs 1-4 in use
+_PAD28 = [0.0] * 28       # actuator[4..31]
 
 
 class StateReport:
@@ -40,16 +50,19 @@ class StateReport:
         self._vel_cov = _covariance((sensors.velocity_noise_std_mps,) * 3
                                     + (sensors.rate_noise_std_radps,) * 3)
         self._esc_count = 0
-        self.latest: tuple[Any, Any] | None = None
-        """The last tick's (ODOMETRY, ESC_TELEMETRY_1_TO_4), or None before the first."""
+        self.latest: tuple[Any, Any, Any] | None = None
+        """The last tick's (ODOMETRY, ACTUATOR_OUTPUT_STATUS, ESC_TELEMETRY_1_TO_4), or None
+        before the first."""
 
     @property
     def esc(self) -> Any | None:
         """The last tick's ESC_TELEMETRY_1_TO_4, or None before the first tick."""
-        return self.latest[1] if self.latest is not None else None
+        return self.latest[-1] if self.latest is not None else None
 
-    def update(self) -> tuple[Any, Any]:
-        """Build the current tick's pair from the simulator and the power model."""
+    def update(self, applied_usec: int = 0) -> tuple[Any, Any, Any]:
+        """Build the current tick's messages from the simulator and the power model;
+        ``applied_usec``: time_usec of the command held over the period just ended (0:
+        none)."""
         sim = self.sim
         m = sim.measured
         f = odometry_from_paper(m.position_m.tolist(), m.velocity_mps.tolist(),
@@ -69,7 +82,10 @@ class StateReport:
             [min(65535, round(c)) for c in p.consumed_mah],
             [min(65535, round(r)) for r in sim.measured_rpm().tolist()],
             [count, count, count, count])
-        self.latest = (odometry, esc)
+        fmax = sim.thrust_max_n
+        applied = mav.MAVLink_actuator_output_status_message(
+            applied_usec, _ACTIVE, [f / fmax for f in sim.rotor_commands_n] + _PAD28)
+        self.latest = (odometry, applied, esc)
         return self.latest
 
 

@@ -12,7 +12,8 @@ The vehicle wires the parts together and runs the flight; each part has its own 
 
 * :mod:`sitl.clock` — lockstep (default) and real-time pacing, and the held command;
 * :mod:`sitl.commands` — HIL_ACTUATOR_CONTROLS and COMMAND_LONG/COMMAND_INT;
-* :mod:`sitl.state_report` — the per-tick ODOMETRY + ESC_TELEMETRY_1_TO_4;
+* :mod:`sitl.state_report` — the per-tick ODOMETRY, ACTUATOR_OUTPUT_STATUS (which command
+  the rpm answer) and ESC_TELEMETRY_1_TO_4;
 * :mod:`sitl.gcs` — HEARTBEAT, STATUSTEXT and the GCS telemetry;
 * :mod:`sitl.results` — the outcome and counters of a run.
 
@@ -23,7 +24,8 @@ answers commands on either port. The flight starts the moment that HEARTBEAT arr
 **End.** The run ends when the duration is reached (:attr:`ExitStatus.COMPLETED`), when the
 simulator reports a crash (:attr:`ExitStatus.CRASHED`: STATUSTEXT EMERGENCY with the reason,
 HEARTBEAT ``MAV_STATE_EMERGENCY``) or on :meth:`Vehicle.stop` (:attr:`ExitStatus.STOPPED`).
-A last HEARTBEAT with ``MAV_STATE_POWEROFF`` (or EMERGENCY after a crash) tells both peers.
+A last HEARTBEAT with ``MAV_STATE_POWEROFF`` (or EMERGENCY after a crash), sent three times
+10 ms apart so one lost datagram cannot hide the end, tells both peers.
 
 **Signing** (``key``, 32 bytes): both ports sign everything they send (control port
 ``link_id`` 0, GCS port ``link_id`` 1) and accept only frames that verify, with one
@@ -75,6 +77,7 @@ __all__ = [
 _ID_HEARTBEAT = mav.MAVLINK_MSG_ID_HEARTBEAT
 _ID_HIL_ACTUATOR_CONTROLS = mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
 _CONTROL_LINK_ID, _GCS_LINK_ID = 0, 1      # MAVLink signing link ids of our two ports
+_FINAL_HEARTBEATS, _FINAL_HEARTBEAT_GAP_S = 3, 0.01   # the last HEARTBEAT, sent 3 times
 
 
 class Vehicle:
@@ -259,9 +262,12 @@ class Vehicle:
             self.status(mav.MAV_SEVERITY_INFO,
                         f"simulation ended at t = {self.sim.time_s:.3f} s: {status.value}")
         hb = self.flight.heartbeat()
-        for link in (self.control_link, self.gcs_link):
-            if link is not None and link.peer is not None:
-                link.send(hb)
+        for i in range(_FINAL_HEARTBEATS):   # a lost datagram must not hide the end
+            if i:
+                time.sleep(_FINAL_HEARTBEAT_GAP_S)
+            for link in (self.control_link, self.gcs_link):
+                if link is not None and link.peer is not None:
+                    link.send(hb)
         return VehicleResult(status, reason, self.stats.ticks, self.sim.time_s, wall_s)
 
     # ------------------------------------------------------------------ what a clock drives
@@ -270,14 +276,15 @@ class Vehicle:
         self.control_link.send(self.flight.heartbeat())
 
     def publish_state(self) -> None:
-        """ODOMETRY + ESC_TELEMETRY_1_TO_4 of the current tick to the controller."""
-        self.report.update()
+        """ODOMETRY, ACTUATOR_OUTPUT_STATUS, ESC_TELEMETRY_1_TO_4 of the current tick to the
+        controller (:mod:`sitl.state_report`)."""
+        self.report.update(self.held.applied_usec)
         self.resend_state()
 
     _publish_state = publish_state   # bench/bench_lockstep.py times it under this name
 
     def resend_state(self) -> None:
-        """ODOMETRY then ESC_TELEMETRY_1_TO_4, in that order, in one datagram."""
+        """The current tick's messages again, in order, in one datagram."""
         assert self.report.latest is not None
         self.control_link.send_many(self.report.latest)
         self.stats.states_sent += 1

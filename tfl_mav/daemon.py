@@ -5,8 +5,14 @@ One :class:`Daemon` talks MAVLink 2 over one UDP socket to one vehicle (docs/des
 * sends ``HEARTBEAT`` (``MAV_TYPE_ONBOARD_CONTROLLER``) at once and every second (the
   simulator starts its clock on the first one);
 * consumes ``ODOMETRY`` (converted NED/FRD → paper frame in :mod:`tfl_mav.frames`,
-  the one place frames meet) and ``ESC_TELEMETRY_1_TO_4`` (measured rpm). A control tick
-  runs when a state and the ESC report that follows it have both arrived;
+  the one place frames meet), ``ACTUATOR_OUTPUT_STATUS`` (which command the motors held
+  over the period that just ended) and ``ESC_TELEMETRY_1_TO_4`` (measured rpm). A state is
+  complete when the ESC report that follows its ODOMETRY has arrived;
+* gives the detector the command the vehicle *applied*, not the last one sent: its own
+  float64 copy of the command with ACTUATOR_OUTPUT_STATUS's ``time_usec`` (a short
+  history is kept), else ``actuator[0..3]`` × f_max (a restarted daemon, motors cut). A
+  late, lost, duplicated or reordered command is then never an attack; in lockstep the
+  applied command is the last one sent, so nothing changes there;
 * answers every state with ``HIL_ACTUATOR_CONTROLS`` (``controls[0..3]`` = rotor thrust /
   f_max, ``time_usec`` echoing the state's, ``mode`` armed, ``flags`` bit 0 = lockstep);
 * is **not told** about the attack: :class:`~tfl_mav.control.detector.AttackDetector`
@@ -14,6 +20,22 @@ One :class:`Daemon` talks MAVLink 2 over one UDP socket to one vehicle (docs/des
 * publishes its own telemetry at ≤ 50 Hz of sim time: ``NAMED_VALUE_FLOAT`` ``mode``
   (0 nominal, 1 attacked, 2 fallback, 3 failsafe), ``det_rotor``, ``atk_est_n``,
   ``path_m``, and ``DEBUG_FLOAT_ARRAY`` ``tfl`` = (ξ1 chain, ξ2 chain, η chain).
+
+**Degrade, don't fall.** Each loop drains the socket and runs the law once, on the newest
+complete state: older states in the same batch are skipped (``skipped_states``), a state
+not newer than the last one controlled is never controlled again (a repeat of it, e.g. a
+lockstep resend after a lost reply, is answered with the same command:
+``repeated_states``; an older one is dropped: ``old_states``). When states were skipped the
+law integrates over the real gap (``gap_ticks``); a rate-limited STATUSTEXT says so.
+
+**Restart.** Vehicle time going backwards by more than ``_RESTART_BACKSTEP_S`` (or older
+states only, ``_RESTART_OLD_STATES`` in a row) is a restarted simulator: the flight
+computer (law and detector) is rebuilt and the new flight flown from its first state
+(``rebuilds``).
+
+**Ready before time starts.** The flight computer is built and warmed (one throw-away
+evaluation on a separate instance) in the constructor, before the first HEARTBEAT: the
+vehicle starts sim time with the first command, so a slow start would cost the flight.
 
 **Failsafe.** No valid state for ``state_timeout_s`` (wall time) → mode ``failsafe``,
 announced by STATUSTEXT; nothing is sent to the motors (a vehicle in lockstep waits, one in
@@ -43,9 +65,12 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
+import numpy as np
+
 from tfl_mav.flight_computer import FlightComputer, TickResult
 from tfl_mav.flightlog import schemas
 from tfl_mav.frames import paper_from_odometry
+from tfl_mav.geometry import euler_to_quaternion
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.signing import Signing
 from tfl_mav.link.transport import Address, FrameHook, Link
@@ -59,6 +84,11 @@ _TELEMETRY_PERIOD_S = 0.02        # ≤ 50 Hz of sim time
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
 _LOCKSTEP_FLAG = 1
 _WAITING_REPORT_PERIOD_S = 2.0
+_HISTORY = 512                    # commands remembered by time_usec (0.5 s at 1 kHz)
+_GAP_FACTOR = 1.5                 # a gap over 1.5 control periods is integrated as such
+_RESTART_BACKSTEP_S = 0.2         # vehicle time this far backwards: a restarted simulator
+_RESTART_OLD_STATES = 25          # ... or this many older-only states in a row
+_DEGRADE_REPORT_S = 1.0           # at most one "degraded" STATUSTEXT per second of sim time
 
 
 @dataclass
@@ -76,6 +106,15 @@ class DaemonStats:
     recoveries: int = 0
     fallback_ticks: int = 0
     saturated_ticks: int = 0
+    skipped_states: int = 0      # older states in a batch: the law ran on the newest only
+    old_states: int = 0          # not newer than the last state controlled: dropped
+    repeated_states: int = 0     # the last state again (lockstep resend): same command resent
+    gap_ticks: int = 0           # ticks whose law integrated over more than one period
+    applied_from_history: int = 0  # applied command = our own copy (ACTUATOR_OUTPUT_STATUS)
+    applied_from_wire: int = 0   # applied command = ACTUATOR_OUTPUT_STATUS.actuator × f_max
+    applied_unknown: int = 0     # no ACTUATOR_OUTPUT_STATUS: last command sent assumed
+    rebuilds: int = 0            # vehicle time went backwards: flight computer rebuilt
+    law_errors: int = 0          # a tick the laws raised on: no command sent that tick
     link: dict[str, int] = field(default_factory=dict)
 
 
@@ -101,7 +140,8 @@ class Daemon:
     """The offboard controller for one vehicle. See the module docstring."""
 
     def __init__(self, scenario: Scenario, *, vehicle: Address, bind: Address | None = None,
-                 realtime: bool = False, state_timeout_s: float = 0.5, sysid: int = 1,
+                 realtime: bool = False, state_timeout_s: float = 0.5,
+                 silence_end_s: float | None = None, sysid: int = 1,
                  compid: int = mav.MAV_COMP_ID_ONBOARD_COMPUTER,
                  vehicle_sysid: int | None = None, key: bytes | None = None,
                  on_frame: FrameHook | None = None,
@@ -110,6 +150,9 @@ class Daemon:
         """Open the socket towards ``vehicle`` (raises LinkError).
 
         ``key``: 32-byte MAVLink 2 signing secret (the vehicle's), or None (unsigned).
+        ``silence_end_s``: after the flight started, end the run when no state has arrived
+        for this many wall seconds (the vehicle is gone even if its goodbye was lost);
+        None waits for the vehicle forever (failsafe, then resume when it returns).
         ``on_tick(sim_time_s, record)`` sees the controller's internals every tick as a
         compact tuple (:func:`tick_state`, fields :data:`TICK_FIELDS`; the recorder's
         ``/controller/state``); ``on_event(level, text, sim_time_s)`` every
@@ -120,7 +163,12 @@ class Daemon:
         self.scenario = scenario
         self.realtime = realtime
         self.state_timeout_s = state_timeout_s
-        self.computer = FlightComputer(scenario)
+        if silence_end_s is not None and not (math.isfinite(silence_end_s)
+                                              and silence_end_s > state_timeout_s):
+            raise ValueError(f"silence_end_s: must be > state_timeout_s "
+                             f"({state_timeout_s} s), got {silence_end_s}")
+        self.silence_end_s = silence_end_s
+        self.computer = self._new_computer()
         self.signing = Signing(key) if key is not None else None
         self.link = Link.connect(vehicle, src_system=sysid, src_component=compid, bind=bind,
                                  peer_sysid=vehicle_sysid, on_frame=on_frame,
@@ -132,7 +180,14 @@ class Daemon:
         self.k_f = scenario.vehicle.k_f
         self._stop = threading.Event()
         self._pending_state: Any = None
-        self._last_cmd = [scenario.vehicle.mass_kg * scenario.vehicle.gravity_mps2 / 4.0] * 4
+        self._pending_applied: Any = None
+        self._complete: list[tuple[State, Any, list[float]]] = []   # this batch's states
+        self._history: dict[int, list[float]] = {}                  # time_usec → thrust_n
+        self._last_usec = -1          # time_usec of the last state controlled
+        self._old_in_row = 0
+        self._next_degrade_report_s = 0.0
+        self._hover = [scenario.vehicle.mass_kg * scenario.vehicle.gravity_mps2 / 4.0] * 4
+        self._last_cmd = list(self._hover)
         self._mode = Mode.NOMINAL
         self._failsafe = False
         self._next_telemetry_s = 0.0
@@ -141,6 +196,21 @@ class Daemon:
         self._distance = math.nan
         self._vehicle_done = ""
         self._statustext_id = 0
+
+    def _new_computer(self) -> FlightComputer:
+        """A flight computer for a new flight, warmed: one throw-away tick on a separate
+        instance runs every code path of the first tick (imports, caches) before the
+        vehicle starts its clock."""
+        sc = self.scenario
+        warm = FlightComputer(sc)
+        ini = sc.initial
+        state = State(tuple(ini.position_m), tuple(ini.velocity_mps),
+                      tuple(euler_to_quaternion(*ini.euler_rad).tolist()),
+                      tuple(ini.body_rates_radps))
+        hover = sc.vehicle.mass_kg * sc.vehicle.gravity_mps2 / 4.0
+        rpm = math.sqrt(hover / sc.vehicle.k_f) * 60.0 / (2.0 * math.pi)
+        warm.step(0.0, state, [rpm] * 4, [hover] * 4)
+        return FlightComputer(sc)
 
     def stop(self) -> None:
         """End :meth:`run` soon. Safe from a signal handler or another thread."""
@@ -152,7 +222,8 @@ class Daemon:
     # ------------------------------------------------------------------ main loop
     def run(self, duration_s: float | None = None) -> DaemonResult:
         """Fly until ``duration_s`` of sim time (None: the scenario's), the vehicle says it is
-        done (HEARTBEAT POWEROFF/EMERGENCY) or :meth:`stop`."""
+        done (HEARTBEAT POWEROFF/EMERGENCY, or its "crashed"/"simulation ended" STATUSTEXT),
+        stays silent for ``silence_end_s`` or :meth:`stop`."""
         duration = self.scenario.run.duration_s if duration_s is None else duration_s
         wall0 = time.monotonic()
         next_heartbeat = 0.0
@@ -166,10 +237,9 @@ class Daemon:
                     mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID,
                     _ARMED, 0, mav.MAV_STATE_ACTIVE, 3))
                 next_heartbeat = now + 1.0
-            ticked = False
             for msg in self.link.recv(timeout_s=0.05):
-                if self._handle(msg):
-                    ticked = True
+                self._handle(msg)
+            ticked = self._control_newest()
             now = time.monotonic()
             if ticked:
                 last_state_wall = now
@@ -189,6 +259,10 @@ class Daemon:
                 self._report_waiting(now - wall0)
             if self._vehicle_done:
                 reason = self._vehicle_done
+                break
+            if (self.silence_end_s is not None and self.stats.ticks > 0
+                    and now - last_state_wall > self.silence_end_s):
+                reason = f"vehicle silent for {self.silence_end_s:g} s (gone)"
                 break
             if self._sim_time_s >= duration - 1e-9 and self.stats.ticks > 0:
                 reason = "duration reached"
@@ -216,46 +290,154 @@ class Daemon:
         self._event("warning", text, send=False)
 
     # ------------------------------------------------------------------ messages
-    def _handle(self, msg: Any) -> bool:
-        """Dispatch one accepted message; True if it completed a control tick."""
+    def _handle(self, msg: Any) -> None:
+        """Dispatch one accepted message; a complete state joins this batch's."""
         mid = msg.get_msgId()
         if mid == mav.MAVLINK_MSG_ID_ODOMETRY:
+            self._pending_applied = None
             try:
                 self._pending_state = paper_from_odometry(msg)
             except ValueError as exc:
                 self.stats.bad_states += 1
                 self._event("warning", f"ODOMETRY rejected: {exc}", quiet=True)
                 self._pending_state = None
-                return False
+                return
             self.stats.states += 1
-            return False
+            return
+        if mid == mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS:
+            self._pending_applied = msg
+            return
         if mid == mav.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4:
             state = self._pending_state
             rpm = [float(r) for r in msg.rpm]
             self.stats.esc_reports += 1
             if state is None:
-                return False
+                return
             self._pending_state = None
-            self._tick(state, rpm)
-            return True
+            self._complete.append((state, self._pending_applied, rpm))
+            self._pending_applied = None
+            return
         if mid == mav.MAVLINK_MSG_ID_HEARTBEAT:
             if msg.system_status in (mav.MAV_STATE_POWEROFF, mav.MAV_STATE_EMERGENCY) \
                     and self.stats.ticks > 0:
                 self._vehicle_done = ("vehicle reported EMERGENCY (crashed)"
                                       if msg.system_status == mav.MAV_STATE_EMERGENCY
                                       else "vehicle powered off (run over)")
-            return False
+            return
         if mid == mav.MAVLINK_MSG_ID_STATUSTEXT:
-            self._event("info", f"vehicle: {msg.text}", send=False)
-            return False
+            text = msg.text
+            self._event("info", f"vehicle: {text}", send=False)
+            if self.stats.ticks > 0 and not self._vehicle_done:
+                if text.startswith("crashed:"):
+                    self._vehicle_done = "vehicle reported EMERGENCY (crashed)"
+                elif text.startswith("simulation ended"):
+                    self._vehicle_done = "vehicle powered off (run over)"
+            return
         self.stats.ignored_messages += 1
-        return False
 
-    def _tick(self, state: State, rpm: list[float]) -> None:
+    def _control_newest(self) -> bool:
+        """Run one control tick on the newest complete state of this batch (see "Degrade,
+        don't fall"); True if a valid state arrived (for the failsafe's clock)."""
+        batch = self._complete
+        if not batch:
+            return False
+        self._complete = []
+        stats = self.stats
+        newest = max(range(len(batch)), key=lambda i: (batch[i][0].time_usec, i))
+        state, applied_msg, rpm = batch[newest]
+        t_usec = state.time_usec
+        stats.skipped_states += sum(1 for b in batch if b[0].time_usec < t_usec)
+        last = self._last_usec
+        if last >= 0 and t_usec <= last:
+            if t_usec == last:
+                stats.repeated_states += 1
+                self._send_command(t_usec, self._last_cmd)
+                return True
+            self._old_in_row += 1
+            if (last - t_usec > _RESTART_BACKSTEP_S * 1e6
+                    or self._old_in_row >= _RESTART_OLD_STATES):
+                self._rebuild(t_usec)
+            else:
+                stats.old_states += 1
+                return True
+        self._old_in_row = 0
+        dt_s = None
+        period_usec = self.scenario.run.control_dt_s * 1e6
+        if self._last_usec >= 0 and t_usec - self._last_usec > _GAP_FACTOR * period_usec:
+            dt_s = (t_usec - self._last_usec) * 1e-6
+            stats.gap_ticks += 1
+            self._report_degraded(t_usec * 1e-6)
+        applied = self._applied(applied_msg)
+        self._last_usec = t_usec
+        self._tick(state, rpm, applied, dt_s)
+        return True
+
+    def _applied(self, msg: Any) -> list[float]:
+        """The thrusts (N) the vehicle held over the period that just ended (see module)."""
+        if msg is None:
+            self.stats.applied_unknown += 1
+            return self._last_cmd
+        mine = self._history.get(msg.time_usec)
+        if mine is not None and msg.time_usec != 0:
+            self.stats.applied_from_history += 1
+            return mine
+        # time_usec 0: the command for t = 0, or none (before the first command: the initial
+        # hover; motors cut; disarmed). The wire's thrusts say which; when they match our
+        # float64 copy (to float32 precision) use the copy, so lockstep stays bit-identical.
+        fmax = self.thrust_max_n
+        wire = [min(max(float(a), 0.0), 1.0) * fmax if math.isfinite(a) else 0.0
+                for a in msg.actuator[:4]]
+        ref = mine if mine is not None else (self._hover if self._last_usec < 0 else None)
+        if ref is not None and all(abs(w - r) <= 1e-6 * fmax
+                                   for w, r in zip(wire, ref, strict=True)):
+            self.stats.applied_from_history += 1
+            return ref
+        self.stats.applied_from_wire += 1
+        return wire
+
+    def _rebuild(self, t_usec: int) -> None:
+        """Vehicle time went backwards: a new flight. New law and detector, no history."""
+        self.stats.rebuilds += 1
+        self._event("warning", f"vehicle time went back to t={t_usec * 1e-6:.3f} s "
+                               f"(from {self._last_usec * 1e-6:.3f} s): restarted simulator, "
+                               "controller rebuilt")
+        self.computer = self._new_computer()
+        self._history.clear()
+        self._last_usec = -1
+        self._old_in_row = 0
+        self._last_cmd = list(self._hover)
+        self._next_telemetry_s = 0.0
+        self._next_degrade_report_s = 0.0
+
+    def _report_degraded(self, t: float) -> None:
+        if t < self._next_degrade_report_s:
+            return
+        self._next_degrade_report_s = t + _DEGRADE_REPORT_S
+        st = self.stats
+        self._event("warning", f"degraded: {st.skipped_states} states skipped, "
+                               f"{st.gap_ticks} gaps integrated")
+
+    def _send_command(self, time_usec: int, thrust: list[float]) -> None:
+        fmax = self.thrust_max_n
+        controls = [f / fmax for f in thrust] + [0.0] * 12
+        self.link.send(mav.MAVLink_hil_actuator_controls_message(
+            time_usec, controls, _ARMED, 0 if self.realtime else _LOCKSTEP_FLAG))
+        self.stats.commands_sent += 1
+
+    def _tick(self, state: State, rpm: list[float], applied: list[float],
+              dt_s: float | None) -> None:
         t = state.time_usec * 1e-6
         self._sim_time_s = t
         self.stats.ticks += 1
-        res = self.computer.step(t, state, rpm, self._last_cmd)
+        try:
+            res = self.computer.step(t, state, rpm, applied, dt_s=dt_s)
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+            # A state the laws cannot digest (e.g. a fuzzed one with huge values): no
+            # command this tick (the vehicle holds the last), the loop goes on.
+            self.stats.law_errors += 1
+            self._event("critical", f"control tick failed at t={t:.3f} s: "
+                                    f"{type(exc).__name__}: {exc}", quiet=self.stats.law_errors > 1)
+            return
         out = res.law
         if res.new_detection:
             self._event("warning", f"ATTACK on rotor {res.attack_rotor} detected at "
@@ -264,11 +446,11 @@ class Daemon:
             self._event("warning", text)
         thrust = res.thrust_n
         self._last_cmd = thrust
-        fmax = self.thrust_max_n
-        controls = [f / fmax for f in thrust] + [0.0] * 12
-        self.link.send(mav.MAVLink_hil_actuator_controls_message(
-            state.time_usec, controls, _ARMED, 0 if self.realtime else _LOCKSTEP_FLAG))
-        self.stats.commands_sent += 1
+        history = self._history
+        history[state.time_usec] = thrust
+        if len(history) > _HISTORY:
+            del history[next(iter(history))]   # dicts keep insertion order: the oldest
+        self._send_command(state.time_usec, thrust)
         self._mode = out.mode
         self._distance = out.path_distance_m
         if out.mode is Mode.FALLBACK:

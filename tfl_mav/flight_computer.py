@@ -196,19 +196,21 @@ class FlightComputer:
         self._told_rotor = rotor
 
     def step(self, t_s: float, state: State, rpm: Sequence[float],
-             applied_n: Sequence[float]) -> TickResult:
+             applied_n: Sequence[float], *, dt_s: float | None = None) -> TickResult:
         """One control tick.
 
         ``t_s``: sim time of ``state`` (s); ``rpm``: measured ESC rpm of rotors 1-4 at that
         time; ``applied_n``: the rotor thrust commands (N) the vehicle held over the period
-        that ended at ``t_s`` — what the rpm answers to, not what was last sent.
+        that ended at ``t_s`` — what the rpm answers to, not what was last sent. ``dt_s``:
+        the time since the last tick when it is not one control period (a real-time daemon
+        that skipped states): the law's internal states integrate over it.
 
         A numerical failure inside a law (an input no flight produces: the fuzzer finds
         them) never escapes: the tick holds the applied command, in mode FALLBACK, and says
         why — the daemon's loop must not die.
         """
         try:
-            return self._step(t_s, state, rpm, applied_n)
+            return self._step(t_s, state, rpm, applied_n, dt_s)
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
             self.internal_errors += 1
             fmax = self.thrust_max_n
@@ -224,7 +226,7 @@ class FlightComputer:
             return TickResult(hold, out, None, 0, math.nan, False, list(hold), (why,))
 
     def _step(self, t_s: float, state: State, rpm: Sequence[float],
-              applied_n: Sequence[float]) -> TickResult:
+              applied_n: Sequence[float], dt_s: float | None) -> TickResult:
         ctrl = self.controller
         events_pre: list[str] = []
         detection = None
@@ -280,7 +282,15 @@ class FlightComputer:
                         "the path allows; keeping attitude, cannot follow the path", events,
                         hold=self.law_name == "recovery")
         if self.law_name == "tfl":
-            out = ctrl.update(state, omega)
+            if dt_s is None:
+                out = ctrl.update(state, omega)
+            else:   # states were skipped: integrate the law's states over the real gap
+                period = ctrl.dt
+                ctrl.dt = dt_s
+                try:
+                    out = ctrl.update(state, omega)
+                finally:
+                    ctrl.dt = period
             self._last_tfl = out
             if out.mode is Mode.FALLBACK:
                 self._enter("recovery", state, f"TFL: {out.reason}; level, hold altitude",

@@ -1,7 +1,8 @@
 """``tfl-mav demo``: the whole product in one command.
 
 Starts the simulated vehicle (``tfl-mav sim``) and the controller daemon (``tfl-mav fly``)
-as two processes on free loopback ports in lockstep, both recording MCAP (``run.mcap`` from
+as two processes on free loopback ports in lockstep (``--realtime``: paced by the wall
+clock), both recording MCAP (``run.mcap`` from
 the vehicle: all traffic + ground truth; ``ctl.mcap`` from the controller: its traffic and
 state every tick), then writes the report PNGs and prints a summary (``--json``: one JSON
 object). Exit code 0 when the flight converged, 1 when it crashed or the detection was
@@ -45,6 +46,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="watch it live: the vehicle serves its channels (scene, truth, all "
                         "MAVLink incl. the controller's telemetry and events) on a Foxglove "
                         "WebSocket (Open connection, ws://localhost:PORT); default off")
+    p.add_argument("--realtime", action="store_true",
+                   help="the same flight paced by the wall clock (both processes --realtime), "
+                        "to watch it live, e.g. in Foxglove")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG report")
     p.set_defaults(func=run)
@@ -69,7 +73,8 @@ def run(args: argparse.Namespace) -> int:
         summary = run_demo(args.scenario, Path(args.out), settings=args.settings,
                            duration_s=args.duration, plots=not args.no_plots,
                            progress=not args.json, scenario=scenario,
-                           key_file=args.key_file, foxglove=args.foxglove)
+                           key_file=args.key_file, foxglove=args.foxglove,
+                           realtime=args.realtime)
     except RuntimeError as exc:
         print(f"tfl-mav demo: {exc}", file=sys.stderr)
         return 3

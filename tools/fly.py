@@ -30,7 +30,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "ODOMETRY + ESC_TELEMETRY_1_TO_4 in, HIL_ACTUATOR_CONTROLS out. The "
                     "attack is found from ESC rpm; nobody tells the controller.",
         epilog="exit codes: 0 run over, 1 vehicle crashed, 2 usage/scenario error, "
-               "3 link/file error, 130/143 interrupted (after a clean shutdown)")
+               "3 link/file error (or, --realtime, the vehicle went silent for 10 s), "
+               "130/143 interrupted (after a clean shutdown)")
     p.add_argument("scenario", nargs="?", default="paper",
                    help="built-in scenario name or .toml path (default: paper); must match "
                         "the vehicle's")
@@ -109,6 +110,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         daemon = Daemon(scenario, vehicle=vehicle, bind=bind, realtime=args.realtime,
                         state_timeout_s=args.state_timeout, key=key,
+                        silence_end_s=_SILENCE_END_S if args.realtime else None,
                         on_frame=recorder.on_frame if recorder else None,
                         on_tick=on_tick, on_event=on_event)
     except (LinkError, ValueError) as exc:
@@ -153,6 +155,8 @@ def run(args: argparse.Namespace) -> int:
               file=sys.stderr)
     if "signal" in got:
         return 128 + got["signal"]
+    if "silent" in result.reason:
+        return 3   # the vehicle vanished without its goodbye: a link failure
     return 1 if "crashed" in result.reason else 0
 
 
@@ -180,6 +184,7 @@ def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None)
     return rec
 
 
+_SILENCE_END_S = 10.0   # real time: no state this long after the flight started = vehicle gone
 _OK_COUNTERS = {"rx_datagrams", "rx_bytes", "rx_frames", "tx_frames", "tx_bytes"}
 
 
