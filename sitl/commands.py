@@ -98,7 +98,7 @@ class ActuatorControls:
                              "armed by the controller" if armed else
                              "disarmed by the controller (mode bit 128 clear): motors stopped")
         fmax = self.sim.thrust_max_n
-        if armed:
+        if armed and not flight.killed:   # a GCS disarm (kill switch) outranks the controller
             self.sim.set_command([controls[0] * fmax, controls[1] * fmax,
                                   controls[2] * fmax, controls[3] * fmax])
         else:

@@ -71,6 +71,7 @@ class DaemonStats:
     bad_esc: int = 0
     ignored_messages: int = 0
     commands_sent: int = 0
+    states_resent: int = 0      # lockstep: a state we had answered came again (reply lost)
     failsafes: int = 0
     recoveries: int = 0
     fallback_ticks: int = 0
@@ -139,6 +140,8 @@ class Daemon:
         self._distance = math.nan
         self._vehicle_done = ""
         self._statustext_id = 0
+        self._answered_usec = -1       # time_usec of the last state answered
+        self._last_reply: Any = None   # its HIL_ACTUATOR_CONTROLS (resent for a resent state)
 
     def stop(self) -> None:
         """End :meth:`run` soon. Safe from a signal handler or another thread."""
@@ -234,6 +237,12 @@ class Daemon:
             if state is None:
                 return False
             self._pending_state = None
+            if not self.realtime and state.time_usec == self._answered_usec:
+                # Lockstep resend (our reply was lost): the same answer again, never a second
+                # controller step for one tick (the flight must not depend on packet loss).
+                self.stats.states_resent += 1
+                self.link.send(self._last_reply)
+                return False
             self._tick(state, rpm)
             return True
         if mid == mav.MAVLINK_MSG_ID_HEARTBEAT:
@@ -262,8 +271,10 @@ class Daemon:
         self._last_cmd = thrust
         fmax = self.thrust_max_n
         controls = [f / fmax for f in thrust] + [0.0] * 12
-        self.link.send(mav.MAVLink_hil_actuator_controls_message(
-            state.time_usec, controls, _ARMED, 0 if self.realtime else _LOCKSTEP_FLAG))
+        self._last_reply = mav.MAVLink_hil_actuator_controls_message(
+            state.time_usec, controls, _ARMED, 0 if self.realtime else _LOCKSTEP_FLAG)
+        self._answered_usec = state.time_usec
+        self.link.send(self._last_reply)
         self.stats.commands_sent += 1
         self._mode = out.mode
         self._distance = out.path_distance_m

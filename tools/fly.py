@@ -33,9 +33,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("scenario", nargs="?", default="paper",
                    help="built-in scenario name or .toml path (default: paper); must match "
                         "the vehicle's")
-    p.add_argument("--vehicle", default="127.0.0.1:14540", metavar="HOST:PORT",
-                   help="the vehicle's control port (default 127.0.0.1:14540)")
-    p.add_argument("--bind", metavar="HOST:PORT", help="local address (default: ephemeral)")
+    p.add_argument("--vehicle", metavar="HOST:PORT",
+                   help="the vehicle's control port (default 127.0.0.1:14580, PX4 SITL's; "
+                        "127.0.0.1:14540 for `tfl-mav sim --legacy-ports`)")
+    p.add_argument("--bind", metavar="HOST:PORT",
+                   help="local address (default: 127.0.0.1:14540, PX4's offboard API port "
+                        "where the vehicle announces itself, when --vehicle is not given; "
+                        "else an ephemeral port)")
     p.add_argument("--key-file", metavar="PATH",
                    help="MAVLink 2 signing key (64 hex digits or 32 raw bytes, mode 600), the "
                         "same file as the vehicle's: sign everything, accept only frames "
@@ -62,8 +66,9 @@ def run(args: argparse.Namespace) -> int:
     prog = "tfl-mav fly"
     try:
         scenario = apply_overrides(load_scenario(args.scenario), args.settings)
-        vehicle = parse_address(args.vehicle, "--vehicle")
-        bind = parse_address(args.bind, "--bind") if args.bind else None
+        vehicle = parse_address(args.vehicle or "127.0.0.1:14580", "--vehicle")
+        bind = (parse_address(args.bind, "--bind") if args.bind
+                else None if args.vehicle else ("127.0.0.1", 14540))
         key = load_key(args.key_file) if args.key_file else None
     except (ScenarioError, ValueError, LinkError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)

@@ -58,14 +58,30 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scenario", nargs="?", default="paper",
                    help="built-in scenario name or .toml path (default: paper)")
-    p.add_argument("--listen", default="127.0.0.1:14540", metavar="HOST:PORT",
-                   help="control port to bind (default 127.0.0.1:14540; port 0 = any free)")
-    p.add_argument("--gcs", metavar="HOST:PORT",
-                   help="send GCS telemetry to a ground station listening here "
-                        "(e.g. 127.0.0.1:14550 for QGroundControl or MAVProxy udpin)")
+    p.add_argument("--listen", metavar="HOST:PORT",
+                   help="control port to bind (default 127.0.0.1:14580 as PX4 SITL, "
+                        "127.0.0.1:14540 with --legacy-ports; port 0 = any free)")
+    p.add_argument("--controller", default="127.0.0.1:14540", metavar="HOST:PORT",
+                   help="where the offboard API listens: the vehicle announces itself there "
+                        "by HEARTBEAT until a controller answers (default 127.0.0.1:14540, "
+                        "PX4's offboard port: `tfl-mav fly` or mavsdk udpin://:14540)")
+    p.add_argument("--legacy-ports", action="store_true",
+                   help="the old direction: bind 127.0.0.1:14540 and announce nowhere; the "
+                        "controller sends first (tfl-mav fly --vehicle 127.0.0.1:14540)")
+    p.add_argument("--gcs", default="127.0.0.1:14550", metavar="HOST:PORT|none",
+                   help="send GCS telemetry to a ground station listening here and take its "
+                        "commands (default 127.0.0.1:14550 as PX4: QGroundControl, MAVProxy "
+                        "udpin:127.0.0.1:14550, mavsdk udpin://:14550); none = no GCS port")
     p.add_argument("--peer", metavar="HOST:PORT",
-                   help="only accept this controller address (default: the sender of the "
-                        "first HEARTBEAT)")
+                   help="only accept this controller address, whatever its HEARTBEAT says "
+                        "(default: the first sender that identifies as an offboard "
+                        "controller and sends HIL_ACTUATOR_CONTROLS)")
+    p.add_argument("--origin", metavar="LAT,LON,ALT",
+                   help="where local (0,0,0) is on Earth, for GLOBAL_POSITION_INT and "
+                        "HOME_POSITION (default 47.397742,8.545594,488: PX4 SITL's home)")
+    p.add_argument("--keep-alive", action="store_true",
+                   help="after a run ends (duration, crash), reset the vehicle and wait for "
+                        "the next controller instead of exiting; SIGINT/SIGTERM end it")
     p.add_argument("--realtime", action="store_true",
                    help="pace physics by the wall clock instead of lockstep")
     p.add_argument("--duration", type=float, metavar="S",
@@ -81,8 +97,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", metavar="FILE",
                    help="at exit, write the outcome and every counter as JSON to FILE")
     p.add_argument("--lockstep-timeout", type=float, default=2.0, metavar="S",
-                   help="lockstep: wall seconds to wait for a reply before resending the "
-                        "state and reporting it (default 2)")
+                   help="lockstep: wall seconds without a reply before reporting it "
+                        "(default 2)")
+    p.add_argument("--resend-interval", type=float, default=0.02, metavar="S",
+                   help="lockstep: wall seconds without a reply before resending the state "
+                        "(default 0.02: a lost datagram costs milliseconds)")
     p.add_argument("--command-timeout", type=float, default=0.25, metavar="S",
                    help="real time: wall seconds without a valid command before the motors "
                         "are cut (default 0.25)")
@@ -98,6 +117,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sitl.gcs import Origin
     from tfl_mav.link.signing import load_key
     from tfl_mav.link.transport import parse_address
 
@@ -110,34 +130,62 @@ def run(args: argparse.Namespace) -> int:
         print(f"{prog}: {exc}", file=sys.stderr)
         return EXIT_USAGE
     try:
-        listen = parse_address(args.listen, "--listen")
-        gcs = parse_address(args.gcs, "--gcs") if args.gcs else None
+        listen = parse_address(args.listen or ("127.0.0.1:14540" if args.legacy_ports
+                                               else "127.0.0.1:14580"), "--listen")
+        gcs = (parse_address(args.gcs, "--gcs")
+               if args.gcs and args.gcs.lower() != "none" else None)
         peer = parse_address(args.peer, "--peer") if args.peer else None
+        announce = (None if args.legacy_ports or peer is not None
+                    else parse_address(args.controller, "--controller"))
+        origin = Origin.parse(args.origin) if args.origin else Origin()
         duration = _duration(args.duration, scenario)
         key = load_key(args.key_file) if args.key_file else None
     except ValueError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return EXIT_USAGE
 
+    extra = {"announce": announce, "origin": origin}
+    flight = 1
+    while True:
+        mcap = _numbered(args.mcap, flight)
+        code = _one_flight(args, scenario, listen, gcs, peer, duration, key, mcap, extra, prog)
+        if not args.keep_alive or code not in (EXIT_OK, EXIT_CRASHED):
+            return code
+        flight += 1
+        print(f"{prog}: --keep-alive: vehicle reset; waiting for the next controller "
+              f"(flight {flight})", flush=True)
+
+
+def _numbered(path: str | None, flight: int) -> str | None:
+    """--keep-alive: flight n > 1 records to ``STEM-n.SUFFIX`` next to ``path``."""
+    if path is None or flight == 1:
+        return path
+    p = Path(path)
+    return str(p.with_name(f"{p.stem}-{flight}{p.suffix}"))
+
+
+def _one_flight(args: argparse.Namespace, scenario: Scenario, listen: Address,
+                gcs: Address | None, peer: Address | None, duration: float,
+                key: bytes | None, mcap: str | None, extra: dict[str, Any], prog: str) -> int:
     recorder = None
-    if args.mcap:
-        recorder, code = _open_recorder(args.mcap, scenario, prog)
+    if mcap:
+        recorder, code = _open_recorder(mcap, scenario, prog)
         if recorder is None:
             return code
     try:
-        return _fly(args, scenario, listen, gcs, peer, duration, key, recorder, prog)
+        return _fly(args, scenario, listen, gcs, peer, duration, key, recorder, prog, extra)
     finally:
         if recorder is not None:
             recorder.close()
             if recorder.error:   # the flight went on (flight before logging); say so
-                print(f"{prog}: --mcap {args.mcap}: recording stopped early: "
+                print(f"{prog}: --mcap {mcap}: recording stopped early: "
                       f"{recorder.error}; the file holds what was flushed "
                       "(`tfl-mav inspect --recover` makes it whole)", file=sys.stderr)
 
 
 def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
          gcs: Address | None, peer: Address | None, duration: float, key: bytes | None,
-         recorder: Any, prog: str) -> int:
+         recorder: Any, prog: str, extra: dict[str, Any]) -> int:
     from sitl.vehicle import ExitStatus, Vehicle, truth_hook
     from tfl_mav.link.transport import LinkError
 
@@ -152,6 +200,7 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
         vehicle = Vehicle(
             scenario, listen=listen, gcs=gcs, peer=peer, realtime=args.realtime,
             lockstep_timeout_s=args.lockstep_timeout, command_timeout_s=args.command_timeout,
+            resend_interval_s=args.resend_interval, **extra,
             gcs_rate_hz=args.gcs_rate, allow_failure_injection=not args.no_failure_injection,
             key=key, on_frame=recorder.on_frame if recorder is not None else None,
             on_truth=truth_hook(recorder) if recorder is not None else None,
@@ -176,6 +225,9 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
         run_cfg = scenario.run
         length = "until interrupted" if math.isinf(duration) else f"{duration:g} s"
         gcs_text = f", GCS -> {gcs[0]}:{gcs[1]}" if gcs else ""
+        ann = extra.get("announce")
+        if ann is not None:
+            gcs_text += f", announcing to the controller at {ann[0]}:{ann[1]}"
         signed = ", MAVLink 2 signing on" if key is not None else ""
         print(f"{prog}: listening on {host}:{port} (control port), {mode}{signed}, scenario "
               f"{scenario.name!r}, physics {run_cfg.physics_hz:g} Hz, control "
