@@ -125,6 +125,7 @@ class GroundCommands:
             self.sim.set_command([0.0, 0.0, 0.0, 0.0])
             self.stats.commands_accepted += 1
             self._ack(link, msg, mav.MAV_RESULT_ACCEPTED)
+            link.send(flight.heartbeat())   # show the new state now, not within 1 s
             self.status.send(mav.MAV_SEVERITY_CRITICAL,
                              f"disarmed by the GCS at t = {self.sim.time_s:.3f} s: motors off "
                              "until a GCS arms again")
@@ -133,6 +134,7 @@ class GroundCommands:
             flight.killed = False
             self.stats.commands_accepted += 1
             self._ack(link, msg, mav.MAV_RESULT_ACCEPTED)
+            link.send(flight.heartbeat())
             self.status.send(mav.MAV_SEVERITY_NOTICE,
                              "armed by the GCS: the controller's commands drive the motors"
                              + (" again" if was_killed else ""))
