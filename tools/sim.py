@@ -120,6 +120,7 @@ def run(args: argparse.Namespace) -> int:
     from sitl.gcs import Origin
     from tfl_mav.link.signing import load_key
     from tfl_mav.link.transport import parse_address
+    from tools.outputs import file_problem
 
     prog = "tfl-mav sim"
     try:
@@ -144,6 +145,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"{prog}: {exc}", file=sys.stderr)
         return EXIT_USAGE
 
+    for path, option in ((args.json, "--json"), (args.mcap, "--mcap")):
+        problem = file_problem(path, option) if path else None
+        if problem:
+            print(f"{prog}: {problem}", file=sys.stderr)
+            return EXIT_LINK
     extra = {"announce": announce, "origin": origin}
     flight = 1
     while True:
@@ -169,7 +175,7 @@ def _one_flight(args: argparse.Namespace, scenario: Scenario, listen: Address,
                 key: bytes | None, mcap: str | None, extra: dict[str, Any], prog: str) -> int:
     recorder = None
     if mcap:
-        recorder, code = _open_recorder(mcap, scenario, prog)
+        recorder, code = _open_recorder(mcap, scenario, prog, duration)
         if recorder is None:
             return code
     try:
@@ -275,7 +281,8 @@ def _duration(value: float | None, scenario: Scenario) -> float:
     return math.inf if value == 0 else value
 
 
-def _open_recorder(path: str, scenario: Scenario, prog: str) -> tuple[Any, int]:
+def _open_recorder(path: str, scenario: Scenario, prog: str,
+                   duration: float = math.inf) -> tuple[Any, int]:
     """The MCAP recorder (``tfl_mav.flightlog.recorder_process``), imported only when asked
     for. It runs in a child process so recording costs the lockstep loop ~1 µs per call,
     and it finishes the file even if this process is killed. Returns (recorder, 0) or
@@ -295,6 +302,8 @@ def _open_recorder(path: str, scenario: Scenario, prog: str) -> tuple[Any, int]:
     # tools/report.py rebuilds the scenario from "scenario_json" (Scenario.to_dict()).
     recorder.metadata("scenario", {"name": scenario.name, "role": "vehicle",
                                    "scenario_json": json.dumps(scenario.to_dict())})
+    if math.isfinite(duration):   # tfl_mav.flightlog.metrics: a shorter log was interrupted
+        recorder.metadata("run", {"duration_s": repr(duration)})
     return recorder, EXIT_OK
 
 
