@@ -9,8 +9,9 @@ LOCAL_NED pose, BODY_FRD twist) and ``ESC_TELEMETRY_1_TO_4`` (true rotor speed a
 measures it) in one datagram, ODOMETRY first (:meth:`~tfl_mav.link.transport.Link.send_many`),
 wait for ``HIL_ACTUATOR_CONTROLS`` whose ``time_usec`` equals k·T, apply it, integrate to
 k+1. Replies for another ``time_usec`` are counted (``stale_controls``) and ignored. No reply
-within ``resend_interval_s`` (wall time, default 20 ms) sends the state again, quietly
-(``lockstep_resends``): a lost datagram costs milliseconds, not the timeout. No reply within
+within ``resend_interval_s`` (wall time, default 5 ms, ~10 round trips) sends the state
+again, quietly (``lockstep_resends``): a lost datagram costs milliseconds, not the timeout
+(the controller answers a resent state with the same command, never a second step). No reply within
 ``lockstep_timeout_s`` is counted (``lockstep_timeouts``) and announced by STATUSTEXT (rate
 limited, with the count suppressed); the tick is never skipped, so a lockstep run is
 deterministic and runs as fast as both processes allow. The control port's HEARTBEAT is
@@ -114,7 +115,7 @@ class Clock(Protocol):
 class LockstepClock:
     """Sim time advances only when the controller has answered the current tick."""
 
-    def __init__(self, vehicle: Paced, timeout_s: float, resend_s: float = 0.02) -> None:
+    def __init__(self, vehicle: Paced, timeout_s: float, resend_s: float = 0.005) -> None:
         self.vehicle = vehicle
         self.timeout_s = timeout_s   # wall seconds without a reply before reporting it
         self.resend_s = min(resend_s, timeout_s)   # wall seconds before resending the state

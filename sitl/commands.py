@@ -74,6 +74,8 @@ class ActuatorControls:
         if awaited_usec is not None:
             if t != awaited_usec:
                 stats.stale_controls += 1
+                if t == held.time_usec:
+                    return Outcome.STALE   # the answer to a resent state, already applied
                 self.status.send(mav.MAV_SEVERITY_WARNING,
                                  f"HIL_ACTUATOR_CONTROLS.time_usec: {t} is not the awaited "
                                  f"{awaited_usec}; ignored", key="stale")

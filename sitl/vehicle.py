@@ -95,7 +95,7 @@ class Vehicle:
                  gcs: Address | None = None, peer: Address | None = None,
                  announce: Address | None = None, origin: Origin | None = None,
                  realtime: bool = False, lockstep_timeout_s: float = 2.0,
-                 resend_interval_s: float = 0.02,
+                 resend_interval_s: float = 0.005,
                  command_timeout_s: float = 0.25, gcs_rate_hz: float = 50.0,
                  allow_failure_injection: bool = True, sysid: int = 1, compid: int = 1,
                  key: bytes | None = None, on_frame: FrameHook | None = None,

@@ -99,9 +99,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--lockstep-timeout", type=float, default=2.0, metavar="S",
                    help="lockstep: wall seconds without a reply before reporting it "
                         "(default 2)")
-    p.add_argument("--resend-interval", type=float, default=0.02, metavar="S",
+    p.add_argument("--resend-interval", type=float, default=0.005, metavar="S",
                    help="lockstep: wall seconds without a reply before resending the state "
-                        "(default 0.02: a lost datagram costs milliseconds)")
+                        "(default 0.005: a lost datagram costs milliseconds; a spurious resend "
+                        "is answered with the same command, never a second step)")
     p.add_argument("--command-timeout", type=float, default=0.25, metavar="S",
                    help="real time: wall seconds without a valid command before the motors "
                         "are cut (default 0.25)")
