@@ -18,6 +18,7 @@ from tfl_mav.daemon import Daemon
 from tfl_mav.link.signing import load_key
 from tfl_mav.link.transport import LinkError, parse_address
 from tfl_mav.scenario import ScenarioError, apply_overrides, load_scenario
+from tools.outputs import file_problem
 
 __all__ = ["add_parser", "run"]
 
@@ -73,6 +74,10 @@ def run(args: argparse.Namespace) -> int:
     except (ScenarioError, ValueError, LinkError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
+    for path, option in ((args.summary_json, "--summary-json"), (args.mcap, "--mcap")):
+        if path and (problem := file_problem(path, option)):
+            print(f"{prog}: {problem}", file=sys.stderr)
+            return 3
     recorder = None
     if args.mcap:
         from tfl_mav.build import scenario_path

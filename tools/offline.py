@@ -20,6 +20,7 @@ from pathlib import Path
 from harness.offline import fly_offline
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
+from tools.outputs import EXIT_IO, dir_problem
 
 __all__ = ["add_parser", "run"]
 
@@ -48,6 +49,9 @@ def run(args: argparse.Namespace) -> int:
     except (ScenarioError, TypeError) as exc:
         print(f"tfl-mav offline: scenario error: {exc}", file=sys.stderr)
         return 2
+    if args.plot and (problem := dir_problem(args.plot, "--plot")):
+        print(f"tfl-mav offline: {problem}", file=sys.stderr)
+        return EXIT_IO
 
     def progress(t: float, total: float) -> None:
         if not args.json and sys.stderr.isatty():
