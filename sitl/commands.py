@@ -73,9 +73,10 @@ class ActuatorControls:
         t = msg.time_usec
         if awaited_usec is not None:
             if t != awaited_usec:
+                if t == held.time_usec:    # the answer to a resent state, already applied
+                    stats.duplicate_controls += 1
+                    return Outcome.STALE
                 stats.stale_controls += 1
-                if t == held.time_usec:
-                    return Outcome.STALE   # the answer to a resent state, already applied
                 self.status.send(mav.MAV_SEVERITY_WARNING,
                                  f"HIL_ACTUATOR_CONTROLS.time_usec: {t} is not the awaited "
                                  f"{awaited_usec}; ignored", key="stale")

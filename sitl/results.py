@@ -54,6 +54,7 @@ class VehicleStats:
     controls_applied: int = 0
     rejected_controls: int = 0      # NaN/inf or out of [0, 1]: never applied
     stale_controls: int = 0         # not the awaited time_usec (lockstep) / older (real time)
+    duplicate_controls: int = 0     # lockstep: a second answer to a tick (its state resent)
     lockstep_resends: int = 0       # no reply within resend_interval_s: state resent
     lockstep_timeouts: int = 0      # no reply within lockstep_timeout_s: reported
     command_timeouts: int = 0       # real time: no valid command for command_timeout_s → cut

@@ -256,3 +256,35 @@ def test_a_heartbeat_only_client_is_refused_as_controller(gcs_flight):
         time.sleep(0.05)
     assert f.vehicle.stats.ticks >= 10
     assert f.vehicle.controller_address == pilot.link.local_address
+
+
+def test_keep_alive_resets_and_waits_for_the_next_flight():
+    import signal
+    import subprocess
+
+    from harness.processes import CLI, LISTEN_RE
+
+    sim = subprocess.Popen([*CLI, "sim", "paper", "--set", "attack.rotor=0", "--listen",
+                            "127.0.0.1:0", "--legacy-ports", "--gcs", "none", "--duration",
+                            "0.01", "--keep-alive"], stdout=subprocess.PIPE,
+                           stderr=subprocess.PIPE, text=True)
+    try:
+        m = LISTEN_RE.search(sim.stdout.readline())
+        assert m, "sim did not start"
+        address = (m.group(1), int(m.group(2)))
+        sc = hover_scenario()
+        u = hover_fraction(sc)
+        for _flight in range(2):   # two whole flights on the same port, one process
+            with Pilot(address) as pilot:
+                while not pilot.queue:    # the reset vehicle may still be binding the port
+                    pilot.hello()
+                    pilot.pump(0.2)
+                ticks = pilot.fly(None, lambda _o, _e: [u] * 4, timeout_s=TIMEOUT_S)
+                assert len(ticks) == 10 and pilot.ended
+        sim.send_signal(signal.SIGTERM)
+        out, _err = sim.communicate(timeout=30)
+    finally:
+        if sim.poll() is None:
+            sim.kill()
+    assert sim.returncode == 128 + signal.SIGTERM
+    assert "waiting for the next controller (flight 2)" in out

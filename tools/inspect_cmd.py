@@ -213,8 +213,19 @@ def _flight_summary(path: str | Path, series: dict[str, list[Any]],
         out.update(_distance_stats(t, d, "/controller/state.path_distance_m (measured)"))
     attack_rotor = sc.attack.rotor if sc is not None else None
     start = sc.attack.start_s if sc is not None and sc.attack.rotor else None
+    attack = series.get("/sim/truth/attack", [])
+    if attack and sc is None:   # no scenario: the ground truth says when and where
+        first = next((a for a in attack if a["active"]), None)
+        attack_rotor = first["rotor"] if first else 0
+        start = first["t_s"] if first else None
     out["attack_rotor"] = attack_rotor
     out["attack_start_s"] = start
+    applied = [a["applied_n"] for a in attack if a["active"] and "applied_n" in a]
+    out["attack_max_n"] = max(applied) if applied else None
+    thrusts = series.get("/sim/truth/thrusts", [])
+    values = [f for s in thrusts for f in s.get("thrust_n", ())]
+    out["thrust_true_min_n"] = min(values) if values else None
+    out["thrust_true_max_n"] = max(values) if values else None
     rows = [c for c in ctl if "detected_rotor" in c]
     if rows and attack_rotor is not None:
         out.update(detection([c["t_s"] for c in rows], [c["detected_rotor"] for c in rows],

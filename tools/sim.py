@@ -153,14 +153,24 @@ def run(args: argparse.Namespace) -> int:
             return EXIT_LINK
     extra = {"announce": announce, "origin": origin}
     flight = 1
-    while True:
-        mcap = _numbered(args.mcap, flight)
-        code = _one_flight(args, scenario, listen, gcs, peer, duration, key, mcap, extra, prog)
-        if not args.keep_alive or code not in (EXIT_OK, EXIT_CRASHED):
-            return code
-        flight += 1
-        print(f"{prog}: --keep-alive: vehicle reset; waiting for the next controller "
-              f"(flight {flight})", flush=True)
+    between: list[int] = []   # keep-alive: a signal between two flights ends the loop
+    args.pending_signals = between
+    previous = _install_signals(lambda signum, _f: between.append(signum))
+    try:
+        while True:
+            mcap = _numbered(args.mcap, flight)
+            code = _one_flight(args, scenario, listen, gcs, peer, duration, key, mcap, extra,
+                               prog)
+            listen = getattr(args, "bound_listen", listen)   # keep-alive: the same port
+            if not args.keep_alive or code not in (EXIT_OK, EXIT_CRASHED):
+                return code
+            if between:
+                return EXIT_SIGTERM if between[-1] == signal.SIGTERM else EXIT_SIGINT
+            flight += 1
+            print(f"{prog}: --keep-alive: vehicle reset; waiting for the next controller "
+                  f"(flight {flight})", flush=True)
+    finally:
+        _restore_signals(previous)
 
 
 def _numbered(path: str | None, flight: int) -> str | None:
@@ -219,13 +229,19 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
         print(f"{prog}: {exc}", file=sys.stderr)
         return EXIT_USAGE
     holder["v"] = vehicle
+    args.bound_listen = vehicle.listen_address
     received: list[int] = []
+    pending = getattr(args, "pending_signals", None)   # keep-alive: shared with the loop
 
     def on_signal(signum: int, _frame: Any) -> None:
         received.append(signum)
+        if pending is not None and signum not in pending:
+            pending.append(signum)   # even after this flight ended: the loop stops too
         vehicle.stop()
 
     previous = _install_signals(on_signal)
+    for signum in pending or ():   # arrived while this flight was being built
+        on_signal(signum, None)
     try:
         host, port = vehicle.listen_address
         mode = "real time" if args.realtime else "lockstep"
