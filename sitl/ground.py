@@ -187,7 +187,8 @@ class GroundCommands:
             reply = home_position(self.origin, self.sim.time_usec)
         elif wanted == mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
             caps = (mav.MAV_PROTOCOL_CAPABILITY_MAVLINK2
-                    | mav.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT)
+                    | mav.MAV_PROTOCOL_CAPABILITY_PARAM_FLOAT
+                    | mav.MAV_PROTOCOL_CAPABILITY_MISSION_INT)   # mavsdk needs it to ask
             reply = mav.MAVLink_autopilot_version_message(caps, 0, 0, 0, 0, [0] * 8, [0] * 8,
                                                           [0] * 8, 0, 0, 0)
         else:
