@@ -26,8 +26,9 @@ The vehicle wires the parts together and runs the flight; each part has its own 
 * :mod:`sitl.results` — the outcome and counters of a run.
 
 **Start.** Until the controller's first HEARTBEAT arrives the vehicle waits: sim time does
-not advance, it sends HEARTBEAT at 1 Hz to the GCS (and to a pinned ``peer``), and it
-answers commands on either port. The flight starts the moment that HEARTBEAT arrives.
+not advance, it sends HEARTBEAT at 1 Hz to the GCS and to a pinned ``peer`` (or, with none,
+to ``announce``), and it answers commands on either port. The flight starts the moment an
+admitted controller's HEARTBEAT arrives.
 
 **End.** The run ends when the duration is reached (:attr:`ExitStatus.COMPLETED`), when the
 simulator reports a crash (:attr:`ExitStatus.CRASHED`: STATUSTEXT EMERGENCY with the reason,

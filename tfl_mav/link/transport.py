@@ -4,9 +4,11 @@ Small and explicit on purpose (unlike pymavlink's ``mavutil``, which hides socke
 retries behind one object):
 
 * **One peer.** Either fixed (:meth:`Link.connect`) or learned from the first valid
-  ``HEARTBEAT`` that reaches a listening socket (:meth:`Link.listen`). Datagrams from any
-  other address are counted (``foreign``) and dropped; nothing is ever sent anywhere but the
-  peer. Once the peer's system id is known (from its first HEARTBEAT, or pinned), frames
+  ``HEARTBEAT`` that reaches a listening socket (:meth:`Link.listen`) and that ``admit``
+  (if given) accepts; refused ones are counted (``refused_peer``). Datagrams from any
+  other address are counted (``foreign``) and dropped; nothing is sent anywhere but the
+  peer, except by :meth:`Link.send_to` (e.g. telling a refused sender why). Once the
+  peer's system id is known (from its first HEARTBEAT, or pinned), frames
   with another sysid are dropped too (``wrong_sysid``).
 * **MAVLink 2 only.** Frames with the MAVLink 1 magic (0xFE) are rejected and counted
   (``mavlink1``): accepting them would let anyone downgrade a signed link to an unsigned
