@@ -506,8 +506,11 @@ def _start_cli(*args: str) -> tuple[subprocess.Popen, Address]:
 
 def test_cli_flies_and_exits_cleanly_on_sigterm(tmp_path):
     report, run_mcap = tmp_path / "sim.json", tmp_path / "run.mcap"
+    # Exact frame counts below: no resend may interleave (a loaded machine can delay a
+    # reply past the 5 ms default), so the resend interval is the 2 s timeout here.
     proc, address = _start_cli("--set", "attack.rotor=0", "--duration", "0",
-                               "--json", str(report), "--mcap", str(run_mcap))
+                               "--json", str(report), "--mcap", str(run_mcap),
+                               "--resend-interval", "2", "--gcs", "none")
     pilot = Pilot(address)
     try:
         pilot.hello()
