@@ -31,6 +31,7 @@ change it (``--set``).
 from __future__ import annotations
 
 import dataclasses
+import math
 from typing import Any
 
 from sitl.gcs import (
@@ -110,11 +111,9 @@ class GroundCommands:
         self._ack = handler.ack
 
     def _ours(self, msg: Any, component: bool = True) -> bool:
-        if msg.target_system not in (0, self.sysid) or (
-                component and msg.target_component not in (0, self.compid)):
-            self.stats.commands_not_for_us += 1
-            return False
-        return True
+        """Addressed to us (MAVLink routing; not counted: only commands are)."""
+        return msg.target_system in (0, self.sysid) and (
+            not component or msg.target_component in (0, self.compid))
 
     # ------------------------------------------------------------------ arm / disarm
     def arm_disarm(self, link: Link, msg: Any) -> None:
@@ -147,7 +146,14 @@ class GroundCommands:
     # ------------------------------------------------------------------ modes
     def do_set_mode(self, link: Link, msg: Any) -> None:
         """param1 base mode (CUSTOM_MODE_ENABLED), param2 PX4 main mode, param3 sub mode."""
-        ok = self._set_mode(int(msg.param1), int(msg.param2), int(msg.param3))
+        values = [_small_int(msg.param1), _small_int(msg.param2), _small_int(msg.param3)]
+        if None in values:
+            self.stats.commands_denied += 1
+            self._ack(link, msg, mav.MAV_RESULT_DENIED)
+            self.status.send(mav.MAV_SEVERITY_ERROR, "MAV_CMD_DO_SET_MODE.param1-3: must be "
+                                                     "whole numbers 0-255", key="mode")
+            return
+        ok = self._set_mode(*values)
         self.stats.commands_accepted += ok
         self.stats.commands_denied += not ok
         self._ack(link, msg, mav.MAV_RESULT_ACCEPTED if ok else mav.MAV_RESULT_DENIED)
@@ -182,7 +188,7 @@ class GroundCommands:
 
     def request_message(self, link: Link, msg: Any) -> None:
         """MAV_CMD_REQUEST_MESSAGE for HOME_POSITION or AUTOPILOT_VERSION."""
-        wanted = int(msg.param1)
+        wanted = _small_int(msg.param1, 0xFFFFFF)
         if wanted == mav.MAVLINK_MSG_ID_HOME_POSITION:
             reply = home_position(self.origin, self.sim.time_usec)
         elif wanted == mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION:
@@ -227,7 +233,6 @@ class GroundCommands:
             return
         name = _param_id(msg.param_id)
         index = self._index.get(name)
-        self.stats.commands_denied += 1
         if index is None:
             self.status.send(mav.MAV_SEVERITY_WARNING, f"PARAM_SET: no parameter {name!r}",
                              key="param")
@@ -266,3 +271,10 @@ def _param_id(raw: Any) -> str:
     return text.split("\0", 1)[0]
 
 
+
+
+def _small_int(value: float, limit: int = 0xFF) -> int | None:
+    """A COMMAND_LONG float parameter holding a whole number in [0, limit], or None."""
+    if not math.isfinite(value) or value != math.floor(value) or not 0 <= value <= limit:
+        return None
+    return int(value)
