@@ -9,8 +9,10 @@ from __future__ import annotations
 
 import json
 import re
+import signal
 import subprocess
 import sys
+import threading
 import time
 from pathlib import Path
 from typing import Any
@@ -22,6 +24,7 @@ from tfl_mav.build import scenario_path
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.flightlog.from_mcap import flight_log_from_mcap
 from tfl_mav.flightlog.logread import LogReader
+from tfl_mav.flightlog.metrics import DEFAULT_BOUND_M, DEFAULT_WINDOW_S, flight_verdict
 from tfl_mav.scenario import apply_overrides, load_scenario
 
 __all__ = ["run_demo"]
@@ -34,14 +37,70 @@ def _cli() -> list[str]:
     return [sys.executable, "-m", "tools.cli"]
 
 
+class _Children:
+    """The demo's child processes, stopped whatever happens to the demo.
+
+    Each child runs in its own session (so a terminal's Ctrl-C reaches only the demo, which
+    decides); SIGINT/SIGTERM to the demo, from a terminal or to its PID alone, are forwarded
+    as SIGTERM (a clean stop: MCAP files finished), and :meth:`reap` waits a grace period
+    and then SIGKILLs whatever is left. No orphan either way.
+    """
+
+    GRACE_S = 10.0
+
+    def __init__(self) -> None:
+        self.procs: list[subprocess.Popen[str]] = []
+        self.signals: list[int] = []
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> _Children:
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._previous[sig] = signal.signal(sig, self._on_signal)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.reap()
+        for sig, old in self._previous.items():
+            signal.signal(sig, old)
+
+    def start(self, cmd: list[str], **kw: Any) -> subprocess.Popen[str]:
+        p = subprocess.Popen(cmd, text=True, start_new_session=True, **kw)
+        self.procs.append(p)
+        if self.signals:      # a signal arrived while starting it
+            p.terminate()
+        return p
+
+    def _on_signal(self, signum: int, _frame: Any) -> None:
+        self.signals.append(signum)
+        for p in self.procs:
+            if p.poll() is None:
+                (p.kill if len(self.signals) > 1 else p.terminate)()
+
+    def reap(self) -> None:
+        deadline = time.monotonic() + self.GRACE_S
+        for p in self.procs:
+            if p.poll() is None and self.signals:
+                p.terminate()
+            try:
+                p.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(timeout=10)
+
+
 def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
              duration_s: float | None = None, plots: bool = True, progress: bool = False,
              scenario: Any = None, key_file: str | None = None,
-             foxglove: str | None = None, realtime: bool = False) -> dict[str, Any]:
+             foxglove: str | None = None, realtime: bool = False,
+             bound_m: float = DEFAULT_BOUND_M, window_s: float = DEFAULT_WINDOW_S
+             ) -> dict[str, Any]:
     """Fly ``name`` over MAVLink in two processes; returns the summary dict. ``key_file``:
     sign the link (both processes get ``--key-file``); ``foxglove``: the simulator serves
     the live view there (``--foxglove``); ``realtime``: both run with ``--realtime`` (paced
-    by the wall clock, at raised priority when allowed) instead of lockstep."""
+    by the wall clock, at raised priority when allowed) instead of lockstep. SIGINT/SIGTERM
+    stop both children and the summary says ``interrupted`` (its ``signal`` key names the
+    signal)."""
     settings = list(settings or [])
     scenario = scenario or apply_overrides(load_scenario(name), settings)
     scenario_path(scenario)   # ScenarioError for a bad path now, before any process starts
@@ -57,34 +116,37 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
         shared += ["--realtime"]
     pre = raise_priority if realtime else None
     t0 = time.perf_counter()
-    sim = subprocess.Popen(
-        [*_cli(), "sim", name, "--listen", "127.0.0.1:0", "--duration", str(duration),
-         "--mcap", str(run_mcap), *shared, *(["--foxglove", foxglove] if foxglove else [])],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=pre)
-    try:
+    with _Children() as children:
+        sim = children.start(
+            [*_cli(), "sim", name, "--listen", "127.0.0.1:0", "--gcs", "none",
+             "--legacy-ports", "--duration", str(duration), "--mcap", str(run_mcap), *shared,
+             *(["--foxglove", foxglove] if foxglove else [])],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=pre)
         port = _await_port(sim)
-        fly = subprocess.Popen(
+        fly = children.start(
             [*_cli(), "fly", name, "--vehicle", f"127.0.0.1:{port}", "--duration",
              str(duration), "--mcap", str(ctl_mcap), "--summary-json", str(fly_json),
              "--progress", *shared],
-            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, preexec_fn=pre)
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=pre)
         fly_err = _follow(fly, duration, progress)
         fly_code = fly.wait(timeout=60)
         sim_out, sim_err = sim.communicate(timeout=60)
-    finally:
-        for p in (sim,):
-            if p.poll() is None:
-                p.kill()
+    interrupted = bool(children.signals)
     wall = time.perf_counter() - t0
-    if not fly_json.exists():
+    if not fly_json.exists() and not interrupted:
         raise RuntimeError(f"the controller did not finish (exit {fly_code}):\n{fly_err}")
-    fly_summary = json.loads(fly_json.read_text())
+    fly_summary = json.loads(fly_json.read_text()) if fly_json.exists() else {}
     log = flight_log_from_mcap(run_mcap, scenario, ctl_mcap)
     log.crashed = sim.returncode == 1
     log.crash_reason = _crash_reason(sim_out + sim_err) if log.crashed else ""
     log.wall_time_s = wall
+    log.duration_s = duration
+    log.interrupted = interrupted
     m = summarize(log)
-    m.update(_detection_metrics(scenario, fly_summary, log, ctl_mcap))
+    m.update(flight_verdict(log, bound_m=bound_m, window_s=window_s))
+    if interrupted:
+        m["signal"] = signal.Signals(children.signals[0]).name
+    m.update(_detection_extras(scenario, m, log))
     m.update(_traffic_metrics(run_mcap, ctl_mcap, fly_summary))
     m["real_time_factor"] = round(m["sim_time_s"] / wall, 2) if wall else None
     m["out_dir"] = str(out)
@@ -136,14 +198,12 @@ def _crash_reason(text: str) -> str:
     return "crashed"
 
 
-def _detection_metrics(sc: Any, fly: dict[str, Any], log: Any,
-                       ctl_mcap: Path) -> dict[str, Any]:
-    rotor = int(fly.get("detected_rotor") or 0)
-    det_t = fly.get("detection_time_s")
+def _detection_extras(sc: Any, m: dict[str, Any], log: Any) -> dict[str, Any]:
+    """What only the demo adds to the shared detection metrics (:mod:`..metrics`): the
+    latency in ticks and the RMS error of the attack estimate."""
+    rotor = m.get("detected_rotor") or 0
     attacked = sc.attack.rotor
-    start = sc.attack.start_s
-    latency = det_t - start if (rotor and det_t is not None and attacked) else None
-    false_alarm = bool(rotor) and (not attacked or rotor != attacked or det_t < start - 1e-9)
+    latency = m.get("detection_latency_s")
     rms = None
     if rotor and rotor == attacked:
         est = log["attack_estimate_n"]
@@ -154,11 +214,8 @@ def _detection_metrics(sc: Any, fly: dict[str, Any], log: Any,
             true_f = log["thrust_true_n"][:, rotor - 1]
             rms = float(np.sqrt(np.mean((est[ok] - true_f[ok]) ** 2)))
     dt = sc.run.control_dt_s
-    return {"detected_rotor": rotor, "detection_time_s": det_t,
-            "detection_latency_s": latency,
-            "detection_latency_ticks": round(latency / dt) if latency is not None else None,
-            "attack_estimate_rms_n": rms, "false_alarms": int(false_alarm),
-            "missed_detection": bool(attacked) and rotor == 0}
+    return {"detection_latency_ticks": round(latency / dt) if latency is not None else None,
+            "attack_estimate_rms_n": rms}
 
 
 def _traffic_metrics(run_mcap: Path, ctl_mcap: Path, fly: dict[str, Any]) -> dict[str, Any]:

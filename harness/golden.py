@@ -65,6 +65,7 @@ def fly_offline_case(name: str, duration_s: float, attack_info: str,
     sc = _scenario(name, settings)
     log = fly_offline(sc, attack_info=attack_info, duration_s=duration_s)
     s = summarize(log)
+    s.pop("detection_time_s", None)   # not part of the captured offline results
     if attack_info == "detector":
         est = log["attack_estimate_n"]
         s["detected_rotor"] = sc.attack.rotor if np.any(np.isfinite(est)) else 0

@@ -14,6 +14,8 @@ import re
 import time
 from collections.abc import Callable
 
+import numpy as np
+
 from sitl.simulator import Simulator
 from tfl_mav.airframe import mix
 from tfl_mav.flight_computer import FlightComputer
@@ -60,6 +62,7 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
     applied = list(sim.rotor_commands_n)
     t0 = time.perf_counter()
     next_progress = 0.0
+    detected: list[int] = []
     for _ in range(n_ticks):
         if hook is not None:
             hook(sim)
@@ -92,6 +95,7 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
                    thrust_true_n=true_f, attack_true_n=att.applied_n if att.rotor else 0.0,
                    attack_estimate_n=res.attack_estimate_n, uf_n=uf, torque_nm=(tp, tq, tr),
                    saturated=any(out.saturated), mode=int(out.mode))
+        detected.append(fc.detected_rotor)
         sim.step_control_period()
         reason = sim.crash_reason()
         if reason:
@@ -101,6 +105,9 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
             progress(sim.time_s, duration)
             next_progress += 1.0
     log.wall_time_s = time.perf_counter() - t0
+    log.duration_s = duration
+    if attack_info == "detector":
+        log.detected_rotor = np.asarray(detected, dtype=int)
     log.events.append((0.0, f"fallbacks: {ctrl.fallback_count}, "
                             f"saturated ticks: {ctrl.saturation_count}"))
     return log.finish()

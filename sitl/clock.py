@@ -9,8 +9,11 @@ LOCAL_NED pose, BODY_FRD twist) and ``ESC_TELEMETRY_1_TO_4`` (true rotor speed a
 measures it) in one datagram, ODOMETRY first (:meth:`~tfl_mav.link.transport.Link.send_many`),
 wait for ``HIL_ACTUATOR_CONTROLS`` whose ``time_usec`` equals k·T, apply it, integrate to
 k+1. Replies for another ``time_usec`` are counted (``stale_controls``) and ignored. No reply
-within ``lockstep_timeout_s`` (wall time) is counted (``lockstep_timeouts``), announced by
-STATUSTEXT, and the state is sent again; the tick is never skipped, so a lockstep run is
+within ``resend_interval_s`` (wall time, default 5 ms, ~10 round trips) sends the state
+again, quietly (``lockstep_resends``): a lost datagram costs milliseconds, not the timeout
+(the controller answers a resent state with the same command, never a second step). No reply within
+``lockstep_timeout_s`` is counted (``lockstep_timeouts``) and announced by STATUSTEXT (rate
+limited, with the count suppressed); the tick is never skipped, so a lockstep run is
 deterministic and runs as fast as both processes allow. The control port's HEARTBEAT is
 paced by sim time (every 1 s of it), so the control port's traffic is a pure function of the
 scenario and the controller's replies.
@@ -127,9 +130,10 @@ class Clock(Protocol):
 class LockstepClock:
     """Sim time advances only when the controller has answered the current tick."""
 
-    def __init__(self, vehicle: Paced, timeout_s: float) -> None:
+    def __init__(self, vehicle: Paced, timeout_s: float, resend_s: float = 0.005) -> None:
         self.vehicle = vehicle
-        self.timeout_s = timeout_s   # wall seconds to wait for a reply before resending
+        self.timeout_s = timeout_s   # wall seconds without a reply before reporting it
+        self.resend_s = min(resend_s, timeout_s)   # wall seconds before resending the state
 
     def run(self, n_ticks: float) -> tuple[ExitStatus, str]:
         v = self.vehicle
@@ -153,10 +157,11 @@ class LockstepClock:
         v = self.vehicle
         ctl = v.control_link
         deadline = time.monotonic() + self.timeout_s
+        resend_at = time.monotonic() + self.resend_s
         while True:
             # Wait first: the reply is at least one round trip away, and select() returns
             # at once if it is already queued.
-            v.wait(min(WAIT_SLICE_S, deadline - time.monotonic()))
+            v.wait(min(WAIT_SLICE_S, resend_at - time.monotonic()))
             awaited = time_usec
             for msg in ctl.recv(0.0):
                 # Handle the whole batch (a command may follow the reply); once the reply
@@ -173,10 +178,14 @@ class LockstepClock:
                 v.stats.lockstep_timeouts += 1
                 v.status(mav.MAV_SEVERITY_WARNING,
                          f"lockstep: no HIL_ACTUATOR_CONTROLS for time_usec {time_usec} "
-                         f"within {self.timeout_s:g} s; state resent", key="lockstep_timeout")
+                         f"within {self.timeout_s:g} s; state resent every "
+                         f"{1000 * self.resend_s:g} ms", key="lockstep_timeout")
                 v.send_heartbeat()
-                v.resend_state()
                 deadline = now + self.timeout_s
+            if now >= resend_at:
+                v.stats.lockstep_resends += 1
+                v.resend_state()
+                resend_at = now + self.resend_s
                 v.gcs_periodic()
 
 

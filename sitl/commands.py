@@ -74,6 +74,9 @@ class ActuatorControls:
         t = msg.time_usec
         if awaited_usec is not None:
             if t != awaited_usec:
+                if t == held.time_usec:    # the answer to a resent state, already applied
+                    stats.duplicate_controls += 1
+                    return Outcome.STALE
                 stats.stale_controls += 1
                 self.status.send(mav.MAV_SEVERITY_WARNING,
                                  f"HIL_ACTUATOR_CONTROLS.time_usec: {t} is not the awaited "
@@ -105,7 +108,7 @@ class ActuatorControls:
                              "armed by the controller" if armed else
                              "disarmed by the controller (mode bit 128 clear): motors stopped")
         fmax = self.sim.thrust_max_n
-        if armed:
+        if armed and not flight.killed:   # a GCS disarm (kill switch) outranks the controller
             self.sim.set_command([controls[0] * fmax, controls[1] * fmax,
                                   controls[2] * fmax, controls[3] * fmax])
         else:

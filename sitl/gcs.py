@@ -1,18 +1,24 @@
 """What the vehicle says about itself: HEARTBEAT, STATUSTEXT and the GCS telemetry.
 
-**HEARTBEAT** (:class:`FlightStatus`): ``MAV_TYPE_QUADROTOR``, ``MAV_AUTOPILOT_GENERIC``,
-``base_mode`` = HIL_ENABLED | SAFETY_ARMED (as the controller's last applied command says),
+**HEARTBEAT** (:class:`FlightStatus`): ``MAV_TYPE_QUADROTOR``, ``MAV_AUTOPILOT_PX4``,
+``base_mode`` = CUSTOM_MODE_ENABLED | HIL_ENABLED | SAFETY_ARMED (armed: the controller's last
+applied command says so and no GCS disarmed the vehicle), ``custom_mode`` = PX4's encoding of
+the main mode (OFFBOARD: ``6 << 16``; MAVProxy shows ``OFFBOARD``, mavsdk ``Offboard``),
 ``system_status`` STANDBY before the flight, ACTIVE during it, EMERGENCY while the motors are
 cut or after a crash, POWEROFF at the end. Who sends it when is the caller's business (the
 clocks on the control port, :class:`GcsTelemetry` on the GCS port).
 
 **GCS telemetry** (:class:`GcsTelemetry`, paced by wall clock): ``ATTITUDE``,
 ``LOCAL_POSITION_NED`` (both NED/FRD from the same measured state as ODOMETRY),
+``GLOBAL_POSITION_INT`` (the same position about the configurable :class:`Origin`, flat-earth
+approximation: metres-scale flights, error ≪ 1 mm per km),
 ``ACTUATOR_OUTPUT_STATUS`` (``actuator[0..3]`` = commanded thrust / f_max), ``SYS_STATUS``
 (battery from :mod:`sitl.power`; ``errors_count1..4`` = rejected controls, lockstep timeouts,
-command timeouts, stale controls) and the latest ``ESC_TELEMETRY_1_TO_4`` (so a GCS sees the
+command timeouts, stale controls; present/enabled/health bits only for what the simulator
+models: rate gyro, attitude (AHRS), external position (motion capture), motor outputs and
+battery) and the latest ``ESC_TELEMETRY_1_TO_4`` (so a GCS sees the
 attacked rotor's rpm) at ``gcs_rate_hz`` (≤ 50 Hz, one datagram each time), HEARTBEAT at
-1 Hz. A new message for the GCS goes in :meth:`GcsTelemetry.messages`.
+1 Hz with ``HOME_POSITION``. A new message for the GCS goes in :meth:`GcsTelemetry.messages`.
 
 **STATUSTEXT** (:class:`StatusText`): every one goes to both peers that are known (ASCII;
 longer than 50 characters → MAVLink 2 chunks with a shared ``id``); repeats of one reason
@@ -21,6 +27,7 @@ can be rate-limited to one a second (wall), with the count of those suppressed.
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
@@ -36,27 +43,87 @@ from tfl_mav.geometry import euler_zyx_from_rotation, rotation_from_quaternion
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.transport import Link
 
-__all__ = ["FlightStatus", "GcsTelemetry", "StatusText"]
+__all__ = ["FlightStatus", "GcsTelemetry", "Origin", "StatusText", "home_position"]
 
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
 _STATUSTEXT_LEN = 50
 _STATUSTEXT_MAX_CHUNKS = 4
 _STATUS_MIN_INTERVAL_S = 1.0   # per-reason rate limit of repeated STATUSTEXTs (wall time)
-_SENSORS = (mav.MAV_SYS_STATUS_SENSOR_3D_GYRO | mav.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+# What the simulator models (sitl.simulator: rates, attitude, mocap position; sitl.motors;
+# sitl.power). Nothing else is claimed: a bit set here with no model behind it is a lie a
+# GCS acts on (MAVProxy announced "fence breach" for a geofence that was never there).
+_SENSORS = (mav.MAV_SYS_STATUS_SENSOR_3D_GYRO | mav.MAV_SYS_STATUS_AHRS
+            | mav.MAV_SYS_STATUS_SENSOR_VISION_POSITION
             | mav.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS | mav.MAV_SYS_STATUS_SENSOR_BATTERY)
+
+# PX4 custom_mode: main mode in bits 16-23, sub mode in bits 24-31 (PX4 px4_custom_mode.h).
+PX4_MAIN_OFFBOARD = 6
+PX4_MAIN_MODE_NAMES = {1: "MANUAL", 2: "ALTCTL", 3: "POSCTL", 4: "AUTO", 5: "ACRO",
+                       6: "OFFBOARD", 7: "STABILIZED", 8: "RATTITUDE"}
+EARTH_RADIUS_M = 6_378_137.0   # WGS-84 equatorial radius
+
+
+@dataclass(frozen=True)
+class Origin:
+    """Where local NED (0, 0, 0) is on Earth. Default: PX4 SITL's default home (Zurich)."""
+
+    lat_deg: float = 47.397742
+    lon_deg: float = 8.545594
+    alt_m: float = 488.0
+
+    @classmethod
+    def parse(cls, text: str, field: str = "--origin") -> Origin:
+        """``"LAT,LON,ALT"`` (degrees, degrees, metres AMSL); ValueError naming ``field``."""
+        parts = text.split(",")
+        try:
+            lat, lon, alt = (float(p) for p in parts)
+        except ValueError:
+            raise ValueError(f"{field}: expected LAT,LON,ALT (degrees, degrees, metres), "
+                             f"got {text!r}") from None
+        if not (-90 < lat < 90 and -180 <= lon <= 180 and math.isfinite(alt)):
+            raise ValueError(f"{field}: latitude in (-90, 90), longitude in [-180, 180] and "
+                             f"a finite altitude, got {text!r}")
+        return cls(lat, lon, alt)
+
+    def global_of(self, north_m: float, east_m: float, down_m: float
+                  ) -> tuple[float, float, float]:
+        """(lat °, lon °, alt m AMSL) of a local NED point (flat Earth about the origin)."""
+        lat = self.lat_deg + math.degrees(north_m / EARTH_RADIUS_M)
+        lon = self.lon_deg + math.degrees(
+            east_m / (EARTH_RADIUS_M * math.cos(math.radians(self.lat_deg))))
+        return lat, lon, self.alt_m - down_m
+
+
+def home_position(origin: Origin, time_usec: int) -> Any:
+    """HOME_POSITION: the origin, local (0, 0, 0)."""
+    return mav.MAVLink_home_position_message(
+        round(origin.lat_deg * 1e7), round(origin.lon_deg * 1e7), round(origin.alt_m * 1000),
+        0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0], 0.0, 0.0, 0.0, time_usec)
 
 
 @dataclass
 class FlightStatus:
-    """What HEARTBEAT reports: armed (by the controller's mode bit) and ``MAV_STATE_*``."""
+    """What HEARTBEAT reports: armed, mode and ``MAV_STATE_*``.
+
+    ``armed``: the controller's last applied mode bit; ``killed``: a GCS disarmed the
+    vehicle (motors off until a GCS arms again, :mod:`sitl.ground`).
+    """
 
     armed: bool = False
     system_status: int = mav.MAV_STATE_STANDBY
+    killed: bool = False
+    main_mode: int = PX4_MAIN_OFFBOARD
+
+    @property
+    def motors_armed(self) -> bool:
+        return self.armed and not self.killed
 
     def heartbeat(self) -> Any:
-        base_mode = mav.MAV_MODE_FLAG_HIL_ENABLED | (_ARMED if self.armed else 0)
-        return mav.MAVLink_heartbeat_message(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_GENERIC,
-                                             base_mode, 0, self.system_status, 3)
+        base_mode = (mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mav.MAV_MODE_FLAG_HIL_ENABLED
+                     | (_ARMED if self.motors_armed else 0))
+        return mav.MAVLink_heartbeat_message(mav.MAV_TYPE_QUADROTOR, mav.MAV_AUTOPILOT_PX4,
+                                             base_mode, self.main_mode << 16,
+                                             self.system_status, 3)
 
 
 class StatusText:
@@ -121,8 +188,9 @@ class GcsTelemetry:
 
     def __init__(self, link: Link, period_s: float, *, sim: Simulator, power: PowerModel,
                  stats: VehicleStats, held: HeldCommand, flight: FlightStatus,
-                 report: StateReport) -> None:
+                 report: StateReport, origin: Origin | None = None) -> None:
         self.link = link
+        self.origin = origin or Origin()
         self.period_s = period_s
         self.sim = sim
         self.power = power
@@ -140,7 +208,8 @@ class GcsTelemetry:
             return
         self._next_s = max(self._next_s + self.period_s, now)
         if now >= self._next_heartbeat_s:
-            self.link.send(self.flight.heartbeat())
+            self.link.send_many([self.flight.heartbeat(),
+                                 home_position(self.origin, self.sim.time_usec)])
             self._next_heartbeat_s = max(self._next_heartbeat_s + 1.0, now)
         self.link.send_many(self.messages())
 
@@ -161,12 +230,18 @@ class GcsTelemetry:
         rx = sum(s.rx_datagrams for s in links)
         rejected = sum(s.rejected for s in links)
         sensors_health = _SENSORS & ~(mav.MAV_SYS_STATUS_SENSOR_MOTOR_OUTPUTS
-                                      if self.held.motors_cut else 0)
+                                      if self.held.motors_cut or self.flight.killed else 0)
+        lat, lon, alt = self.origin.global_of(f.x, f.y, f.z)
+        heading_cdeg = round(math.degrees(yaw) * 100.0) % 36000
         msgs = [
             mav.MAVLink_attitude_message(t_ms, roll, pitch, yaw, f.rollspeed, f.pitchspeed,
                                          f.yawspeed),
             mav.MAVLink_local_position_ned_message(t_ms, f.x, f.y, f.z, float(v_ned[0]),
                                                    float(v_ned[1]), float(v_ned[2])),
+            mav.MAVLink_global_position_int_message(
+                t_ms, round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0),
+                round(-f.z * 1000.0), _cm(v_ned[0]), _cm(v_ned[1]), _cm(v_ned[2]),
+                heading_cdeg),
             mav.MAVLink_actuator_output_status_message(sim.time_usec, 4, actuators),
             mav.MAVLink_sys_status_message(
                 _SENSORS, _SENSORS, sensors_health, 0,
@@ -182,3 +257,8 @@ class GcsTelemetry:
         if esc is not None:
             msgs.append(esc)   # this tick's ESC_TELEMETRY_1_TO_4: rpm
         return msgs
+
+
+def _cm(v_mps: float) -> int:
+    """m/s → cm/s clamped to int16 (GLOBAL_POSITION_INT's velocity fields)."""
+    return max(-32768, min(32767, round(float(v_mps) * 100.0)))

@@ -99,7 +99,9 @@ class VehicleStats:
     controls_applied: int = 0
     rejected_controls: int = 0      # NaN/inf or out of [0, 1]: never applied
     stale_controls: int = 0         # not the awaited time_usec (lockstep) / older (real time)
-    lockstep_timeouts: int = 0      # no reply within lockstep_timeout_s: state resent
+    duplicate_controls: int = 0     # lockstep: a second answer to a tick (its state resent)
+    lockstep_resends: int = 0       # no reply within resend_interval_s: state resent
+    lockstep_timeouts: int = 0      # no reply within lockstep_timeout_s: reported
     command_timeouts: int = 0       # real time: no valid command for command_timeout_s → cut
     overruns: int = 0               # real time: fell > 0.1 s behind the wall clock
     late_controls: int = 0          # real time: applied after their own tick's step began
@@ -108,6 +110,8 @@ class VehicleStats:
     commands_denied: int = 0        # MAV_CMD_INJECT_FAILURE with bad parameters / disabled
     commands_unsupported: int = 0
     commands_not_for_us: int = 0    # addressed to another system/component: not answered
+    controllers_refused: int = 0    # HEARTBEATs refused as controller (not an offboard one)
+    controllers_released: int = 0   # identified as controller but sent no actuator commands
     failures_injected: int = 0      # accepted INJECT_FAILURE other than type 0 (OK = clear)
     statustexts_sent: int = 0
     statustexts_suppressed: int = 0  # repeats inside the per-reason rate limit

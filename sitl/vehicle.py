@@ -2,9 +2,17 @@
 
 One :class:`Vehicle` owns a :class:`~sitl.simulator.Simulator` and two links:
 
-* the **control port** (``listen``): the offboard controller. The peer is the sender of the
-  first valid HEARTBEAT (or ``peer`` if pinned); everything else is counted and dropped by
-  :class:`~tfl_mav.link.transport.Link`.
+* the **control port** (``listen``): the offboard controller. PX4's convention: before the
+  flight the vehicle announces itself by HEARTBEAT to ``announce`` (``tfl-mav sim``:
+  127.0.0.1:14540, where mavsdk's ``udpin://:14540`` or ``tfl-mav fly`` listens). The
+  controller is the first sender that *identifies as an offboard controller* (HEARTBEAT
+  ``type`` ``MAV_TYPE_ONBOARD_CONTROLLER`` or component ``MAV_COMP_ID_ONBOARD_COMPUTER``), or
+  whoever ``peer`` pins; any other HEARTBEAT (a GCS saying hello) is refused, counted
+  (``controllers_refused``) and told why by STATUSTEXT (at most once a second per sender).
+  The pin holds once it sends HIL_ACTUATOR_CONTROLS; a learned candidate that sends none
+  within ``lockstep_timeout_s`` of the first state (lockstep) is released
+  (``controllers_released``) and the next qualifying sender takes the link. Everything else
+  is counted and dropped by :class:`~tfl_mav.link.transport.Link`.
 * the optional **GCS port** (``gcs``): a separate socket that sends to a ground station
   (MAVProxy, QGroundControl, mavsdk) and accepts its commands.
 
@@ -15,11 +23,13 @@ The vehicle wires the parts together and runs the flight; each part has its own 
 * :mod:`sitl.state_report` — the per-tick ODOMETRY, ACTUATOR_OUTPUT_STATUS (which command
   the rpm answer) and ESC_TELEMETRY_1_TO_4;
 * :mod:`sitl.gcs` — HEARTBEAT, STATUSTEXT and the GCS telemetry;
+* :mod:`sitl.ground` — what a GCS may command (arm/disarm, mode, parameters, mission, home);
 * :mod:`sitl.results` — the outcome and counters of a run.
 
 **Start.** Until the controller's first HEARTBEAT arrives the vehicle waits: sim time does
-not advance, it sends HEARTBEAT at 1 Hz to the GCS (and to a pinned ``peer``), and it
-answers commands on either port. The flight starts the moment that HEARTBEAT arrives.
+not advance, it sends HEARTBEAT at 1 Hz to the GCS and to a pinned ``peer`` (or, with none,
+to ``announce``), and it answers commands on either port. The flight starts the moment an
+admitted controller's HEARTBEAT arrives.
 
 **End.** The run ends when the duration is reached (:attr:`ExitStatus.COMPLETED`), when the
 simulator reports a crash (:attr:`ExitStatus.CRASHED`: STATUSTEXT EMERGENCY with the reason,
@@ -55,7 +65,8 @@ from typing import Any, Protocol
 
 from sitl.clock import WAIT_SLICE_S, Clock, HeldCommand, LockstepClock, RealtimeClock
 from sitl.commands import CONTROL_TOLERANCE, ActuatorControls, CommandHandler, Outcome
-from sitl.gcs import FlightStatus, GcsTelemetry, StatusText
+from sitl.gcs import FlightStatus, GcsTelemetry, Origin, StatusText
+from sitl.ground import GroundCommands
 from sitl.power import PowerModel
 from sitl.results import ExitStatus, VehicleResult, VehicleStats
 from sitl.simulator import Simulator
@@ -78,6 +89,7 @@ _ID_HEARTBEAT = mav.MAVLINK_MSG_ID_HEARTBEAT
 _ID_HIL_ACTUATOR_CONTROLS = mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
 _CONTROL_LINK_ID, _GCS_LINK_ID = 0, 1      # MAVLink signing link ids of our two ports
 _FINAL_HEARTBEATS, _FINAL_HEARTBEAT_GAP_S = 3, 0.01   # the last HEARTBEAT, sent 3 times
+_REFUSAL_INTERVAL_S = 1.0                   # STATUSTEXT to one refused sender at most 1/s
 
 
 class Vehicle:
@@ -85,7 +97,9 @@ class Vehicle:
 
     def __init__(self, scenario: Scenario, *, listen: Address,
                  gcs: Address | None = None, peer: Address | None = None,
+                 announce: Address | None = None, origin: Origin | None = None,
                  realtime: bool = False, lockstep_timeout_s: float = 2.0,
+                 resend_interval_s: float = 0.005,
                  command_timeout_s: float = 0.25, gcs_rate_hz: float = 50.0,
                  allow_failure_injection: bool = True, sysid: int = 1, compid: int = 1,
                  key: bytes | None = None, on_frame: FrameHook | None = None,
@@ -95,13 +109,17 @@ class Vehicle:
 
         ``listen``: control port to bind (port 0 = ephemeral, see :attr:`listen_address`).
         ``gcs``: where a ground station listens, or None. ``peer``: pin the controller's
-        address instead of learning it. ``lockstep_timeout_s``/``command_timeout_s``: wall
-        seconds (see :mod:`sitl.clock`). ``gcs_rate_hz``: GCS telemetry rate, at most
+        address instead of learning it. ``announce``: where to send HEARTBEAT before a
+        controller is known (PX4: the API port), or None. ``origin``: the local frame's
+        place on Earth (GLOBAL_POSITION_INT, HOME_POSITION). ``lockstep_timeout_s``/
+        ``command_timeout_s``/``resend_interval_s``: wall seconds (see :mod:`sitl.clock`).
+        ``gcs_rate_hz``: GCS telemetry rate, at most
         50 Hz. ``key``: 32-byte MAVLink 2 signing secret for both ports, or None (unsigned).
         ``on_status(severity, text)`` sees every STATUSTEXT the vehicle sends.
         """
         for name, value in (("lockstep_timeout_s", lockstep_timeout_s),
-                            ("command_timeout_s", command_timeout_s)):
+                            ("command_timeout_s", command_timeout_s),
+                            ("resend_interval_s", resend_interval_s)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name}: must be a positive number of seconds, got {value}")
         if not (math.isfinite(gcs_rate_hz) and 0 < gcs_rate_hz <= 50):
@@ -111,9 +129,15 @@ class Vehicle:
         self.on_truth = on_truth
         # The links.
         self.signing = Signing(key) if key is not None else None
+        self.announce = announce
+        self._pinned = peer is not None
+        self._refused_at: dict[Address, float] = {}   # sender → wall time last told why
+        self._confirmed = False      # the controller has sent HIL_ACTUATOR_CONTROLS
+        self._flight_wall0 = 0.0
+        self.lockstep_timeout_s = lockstep_timeout_s
         self.control_link = Link.listen(listen, src_system=sysid, src_component=compid,
                                         peer=peer, on_frame=on_frame, signing=self.signing,
-                                        link_id=_CONTROL_LINK_ID)
+                                        link_id=_CONTROL_LINK_ID, admit=self._admit)
         self.gcs_link: Link | None = None
         if gcs is not None:
             try:
@@ -139,12 +163,17 @@ class Vehicle:
         self.commands = CommandHandler(self.sim, stats=self.stats, status=self.statustext,
                                        sysid=sysid, compid=compid,
                                        allow_failure_injection=allow_failure_injection)
+        self.origin = origin or Origin()
+        self.ground = GroundCommands(scenario, self.sim, flight=self.flight, stats=self.stats,
+                                     status=self.statustext, origin=self.origin, sysid=sysid,
+                                     compid=compid)
+        self.ground.register(self.commands)
         self.gcs = (GcsTelemetry(self.gcs_link, 1.0 / gcs_rate_hz, sim=self.sim,
                                  power=self.power, stats=self.stats, held=self.held,
-                                 flight=self.flight, report=self.report)
+                                 flight=self.flight, report=self.report, origin=self.origin)
                     if self.gcs_link is not None else None)
         self.clock: Clock = (RealtimeClock(self, command_timeout_s) if realtime
-                             else LockstepClock(self, lockstep_timeout_s))
+                             else LockstepClock(self, lockstep_timeout_s, resend_interval_s))
         # The run's phase.
         self._stop = threading.Event()
         self._external_stop: threading.Event | None = None
@@ -203,7 +232,7 @@ class Vehicle:
                                 0.0)
         self._flying = True
         self.flight.system_status = mav.MAV_STATE_ACTIVE
-        wall0 = time.monotonic()
+        wall0 = self._flight_wall0 = time.monotonic()
         if self.on_truth is not None:
             self.on_truth(self.sim)
         status, reason = self.clock.run(n_ticks)
@@ -227,6 +256,8 @@ class Vehicle:
                 hb = self.flight.heartbeat()
                 if ctl.peer is not None:
                     ctl.send(hb)
+                elif self.announce is not None:
+                    ctl.send_to(self.announce, hb)
                 if self.gcs_link is not None:
                     self.gcs_link.send(hb)
                 next_heartbeat = now + 1.0
@@ -240,6 +271,44 @@ class Vehicle:
         self.status(mav.MAV_SEVERITY_INFO, f"controller {host}:{port} (sysid "
                                            f"{ctl.peer_sysid}) connected: flight starts")
         return True
+
+    def _admit(self, heartbeat: Any, sender: Address) -> str | None:
+        """Link admission: None if ``sender`` may become the controller, else why not."""
+        if self._pinned:
+            return None    # --peer: the operator said who the controller is
+        kind = heartbeat.type
+        comp = heartbeat.get_srcComponent()
+        if kind == mav.MAV_TYPE_ONBOARD_CONTROLLER or comp == mav.MAV_COMP_ID_ONBOARD_COMPUTER:
+            return None
+        self.stats.controllers_refused += 1
+        reason = (f"HEARTBEAT type {kind}, component {comp} is not an offboard controller "
+                  f"(type {mav.MAV_TYPE_ONBOARD_CONTROLLER} or component "
+                  f"{mav.MAV_COMP_ID_ONBOARD_COMPUTER}); use the GCS port for commands")
+        now = time.monotonic()
+        if now - self._refused_at.get(sender, -math.inf) >= _REFUSAL_INTERVAL_S:
+            self._refused_at[sender] = now
+            text = f"control port: {sender[0]}:{sender[1]} refused as controller: {reason}"
+            for msg in self.statustext.messages(mav.MAV_SEVERITY_WARNING, text):
+                self.control_link.send_to(sender, msg)
+            if self.statustext.on_status is not None:
+                self.statustext.on_status(mav.MAV_SEVERITY_WARNING, text)
+        return reason
+
+    def _release_silent_candidate(self) -> None:
+        """Lockstep, first tick: a learned controller that identified itself but sends no
+        HIL_ACTUATOR_CONTROLS (e.g. mavsdk as a companion computer) lets go of the link."""
+        ctl = self.control_link
+        if (self._confirmed or self._pinned or ctl.peer is None or self.stats.ticks
+                or time.monotonic() - self._flight_wall0 < self.lockstep_timeout_s):
+            return
+        host, port = ctl.peer
+        self.stats.controllers_released += 1
+        self.status(mav.MAV_SEVERITY_WARNING,
+                    f"control port: {host}:{port} sent no HIL_ACTUATOR_CONTROLS within "
+                    f"{self.lockstep_timeout_s:g} s; released, waiting for a controller")
+        ctl.peer = None
+        ctl.peer_sysid = None
+        self._flight_wall0 = time.monotonic()
 
     def _report_refused_signatures(self) -> None:
         """Before the flight: say so when would-be controllers' frames fail signing."""
@@ -286,6 +355,8 @@ class Vehicle:
     def resend_state(self) -> None:
         """The current tick's messages again, in order, in one datagram."""
         assert self.report.latest is not None
+        if not self._confirmed:
+            self._release_silent_candidate()
         self.control_link.send_many(self.report.latest)
         self.stats.states_sent += 1
 
@@ -297,6 +368,7 @@ class Vehicle:
             if not self._flying:
                 self.stats.stale_controls += 1
                 return False
+            self._confirmed = True
             return self.controls.on_controls(msg, awaited_usec) is not Outcome.STALE
         if mid == _ID_HEARTBEAT:
             self._controller_seen = True

@@ -227,13 +227,14 @@ def _sim_json(path: Path) -> dict:
 
 @pytest.mark.slow
 def test_lockstep_through_a_lossy_relay_completes(tmp_path, sim_factory):
-    """Each lost datagram costs one --lockstep-timeout and a resend; the run still ends
-    with every tick integrated. Expected timeouts: a round trip survives with (1−p)², so
+    """Each lost datagram costs one --resend-interval and a resend; the run still ends
+    with every tick integrated. Expected resends: a round trip survives with (1−p)², so
     ≈ n·q/(1−q) with q = 1 − 0.95² (resends can be lost too)."""
     n_ticks, p = 1000, 0.05
     faults = Faults(drop=p, jitter_s=0.002)
     sim, port = sim_factory(["--duration", str(n_ticks / 1000), "--lockstep-timeout",
-                             "0.01", "--json", str(tmp_path / "sim.json")])
+                             "0.01", "--resend-interval", "0.01", "--json",
+                             str(tmp_path / "sim.json")])
     with Relay(("127.0.0.1", port), to_vehicle=faults, to_daemon=faults, seed=3) as relay:
         fly = Proc(["fly", "paper", "--quiet", "--vehicle",
                     f"127.0.0.1:{relay.listen_address[1]}", "--duration",
@@ -247,8 +248,8 @@ def test_lockstep_through_a_lossy_relay_completes(tmp_path, sim_factory):
     assert st["ticks"] == n_ticks
     q = 1 - (1 - p) ** 2
     expected = n_ticks * q / (1 - q)
-    assert abs(st["lockstep_timeouts"] - expected) <= 5 * math.sqrt(expected) + 5, st
-    assert st["states_sent"] == n_ticks + st["lockstep_timeouts"]
+    assert abs(st["lockstep_resends"] - expected) <= 5 * math.sqrt(expected) + 5, st
+    assert st["states_sent"] == n_ticks + st["lockstep_resends"]
     summary = json.loads((tmp_path / "fly.json").read_text())
     assert summary["stats"]["failsafes"] == 0
 

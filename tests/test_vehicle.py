@@ -207,7 +207,7 @@ def test_gcs_commands_are_answered_before_the_flight_starts(gcs):
         assert (hb.type, hb.system_status) == (mav.MAV_TYPE_QUADROTOR, mav.MAV_STATE_STANDBY)
         cases = [  # (param1 unit, param2 type, param3 rotor, command) → result, field named
             (101, 4, 2, 420, mav.MAV_RESULT_ACCEPTED, None),
-            (101, 4, 2, 400, mav.MAV_RESULT_UNSUPPORTED, None),   # ARM_DISARM: not ours
+            (101, 4, 2, 22, mav.MAV_RESULT_UNSUPPORTED, None),    # NAV_TAKEOFF: not ours
             (100, 4, 2, 420, mav.MAV_RESULT_DENIED, "param1"),
             (101, 3, 2, 420, mav.MAV_RESULT_DENIED, "param2"),    # GARBAGE: not supported
             (101, 4, 5, 420, mav.MAV_RESULT_DENIED, "param3"),
@@ -314,13 +314,21 @@ def test_missing_reply_is_counted_and_the_state_resent_never_skipped(flight_fact
     u = hover_fraction(sc)
     pilot.fly(3, lambda o, e: [u] * 4)
     odom, _ = pilot.state()                  # tick 3: do not answer
-    again, _ = pilot.state(timeout_s=2.0)
+    t0 = time.monotonic()
+    again, _ = pilot.state(timeout_s=2.0)    # resent after the 20 ms resend interval,
+    resent_after_s = time.monotonic() - t0   # long before the 0.15 s give-up timeout
     assert again.time_usec == odom.time_usec == 3000
-    assert any("lockstep" in s for s in pilot.statustexts)
+    assert resent_after_s < 0.15
+    while not any("lockstep" in s for s in pilot.statustexts):   # then reported, once
+        pilot.state(timeout_s=2.0)
+    pilot.queue.clear()
     pilot.reply(again, [u] * 4)
     nxt, _ = pilot.state()
+    while nxt.time_usec == 3000:             # resends of tick 3 still in flight
+        nxt, _ = pilot.state()
     assert nxt.time_usec == 4000
-    assert flight.vehicle.stats.lockstep_timeouts == 1
+    st = flight.vehicle.stats
+    assert st.lockstep_timeouts == 1 and st.lockstep_resends >= 2
 
 
 def test_duration_ends_the_run_with_completed(flight_factory):
@@ -502,8 +510,11 @@ def _start_cli(*args: str) -> tuple[subprocess.Popen, Address]:
 @pytest.mark.slow
 def test_cli_flies_and_exits_cleanly_on_sigterm(tmp_path):
     report, run_mcap = tmp_path / "sim.json", tmp_path / "run.mcap"
+    # Exact frame counts below: no resend may interleave (a loaded machine can delay a
+    # reply past the 5 ms default), so the resend interval is the 2 s timeout here.
     proc, address = _start_cli("--set", "attack.rotor=0", "--duration", "0",
-                               "--json", str(report), "--mcap", str(run_mcap))
+                               "--json", str(report), "--mcap", str(run_mcap),
+                               "--resend-interval", "2", "--gcs", "none")
     pilot = Pilot(address)
     try:
         pilot.hello()

@@ -5,14 +5,17 @@ as two processes on free loopback ports in lockstep (``--realtime``: paced by th
 clock), both recording MCAP (``run.mcap`` from
 the vehicle: all traffic + ground truth; ``ctl.mcap`` from the controller: its traffic and
 state every tick), then writes the report PNGs and prints a summary (``--json``: one JSON
-object). Exit code 0 when the flight converged, 1 when it crashed or the detection was
-wrong, 2 for usage errors, 3 when a process failed to start.
+object). Exit code 0 when the flight converged (path distance within --bound over the last
+--window seconds) with the attack detected correctly and no false alarm, 1 otherwise, 2 for
+usage errors, 3 when the output directory is not writable or a process failed to start,
+130/143 when interrupted (SIGINT/SIGTERM: both children are stopped, never orphaned).
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import signal
 import sys
 from pathlib import Path
 from typing import Any
@@ -20,8 +23,10 @@ from typing import Any
 from harness.demo import run_demo
 from tfl_mav.build import scenario_path
 from tfl_mav.control.feasibility import check_scenario
+from tfl_mav.flightlog.metrics import DEFAULT_BOUND_M, DEFAULT_WINDOW_S
 from tfl_mav.link.signing import load_key
 from tfl_mav.scenario import ScenarioError, apply_overrides, load_scenario
+from tools.outputs import EXIT_IO, dir_problem
 
 __all__ = ["add_parser", "run"]
 
@@ -51,6 +56,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "to watch it live, e.g. in Foxglove")
     p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
     p.add_argument("--no-plots", action="store_true", help="skip the PNG report")
+    p.add_argument("--bound", type=float, default=DEFAULT_BOUND_M, metavar="M",
+                   help=f"converged: path distance ≤ M metres (default {DEFAULT_BOUND_M:g})")
+    p.add_argument("--window", type=float, default=DEFAULT_WINDOW_S, metavar="S",
+                   help=f"... over the last S seconds of sim time (default "
+                        f"{DEFAULT_WINDOW_S:g}; at most half the flight)")
     p.set_defaults(func=run)
 
 
@@ -67,6 +77,13 @@ def run(args: argparse.Namespace) -> int:
     except (ScenarioError, ValueError) as exc:
         print(f"tfl-mav demo: {exc}", file=sys.stderr)
         return 2
+    if not (args.bound > 0 and args.window > 0):
+        print("tfl-mav demo: --bound and --window must be > 0", file=sys.stderr)
+        return 2
+    problem = dir_problem(args.out, "--out")
+    if problem:
+        print(f"tfl-mav demo: {problem}", file=sys.stderr)
+        return EXIT_IO
     for warning in check_scenario(scenario):
         print(f"tfl-mav demo: warning: {warning}", file=sys.stderr)
     try:
@@ -74,7 +91,7 @@ def run(args: argparse.Namespace) -> int:
                            duration_s=args.duration, plots=not args.no_plots,
                            progress=not args.json, scenario=scenario,
                            key_file=args.key_file, foxglove=args.foxglove,
-                           realtime=args.realtime)
+                           realtime=args.realtime, bound_m=args.bound, window_s=args.window)
     except RuntimeError as exc:
         print(f"tfl-mav demo: {exc}", file=sys.stderr)
         return 3
@@ -82,15 +99,21 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=2))
     else:
         _print_summary(summary)
-    ok = (not summary["crashed"] and summary["false_alarms"] == 0
-          and (summary["detected_rotor"] == scenario.attack.rotor))
-    return 0 if ok else 1
+    if "signal" in summary:
+        return 128 + int(signal.Signals[summary["signal"]])
+    return 0 if success(summary, scenario.attack.rotor) else 1
+
+
+def success(m: dict[str, Any], attack_rotor: int) -> bool:
+    """The demo's verdict: converged, no crash, the attacked rotor found, no false alarm."""
+    return (bool(m.get("converged")) and not m["crashed"] and m.get("false_alarms") == 0
+            and m.get("detected_rotor") == attack_rotor)
 
 
 def _print_summary(m: dict[str, Any]) -> None:
     def mm(x: float | None) -> str:
         return f"{1000 * x:.3f} mm" if x is not None else "-"
-    status = "CRASHED: " + m["crash_reason"] if m["crashed"] else "converged"
+    status = "CRASHED: " + m["crash_reason"] if m["crashed"] else m["convergence"]
     print(f"tfl-mav demo: {status}; {m['sim_time_s']:.1f} s sim in {m['wall_time_s']:.1f} s "
           f"wall ({m['real_time_factor']}x real time)")
     print(f"  path distance: final {mm(m['final_path_distance_m'])}, last 10 s max "

@@ -19,6 +19,7 @@ from tfl_mav.daemon import TICK_FIELDS, TICK_SCHEMA, Daemon
 from tfl_mav.link.signing import load_key
 from tfl_mav.link.transport import LinkError, parse_address
 from tfl_mav.scenario import ScenarioError, apply_overrides, load_scenario
+from tools.outputs import file_problem
 
 __all__ = ["add_parser", "open_recorder", "run"]
 
@@ -35,9 +36,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("scenario", nargs="?", default="paper",
                    help="built-in scenario name or .toml path (default: paper); must match "
                         "the vehicle's")
-    p.add_argument("--vehicle", default="127.0.0.1:14540", metavar="HOST:PORT",
-                   help="the vehicle's control port (default 127.0.0.1:14540)")
-    p.add_argument("--bind", metavar="HOST:PORT", help="local address (default: ephemeral)")
+    p.add_argument("--vehicle", metavar="HOST:PORT",
+                   help="the vehicle's control port (default 127.0.0.1:14580, PX4 SITL's; "
+                        "127.0.0.1:14540 for `tfl-mav sim --legacy-ports`)")
+    p.add_argument("--bind", metavar="HOST:PORT",
+                   help="local address (default: 127.0.0.1:14540, PX4's offboard API port "
+                        "where the vehicle announces itself, when --vehicle is not given; "
+                        "else an ephemeral port)")
     p.add_argument("--key-file", metavar="PATH",
                    help="MAVLink 2 signing key (64 hex digits or 32 raw bytes, mode 600), the "
                         "same file as the vehicle's: sign everything, accept only frames "
@@ -67,8 +72,9 @@ def run(args: argparse.Namespace) -> int:
     prog = "tfl-mav fly"
     try:
         scenario = apply_overrides(load_scenario(args.scenario), args.settings)
-        vehicle = parse_address(args.vehicle, "--vehicle")
-        bind = parse_address(args.bind, "--bind") if args.bind else None
+        vehicle = parse_address(args.vehicle or "127.0.0.1:14580", "--vehicle")
+        bind = (parse_address(args.bind, "--bind") if args.bind
+                else None if args.vehicle else ("127.0.0.1", 14540))
         key = load_key(args.key_file) if args.key_file else None
         live = None
         if args.foxglove:
@@ -78,6 +84,10 @@ def run(args: argparse.Namespace) -> int:
     except (ScenarioError, ValueError, LinkError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
+    for path, option in ((args.summary_json, "--summary-json"), (args.mcap, "--mcap")):
+        if path and (problem := file_problem(path, option)):
+            print(f"{prog}: {problem}", file=sys.stderr)
+            return 3
     for warning in check_scenario(scenario):
         print(f"tfl-mav fly: warning: {warning}", file=sys.stderr)
     recorder = None

@@ -1,15 +1,17 @@
 """``tfl-mav inspect RUN.mcap``: what is in a flight log, and how the flight went.
 
 Channels with schema names, message counts, rates and time spans (log time = receipt
-clock, sim time = ``publish_time``), then a flight summary recomputed from the log alone:
+clock, sim time = ``publish_time``), then a flight summary recomputed from the log alone,
+with the same code as ``tfl-mav report`` and ``tfl-mav demo``
+(:func:`tfl_mav.flightlog.from_mcap.load_flight`, :func:`~tfl_mav.flightlog.flight.summarize`,
+:mod:`tfl_mav.flightlog.metrics`), so the three agree exactly:
 
-* path distance (m) from ``/sim/truth/state`` positions and the ``/scene/path`` polyline
-  (or ``/controller/state.path_distance_m`` when there is no ground truth); samples whose
-  values were not finite (left out of the log, see ``_nonfinite``) count as missing;
-* the attack from ``/sim/truth/attack``; detection from ``/controller/state.detected_rotor``
-  (first non-zero value: time, latency after the attack, rotor, early alarms);
-* saturation: ``/controller/state.saturated`` if recorded, else the fraction of
-  HIL_ACTUATOR_CONTROLS whose rotor commands ``controls[0..3]`` sit at 0 or 1.
+* a vehicle log (``/sim/truth/*`` and scenario metadata): the true path distance, the
+  convergence verdict, and, with ``ctl.mcap`` next to it, detection, false alarms and
+  saturation from the controller's ``/controller/state``;
+* a controller log alone (``ctl.mcap``): detection and saturation from its
+  ``/controller/state``, judged against the scenario in its metadata, and convergence on
+  the controller's *measured* path distance (labelled so).
 
 Works on damaged files (reads up to the damage and says so); ``--recover OUT`` rewrites
 what is readable as a valid file.
@@ -27,8 +29,12 @@ from typing import Any
 
 import numpy as np
 
+from tfl_mav.flightlog.flight import summarize
+from tfl_mav.flightlog.from_mcap import load_flight, scenario_from_log
 from tfl_mav.flightlog.logread import LogReader, recover
+from tfl_mav.flightlog.metrics import converged, detection, saturated_fraction
 from tfl_mav.flightlog.polyline import Polyline
+from tfl_mav.scenario import ScenarioError
 
 __all__ = ["add_parser", "inspect_log", "run"]
 
@@ -126,7 +132,7 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
         "channels": {topic: _channel_report(c) for topic, c in sorted(chans.items())},
         "metadata": {md.name: md.metadata for md in reader.metadata},
     }
-    report["flight"] = _flight_summary(series, path_points, sat_hil)
+    report["flight"] = _flight_summary(path, series, path_points, sat_hil)
     return report
 
 
@@ -168,7 +174,10 @@ def _distance_stats(t: np.ndarray, d: np.ndarray, source: str) -> dict[str, Any]
     if len(d) == 0:
         return {"path_distance_source": source}
     last = t >= t[-1] - _LAST_WINDOW_S
+    conv = converged(t, d)
     return {
+        **conv.as_dict(),
+        "convergence": conv.reason,
         "path_distance_source": source,
         "final_path_distance_m": _f(d[-1]),
         "max_path_distance_m": _f(np.max(d)),
@@ -178,16 +187,29 @@ def _distance_stats(t: np.ndarray, d: np.ndarray, source: str) -> dict[str, Any]
     }
 
 
-def _flight_summary(series: dict[str, list[Any]], path_points: list[list[float]] | None,
-                    sat_hil: list[int]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
+def _flight_summary(path: str | Path, series: dict[str, list[Any]],
+                    path_points: list[list[float]] | None, sat_hil: list[int]
+                    ) -> dict[str, Any]:
+    try:
+        sc = scenario_from_log(path)
+    except (ScenarioError, ValueError):
+        sc = None
     state = series.get("/sim/truth/state", [])
+    if state and sc is not None:
+        log, _ = load_flight(path, sc)
+        out = summarize(log)
+        out["path_distance_source"] = "truth position vs the scenario's path"
+        has_ctl = log.detected_rotor is not None
+        out["saturation_source"] = "/controller/state.saturated (ctl.mcap)" if has_ctl else None
+        if not has_ctl:
+            out["detection"] = "needs the controller's log (ctl.mcap next to this file)"
+        return out
+    out: dict[str, Any] = {}
     ctl = series.get("/controller/state", [])
     if state:
         out["sim_time_s"] = state[-1]["t_s"]
     elif ctl:
         out["sim_time_s"] = ctl[-1]["t_s"]
-    # path distance
     if state and path_points is not None and len(path_points) >= 2:
         pos = np.array([s.get("position_m", [np.nan] * 3) for s in state], dtype=float)
         t = np.array([s["t_s"] for s in state])
@@ -199,54 +221,37 @@ def _flight_summary(series: dict[str, list[Any]], path_points: list[list[float]]
         rows = [c for c in ctl if "path_distance_m" in c]
         t = np.array([c["t_s"] for c in rows])
         d = np.array([c["path_distance_m"] for c in rows], dtype=float)
-        out.update(_distance_stats(t, d, "/controller/state.path_distance_m"))
-    # attack (truth)
+        out.update(_distance_stats(t, d, "/controller/state.path_distance_m (measured)"))
+    attack_rotor = sc.attack.rotor if sc is not None else None
+    start = sc.attack.start_s if sc is not None and sc.attack.rotor else None
     attack = series.get("/sim/truth/attack", [])
-    start = next((a for a in attack if a["active"]), None)
-    out["attack_rotor"] = start["rotor"] if start else 0
-    out["attack_start_s"] = start["t_s"] if start else None
+    if attack and sc is None:   # no scenario: the ground truth says when and where
+        first = next((a for a in attack if a["active"]), None)
+        attack_rotor = first["rotor"] if first else 0
+        start = first["t_s"] if first else None
+    out["attack_rotor"] = attack_rotor
+    out["attack_start_s"] = start
     applied = [a["applied_n"] for a in attack if a["active"] and "applied_n" in a]
     out["attack_max_n"] = max(applied) if applied else None
     thrusts = series.get("/sim/truth/thrusts", [])
     values = [f for s in thrusts for f in s.get("thrust_n", ())]
     out["thrust_true_min_n"] = min(values) if values else None
     out["thrust_true_max_n"] = max(values) if values else None
-    # detection (controller)
-    out.update(_detection(ctl, out["attack_start_s"], out["attack_rotor"]))
-    # saturation
+    rows = [c for c in ctl if "detected_rotor" in c]
+    if rows and attack_rotor is not None:
+        out.update(detection([c["t_s"] for c in rows], [c["detected_rotor"] for c in rows],
+                             attack_rotor, start))
+    elif rows:
+        out["detection"] = "attack unknown (no scenario metadata): not judged"
     if any("saturated" in c for c in ctl):
-        flags = [bool(c["saturated"]) for c in ctl if "saturated" in c]
-        out["saturated_fraction"] = sum(flags) / len(flags)
+        out["saturated_fraction"] = saturated_fraction(
+            [float(bool(c["saturated"])) if "saturated" in c else math.nan for c in ctl])
         out["saturation_source"] = "/controller/state.saturated"
-    elif sat_hil[0]:
-        out["saturated_fraction"] = sat_hil[1] / sat_hil[0]
-        out["saturation_source"] = "HIL_ACTUATOR_CONTROLS controls[0..3] at 0 or 1"
     else:
         out["saturated_fraction"] = None
-        out["saturation_source"] = None
+        out["saturation_source"] = ("needs the controller's log (ctl.mcap)" if sat_hil[0]
+                                    else None)
     return out
-
-
-def _detection(ctl: list[dict[str, Any]], attack_start_s: float | None,
-               attack_rotor: int) -> dict[str, Any]:
-    rows = [(c["t_s"], c.get("detected_rotor") or 0) for c in ctl if "detected_rotor" in c]
-    if not rows:
-        return {"detected_rotor": None, "detection_time_s": None, "detection_latency_s": None,
-                "false_alarms": None}
-    # alarms = rising edges of detected_rotor (0 → non-zero)
-    alarms = [(t, r) for (t, r), (_, prev) in zip(rows, [(0.0, 0), *rows[:-1]], strict=True)
-              if r and not prev]
-    early = [a for a in alarms if attack_start_s is None or a[0] < attack_start_s]
-    late = [a for a in alarms if attack_start_s is not None and a[0] >= attack_start_s]
-    first = late[0] if late else None
-    return {
-        "detected_rotor": first[1] if first else 0,
-        "detection_time_s": first[0] if first else None,
-        "detection_latency_s": first[0] - attack_start_s if first and attack_start_s is not None
-        else None,
-        "detection_correct": bool(first and first[1] == attack_rotor) if attack_rotor else None,
-        "false_alarms": len(early),
-    }
 
 
 # ------------------------------------------------------------------ text output

@@ -22,6 +22,7 @@ from tfl_mav.build import scenario_path
 from tfl_mav.control.feasibility import check_scenario
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
+from tools.outputs import EXIT_IO, dir_problem
 
 __all__ = ["add_parser", "run"]
 
@@ -51,6 +52,9 @@ def run(args: argparse.Namespace) -> int:
     except (ScenarioError, TypeError) as exc:
         print(f"tfl-mav offline: scenario error: {exc}", file=sys.stderr)
         return 2
+    if args.plot and (problem := dir_problem(args.plot, "--plot")):
+        print(f"tfl-mav offline: {problem}", file=sys.stderr)
+        return EXIT_IO
     for warning in check_scenario(sc):
         print(f"tfl-mav offline: warning: {warning}", file=sys.stderr)
 

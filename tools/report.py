@@ -13,10 +13,10 @@ import sys
 from pathlib import Path
 
 from tfl_mav.flightlog.flight import summarize
-from tfl_mav.flightlog.from_mcap import flight_log_from_mcap
-from tfl_mav.flightlog.logread import LogReader
+from tfl_mav.flightlog.from_mcap import load_flight, scenario_from_log
 from tfl_mav.flightlog.plots import write_report
-from tfl_mav.scenario import Scenario, ScenarioError, load_scenario, scenario_from_dict
+from tfl_mav.scenario import ScenarioError, load_scenario
+from tools.outputs import EXIT_IO, dir_problem
 
 __all__ = ["add_parser", "run"]
 
@@ -33,29 +33,21 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _scenario_from_log(path: Path) -> Scenario:
-    reader = LogReader(path)
-    for _ in reader.records():   # metadata is written first: this stops early
-        for meta in reader.metadata:
-            if meta.name == "scenario" and "scenario_json" in meta.metadata:
-                data = json.loads(meta.metadata["scenario_json"])
-                data.pop("source", None)
-                return scenario_from_dict(data, source=f"{path} (metadata)")
-    raise ScenarioError("scenario", f"{path} has no scenario metadata: pass --scenario NAME")
-
-
 def run(args: argparse.Namespace) -> int:
     log_path = Path(args.log)
     if not log_path.exists():
         print(f"tfl-mav report: {log_path}: no such file", file=sys.stderr)
         return 3
+    problem = dir_problem(args.out, "--out")
+    if problem:
+        print(f"tfl-mav report: {problem}", file=sys.stderr)
+        return EXIT_IO
     try:
-        sc = load_scenario(args.scenario) if args.scenario else _scenario_from_log(log_path)
+        sc = load_scenario(args.scenario) if args.scenario else scenario_from_log(log_path)
     except (ScenarioError, OSError, ValueError) as exc:
         print(f"tfl-mav report: {exc}", file=sys.stderr)
         return 2
-    ctl = Path(args.ctl) if args.ctl else log_path.with_name("ctl.mcap")
-    log = flight_log_from_mcap(log_path, sc, ctl if ctl.exists() else None)
+    log, sc = load_flight(log_path, sc, args.ctl)
     if len(log["t_s"]) == 0:
         print(f"tfl-mav report: {log_path} has no /sim/truth data to plot", file=sys.stderr)
         return 1
@@ -65,5 +57,5 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps({**m, "plots": [str(f) for f in files]}, indent=2))
     else:
         print(f"tfl-mav report: {len(files)} figures in {args.out}/ "
-              f"({m['sim_time_s']:.1f} s of flight)")
+              f"({m['sim_time_s']:.1f} s of flight; {m['convergence']})")
     return 0

@@ -58,14 +58,30 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         epilog=epilog, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scenario", nargs="?", default="paper",
                    help="built-in scenario name or .toml path (default: paper)")
-    p.add_argument("--listen", default="127.0.0.1:14540", metavar="HOST:PORT",
-                   help="control port to bind (default 127.0.0.1:14540; port 0 = any free)")
-    p.add_argument("--gcs", metavar="HOST:PORT",
-                   help="send GCS telemetry to a ground station listening here "
-                        "(e.g. 127.0.0.1:14550 for QGroundControl or MAVProxy udpin)")
+    p.add_argument("--listen", metavar="HOST:PORT",
+                   help="control port to bind (default 127.0.0.1:14580 as PX4 SITL, "
+                        "127.0.0.1:14540 with --legacy-ports; port 0 = any free)")
+    p.add_argument("--controller", default="127.0.0.1:14540", metavar="HOST:PORT",
+                   help="where the offboard API listens: the vehicle announces itself there "
+                        "by HEARTBEAT until a controller answers (default 127.0.0.1:14540, "
+                        "PX4's offboard port: `tfl-mav fly` or mavsdk udpin://:14540)")
+    p.add_argument("--legacy-ports", action="store_true",
+                   help="the old direction: bind 127.0.0.1:14540 and announce nowhere; the "
+                        "controller sends first (tfl-mav fly --vehicle 127.0.0.1:14540)")
+    p.add_argument("--gcs", default="127.0.0.1:14550", metavar="HOST:PORT|none",
+                   help="send GCS telemetry to a ground station listening here and take its "
+                        "commands (default 127.0.0.1:14550 as PX4: QGroundControl, MAVProxy "
+                        "udpin:127.0.0.1:14550, mavsdk udpin://:14550); none = no GCS port")
     p.add_argument("--peer", metavar="HOST:PORT",
-                   help="only accept this controller address (default: the sender of the "
-                        "first HEARTBEAT)")
+                   help="only accept this controller address, whatever its HEARTBEAT says "
+                        "(default: the first sender that identifies as an offboard "
+                        "controller and sends HIL_ACTUATOR_CONTROLS)")
+    p.add_argument("--origin", metavar="LAT,LON,ALT",
+                   help="where local (0,0,0) is on Earth, for GLOBAL_POSITION_INT and "
+                        "HOME_POSITION (default 47.397742,8.545594,488: PX4 SITL's home)")
+    p.add_argument("--keep-alive", action="store_true",
+                   help="after a run ends (duration, crash), reset the vehicle and wait for "
+                        "the next controller instead of exiting; SIGINT/SIGTERM end it")
     p.add_argument("--realtime", action="store_true",
                    help="pace physics by the wall clock instead of lockstep")
     p.add_argument("--duration", type=float, metavar="S",
@@ -84,8 +100,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--json", metavar="FILE",
                    help="at exit, write the outcome and every counter as JSON to FILE")
     p.add_argument("--lockstep-timeout", type=float, default=2.0, metavar="S",
-                   help="lockstep: wall seconds to wait for a reply before resending the "
-                        "state and reporting it (default 2)")
+                   help="lockstep: wall seconds without a reply before reporting it "
+                        "(default 2)")
+    p.add_argument("--resend-interval", type=float, default=0.005, metavar="S",
+                   help="lockstep: wall seconds without a reply before resending the state "
+                        "(default 0.005: a lost datagram costs milliseconds; a spurious resend "
+                        "is answered with the same command, never a second step)")
     p.add_argument("--command-timeout", type=float, default=0.25, metavar="S",
                    help="real time: wall seconds without a valid command before the motors "
                         "are cut (default 0.25)")
@@ -101,8 +121,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from sitl.gcs import Origin
     from tfl_mav.link.signing import load_key
     from tfl_mav.link.transport import parse_address
+    from tools.outputs import file_problem
 
     prog = "tfl-mav sim"
     try:
@@ -113,9 +135,14 @@ def run(args: argparse.Namespace) -> int:
         print(f"{prog}: {exc}", file=sys.stderr)
         return EXIT_USAGE
     try:
-        listen = parse_address(args.listen, "--listen")
-        gcs = parse_address(args.gcs, "--gcs") if args.gcs else None
+        listen = parse_address(args.listen or ("127.0.0.1:14540" if args.legacy_ports
+                                               else "127.0.0.1:14580"), "--listen")
+        gcs = (parse_address(args.gcs, "--gcs")
+               if args.gcs and args.gcs.lower() != "none" else None)
         peer = parse_address(args.peer, "--peer") if args.peer else None
+        announce = (None if args.legacy_ports or peer is not None
+                    else parse_address(args.controller, "--controller"))
+        origin = Origin.parse(args.origin) if args.origin else Origin()
         duration = _duration(args.duration, scenario)
         key = load_key(args.key_file) if args.key_file else None
         live = None
@@ -123,29 +150,69 @@ def run(args: argparse.Namespace) -> int:
             from tfl_mav.flightlog.live import parse_live_address
 
             live = parse_live_address(args.foxglove)
+        args.live = live   # each flight's recorder serves it (--keep-alive: one at a time)
     except ValueError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return EXIT_USAGE
 
+    for path, option in ((args.json, "--json"), (args.mcap, "--mcap")):
+        problem = file_problem(path, option) if path else None
+        if problem:
+            print(f"{prog}: {problem}", file=sys.stderr)
+            return EXIT_LINK
+    extra = {"announce": announce, "origin": origin}
+    flight = 1
+    between: list[int] = []   # keep-alive: a signal between two flights ends the loop
+    args.pending_signals = between
+    previous = _install_signals(lambda signum, _f: between.append(signum))
+    try:
+        while True:
+            mcap = _numbered(args.mcap, flight)
+            code = _one_flight(args, scenario, listen, gcs, peer, duration, key, mcap, extra,
+                               prog)
+            listen = getattr(args, "bound_listen", listen)   # keep-alive: the same port
+            if not args.keep_alive or code not in (EXIT_OK, EXIT_CRASHED):
+                return code
+            if between:
+                return EXIT_SIGTERM if between[-1] == signal.SIGTERM else EXIT_SIGINT
+            flight += 1
+            print(f"{prog}: --keep-alive: vehicle reset; waiting for the next controller "
+                  f"(flight {flight})", flush=True)
+    finally:
+        _restore_signals(previous)
+
+
+def _numbered(path: str | None, flight: int) -> str | None:
+    """--keep-alive: flight n > 1 records to ``STEM-n.SUFFIX`` next to ``path``."""
+    if path is None or flight == 1:
+        return path
+    p = Path(path)
+    return str(p.with_name(f"{p.stem}-{flight}{p.suffix}"))
+
+
+def _one_flight(args: argparse.Namespace, scenario: Scenario, listen: Address,
+                gcs: Address | None, peer: Address | None, duration: float,
+                key: bytes | None, mcap: str | None, extra: dict[str, Any], prog: str) -> int:
     recorder = None
-    if args.mcap or live:
-        recorder, code = _open_recorder(args.mcap, scenario, prog, live)
+    live = getattr(args, "live", None)
+    if mcap or live:
+        recorder, code = _open_recorder(mcap, scenario, prog, live, duration)
         if recorder is None:
             return code
     try:
-        return _fly(args, scenario, listen, gcs, peer, duration, key, recorder, prog)
+        return _fly(args, scenario, listen, gcs, peer, duration, key, recorder, prog, extra)
     finally:
         if recorder is not None:
             recorder.close()
             if recorder.error:   # the flight went on (flight before logging); say so
-                print(f"{prog}: --mcap {args.mcap}: recording stopped early: "
+                print(f"{prog}: --mcap {mcap}: recording stopped early: "
                       f"{recorder.error}; the file holds what was flushed "
                       "(`tfl-mav inspect --recover` makes it whole)", file=sys.stderr)
 
 
 def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
          gcs: Address | None, peer: Address | None, duration: float, key: bytes | None,
-         recorder: Any, prog: str) -> int:
+         recorder: Any, prog: str, extra: dict[str, Any]) -> int:
     from sitl.vehicle import ExitStatus, Vehicle, truth_hook
     from tfl_mav.link.transport import LinkError
 
@@ -160,6 +227,7 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
         vehicle = Vehicle(
             scenario, listen=listen, gcs=gcs, peer=peer, realtime=args.realtime,
             lockstep_timeout_s=args.lockstep_timeout, command_timeout_s=args.command_timeout,
+            resend_interval_s=args.resend_interval, **extra,
             gcs_rate_hz=args.gcs_rate, allow_failure_injection=not args.no_failure_injection,
             key=key, on_frame=recorder.on_frame if recorder is not None else None,
             on_truth=truth_hook(recorder) if recorder is not None else None,
@@ -171,19 +239,28 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
         print(f"{prog}: {exc}", file=sys.stderr)
         return EXIT_USAGE
     holder["v"] = vehicle
+    args.bound_listen = vehicle.listen_address
     received: list[int] = []
+    pending = getattr(args, "pending_signals", None)   # keep-alive: shared with the loop
 
     def on_signal(signum: int, _frame: Any) -> None:
         received.append(signum)
+        if pending is not None and signum not in pending:
+            pending.append(signum)   # even after this flight ended: the loop stops too
         vehicle.stop()
 
     previous = _install_signals(on_signal)
+    for signum in pending or ():   # arrived while this flight was being built
+        on_signal(signum, None)
     try:
         host, port = vehicle.listen_address
         mode = "real time" if args.realtime else "lockstep"
         run_cfg = scenario.run
         length = "until interrupted" if math.isinf(duration) else f"{duration:g} s"
         gcs_text = f", GCS -> {gcs[0]}:{gcs[1]}" if gcs else ""
+        ann = extra.get("announce")
+        if ann is not None:
+            gcs_text += f", announcing to the controller at {ann[0]}:{ann[1]}"
         signed = ", MAVLink 2 signing on" if key is not None else ""
         print(f"{prog}: listening on {host}:{port} (control port), {mode}{signed}, scenario "
               f"{scenario.name!r}, physics {run_cfg.physics_hz:g} Hz, control "
@@ -232,7 +309,8 @@ def _duration(value: float | None, scenario: Scenario) -> float:
 
 
 def _open_recorder(path: str | None, scenario: Scenario, prog: str,
-                   live: tuple[str, int] | None = None) -> tuple[Any, int]:
+                   live: tuple[str, int] | None = None,
+                   duration: float = math.inf) -> tuple[Any, int]:
     """The MCAP recorder (``tfl_mav.flightlog.recorder_process``), imported only when asked
     for. It runs in a child process so recording costs the lockstep loop ~1 µs per call,
     and it finishes the file even if this process is killed. Returns (recorder, 0) or
@@ -264,6 +342,8 @@ def _open_recorder(path: str | None, scenario: Scenario, prog: str,
     # tools/report.py rebuilds the scenario from "scenario_json" (Scenario.to_dict()).
     recorder.metadata("scenario", {"name": scenario.name, "role": "vehicle",
                                    "scenario_json": json.dumps(scenario.to_dict())})
+    if math.isfinite(duration):   # tfl_mav.flightlog.metrics: a shorter log was interrupted
+        recorder.metadata("run", {"duration_s": repr(duration)})
     return recorder, EXIT_OK
 
 

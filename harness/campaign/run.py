@@ -38,18 +38,25 @@ def run_outcome(metrics: dict[str, Any], scenario: Scenario, *,
                 max_distance_m: float = SUCCESS_MAX_DISTANCE_M) -> tuple[bool, str]:
     """Did the run succeed, and if not, why (in words)?
 
-    The campaign's definition until a shared one of "converged" lands (issues #14/#15):
-    not crashed, the largest distance to the path over the last 10 s ≤ ``max_distance_m``,
+    Not crashed, not interrupted, converged in the sense of
+    :func:`tfl_mav.flightlog.metrics.converged` (largest distance to the path over the last
+    10 s, at most half the flight) with the campaign's bound ``max_distance_m``,
     and — when the attack was detected from rpm (``detected_rotor`` present) — the detected
     rotor is the attacked one (0 when there is no attack) with no false alarm.
     """
     if metrics.get("crashed"):
         return False, f"crashed: {metrics.get('crash_reason') or 'no reason logged'}"
-    dist = metrics.get("max_path_distance_last_10s_m")
+    # tfl_mav.flightlog.metrics.converged's window (10 s, at most half the flight) and its
+    # max distance, judged at the campaign's bound; older rows: the plain last 10 s.
+    if "interrupted" in (metrics.get("convergence") or ""):
+        return False, metrics["convergence"]
+    dist = metrics.get("convergence_max_distance_m",
+                       metrics.get("max_path_distance_last_10s_m"))
+    window = metrics.get("convergence_window_s") or 10.0
     if dist is None or not math.isfinite(dist):
-        return False, "the path distance was not finite over the last 10 s (path lost)"
+        return False, f"the path distance was not finite over the last {window:g} s (path lost)"
     if dist > max_distance_m:
-        return False, (f"off the path: {dist:.3g} m max distance over the last 10 s "
+        return False, (f"off the path: {dist:.3g} m max distance over the last {window:g} s "
                        f"> {max_distance_m:g} m")
     if metrics.get("detected_rotor") is not None:
         attacked = scenario.attack.rotor

@@ -2,7 +2,9 @@
 
 The offline runner fills a :class:`FlightLog` sample by sample; ``inspect``/``report``
 rebuild one from an MCAP file. :func:`summarize` turns either into the same metrics, so a
-number in the demo summary and the same number recomputed from the log agree by construction.
+number in the demo summary and the same number recomputed from the log agree by construction;
+the verdict numbers (convergence, detection, saturation) come from
+:mod:`tfl_mav.flightlog.metrics`.
 """
 
 from __future__ import annotations
@@ -13,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from tfl_mav.flightlog import metrics
 from tfl_mav.modes import Mode
 
 __all__ = ["FlightLog", "summarize"]
@@ -51,6 +54,11 @@ class FlightLog:
     wall_time_s: float = 0.0
     path_points_m: np.ndarray | None = None
     events: list[tuple[float, str]] = field(default_factory=list)
+    # For the verdict (tfl_mav.flightlog.metrics): the requested length, whether the run
+    # was cut short, and the controller's detected rotor per sample (None: not recorded).
+    duration_s: float | None = None
+    interrupted: bool = False
+    detected_rotor: np.ndarray | None = None
 
     def append(self, **sample: Any) -> None:
         for k, v in sample.items():
@@ -98,7 +106,7 @@ def summarize(log: FlightLog) -> dict[str, Any]:
         "rms_path_distance_last_10s_m": f(math.sqrt(float(np.mean(dist[last] ** 2)))),
         "thrust_min_n": float(np.min(cmd)),
         "thrust_max_n": float(np.max(cmd)),
-        "saturated_fraction": float(np.mean(log["saturated"])),
+        "saturated_fraction": metrics.saturated_fraction(log["saturated"]),
         "attack_rotor": log.attack_rotor,
         "attack_min_n": f(np.min(attacked[active])) if np.any(active) else None,
         "attack_max_n": f(np.max(attacked[active])) if np.any(active) else None,
@@ -106,4 +114,5 @@ def summarize(log: FlightLog) -> dict[str, Any]:
         "fallback_fraction": float(np.mean(log["mode"] == int(Mode.FALLBACK))),
         "wall_time_s": round(log.wall_time_s, 3),
         "real_time_factor": round(float(t[-1]) / log.wall_time_s, 2) if log.wall_time_s else None,
+        **metrics.flight_verdict(log),
     }

@@ -9,11 +9,13 @@ scenario's path, so it is the *true* distance, not the controller's measured one
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from mcap.records import Message
 
 from tfl_mav.airframe import mix
 from tfl_mav.build import scenario_path
@@ -21,9 +23,10 @@ from tfl_mav.control.paths import PathTracker
 from tfl_mav.flightlog.flight import FlightLog
 from tfl_mav.flightlog.logread import LogReader
 from tfl_mav.modes import Mode
-from tfl_mav.scenario import Scenario
+from tfl_mav.scenario import Scenario, ScenarioError, scenario_from_dict
 
-__all__ = ["controller_states", "flight_log_from_mcap"]
+__all__ = ["controller_states", "flight_log_from_mcap", "load_flight", "log_metadata",
+           "scenario_from_log"]
 
 _TRUTH = {"/sim/truth/state", "/sim/truth/thrusts", "/sim/truth/attack"}
 
@@ -53,6 +56,7 @@ def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,
     path = scenario_path(scenario)
     log.path_points_m = path.sample(400)
     tracker = PathTracker(path)
+    detected: list[int] = []
     yaw_prev: float | None = None
     yaw_unwrapped = 0.0
     for key in sorted(truth):
@@ -81,10 +85,52 @@ def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,
                                                                      th["thrust_n"]),
                    thrust_true_n=th["thrust_n"], attack_true_n=at["applied_n"],
                    attack_estimate_n=est if est is not None else math.nan, uf_n=uf,
-                   torque_nm=(tp, tq, tr), saturated=bool(c.get("saturated", False)),
+                   torque_nm=(tp, tq, tr),
+                   # no controller record for this tick: unknown, not "unsaturated"
+                   saturated=float(bool(c["saturated"])) if "saturated" in c else math.nan,
                    mode=int(Mode.parse(c.get("mode", "nominal"))))
+        detected.append(int(c.get("detected_rotor") or 0))
     log.finish()
+    if ctl:
+        log.detected_rotor = np.asarray(detected, dtype=int)
     if len(log["t_s"]):
         rates = np.abs(log["body_rates_radps"])
         log.crashed = bool(np.max(rates) > 300.0)
     return log
+
+
+def log_metadata(path: str | Path) -> dict[str, dict[str, str]]:
+    """The MCAP metadata records of ``path`` (name → key/value map)."""
+    reader = LogReader(path)
+    for rec in reader.records():   # metadata precedes the chunked messages: stop early
+        if isinstance(rec, Message):
+            break
+    return {md.name: dict(md.metadata) for md in reader.metadata}
+
+
+def scenario_from_log(path: str | Path) -> Scenario:
+    """The scenario a log was flown with (``scenario`` metadata: the vehicle writes
+    ``scenario_json``, the controller ``toml``, both ``Scenario.to_dict()`` as JSON);
+    :class:`ScenarioError` if there is none."""
+    meta = log_metadata(path).get("scenario", {})
+    text = meta.get("scenario_json") or meta.get("toml")
+    if not text:
+        raise ScenarioError("scenario", f"{path} has no scenario metadata: pass --scenario NAME")
+    data = json.loads(text)
+    data.pop("source", None)
+    return scenario_from_dict(data, source=f"{path} (metadata)")
+
+
+def load_flight(run_path: str | Path, scenario: Scenario | None = None,
+                ctl_path: str | Path | None = None) -> tuple[FlightLog, Scenario]:
+    """The flight of a vehicle log as ``report``, ``inspect`` and ``demo`` all see it:
+    scenario from the log unless given, the controller's log from ``ctl_path`` or
+    ``ctl.mcap`` next to it, the requested duration from the ``run`` metadata."""
+    run_path = Path(run_path)
+    sc = scenario if scenario is not None else scenario_from_log(run_path)
+    ctl = Path(ctl_path) if ctl_path else run_path.with_name("ctl.mcap")
+    log = flight_log_from_mcap(run_path, sc, ctl if ctl.exists() and ctl != run_path else None)
+    duration = log_metadata(run_path).get("run", {}).get("duration_s")
+    if duration is not None:
+        log.duration_s = float(duration)
+    return log, sc

@@ -11,6 +11,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 
 from tfl_mav.flightlog.flight import FlightLog
+from tfl_mav.flightlog.metrics import DEFAULT_BOUND_M
 
 __all__ = ["write_report"]
 
@@ -58,10 +59,13 @@ def write_report(log: FlightLog, out_dir: Path, title: str = "") -> list[Path]:
     d = np.maximum(log["path_distance_m"], 1e-12)
     ax.semilogy(t, d, color="tab:blue")
     _mark_attack(ax, log)
+    ax.axhline(DEFAULT_BOUND_M, color="tab:green", ls="--", lw=1,
+               label=f"convergence bound {DEFAULT_BOUND_M:g} m")
     ax.set_xlabel("t (s)")
-    ax.set_ylabel("distance to path (m)")
+    ax.set_ylabel("distance to path ‖y‖_γ (m)")
     ax.grid(True, which="both", alpha=0.3)
-    ax.set_title("‖y‖_γ" + suffix)
+    ax.set_title("Distance to the path γ, ‖y‖_γ" + suffix)
+    ax.legend(loc="upper right", fontsize=8)
     save(fig, "path_distance.png")
 
     # 3. Attack signal: applied and estimated.
@@ -70,32 +74,42 @@ def write_report(log: FlightLog, out_dir: Path, title: str = "") -> list[Path]:
     est = log["attack_estimate_n"]
     if np.any(np.isfinite(est)):
         ax.plot(t, est, "--", label="estimate from rpm", color="k", lw=0.8)
-    ax.axhline(log.thrust_max_n, color="gray", ls=":", lw=1)
+    ax.axhline(log.thrust_max_n, color="gray", ls=":", lw=1,
+               label=f"rotor limit f_max = {log.thrust_max_n:g} N")
+    _mark_attack(ax, log)
     ax.set_xlabel("t (s)")
     ax.set_ylabel("thrust (N)")
-    ax.set_title(f"Attack on rotor {log.attack_rotor}" + suffix)
+    ax.set_title((f"Attack on rotor {log.attack_rotor}" if log.attack_rotor
+                  else "No attack") + suffix)
     ax.legend()
     save(fig, "attack.png")
 
     # 4. Rotor thrusts with their limits.
     fig, ax = plt.subplots(figsize=(7, 4))
     ft = log["thrust_true_n"]
-    for i in range(4):
+    attacked = log.attack_rotor
+    # The attacked rotor is drawn last and thicker, so the others never hide it.
+    order = [i for i in range(4) if i + 1 != attacked] + ([attacked - 1] if attacked else [])
+    for i in order:
         if len(ft):
-            ax.plot(t, ft[:, i], lw=0.9, label=f"f{i + 1}")
-    ax.axhline(0.0, color="gray", ls=":", lw=1)
-    ax.axhline(log.thrust_max_n, color="gray", ls=":", lw=1, label="limits")
+            hit = i + 1 == attacked
+            ax.plot(t, ft[:, i], lw=2.2 if hit else 0.9, zorder=3 if hit else 2,
+                    color="tab:red" if hit else None,
+                    label=f"f{i + 1} (attacked)" if hit else f"f{i + 1}")
+    ax.axhline(0.0, color="gray", ls=":", lw=1, label="limits 0 and f_max")
+    ax.axhline(log.thrust_max_n, color="gray", ls=":", lw=1)
     _mark_attack(ax, log)
     ax.set_xlabel("t (s)")
-    ax.set_ylabel("rotor thrust (N)")
-    ax.set_title("Rotor thrusts" + suffix)
-    ax.legend(ncol=3)
+    ax.set_ylabel("true rotor thrust f_i (N)")
+    ax.set_title("Rotor thrusts f1-f4" + (f", rotor {attacked} attacked" if attacked else "")
+                 + suffix)
+    ax.legend(ncol=3, fontsize=8)
     save(fig, "rotor_thrusts.png")
 
     # 5. Total thrust and torques.
     fig, (a1, a2) = plt.subplots(2, 1, figsize=(7, 5), sharex=True)
     a1.plot(t, log["uf_n"], color="tab:blue")
-    a1.set_ylabel("u_f (N)")
+    a1.set_ylabel("total thrust u_f (N)")
     tq = log["torque_nm"]
     for i, name in enumerate(("τ_p", "τ_q", "τ_r")):
         if len(tq):
@@ -103,7 +117,7 @@ def write_report(log: FlightLog, out_dir: Path, title: str = "") -> list[Path]:
     a2.set_ylabel("torque (N m)")
     a2.set_xlabel("t (s)")
     a2.legend()
-    a1.set_title("Thrust and torques" + suffix)
+    a1.set_title("Total thrust u_f and body torques τ_p, τ_q, τ_r (eq. (4))" + suffix)
     save(fig, "thrust_torques.png")
 
     # 6. Linear and angular velocities.
@@ -113,14 +127,14 @@ def write_report(log: FlightLog, out_dir: Path, title: str = "") -> list[Path]:
     for i, name in enumerate(("v_x", "v_y", "v_z")):
         if len(vel):
             a1.plot(t, vel[:, i], lw=0.9, label=name)
-    a1.set_ylabel("velocity (m/s)")
+    a1.set_ylabel("velocity, paper frame (m/s)")
     a1.legend()
     for i, name in enumerate(("p", "q", "r")):
         if len(rates):
             a2.plot(t, rates[:, i], lw=0.9, label=name)
-    a2.set_ylabel("body rates (rad/s)")
+    a2.set_ylabel("body rates p, q, r (rad/s)")
     a2.set_xlabel("t (s)")
     a2.legend()
-    a1.set_title("Velocities" + suffix)
+    a1.set_title("Linear velocity and body rates" + suffix)
     save(fig, "velocities.png")
     return files

@@ -4,9 +4,11 @@ Small and explicit on purpose (unlike pymavlink's ``mavutil``, which hides socke
 retries behind one object):
 
 * **One peer.** Either fixed (:meth:`Link.connect`) or learned from the first valid
-  ``HEARTBEAT`` that reaches a listening socket (:meth:`Link.listen`). Datagrams from any
-  other address are counted (``foreign``) and dropped; nothing is ever sent anywhere but the
-  peer. Once the peer's system id is known (from its first HEARTBEAT, or pinned), frames
+  ``HEARTBEAT`` that reaches a listening socket (:meth:`Link.listen`) and that ``admit``
+  (if given) accepts; refused ones are counted (``refused_peer``). Datagrams from any
+  other address are counted (``foreign``) and dropped; nothing is sent anywhere but the
+  peer, except by :meth:`Link.send_to` (e.g. telling a refused sender why). Once the
+  peer's system id is known (from its first HEARTBEAT, or pinned), frames
   with another sysid are dropped too (``wrong_sysid``).
 * **MAVLink 2 only.** Frames with the MAVLink 1 magic (0xFE) are rejected and counted
   (``mavlink1``): accepting them would let anyone downgrade a signed link to an unsigned
@@ -64,6 +66,8 @@ __all__ = [
 
 Address = tuple[str, int]
 FrameHook = Callable[[str, bytes, Any, float], None]
+Admit = Callable[[Any, "Address"], "str | None"]
+"""``admit(heartbeat, sender) -> None`` (may pin) or the reason it may not."""
 
 MAGIC_V2 = 0xFD
 MAGIC_V1 = 0xFE
@@ -105,6 +109,7 @@ class LinkStats:
     foreign: int = 0            # datagram from an address that is not the peer
     wrong_sysid: int = 0        # from the peer's address, but another system id
     no_peer: int = 0            # listening, peer not learned yet, and not a HEARTBEAT
+    refused_peer: int = 0       # HEARTBEAT from a would-be peer that ``admit`` refused
     # local trouble
     recv_errors: int = 0
     send_errors: int = 0
@@ -112,7 +117,7 @@ class LinkStats:
 
     _REJECTIONS = ("garbage", "mavlink1", "truncated", "bad_flags", "bad_crc",
                    "bad_signature", "unsigned", "replayed", "bad_timestamp", "malformed",
-                   "unknown_id", "foreign", "wrong_sysid", "no_peer")
+                   "unknown_id", "foreign", "wrong_sysid", "no_peer", "refused_peer")
 
     @property
     def rejected(self) -> int:
@@ -184,7 +189,8 @@ class Link:
                  on_frame: FrameHook | None = None,
                  clock: Callable[[], float] = time.time,
                  max_datagrams_per_recv: int = 256,
-                 signing: Signing | None = None, link_id: int = 0) -> None:
+                 signing: Signing | None = None, link_id: int = 0,
+                 admit: Admit | None = None) -> None:
         """Wrap a bound UDP socket (made non-blocking here).
 
         ``peer``: fixed peer address, or None to learn it from the first valid HEARTBEAT.
@@ -192,6 +198,8 @@ class Link:
         ``max_datagrams_per_recv`` bounds one :meth:`recv` so a flood cannot starve the caller.
         ``signing``: sign everything sent (with ``link_id``, 0-255) and accept only frames
         that verify; None (default): neither.
+        ``admit(msg, addr)``: asked before a HEARTBEAT pins the peer (or its sysid); returns
+        None to accept or the reason it is refused (counted ``refused_peer``, not pinned).
         """
         sock.setblocking(False)
         self._sock = sock
@@ -207,6 +215,7 @@ class Link:
         self._poll.register(sock, select.POLLIN)
         self._decode = self.parser.decode
         self.signing = signing
+        self.admit = admit
         if signing is not None:
             signing.configure_packer(self.packer, link_id)
 
@@ -295,6 +304,25 @@ class Link:
             now = self.clock()
             for raw, msg in zip(frames, msgs, strict=True):
                 self.on_frame("tx", raw, msg, now)
+        return n
+
+    def send_to(self, address: Address, msg: Any) -> int:
+        """Send ``msg`` to ``address`` instead of the peer (e.g. to tell a refused sender
+        why). Returns the bytes sent, 0 if the OS refused."""
+        packer = self.packer
+        if self.signing is not None:
+            self.signing.stamp(packer)
+        raw = msg.pack(packer)
+        packer.seq = (packer.seq + 1) & 0xFF
+        try:
+            n = self._sock.sendto(raw, address)
+        except OSError:
+            self.stats.send_errors += 1
+            return 0
+        self.stats.tx_frames += 1
+        self.stats.tx_bytes += n
+        if self.on_frame is not None:
+            self.on_frame("tx", raw, msg, self.clock())
         return n
 
     def send_raw(self, raw: bytes) -> int:
@@ -396,14 +424,18 @@ class Link:
             if msg is None:
                 continue
             sysid = msg.get_srcSystem()
-            if self.peer is None:
-                if msg.get_msgId() != _HEARTBEAT_ID or (
-                        self.peer_sysid is not None and sysid != self.peer_sysid):
+            if self.peer is None or self.peer_sysid is None:
+                is_heartbeat = msg.get_msgId() == _HEARTBEAT_ID
+                if self.peer is None and (not is_heartbeat or (
+                        self.peer_sysid is not None and sysid != self.peer_sysid)):
                     self._reject("no_peer", raw)
                     continue
-                self.peer = peer = addr
-            if self.peer_sysid is None:
-                if msg.get_msgId() == _HEARTBEAT_ID:
+                if is_heartbeat and self.admit is not None and self.admit(msg, addr):
+                    self._reject("refused_peer", raw)
+                    continue
+                if self.peer is None:
+                    self.peer = peer = addr
+                if is_heartbeat:
                     self.peer_sysid = sysid
             elif sysid != self.peer_sysid:
                 self._reject("wrong_sysid", raw)

@@ -1,0 +1,146 @@
+"""A flight's verdict numbers, computed one way for every tool (one source of truth).
+
+``tfl-mav demo``, ``report``, ``inspect``, ``offline`` and the campaigns all get
+detection, false alarms, saturation and convergence from here, on the same data, so they
+agree exactly (tests/test_metrics_agree.py flies a demo and compares all three).
+
+* **Convergence** (:func:`converged`): the flight converged when the distance to the path
+  ‖y‖_γ stayed ≤ ``bound_m`` over the last ``window_s`` of sim time. Defaults 2 cm over
+  10 s. *Clipping rule*: a flight shorter than twice the window is judged on its second
+  half (``window = min(window_s, length / 2)``), so a short flight is never judged on its
+  first metres of transient. A crashed, interrupted (shorter than its requested duration)
+  or empty flight, or one with a non-finite distance in the window, never converged.
+* **Detection** (:func:`detection`) from the controller's per-tick ``detected_rotor``
+  (``/controller/state``): an *alarm* is a rising edge 0 → rotor. The detection is the
+  first alarm at or after the attack start; a *false alarm* is an alarm before the attack
+  starts, with no attack at all, or naming another rotor than the attacked one.
+* **Saturation** (:func:`saturated_fraction`): the fraction of control ticks on which the
+  controller's allocation saturated (its ``saturated`` flag). Ticks with no controller
+  record are unknown, not "unsaturated": without the controller's log the fraction is None.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+
+__all__ = ["DEFAULT_BOUND_M", "DEFAULT_WINDOW_S", "Convergence", "converged", "detection",
+           "flight_verdict", "saturated_fraction"]
+
+DEFAULT_WINDOW_S = 10.0
+DEFAULT_BOUND_M = 0.02
+
+
+@dataclass(frozen=True)
+class Convergence:
+    """The verdict of :func:`converged` and what it was judged on."""
+
+    converged: bool
+    bound_m: float
+    window_s: float                 # the window actually used (after clipping)
+    max_distance_m: float | None    # max ‖y‖_γ over that window (None: no finite sample)
+    reason: str                     # "converged (≤ 0.020 m over the last 10.0 s)" or why not
+
+    def as_dict(self) -> dict[str, Any]:
+        return {f"convergence_{k}" if k != "converged" else k: v
+                for k, v in asdict(self).items()}
+
+
+def converged(t_s: Sequence[float] | np.ndarray, distance_m: Sequence[float] | np.ndarray, *,
+              bound_m: float = DEFAULT_BOUND_M, window_s: float = DEFAULT_WINDOW_S,
+              duration_s: float | None = None, crashed: bool = False,
+              interrupted: bool = False, dt_s: float = 0.0) -> Convergence:
+    """Did the flight converge? See the module docstring for the rule.
+
+    ``duration_s``: the requested flight length; a log ending more than 1.5 ``dt_s`` (control
+    periods) short of it was interrupted. ``crashed``/``interrupted``: what the caller knows.
+    """
+    t = np.asarray(t_s, dtype=float)
+    d = np.asarray(distance_m, dtype=float)
+    length = float(t[-1] - t[0]) if len(t) else 0.0
+    window = min(window_s, length / 2.0)
+
+    def verdict(ok: bool, max_d: float | None, reason: str) -> Convergence:
+        return Convergence(ok, bound_m, window, max_d, reason)
+
+    if len(t) == 0:
+        return verdict(False, None, "not converged: no samples")
+    last = d[t >= t[-1] - window]
+    max_d = float(np.max(last)) if np.all(np.isfinite(last)) else None
+    if crashed:
+        return verdict(False, max_d, "not converged: the vehicle crashed")
+    # The last sample may be one period before the end (the state the last command
+    # answered): 1.5 periods of slack, so only a genuinely shortened run counts.
+    ended_early = (duration_s is not None
+                   and float(t[-1]) < duration_s - 1.5 * max(dt_s, 1e-6))
+    if interrupted or ended_early:
+        of = f" of {duration_s:g} s" if duration_s is not None else ""
+        return verdict(False, max_d, f"not converged: interrupted at t = {t[-1]:.3f} s{of}")
+    if max_d is None:
+        return verdict(False, None, "not converged: path distance not finite (diverged)")
+    over = f"over the last {window:.1f} s"
+    if max_d <= bound_m:
+        return verdict(True, max_d, f"converged (≤ {bound_m:g} m {over})")
+    return verdict(False, max_d, f"not converged: {max_d:.4f} m > {bound_m:g} m {over}")
+
+
+def detection(t_s: Sequence[float], detected_rotor: Sequence[int], attack_rotor: int,
+              attack_start_s: float | None) -> dict[str, Any]:
+    """Detection metrics from the controller's per-tick ``detected_rotor`` (0 = none).
+
+    ``attack_rotor`` 0 = no attack; ``attack_start_s`` None when unknown (then every alarm
+    is judged only by its rotor). Keys: detected_rotor, detection_time_s,
+    detection_latency_s, detection_correct (None without an attack), false_alarms,
+    missed_detection.
+    """
+    alarms = []
+    prev = 0
+    for t, r in zip(t_s, detected_rotor, strict=True):
+        r = int(r or 0)
+        if r and not prev:
+            alarms.append((float(t), r))
+        prev = r
+    start = attack_start_s if attack_start_s is not None and math.isfinite(
+        attack_start_s) else None
+    late = [a for a in alarms if attack_rotor and (start is None or a[0] >= start - 1e-9)]
+    first = late[0] if late else None
+    false_alarms = sum(1 for a in alarms
+                       if not attack_rotor or a[1] != attack_rotor
+                       or (start is not None and a[0] < start - 1e-9))
+    return {
+        "detected_rotor": first[1] if first else 0,
+        "detection_time_s": first[0] if first else None,
+        "detection_latency_s": (first[0] - start if first and start is not None else None),
+        "detection_correct": (bool(first and first[1] == attack_rotor) if attack_rotor
+                              else None),
+        "false_alarms": false_alarms,
+        "missed_detection": bool(attack_rotor) and first is None,
+    }
+
+
+def saturated_fraction(flags: Sequence[float] | np.ndarray) -> float | None:
+    """Fraction of ticks with a saturated allocation; NaN entries (no controller record
+    for that tick) are left out; None when no tick is known."""
+    f = np.asarray(flags, dtype=float)
+    known = f[np.isfinite(f)]
+    return float(np.mean(known != 0.0)) if len(known) else None
+
+
+def flight_verdict(log: Any, *, bound_m: float = DEFAULT_BOUND_M,
+                   window_s: float = DEFAULT_WINDOW_S) -> dict[str, Any]:
+    """Convergence and (if the controller's detections are in the log) detection of a
+    :class:`~tfl_mav.flightlog.flight.FlightLog`: the keys every summary carries."""
+    t = log["t_s"]
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
+    conv = converged(t, log["path_distance_m"], bound_m=bound_m, window_s=window_s,
+                     duration_s=log.duration_s, crashed=log.crashed,
+                     interrupted=log.interrupted, dt_s=dt)
+    out = {**conv.as_dict(), "convergence": conv.reason}
+    if log.detected_rotor is not None:
+        start = log.attack_start_s if math.isfinite(log.attack_start_s) else None
+        out.update(detection(t, log.detected_rotor, log.attack_rotor, start))
+    return out
