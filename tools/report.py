@@ -15,7 +15,6 @@ from pathlib import Path
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.flightlog.from_mcap import flight_log_from_mcap
 from tfl_mav.flightlog.logread import LogReader
-from tfl_mav.flightlog.plots import write_report
 from tfl_mav.scenario import Scenario, ScenarioError, load_scenario, scenario_from_dict
 
 __all__ = ["add_parser", "run"]
@@ -55,6 +54,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"tfl-mav report: {exc}", file=sys.stderr)
         return 2
     ctl = Path(args.ctl) if args.ctl else log_path.with_name("ctl.mcap")
+    from tfl_mav.flightlog.plots import write_report   # matplotlib: ~1 s, only here
+
     log = flight_log_from_mcap(log_path, sc, ctl if ctl.exists() else None)
     if len(log["t_s"]) == 0:
         print(f"tfl-mav report: {log_path} has no /sim/truth data to plot", file=sys.stderr)
