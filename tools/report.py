@@ -54,7 +54,7 @@ def run(args: argparse.Namespace) -> int:
         print(f"tfl-mav report: {exc}", file=sys.stderr)
         return 2
     ctl = Path(args.ctl) if args.ctl else log_path.with_name("ctl.mcap")
-    from tfl_mav.flightlog.plots import write_report   # matplotlib: ~1 s, only here
+    from tfl_mav.flightlog.plots import write_report  # matplotlib: ~1 s, only here
 
     log = flight_log_from_mcap(log_path, sc, ctl if ctl.exists() else None)
     if len(log["t_s"]) == 0:
