@@ -176,15 +176,20 @@ def paper_from_odometry(msg: object) -> State:
     norm = math.sqrt(sum(c * c for c in qn))
     if abs(norm - 1.0) > 1e-3:
         raise ValueError(f"ODOMETRY.q: not a unit quaternion (|q| = {norm:.6f})")
-    q_ned_frd = [c / norm for c in qn]
-    q_enu_flu = quaternion_ned_frd_to_enu_flu(q_ned_frd)
-    position = ned_to_enu((m.x, m.y, m.z))
+    w, x, y, z = (c / norm for c in qn)
+    s = _SQRT1_2
+    q_enu_flu = (s * (w + z), s * (x + y), s * (x - y), s * (w - z))   # the involution
+    # Floats, not 3-vectors (this runs every tick in the daemon), except the one product
+    # numpy computes differently (BLAS, fused multiply-add) from a float sum: kept as it
+    # was, so the state is the same to the bit.
     if m.child_frame_id == MAV_FRAME_BODY_FRD:
-        velocity = rotation_from_quaternion(q_enu_flu) @ frd_to_flu((m.vx, m.vy, m.vz))
+        velocity = (rotation_from_quaternion(q_enu_flu)
+                    @ np.array((float(m.vx), -float(m.vy), -float(m.vz)))).tolist()
     elif m.child_frame_id == MAV_FRAME_LOCAL_NED:
-        velocity = ned_to_enu((m.vx, m.vy, m.vz))
+        velocity = [float(m.vy), float(m.vx), -float(m.vz)]
     else:
         raise ValueError("ODOMETRY.child_frame_id: expected MAV_FRAME_BODY_FRD (12) or "
                          f"MAV_FRAME_LOCAL_NED (1), got {m.child_frame_id}")
-    rates = frd_to_flu((m.rollspeed, m.pitchspeed, m.yawspeed))
-    return State(position, velocity, q_enu_flu, rates, int(m.time_usec))
+    return State((float(m.y), float(m.x), -float(m.z)), velocity, q_enu_flu,
+                 (float(m.rollspeed), -float(m.pitchspeed), -float(m.yawspeed)),
+                 int(m.time_usec))
