@@ -72,6 +72,87 @@ def bench_physics(n_steps: int) -> dict[str, float]:
     return {"rk4_step_us": rk4_us, "sim_tick_us": tick_us, "state_build_pack_us": publish_us}
 
 
+def bench_breakdown(n_ticks: int) -> dict[str, float]:
+    """µs per control tick of each piece of the lockstep loop, in-process, over a closed-loop
+    hover flight (paper scenario, no attack): thread CPU time, mean of ``n_ticks``."""
+    import copy
+
+    from sitl.vehicle import Vehicle
+    from tfl_mav.flight_computer import FlightComputer
+    from tfl_mav.frames import paper_from_odometry
+    from tfl_mav.link.transport import Link
+    from tfl_mav.scenario import load_scenario
+
+    sc = load_scenario("paper").replace(**{"attack.rotor": 0})
+    vehicle = Vehicle(sc, listen=("127.0.0.1", 0))
+    sim, report = vehicle.sim, vehicle.report
+    vehicle.control_link.peer = None                  # pack only: counted unsent
+    fc = FlightComputer(sc, attack_info="detector")
+    detector = copy.deepcopy(fc.detector)
+    daemon_link = Link.listen(("127.0.0.1", 0), src_system=1, src_component=191,
+                              peer=("127.0.0.1", 9))
+    sim_link = Link.listen(("127.0.0.1", 0), src_system=1, src_component=1,
+                           peer=("127.0.0.1", 9))
+    sender = ("127.0.0.1", 9)
+    acc: dict[str, float] = dict.fromkeys(
+        ("physics + motors + attacker", "sensor sampling", "state messages built",
+         "pack ODOMETRY + ESC (Link)", "parse ODOMETRY + ESC (Link)",
+         "frame conversion (paper_from_odometry)", "detector", "law + detector (step)",
+         "pack HIL_ACTUATOR_CONTROLS (Link)", "parse HIL_ACTUATOR_CONTROLS (Link)"), 0.0)
+    cpu = time.thread_time
+    applied = list(sim.rotor_commands_n)
+    hil_bytes: list[bytes] = []
+    daemon_link._sock.close()                         # never sends; pack through send()
+    daemon_link._sendto = lambda raw, msg: hil_bytes.append(raw) or len(raw)  # type: ignore
+    for _ in range(n_ticks):
+        t0 = cpu()
+        odom, esc = report.update()
+        t1 = cpu()
+        vehicle.control_link.send_many((odom, esc))
+        t2 = cpu()
+        raw = b"".join(m.pack(sim_link.packer) for m in (odom, esc))
+        t2b = cpu()
+        out: list = []
+        daemon_link._ingest(raw, sender, out)
+        t3 = cpu()
+        state = paper_from_odometry(out[0])
+        t4 = cpu()
+        rpm = [float(r) for r in out[1].rpm]
+        detector.update(sim.time_s, rpm, applied)
+        t5 = cpu()
+        res = fc.step(sim.time_s, state, rpm, applied)
+        t6 = cpu()
+        hil = mav.MAVLink_hil_actuator_controls_message(
+            out[0].time_usec, [f / sc.vehicle.thrust_max_n for f in res.thrust_n]
+            + [0.0] * 12, 128, 1)
+        t6b = cpu()
+        daemon_link.send(hil)
+        t7 = cpu()
+        back: list = []
+        sim_link._ingest(hil_bytes.pop(), sender, back)
+        t8 = cpu()
+        sim.set_command(res.thrust_n)
+        applied = list(sim.rotor_commands_n)
+        t9 = cpu()
+        sim.step_control_period()
+        t10 = cpu()
+        sim._measure()                                 # once more, timed alone
+        t11 = cpu()
+        acc["state messages built"] += t1 - t0
+        acc["pack ODOMETRY + ESC (Link)"] += t2 - t1
+        acc["parse ODOMETRY + ESC (Link)"] += t3 - t2b
+        acc["frame conversion (paper_from_odometry)"] += t4 - t3
+        acc["detector"] += t5 - t4
+        acc["law + detector (step)"] += t6 - t5
+        acc["pack HIL_ACTUATOR_CONTROLS (Link)"] += t7 - t6b
+        acc["parse HIL_ACTUATOR_CONTROLS (Link)"] += t8 - t7
+        acc["physics + motors + attacker"] += (t10 - t9) - (t11 - t10)
+        acc["sensor sampling"] += t11 - t10
+    vehicle.close()
+    sim_link.close()
+    return {k: 1e6 * v / n_ticks for k, v in acc.items()}
+
+
 # ---------------------------------------------------------------------------- clients
 def _client_socket() -> socket.socket:
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -222,6 +303,7 @@ def main() -> int:
         parser.error(f"--ticks: must be > {WARMUP_TICKS}")
 
     physics = bench_physics(20000)
+    breakdown = bench_breakdown(3000)
     pingpong = bench_pingpong(args.ticks)
     vehicle = bench_vehicle(args.ticks)
     with tempfile.TemporaryDirectory() as tmp:
@@ -254,6 +336,10 @@ def main() -> int:
           f"{os.cpu_count()} cpus)")
     for name, value in rows:
         print(f"  {name:<{width}}  {value:>14}")
+    print("\nper-tick breakdown (µs, in-process, thread CPU time)")
+    for name, us in breakdown.items():
+        print(f"  {name:<{width}}  {us:>11.1f} µs")
+    print(f"  {'total':<{width}}  {sum(breakdown.values()):>11.1f} µs")
     print("\nissue #13 (same-run ratios to the bare ping-pong)        now    goal")
     print(f"  full lockstep loop (sim + daemon + both MCAP recorders)  {ratio_full:5.2f}  ≥ 0.5")
     print(f"  lockstep sim + bare client, no MCAP                      {ratio:5.2f}  ≥ 0.7")
@@ -261,7 +347,8 @@ def main() -> int:
         Path(args.json).write_text(json.dumps({
             "ticks": args.ticks, "python": platform.python_version(), "cpus": os.cpu_count(),
             "physics": physics, "lockstep": vehicle, "lockstep_mcap": recorded,
-            "full_loop": full, "pingpong": pingpong, "pingpong_after": pingpong_after,
+            "breakdown_us": breakdown, "full_loop": full, "pingpong": pingpong,
+            "pingpong_after": pingpong_after,
             "ratio_lockstep_to_pingpong": ratio,
             "ratio_full_loop_to_pingpong": ratio_full}, indent=2))
     return 0

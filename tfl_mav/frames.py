@@ -34,7 +34,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from tfl_mav.geometry import rotation_from_quaternion
+from tfl_mav.geometry import rotation_rows
 from tfl_mav.state import State
 
 __all__ = [
@@ -62,6 +62,7 @@ P_ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 Q_FLU_TO_FRD = np.diag([1.0, -1.0, -1.0])
 
 _SQRT1_2 = math.sqrt(0.5)
+_ODOMETRY_FLOATS = ("x", "y", "z", "vx", "vy", "vz", "rollspeed", "pitchspeed", "yawspeed")
 
 
 # ---------------------------------------------------------------------------- vectors
@@ -164,14 +165,19 @@ def paper_from_odometry(msg: object) -> State:
     that is not (close to) unit length; the caller counts and drops the message.
     """
     m = msg
-    names = ("x", "y", "z", "vx", "vy", "vz", "rollspeed", "pitchspeed", "yawspeed")
-    for name in names:
-        if not math.isfinite(getattr(m, name)):
-            raise ValueError(f"ODOMETRY.{name}: not finite ({getattr(m, name)})")
+    # One sum tells whether all nine are finite (NaN/inf propagate); only a failure, or a
+    # finite sum that overflowed, walks the fields to name the culprit.
+    if not math.isfinite(m.x + m.y + m.z + m.vx + m.vy + m.vz + m.rollspeed + m.pitchspeed
+                         + m.yawspeed):
+        for name in _ODOMETRY_FLOATS:
+            if not math.isfinite(getattr(m, name)):
+                raise ValueError(f"ODOMETRY.{name}: not finite ({getattr(m, name)})")
     if m.frame_id != MAV_FRAME_LOCAL_NED:
         raise ValueError(f"ODOMETRY.frame_id: expected MAV_FRAME_LOCAL_NED (1), got {m.frame_id}")
     qn = [float(c) for c in m.q]
-    if not all(math.isfinite(c) for c in qn):
+    qw, qx, qy, qz = qn
+    if not (math.isfinite(qw) and math.isfinite(qx) and math.isfinite(qy)
+            and math.isfinite(qz)):
         raise ValueError(f"ODOMETRY.q: not finite ({qn})")
     norm = math.sqrt(sum(c * c for c in qn))
     if abs(norm - 1.0) > 1e-3:
@@ -183,7 +189,7 @@ def paper_from_odometry(msg: object) -> State:
     # numpy computes differently (BLAS, fused multiply-add) from a float sum: kept as it
     # was, so the state is the same to the bit.
     if m.child_frame_id == MAV_FRAME_BODY_FRD:
-        velocity = (rotation_from_quaternion(q_enu_flu)
+        velocity = (np.array(rotation_rows(q_enu_flu))   # = rotation_from_quaternion
                     @ np.array((float(m.vx), -float(m.vy), -float(m.vz)))).tolist()
     elif m.child_frame_id == MAV_FRAME_LOCAL_NED:
         velocity = [float(m.vy), float(m.vx), -float(m.vz)]
