@@ -145,10 +145,6 @@ class RecoveryLaw:
         self.projector = PathProjector(path) if path is not None else None
         self.hold_m: list[float] | None = None    # held point (None: follow the path)
         self._gains: dict[tuple[int, bool], np.ndarray] = {}
-        # Import scipy's solvers now, not at the first LQR design: that import takes
-        # 0.3-0.9 s, which mid-flight is a control gap (a 1 kHz daemon stalls right after
-        # the attack is found). Start-up pays it instead; the gains are the same.
-        import scipy.linalg  # noqa: F401
 
     # ------------------------------------------------------------------ targets
     def hold(self, position_m: Sequence[float]) -> None:
