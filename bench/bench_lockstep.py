@@ -8,8 +8,11 @@ Measures, on this machine:
 2. lockstep: ticks/s of ``tfl-mav sim`` (a subprocess, 1 kHz physics and control) flown by
    the lockstep client of the tests (:class:`harness.pilot.Pilot`: our Link, hover
    commands), without and with ``--mcap`` recording;
-3. ceiling: a bare two-process pymavlink UDP ping-pong (ODOMETRY out, HIL_ACTUATOR_CONTROLS
-   back, nothing else), and the ratio of (2) to it.
+3. the full loop: ``tfl-mav sim --mcap`` flown by ``tfl-mav fly --mcap`` (the controller
+   daemon: law, detector, both MCAP recorders), ticks per wall second of the flight as the
+   simulator reports it;
+4. ceiling: a bare two-process pymavlink UDP ping-pong (ODOMETRY out, HIL_ACTUATOR_CONTROLS
+   back, nothing else), and issue #13's same-run ratios of (2) and (3) to it.
 
 Usage: ``python bench/bench_lockstep.py [--ticks N] [--json FILE]`` from the repository root.
 """
@@ -21,6 +24,7 @@ import json
 import math
 import os
 import platform
+import re
 import socket
 import subprocess
 import sys
@@ -31,7 +35,7 @@ from pathlib import Path
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from harness.pilot import Pilot, hover_controls
-from harness.processes import popen_sim
+from harness.processes import CLI, popen_sim
 
 WARMUP_TICKS = 200
 
@@ -66,6 +70,87 @@ def bench_physics(n_steps: int) -> dict[str, float]:
     publish_us = (time.perf_counter() - t0) / n_steps * 1e6
     vehicle.close()
     return {"rk4_step_us": rk4_us, "sim_tick_us": tick_us, "state_build_pack_us": publish_us}
+
+
+def bench_breakdown(n_ticks: int) -> dict[str, float]:
+    """µs per control tick of each piece of the lockstep loop, in-process, over a closed-loop
+    hover flight (paper scenario, no attack): thread CPU time, mean of ``n_ticks``."""
+    import copy
+
+    from sitl.vehicle import Vehicle
+    from tfl_mav.flight_computer import FlightComputer
+    from tfl_mav.frames import paper_from_odometry
+    from tfl_mav.link.transport import Link
+    from tfl_mav.scenario import load_scenario
+
+    sc = load_scenario("paper").replace(**{"attack.rotor": 0})
+    vehicle = Vehicle(sc, listen=("127.0.0.1", 0))
+    sim, report = vehicle.sim, vehicle.report
+    vehicle.control_link.peer = None                  # pack only: counted unsent
+    fc = FlightComputer(sc, attack_info="detector")
+    detector = copy.deepcopy(fc.detector)
+    daemon_link = Link.listen(("127.0.0.1", 0), src_system=1, src_component=191,
+                              peer=("127.0.0.1", 9))
+    sim_link = Link.listen(("127.0.0.1", 0), src_system=1, src_component=1,
+                           peer=("127.0.0.1", 9))
+    sender = ("127.0.0.1", 9)
+    acc: dict[str, float] = dict.fromkeys(
+        ("physics + motors + attacker", "sensor sampling", "state messages built",
+         "pack ODOMETRY + ESC (Link)", "parse ODOMETRY + ESC (Link)",
+         "frame conversion (paper_from_odometry)", "detector", "law + detector (step)",
+         "pack HIL_ACTUATOR_CONTROLS (Link)", "parse HIL_ACTUATOR_CONTROLS (Link)"), 0.0)
+    cpu = time.thread_time
+    applied = list(sim.rotor_commands_n)
+    hil_bytes: list[bytes] = []
+    daemon_link._sock.close()                         # never sends; pack through send()
+    daemon_link._sendto = lambda raw, msg: hil_bytes.append(raw) or len(raw)  # type: ignore
+    for _ in range(n_ticks):
+        t0 = cpu()
+        odom, esc = report.update()
+        t1 = cpu()
+        vehicle.control_link.send_many((odom, esc))
+        t2 = cpu()
+        raw = b"".join(m.pack(sim_link.packer) for m in (odom, esc))
+        t2b = cpu()
+        out: list = []
+        daemon_link._ingest(raw, sender, out)
+        t3 = cpu()
+        state = paper_from_odometry(out[0])
+        t4 = cpu()
+        rpm = [float(r) for r in out[1].rpm]
+        detector.update(sim.time_s, rpm, applied)
+        t5 = cpu()
+        res = fc.step(sim.time_s, state, rpm, applied)
+        t6 = cpu()
+        hil = mav.MAVLink_hil_actuator_controls_message(
+            out[0].time_usec, [f / sc.vehicle.thrust_max_n for f in res.thrust_n]
+            + [0.0] * 12, 128, 1)
+        t6b = cpu()
+        daemon_link.send(hil)
+        t7 = cpu()
+        back: list = []
+        sim_link._ingest(hil_bytes.pop(), sender, back)
+        t8 = cpu()
+        sim.set_command(res.thrust_n)
+        applied = list(sim.rotor_commands_n)
+        t9 = cpu()
+        sim.step_control_period()
+        t10 = cpu()
+        sim._measure()                                 # once more, timed alone
+        t11 = cpu()
+        acc["state messages built"] += t1 - t0
+        acc["pack ODOMETRY + ESC (Link)"] += t2 - t1
+        acc["parse ODOMETRY + ESC (Link)"] += t3 - t2b
+        acc["frame conversion (paper_from_odometry)"] += t4 - t3
+        acc["detector"] += t5 - t4
+        acc["law + detector (step)"] += t6 - t5
+        acc["pack HIL_ACTUATOR_CONTROLS (Link)"] += t7 - t6b
+        acc["parse HIL_ACTUATOR_CONTROLS (Link)"] += t8 - t7
+        acc["physics + motors + attacker"] += (t10 - t9) - (t11 - t10)
+        acc["sensor sampling"] += t11 - t10
+    vehicle.close()
+    sim_link.close()
+    return {k: 1e6 * v / n_ticks for k, v in acc.items()}
 
 
 # ---------------------------------------------------------------------------- clients
@@ -175,6 +260,33 @@ def bench_vehicle(n_ticks: int, mcap: Path | None = None) -> dict[str, float]:
     return result
 
 
+_SIM_RESULT_RE = re.compile(r"(\d+) ticks, ([\d.]+) s sim in ([\d.]+) s wall")
+
+
+def bench_full_loop(n_ticks: int, out_dir: Path, scenario: str = "paper") -> dict[str, float]:
+    """``tfl-mav sim --mcap`` + ``tfl-mav fly --mcap`` (the daemon), as ``tfl-mav demo``
+    runs them; ticks per wall second from the simulator's own count (the clock starts when
+    the controller connects, so start-up is not counted)."""
+    duration = f"{n_ticks / 1000.0:g}"
+    proc, address = popen_sim(["--duration", duration, "--mcap", str(out_dir / "run.mcap")],
+                              scenario)
+    try:
+        fly = subprocess.run([*CLI, "fly", scenario, "--vehicle", f"{address[0]}:{address[1]}",
+                              "--duration", duration, "--mcap", str(out_dir / "ctl.mcap"),
+                              "--quiet"], capture_output=True, text=True, timeout=600)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    match = _SIM_RESULT_RE.search(out + err)
+    if match is None:
+        raise RuntimeError(f"no result line from sim (fly exit {fly.returncode}):\n{out}{err}"
+                           f"{fly.stderr}")
+    ticks, wall = int(match.group(1)), float(match.group(3))
+    return {"ticks": ticks, "seconds": wall, "ticks_per_s": ticks / wall,
+            "real_time_factor": ticks / wall / 1000.0}
+
+
 # ---------------------------------------------------------------------------- main
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
@@ -191,37 +303,54 @@ def main() -> int:
         parser.error(f"--ticks: must be > {WARMUP_TICKS}")
 
     physics = bench_physics(20000)
+    breakdown = bench_breakdown(3000)
+    pingpong = bench_pingpong(args.ticks)
     vehicle = bench_vehicle(args.ticks)
     with tempfile.TemporaryDirectory() as tmp:
         recorded = bench_vehicle(args.ticks, Path(tmp) / "run.mcap")
         recorded["mcap_bytes"] = (Path(tmp) / "run.mcap").stat().st_size
-    pingpong = bench_pingpong(args.ticks)
-    ratio = vehicle["ticks_per_s"] / pingpong["ticks_per_s"]
+    with tempfile.TemporaryDirectory() as tmp:
+        full = bench_full_loop(args.ticks, Path(tmp))
+    pingpong_after = bench_pingpong(args.ticks)     # before and after: the load drifts
+    ceiling = 0.5 * (pingpong["ticks_per_s"] + pingpong_after["ticks_per_s"])
+    ratio = vehicle["ticks_per_s"] / ceiling
+    ratio_full = full["ticks_per_s"] / ceiling
     rows = [
         ("physics: RK4 step (1 ms, rk4_step alone)", f"{physics['rk4_step_us']:.1f} µs"),
         ("physics: simulator control tick (motors+attacker+RK4+sensors)",
          f"{physics['sim_tick_us']:.1f} µs"),
         ("vehicle: build + pack ODOMETRY + ESC_TELEMETRY",
          f"{physics['state_build_pack_us']:.1f} µs"),
-        ("lockstep: tfl-mav sim + harness Pilot (our Link)",
+        ("ceiling: bare pymavlink UDP ping-pong (mean of before/after)",
+         f"{ceiling:.0f} ticks/s"),
+        ("lockstep: tfl-mav sim + harness Pilot (our Link), no MCAP",
          f"{vehicle['ticks_per_s']:.0f} ticks/s"),
-        ("lockstep: real-time factor at 1 kHz", f"{vehicle['real_time_factor']:.1f}x"),
-        ("lockstep with --mcap (recorder child process)",
+        ("lockstep with sim --mcap (recorder child process)",
          f"{recorded['ticks_per_s']:.0f} ticks/s"),
-        ("ceiling: bare pymavlink UDP ping-pong", f"{pingpong['ticks_per_s']:.0f} ticks/s"),
-        ("ratio lockstep / ceiling", f"{ratio:.2f}"),
+        ("full loop: sim --mcap + fly --mcap (daemon, law, detector)",
+         f"{full['ticks_per_s']:.0f} ticks/s"),
+        ("full loop: real-time factor at 1 kHz", f"{full['real_time_factor']:.2f}x"),
     ]
     width = max(len(name) for name, _ in rows)
     print(f"bench_lockstep ({args.ticks} ticks, python {platform.python_version()}, "
           f"{os.cpu_count()} cpus)")
     for name, value in rows:
         print(f"  {name:<{width}}  {value:>14}")
+    print("\nper-tick breakdown (µs, in-process, thread CPU time)")
+    for name, us in breakdown.items():
+        print(f"  {name:<{width}}  {us:>11.1f} µs")
+    print(f"  {'total':<{width}}  {sum(breakdown.values()):>11.1f} µs")
+    print("\nissue #13 (same-run ratios to the bare ping-pong)        now    goal")
+    print(f"  full lockstep loop (sim + daemon + both MCAP recorders)  {ratio_full:5.2f}  ≥ 0.5")
+    print(f"  lockstep sim + bare client, no MCAP                      {ratio:5.2f}  ≥ 0.7")
     if args.json:
         Path(args.json).write_text(json.dumps({
             "ticks": args.ticks, "python": platform.python_version(), "cpus": os.cpu_count(),
             "physics": physics, "lockstep": vehicle, "lockstep_mcap": recorded,
-            "pingpong": pingpong,
-            "ratio_lockstep_to_pingpong": ratio}, indent=2))
+            "breakdown_us": breakdown, "full_loop": full, "pingpong": pingpong,
+            "pingpong_after": pingpong_after,
+            "ratio_lockstep_to_pingpong": ratio,
+            "ratio_full_loop_to_pingpong": ratio_full}, indent=2))
     return 0
 
 

@@ -78,8 +78,8 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
             log.events.append((sim.time_s, text))
         sim.set_command(res.thrust_n)
         applied = list(sim.rotor_commands_n)
-        st = sim.state
-        yaw = yaw_from_quaternion(st.quaternion_wxyz)
+        x = sim.state_vector
+        yaw = yaw_from_quaternion(x[6:10])
         if yaw_prev is not None:
             yaw_unwrapped += math.remainder(yaw - yaw_prev, math.tau)
         else:
@@ -87,14 +87,12 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
         yaw_prev = yaw
         true_f = sim.rotor_thrusts_n
         uf, tp, tq, tr = mix(sim.params, true_f)
-        log.append(t_s=sim.time_s, position_m=st.position_m, velocity_mps=st.velocity_mps,
-                   body_rates_radps=st.body_rates_radps, yaw_rad=yaw_unwrapped,
-                   path_distance_m=out.path_distance_m, thrust_cmd_n=res.thrust_n,
-                   thrust_req_n=(res.thrust_requested_n if res.thrust_requested_n is not None
-                                 else res.thrust_n),
-                   thrust_true_n=true_f, attack_true_n=att.applied_n if att.rotor else 0.0,
-                   attack_estimate_n=res.attack_estimate_n, uf_n=uf, torque_nm=(tp, tq, tr),
-                   saturated=any(out.saturated), mode=int(out.mode))
+        log.append_row((   # SERIES order
+            sim.time_s, x[0:3], x[3:6], x[10:13], yaw_unwrapped, out.path_distance_m,
+            res.thrust_n,
+            res.thrust_requested_n if res.thrust_requested_n is not None else res.thrust_n,
+            true_f, att.applied_n if att.rotor else 0.0, res.attack_estimate_n, uf,
+            (tp, tq, tr), any(out.saturated), int(out.mode)))
         detected.append(fc.detected_rotor)
         sim.step_control_period()
         reason = sim.crash_reason()

@@ -34,7 +34,7 @@ from typing import NamedTuple
 
 import numpy as np
 
-from tfl_mav.geometry import rotation_from_quaternion
+from tfl_mav.geometry import rotation_rows
 from tfl_mav.state import State
 
 __all__ = [
@@ -62,6 +62,7 @@ P_ENU_TO_NED = np.array([[0.0, 1.0, 0.0], [1.0, 0.0, 0.0], [0.0, 0.0, -1.0]])
 Q_FLU_TO_FRD = np.diag([1.0, -1.0, -1.0])
 
 _SQRT1_2 = math.sqrt(0.5)
+_ODOMETRY_FLOATS = ("x", "y", "z", "vx", "vy", "vz", "rollspeed", "pitchspeed", "yawspeed")
 
 
 # ---------------------------------------------------------------------------- vectors
@@ -164,27 +165,37 @@ def paper_from_odometry(msg: object) -> State:
     that is not (close to) unit length; the caller counts and drops the message.
     """
     m = msg
-    names = ("x", "y", "z", "vx", "vy", "vz", "rollspeed", "pitchspeed", "yawspeed")
-    for name in names:
-        if not math.isfinite(getattr(m, name)):
-            raise ValueError(f"ODOMETRY.{name}: not finite ({getattr(m, name)})")
+    # One sum tells whether all nine are finite (NaN/inf propagate); only a failure, or a
+    # finite sum that overflowed, walks the fields to name the culprit.
+    if not math.isfinite(m.x + m.y + m.z + m.vx + m.vy + m.vz + m.rollspeed + m.pitchspeed
+                         + m.yawspeed):
+        for name in _ODOMETRY_FLOATS:
+            if not math.isfinite(getattr(m, name)):
+                raise ValueError(f"ODOMETRY.{name}: not finite ({getattr(m, name)})")
     if m.frame_id != MAV_FRAME_LOCAL_NED:
         raise ValueError(f"ODOMETRY.frame_id: expected MAV_FRAME_LOCAL_NED (1), got {m.frame_id}")
     qn = [float(c) for c in m.q]
-    if not all(math.isfinite(c) for c in qn):
+    qw, qx, qy, qz = qn
+    if not (math.isfinite(qw) and math.isfinite(qx) and math.isfinite(qy)
+            and math.isfinite(qz)):
         raise ValueError(f"ODOMETRY.q: not finite ({qn})")
     norm = math.sqrt(sum(c * c for c in qn))
     if abs(norm - 1.0) > 1e-3:
         raise ValueError(f"ODOMETRY.q: not a unit quaternion (|q| = {norm:.6f})")
-    q_ned_frd = [c / norm for c in qn]
-    q_enu_flu = quaternion_ned_frd_to_enu_flu(q_ned_frd)
-    position = ned_to_enu((m.x, m.y, m.z))
+    w, x, y, z = (c / norm for c in qn)
+    s = _SQRT1_2
+    q_enu_flu = (s * (w + z), s * (x + y), s * (x - y), s * (w - z))   # the involution
+    # Floats, not 3-vectors (this runs every tick in the daemon), except the one product
+    # numpy computes differently (BLAS, fused multiply-add) from a float sum: kept as it
+    # was, so the state is the same to the bit.
     if m.child_frame_id == MAV_FRAME_BODY_FRD:
-        velocity = rotation_from_quaternion(q_enu_flu) @ frd_to_flu((m.vx, m.vy, m.vz))
+        velocity = (np.array(rotation_rows(q_enu_flu))   # = rotation_from_quaternion
+                    @ np.array((float(m.vx), -float(m.vy), -float(m.vz)))).tolist()
     elif m.child_frame_id == MAV_FRAME_LOCAL_NED:
-        velocity = ned_to_enu((m.vx, m.vy, m.vz))
+        velocity = [float(m.vy), float(m.vx), -float(m.vz)]
     else:
         raise ValueError("ODOMETRY.child_frame_id: expected MAV_FRAME_BODY_FRD (12) or "
                          f"MAV_FRAME_LOCAL_NED (1), got {m.child_frame_id}")
-    rates = frd_to_flu((m.rollspeed, m.pitchspeed, m.yawspeed))
-    return State(position, velocity, q_enu_flu, rates, int(m.time_usec))
+    return State((float(m.y), float(m.x), -float(m.z)), velocity, q_enu_flu,
+                 (float(m.rollspeed), -float(m.pitchspeed), -float(m.yawspeed)),
+                 int(m.time_usec))

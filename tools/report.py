@@ -14,7 +14,6 @@ from pathlib import Path
 
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.flightlog.from_mcap import load_flight, scenario_from_log
-from tfl_mav.flightlog.plots import write_report
 from tfl_mav.scenario import ScenarioError, load_scenario
 from tools.outputs import EXIT_IO, dir_problem
 
@@ -47,6 +46,8 @@ def run(args: argparse.Namespace) -> int:
     except (ScenarioError, OSError, ValueError) as exc:
         print(f"tfl-mav report: {exc}", file=sys.stderr)
         return 2
+    from tfl_mav.flightlog.plots import write_report  # matplotlib: ~1 s, only here
+
     log, sc = load_flight(log_path, sc, args.ctl)
     if len(log["t_s"]) == 0:
         print(f"tfl-mav report: {log_path} has no /sim/truth data to plot", file=sys.stderr)

@@ -64,6 +64,13 @@ class FlightLog:
         for k, v in sample.items():
             self.data[k].append(v)
 
+    def append_row(self, row: tuple[Any, ...]) -> None:
+        """One sample, values in :data:`SERIES` order (the offline loop's per-tick call:
+        no keyword dict built every tick)."""
+        data = self.data
+        for key, value in zip(SERIES, row, strict=True):
+            data[key].append(value)
+
     def finish(self) -> FlightLog:
         for k in SERIES:
             self.data[k] = np.asarray(self.data[k], dtype=float)

@@ -14,7 +14,9 @@ retries behind one object):
   (``mavlink1``): accepting them would let anyone downgrade a signed link to an unsigned
   one later.
 * **One datagram at a time.** Each datagram is framed here and every frame is handed to
-  pymavlink's ``decode`` (which checks length and CRC; never the signature, see below).
+  pymavlink's ``decode`` (which checks length and CRC; never the signature, see below),
+  except the per-tick messages, which :mod:`tfl_mav.link.codec` packs and decodes ~3×
+  faster into the very same bytes and message objects.
   Nothing is carried over between datagrams, so a truncated datagram cannot swallow the
   start of the next good one, as happens when datagrams are concatenated into one stream
   parser (``parse_buffer``). Every rejection is counted by reason in :class:`LinkStats`;
@@ -50,6 +52,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
+from tfl_mav.link.codec import FastCodec
 from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.link.signing import Signing
 
@@ -78,6 +81,7 @@ _IFLAG_SIGNED = 0x01
 _MIN_FRAME_V2 = _HEADER_LEN_V2 + _CRC_LEN
 _MAX_DATAGRAM = 65535
 _HEARTBEAT_ID = mav.MAVLINK_MSG_ID_HEARTBEAT
+_CODEC = FastCodec()      # stateless: the hot messages' compiled layouts, shared
 
 
 class LinkError(Exception):
@@ -214,6 +218,7 @@ class Link:
         self._poll = select.poll()
         self._poll.register(sock, select.POLLIN)
         self._decode = self.parser.decode
+        self._codec = _CODEC
         self.signing = signing
         self.admit = admit
         if signing is not None:
@@ -267,7 +272,7 @@ class Link:
         packer = self.packer
         if self.signing is not None:
             self.signing.stamp(packer)
-        raw = msg.pack(packer)
+        raw = self._codec.pack(msg, packer) or msg.pack(packer)
         packer.seq = (packer.seq + 1) & 0xFF
         return self._sendto(raw, msg)
 
@@ -286,8 +291,9 @@ class Link:
         if self.signing is not None:
             self.signing.stamp(packer)
         frames = []
+        fast = self._codec.pack
         for msg in msgs:
-            frames.append(msg.pack(packer))
+            frames.append(fast(msg, packer) or msg.pack(packer))
             packer.seq = (packer.seq + 1) & 0xFF
         st = self.stats
         if self.peer is None:
@@ -459,7 +465,9 @@ class Link:
                 self._reject(reason, raw)
                 return None
         try:
-            msg = self._decode(bytearray(raw))
+            msg = self._codec.decode(raw, self.parser)
+            if msg is None:
+                msg = self._decode(bytearray(raw))
         except mav.MAVError as exc:
             text = exc.message
             reason = ("bad_crc" if "CRC" in text
