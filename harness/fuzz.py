@@ -32,7 +32,12 @@ endpoint in any frame.
 
 Inputs the protocol defines as *ending* the run (a HEARTBEAT with MAV_STATE_POWEROFF or
 EMERGENCY to the daemon, an accepted MAV_CMD_INJECT_FAILURE to the vehicle) are not sent:
-they are legitimate commands, not bad input. They are counted in ``skipped``.
+they are legitimate commands, not bad input. Nor are states the daemon must take as
+genuine: a state whose time is a plausible successor of the newest one (it would be
+flown, and answered instead of the completer), or one that confirms a new time line (a
+restart, see the daemon's "Restart"). They are counted in ``skipped``. The daemon's
+``extreme_state`` batches are a single absurd state at the completer's time, flown by the
+law (and answered, even when the law raises).
 """
 
 from __future__ import annotations
@@ -70,7 +75,7 @@ LINK_REASONS = ("garbage", "mavlink1", "truncated", "bad_flags", "bad_crc", "bad
 VEHICLE_REJECTS = ("rejected_controls", "stale_controls", "commands_not_for_us",
                    "commands_denied", "commands_unsupported")
 VEHICLE_ACCEPTS = ("controls_applied", "commands_accepted")
-DAEMON_REJECTS = ("bad_states",)
+DAEMON_REJECTS = ("bad_states", "implausible_states", "old_states", "repeated_states")
 DAEMON_ACCEPTS = ("states", "esc_reports", "ticks", "ignored_messages")
 
 MAX_UDP_PAYLOAD = 65507     # IPv4: 65535 − 20 (IP header) − 8 (UDP header)
@@ -277,20 +282,29 @@ def _inject_ok(p1: float, p2: float, p3: float) -> bool:
 
 
 class DaemonModel:
-    """What :class:`~tfl_mav.daemon.Daemon` counts for each datagram from its vehicle."""
+    """What :class:`~tfl_mav.daemon.Daemon` (in lockstep) counts for each datagram from its
+    vehicle, including how it classifies a complete state against its watermark."""
 
     def __init__(self) -> None:
+        from tfl_mav import daemon
         from tfl_mav.frames import paper_from_odometry
 
         self.link = LinkModel(VEHICLE_SYSID)
         self._paper = paper_from_odometry
-        self.pending = False
+        self._ahead = round(daemon._AHEAD_S * 1e6)
+        self._back = round(daemon._BACKSTEP_S * 1e6)
+        self._confirm = daemon._JUMP_CONFIRM
+        self._old_max = daemon._RESTART_OLD_STATES
+        self.pending: int | None = None     # time_usec of a state awaiting its ESC report
+        self.watermark = -1
+        self.jump = (-1, 0)                 # last implausible time, how many in a row
+        self.old_in_row = 0
 
     def save(self) -> Any:
-        return self.pending
+        return self.pending, self.watermark, self.jump, self.old_in_row
 
     def restore(self, saved: Any) -> None:
-        self.pending = saved
+        self.pending, self.watermark, self.jump, self.old_in_row = saved
 
     def expect(self, data: bytes) -> Counter[str]:
         c: Counter[str] = Counter()
@@ -302,6 +316,36 @@ class DaemonModel:
                 self._message(outcome, c)
         return c
 
+    def _complete(self, t: int, c: Counter[str]) -> None:
+        """One complete state (tfl_mav.daemon: Daemon._arrive). ``genuine``: the daemon
+        would take it as the vehicle's (fresh, or a confirmed new time line)."""
+        w = self.watermark
+        if w >= 0:
+            if t == w:
+                c["repeated_states"] += 1
+                self.jump = (-1, 0)
+                return
+            if w - self._back <= t < w:
+                self.jump = (-1, 0)
+                self.old_in_row += 1
+                if self.old_in_row < self._old_max:
+                    c["old_states"] += 1
+                    return
+                c["genuine"] += 1
+            elif not w < t <= w + self._ahead:
+                j, n = self.jump
+                n = n + 1 if n > 0 and 0 <= t - j <= self._ahead else 1
+                self.jump = (t, n)
+                if n < self._confirm:
+                    c["implausible_states"] += 1
+                    return
+                c["genuine"] += 1
+        self.jump = (-1, 0)
+        self.old_in_row = 0
+        self.watermark = t
+        c["ticks"] += 1
+        c["genuine"] += 1
+
     def _message(self, msg: Any, c: Counter[str]) -> None:
         mid = msg.get_msgId()
         if mid == mav.MAVLINK_MSG_ID_ODOMETRY:
@@ -309,15 +353,15 @@ class DaemonModel:
                 self._paper(msg)
             except ValueError:
                 c["bad_states"] += 1
-                self.pending = False
+                self.pending = None
                 return
             c["states"] += 1
-            self.pending = True
+            self.pending = msg.time_usec
         elif mid == mav.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4:
             c["esc_reports"] += 1
-            if self.pending:
-                self.pending = False
-                c["ticks"] += 1
+            if self.pending is not None:
+                t, self.pending = self.pending, None
+                self._complete(t, c)
         elif mid == mav.MAVLINK_MSG_ID_HEARTBEAT:
             if msg.system_status in (mav.MAV_STATE_POWEROFF, mav.MAV_STATE_EMERGENCY):
                 c["ends_run"] += 1
@@ -576,7 +620,7 @@ class DaemonGen(_Gen):
             return self.odometry(self.fuzz_time(), frame_id=rng.choice((0, 8, 12, 255)))
         return self.odometry(self.fuzz_time(), child_frame_id=rng.choice((0, 8, 255)))
 
-    def extreme_odometry(self) -> Any:
+    def extreme_odometry(self, time_usec: int) -> Any:
         """Finite but absurd states: accepted by the frame check, flown by the law."""
         rng = self.rng
 
@@ -586,7 +630,7 @@ class DaemonGen(_Gen):
         q = [rng.gauss(0, 1) for _ in range(4)]
         norm = math.sqrt(sum(c * c for c in q)) or 1.0
         return self.odometry(
-            self.fuzz_time(), x=big(), y=big(), z=big(), vx=big(), vy=big(), vz=big(),
+            time_usec, x=big(), y=big(), z=big(), vx=big(), vy=big(), vz=big(),
             rollspeed=big(), pitchspeed=big(), yawspeed=big(), q=[c / norm for c in q],
             child_frame_id=rng.choice((mav.MAV_FRAME_BODY_FRD, mav.MAV_FRAME_LOCAL_NED)))
 
@@ -618,10 +662,6 @@ class DaemonGen(_Gen):
                 if rng.random() < 0.5:
                     raw += self.pack(self.esc([rng.randrange(65536) for _ in range(4)]))
                 out.append(raw)
-            elif category == "extreme_state":
-                out.append(self.pack(self.extreme_odometry())
-                           + self.pack(self.esc([rng.choice((0, 65535, rng.randrange(65536)))
-                                                 for _ in range(4)])))
             elif category == "esc_only":
                 out.append(self.pack(self.esc([rng.randrange(65536) for _ in range(4)])))
             elif category == "other_messages":
@@ -635,10 +675,14 @@ class DaemonGen(_Gen):
                         self.fuzz_time(), [self.nasty() for _ in range(16)], 128, 1),
                     mav.MAVLink_command_long_message(1, 0, 420, 0, *[self.nasty()] * 7),
                 ))))
-            elif category not in ("oversize", "bad_controls"):
+            elif category not in ("oversize", "bad_controls", "extreme_state"):
                 raise ValueError(f"unknown category {category!r}")
         if category == "oversize":
             out = [self.oversize(tpl)]
+        if category == "extreme_state":       # the completer itself (module docstring)
+            return [], (self.pack(self.extreme_odometry(time_usec))
+                        + self.pack(self.esc([rng.choice((0, 65535, rng.randrange(65536)))
+                                              for _ in range(4)])))
         return out, self.state(time_usec)
 
 
@@ -708,8 +752,9 @@ def _schedule(categories: tuple[str, ...], n_inputs: int, rng: random.Random,
     sent = 0
     while sent < n_inputs:
         cat = rng.choice(categories)
-        size = 1 if cat in ("oversize", "bad_controls") else min(batch, n_inputs - sent)
-        if cat == "bad_controls":
+        size = 1 if cat in ("oversize", "bad_controls", "extreme_state") \
+            else min(batch, n_inputs - sent)
+        if cat in ("bad_controls", "extreme_state"):
             yield cat, 0
             sent += 1
             continue
@@ -776,13 +821,14 @@ class _Runner:
         for data in b.hostile:
             saved = model.save()
             e = model.expect(data)
-            if e["ends_run"]:
+            if e["ends_run"] or e["genuine"]:
                 rep.skipped += 1
                 model.restore(saved)
                 continue
             send.append(data)
             expected += e
         done_expect = model.expect(b.done)
+        done_expect.pop("genuine", None)      # the completer is meant to be flown
         before = self._snapshot()
         for data in send:
             self.send(data)
@@ -970,7 +1016,7 @@ def fuzz_daemon(n_inputs: int, seed: int, *, batch: int = 16,
             break
         tick[0] += 1
         hostile, done = gen.batch(category, max(size, 1), tick[0] * 1000)
-        completed = runner.run(_Batch(category, hostile, done))
+        completed = runner.run(_Batch(category, hostile, done, category == "extreme_state"))
         if progress is not None:
             progress(runner.sent, n_inputs)
     elapsed = time.perf_counter() - t0
