@@ -32,7 +32,12 @@ endpoint in any frame.
 
 Inputs the protocol defines as *ending* the run (a HEARTBEAT with MAV_STATE_POWEROFF or
 EMERGENCY to the daemon, an accepted MAV_CMD_INJECT_FAILURE to the vehicle) are not sent:
-they are legitimate commands, not bad input. They are counted in ``skipped``.
+they are legitimate commands, not bad input. Nor are states the daemon must take as
+genuine: a state whose time is a plausible successor of the newest one (it would be
+flown, and answered instead of the completer), or one that confirms a new time line (a
+restart, see the daemon's "Restart"). They are counted in ``skipped``. The daemon's
+``extreme_state`` batches are a single absurd state at the completer's time, flown by the
+law (and answered, even when the law raises).
 """
 
 from __future__ import annotations
@@ -67,11 +72,11 @@ __all__ = [
 # Link-level rejection reasons, as named in LinkStats.
 LINK_REASONS = ("garbage", "mavlink1", "truncated", "bad_flags", "bad_crc", "bad_signature",
                 "malformed", "unknown_id", "foreign", "wrong_sysid", "no_peer")
-VEHICLE_REJECTS = ("rejected_controls", "stale_controls", "duplicate_controls",
-                   "commands_not_for_us", "commands_denied", "commands_unsupported")
+VEHICLE_REJECTS = ("rejected_controls", "stale_controls", "commands_not_for_us",
+                   "commands_denied", "commands_unsupported")
 VEHICLE_ACCEPTS = ("controls_applied", "commands_accepted")
-DAEMON_REJECTS = ("bad_states",)
-DAEMON_ACCEPTS = ("states", "esc_reports", "ticks", "repeated_states", "ignored_messages")
+DAEMON_REJECTS = ("bad_states", "implausible_states", "old_states", "repeated_states")
+DAEMON_ACCEPTS = ("states", "esc_reports", "ticks", "ignored_messages")
 
 MAX_UDP_PAYLOAD = 65507     # IPv4: 65535 − 20 (IP header) − 8 (UDP header)
 _MAGIC_V2, _MAGIC_V1 = 0xFD, 0xFE
@@ -226,13 +231,12 @@ class VehicleModel:
         self.link = LinkModel(FUZZER_SYSID)
         self.sysid, self.compid = sysid, compid
         self.awaited_usec = 0
-        self.applied_usec = -1    # time_usec of the newest applied controls (held command)
 
     def save(self) -> Any:
-        return self.awaited_usec, self.applied_usec
+        return self.awaited_usec
 
     def restore(self, saved: Any) -> None:
-        self.awaited_usec, self.applied_usec = saved
+        self.awaited_usec = saved
 
     def expect(self, data: bytes) -> Counter[str]:
         c: Counter[str] = Counter()
@@ -248,14 +252,11 @@ class VehicleModel:
         mid = msg.get_msgId()
         if mid == mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS:
             if msg.time_usec != self.awaited_usec:
-                # the answer to a tick already applied (a resent state's) is a duplicate
-                c["duplicate_controls" if msg.time_usec == self.applied_usec
-                  else "stale_controls"] += 1
+                c["stale_controls"] += 1
                 return
             ctl = msg.controls[:4]
             if all(math.isfinite(u) and -1e-4 <= u <= 1.0 + 1e-4 for u in ctl):
                 c["controls_applied"] += 1
-                self.applied_usec = msg.time_usec
                 if not msg.mode & mav.MAV_MODE_FLAG_SAFETY_ARMED:
                     c["ends_run"] += 1      # disarmed: the vehicle would fall
             else:
@@ -265,12 +266,6 @@ class VehicleModel:
             if msg.target_system not in (0, self.sysid) or \
                     msg.target_component not in (0, self.compid):
                 c["commands_not_for_us"] += 1
-            elif msg.command in _GCS_COMMANDS:
-                outcome = _gcs_command(msg)
-                c[outcome] += 1
-                if outcome == "commands_accepted" and msg.command == \
-                        mav.MAV_CMD_COMPONENT_ARM_DISARM:
-                    c["ends_run"] += 1      # a real disarm/arm: not bad input
             elif msg.command != mav.MAV_CMD_INJECT_FAILURE:
                 c["commands_unsupported"] += 1
             elif _inject_ok(msg.param1, msg.param2, msg.param3):
@@ -280,34 +275,6 @@ class VehicleModel:
                 c["commands_denied"] += 1
 
 
-_GCS_COMMANDS = (mav.MAV_CMD_COMPONENT_ARM_DISARM, mav.MAV_CMD_DO_SET_MODE,
-                 mav.MAV_CMD_REQUEST_MESSAGE, mav.MAV_CMD_GET_HOME_POSITION)
-
-
-def _small_int(p: float, limit: int = 0xFF) -> int | None:
-    ok = math.isfinite(p) and p == math.floor(p) and 0 <= p <= limit
-    return int(p) if ok else None
-
-
-def _gcs_command(msg: Any) -> str:
-    """The counter a ground-station command lands in (sitl.ground)."""
-    cmd = msg.command
-    if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
-        return "commands_accepted" if msg.param1 in (0.0, 1.0) else "commands_denied"
-    if cmd == mav.MAV_CMD_DO_SET_MODE:
-        base, main = _small_int(msg.param1), _small_int(msg.param2)
-        sub = _small_int(msg.param3)
-        ok = (None not in (base, main, sub) and base & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
-              and main == 6)
-        return "commands_accepted" if ok else "commands_denied"
-    if cmd == mav.MAV_CMD_REQUEST_MESSAGE:
-        wanted = _small_int(msg.param1, 0xFFFFFF)
-        return ("commands_accepted" if wanted in (mav.MAVLINK_MSG_ID_HOME_POSITION,
-                                                 mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
-                else "commands_unsupported")
-    return "commands_accepted"   # GET_HOME_POSITION
-
-
 def _inject_ok(p1: float, p2: float, p3: float) -> bool:
     """MAV_CMD_INJECT_FAILURE parameters the vehicle accepts (docs/design.md; sitl.attacker)."""
     whole = all(math.isfinite(p) and p == math.floor(p) for p in (p1, p2, p3))
@@ -315,21 +282,29 @@ def _inject_ok(p1: float, p2: float, p3: float) -> bool:
 
 
 class DaemonModel:
-    """What :class:`~tfl_mav.daemon.Daemon` counts for each datagram from its vehicle."""
+    """What :class:`~tfl_mav.daemon.Daemon` (in lockstep) counts for each datagram from its
+    vehicle, including how it classifies a complete state against its watermark."""
 
     def __init__(self) -> None:
+        from tfl_mav import daemon
         from tfl_mav.frames import paper_from_odometry
 
         self.link = LinkModel(VEHICLE_SYSID)
         self._paper = paper_from_odometry
-        self.pending: int | None = None   # time_usec of the state awaiting its ESC report
-        self.answered_usec = -1           # lockstep: a state for this tick again is a resend
+        self._ahead = round(daemon._AHEAD_S * 1e6)
+        self._back = round(daemon._BACKSTEP_S * 1e6)
+        self._confirm = daemon._JUMP_CONFIRM
+        self._old_max = daemon._RESTART_OLD_STATES
+        self.pending: int | None = None     # time_usec of a state awaiting its ESC report
+        self.watermark = -1
+        self.jump = (-1, 0)                 # last implausible time, how many in a row
+        self.old_in_row = 0
 
     def save(self) -> Any:
-        return self.pending, self.answered_usec
+        return self.pending, self.watermark, self.jump, self.old_in_row
 
     def restore(self, saved: Any) -> None:
-        self.pending, self.answered_usec = saved
+        self.pending, self.watermark, self.jump, self.old_in_row = saved
 
     def expect(self, data: bytes) -> Counter[str]:
         c: Counter[str] = Counter()
@@ -340,6 +315,36 @@ class DaemonModel:
                 c["rx_frames"] += 1
                 self._message(outcome, c)
         return c
+
+    def _complete(self, t: int, c: Counter[str]) -> None:
+        """One complete state (tfl_mav.daemon: Daemon._arrive). ``genuine``: the daemon
+        would take it as the vehicle's (fresh, or a confirmed new time line)."""
+        w = self.watermark
+        if w >= 0:
+            if t == w:
+                c["repeated_states"] += 1
+                self.jump = (-1, 0)
+                return
+            if w - self._back <= t < w:
+                self.jump = (-1, 0)
+                self.old_in_row += 1
+                if self.old_in_row < self._old_max:
+                    c["old_states"] += 1
+                    return
+                c["genuine"] += 1
+            elif not w < t <= w + self._ahead:
+                j, n = self.jump
+                n = n + 1 if n > 0 and 0 <= t - j <= self._ahead else 1
+                self.jump = (t, n)
+                if n < self._confirm:
+                    c["implausible_states"] += 1
+                    return
+                c["genuine"] += 1
+        self.jump = (-1, 0)
+        self.old_in_row = 0
+        self.watermark = t
+        c["ticks"] += 1
+        c["genuine"] += 1
 
     def _message(self, msg: Any, c: Counter[str]) -> None:
         mid = msg.get_msgId()
@@ -355,12 +360,8 @@ class DaemonModel:
         elif mid == mav.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4:
             c["esc_reports"] += 1
             if self.pending is not None:
-                if self.pending == self.answered_usec:
-                    c["repeated_states"] += 1
-                else:
-                    c["ticks"] += 1
-                    self.answered_usec = self.pending
-                self.pending = None
+                t, self.pending = self.pending, None
+                self._complete(t, c)
         elif mid == mav.MAVLINK_MSG_ID_HEARTBEAT:
             if msg.system_status in (mav.MAV_STATE_POWEROFF, mav.MAV_STATE_EMERGENCY):
                 c["ends_run"] += 1
@@ -619,7 +620,7 @@ class DaemonGen(_Gen):
             return self.odometry(self.fuzz_time(), frame_id=rng.choice((0, 8, 12, 255)))
         return self.odometry(self.fuzz_time(), child_frame_id=rng.choice((0, 8, 255)))
 
-    def extreme_odometry(self) -> Any:
+    def extreme_odometry(self, time_usec: int) -> Any:
         """Finite but absurd states: accepted by the frame check, flown by the law."""
         rng = self.rng
 
@@ -629,7 +630,7 @@ class DaemonGen(_Gen):
         q = [rng.gauss(0, 1) for _ in range(4)]
         norm = math.sqrt(sum(c * c for c in q)) or 1.0
         return self.odometry(
-            self.fuzz_time(), x=big(), y=big(), z=big(), vx=big(), vy=big(), vz=big(),
+            time_usec, x=big(), y=big(), z=big(), vx=big(), vy=big(), vz=big(),
             rollspeed=big(), pitchspeed=big(), yawspeed=big(), q=[c / norm for c in q],
             child_frame_id=rng.choice((mav.MAV_FRAME_BODY_FRD, mav.MAV_FRAME_LOCAL_NED)))
 
@@ -661,10 +662,6 @@ class DaemonGen(_Gen):
                 if rng.random() < 0.5:
                     raw += self.pack(self.esc([rng.randrange(65536) for _ in range(4)]))
                 out.append(raw)
-            elif category == "extreme_state":
-                out.append(self.pack(self.extreme_odometry())
-                           + self.pack(self.esc([rng.choice((0, 65535, rng.randrange(65536)))
-                                                 for _ in range(4)])))
             elif category == "esc_only":
                 out.append(self.pack(self.esc([rng.randrange(65536) for _ in range(4)])))
             elif category == "other_messages":
@@ -678,10 +675,14 @@ class DaemonGen(_Gen):
                         self.fuzz_time(), [self.nasty() for _ in range(16)], 128, 1),
                     mav.MAVLink_command_long_message(1, 0, 420, 0, *[self.nasty()] * 7),
                 ))))
-            elif category not in ("oversize", "bad_controls"):
+            elif category not in ("oversize", "bad_controls", "extreme_state"):
                 raise ValueError(f"unknown category {category!r}")
         if category == "oversize":
             out = [self.oversize(tpl)]
+        if category == "extreme_state":       # the completer itself (module docstring)
+            return [], (self.pack(self.extreme_odometry(time_usec))
+                        + self.pack(self.esc([rng.choice((0, 65535, rng.randrange(65536)))
+                                              for _ in range(4)])))
         return out, self.state(time_usec)
 
 
@@ -751,8 +752,9 @@ def _schedule(categories: tuple[str, ...], n_inputs: int, rng: random.Random,
     sent = 0
     while sent < n_inputs:
         cat = rng.choice(categories)
-        size = 1 if cat in ("oversize", "bad_controls") else min(batch, n_inputs - sent)
-        if cat == "bad_controls":
+        size = 1 if cat in ("oversize", "bad_controls", "extreme_state") \
+            else min(batch, n_inputs - sent)
+        if cat in ("bad_controls", "extreme_state"):
             yield cat, 0
             sent += 1
             continue
@@ -819,13 +821,14 @@ class _Runner:
         for data in b.hostile:
             saved = model.save()
             e = model.expect(data)
-            if e["ends_run"]:
+            if e["ends_run"] or e["genuine"]:
                 rep.skipped += 1
                 model.restore(saved)
                 continue
             send.append(data)
             expected += e
         done_expect = model.expect(b.done)
+        done_expect.pop("genuine", None)      # the completer is meant to be flown
         before = self._snapshot()
         for data in send:
             self.send(data)
@@ -1013,7 +1016,7 @@ def fuzz_daemon(n_inputs: int, seed: int, *, batch: int = 16,
             break
         tick[0] += 1
         hostile, done = gen.batch(category, max(size, 1), tick[0] * 1000)
-        completed = runner.run(_Batch(category, hostile, done))
+        completed = runner.run(_Batch(category, hostile, done, category == "extreme_state"))
         if progress is not None:
             progress(runner.sent, n_inputs)
     elapsed = time.perf_counter() - t0

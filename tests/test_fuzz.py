@@ -51,8 +51,7 @@ def test_vehicle_survives_fuzzing_and_counts_every_reject() -> None:
     assert cats["wrong_sysid"].counted["wrong_sysid"] == cats["wrong_sysid"].sent
     assert cats["truncated"].counted["truncated"] == cats["truncated"].sent
     assert cats["wrong_target"].counted["commands_not_for_us"] == cats["wrong_target"].sent
-    stale = cats["stale_controls"].counted   # the previous tick's time_usec: a duplicate
-    assert stale["stale_controls"] + stale["duplicate_controls"] == cats["stale_controls"].sent
+    assert cats["stale_controls"].counted["stale_controls"] == cats["stale_controls"].sent
     garbage = cats["command_garbage"].counted
     assert garbage["commands_denied"] + garbage["commands_unsupported"] == \
         cats["command_garbage"].sent
@@ -72,8 +71,8 @@ def test_daemon_survives_fuzzing_and_never_commands_a_nan() -> None:
     cats = r.categories
     assert cats["bad_odometry"].counted["bad_states"] == cats["bad_odometry"].sent
     assert cats["bad_odometry"].counted["ticks"] == 0       # a bad state never flies
-    extreme = cats["extreme_state"].counted   # a repeated time_usec is answered, not flown
-    assert extreme["ticks"] + extreme["repeated_states"] == cats["extreme_state"].sent
+    assert cats["extreme_state"].counted["ticks"] == cats["extreme_state"].sent   # flown
+    assert sum(c.counted["implausible_states"] for c in cats.values()) > 0
     assert cats["wrong_sysid"].counted["wrong_sysid"] == 2 * cats["wrong_sysid"].sent
     assert cats["mavlink1"].counted["mavlink1"] == cats["mavlink1"].sent
     assert cats["random"].counted["rx_frames"] == 0

@@ -190,9 +190,26 @@ def test_daemon_rebuilds_when_vehicle_time_goes_backwards(scripted):
         vehicle.send(k * 100_000)               # fly to t = 0.4 s (gaps, but in order)
         assert vehicle.collect(1) == [k * 100_000]
     old = daemon.computer
-    vehicle.send(0)                             # a restarted simulator: t = 0 again
+    vehicle.send(0)                             # a restarted simulator: t = 0 again ...
+    assert vehicle.quiet() == []                # (one datagram could be forged: not yet)
+    assert daemon.stats.implausible_states == 1
+    vehicle.send(0)                             # ... and again (its start-up resend)
     assert vehicle.collect(1) == [0]
     assert daemon.stats.rebuilds == 1
     assert daemon.computer is not old
     vehicle.send(1000)
     assert vehicle.collect(1) == [1000]
+
+
+def test_one_forged_future_state_does_not_lock_the_daemon_out(scripted):
+    """A single state far ahead (say time_usec = 2^63) is implausible: not flown, and the
+    genuine states that follow are still answered (it did not move the watermark)."""
+    vehicle, daemon = scripted
+    vehicle.send(0)
+    assert vehicle.collect(1) == [0]
+    vehicle.send(2**63)
+    assert vehicle.quiet() == []
+    vehicle.send(1000)
+    assert vehicle.collect(1) == [1000]
+    st = daemon.stats
+    assert (st.ticks, st.implausible_states, st.rebuilds) == (2, 1, 0)

@@ -21,17 +21,28 @@ One :class:`Daemon` talks MAVLink 2 over one UDP socket to one vehicle (docs/des
   (0 nominal, 1 attacked, 2 fallback, 3 failsafe), ``det_rotor``, ``atk_est_n``,
   ``path_m``, and ``DEBUG_FLOAT_ARRAY`` ``tfl`` = (ξ1 chain, ξ2 chain, η chain).
 
-**Degrade, don't fall.** Each loop drains the socket and runs the law once, on the newest
-complete state: older states in the same batch are skipped (``skipped_states``), a state
-not newer than the last one controlled is never controlled again (a repeat of it, e.g. a
-lockstep resend after a lost reply, is answered with the same command:
-``repeated_states``; an older one is dropped: ``old_states``). When states were skipped the
-law integrates over the real gap (``gap_ticks``); a rate-limited STATUSTEXT says so.
+**Degrade, don't fall.** Each complete state is classified as it arrives, against the
+newest state accepted so far (the *watermark*), into exactly one of: *fresh* (newer, by a
+plausible step), ``repeated_states`` (the watermark's time again, e.g. a lockstep resend
+after a lost reply: answered with the same command, the law is not rerun), ``old_states``
+(older, by at most ``_BACKSTEP_S``: reordered, dropped) and ``implausible_states`` (see
+below). Each loop drains the socket and runs the law once, on the newest fresh state; the
+other fresh states of the batch are skipped (``skipped_states``). When states were skipped
+the law integrates over the real gap (``gap_ticks``); a rate-limited STATUSTEXT says so.
 
-**Restart.** Vehicle time going backwards by more than ``_RESTART_BACKSTEP_S`` (or older
-states only, ``_RESTART_OLD_STATES`` in a row) is a restarted simulator: the flight
-computer (law and detector) is rebuilt and the new flight flown from its first state
-(``rebuilds``).
+**Implausible time.** A state more than ``_AHEAD_S`` of sim time ahead of the watermark
+(plus, in real time, the wall time elapsed since the watermark arrived), or more than
+``_BACKSTEP_S`` behind it, is not a successor of the flight being flown: it is counted
+(``implausible_states``), not controlled, and does not move the watermark. One forged or
+corrupted datagram (say time_usec = 2^63) therefore cannot lock the daemon out of the
+genuine states that follow.
+
+**Restart.** ``_JUMP_CONFIRM`` implausible states in a row that are plausible successors of
+each other (0 ≤ Δt ≤ ``_AHEAD_S``; a restarted simulator's t = 0 state and its resend, or a
+vehicle that jumped ahead while we were away) are a new time line: the flight computer
+(law and detector) is rebuilt and the new flight flown from that state (``rebuilds``); its
+recovery law takes over when the state is not benign. So are ``_RESTART_OLD_STATES`` old
+states in a row (a restart less than ``_BACKSTEP_S`` into a flight).
 
 **Ready before time starts.** The flight computer is built and warmed (one throw-away
 evaluation on a separate instance) in the constructor, before the first HEARTBEAT: the
@@ -86,8 +97,10 @@ _LOCKSTEP_FLAG = 1
 _WAITING_REPORT_PERIOD_S = 2.0
 _HISTORY = 512                    # commands remembered by time_usec (0.5 s at 1 kHz)
 _GAP_FACTOR = 1.5                 # a gap over 1.5 control periods is integrated as such
-_RESTART_BACKSTEP_S = 0.2         # vehicle time this far backwards: a restarted simulator
-_RESTART_OLD_STATES = 25          # ... or this many older-only states in a row
+_BACKSTEP_S = 0.2                 # older by more than this: not reordering, implausible
+_AHEAD_S = 1.0                    # newer by more (+ wall elapsed in real time): implausible
+_JUMP_CONFIRM = 2                 # consistent implausible states in a row: a new time line
+_RESTART_OLD_STATES = 25          # ... or this many old states in a row
 _DEGRADE_REPORT_S = 1.0           # at most one "degraded" STATUSTEXT per second of sim time
 
 
@@ -109,6 +122,7 @@ class DaemonStats:
     skipped_states: int = 0      # older states in a batch: the law ran on the newest only
     old_states: int = 0          # not newer than the last state controlled: dropped
     repeated_states: int = 0     # the last state again (lockstep resend): same command resent
+    implausible_states: int = 0  # time too far ahead/behind the watermark: not controlled
     gap_ticks: int = 0           # ticks whose law integrated over more than one period
     applied_from_history: int = 0  # applied command = our own copy (ACTUATOR_OUTPUT_STATUS)
     applied_from_wire: int = 0   # applied command = ACTUATOR_OUTPUT_STATUS.actuator × f_max
@@ -184,7 +198,12 @@ class Daemon:
         self._complete: list[tuple[State, Any, list[float]]] = []   # this batch's states
         self._history: dict[int, list[float]] = {}                  # time_usec → thrust_n
         self._last_usec = -1          # time_usec of the last state controlled
+        self._newest_usec = -1        # the watermark: newest fresh state accepted
+        self._newest_wall = 0.0       # monotonic wall time it arrived
+        self._jump_usec = -1          # the last implausible state, if the last one was
+        self._jumps_in_row = 0
         self._old_in_row = 0
+        self._arrived = False         # a valid state arrived this loop (failsafe clock)
         self._next_degrade_report_s = 0.0
         self._hover = [scenario.vehicle.mass_kg * scenario.vehicle.gravity_mps2 / 4.0] * 4
         self._last_cmd = list(self._hover)
@@ -314,8 +333,8 @@ class Daemon:
             if state is None:
                 return
             self._pending_state = None
-            self._complete.append((state, self._pending_applied, rpm))
-            self._pending_applied = None
+            applied, self._pending_applied = self._pending_applied, None
+            self._arrive(state, applied, rpm)
             return
         if mid == mav.MAVLINK_MSG_ID_HEARTBEAT:
             if msg.system_status in (mav.MAV_STATE_POWEROFF, mav.MAV_STATE_EMERGENCY) \
@@ -335,32 +354,60 @@ class Daemon:
             return
         self.stats.ignored_messages += 1
 
+    def _arrive(self, state: State, applied_msg: Any, rpm: list[float]) -> None:
+        """Classify one complete state against the watermark (see "Degrade, don't fall",
+        "Implausible time", "Restart")."""
+        stats = self.stats
+        t_usec = state.time_usec
+        w = self._newest_usec
+        now = time.monotonic()
+        ahead_usec = _AHEAD_S * 1e6
+        if w >= 0:
+            limit = ahead_usec + ((now - self._newest_wall) * 1e6 if self.realtime else 0.0)
+            if t_usec == w:
+                stats.repeated_states += 1
+                self._arrived = True
+                self._jumps_in_row = 0
+                if not self._complete and self._last_usec == w:
+                    self._send_command(t_usec, self._last_cmd)
+                return
+            if w - _BACKSTEP_S * 1e6 <= t_usec < w:
+                self._arrived = True
+                self._jumps_in_row = 0
+                self._old_in_row += 1
+                if self._old_in_row < _RESTART_OLD_STATES:
+                    stats.old_states += 1
+                    return
+                self._rebuild(t_usec)
+            elif not w < t_usec <= w + limit:
+                j = self._jump_usec
+                chained = self._jumps_in_row > 0 and 0 <= t_usec - j <= ahead_usec
+                self._jumps_in_row = self._jumps_in_row + 1 if chained else 1
+                self._jump_usec = t_usec
+                if self._jumps_in_row < _JUMP_CONFIRM:
+                    stats.implausible_states += 1
+                    return
+                self._rebuild(t_usec)
+        self._jumps_in_row = 0
+        self._old_in_row = 0
+        self._arrived = True
+        self._newest_usec = t_usec
+        self._newest_wall = now
+        self._complete.append((state, applied_msg, rpm))
+
     def _control_newest(self) -> bool:
-        """Run one control tick on the newest complete state of this batch (see "Degrade,
-        don't fall"); True if a valid state arrived (for the failsafe's clock)."""
+        """Run one control tick on the newest fresh state of this batch (the last one: fresh
+        states arrive in increasing time); True if a valid state arrived (for the failsafe's
+        clock)."""
+        arrived, self._arrived = self._arrived, False
         batch = self._complete
         if not batch:
-            return False
+            return arrived
         self._complete = []
         stats = self.stats
-        newest = max(range(len(batch)), key=lambda i: (batch[i][0].time_usec, i))
-        state, applied_msg, rpm = batch[newest]
+        state, applied_msg, rpm = batch[-1]
+        stats.skipped_states += len(batch) - 1
         t_usec = state.time_usec
-        stats.skipped_states += sum(1 for b in batch if b[0].time_usec < t_usec)
-        last = self._last_usec
-        if last >= 0 and t_usec <= last:
-            if t_usec == last:
-                stats.repeated_states += 1
-                self._send_command(t_usec, self._last_cmd)
-                return True
-            self._old_in_row += 1
-            if (last - t_usec > _RESTART_BACKSTEP_S * 1e6
-                    or self._old_in_row >= _RESTART_OLD_STATES):
-                self._rebuild(t_usec)
-            else:
-                stats.old_states += 1
-                return True
-        self._old_in_row = 0
         dt_s = None
         period_usec = self.scenario.run.control_dt_s * 1e6
         if self._last_usec >= 0 and t_usec - self._last_usec > _GAP_FACTOR * period_usec:
@@ -396,14 +443,20 @@ class Daemon:
         return wire
 
     def _rebuild(self, t_usec: int) -> None:
-        """Vehicle time went backwards: a new flight. New law and detector, no history."""
+        """Vehicle time jumped (a restarted simulator, or a vehicle that went on while we
+        were away): a new flight. New law and detector, no history; the pending batch
+        belongs to the old time line."""
         self.stats.rebuilds += 1
-        self._event("warning", f"vehicle time went back to t={t_usec * 1e-6:.3f} s "
-                               f"(from {self._last_usec * 1e-6:.3f} s): restarted simulator, "
+        self._event("warning", f"vehicle time jumped to t={t_usec * 1e-6:.3f} s "
+                               f"(from {self._newest_usec * 1e-6:.3f} s): new time line, "
                                "controller rebuilt")
+        self.stats.skipped_states += len(self._complete)
+        self._complete = []
         self.computer = self._new_computer()
         self._history.clear()
         self._last_usec = -1
+        self._newest_usec = -1
+        self._jumps_in_row = 0
         self._old_in_row = 0
         self._last_cmd = list(self._hover)
         self._next_telemetry_s = 0.0
@@ -432,11 +485,13 @@ class Daemon:
         try:
             res = self.computer.step(t, state, rpm, applied, dt_s=dt_s)
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
-            # A state the laws cannot digest (e.g. a fuzzed one with huge values): no
-            # command this tick (the vehicle holds the last), the loop goes on.
+            # A state the laws cannot digest (e.g. a fuzzed one with huge values): the last
+            # command again (what the vehicle holds anyway; a lockstep vehicle waits for an
+            # answer to this state), the loop goes on.
             self.stats.law_errors += 1
             self._event("critical", f"control tick failed at t={t:.3f} s: "
                                     f"{type(exc).__name__}: {exc}", quiet=self.stats.law_errors > 1)
+            self._send_command(state.time_usec, self._last_cmd)
             return
         out = res.law
         if res.new_detection:
