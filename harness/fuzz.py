@@ -72,8 +72,8 @@ __all__ = [
 # Link-level rejection reasons, as named in LinkStats.
 LINK_REASONS = ("garbage", "mavlink1", "truncated", "bad_flags", "bad_crc", "bad_signature",
                 "malformed", "unknown_id", "foreign", "wrong_sysid", "no_peer")
-VEHICLE_REJECTS = ("rejected_controls", "stale_controls", "commands_not_for_us",
-                   "commands_denied", "commands_unsupported")
+VEHICLE_REJECTS = ("rejected_controls", "stale_controls", "duplicate_controls",
+                   "commands_not_for_us", "commands_denied", "commands_unsupported")
 VEHICLE_ACCEPTS = ("controls_applied", "commands_accepted")
 DAEMON_REJECTS = ("bad_states", "implausible_states", "old_states", "repeated_states")
 DAEMON_ACCEPTS = ("states", "esc_reports", "ticks", "ignored_messages")
@@ -231,12 +231,13 @@ class VehicleModel:
         self.link = LinkModel(FUZZER_SYSID)
         self.sysid, self.compid = sysid, compid
         self.awaited_usec = 0
+        self.applied_usec = -1    # time_usec of the newest applied controls (held command)
 
     def save(self) -> Any:
-        return self.awaited_usec
+        return self.awaited_usec, self.applied_usec
 
     def restore(self, saved: Any) -> None:
-        self.awaited_usec = saved
+        self.awaited_usec, self.applied_usec = saved
 
     def expect(self, data: bytes) -> Counter[str]:
         c: Counter[str] = Counter()
@@ -252,11 +253,14 @@ class VehicleModel:
         mid = msg.get_msgId()
         if mid == mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS:
             if msg.time_usec != self.awaited_usec:
-                c["stale_controls"] += 1
+                # the answer to a tick already applied (a resent state's) is a duplicate
+                c["duplicate_controls" if msg.time_usec == self.applied_usec
+                  else "stale_controls"] += 1
                 return
             ctl = msg.controls[:4]
             if all(math.isfinite(u) and -1e-4 <= u <= 1.0 + 1e-4 for u in ctl):
                 c["controls_applied"] += 1
+                self.applied_usec = msg.time_usec
                 if not msg.mode & mav.MAV_MODE_FLAG_SAFETY_ARMED:
                     c["ends_run"] += 1      # disarmed: the vehicle would fall
             else:
@@ -266,6 +270,12 @@ class VehicleModel:
             if msg.target_system not in (0, self.sysid) or \
                     msg.target_component not in (0, self.compid):
                 c["commands_not_for_us"] += 1
+            elif msg.command in _GCS_COMMANDS:
+                outcome = _gcs_command(msg)
+                c[outcome] += 1
+                if outcome == "commands_accepted" and msg.command == \
+                        mav.MAV_CMD_COMPONENT_ARM_DISARM:
+                    c["ends_run"] += 1      # a real disarm/arm: not bad input
             elif msg.command != mav.MAV_CMD_INJECT_FAILURE:
                 c["commands_unsupported"] += 1
             elif _inject_ok(msg.param1, msg.param2, msg.param3):
@@ -273,6 +283,34 @@ class VehicleModel:
                 c["ends_run"] += 1          # a real attack: not bad input
             else:
                 c["commands_denied"] += 1
+
+
+_GCS_COMMANDS = (mav.MAV_CMD_COMPONENT_ARM_DISARM, mav.MAV_CMD_DO_SET_MODE,
+                 mav.MAV_CMD_REQUEST_MESSAGE, mav.MAV_CMD_GET_HOME_POSITION)
+
+
+def _small_int(p: float, limit: int = 0xFF) -> int | None:
+    ok = math.isfinite(p) and p == math.floor(p) and 0 <= p <= limit
+    return int(p) if ok else None
+
+
+def _gcs_command(msg: Any) -> str:
+    """The counter a ground-station command lands in (sitl.ground)."""
+    cmd = msg.command
+    if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
+        return "commands_accepted" if msg.param1 in (0.0, 1.0) else "commands_denied"
+    if cmd == mav.MAV_CMD_DO_SET_MODE:
+        base, main = _small_int(msg.param1), _small_int(msg.param2)
+        sub = _small_int(msg.param3)
+        ok = (None not in (base, main, sub) and base & mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+              and main == 6)
+        return "commands_accepted" if ok else "commands_denied"
+    if cmd == mav.MAV_CMD_REQUEST_MESSAGE:
+        wanted = _small_int(msg.param1, 0xFFFFFF)
+        return ("commands_accepted" if wanted in (mav.MAVLINK_MSG_ID_HOME_POSITION,
+                                                 mav.MAVLINK_MSG_ID_AUTOPILOT_VERSION)
+                else "commands_unsupported")
+    return "commands_accepted"   # GET_HOME_POSITION
 
 
 def _inject_ok(p1: float, p2: float, p3: float) -> bool:
