@@ -27,14 +27,17 @@ def _demo(tmp_path, *extra: str) -> dict:
 
 @pytest.mark.slow
 def test_demo_paper_converges_and_detects_rotor_2(tmp_path):
-    m = _demo(tmp_path, "--duration", "12", "--set", "vehicle.rpm_noise_std=10")
+    # The paper's A is ≈ 0 twice in the first ~14 s (the dead-rotor stretches, flown by the
+    # reduced-attitude law at ~0.1 m, #14); after the last hand-back (~13.5 s) the TFL chains
+    # (poles −2.5 s⁻¹) close a 0.1 m error to well under 5 cm by 20 s.
+    m = _demo(tmp_path, "--duration", "20", "--set", "vehicle.rpm_noise_std=10")
     assert not m["crashed"], m["crash_reason"]
     assert m["detected_rotor"] == 2
     assert m["false_alarms"] == 0
     # The attack starts at t = 0: detection within 20 ms (the loop issue's requirement).
     assert 0.0 <= m["detection_latency_s"] <= 0.020
     assert m["attack_estimate_rms_n"] < 0.1
-    assert m["final_path_distance_m"] < 0.05           # 3.85 m → cm within 12 s
+    assert m["final_path_distance_m"] < 0.05           # 3.85 m → cm within 20 s
     # Both MCAP files are complete and read with the mcap library's indexed reader.
     for name in ("run.mcap", "ctl.mcap"):
         with open(tmp_path / name, "rb") as fh:
@@ -56,8 +59,9 @@ def test_demo_detects_another_rotor(tmp_path):
 @pytest.mark.slow
 def test_demo_with_20ms_motor_lag_converges_and_detects_rotor_2(tmp_path):
     """#6: real motors (τ_m = 20 ms, controller's τ_m 20 % long, noisy rpm) over MAVLink.
-    Ignoring the lag flips the vehicle within 2 s (tests/test_actuators.py)."""
-    m = _demo(tmp_path, "--duration", "12", "--set", "vehicle.motor_time_constant_s=0.02",
+    Ignoring the lag flips the vehicle within 2 s (tests/test_actuators.py). 20 s: past the
+    paper's second dead-rotor stretch, as in the test above."""
+    m = _demo(tmp_path, "--duration", "20", "--set", "vehicle.motor_time_constant_s=0.02",
               "--set", "controller.motor_time_constant_scale=1.2",
               "--set", "vehicle.rpm_noise_std=10")
     assert not m["crashed"], m["crash_reason"]
