@@ -431,6 +431,24 @@ class _Gen:
             data = bytes([_MAGIC_V2]) + data[1:]
         return data
 
+    def common(self, category: str, templates: list[Any]) -> bytes | None:
+        """One datagram of a category both endpoints are fuzzed with (None: not one)."""
+        if category == "random":
+            return self.random()
+        if category == "mutated":
+            return self.mutated(templates, fix_crc=False)
+        if category == "mutated_crc_ok":
+            return self.mutated(templates, fix_crc=True)
+        if category == "truncated":
+            return self.truncated(templates)
+        if category == "mavlink1":
+            return self.mavlink1(templates)
+        if category == "unknown_id":
+            return self.unknown_id()
+        if category == "random_known_id":
+            return self.random_known()
+        return None
+
     def truncated(self, templates: list[Any]) -> bytes:
         raw = self.pack(self.rng.choice(templates))
         cut = self.rng.randint(1, len(raw) - 1)
@@ -550,18 +568,8 @@ class VehicleGen(_Gen):
         tpl = self.templates()
         out: list[bytes] = []
         for _ in range(n):
-            if category == "random":
-                out.append(self.random())
-            elif category == "mutated":
-                out.append(self.mutated(tpl, fix_crc=False))
-            elif category == "mutated_crc_ok":
-                out.append(self.mutated(tpl, fix_crc=True))
-            elif category == "truncated":
-                out.append(self.truncated(tpl))
-            elif category == "mavlink1":
-                out.append(self.mavlink1(tpl))
-            elif category == "unknown_id":
-                out.append(self.unknown_id())
+            if (raw := self.common(category, tpl)) is not None:
+                out.append(raw)
             elif category == "wrong_sysid":
                 msg = rng.choice([self.hover_controls(awaited_usec), *tpl[:3]])
                 out.append(self.pack(msg, sysid=rng.choice(
@@ -570,8 +578,6 @@ class VehicleGen(_Gen):
                 out.append(self.pack(self.command(for_us=False)))
             elif category == "command_garbage":
                 out.append(self.pack(self.command(for_us=True)))
-            elif category == "random_known_id":
-                out.append(self.random_known())
             elif category == "stale_controls":
                 t = rng.choice((awaited_usec - 1000, awaited_usec + 1000, awaited_usec + 1,
                                 0, _FAR_USEC, 2**64 - 1))
@@ -677,20 +683,8 @@ class DaemonGen(_Gen):
         tpl = self.templates()
         out: list[bytes] = []
         for _ in range(n):
-            if category == "random":
-                out.append(self.random())
-            elif category == "mutated":
-                out.append(self.mutated(tpl, fix_crc=False))
-            elif category == "mutated_crc_ok":
-                out.append(self.mutated(tpl, fix_crc=True))
-            elif category == "truncated":
-                out.append(self.truncated(tpl))
-            elif category == "mavlink1":
-                out.append(self.mavlink1(tpl))
-            elif category == "unknown_id":
-                out.append(self.unknown_id())
-            elif category == "random_known_id":
-                out.append(self.random_known())
+            if (raw := self.common(category, tpl)) is not None:
+                out.append(raw)
             elif category == "wrong_sysid":
                 other = rng.choice([s for s in range(1, 256) if s != VEHICLE_SYSID])
                 out.append(self.pack(self.odometry(self.fuzz_time()), sysid=other)

@@ -211,3 +211,12 @@ def test_flood_from_a_non_peer_does_not_stop_a_lockstep_flight() -> None:
     assert 0 < st_.control_link.foreign <= sent[0]
     assert math.isclose(max(vehicle.sim.rotor_commands_n), hover * sc.vehicle.thrust_max_n,
                         rel_tol=1e-6)
+
+
+@pytest.mark.filterwarnings("ignore::RuntimeWarning")
+def test_daemon_telemetry_of_an_absurd_state_is_never_a_crash() -> None:
+    """Regression (bench_fuzz seed 1, 3000 inputs): a finite but absurd state made the path
+    distance exceed float32's range; packing the telemetry raised and killed the loop."""
+    r = fuzz.fuzz_daemon(3000, 1)
+    _check(r)
+    assert r.crashes == []

@@ -525,14 +525,14 @@ class Daemon:
         ms = (time_usec // 1000) & 0xFFFFFFFF
         det = res.detection
         est = det.estimate_n if det is not None else res.attack_estimate_n
-        est = est if math.isfinite(est) else 0.0
-        dist = out.path_distance_m if math.isfinite(out.path_distance_m) else -1.0
+        est = _f32(est, 0.0)
+        dist = _f32(out.path_distance_m, -1.0)
         for name, value in (("mode", float(out.mode)),
                             ("det_rotor", float(res.attack_rotor)),
                             ("atk_est_n", est), ("path_m", dist)):
             self.link.send(mav.MAVLink_named_value_float_message(ms, name.encode(), value))
         arr = [*out.xi[0], *out.xi[1], *out.eta[1:]]
-        arr = [v if math.isfinite(v) else 0.0 for v in arr]
+        arr = [_f32(v, 0.0) for v in arr]
         self.link.send(mav.MAVLink_debug_float_array_message(
             time_usec, b"tfl", 1, arr + [0.0] * (58 - len(arr))))
 
@@ -580,3 +580,13 @@ def tick_state(res: TickResult) -> tuple[Any, ...]:
     return (out.mode.name.lower(), res.attack_rotor, est, out.path_distance_m,
             any(out.saturated), res.thrust_n, out.xi, out.eta, out.mass_estimate_kg,
             out.fine_gains, out.reason, det.cusum if det is not None else ())
+
+
+_F32_MAX = 3.4028234663852886e38
+
+
+def _f32(value: float, unknown: float) -> float:
+    """A telemetry float as the wire can carry it (float32): ``unknown`` for a value that is
+    not finite or beyond float32's range (a state far outside any flight: the fuzzer sends
+    them; packing it would raise, and the loop must not die)."""
+    return value if math.isfinite(value) and abs(value) <= _F32_MAX else unknown
