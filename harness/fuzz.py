@@ -223,7 +223,27 @@ class LinkModel:
         return msg
 
 
-class VehicleModel:
+class _EndpointModel:
+    """What one endpoint counts for a datagram: the link's verdicts, then each accepted
+    frame through the endpoint's own ``_message``."""
+
+    link: LinkModel
+
+    def expect(self, data: bytes) -> Counter[str]:
+        c: Counter[str] = Counter()
+        for outcome in self.link.outcomes(data):
+            if isinstance(outcome, str):
+                c[outcome] += 1
+            else:
+                c["rx_frames"] += 1
+                self._message(outcome, c)
+        return c
+
+    def _message(self, msg: Any, c: Counter[str]) -> None:
+        raise NotImplementedError
+
+
+class VehicleModel(_EndpointModel):
     """What :class:`~sitl.vehicle.Vehicle` counts for each datagram from its controller, in
     lockstep while it awaits ``awaited_usec`` (set to -1 once the tick is completed)."""
 
@@ -238,16 +258,6 @@ class VehicleModel:
 
     def restore(self, saved: Any) -> None:
         self.awaited_usec, self.applied_usec = saved
-
-    def expect(self, data: bytes) -> Counter[str]:
-        c: Counter[str] = Counter()
-        for outcome in self.link.outcomes(data):
-            if isinstance(outcome, str):
-                c[outcome] += 1
-            else:
-                c["rx_frames"] += 1
-                self._message(outcome, c)
-        return c
 
     def _message(self, msg: Any, c: Counter[str]) -> None:
         mid = msg.get_msgId()
@@ -319,7 +329,7 @@ def _inject_ok(p1: float, p2: float, p3: float) -> bool:
     return whole and p1 == 101 and int(p2) in (0, 1, 2, 4, 8) and 1 <= p3 <= 4
 
 
-class DaemonModel:
+class DaemonModel(_EndpointModel):
     """What :class:`~tfl_mav.daemon.Daemon` (in lockstep) counts for each datagram from its
     vehicle, including how it classifies a complete state against its watermark."""
 
@@ -343,16 +353,6 @@ class DaemonModel:
 
     def restore(self, saved: Any) -> None:
         self.pending, self.watermark, self.jump, self.old_in_row = saved
-
-    def expect(self, data: bytes) -> Counter[str]:
-        c: Counter[str] = Counter()
-        for outcome in self.link.outcomes(data):
-            if isinstance(outcome, str):
-                c[outcome] += 1
-            else:
-                c["rx_frames"] += 1
-                self._message(outcome, c)
-        return c
 
     def _complete(self, t: int, c: Counter[str]) -> None:
         """One complete state (tfl_mav.daemon: Daemon._arrive). ``genuine``: the daemon
