@@ -14,7 +14,7 @@ Measures, on this machine:
 4. ceiling: a bare two-process pymavlink UDP ping-pong (ODOMETRY out, HIL_ACTUATOR_CONTROLS
    back, nothing else), and issue #13's same-run ratios of (2) and (3) to it.
 
-Usage: ``python bench/bench_lockstep.py [--ticks N] [--json FILE]`` from the repository root.
+Usage: ``python bench/bench_lockstep.py [--ticks N] [--json FILE] [--no-breakdown] [--no-profile]`` from the repository root.
 """
 
 from __future__ import annotations
@@ -31,11 +31,12 @@ import sys
 import tempfile
 import time
 from pathlib import Path
+from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
 from harness.pilot import Pilot, hover_controls
-from harness.processes import CLI, popen_sim
+from harness.processes import LISTEN_RE, popen_sim
 
 WARMUP_TICKS = 200
 
@@ -106,7 +107,7 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
     daemon_link._sendto = lambda raw, msg: hil_bytes.append(raw) or len(raw)  # type: ignore
     for _ in range(n_ticks):
         t0 = cpu()
-        odom, esc = report.update()
+        odom, _aos, esc = report.update()
         t1 = cpu()
         vehicle.control_link.send_many((odom, esc))
         t2 = cpu()
@@ -261,30 +262,102 @@ def bench_vehicle(n_ticks: int, mcap: Path | None = None) -> dict[str, float]:
 
 
 _SIM_RESULT_RE = re.compile(r"(\d+) ticks, ([\d.]+) s sim in ([\d.]+) s wall")
+_PROGRESS_RE = re.compile(r"^progress ([\d.]+) ")
+_PROFILER = str(Path(__file__).with_name("profiling.py"))
 
 
-def bench_full_loop(n_ticks: int, out_dir: Path, scenario: str = "paper") -> dict[str, float]:
+def bench_full_loop(n_ticks: int, out_dir: Path, scenario: str = "paper",
+                    profile_dir: Path | None = None) -> dict[str, Any]:
     """``tfl-mav sim --mcap`` + ``tfl-mav fly --mcap`` (the daemon), as ``tfl-mav demo``
     runs them; ticks per wall second from the simulator's own count (the clock starts when
-    the controller connects, so start-up is not counted)."""
+    the controller connects, so start-up is not counted).
+
+    Also the CPU each of the four processes (sim, daemon, their recorder children) spent
+    per tick, read from /proc on ``fly --progress``'s lines (one per sim second): the
+    window from the first to the last line, so start-up and shutdown are not counted.
+    ``profile_dir``: run sim and fly under cProfile (CPU timer) and the recorder children
+    with ``TFL_MAV_PROFILE``, dumping ``sim.prof``, ``fly.prof``, ``recorder-PID.prof``."""
+    from profiling import ProcessCPU  # bench/profiling.py, next to this file
+
     duration = f"{n_ticks / 1000.0:g}"
-    proc, address = popen_sim(["--duration", duration, "--mcap", str(out_dir / "run.mcap")],
-                              scenario)
+    env = None
+    prefix: dict[str, list[str]] = {"sim": [], "fly": []}
+    if profile_dir is not None:
+        env = dict(os.environ, TFL_MAV_PROFILE=str(profile_dir))
+        prefix = {role: [_PROFILER, str(profile_dir / f"{role}.prof"), "tools.cli"]
+                  for role in ("sim", "fly")}
+    sim_cmd = [sys.executable, *(prefix["sim"] or ["-m", "tools.cli"]), "sim", scenario,
+               "--listen", "127.0.0.1:0", "--duration", duration,
+               "--mcap", str(out_dir / "run.mcap")]
+    proc = subprocess.Popen(sim_cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, env=env)
+    fly = None
     try:
-        fly = subprocess.run([*CLI, "fly", scenario, "--vehicle", f"{address[0]}:{address[1]}",
-                              "--duration", duration, "--mcap", str(out_dir / "ctl.mcap"),
-                              "--quiet"], capture_output=True, text=True, timeout=600)
+        assert proc.stdout is not None
+        match = LISTEN_RE.search(proc.stdout.readline())
+        if match is None:
+            raise RuntimeError(f"sim did not start: {proc.communicate(timeout=20)}")
+        fly = subprocess.Popen(
+            [sys.executable, *(prefix["fly"] or ["-m", "tools.cli"]), "fly", scenario,
+             "--vehicle", f"{match.group(1)}:{match.group(2)}", "--duration", duration,
+             "--mcap", str(out_dir / "ctl.mcap"), "--quiet", "--progress"],
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+        cpu = ProcessCPU({proc.pid: "sim", fly.pid: "daemon"})
+        marks: list[tuple[float, dict[str, float]]] = []
+        fly_err: list[str] = []
+        assert fly.stderr is not None
+        for line in fly.stderr:
+            m = _PROGRESS_RE.match(line)
+            if m:
+                marks.append((float(m.group(1)), cpu.snapshot()))
+            else:
+                fly_err.append(line)
+        fly.wait(timeout=600)
         out, err = proc.communicate(timeout=60)
     finally:
-        if proc.poll() is None:
-            proc.kill()
+        for p in (proc, fly):
+            if p is not None and p.poll() is None:
+                p.kill()
     match = _SIM_RESULT_RE.search(out + err)
     if match is None:
         raise RuntimeError(f"no result line from sim (fly exit {fly.returncode}):\n{out}{err}"
-                           f"{fly.stderr}")
+                           f"{''.join(fly_err)}")
     ticks, wall = int(match.group(1)), float(match.group(3))
+    cpu_us: dict[str, float] = {}
+    if len(marks) >= 2:
+        (t0, a), (t1, b) = marks[0], marks[-1]
+        window_ticks = round((t1 - t0) * 1000.0)
+        for label in b:
+            role = label.split(" child")[0]
+            name = f"{role} recorder child" if " child " in label else role
+            cpu_us[name] = 1e6 * (b[label] - a.get(label, 0.0)) / max(1, window_ticks)
     return {"ticks": ticks, "seconds": wall, "ticks_per_s": ticks / wall,
-            "real_time_factor": ticks / wall / 1000.0}
+            "real_time_factor": ticks / wall / 1000.0, "cpu_us_per_tick": cpu_us}
+
+
+def profile_breakdown(n_ticks: int, cpu_us: dict[str, float]) -> dict[str, dict[str, float]]:
+    """Where each process's CPU goes, per tick: the shares of a cProfile'd (CPU timer) run
+    of the full loop, scaled to the unprofiled CPU per tick ``cpu_us`` (process → µs)."""
+    from profiling import STARTUP, categorize
+
+    out: dict[str, dict[str, float]] = {}
+    with tempfile.TemporaryDirectory() as tmp, tempfile.TemporaryDirectory() as profs:
+        bench_full_loop(n_ticks, Path(tmp), profile_dir=Path(profs))
+        recorders = sorted(Path(profs).glob("recorder-*.prof"), key=lambda p: p.stat().st_size)
+        # the vehicle's recorder sees more frames (GCS telemetry, truth): the bigger profile
+        files = {"sim": (Path(profs) / "sim.prof", "sim"),
+                 "daemon": (Path(profs) / "fly.prof", "daemon")}
+        if len(recorders) == 2:
+            files["daemon recorder child"] = (recorders[0], "recorder")
+            files["sim recorder child"] = (recorders[1], "recorder")
+        for name, (path, role) in files.items():
+            if not path.exists() or name not in cpu_us:
+                continue
+            shares = categorize(path, role)
+            shares.pop(STARTUP)
+            total = sum(shares.values()) or 1.0
+            out[name] = {k: cpu_us[name] * v / total for k, v in shares.items()}
+    return out
 
 
 # ---------------------------------------------------------------------------- main
@@ -293,6 +366,10 @@ def main() -> int:
     parser.add_argument("--ticks", type=int, default=20000,
                         help="lockstep ticks per network measurement (default 20000)")
     parser.add_argument("--json", metavar="FILE", help="also write the numbers as JSON")
+    parser.add_argument("--no-breakdown", action="store_true",
+                        help="skip the in-process per-piece breakdown")
+    parser.add_argument("--no-profile", action="store_true",
+                        help="skip the profiled run of the full loop (per-process breakdown)")
     parser.add_argument("--role", help=argparse.SUPPRESS)
     parser.add_argument("--port-file", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -303,7 +380,7 @@ def main() -> int:
         parser.error(f"--ticks: must be > {WARMUP_TICKS}")
 
     physics = bench_physics(20000)
-    breakdown = bench_breakdown(3000)
+    breakdown = {} if args.no_breakdown else bench_breakdown(3000)
     pingpong = bench_pingpong(args.ticks)
     vehicle = bench_vehicle(args.ticks)
     with tempfile.TemporaryDirectory() as tmp:
@@ -312,6 +389,8 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         full = bench_full_loop(args.ticks, Path(tmp))
     pingpong_after = bench_pingpong(args.ticks)     # before and after: the load drifts
+    per_process = ({} if args.no_profile
+                   else profile_breakdown(min(args.ticks, 4000), full["cpu_us_per_tick"]))
     ceiling = 0.5 * (pingpong["ticks_per_s"] + pingpong_after["ticks_per_s"])
     ratio = vehicle["ticks_per_s"] / ceiling
     ratio_full = full["ticks_per_s"] / ceiling
@@ -336,10 +415,20 @@ def main() -> int:
           f"{os.cpu_count()} cpus)")
     for name, value in rows:
         print(f"  {name:<{width}}  {value:>14}")
-    print("\nper-tick breakdown (µs, in-process, thread CPU time)")
-    for name, us in breakdown.items():
-        print(f"  {name:<{width}}  {us:>11.1f} µs")
-    print(f"  {'total':<{width}}  {sum(breakdown.values()):>11.1f} µs")
+    if breakdown:
+        print("\nper-tick breakdown (µs, in-process, thread CPU time)")
+        for name, us in breakdown.items():
+            print(f"  {name:<{width}}  {us:>11.1f} µs")
+        print(f"  {'total':<{width}}  {sum(breakdown.values()):>11.1f} µs")
+    print("\nfull loop: CPU per tick of each process (µs, /proc utime+stime, steady state; "
+          "split by a CPU-timer cProfile run's shares)")
+    for proc_name, us in full["cpu_us_per_tick"].items():
+        print(f"  {proc_name:<{width}}  {us:>11.1f} µs")
+        for part, part_us in per_process.get(proc_name, {}).items():
+            print(f"    {part:<{width - 2}}  {part_us:>11.1f} µs")
+    print(f"  {'all four processes':<{width}}  "
+          f"{sum(full['cpu_us_per_tick'].values()):>11.1f} µs "
+          f"(wall per tick {1e6 / full['ticks_per_s']:.0f} µs on {os.cpu_count()} cpus)")
     print("\nissue #13 (same-run ratios to the bare ping-pong)        now    goal")
     print(f"  full lockstep loop (sim + daemon + both MCAP recorders)  {ratio_full:5.2f}  ≥ 0.5")
     print(f"  lockstep sim + bare client, no MCAP                      {ratio:5.2f}  ≥ 0.7")
@@ -347,7 +436,7 @@ def main() -> int:
         Path(args.json).write_text(json.dumps({
             "ticks": args.ticks, "python": platform.python_version(), "cpus": os.cpu_count(),
             "physics": physics, "lockstep": vehicle, "lockstep_mcap": recorded,
-            "breakdown_us": breakdown, "full_loop": full, "pingpong": pingpong,
+            "breakdown_us": breakdown, "full_loop": full, "per_process_us": per_process, "pingpong": pingpong,
             "pingpong_after": pingpong_after,
             "ratio_lockstep_to_pingpong": ratio,
             "ratio_full_loop_to_pingpong": ratio_full}, indent=2))

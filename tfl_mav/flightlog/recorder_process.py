@@ -30,6 +30,7 @@ import atexit
 import collections
 import contextlib
 import multiprocessing
+import os
 import pickle
 import signal
 import threading
@@ -54,7 +55,25 @@ def _plain(x: Any) -> Any:
 
 def _child_main(conn: Connection, results: Connection, path: str | None,
                 kwargs: dict[str, Any]) -> None:
-    """The child: one Recorder whose clock is the parent's stamp of the call at hand."""
+    """The child: one Recorder whose clock is the parent's stamp of the call at hand.
+
+    ``TFL_MAV_PROFILE=DIR`` in the environment: run under cProfile and dump the stats to
+    ``DIR/recorder-PID.prof`` (bench/bench_lockstep.py's per-process breakdown)."""
+    prof_dir = os.environ.get("TFL_MAV_PROFILE")
+    if not prof_dir:
+        _child_loop(conn, results, path, kwargs)
+        return
+    import cProfile
+
+    prof = cProfile.Profile(time.process_time)     # CPU, not wall: 4 processes share 2 cores
+    try:
+        prof.runcall(_child_loop, conn, results, path, kwargs)
+    finally:
+        prof.dump_stats(os.path.join(prof_dir, f"recorder-{os.getpid()}.prof"))
+
+
+def _child_loop(conn: Connection, results: Connection, path: str | None,
+                kwargs: dict[str, Any]) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
     now = [0.0]
