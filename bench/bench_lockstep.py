@@ -14,7 +14,8 @@ Measures, on this machine:
 4. ceiling: a bare two-process pymavlink UDP ping-pong (ODOMETRY out, HIL_ACTUATOR_CONTROLS
    back, nothing else), and issue #13's same-run ratios of (2) and (3) to it.
 
-Usage: ``python bench/bench_lockstep.py [--ticks N] [--json FILE] [--no-breakdown] [--no-profile]`` from the repository root.
+Usage: ``python bench/bench_lockstep.py [--ticks N] [--json FILE] [--no-breakdown]
+[--no-profile]`` from the repository root.
 """
 
 from __future__ import annotations
@@ -436,7 +437,8 @@ def main() -> int:
         Path(args.json).write_text(json.dumps({
             "ticks": args.ticks, "python": platform.python_version(), "cpus": os.cpu_count(),
             "physics": physics, "lockstep": vehicle, "lockstep_mcap": recorded,
-            "breakdown_us": breakdown, "full_loop": full, "per_process_us": per_process, "pingpong": pingpong,
+            "breakdown_us": breakdown, "full_loop": full, "per_process_us": per_process,
+            "pingpong": pingpong,
             "pingpong_after": pingpong_after,
             "ratio_lockstep_to_pingpong": ratio,
             "ratio_full_loop_to_pingpong": ratio_full}, indent=2))

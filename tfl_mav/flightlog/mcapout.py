@@ -20,11 +20,12 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any
 
-from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType, Writer
+from mcap.writer import LIBRARY_IDENTIFIER, CompressionType, IndexType
 
 from tfl_mav import __version__
 from tfl_mav.flightlog import foxglove as fg
 from tfl_mav.flightlog import schemas
+from tfl_mav.flightlog.mcapfast import FastWriter
 
 __all__ = ["McapOutput", "RecorderError", "RecorderStats"]
 
@@ -119,10 +120,10 @@ class McapOutput:
             raise RecorderError(f"cannot write MCAP file {self.file_path}: "
                                 f"{exc.strerror or exc}") from None
         try:
-            self._writer = Writer(self._file, chunk_size=chunk_size_bytes,
-                                  compression=_COMPRESSION[compression],
-                                  index_types=IndexType.CHUNK | IndexType.MESSAGE
-                                  | IndexType.METADATA)
+            self._writer = FastWriter(self._file, chunk_size=chunk_size_bytes,
+                                      compression=_COMPRESSION[compression],
+                                      index_types=IndexType.CHUNK | IndexType.MESSAGE
+                                      | IndexType.METADATA)
             self._writer.start(profile, library=f"tfl-mav {__version__}; {LIBRARY_IDENTIFIER}")
             self._writer.add_metadata("tfl-mav", {
                 "log_time": "receipt time on the recorder clock, ns (Unix epoch by default)",
