@@ -65,7 +65,7 @@ from typing import Any
 
 from tfl_mav.flightlog import foxglove as fg
 from tfl_mav.flightlog import schemas
-from tfl_mav.flightlog.jsonenc import JsonEncoder
+from tfl_mav.flightlog.jsonenc import JsonEncoder, MavJson, RecordFormat
 from tfl_mav.flightlog.mcapout import MAX_NS, McapOutput, RecorderError, RecorderStats
 from tfl_mav.flightlog.polyline import Polyline
 from tfl_mav.link.dialect import mav
@@ -99,6 +99,11 @@ class _MavChannel:
     nonfinite: bool = False  # NaN/inf seen on this channel: check before encoding
 
 
+_TRUTH_STATE = RecordFormat([("t_s", 0), ("position_m", 3), ("velocity_mps", 3),
+                             ("quaternion_wxyz", 4), ("body_rates_radps", 3)])
+_TRUTH_ATTACK = RecordFormat([("t_s", 0), ("rotor", 0), ("active", "%s"), ("applied_n", 0),
+                              ("requested_n", 0)])
+_TRUTH_THRUSTS = RecordFormat([("t_s", 0), ("thrust_n", 4), ("attack_rotor", 0)])
 _DEFAULT_RECORD = schemas.record_schema("tfl_mav.Record", "a caller's record", {}, [])
 
 
@@ -145,6 +150,7 @@ class Recorder(McapOutput):
         self._json = JsonEncoder()
         self._dumps = self._json.dumps
         self._decoder = PayloadDecoder()
+        self._mav_json = MavJson().encode
         self._mav_channels: dict[tuple[int, int, int], _MavChannel] = {}
         self._sim_ns = 0
         self._sim_known = False
@@ -211,18 +217,31 @@ class Recorder(McapOutput):
         chan = self._mav_channels.get((sysid, compid, msgid))
         if chan is None:
             chan = self._new_mav_channel(sysid, compid, msgid)
-        fields = self._decoder.fields(raw, msgid) if chan is not None else None
-        if fields is not None and chan.sim_time:
-            usec = fields["time_usec"]
-            if usec * 1000 <= _MAX_NS:
+        # precompiled JSON of the fields (all-number messages, all finite), else the dict
+        fast = self._mav_json(raw, msgid) if chan is not None else None
+        if fast is not None:
+            fields = None
+            usec = fast[1]
+            if chan.sim_time and usec * 1000 <= _MAX_NS:
                 self._sim_ns = usec * 1000
                 self._sim_known = True
+        else:
+            fields = self._decoder.fields(raw, msgid) if chan is not None else None
+            if fields is not None and chan.sim_time:
+                usec = fields["time_usec"]
+                if usec * 1000 <= _MAX_NS:
+                    self._sim_ns = usec * 1000
+                    self._sim_known = True
         pub_ns = self._sim_ns
         name = chan.name if chan is not None else f"#{msgid}"
         self._write(self._raw_channel(),
                     f'{{"direction":"{direction}","accepted":true,"name":"{name}",'
                     f'"msgid":{msgid},"sysid":{sysid},"compid":{compid},"seq":{raw[4]},'
                     f'"len":{len(raw)},"data":"{data}"}}'.encode(), log_ns, pub_ns)
+        if fast is not None:        # never STATUSTEXT (char fields)
+            chan.nonfinite = False
+            self._write(chan.channel_id, fast[0], log_ns, pub_ns)
+            return
         if fields is None:
             self._bad(f"frame: {name} (#{msgid}) did not decode from its wire bytes")
             return
@@ -262,16 +281,21 @@ class Recorder(McapOutput):
         self.set_sim_time(time_s)
         log_ns, pub_ns = self._now_ns(), self._sim_ns
         t = float(time_s)
+        # precompiled JSON (byte-identical); the dict encoder for NaN/inf (left out)
         self._write(self._channel("/sim/truth/state", schemas.TRUTH_STATE),
-                    self._dumps({"t_s": t, "position_m": pos, "velocity_mps": vel,
-                                 "quaternion_wxyz": quat, "body_rates_radps": rates}),
+                    _TRUTH_STATE.encode((t, *pos, *vel, *quat, *rates))
+                    or self._dumps({"t_s": t, "position_m": pos, "velocity_mps": vel,
+                                    "quaternion_wxyz": quat, "body_rates_radps": rates}),
                     log_ns, pub_ns)
         self._write(self._channel("/sim/truth/attack", schemas.TRUTH_ATTACK),
-                    self._dumps({"t_s": t, "rotor": rotor, "active": rotor != 0,
-                                 "applied_n": applied, "requested_n": requested}),
+                    _TRUTH_ATTACK.encode((t, rotor, "true" if rotor != 0 else "false",
+                                          applied, requested))
+                    or self._dumps({"t_s": t, "rotor": rotor, "active": rotor != 0,
+                                    "applied_n": applied, "requested_n": requested}),
                     log_ns, pub_ns)
         self._write(self._channel("/sim/truth/thrusts", schemas.TRUTH_THRUSTS),
-                    self._dumps({"t_s": t, "thrust_n": thrust, "attack_rotor": rotor}),
+                    _TRUTH_THRUSTS.encode((t, *thrust, rotor))
+                    or self._dumps({"t_s": t, "thrust_n": thrust, "attack_rotor": rotor}),
                     log_ns, pub_ns)
         # 1 µs slack so k·dt rounding does not push a sample to the next tick
         if self._last_scene_t <= t < self._last_scene_t + self._scene_period_s - 1e-6:

@@ -1,0 +1,107 @@
+"""The recorder's fast paths write exactly what the careful ones do (issue #13).
+
+* :class:`~tfl_mav.flightlog.mcapfast.FastWriter` vs mcap's own ``Writer``: the same file,
+  byte for byte (chunks, message indexes, statistics, summary), across chunk boundaries,
+  flushes and a channel registered mid-file.
+* :class:`~tfl_mav.flightlog.jsonenc.MavJson` vs ``JsonEncoder.dumps(PayloadDecoder
+  .fields(...))`` on random hot messages (NaN/inf/-0.0 included: those must fall back).
+* the truth channels' precompiled formats vs ``JsonEncoder.dumps`` of the dict.
+"""
+
+from __future__ import annotations
+
+import io
+import math
+import random
+
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from mcap.writer import CompressionType, IndexType, Writer
+
+from tfl_mav.flightlog.jsonenc import JsonEncoder, MavJson
+from tfl_mav.flightlog.mcapfast import FastWriter
+from tfl_mav.flightlog.recorder import _TRUTH_ATTACK, _TRUTH_STATE, _TRUTH_THRUSTS
+from tfl_mav.link.dialect import mav, new_mavlink
+from tfl_mav.link.payload import PayloadDecoder
+
+
+def _write(cls: type, seed: int) -> bytes:
+    out = io.BytesIO()
+    w = cls(out, chunk_size=1 << 14, compression=CompressionType.ZSTD,
+            index_types=IndexType.CHUNK | IndexType.MESSAGE | IndexType.METADATA)
+    w.start("tfl-mav", "test")
+    sid = w.register_schema("s", "jsonschema", b"{}")
+    cids = [w.register_channel(f"/t{i}", "json", sid) for i in range(4)]
+    rnd = random.Random(seed)
+    for i in range(5000):
+        if i == 2500:
+            cids.append(w.register_channel("/late", "json", sid))
+        if i % 1700 == 0:
+            w.flush()
+        log = 10**9 + i * 1000 + rnd.randint(-5000, 5000)      # not monotonic
+        w.add_message(rnd.choice(cids), log, b"x" * rnd.randint(1, 300), i)
+    w.finish()
+    return out.getvalue()
+
+
+def test_fast_writer_is_byte_identical_to_mcap_writer() -> None:
+    for seed in range(3):
+        assert _write(FastWriter, seed) == _write(Writer, seed)
+
+
+_floats = st.one_of(st.floats(width=32), st.sampled_from([0.0, -0.0, math.nan, math.inf]))
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(_floats, min_size=60, max_size=60), st.integers(0, 2**63 - 1))
+def test_mav_json_is_byte_identical_to_the_dict_encoder(v: list[float], usec: int) -> None:
+    mv = new_mavlink(1, 1)
+    msgs = [
+        mav.MAVLink_odometry_message(usec, 1, 12, v[0], v[1], v[2], v[3:7], v[7], v[8], v[9],
+                                     v[10], v[11], v[12], v[13:34], [0.0] * 21, 0, 6, 100),
+        mav.MAVLink_hil_actuator_controls_message(usec, v[40:56], 128, 1),
+        mav.MAVLink_actuator_output_status_message(usec, 15, v[20:52]),
+        mav.MAVLink_esc_telemetry_1_to_4_message([20] * 4, [1600] * 4, [1, 2, 3, 4],
+                                                 [0] * 4, [9000, 0, 1, 65535], [7] * 4),
+        mav.MAVLink_heartbeat_message(18, 8, 128, 0, 4, 3),
+    ]
+    enc, dec, fast = JsonEncoder(), PayloadDecoder(), MavJson()
+    for msg in msgs:
+        raw = bytes(msg.pack(mv))
+        mid = msg.get_msgId()
+        fields = dec.fields(raw, mid)
+        got = fast.encode(raw, mid)
+        finite = all(math.isfinite(x) for x in _numbers(fields))
+        if not finite:
+            assert got is None
+            continue
+        assert got is not None
+        assert got[0] == enc.dumps(fields)
+        assert got[1] == fields.get("time_usec")
+
+
+def _numbers(fields: dict) -> list[float]:
+    out: list[float] = []
+    for value in fields.values():
+        out += value if isinstance(value, list) else [value]
+    return out
+
+
+@settings(max_examples=150, deadline=None)
+@given(st.lists(_floats, min_size=17, max_size=17), st.integers(0, 4))
+def test_truth_formats_match_the_dict_encoder(v: list[float], rotor: int) -> None:
+    enc = JsonEncoder()
+    t, pos, vel, quat, rates, thrust = v[0], v[1:4], v[4:7], v[7:11], v[11:14], v[13:17]
+    cases = [
+        (_TRUTH_STATE.encode((t, *pos, *vel, *quat, *rates)),
+         {"t_s": t, "position_m": pos, "velocity_mps": vel, "quaternion_wxyz": quat,
+          "body_rates_radps": rates}),
+        (_TRUTH_ATTACK.encode((t, rotor, "true" if rotor else "false", v[1], v[2])),
+         {"t_s": t, "rotor": rotor, "active": rotor != 0, "applied_n": v[1],
+          "requested_n": v[2]}),
+        (_TRUTH_THRUSTS.encode((t, *thrust, rotor)),
+         {"t_s": t, "thrust_n": thrust, "attack_rotor": rotor}),
+    ]
+    for got, ref in cases:
+        finite = all(math.isfinite(x) for x in _numbers(ref) if not isinstance(x, bool))
+        assert (got == enc.dumps(ref)) if finite else got is None
