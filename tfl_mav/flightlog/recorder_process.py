@@ -15,6 +15,7 @@ Crash safety is better than in-process: if the flight process dies (even SIGKILL
 child reads end-of-file and *finishes* the file. Queued calls reach the child within
 ``batch_s`` (a background thread sends a batch that went stale). The child ignores SIGINT
 and SIGTERM so a Ctrl-C or ``kill`` of the process group still lets the parent close it.
+It runs at a lower priority than the flight (:data:`CHILD_NICE`).
 
 Backpressure: if the queue grows past ``batch_max`` × 8 calls (the sender thread starved),
 the flight thread sends inline; if the child falls behind, the pipe fills and the flight
@@ -42,10 +43,17 @@ from typing import Any
 
 from tfl_mav.flightlog.recorder import Recorder, RecorderError, RecorderStats
 
-__all__ = ["RecorderProcess"]
+__all__ = ["CHILD_NICE", "RecorderProcess"]
 
 _FRAME, _TRUTH, _PATH, _LOG, _CONTROLLER, _SIM_TIME, _METADATA, _CLOSE = range(8)
 _START_TIMEOUT_S = 30.0
+CHILD_NICE = 5
+"""The recorder child runs this much nicer than its flight process. Why: on 2 cores a
+lockstep flight is 4 processes (sim, daemon, two recorder children) and the loop is the
+serial sim ↔ daemon chain; the children only need to keep up on average (the pipe buffers
+a backlog), so when the CPU is contended the chain should win it. Moderate on purpose: at
++5 a child still gets ~1/4 of a contended core, so it cannot starve and back up into the
+flight (see "Backpressure")."""
 _CLOSE_TIMEOUT_S = 60.0
 
 
@@ -76,6 +84,8 @@ def _child_loop(conn: Connection, results: Connection, path: str | None,
                 kwargs: dict[str, Any]) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
+    with contextlib.suppress(OSError):
+        os.nice(CHILD_NICE)
     now = [0.0]
     try:
         rec = Recorder(path, clock=lambda: now[0], **kwargs)
