@@ -1,8 +1,8 @@
 """Controller cost per evaluation (reference jets vs compiled path), its breakdown, and the
 offline loop against a plain numpy RK4 physics-only loop — all in the same run.
 
-    python bench/bench_controller.py [--scenario paper] [--ticks 4000] [--offline-s 5]
-                                     [--cli-s 20] [--offline-only] [--json FILE]
+    python bench/bench_controller.py [--scenario paper] [--ticks 4000] [--offline-s 20]
+                                     [--numpy-s 5] [--offline-only] [--json FILE]
 
 1. ``TFLController.update`` alone, median and p90 µs over a closed-loop flight (so the
    projection is warm-started as in real use), with the path evaluated by the reference jets
@@ -17,12 +17,13 @@ offline loop against a plain numpy RK4 physics-only loop — all in the same run
    the loop goes (flight computer: law + detector; simulator: motors, attacker, RK4,
    sensors; the rest: hand-off, logging, crash check).
 
-The whole-process row flies ``--cli-s`` simulated seconds (default 20 s, the paper-length
-flight ``tfl-mav demo`` flies: take-off, the attack, both dead-rotor stretches). That is the
-unit a researcher's sweep repeats, so start-up (interpreter, imports, path code generation)
-is charged once per flight as it is in a sweep; a shorter run would mostly time imports,
-a longer one would hide them. ``fly_offline`` and the numpy loop fly ``--offline-s``: both
-are per-tick rates, independent of length once warm.
+The offline rows fly ``--offline-s`` simulated seconds (default 20 s, the paper-length
+flight ``tfl-mav demo`` flies: the attack and both dead-rotor stretches, when the safe law
+takes over). That is the unit a researcher's sweep repeats, so the whole-process row charges
+start-up (interpreter, imports, path code generation) once per flight as a sweep does; a
+shorter run would mostly time imports and the costly first seconds, a longer one would hide
+them. ``fly_offline`` flies the same flight in-process, so the two rows differ by start-up
+alone. The numpy loop (``--numpy-s``, default 5 s) is a per-step rate, the same at any length.
 
 Times are this thread's CPU time (``time.thread_time``), so being preempted on a shared
 machine does not count; the loop ratios use CPU time as well (the CLI's from the child's
@@ -232,10 +233,10 @@ def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scenario", default="paper")
     ap.add_argument("--ticks", type=int, default=4000)
-    ap.add_argument("--offline-s", type=float, default=5.0,
-                    help="simulated s of the in-process loops (default 5)")
-    ap.add_argument("--cli-s", type=float, default=20.0,
-                    help="simulated s of the whole-process flight (default 20: paper length)")
+    ap.add_argument("--offline-s", type=float, default=20.0,
+                    help="simulated s of the offline flights (default 20: paper length)")
+    ap.add_argument("--numpy-s", type=float, default=5.0,
+                    help="simulated s of the numpy RK4 baseline (default 5)")
     ap.add_argument("--no-offline", action="store_true", help="skip the offline-loop table")
     ap.add_argument("--offline-only", action="store_true",
                     help="only the offline-loop table (skip the controller tables)")
@@ -293,22 +294,22 @@ def _write(path: str | None, result: dict[str, Any]) -> None:
 
 def _offline_table(sc0: Scenario, args: argparse.Namespace, result: dict[str, Any]) -> int:
     """Issue #13's row 2 (same-run ratios to a plain numpy RK4 loop) and the loop's pieces."""
-    rk4 = numpy_rk4_rtf(sc0, args.offline_s)
+    rk4 = numpy_rk4_rtf(sc0, args.numpy_s)
     off = offline_rtf(sc0, args.offline_s)
-    cli = cli_rtf(args.scenario, args.cli_s)
-    rk4_after = numpy_rk4_rtf(sc0, args.offline_s)   # before and after: the load drifts
+    cli = cli_rtf(args.scenario, args.offline_s)
+    rk4_after = numpy_rk4_rtf(sc0, args.numpy_s)   # before and after: the load drifts
     rk4 = 0.5 * (rk4 + rk4_after)
     pieces = offline_breakdown(sc0, args.offline_s)
     result["offline"] = {"numpy_rk4_rtf": rk4, "offline_loop_rtf": off,
                          "cli_process_rtf": cli, "loop_vs_numpy": off / rk4,
                          "cli_vs_numpy": cli / rk4, "offline_s": args.offline_s,
-                         "cli_s": args.cli_s, "breakdown_us": pieces}
+                         "numpy_s": args.numpy_s, "breakdown_us": pieces}
     print(f"\n{'loop (simulated s per CPU s)':52s} {'RTF':>6s} {'vs numpy RK4':>12s}")
     print(f"{'plain numpy RK4, physics only (mean before/after)':52s} {rk4:6.2f} "
           f"{1.0:11.2f}x")
     print(f"{f'fly_offline: physics + detector + law, {args.offline_s:g} s':52s} "
           f"{off:6.2f} {off / rk4:11.2f}x")
-    print(f"{f'tfl-mav offline, whole process, {args.cli_s:g} s flight':52s} {cli:6.2f} "
+    print(f"{f'tfl-mav offline, whole process, {args.offline_s:g} s flight':52s} {cli:6.2f} "
           f"{cli / rk4:11.2f}x")
     print("\nfly_offline per tick (CPU µs, timer wrappers included)")
     for label, us in pieces.items():
