@@ -3,8 +3,10 @@
 Measures, on this machine:
 
 1. physics: µs per 1 ms RK4 step (``rk4_step`` alone) and per control tick of the
-   simulator (motors + attacker + RK4 + sensors), and the cost of packing one tick's state
-   (ODOMETRY + ESC_TELEMETRY_1_TO_4) with pymavlink;
+   simulator (motors + attacker + RK4 + sensors), the cost of building and packing one
+   tick's state (ODOMETRY + ACTUATOR_OUTPUT_STATUS + ESC_TELEMETRY_1_TO_4), and the
+   in-process per-tick breakdown of the whole lockstep loop (``--breakdown-only``: just
+   these, no subprocesses);
 2. lockstep: ticks/s of ``tfl-mav sim`` (a subprocess, 1 kHz physics and control) flown by
    the lockstep client of the tests (:class:`harness.pilot.Pilot`: our Link, hover
    commands), without and with ``--mcap`` recording;
@@ -14,8 +16,8 @@ Measures, on this machine:
 4. ceiling: a bare two-process pymavlink UDP ping-pong (ODOMETRY out, HIL_ACTUATOR_CONTROLS
    back, nothing else), and issue #13's same-run ratios of (2) and (3) to it.
 
-Usage: ``python bench/bench_lockstep.py [--ticks N] [--json FILE] [--no-breakdown]
-[--no-profile]`` from the repository root.
+Usage: ``python bench/bench_lockstep.py [--ticks N] [--json FILE] [--breakdown-only |
+--no-breakdown] [--no-profile]`` from the repository root.
 """
 
 from __future__ import annotations
@@ -68,7 +70,7 @@ def bench_physics(n_steps: int) -> dict[str, float]:
     vehicle.control_link.peer = None   # build and pack only; nothing is sent
     t0 = time.perf_counter()
     for _ in range(n_steps):
-        vehicle._publish_state()        # ODOMETRY + ESC built and packed (counted unsent)
+        vehicle._publish_state()        # the tick's 3 messages built and packed (unsent)
     publish_us = (time.perf_counter() - t0) / n_steps * 1e6
     vehicle.close()
     return {"rk4_step_us": rk4_us, "sim_tick_us": tick_us, "state_build_pack_us": publish_us}
@@ -98,7 +100,7 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
     sender = ("127.0.0.1", 9)
     acc: dict[str, float] = dict.fromkeys(
         ("physics + motors + attacker", "sensor sampling", "state messages built",
-         "pack ODOMETRY + ESC (Link)", "parse ODOMETRY + ESC (Link)",
+         "pack ODOMETRY + AOS + ESC (Link)", "parse ODOMETRY + AOS + ESC (Link)",
          "frame conversion (paper_from_odometry)", "detector", "law + detector (step)",
          "pack HIL_ACTUATOR_CONTROLS (Link)", "parse HIL_ACTUATOR_CONTROLS (Link)"), 0.0)
     cpu = time.thread_time
@@ -106,26 +108,31 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
     hil_bytes: list[bytes] = []
     daemon_link._sock.close()                         # never sends; pack through send()
     daemon_link._sendto = lambda raw, msg: hil_bytes.append(raw) or len(raw)  # type: ignore
+    applied_usec = 0
     for _ in range(n_ticks):
         t0 = cpu()
-        odom, _aos, esc = report.update()
+        msgs = report.update(applied_usec)    # (ODOMETRY, ACTUATOR_OUTPUT_STATUS, ESC)
         t1 = cpu()
-        vehicle.control_link.send_many((odom, esc))
+        vehicle.control_link.send_many(msgs)
         t2 = cpu()
-        raw = b"".join(m.pack(sim_link.packer) for m in (odom, esc))
+        raw = b"".join(m.pack(sim_link.packer) for m in msgs)
         t2b = cpu()
         out: list = []
         daemon_link._ingest(raw, sender, out)
         t3 = cpu()
-        state = paper_from_odometry(out[0])
+        if len(out) != 3:
+            raise RuntimeError(f"breakdown: parsed {len(out)} of the tick's 3 messages")
+        odom_in, _aos_in, esc_in = out
+        state = paper_from_odometry(odom_in)
         t4 = cpu()
-        rpm = [float(r) for r in out[1].rpm]
+        rpm = [float(r) for r in esc_in.rpm]
         detector.update(sim.time_s, rpm, applied)
         t5 = cpu()
         res = fc.step(sim.time_s, state, rpm, applied)
         t6 = cpu()
+        applied_usec = odom_in.time_usec             # the command this tick answers
         hil = mav.MAVLink_hil_actuator_controls_message(
-            out[0].time_usec, [f / sc.vehicle.thrust_max_n for f in res.thrust_n]
+            applied_usec, [f / sc.vehicle.thrust_max_n for f in res.thrust_n]
             + [0.0] * 12, 128, 1)
         t6b = cpu()
         daemon_link.send(hil)
@@ -141,8 +148,8 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
         sim._measure()                                 # once more, timed alone
         t11 = cpu()
         acc["state messages built"] += t1 - t0
-        acc["pack ODOMETRY + ESC (Link)"] += t2 - t1
-        acc["parse ODOMETRY + ESC (Link)"] += t3 - t2b
+        acc["pack ODOMETRY + AOS + ESC (Link)"] += t2 - t1
+        acc["parse ODOMETRY + AOS + ESC (Link)"] += t3 - t2b
         acc["frame conversion (paper_from_odometry)"] += t4 - t3
         acc["detector"] += t5 - t4
         acc["law + detector (step)"] += t6 - t5
@@ -362,11 +369,34 @@ def profile_breakdown(n_ticks: int, cpu_us: dict[str, float]) -> dict[str, dict[
 
 
 # ---------------------------------------------------------------------------- main
+_WIDTH = 62
+
+
+def _print_in_process(physics: dict[str, float], breakdown: dict[str, float]) -> None:
+    rows = [
+        ("physics: RK4 step (1 ms, rk4_step alone)", physics["rk4_step_us"]),
+        ("physics: simulator control tick (motors+attacker+RK4+sensors)",
+         physics["sim_tick_us"]),
+        ("vehicle: build + pack ODOMETRY + AOS + ESC_TELEMETRY",
+         physics["state_build_pack_us"]),
+    ]
+    for name, us in rows:
+        print(f"  {name:<{_WIDTH}}  {us:>11.1f} µs")
+    if not breakdown:
+        return
+    print("\nper-tick breakdown (µs, in-process, thread CPU time)")
+    for name, us in breakdown.items():
+        print(f"  {name:<{_WIDTH}}  {us:>11.1f} µs")
+    print(f"  {'total':<{_WIDTH}}  {sum(breakdown.values()):>11.1f} µs")
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--ticks", type=int, default=20000,
                         help="lockstep ticks per network measurement (default 20000)")
     parser.add_argument("--json", metavar="FILE", help="also write the numbers as JSON")
+    parser.add_argument("--breakdown-only", action="store_true",
+                        help="only the in-process physics figures and per-tick breakdown")
     parser.add_argument("--no-breakdown", action="store_true",
                         help="skip the in-process per-piece breakdown")
     parser.add_argument("--no-profile", action="store_true",
@@ -379,9 +409,18 @@ def main() -> int:
         return 0
     if args.ticks <= WARMUP_TICKS:
         parser.error(f"--ticks: must be > {WARMUP_TICKS}")
+    if args.breakdown_only and args.no_breakdown:
+        parser.error("--breakdown-only and --no-breakdown exclude each other")
 
     physics = bench_physics(20000)
     breakdown = {} if args.no_breakdown else bench_breakdown(3000)
+    if args.breakdown_only:
+        _print_in_process(physics, breakdown)
+        if args.json:
+            Path(args.json).write_text(json.dumps(
+                {"python": platform.python_version(), "cpus": os.cpu_count(),
+                 "physics": physics, "breakdown_us": breakdown}, indent=2))
+        return 0
     pingpong = bench_pingpong(args.ticks)
     vehicle = bench_vehicle(args.ticks)
     with tempfile.TemporaryDirectory() as tmp:
@@ -395,12 +434,10 @@ def main() -> int:
     ceiling = 0.5 * (pingpong["ticks_per_s"] + pingpong_after["ticks_per_s"])
     ratio = vehicle["ticks_per_s"] / ceiling
     ratio_full = full["ticks_per_s"] / ceiling
+    print(f"bench_lockstep ({args.ticks} ticks, python {platform.python_version()}, "
+          f"{os.cpu_count()} cpus)")
+    _print_in_process(physics, breakdown)
     rows = [
-        ("physics: RK4 step (1 ms, rk4_step alone)", f"{physics['rk4_step_us']:.1f} µs"),
-        ("physics: simulator control tick (motors+attacker+RK4+sensors)",
-         f"{physics['sim_tick_us']:.1f} µs"),
-        ("vehicle: build + pack ODOMETRY + ESC_TELEMETRY",
-         f"{physics['state_build_pack_us']:.1f} µs"),
         ("ceiling: bare pymavlink UDP ping-pong (mean of before/after)",
          f"{ceiling:.0f} ticks/s"),
         ("lockstep: tfl-mav sim + harness Pilot (our Link), no MCAP",
@@ -411,23 +448,16 @@ def main() -> int:
          f"{full['ticks_per_s']:.0f} ticks/s"),
         ("full loop: real-time factor at 1 kHz", f"{full['real_time_factor']:.2f}x"),
     ]
-    width = max(len(name) for name, _ in rows)
-    print(f"bench_lockstep ({args.ticks} ticks, python {platform.python_version()}, "
-          f"{os.cpu_count()} cpus)")
+    print("\nlockstep over UDP")
     for name, value in rows:
-        print(f"  {name:<{width}}  {value:>14}")
-    if breakdown:
-        print("\nper-tick breakdown (µs, in-process, thread CPU time)")
-        for name, us in breakdown.items():
-            print(f"  {name:<{width}}  {us:>11.1f} µs")
-        print(f"  {'total':<{width}}  {sum(breakdown.values()):>11.1f} µs")
+        print(f"  {name:<{_WIDTH}}  {value:>14}")
     print("\nfull loop: CPU per tick of each process (µs, /proc utime+stime, steady state; "
           "split by a CPU-timer cProfile run's shares)")
     for proc_name, us in full["cpu_us_per_tick"].items():
-        print(f"  {proc_name:<{width}}  {us:>11.1f} µs")
+        print(f"  {proc_name:<{_WIDTH}}  {us:>11.1f} µs")
         for part, part_us in per_process.get(proc_name, {}).items():
-            print(f"    {part:<{width - 2}}  {part_us:>11.1f} µs")
-    print(f"  {'all four processes':<{width}}  "
+            print(f"    {part:<{_WIDTH - 2}}  {part_us:>11.1f} µs")
+    print(f"  {'all four processes':<{_WIDTH}}  "
           f"{sum(full['cpu_us_per_tick'].values()):>11.1f} µs "
           f"(wall per tick {1e6 / full['ticks_per_s']:.0f} µs on {os.cpu_count()} cpus)")
     print("\nissue #13 (same-run ratios to the bare ping-pong)        now    goal")
@@ -438,8 +468,7 @@ def main() -> int:
             "ticks": args.ticks, "python": platform.python_version(), "cpus": os.cpu_count(),
             "physics": physics, "lockstep": vehicle, "lockstep_mcap": recorded,
             "breakdown_us": breakdown, "full_loop": full, "per_process_us": per_process,
-            "pingpong": pingpong,
-            "pingpong_after": pingpong_after,
+            "pingpong": pingpong, "pingpong_after": pingpong_after,
             "ratio_lockstep_to_pingpong": ratio,
             "ratio_full_loop_to_pingpong": ratio_full}, indent=2))
     return 0

@@ -13,11 +13,11 @@ import math
 import re
 import time
 from collections.abc import Callable
+from typing import Any
 
 import numpy as np
 
 from sitl.simulator import Simulator
-from tfl_mav.airframe import mix
 from tfl_mav.flight_computer import FlightComputer
 from tfl_mav.flightlog.flight import FlightLog
 from tfl_mav.geometry import yaw_from_quaternion
@@ -57,43 +57,32 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
     log.path_points_m = ctrl.tracker.path.sample(400)
     duration = sc.run.duration_s if duration_s is None else duration_s
     n_ticks = round(duration / sim.control_dt_s)
-    yaw_prev = None
-    yaw_unwrapped = 0.0
     applied = list(sim.rotor_commands_n)
+    oracle = attack_info == "oracle"
+    rows: list[tuple[Any, ...]] = []     # one per tick; the series are built at the end (_fill)
+    events = log.events
     t0 = time.perf_counter()
     next_progress = 0.0
-    detected: list[int] = []
     for _ in range(n_ticks):
         if hook is not None:
             hook(sim)
         att = sim.attack
-        if attack_info == "oracle":
+        if oracle:
             fc.tell_attack(att.rotor)
-        res = fc.step(sim.time_s, sim.measured, sim.measured_rpm(), applied)
+        t_s = sim.time_s
+        res = fc.step(t_s, sim.measured_floats, sim.measured_rpm_floats, applied)
         if res.new_detection:
-            log.events.append((fc.detection_time_s,
-                               DETECTION_EVENT.format(rotor=fc.detected_rotor)))
+            events.append((fc.detection_time_s, DETECTION_EVENT.format(rotor=fc.detected_rotor)))
         out = res.law
         for text in res.events:
-            log.events.append((sim.time_s, text))
+            events.append((t_s, text))
         sim.set_command(res.thrust_n)
         applied = list(sim.rotor_commands_n)
-        x = sim.state_vector
-        yaw = yaw_from_quaternion(x[6:10])
-        if yaw_prev is not None:
-            yaw_unwrapped += math.remainder(yaw - yaw_prev, math.tau)
-        else:
-            yaw_unwrapped = yaw
-        yaw_prev = yaw
-        true_f = sim.rotor_thrusts_n
-        uf, tp, tq, tr = mix(sim.params, true_f)
-        log.append_row((   # SERIES order
-            sim.time_s, x[0:3], x[3:6], x[10:13], yaw_unwrapped, out.path_distance_m,
-            res.thrust_n,
-            res.thrust_requested_n if res.thrust_requested_n is not None else res.thrust_n,
-            true_f, att.applied_n if att.rotor else 0.0, res.attack_estimate_n, uf,
-            (tp, tq, tr), any(out.saturated), int(out.mode)))
-        detected.append(fc.detected_rotor)
+        req = res.thrust_requested_n
+        rows.append((t_s, sim.state_vector, res.thrust_n, res.thrust_n if req is None else req,
+                     sim.rotor_thrusts_n, att.applied_n if att.rotor else 0.0,
+                     res.attack_estimate_n, out.path_distance_m, any(out.saturated),
+                     int(out.mode), fc.detected_rotor))
         sim.step_control_period()
         reason = sim.crash_reason()
         if reason:
@@ -102,10 +91,48 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
         if progress and sim.time_s >= next_progress:
             progress(sim.time_s, duration)
             next_progress += 1.0
+    _fill(log, rows, sim, detector=attack_info == "detector")
     log.wall_time_s = time.perf_counter() - t0
     log.duration_s = duration
-    if attack_info == "detector":
-        log.detected_rotor = np.asarray(detected, dtype=int)
     log.events.append((0.0, f"fallbacks: {ctrl.fallback_count}, "
                             f"saturated ticks: {ctrl.saturation_count}"))
     return log.finish()
+
+
+def _fill(log: FlightLog, rows: list[tuple[Any, ...]], sim: Simulator, *,
+          detector: bool) -> None:
+    """The per-tick rows → the log's series (:data:`~tfl_mav.flightlog.flight.SERIES`).
+
+    Done once after the flight so the loop appends one tuple a tick: the unwrapped yaw
+    (ψ from the true quaternion, eq. (1)) and the true wrench (eq. (4)) are computed here, by
+    the same float operations in the same order as per tick, so the values are identical.
+    """
+    if detector:
+        log.detected_rotor = np.asarray([r[10] for r in rows], dtype=int)
+    if not rows:
+        return
+    cols = list(zip(*rows, strict=True))
+    x = np.array(cols[1], dtype=float)             # (N, 13) true state, paper frame
+    yaw_rad = []
+    yaw_prev = None
+    unwrapped = 0.0
+    for q in x[:, 6:10].tolist():
+        yaw = yaw_from_quaternion(q)
+        unwrapped = yaw if yaw_prev is None else unwrapped + math.remainder(yaw - yaw_prev,
+                                                                             math.tau)
+        yaw_prev = yaw
+        yaw_rad.append(unwrapped)
+    f = np.array(cols[4], dtype=float)             # (N, 4) true rotor thrusts
+    f1, f2, f3, f4 = f.T
+    ell, d = sim.params.arm_m, sim.params.drag_thrust_ratio_m
+    data = log.data
+    for key, value in (
+            ("t_s", cols[0]), ("position_m", x[:, 0:3]), ("velocity_mps", x[:, 3:6]),
+            ("body_rates_radps", x[:, 10:13]), ("yaw_rad", yaw_rad),
+            ("path_distance_m", cols[7]), ("thrust_cmd_n", cols[2]), ("thrust_req_n", cols[3]),
+            ("thrust_true_n", f), ("attack_true_n", cols[5]), ("attack_estimate_n", cols[6]),
+            ("uf_n", f1 + f2 + f3 + f4),
+            ("torque_nm", np.stack([ell * (f4 - f2), ell * (f3 - f1), d * (f1 - f2 + f3 - f4)],
+                                   axis=1)),
+            ("saturated", cols[8]), ("mode", cols[9])):
+        data[key] = np.ascontiguousarray(value, dtype=float)

@@ -18,14 +18,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from typing import NamedTuple
 
 __all__ = ["PowerModel", "PowerSample"]
 
 
-@dataclass(frozen=True)
-class PowerSample:
-    """One evaluation of the electrical state (SI and pack units as named)."""
+class PowerSample(NamedTuple):
+    """One evaluation of the electrical state (SI and pack units as named); a NamedTuple
+    because the vehicle makes one every tick."""
 
     voltage_v: float                  # battery terminal voltage (V), seen by every ESC
     currents_a: tuple[float, ...]     # per ESC (A)

@@ -16,7 +16,7 @@ import numpy as np
 
 from sitl.attacker import Attacker, AttackSample
 from sitl.motors import RADPS_TO_RPM, MotorBank
-from sitl.physics import RigidBodyParams, RigidBodyState, mix, rk4_step
+from sitl.physics import RigidBodyParams, RigidBodyState, rk4_stepper
 from tfl_mav.geometry import euler_to_quaternion, quaternion_multiply
 from tfl_mav.scenario import Scenario
 from tfl_mav.state import State
@@ -40,6 +40,7 @@ class Simulator:
         self.steps_per_control = scenario.run.steps_per_control
         self.control_dt_s = scenario.run.control_dt_s
         self.thrust_max_n = v.thrust_max_n
+        self._rk4 = rk4_stepper(self.params)
         ini = scenario.initial
         q0 = euler_to_quaternion(*ini.euler_rad)
         self._x = [*ini.position_m, *ini.velocity_mps, *q0, *ini.body_rates_radps]
@@ -59,6 +60,7 @@ class Simulator:
         self._noisy = [std > 0 for std, _ in stds]
         self._noise_scales = [std for std, n in stds if std > 0 for _ in range(n)]
         self._mean_thrust_n = self.motors.thrust_n
+        self._gyro_range_radps = scenario.sensors.gyro_range_radps
         self._measure()
 
     # ------------------------------------------------------------------ time and commands
@@ -81,10 +83,11 @@ class Simulator:
             self.rejected_commands += 1
             raise ValueError(f"thrust command: expected 4 values, got {len(thrust_cmd_n)}")
         values = [float(f) for f in thrust_cmd_n]
-        for i, f in enumerate(values):
-            if not math.isfinite(f):
-                self.rejected_commands += 1
-                raise ValueError(f"thrust command[{i}] (rotor {i + 1}): not finite ({f})")
+        if not math.isfinite(sum(values)):     # one test when all are finite (the norm)
+            for i, f in enumerate(values):
+                if not math.isfinite(f):
+                    self.rejected_commands += 1
+                    raise ValueError(f"thrust command[{i}] (rotor {i + 1}): not finite ({f})")
         fmax = self.thrust_max_n
         self.rotor_commands_n = [min(max(f, 0.0), fmax) for f in values]
 
@@ -94,23 +97,36 @@ class Simulator:
 
     # ------------------------------------------------------------------ integration
     def step_control_period(self) -> None:
-        """Integrate one control period with the current command held (zero-order hold)."""
-        p = self.params
+        """Integrate one control period with the current command held (zero-order hold).
+
+        Per physics step: the attack, the motor lag (mean thrust over the step), the mixer
+        (eq. (4), written out as :func:`~tfl_mav.airframe.mix` computes it) and one RK4 step.
+        The rotor-speed targets of the held command are computed once per period.
+        """
         h = self.physics_dt_s
         motors = self.motors
+        attacker = self.attacker
+        step = self._rk4
+        ell, d = self.params.arm_m, self.params.drag_thrust_ratio_m
+        commands = self.rotor_commands_n
+        omega_for_thrust = motors.omega_for_thrust
+        held = [omega_for_thrust(f) for f in commands]
+        x = self._x
         for _ in range(self.steps_per_control):
-            t = self.time_s
-            targets = [motors.omega_for_thrust(f) for f in self.rotor_commands_n]
-            att = self.attacker.sample(t, (self._x[0], self._x[1], self._x[2]),
-                                       self.rotor_commands_n[self.attacker.rotor - 1]
-                                       if self.attacker.rotor else 0.0)
+            rotor = attacker.rotor
+            att = attacker.sample(self.physics_steps * h, (x[0], x[1], x[2]),
+                                  commands[rotor - 1] if rotor else 0.0)
+            targets = held
             if att.rotor:
-                targets[att.rotor - 1] = motors.omega_for_thrust(att.applied_n)
+                targets = held.copy()
+                targets[att.rotor - 1] = omega_for_thrust(att.applied_n)
             self.attack = att
-            mean_thrust = motors.step(targets, h)
-            self._mean_thrust_n = mean_thrust
-            self._x = rk4_step(p, self._x, mix(p, mean_thrust), h)
+            self._mean_thrust_n = mean = motors.step(targets, h)
+            f1, f2, f3, f4 = mean
+            x = step(x, f1 + f2 + f3 + f4, ell * (f4 - f2), ell * (f3 - f1),
+                     d * (f1 - f2 + f3 - f4), h)
             self.physics_steps += 1
+        self._x = x
         self.tick += 1
         self._measure()
 
@@ -120,34 +136,42 @@ class Simulator:
         One ``standard_normal`` draw for the whole tick, scaled per sensor: numpy's
         ``normal(0, σ, n)`` is ``0 + σ·z`` on the same stream of z, so this draws exactly the
         numbers (and noise) that one ``normal`` call per sensor did, at a fifth of the calls.
-        Plain floats where numpy would only add per-call cost; the quaternion product and
-        norm stay numpy (its norm is not a float sum to the bit).
+        Kept as float tuples (:attr:`measured_floats`); the numpy form :attr:`measured` is
+        built only if read. The noisy quaternion's product and norm stay numpy (its norm is
+        not a float sum to the bit).
         """
         scales = self._noise_scales
-        z = self._rng.standard_normal(len(scales)).tolist() if scales else []
-        noise = [0.0 + sc * zi for sc, zi in zip(scales, z, strict=True)]
-        it = iter(noise)
+        noisy = self._noisy
         x = self._x
-        rpm = self.motors.rpm
-        if self._noisy[0]:
-            rpm = [r + next(it) for r in rpm]
-        self._rpm = np.array([min(max(r, 0.0), 65535.0) for r in rpm])
-        pos, vel, q, w = x[0:3], x[3:6], x[6:10], x[10:13]
-        if self._noisy[1]:
-            pos = [c + next(it) for c in pos]
-        if self._noisy[2]:
-            vel = [c + next(it) for c in vel]
-        if self._noisy[3]:
-            q = quaternion_multiply(q, (1.0, 0.5 * next(it), 0.5 * next(it), 0.5 * next(it)))
-            q = q / np.linalg.norm(q)
+        w_rotor = self.motors.omega_radps
+        if scales:
+            z = self._rng.standard_normal(len(scales)).tolist()
+            it = iter([0.0 + sc * zi for sc, zi in zip(scales, z, strict=True)])
+            rpm = [w * RADPS_TO_RPM for w in w_rotor]
+            if noisy[0]:
+                rpm = [r + next(it) for r in rpm]
+            self._rpm = tuple([min(max(r, 0.0), 65535.0) for r in rpm])
+            pos, vel, w = x[0:3], x[3:6], x[10:13]
+            if noisy[1]:
+                pos = [c + next(it) for c in pos]
+            if noisy[2]:
+                vel = [c + next(it) for c in vel]
+            if noisy[3]:
+                qn = quaternion_multiply(x[6:10], (1.0, 0.5 * next(it), 0.5 * next(it),
+                                                   0.5 * next(it)))
+                q = tuple((qn / np.linalg.norm(qn)).tolist())
+            else:
+                q = tuple(x[6:10])
+            if noisy[4]:
+                w = [c + next(it) for c in w]
         else:
-            q = np.array(q)
-        if self._noisy[4]:
-            w = [c + next(it) for c in w]
-        g = self.scenario.sensors.gyro_range_radps
+            self._rpm = tuple([min(max(r * RADPS_TO_RPM, 0.0), 65535.0) for r in w_rotor])
+            pos, vel, q, w = x[0:3], x[3:6], tuple(x[6:10]), x[10:13]
+        g = self._gyro_range_radps
         if g > 0:     # a real gyro saturates at its range
             w = [min(max(c, -g), g) for c in w]
-        self._measured = State(np.array(pos), np.array(vel), q, np.array(w), self.time_usec)
+        self._measured_floats = State(tuple(pos), tuple(vel), q, tuple(w), self.time_usec)
+        self._measured: State | None = None
 
     # ------------------------------------------------------------------ outputs
     @property
@@ -163,12 +187,29 @@ class Simulator:
 
     @property
     def measured(self) -> State:
-        """State as the vehicle's estimator reports it (truth + sensor noise)."""
-        return self._measured
+        """State as the vehicle's estimator reports it (truth + sensor noise), numpy arrays
+        (built on first read in a tick; :attr:`measured_floats` is the same numbers)."""
+        m = self._measured
+        if m is None:
+            f = self._measured_floats
+            m = self._measured = State(np.array(f.position_m), np.array(f.velocity_mps),
+                                       np.array(f.quaternion_wxyz),
+                                       np.array(f.body_rates_radps), f.time_usec)
+        return m
+
+    @property
+    def measured_floats(self) -> State:
+        """:attr:`measured` with float tuples for fields: what hot loops read (no arrays)."""
+        return self._measured_floats
 
     def measured_rpm(self) -> np.ndarray:
-        """ESC-reported rotor speeds (rpm, with the scenario's seeded noise)."""
-        return self._rpm.copy()
+        """ESC-reported rotor speeds (rpm, with the scenario's seeded noise); a new array."""
+        return np.array(self._rpm)
+
+    @property
+    def measured_rpm_floats(self) -> tuple[float, float, float, float]:
+        """:meth:`measured_rpm` as a float tuple (no array)."""
+        return self._rpm  # type: ignore[return-value]
 
     @property
     def rotor_thrusts_n(self) -> list[float]:
@@ -186,7 +227,8 @@ class Simulator:
     def crash_reason(self) -> str | None:
         """None while flyable, else a sentence saying why the run is over."""
         x = self._x
-        if not all(math.isfinite(c) for c in x):
+        # A sum of finite floats is finite unless it overflows: one test in the common case.
+        if not math.isfinite(sum(x)) and not all(math.isfinite(c) for c in x):
             return "the state became non-finite (NaN/inf): the integration diverged"
         if x[2] < 0.0:
             return f"hit the ground (z = {x[2]:.2f} m < 0) at t = {self.time_s:.3f} s"

@@ -36,7 +36,20 @@ __all__ = ["StateReport"]
 # ODOMETRY covariance arrays: upper triangle of a 6×6 matrix, row-major; diagonal indices.
 _COV_DIAGONAL = (0, 6, 11, 15, 18, 20)
 _ACTIVE = 0b1111          # ACTUATOR_OUTPUT_STATUS.active: outputs 1-4 in use
-_PAD28 = [0.0] * 28       # actuator[4..31]
+_PAD28 = (0.0,) * 28     # actuator[4..31]
+_MOCAP = mav.MAV_ESTIMATOR_TYPE_MOCAP
+
+
+def _u8(x: float) -> int:
+    """Rounded and clamped to uint8."""
+    r = round(x)
+    return 0 if r < 0 else 255 if r > 255 else r
+
+
+def _u16(x: float) -> int:
+    """Rounded and clamped to ≤ 65535 (inputs here are ≥ 0: currents, charge, rpm)."""
+    r = round(x)
+    return 65535 if r > 65535 else r
 
 
 class StateReport:
@@ -64,27 +77,31 @@ class StateReport:
         ``applied_usec``: time_usec of the command held over the period just ended (0:
         none)."""
         sim = self.sim
-        m = sim.measured
-        f = odometry_from_paper(m.position_m.tolist(), m.velocity_mps.tolist(),
-                                m.quaternion_wxyz.tolist(), m.body_rates_radps.tolist())
+        m = sim.measured_floats       # float tuples: no arrays to build and convert back
+        f = odometry_from_paper(m.position_m, m.velocity_mps, m.quaternion_wxyz,
+                                m.body_rates_radps)
         odometry = mav.MAVLink_odometry_message(
             sim.time_usec, MAV_FRAME_LOCAL_NED, MAV_FRAME_BODY_FRD, f.x, f.y, f.z, f.q,
             f.vx, f.vy, f.vz, f.rollspeed, f.pitchspeed, f.yawspeed, self._pose_cov,
-            self._vel_cov, 0, mav.MAV_ESTIMATOR_TYPE_MOCAP, 100)
+            self._vel_cov, 0, _MOCAP, 100)
         p = self.power.sample
-        self._esc_count = (self._esc_count + 1) & 0xFFFF
-        count = self._esc_count
+        self._esc_count = count = (self._esc_count + 1) & 0xFFFF
         cv = min(65535, round(p.voltage_v * 100.0))
+        t1, t2, t3, t4 = p.temperatures_c
+        i1, i2, i3, i4 = p.currents_a
+        c1, c2, c3, c4 = p.consumed_mah
+        r1, r2, r3, r4 = sim.measured_rpm_floats
         esc = mav.MAVLink_esc_telemetry_1_to_4_message(
-            [min(255, max(0, round(t))) for t in p.temperatures_c],
+            [_u8(t1), _u8(t2), _u8(t3), _u8(t4)],
             [cv, cv, cv, cv],
-            [min(65535, round(i * 100.0)) for i in p.currents_a],
-            [min(65535, round(c)) for c in p.consumed_mah],
-            [min(65535, round(r)) for r in sim.measured_rpm().tolist()],
+            [_u16(i1 * 100.0), _u16(i2 * 100.0), _u16(i3 * 100.0), _u16(i4 * 100.0)],
+            [_u16(c1), _u16(c2), _u16(c3), _u16(c4)],
+            [_u16(r1), _u16(r2), _u16(r3), _u16(r4)],   # rpm: already ≥ 0
             [count, count, count, count])
         fmax = sim.thrust_max_n
+        f1, f2, f3, f4 = sim.rotor_commands_n
         applied = mav.MAVLink_actuator_output_status_message(
-            applied_usec, _ACTIVE, [f / fmax for f in sim.rotor_commands_n] + _PAD28)
+            applied_usec, _ACTIVE, [f1 / fmax, f2 / fmax, f3 / fmax, f4 / fmax, *_PAD28])
         self.latest = (odometry, applied, esc)
         return self.latest
 

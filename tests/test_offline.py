@@ -117,3 +117,16 @@ def test_offline_cli_bad_override_names_the_key():
         capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
     assert "vehicle.mass_kg" in out.stderr
+
+
+def test_offline_start_up_does_not_load_the_link_stack():
+    """`tfl-mav offline` imports only its own subcommand: no pymavlink, MCAP or daemon."""
+    code = ("import contextlib, io, sys\n"
+            "from tools.cli import main\n"
+            "with contextlib.redirect_stdout(io.StringIO()):\n"
+            "    main(['offline', 'nominal', '--json', '--duration', '0.01'])\n"
+            "print(sorted(m for m in ('pymavlink', 'mcap', 'tfl_mav.daemon', 'matplotlib')\n"
+            "             if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         check=True, timeout=120)
+    assert out.stdout.strip() == "[]"

@@ -249,6 +249,25 @@ def test_same_seed_same_noisy_measurements(scenario):
     assert runs[0] == runs[1]
 
 
+def test_float_and_numpy_measurements_are_the_same_numbers(scenario):
+    """The hot loops read ``measured_floats``; everyone else the numpy ``measured``."""
+    sc = scenario.replace(**{"vehicle.rpm_noise_std": 10.0,
+                             "sensors.position_noise_std_m": 0.01,
+                             "sensors.velocity_noise_std_mps": 0.01,
+                             "sensors.attitude_noise_std_rad": 0.01,
+                             "sensors.rate_noise_std_radps": 0.005})
+    sim = Simulator(sc)
+    for _ in range(20):
+        sim.step_control_period()
+        fast, arrays = sim.measured_floats, sim.measured
+        for name in ("position_m", "velocity_mps", "quaternion_wxyz", "body_rates_radps"):
+            assert isinstance(getattr(arrays, name), np.ndarray)
+            assert list(getattr(fast, name)) == getattr(arrays, name).tolist()
+        assert fast.time_usec == arrays.time_usec == sim.time_usec
+        assert list(sim.measured_rpm_floats) == sim.measured_rpm().tolist()
+        assert sim.measured is arrays        # built once per tick
+
+
 def test_crash_reasons_are_sentences(scenario):
     sim = Simulator(scenario)
     sim.set_command([0.0] * 4)

@@ -12,22 +12,26 @@ import sys
 
 from tfl_mav import __version__
 
-# (module, what it adds). Each module has add_parser(subparsers) and its own run function.
-SUBCOMMANDS = (
-    "tools.demo",
-    "tools.sim",
-    "tools.fly",
-    "tools.offline",
-    "tools.inspect_cmd",
-    "tools.report",
-    "tools.replay",
-    "tools.scenarios_cmd",
-    "tools.relay",
-    "tools.campaign",
-)
+# Command → the module that adds it. Each module has add_parser(subparsers) and its own run
+# function. Only the invoked command's module is imported (each pulls in what its command
+# needs: a daemon, pymavlink, MCAP, plotting), so `tfl-mav offline` does not pay for the
+# link stack at start-up; --help and an unknown command import them all to list them.
+SUBCOMMANDS = {
+    "demo": "tools.demo",
+    "sim": "tools.sim",
+    "fly": "tools.fly",
+    "offline": "tools.offline",
+    "inspect": "tools.inspect_cmd",
+    "report": "tools.report",
+    "replay": "tools.replay",
+    "scenarios": "tools.scenarios_cmd",
+    "relay": "tools.relay",
+    "campaign": "tools.campaign",
+}
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The whole CLI's parser; with a known ``command``, only that subcommand is added."""
     parser = argparse.ArgumentParser(
         prog="tfl-mav",
         description="Fly a quadrotor along a 3-D path while an attacker controls one rotor: "
@@ -36,7 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Exit codes: 0 ok, 1 flight failed, 2 usage/scenario error, 3 link/I-O error.")
     parser.add_argument("--version", action="version", version=f"tfl-mav {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
-    for name in SUBCOMMANDS:
+    names = [SUBCOMMANDS[command]] if command in SUBCOMMANDS else SUBCOMMANDS.values()
+    for name in names:
         try:
             module = importlib.import_module(name)
         except ModuleNotFoundError as exc:
@@ -48,7 +53,9 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
+    argv = sys.argv[1:] if argv is None else argv
+    command = next((a for a in argv if not a.startswith("-")), None)
+    parser = build_parser(command)
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
         parser.print_help()
