@@ -9,7 +9,12 @@ offline loop against a plain numpy RK4 physics-only loop — all in the same run
 2. Where an update's time goes, per step of :meth:`TFLController.update` (exclusive µs per
    tick, by wrapping each step with a timer: absolute numbers include the wrapper's cost,
    use the shares).
-3. Issue #13's table row 2: the offline loop (physics + law + detector at 1 kHz,
+3. :meth:`FlightComputer.step` (detector + which law flies + the law + the command) timed
+   tick by tick over a whole offline flight of the scenario (``fly_offline`` with the
+   detector; the step wrapped from here, the runner untouched): median and p90 µs, by the
+   mode that flew the tick (the paper flight spends ~a quarter of its ticks in the safe
+   reduced-attitude law, ``LOST_ROTOR``).
+4. Issue #13's table row 2: the offline loop (physics + law + detector at 1 kHz,
    ``harness.offline.fly_offline``, and the whole ``tfl-mav offline`` process) against a
    plain numpy RK4 loop of the same rigid body with the physics only, as the ratio of
    simulated seconds per CPU second (> 1: the full loop is faster).
@@ -40,6 +45,7 @@ from tfl_mav.build import build_controller
 from tfl_mav.control import actuators, compiled, law, tracker
 from tfl_mav.control.compiled import compile_path
 from tfl_mav.control.law import TFLController
+from tfl_mav.flight_computer import FlightComputer
 from tfl_mav.scenario import Scenario, load_scenario
 from tfl_mav.state import State
 
@@ -124,6 +130,29 @@ def breakdown(sc: Scenario, ticks: int, compiled_path: bool) -> dict[str, float]
     return {k: 1e6 * v / ticks for k, v in acc.items()}
 
 
+# ----- the whole tick over a flight --------------------------------------------------------
+def time_flight_computer(sc: Scenario, duration_s: float | None) -> dict[str, list[float]]:
+    """Seconds per :meth:`FlightComputer.step` over an offline flight, keyed by the mode of
+    the tick ("all" too). The method is wrapped on the class for the flight, then restored."""
+    by_mode: dict[str, list[float]] = defaultdict(list)
+    step = FlightComputer.step
+
+    def timed(self: FlightComputer, *a: Any, **k: Any) -> Any:
+        t0 = _cpu()
+        res = step(self, *a, **k)
+        el = _cpu() - t0
+        by_mode[res.law.mode.name].append(el)
+        by_mode["all"].append(el)
+        return res
+
+    FlightComputer.step = timed  # type: ignore[method-assign]
+    try:
+        fly_offline(sc, attack_info="detector", duration_s=duration_s)
+    finally:
+        FlightComputer.step = step  # type: ignore[method-assign]
+    return by_mode
+
+
 # ----- offline loop vs a plain numpy RK4 -----------------------------------------------------
 def numpy_rk4_rtf(sc: Scenario, sim_s: float) -> float:
     """Simulated s per wall s of the rigid body (§III eq. (3)) integrated by RK4 with numpy
@@ -189,6 +218,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--ticks", type=int, default=4000)
     ap.add_argument("--offline-s", type=float, default=5.0, help="simulated s per loop run")
     ap.add_argument("--no-offline", action="store_true", help="skip the offline-loop table")
+    ap.add_argument("--flight-s", type=float, default=None,
+                    help="simulated s of the flight-computer flight (default: the scenario's)")
+    ap.add_argument("--no-flight", action="store_true",
+                    help="skip the flight-computer-step table")
     ap.add_argument("--json", metavar="FILE")
     args = ap.parse_args(argv)
     sc0 = load_scenario(args.scenario)
@@ -226,6 +259,19 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{label:40s} {b_ref.get(label, 0.0):8.1f} {b_fast.get(label, 0.0):9.1f}")
     print(f"{'total':40s} {sum(b_ref.values()):8.1f} {sum(b_fast.values()):9.1f}")
     result["breakdown_us"] = {"jets": b_ref, "compiled": b_fast}
+
+    if not args.no_flight:
+        by_mode = time_flight_computer(sc0, args.flight_s)
+        print(f"\nflight computer step over the {args.scenario} flight (detector), µs\n"
+              f"{'mode':12s} {'ticks':>6s} {'median':>8s} {'p90':>8s}")
+        fc_rows = {}
+        for mode in ["all", *sorted(k for k in by_mode if k != "all")]:
+            t = sorted(by_mode[mode])
+            fc_rows[mode] = {"ticks": len(t), "median_us": 1e6 * statistics.median(t),
+                             "p90_us": 1e6 * t[int(0.9 * len(t))]}
+            r = fc_rows[mode]
+            print(f"{mode:12s} {r['ticks']:6d} {r['median_us']:8.1f} {r['p90_us']:8.1f}")
+        result["flight_computer_step"] = fc_rows
 
     if not args.no_offline:
         rk4 = numpy_rk4_rtf(sc0, args.offline_s)

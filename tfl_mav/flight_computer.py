@@ -138,7 +138,9 @@ class FlightComputer:
         self.recovery = RecoveryLaw(mp.mass_kg, mp.inertia_kgm2, mp.arm_m,
                                     mp.drag_thrust_ratio_m, mp.k_t, mp.k_r, mp.thrust_max_n,
                                     mp.gravity_mps2, scenario.run.control_dt_s,
-                                    scenario_path(scenario), self.speed_mps)
+                                    scenario_path(scenario), self.speed_mps,
+                                    kernels=getattr(self.controller.tracker, "kernels", None),
+                                    compiled_path=self.controller.path_eval == "compiled")
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
         if self.controller.lag_inverter is not None:   # ESC noise: filter ω (actuators)
             self.controller.lag_inverter.set_rpm_noise(detector_config(scenario).rpm_noise_std)

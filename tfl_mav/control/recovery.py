@@ -37,17 +37,21 @@ limited to a 30° tilt and ±0.5 g vertically: a safe law does not chase the pat
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from tfl_mav.control.allocation import allocate_nominal, canonical_frame
+from tfl_mav.control.compiled import PathKernels, compile_path
+from tfl_mav.control.jetcode import TraceError
+from tfl_mav.control.jets import Jet
 from tfl_mav.control.paths import Path
 from tfl_mav.geometry import rotation_rows
 from tfl_mav.state import State
 
-__all__ = ["PathProjector", "RecoveryLaw", "RecoveryOutput"]
+__all__ = ["PathProjector", "RecoveryLaw", "RecoveryOutput", "projector_sigma2",
+           "reference_sigma2"]
 
 MAX_TILT_RAD = math.radians(30.0)   # outer loop: horizontal acceleration ≤ g tan 30°
 MAX_VERTICAL_G = 0.5                # outer loop: |vertical acceleration| ≤ 0.5 g
@@ -63,56 +67,91 @@ LQR_Q = (100.0, 100.0, 0.01, 0.01)
 LQR_R = (2500.0, 25.0)
 
 
-class PathProjector:
-    """Closest point of a path (float evaluations of σ only), kept between calls."""
+Sigma2 = Callable[[tuple[float]], Sequence[float]]
 
-    def __init__(self, path: Path) -> None:
+
+def reference_sigma2(path: Path) -> Sigma2:
+    """σ's Taylor coefficients (σ, σ', σ''/2, j-major) at λ by the reference jets: the
+    generic evaluation the compiled ``sigma2`` kernel (:mod:`compiled`) is tested against."""
+    def sigma2(lam: tuple[float]) -> tuple[float, ...]:
+        comps = [v.c if isinstance(v, Jet) else (float(v), 0.0, 0.0)
+                 for v in path.sigma(Jet.variable(lam[0], order=2))]
+        return tuple(comps[i][j] for j in range(3) for i in range(3))
+
+    return sigma2
+
+
+def projector_sigma2(path: Path, kernels: PathKernels | None = None,
+                     compiled_path: bool = True) -> tuple[Sigma2, str]:
+    """The σ evaluation the projector uses and a note: the compiled kernel (``kernels``, or
+    traced now) when the path's code traces, else the reference jets (the note says why)."""
+    if not compiled_path:
+        return reference_sigma2(path), "reference jets"
+    try:
+        return (kernels if kernels is not None else compile_path(path)).sigma2.fn, "compiled"
+    except TraceError as exc:
+        return reference_sigma2(path), f"reference jets ({exc})"
+
+
+class PathProjector:
+    """Closest point of a path, kept between calls (Newton on ⟨y − σ(λ), σ'(λ)⟩ = 0).
+
+    σ, σ' and σ'' come exactly from one ``sigma2`` evaluation a step — the compiled kernel
+    the TFL tracker uses, or the reference jets (:func:`projector_sigma2`): a warm-started
+    tick costs two or three evaluations of a few dozen float operations. (Central
+    differences of σ, as before #13, needed three σ calls a step and carried ~1e-7 of
+    rounding noise in σ'' with a 1e-4 step.)
+    """
+
+    def __init__(self, path: Path, sigma2: Sigma2 | None = None,
+                 evaluation: str = "given") -> None:
         self.path = path
+        if sigma2 is None:
+            sigma2, evaluation = projector_sigma2(path)
+        self.evaluation = evaluation        # "compiled" | "reference jets (why)" | "given"
+        self._sigma2 = sigma2
         self.lam: float | None = None
 
-    def _d(self, lam: float) -> tuple[list[float], list[float], list[float]]:
-        h = 1e-4
-        s = self.path.sigma
-        p0 = [float(c) for c in s(lam)]
-        pp = [float(c) for c in s(lam + h)]
-        pm = [float(c) for c in s(lam - h)]
-        d1 = [(a - b) / (2 * h) for a, b in zip(pp, pm, strict=True)]
-        d2 = [(a - 2 * c + b) / (h * h) for a, b, c in zip(pp, pm, p0, strict=True)]
-        return p0, d1, d2
-
-    def project(self, y: Sequence[float]) -> tuple[list[float], list[float], list[float],
-                                                     float] | None:
+    def project(self, y: Sequence[float]) -> tuple[tuple[float, float, float],
+                                                   tuple[float, float, float],
+                                                   tuple[float, float, float],
+                                                   float] | None:
         """(point, unit tangent, curvature vector κN, distance) or None if not found."""
+        yx, yy, yz = y
         if self.lam is None:
             lo, hi = self.path.lam_range
-            lam = np.linspace(lo, hi, 2001)
-            x, yy, z = self.path.sigma(lam)
-            d2 = (x - y[0]) ** 2 + (yy - y[1]) ** 2 + (z - y[2]) ** 2
-            self.lam = float(lam[int(np.argmin(d2))])
+            lam_grid = np.linspace(lo, hi, 2001)
+            x, sy, z = self.path.sigma(lam_grid)
+            d2 = (x - yx) ** 2 + (sy - yy) ** 2 + (z - yz) ** 2
+            self.lam = float(lam_grid[int(np.argmin(d2))])
         lam = self.lam
+        sigma2 = self._sigma2
         for _ in range(8):
-            p0, d1, d2 = self._d(lam)
-            e = [y[i] - p0[i] for i in range(3)]
-            g = sum(e[i] * d1[i] for i in range(3))
-            dg = -sum(c * c for c in d1) + sum(e[i] * d2[i] for i in range(3))
+            c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = sigma2((lam,))
+            ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
+            g = ex * c1x + ey * c1y + ez * c1z
+            dg = 2.0 * (ex * c2x + ey * c2y + ez * c2z) - (c1x * c1x + c1y * c1y + c1z * c1z)
             step = -g / dg if dg < 0.0 else -0.1 * math.copysign(1.0, g)
-            step = max(-0.5, min(0.5, step))
+            step = -0.5 if step < -0.5 else (0.5 if step > 0.5 else step)
             lam += step
             if abs(step) < 1e-9:
                 break
         if not math.isfinite(lam):
             return None
         self.lam = lam
-        p0, d1, d2 = self._d(lam)
-        s1 = math.sqrt(sum(c * c for c in d1))
-        if not s1 > 0.0:
+        c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = sigma2((lam,))
+        s1sq = c1x * c1x + c1y * c1y + c1z * c1z
+        if not s1sq > 0.0:
             return None
-        t = [c / s1 for c in d1]
-        # κN = (σ'' − (σ''·T) T)/|σ'|²
-        a = sum(d2[i] * t[i] for i in range(3))
-        kn = [(d2[i] - a * t[i]) / (s1 * s1) for i in range(3)]
-        dist = math.sqrt(sum((y[i] - p0[i]) ** 2 for i in range(3)))
-        return p0, t, kn, dist
+        s1 = math.sqrt(s1sq)
+        tx, ty, tz = c1x / s1, c1y / s1, c1z / s1
+        # κN = (σ'' − (σ''·T) T)/|σ'|², σ'' = 2 c2
+        d2x, d2y, d2z = 2.0 * c2x, 2.0 * c2y, 2.0 * c2z
+        a = d2x * tx + d2y * ty + d2z * tz
+        ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
+        return ((c0x, c0y, c0z), (tx, ty, tz),
+                ((d2x - a * tx) / s1sq, (d2y - a * ty) / s1sq, (d2z - a * tz) / s1sq),
+                math.sqrt(ex * ex + ey * ey + ez * ez))
 
 
 @dataclass
@@ -132,7 +171,8 @@ class RecoveryLaw:
     def __init__(self, mass_kg: float, inertia_kgm2: Sequence[float], arm_m: float,
                  drag_thrust_ratio_m: float, k_t: float, k_r: float, thrust_max_n: float,
                  gravity_mps2: float, dt_s: float, path: Path | None,
-                 speed_mps: float) -> None:
+                 speed_mps: float, *, kernels: PathKernels | None = None,
+                 compiled_path: bool = True) -> None:
         self.mass_kg = mass_kg
         self.inertia = tuple(inertia_kgm2)
         self.arm_m = arm_m
@@ -143,7 +183,9 @@ class RecoveryLaw:
         self.g = gravity_mps2
         self.dt = dt_s
         self.speed = speed_mps
-        self.projector = PathProjector(path) if path is not None else None
+        # The path's compiled σ kernel (the TFL tracker's ``kernels`` when given: traced once).
+        self.projector = (PathProjector(path, *projector_sigma2(path, kernels, compiled_path))
+                          if path is not None else None)
         self.hold_m: list[float] | None = None    # held point (None: follow the path)
         self._gains: dict[tuple[int, bool], np.ndarray] = {}
 
