@@ -8,7 +8,7 @@ table), :class:`ControlOutput` one decision with the internals worth logging.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 from tfl_mav.modes import Mode
 
@@ -72,7 +72,6 @@ class ControlOutput:
     disturbance_radps2: tuple[float, float]
     fine_gains: bool
     reason: str = ""                     # why a fallback was taken
-    extra: dict[str, float] = field(default_factory=dict)
 
 
 def chain_gains(pole: float, order: int) -> tuple[float, ...]:

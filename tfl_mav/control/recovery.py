@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tfl_mav.control.allocation import allocate_nominal, canonical_frame
+from tfl_mav.control.allocation import RotorFrame, allocate_nominal, canonical_frame
 from tfl_mav.control.compiled import PathKernels, compile_path
 from tfl_mav.control.jetcode import TraceError
 from tfl_mav.control.jets import Jet
@@ -68,6 +68,7 @@ LQR_R = (2500.0, 25.0)
 
 
 Sigma2 = Callable[[tuple[float]], Sequence[float]]
+Gains = tuple[tuple[float, float, float, float], tuple[float, float, float, float]]  # K, 2×4
 
 
 def reference_sigma2(path: Path) -> Sigma2:
@@ -187,7 +188,8 @@ class RecoveryLaw:
         self.projector = (PathProjector(path, *projector_sigma2(path, kernels, compiled_path))
                           if path is not None else None)
         self.hold_m: list[float] | None = None    # held point (None: follow the path)
-        self._gains: dict[tuple[int, bool], np.ndarray] = {}
+        self._gains: dict[tuple[int, bool], Gains] = {}
+        self._frames: dict[int, RotorFrame] = {}
 
     # ------------------------------------------------------------------ targets
     def hold(self, position_m: Sequence[float]) -> None:
@@ -225,7 +227,7 @@ class RecoveryLaw:
         return a, dist
 
     # ------------------------------------------------------------------ gains
-    def _lqr(self, r: float, ix: float, iy: float) -> np.ndarray:
+    def _lqr(self, r: float, ix: float, iy: float) -> Gains:
         # Gains are scheduled on the spin rate in 0.5 rad/s steps; beyond ±LQR_MAX_SPIN the
         # airframe has long come apart (the simulator ends a run at 300 rad/s), so a measured
         # rate out there (a glitch, a fuzzed message) uses the edge's gains: bounded cache,
@@ -252,8 +254,8 @@ class RecoveryLaw:
         q, rw = np.diag(LQR_Q), np.diag(LQR_R)
         p = solve_discrete_are(ad, bd, q, rw)
         k = np.linalg.solve(rw + bd.T @ p @ bd, bd.T @ p @ ad)
-        self._gains[key] = k
-        return k
+        gains = self._gains[key] = (tuple(k[0].tolist()), tuple(k[1].tolist()))
+        return gains
 
     # ------------------------------------------------------------------ the law
     def update(self, s: State, attacked_rotor: int = 0,
@@ -281,16 +283,21 @@ class RecoveryLaw:
             req = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m)
             f = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m, fmax)
             return RecoveryOutput(req, f, tilt_err, dist, uf)
-        fr = canonical_frame(attacked_rotor)
-        rot = fr.rot
-        hc = [sum(rot[i][k] * h[k] for k in range(3)) for i in range(3)]
-        w = (p, q, r)
-        wc = [sum(rot[i][k] * w[k] for k in range(3)) for i in range(3)]
+        fr = self._frames.get(attacked_rotor)
+        if fr is None:
+            fr = self._frames[attacked_rotor] = canonical_frame(attacked_rotor)
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = fr.rot
+        h0, h1, h2 = h
+        # Canonical components (as sum() over the integer rotation: the same roundings).
+        x0 = 0 + r00 * h0 + r01 * h1 + r02 * h2
+        x1 = 0 + r10 * h0 + r11 * h1 + r12 * h2
+        x2 = 0 + r00 * p + r01 * q + r02 * r
+        x3 = 0 + r10 * p + r11 * q + r12 * r
         ixc, iyc = (iy, ix) if fr.swap_xy else (ix, iy)
-        k = self._lqr(wc[2], ixc, iyc)
-        x = (hc[0], hc[1], wc[0], wc[1])
-        tau_p = -float(k[0, 0] * x[0] + k[0, 1] * x[1] + k[0, 2] * x[2] + k[0, 3] * x[3])
-        tau_q = -float(k[1, 0] * x[0] + k[1, 1] * x[1] + k[1, 2] * x[2] + k[1, 3] * x[3])
+        (k00, k01, k02, k03), (k10, k11, k12, k13) = self._lqr(0 + r20 * p + r21 * q + r22 * r,
+                                                               ixc, iyc)
+        tau_p = -(k00 * x0 + k01 * x1 + k02 * x2 + k03 * x3)
+        tau_q = -(k10 * x0 + k11 * x1 + k12 * x2 + k13 * x3)
         an = min(max(attack_n, 0.0), fmax)
         f4 = an + tau_p / ell
         s13 = uf - an - f4
