@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from typing import NamedTuple
 
 from tfl_mav.modes import Mode
 
@@ -53,9 +54,9 @@ class LawConfig:
     max_cond: float = 1e8           # cond(Dφ) above this: fall back
 
 
-@dataclass(slots=True)
-class ControlOutput:
-    """One control decision and the internals worth logging."""
+class ControlOutput(NamedTuple):
+    """One control decision and the internals worth logging (a named tuple: one is made
+    every tick, and a tuple is built about twice as fast as a dataclass)."""
 
     rotor_thrust_n: list[float]          # command, in [0, f_max], physical rotor order (with
                                          # motor lag: the lag inverse of the law's demand)
