@@ -21,9 +21,10 @@ Linearised about the spin (h3 ≈ 1, r ≈ const):
 With r ≠ 0 this 4-state system is controllable from τ_q = l(f3 − f1) alone (the spin carries
 the body axes round, so one torque axis reaches both tilt directions). A discrete LQR on
 the zero-order-hold model at the control period (so a 250 Hz loop is designed for what it
-is) gives the gain; it is recomputed when the measured r moves by more than 0.5 rad/s
-(gain scheduling on r). τ_p stays an input with a cost 100× τ_q's: it is needed only when
-the spin is slow (right after a take-over), and its one-sided range is clipped.
+is; :mod:`lqr`, numpy only) gives the gain; it is recomputed when the measured r moves
+by more than 0.5 rad/s (gain scheduling on r). τ_p stays an input with a cost 100× τ_q's:
+it is needed only when the spin is slow (right after a take-over), and its one-sided range
+is clipped.
 
 With four healthy rotors (a take-over, a lost projection) the same reduced attitude is
 flown with a PD on (−h2, h1) through both torques and a yaw-rate damper.
@@ -46,6 +47,7 @@ from tfl_mav.control.allocation import RotorFrame, allocate_nominal, canonical_f
 from tfl_mav.control.compiled import PathKernels, compile_path
 from tfl_mav.control.jetcode import TraceError
 from tfl_mav.control.jets import Jet
+from tfl_mav.control.lqr import dlqr, zoh
 from tfl_mav.control.paths import Path
 from tfl_mav.geometry import rotation_rows
 from tfl_mav.state import State
@@ -237,8 +239,6 @@ class RecoveryLaw:
         k = self._gains.get(key)
         if k is not None:
             return k
-        from scipy.linalg import expm, solve_discrete_are
-
         rr = key[0] / 2.0
         iz, kr = self.inertia[2], self.k_r
         a = np.array([[0.0, rr, 0.0, -1.0],
@@ -246,14 +246,8 @@ class RecoveryLaw:
                       [0.0, 0.0, -kr / ix, -(iz - iy) * rr / ix],
                       [0.0, 0.0, -(ix - iz) * rr / iy, -kr / iy]])
         b = np.array([[0.0, 0.0], [0.0, 0.0], [1.0 / ix, 0.0], [0.0, 1.0 / iy]])
-        m = np.zeros((6, 6))
-        m[:4, :4] = a * self.dt
-        m[:4, 4:] = b * self.dt
-        e = expm(m)
-        ad, bd = e[:4, :4], e[:4, 4:]
-        q, rw = np.diag(LQR_Q), np.diag(LQR_R)
-        p = solve_discrete_are(ad, bd, q, rw)
-        k = np.linalg.solve(rw + bd.T @ p @ bd, bd.T @ p @ ad)
+        ad, bd = zoh(a, b, self.dt)
+        k = dlqr(ad, bd, np.diag(LQR_Q), np.diag(LQR_R))
         gains = self._gains[key] = (tuple(k[0].tolist()), tuple(k[1].tolist()))
         return gains
 
