@@ -111,17 +111,6 @@ class TickResult(NamedTuple):
         return self.law.mode
 
 
-def _float_state(s: State) -> State:
-    """``s`` on Python floats: numpy arrays (the simulator's) become lists of the same
-    values, once a tick — numpy scalars cost 3-5× a float per operation in the laws."""
-    p, v, q, w = s.position_m, s.velocity_mps, s.quaternion_wxyz, s.body_rates_radps
-    nd = np.ndarray
-    if type(p) is nd or type(v) is nd or type(q) is nd or type(w) is nd:
-        return State(*(x.tolist() if type(x) is nd else x for x in (p, v, q, w)),
-                     s.time_usec)
-    return s
-
-
 class FlightComputer:
     """Detector + TFL law for one flight of one scenario. See the module docstring."""
 
@@ -240,7 +229,8 @@ class FlightComputer:
     def _step(self, t_s: float, state: State, rpm: Sequence[float],
               applied_n: Sequence[float], dt_s: float | None) -> TickResult:
         ctrl = self.controller
-        state = _float_state(state)
+        if type(rpm) is np.ndarray:          # the simulator's: floats are 3-5× cheaper
+            rpm = rpm.tolist()
         events_pre: list[str] = []
         detection = None
         new = False
@@ -438,8 +428,15 @@ class FlightComputer:
                 detection: DetectorOutput | None, rotor: int, estimate: float, new: bool,
                 events: list[str]) -> TickResult:
         fmax = self.thrust_max_n
-        applied = [min(max(f, 0.0), fmax) if math.isfinite(f) else 0.0 for f in thrust]
-        req = [f if math.isfinite(f) else 0.0 for f in requested]
+        isfinite = math.isfinite
+        applied = []
+        for f in thrust:          # min(max(f, 0), f_max), NaN → 0: written out (every tick)
+            if isfinite(f):
+                f = 0.0 if f < 0.0 else f
+                applied.append(fmax if fmax < f else f)
+            else:
+                applied.append(0.0)
+        req = [f if isfinite(f) else 0.0 for f in requested]
         if rotor and self.detector is not None:
             # The attacked rotor's command is not ours to use: send it a probe away from its
             # estimate, so that a rotor the attacker lets go shows it by following (detector).

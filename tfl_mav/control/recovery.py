@@ -96,6 +96,11 @@ def projector_sigma2(path: Path, kernels: PathKernels | None = None,
         return reference_sigma2(path), f"reference jets ({exc})"
 
 
+def _floats(x: Sequence[float]) -> Sequence[float]:
+    """``x`` with Python floats (``tolist`` of a numpy array; other sequences as they are)."""
+    return x.tolist() if type(x) is np.ndarray else x
+
+
 class PathProjector:
     """Closest point of a path, kept between calls (Newton on ⟨y − σ(λ), σ'(λ)⟩ = 0).
 
@@ -255,9 +260,10 @@ class RecoveryLaw:
     def update(self, s: State, attacked_rotor: int = 0,
                attack_n: float = 0.0) -> RecoveryOutput:
         """Rotor thrusts for this period; ``attacked_rotor`` 0 = four healthy rotors."""
-        R = rotation_rows(s.quaternion_wxyz)
-        y, v = list(s.position_m), list(s.velocity_mps)
-        p, q, r = s.body_rates_radps
+        # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
+        R = rotation_rows(_floats(s.quaternion_wxyz))
+        y, v = list(_floats(s.position_m)), list(_floats(s.velocity_mps))
+        p, q, r = _floats(s.body_rates_radps)
         a, dist = self._accel_demand(y, v)
         m = self.mass_kg
         F = [m * a[0] + self.k_t * v[0], m * a[1] + self.k_t * v[1],
