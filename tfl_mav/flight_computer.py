@@ -111,6 +111,14 @@ class TickResult(NamedTuple):
         return self.law.mode
 
 
+_MODE_TEXT = {m: str(m) for m in Mode}    # formatting an enum costs µs: once, here
+
+
+def _floats(x: Sequence[float]) -> Sequence[float]:
+    """``x`` with Python floats (``tolist`` of a numpy array; other sequences as they are)."""
+    return x.tolist() if type(x) is np.ndarray else x
+
+
 class FlightComputer:
     """Detector + TFL law for one flight of one scenario. See the module docstring."""
 
@@ -336,10 +344,10 @@ class FlightComputer:
     # ------------------------------------------------------------------ switching
     def _not_benign(self, state: State, rotor: int) -> str:
         """Why the state is not one the TFL law may be started from ('' if it is)."""
-        R = rotation_rows(state.quaternion_wxyz)
+        R = rotation_rows(_floats(state.quaternion_wxyz))
         tilt = math.acos(max(-1.0, min(1.0, R[2][2])))
-        p, q, r = state.body_rates_radps
-        speed = math.sqrt(sum(c * c for c in state.velocity_mps))
+        p, q, r = _floats(state.body_rates_radps)
+        speed = math.sqrt(sum(c * c for c in _floats(state.velocity_mps)))
         vmax = max(2.0, 2.0 * self.speed_mps)
         if not all(math.isfinite(c) for c in (tilt, p, q, r, speed)):
             return "state not finite"
@@ -386,9 +394,9 @@ class FlightComputer:
         return out
 
     def _calm_fail(self, state: State, rotor: int) -> bool:
-        R = rotation_rows(state.quaternion_wxyz)
+        R = rotation_rows(_floats(state.quaternion_wxyz))
         tilt = math.acos(max(-1.0, min(1.0, R[2][2])))
-        p, q, r = state.body_rates_radps
+        p, q, r = _floats(state.body_rates_radps)
         return (tilt > HANDBACK_TILT_RAD or math.hypot(p, q) > TAKEOVER_RATE_RADPS
                 or (not rotor and abs(r) > TAKEOVER_RATE_RADPS))
 
@@ -422,7 +430,7 @@ class FlightComputer:
             path_distance_m=rec.path_distance_m, lam=math.nan, cond_d=math.nan,
             thrust_n=rec.uf_n, mass_estimate_kg=ctrl.mass_kg,
             disturbance_radps2=(0.0, 0.0), fine_gains=False,
-            reason=f"{mode}: tilt error {math.degrees(rec.tilt_error_rad):.0f} deg")
+            reason=f"{_MODE_TEXT[mode]}: tilt error {math.degrees(rec.tilt_error_rad):.0f} deg")
 
     def _result(self, thrust: Sequence[float], requested: Sequence[float], out: ControlOutput,
                 detection: DetectorOutput | None, rotor: int, estimate: float, new: bool,

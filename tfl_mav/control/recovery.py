@@ -64,6 +64,7 @@ ATT_KD = 20.0                       # … critically damped
 YAW_DAMP = 2.0                      # healthy: r decays at 2 /s
 # LQR weights on (h1, h2, p, q) and (τ_p, τ_q): Bryson's rule with 0.1 of h (≈ 6°),
 # 10 rad/s of p, q and 0.2 N m of τ_q; τ_p costs 100× (one-sided, only for a slow spin).
+_TAN_MAX_TILT = math.tan(MAX_TILT_RAD)
 LQR_MAX_SPIN_RADPS = 150.0   # gain schedule range (see RecoveryLaw._lqr)
 LQR_Q = (100.0, 100.0, 0.01, 0.01)
 LQR_R = (2500.0, 25.0)
@@ -216,9 +217,11 @@ class RecoveryLaw:
             proj = self.projector.project(y)
         if proj is not None:
             p0, t, kn, dist = proj
-            vref = [self.speed * c for c in t]
-            ff = [self.speed * self.speed * c for c in kn]
-            a = [kp * (p0[i] - y[i]) + kd * (vref[i] - v[i]) + ff[i] for i in range(3)]
+            sp = self.speed
+            sp2 = sp * sp
+            a = [kp * (p0[0] - y[0]) + kd * (sp * t[0] - v[0]) + sp2 * kn[0],
+                 kp * (p0[1] - y[1]) + kd * (sp * t[1] - v[1]) + sp2 * kn[1],
+                 kp * (p0[2] - y[2]) + kd * (sp * t[2] - v[2]) + sp2 * kn[2]]
         else:
             tgt = self.hold_m if self.hold_m is not None else list(y)
             if self.hold_m is None:
@@ -226,7 +229,7 @@ class RecoveryLaw:
             a = [kp * (tgt[i] - y[i]) - kd * v[i] for i in range(3)]
         az = max(-MAX_VERTICAL_G * self.g, min(MAX_VERTICAL_G * self.g, a[2]))
         ah = math.hypot(a[0], a[1])
-        amax = (self.g + az) * math.tan(MAX_TILT_RAD)
+        amax = (self.g + az) * _TAN_MAX_TILT
         if ah > amax:
             a[0] *= amax / ah
             a[1] *= amax / ah
@@ -270,7 +273,10 @@ class RecoveryLaw:
              m * (a[2] + self.g) + self.k_t * v[2]]
         fn = math.sqrt(F[0] ** 2 + F[1] ** 2 + F[2] ** 2)
         n = [c / fn for c in F] if fn > 1e-9 else [0.0, 0.0, 1.0]
-        h = [R[0][i] * n[0] + R[1][i] * n[1] + R[2][i] * n[2] for i in range(3)]
+        R0, R1, R2 = R
+        n0, n1, n2 = n
+        h = [R0[0] * n0 + R1[0] * n1 + R2[0] * n2, R0[1] * n0 + R1[1] * n1 + R2[1] * n2,
+             R0[2] * n0 + R1[2] * n1 + R2[2] * n2]
         tilt_err = math.acos(max(-1.0, min(1.0, h[2])))
         # Thrust along b3: the component of F there; never negative (upside down: idle).
         uf = max(fn * h[2], 0.0)
