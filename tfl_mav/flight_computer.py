@@ -50,7 +50,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from collections.abc import Sequence
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -88,9 +88,8 @@ TAKEOVER_RATE_RADPS = 2.0
 HANDBACK_TILT_RAD = math.radians(20.0)
 
 
-@dataclass(frozen=True)
-class TickResult:
-    """One control decision.
+class TickResult(NamedTuple):
+    """One control decision (a named tuple: one is made every tick).
 
     ``thrust_n``: the rotor thrusts to command (N, physical rotor order 1-4, each in
     [0, f_max]); ``law``: the law's internals; ``detection``: the detector's view this tick
@@ -110,6 +109,14 @@ class TickResult:
     @property
     def mode(self) -> Mode:
         return self.law.mode
+
+
+_MODE_TEXT = {m: str(m) for m in Mode}    # formatting an enum costs µs: once, here
+
+
+def _floats(x: Sequence[float]) -> Sequence[float]:
+    """``x`` with Python floats (``tolist`` of a numpy array; other sequences as they are)."""
+    return x.tolist() if type(x) is np.ndarray else x
 
 
 class FlightComputer:
@@ -138,7 +145,9 @@ class FlightComputer:
         self.recovery = RecoveryLaw(mp.mass_kg, mp.inertia_kgm2, mp.arm_m,
                                     mp.drag_thrust_ratio_m, mp.k_t, mp.k_r, mp.thrust_max_n,
                                     mp.gravity_mps2, scenario.run.control_dt_s,
-                                    scenario_path(scenario), self.speed_mps)
+                                    scenario_path(scenario), self.speed_mps,
+                                    kernels=getattr(self.controller.tracker, "kernels", None),
+                                    compiled_path=self.controller.path_eval == "compiled")
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
         if self.controller.lag_inverter is not None:   # ESC noise: filter ω (actuators)
             self.controller.lag_inverter.set_rpm_noise(detector_config(scenario).rpm_noise_std)
@@ -228,6 +237,8 @@ class FlightComputer:
     def _step(self, t_s: float, state: State, rpm: Sequence[float],
               applied_n: Sequence[float], dt_s: float | None) -> TickResult:
         ctrl = self.controller
+        if type(rpm) is np.ndarray:          # the simulator's: floats are 3-5× cheaper
+            rpm = rpm.tolist()
         events_pre: list[str] = []
         detection = None
         new = False
@@ -296,11 +307,8 @@ class FlightComputer:
                 self._enter("recovery", state, f"TFL: {out.reason}; level, hold altitude",
                             events, hold=True)
             else:
-                req = list(out.extra.get("requested_n", out.rotor_thrust_n)) \
-                    if isinstance(out.extra.get("requested_n"), list) else \
-                    list(out.rotor_thrust_n)
-                return self._result(out.rotor_thrust_n, req, out, detection, rotor,
-                                    estimate, new, events)
+                return self._result(out.rotor_thrust_n, list(out.rotor_thrust_n), out,
+                                    detection, rotor, estimate, new, events)
         rec = self._fly_safe(t_s, dt, state, rotor, estimate, events)
         out = self._as_output(rec, ctrl)
         return self._result(rec.thrust_n, rec.requested_n, out, detection, rotor, estimate,
@@ -336,10 +344,10 @@ class FlightComputer:
     # ------------------------------------------------------------------ switching
     def _not_benign(self, state: State, rotor: int) -> str:
         """Why the state is not one the TFL law may be started from ('' if it is)."""
-        R = rotation_rows(state.quaternion_wxyz)
+        R = rotation_rows(_floats(state.quaternion_wxyz))
         tilt = math.acos(max(-1.0, min(1.0, R[2][2])))
-        p, q, r = state.body_rates_radps
-        speed = math.sqrt(sum(c * c for c in state.velocity_mps))
+        p, q, r = _floats(state.body_rates_radps)
+        speed = math.sqrt(sum(c * c for c in _floats(state.velocity_mps)))
         vmax = max(2.0, 2.0 * self.speed_mps)
         if not all(math.isfinite(c) for c in (tilt, p, q, r, speed)):
             return "state not finite"
@@ -386,9 +394,9 @@ class FlightComputer:
         return out
 
     def _calm_fail(self, state: State, rotor: int) -> bool:
-        R = rotation_rows(state.quaternion_wxyz)
+        R = rotation_rows(_floats(state.quaternion_wxyz))
         tilt = math.acos(max(-1.0, min(1.0, R[2][2])))
-        p, q, r = state.body_rates_radps
+        p, q, r = _floats(state.body_rates_radps)
         return (tilt > HANDBACK_TILT_RAD or math.hypot(p, q) > TAKEOVER_RATE_RADPS
                 or (not rotor and abs(r) > TAKEOVER_RATE_RADPS))
 
@@ -422,14 +430,21 @@ class FlightComputer:
             path_distance_m=rec.path_distance_m, lam=math.nan, cond_d=math.nan,
             thrust_n=rec.uf_n, mass_estimate_kg=ctrl.mass_kg,
             disturbance_radps2=(0.0, 0.0), fine_gains=False,
-            reason=f"{mode}: tilt error {math.degrees(rec.tilt_error_rad):.0f} deg")
+            reason=f"{_MODE_TEXT[mode]}: tilt error {math.degrees(rec.tilt_error_rad):.0f} deg")
 
     def _result(self, thrust: Sequence[float], requested: Sequence[float], out: ControlOutput,
                 detection: DetectorOutput | None, rotor: int, estimate: float, new: bool,
                 events: list[str]) -> TickResult:
         fmax = self.thrust_max_n
-        applied = [min(max(f, 0.0), fmax) if math.isfinite(f) else 0.0 for f in thrust]
-        req = [f if math.isfinite(f) else 0.0 for f in requested]
+        isfinite = math.isfinite
+        applied = []
+        for f in thrust:          # min(max(f, 0), f_max), NaN → 0: written out (every tick)
+            if isfinite(f):
+                f = 0.0 if f < 0.0 else f
+                applied.append(fmax if fmax < f else f)
+            else:
+                applied.append(0.0)
+        req = [f if isfinite(f) else 0.0 for f in requested]
         if rotor and self.detector is not None:
             # The attacked rotor's command is not ours to use: send it a probe away from its
             # estimate, so that a rotor the attacker lets go shows it by following (detector).

@@ -34,7 +34,7 @@ from __future__ import annotations
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
-from typing import Any
+from typing import Any, NamedTuple
 
 __all__ = ["RPM_QUANTISATION_STD", "AttackDetector", "DetectorConfig", "DetectorOutput"]
 
@@ -109,9 +109,9 @@ def _check(key: str, value: object, meta: object, *, integer: bool) -> None:
         raise ValueError(f"{key}: must be <= {hi}, got {value!r}")
 
 
-@dataclass(frozen=True, slots=True)
-class DetectorOutput:
-    """The detector's verdict after one tick."""
+class DetectorOutput(NamedTuple):
+    """The detector's verdict after one tick (a named tuple: made every tick, and a tuple
+    is built several times faster than a frozen dataclass)."""
 
     detected_rotor: int                  # 0 = none, else 1-4 (latched)
     estimate_n: float                    # attacked rotor's thrust from its rpm (N); NaN before
@@ -180,17 +180,6 @@ class AttackDetector:
         """Steady speed (rad/s) for a command, clamped like the motor clamps it."""
         return math.sqrt(min(max(thrust_n, 0.0), self.thrust_max_n) / self.k_f)
 
-    def _commands(self, thrust_cmd_n: Sequence[float]) -> list[float]:
-        out = []
-        for i, f in enumerate(thrust_cmd_n):
-            f = float(f)
-            if math.isfinite(f):
-                self._cmd[i] = f
-            else:           # the vehicle rejects a non-finite command and keeps the last one
-                self.rejected_samples += 1
-            out.append(self._cmd[i])
-        return out
-
     def _start(self, rpm: list[float], cmd: list[float]) -> None:
         """First tick: take the motor state from the measurement (ω before any lag acts)."""
         for i in range(4):
@@ -202,25 +191,6 @@ class AttackDetector:
                 w, var = self._omega_target(cmd[i]), (self._omega_max * RADPS_TO_RPM) ** 2
             self._band[i] = [w] * len(self._taus)
             self._var[i] = var
-
-    def _propagate(self, cmd: list[float], dt: float) -> None:
-        """Advance every model of the band over ``dt`` with each command held.
-
-        The exact solution of the vehicle's lag ``dω/dt = (ω_target − ω)/τ`` for a target
-        held over the period; with τ = 0 the speed is the target.
-        """
-        if self.tau_s <= 0.0:
-            for i in range(4):
-                self._band[i] = [self._omega_target(cmd[i])]
-            return
-        if dt != self._decay_dt:            # the period is usually constant: exp once
-            self._decay_dt = dt
-            self._decay = [math.exp(-dt / tau) for tau in self._taus]
-        decay = self._decay
-        for i in range(4):
-            c = self._omega_target(cmd[i])
-            self._band[i] = [c + (w - c) * e for w, e in zip(self._band[i], decay, strict=True)]
-            self._var[i] *= decay[-1] * decay[-1]     # the slowest model forgets slowest
 
     # ------------------------------------------------------------------ update
     def update(self, time_s: float, rpm_measured: Sequence[float],
@@ -234,6 +204,13 @@ class AttackDetector:
         tick (counted); a ``time_s`` not after the previous one (a duplicate or out-of-order
         sample) rejects the whole update (counted) and returns the previous verdict. Raises
         ValueError only for a wrong number of values.
+
+        Runs every tick, so it is written out on floats (#13): the model's propagation —
+        the exact solution of the vehicle's lag dω/dt = (ω_target − ω)/τ for a target held
+        over the period (with τ = 0 the speed is the target) — the residual and the CUSUM in
+        one pass per rotor, the isolation only on a tick whose largest statistic reaches
+        ``h``; the same floating-point operations, in the same order, as the step-by-step
+        form before #13 (the golden flights are bit-identical).
         """
         if len(rpm_measured) != 4:
             raise ValueError(f"rpm_measured: expected 4 values, got {len(rpm_measured)}")
@@ -249,22 +226,58 @@ class AttackDetector:
             return self._reissue(alarm=False)
         rpm = [r if abs(r) <= RPM_VALID_LIMIT else math.nan  # NaN fails the test too
                for r in map(float, rpm_measured)]
-        cmd = self._commands(thrust_cmd_n)
+        cmd = self._cmd                 # the last valid command per rotor
+        for i in range(4):
+            f = float(thrust_cmd_n[i])
+            if math.isfinite(f):
+                cmd[i] = f
+            else:           # the vehicle rejects a non-finite command and keeps the last one
+                self.rejected_samples += 1
+        bands = self._band
+        tau = self.tau_s
+        lagged = False
         if last is None:
             self._start(rpm, cmd)
+        elif tau <= 0.0:
+            fmax, k_f = self.thrust_max_n, self.k_f
+            for i in range(4):
+                c = cmd[i]
+                c = 0.0 if c < 0.0 else c            # min(max(c, 0), f_max), written out
+                c = fmax if fmax < c else c
+                bands[i] = [math.sqrt(c / k_f)]
         else:
-            self._propagate(cmd, t - last)
+            dt = t - last
+            if dt != self._decay_dt:            # the period is usually constant: exp once
+                self._decay_dt = dt
+                self._decay = [math.exp(-dt / tau_j) for tau_j in self._taus]
+            lagged = True
         self._last_time = t
 
-        cfg = self.config
         k, cap = self.k, self.z_cap
         sig2 = self.sigma_rpm ** 2
+        s_his, s_los, zs, rpms, resid, var = (self._s_hi, self._s_lo, self._z, self._rpm,
+                                              self._resid, self._var)
+        k_f = self.k_f
+        if lagged:
+            fmax = self.thrust_max_n
+            e0, e1, e2, e3, e4 = self._decay
+            e44 = e4 * e4
         for i in range(4):
+            if lagged:   # the lag solution with the command held
+                c = cmd[i]
+                c = 0.0 if c < 0.0 else c
+                c = fmax if fmax < c else c
+                c = math.sqrt(c / k_f)
+                w0, w1, w2, w3, w4 = bands[i]
+                band = bands[i] = [c + (w0 - c) * e0, c + (w1 - c) * e1, c + (w2 - c) * e2,
+                                   c + (w3 - c) * e3, c + (w4 - c) * e4]
+                var[i] *= e44                   # the slowest model forgets slowest
+            else:
+                band = bands[i]
             r = rpm[i]
             if math.isnan(r):
                 self.rejected_samples += 1
                 continue
-            band = self._band[i]
             lo, hi = min(band), max(band)
             pad = BAND_PAD * (hi - lo)
             # min/max of two written out (same results, NaN included): runs 4× a tick.
@@ -272,36 +285,40 @@ class AttackDetector:
             w = lim if lim > w else w
             lim = hi + pad
             w = lim if lim < w else w                # nearest speed in the band
-            z = (r - w * RADPS_TO_RPM) / math.sqrt(sig2 + self._var[i])
+            z = (r - w * RADPS_TO_RPM) / math.sqrt(sig2 + var[i])
             zc = -cap if -cap > z else z
             zc = cap if cap < zc else zc
-            s_hi = self._s_hi[i] + zc - k
-            self._s_hi[i] = s_hi if s_hi > 0.0 else 0.0
-            s_lo = self._s_lo[i] - zc - k
-            self._s_lo[i] = s_lo if s_lo > 0.0 else 0.0
-            self._z[i] = z
-            self._rpm[i] = r
+            s_hi = s_his[i] + zc - k
+            s_his[i] = s_hi if s_hi > 0.0 else 0.0
+            s_lo = s_los[i] - zc - k
+            s_los[i] = s_lo if s_lo > 0.0 else 0.0
+            zs[i] = z
+            rpms[i] = r
             wm = r * RPM_TO_RADPS
-            self._resid[i] = self.k_f * (wm * wm - w * w)
+            resid[i] = k_f * (wm * wm - w * w)
 
         alarm = False
         released = False
-        if cfg.enabled and not self.detected_rotor:
-            stat, _, rotor = max((max(self._s_hi[i], self._s_lo[i]), abs(self._z[i]), i + 1)
-                                 for i in range(4))
-            if stat >= self.h * (1.0 - _ALARM_TOL):
-                self._latch(rotor, t)
-                alarm = True
-        elif cfg.enabled:
-            d = self.detected_rotor
-            stat, _, rotor = max((max(self._s_hi[i], self._s_lo[i]), abs(self._z[i]), i + 1)
-                                 for i in range(4) if i + 1 != d)
-            if stat >= self.h * (1.0 - _ALARM_TOL):     # the attacker moved
-                self.moves += 1
-                self._latch(rotor, t)
-                alarm = True
+        cfg = self.config
+        d = self.detected_rotor
+        if cfg.enabled:
+            h_alarm = self.h * (1.0 - _ALARM_TOL)
+            # The largest statistic among the rotors that may alarm: the isolation (which
+            # rotor, ties by |z| then the higher number) only when it reaches h.
+            if d:
+                j = d - 1
+                top = max(s_his[:j] + s_his[d:] + s_los[:j] + s_los[d:])
             else:
-                self._obey = self._obey + 1 if abs(self._z[d - 1]) < k else 0
+                top = max(s_his + s_los)
+            if top >= h_alarm:
+                if d:
+                    self.moves += 1             # the attacker moved
+                _, _, rotor = max((max(s_his[i], s_los[i]), abs(zs[i]), i + 1)
+                                  for i in range(4) if i + 1 != d)
+                self._latch(rotor, t)
+                alarm = True
+            elif d:
+                self._obey = self._obey + 1 if abs(zs[d - 1]) < k else 0
                 if self._obey >= RELEASE_TICKS:             # it follows its commands again
                     self.releases += 1
                     self.detected_rotor = 0
@@ -310,8 +327,8 @@ class AttackDetector:
                     self._s_lo = [0.0] * 4
                     released = True
         if self.detected_rotor:
-            w = max(self._rpm[self.detected_rotor - 1], 0.0) * RPM_TO_RADPS
-            self.estimate_n = min(self.k_f * w * w, self.thrust_max_n)
+            w = max(rpms[self.detected_rotor - 1], 0.0) * RPM_TO_RADPS
+            self.estimate_n = min(k_f * w * w, self.thrust_max_n)
         return self._reissue(alarm, released)
 
     def _latch(self, rotor: int, t: float) -> None:
@@ -322,12 +339,14 @@ class AttackDetector:
         self._s_lo = [0.0] * 4
 
     def _reissue(self, alarm: bool, released: bool = False) -> DetectorOutput:
-        cusum = tuple(hi if hi >= lo else -lo for hi, lo in zip(self._s_hi, self._s_lo,
-                                                                strict=True))
-        self._out = DetectorOutput(self.detected_rotor, self.estimate_n, tuple(self._resid),
-                                   cusum, self.detection_time_s, alarm, self.rejected_samples,
-                                   released)
-        return self._out
+        h0, h1, h2, h3 = self._s_hi
+        l0, l1, l2, l3 = self._s_lo
+        cusum = (h0 if h0 >= l0 else -l0, h1 if h1 >= l1 else -l1,
+                 h2 if h2 >= l2 else -l2, h3 if h3 >= l3 else -l3)
+        self._out = out = DetectorOutput(self.detected_rotor, self.estimate_n,
+                                         tuple(self._resid), cusum, self.detection_time_s,
+                                         alarm, self.rejected_samples, released)
+        return out
 
     @property
     def output(self) -> DetectorOutput:

@@ -8,7 +8,8 @@ table), :class:`ControlOutput` one decision with the internals worth logging.
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import NamedTuple
 
 from tfl_mav.modes import Mode
 
@@ -53,9 +54,9 @@ class LawConfig:
     max_cond: float = 1e8           # cond(Dφ) above this: fall back
 
 
-@dataclass(slots=True)
-class ControlOutput:
-    """One control decision and the internals worth logging."""
+class ControlOutput(NamedTuple):
+    """One control decision and the internals worth logging (a named tuple: one is made
+    every tick, and a tuple is built about twice as fast as a dataclass)."""
 
     rotor_thrust_n: list[float]          # command, in [0, f_max], physical rotor order (with
                                          # motor lag: the lag inverse of the law's demand)
@@ -72,7 +73,6 @@ class ControlOutput:
     disturbance_radps2: tuple[float, float]
     fine_gains: bool
     reason: str = ""                     # why a fallback was taken
-    extra: dict[str, float] = field(default_factory=dict)
 
 
 def chain_gains(pole: float, order: int) -> tuple[float, ...]:

@@ -21,9 +21,10 @@ Linearised about the spin (h3 ≈ 1, r ≈ const):
 With r ≠ 0 this 4-state system is controllable from τ_q = l(f3 − f1) alone (the spin carries
 the body axes round, so one torque axis reaches both tilt directions). A discrete LQR on
 the zero-order-hold model at the control period (so a 250 Hz loop is designed for what it
-is) gives the gain; it is recomputed when the measured r moves by more than 0.5 rad/s
-(gain scheduling on r). τ_p stays an input with a cost 100× τ_q's: it is needed only when
-the spin is slow (right after a take-over), and its one-sided range is clipped.
+is; :mod:`lqr`, numpy only) gives the gain; it is recomputed when the measured r moves
+by more than 0.5 rad/s (gain scheduling on r). τ_p stays an input with a cost 100× τ_q's:
+it is needed only when the spin is slow (right after a take-over), and its one-sided range
+is clipped.
 
 With four healthy rotors (a take-over, a lost projection) the same reduced attitude is
 flown with a PD on (−h2, h1) through both torques and a yaw-rate damper.
@@ -37,17 +38,22 @@ limited to a 30° tilt and ±0.5 g vertically: a safe law does not chase the pat
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from tfl_mav.control.allocation import allocate_nominal, canonical_frame
+from tfl_mav.control.allocation import RotorFrame, allocate_nominal, canonical_frame
+from tfl_mav.control.compiled import PathKernels, compile_path
+from tfl_mav.control.jetcode import TraceError
+from tfl_mav.control.jets import Jet
+from tfl_mav.control.lqr import dlqr, zoh
 from tfl_mav.control.paths import Path
 from tfl_mav.geometry import rotation_rows
 from tfl_mav.state import State
 
-__all__ = ["PathProjector", "RecoveryLaw", "RecoveryOutput"]
+__all__ = ["PathProjector", "RecoveryLaw", "RecoveryOutput", "projector_sigma2",
+           "reference_sigma2"]
 
 MAX_TILT_RAD = math.radians(30.0)   # outer loop: horizontal acceleration ≤ g tan 30°
 MAX_VERTICAL_G = 0.5                # outer loop: |vertical acceleration| ≤ 0.5 g
@@ -58,61 +64,103 @@ ATT_KD = 20.0                       # … critically damped
 YAW_DAMP = 2.0                      # healthy: r decays at 2 /s
 # LQR weights on (h1, h2, p, q) and (τ_p, τ_q): Bryson's rule with 0.1 of h (≈ 6°),
 # 10 rad/s of p, q and 0.2 N m of τ_q; τ_p costs 100× (one-sided, only for a slow spin).
+_TAN_MAX_TILT = math.tan(MAX_TILT_RAD)
 LQR_MAX_SPIN_RADPS = 150.0   # gain schedule range (see RecoveryLaw._lqr)
 LQR_Q = (100.0, 100.0, 0.01, 0.01)
 LQR_R = (2500.0, 25.0)
 
 
-class PathProjector:
-    """Closest point of a path (float evaluations of σ only), kept between calls."""
+Sigma2 = Callable[[tuple[float]], Sequence[float]]
+Gains = tuple[tuple[float, float, float, float], tuple[float, float, float, float]]  # K, 2×4
 
-    def __init__(self, path: Path) -> None:
+
+def reference_sigma2(path: Path) -> Sigma2:
+    """σ's Taylor coefficients (σ, σ', σ''/2, j-major) at λ by the reference jets: the
+    generic evaluation the compiled ``sigma2`` kernel (:mod:`compiled`) is tested against."""
+    def sigma2(lam: tuple[float]) -> tuple[float, ...]:
+        comps = [v.c if isinstance(v, Jet) else (float(v), 0.0, 0.0)
+                 for v in path.sigma(Jet.variable(lam[0], order=2))]
+        return tuple(comps[i][j] for j in range(3) for i in range(3))
+
+    return sigma2
+
+
+def projector_sigma2(path: Path, kernels: PathKernels | None = None,
+                     compiled_path: bool = True) -> tuple[Sigma2, str]:
+    """The σ evaluation the projector uses and a note: the compiled kernel (``kernels``, or
+    traced now) when the path's code traces, else the reference jets (the note says why)."""
+    if not compiled_path:
+        return reference_sigma2(path), "reference jets"
+    try:
+        return (kernels if kernels is not None else compile_path(path)).sigma2.fn, "compiled"
+    except TraceError as exc:
+        return reference_sigma2(path), f"reference jets ({exc})"
+
+
+def _floats(x: Sequence[float]) -> Sequence[float]:
+    """``x`` with Python floats (``tolist`` of a numpy array; other sequences as they are)."""
+    return x.tolist() if type(x) is np.ndarray else x
+
+
+class PathProjector:
+    """Closest point of a path, kept between calls (Newton on ⟨y − σ(λ), σ'(λ)⟩ = 0).
+
+    σ, σ' and σ'' come exactly from one ``sigma2`` evaluation a step — the compiled kernel
+    the TFL tracker uses, or the reference jets (:func:`projector_sigma2`): a warm-started
+    tick costs two or three evaluations of a few dozen float operations. (Central
+    differences of σ, as before #13, needed three σ calls a step and carried ~1e-7 of
+    rounding noise in σ'' with a 1e-4 step.)
+    """
+
+    def __init__(self, path: Path, sigma2: Sigma2 | None = None,
+                 evaluation: str = "given") -> None:
         self.path = path
+        if sigma2 is None:
+            sigma2, evaluation = projector_sigma2(path)
+        self.evaluation = evaluation        # "compiled" | "reference jets (why)" | "given"
+        self._sigma2 = sigma2
         self.lam: float | None = None
 
-    def _d(self, lam: float) -> tuple[list[float], list[float], list[float]]:
-        h = 1e-4
-        s = self.path.sigma
-        p0 = [float(c) for c in s(lam)]
-        pp = [float(c) for c in s(lam + h)]
-        pm = [float(c) for c in s(lam - h)]
-        d1 = [(a - b) / (2 * h) for a, b in zip(pp, pm, strict=True)]
-        d2 = [(a - 2 * c + b) / (h * h) for a, b, c in zip(pp, pm, p0, strict=True)]
-        return p0, d1, d2
-
-    def project(self, y: Sequence[float]) -> tuple[list[float], list[float], list[float],
-                                                     float] | None:
+    def project(self, y: Sequence[float]) -> tuple[tuple[float, float, float],
+                                                   tuple[float, float, float],
+                                                   tuple[float, float, float],
+                                                   float] | None:
         """(point, unit tangent, curvature vector κN, distance) or None if not found."""
+        yx, yy, yz = y
         if self.lam is None:
             lo, hi = self.path.lam_range
-            lam = np.linspace(lo, hi, 2001)
-            x, yy, z = self.path.sigma(lam)
-            d2 = (x - y[0]) ** 2 + (yy - y[1]) ** 2 + (z - y[2]) ** 2
-            self.lam = float(lam[int(np.argmin(d2))])
+            lam_grid = np.linspace(lo, hi, 2001)
+            x, sy, z = self.path.sigma(lam_grid)
+            d2 = (x - yx) ** 2 + (sy - yy) ** 2 + (z - yz) ** 2
+            self.lam = float(lam_grid[int(np.argmin(d2))])
         lam = self.lam
+        sigma2 = self._sigma2
         for _ in range(8):
-            p0, d1, d2 = self._d(lam)
-            e = [y[i] - p0[i] for i in range(3)]
-            g = sum(e[i] * d1[i] for i in range(3))
-            dg = -sum(c * c for c in d1) + sum(e[i] * d2[i] for i in range(3))
+            c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = sigma2((lam,))
+            ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
+            g = ex * c1x + ey * c1y + ez * c1z
+            dg = 2.0 * (ex * c2x + ey * c2y + ez * c2z) - (c1x * c1x + c1y * c1y + c1z * c1z)
             step = -g / dg if dg < 0.0 else -0.1 * math.copysign(1.0, g)
-            step = max(-0.5, min(0.5, step))
+            step = -0.5 if step < -0.5 else (0.5 if step > 0.5 else step)
             lam += step
             if abs(step) < 1e-9:
                 break
         if not math.isfinite(lam):
             return None
         self.lam = lam
-        p0, d1, d2 = self._d(lam)
-        s1 = math.sqrt(sum(c * c for c in d1))
-        if not s1 > 0.0:
+        c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = sigma2((lam,))
+        s1sq = c1x * c1x + c1y * c1y + c1z * c1z
+        if not s1sq > 0.0:
             return None
-        t = [c / s1 for c in d1]
-        # κN = (σ'' − (σ''·T) T)/|σ'|²
-        a = sum(d2[i] * t[i] for i in range(3))
-        kn = [(d2[i] - a * t[i]) / (s1 * s1) for i in range(3)]
-        dist = math.sqrt(sum((y[i] - p0[i]) ** 2 for i in range(3)))
-        return p0, t, kn, dist
+        s1 = math.sqrt(s1sq)
+        tx, ty, tz = c1x / s1, c1y / s1, c1z / s1
+        # κN = (σ'' − (σ''·T) T)/|σ'|², σ'' = 2 c2
+        d2x, d2y, d2z = 2.0 * c2x, 2.0 * c2y, 2.0 * c2z
+        a = d2x * tx + d2y * ty + d2z * tz
+        ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
+        return ((c0x, c0y, c0z), (tx, ty, tz),
+                ((d2x - a * tx) / s1sq, (d2y - a * ty) / s1sq, (d2z - a * tz) / s1sq),
+                math.sqrt(ex * ex + ey * ey + ez * ez))
 
 
 @dataclass
@@ -132,7 +180,8 @@ class RecoveryLaw:
     def __init__(self, mass_kg: float, inertia_kgm2: Sequence[float], arm_m: float,
                  drag_thrust_ratio_m: float, k_t: float, k_r: float, thrust_max_n: float,
                  gravity_mps2: float, dt_s: float, path: Path | None,
-                 speed_mps: float) -> None:
+                 speed_mps: float, *, kernels: PathKernels | None = None,
+                 compiled_path: bool = True) -> None:
         self.mass_kg = mass_kg
         self.inertia = tuple(inertia_kgm2)
         self.arm_m = arm_m
@@ -143,9 +192,12 @@ class RecoveryLaw:
         self.g = gravity_mps2
         self.dt = dt_s
         self.speed = speed_mps
-        self.projector = PathProjector(path) if path is not None else None
+        # The path's compiled σ kernel (the TFL tracker's ``kernels`` when given: traced once).
+        self.projector = (PathProjector(path, *projector_sigma2(path, kernels, compiled_path))
+                          if path is not None else None)
         self.hold_m: list[float] | None = None    # held point (None: follow the path)
-        self._gains: dict[tuple[int, bool], np.ndarray] = {}
+        self._gains: dict[tuple[int, bool], Gains] = {}
+        self._frames: dict[int, RotorFrame] = {}
 
     # ------------------------------------------------------------------ targets
     def hold(self, position_m: Sequence[float]) -> None:
@@ -165,9 +217,11 @@ class RecoveryLaw:
             proj = self.projector.project(y)
         if proj is not None:
             p0, t, kn, dist = proj
-            vref = [self.speed * c for c in t]
-            ff = [self.speed * self.speed * c for c in kn]
-            a = [kp * (p0[i] - y[i]) + kd * (vref[i] - v[i]) + ff[i] for i in range(3)]
+            sp = self.speed
+            sp2 = sp * sp
+            a = [kp * (p0[0] - y[0]) + kd * (sp * t[0] - v[0]) + sp2 * kn[0],
+                 kp * (p0[1] - y[1]) + kd * (sp * t[1] - v[1]) + sp2 * kn[1],
+                 kp * (p0[2] - y[2]) + kd * (sp * t[2] - v[2]) + sp2 * kn[2]]
         else:
             tgt = self.hold_m if self.hold_m is not None else list(y)
             if self.hold_m is None:
@@ -175,7 +229,7 @@ class RecoveryLaw:
             a = [kp * (tgt[i] - y[i]) - kd * v[i] for i in range(3)]
         az = max(-MAX_VERTICAL_G * self.g, min(MAX_VERTICAL_G * self.g, a[2]))
         ah = math.hypot(a[0], a[1])
-        amax = (self.g + az) * math.tan(MAX_TILT_RAD)
+        amax = (self.g + az) * _TAN_MAX_TILT
         if ah > amax:
             a[0] *= amax / ah
             a[1] *= amax / ah
@@ -183,7 +237,7 @@ class RecoveryLaw:
         return a, dist
 
     # ------------------------------------------------------------------ gains
-    def _lqr(self, r: float, ix: float, iy: float) -> np.ndarray:
+    def _lqr(self, r: float, ix: float, iy: float) -> Gains:
         # Gains are scheduled on the spin rate in 0.5 rad/s steps; beyond ±LQR_MAX_SPIN the
         # airframe has long come apart (the simulator ends a run at 300 rad/s), so a measured
         # rate out there (a glitch, a fuzzed message) uses the edge's gains: bounded cache,
@@ -193,8 +247,6 @@ class RecoveryLaw:
         k = self._gains.get(key)
         if k is not None:
             return k
-        from scipy.linalg import expm, solve_discrete_are
-
         rr = key[0] / 2.0
         iz, kr = self.inertia[2], self.k_r
         a = np.array([[0.0, rr, 0.0, -1.0],
@@ -202,31 +254,29 @@ class RecoveryLaw:
                       [0.0, 0.0, -kr / ix, -(iz - iy) * rr / ix],
                       [0.0, 0.0, -(ix - iz) * rr / iy, -kr / iy]])
         b = np.array([[0.0, 0.0], [0.0, 0.0], [1.0 / ix, 0.0], [0.0, 1.0 / iy]])
-        m = np.zeros((6, 6))
-        m[:4, :4] = a * self.dt
-        m[:4, 4:] = b * self.dt
-        e = expm(m)
-        ad, bd = e[:4, :4], e[:4, 4:]
-        q, rw = np.diag(LQR_Q), np.diag(LQR_R)
-        p = solve_discrete_are(ad, bd, q, rw)
-        k = np.linalg.solve(rw + bd.T @ p @ bd, bd.T @ p @ ad)
-        self._gains[key] = k
-        return k
+        ad, bd = zoh(a, b, self.dt)
+        k = dlqr(ad, bd, np.diag(LQR_Q), np.diag(LQR_R))
+        gains = self._gains[key] = (tuple(k[0].tolist()), tuple(k[1].tolist()))
+        return gains
 
     # ------------------------------------------------------------------ the law
     def update(self, s: State, attacked_rotor: int = 0,
                attack_n: float = 0.0) -> RecoveryOutput:
         """Rotor thrusts for this period; ``attacked_rotor`` 0 = four healthy rotors."""
-        R = rotation_rows(s.quaternion_wxyz)
-        y, v = list(s.position_m), list(s.velocity_mps)
-        p, q, r = s.body_rates_radps
+        # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
+        R = rotation_rows(_floats(s.quaternion_wxyz))
+        y, v = list(_floats(s.position_m)), list(_floats(s.velocity_mps))
+        p, q, r = _floats(s.body_rates_radps)
         a, dist = self._accel_demand(y, v)
         m = self.mass_kg
         F = [m * a[0] + self.k_t * v[0], m * a[1] + self.k_t * v[1],
              m * (a[2] + self.g) + self.k_t * v[2]]
         fn = math.sqrt(F[0] ** 2 + F[1] ** 2 + F[2] ** 2)
         n = [c / fn for c in F] if fn > 1e-9 else [0.0, 0.0, 1.0]
-        h = [R[0][i] * n[0] + R[1][i] * n[1] + R[2][i] * n[2] for i in range(3)]
+        R0, R1, R2 = R
+        n0, n1, n2 = n
+        h = [R0[0] * n0 + R1[0] * n1 + R2[0] * n2, R0[1] * n0 + R1[1] * n1 + R2[1] * n2,
+             R0[2] * n0 + R1[2] * n1 + R2[2] * n2]
         tilt_err = math.acos(max(-1.0, min(1.0, h[2])))
         # Thrust along b3: the component of F there; never negative (upside down: idle).
         uf = max(fn * h[2], 0.0)
@@ -239,16 +289,21 @@ class RecoveryLaw:
             req = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m)
             f = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m, fmax)
             return RecoveryOutput(req, f, tilt_err, dist, uf)
-        fr = canonical_frame(attacked_rotor)
-        rot = fr.rot
-        hc = [sum(rot[i][k] * h[k] for k in range(3)) for i in range(3)]
-        w = (p, q, r)
-        wc = [sum(rot[i][k] * w[k] for k in range(3)) for i in range(3)]
+        fr = self._frames.get(attacked_rotor)
+        if fr is None:
+            fr = self._frames[attacked_rotor] = canonical_frame(attacked_rotor)
+        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = fr.rot
+        h0, h1, h2 = h
+        # Canonical components (as sum() over the integer rotation: the same roundings).
+        x0 = 0 + r00 * h0 + r01 * h1 + r02 * h2
+        x1 = 0 + r10 * h0 + r11 * h1 + r12 * h2
+        x2 = 0 + r00 * p + r01 * q + r02 * r
+        x3 = 0 + r10 * p + r11 * q + r12 * r
         ixc, iyc = (iy, ix) if fr.swap_xy else (ix, iy)
-        k = self._lqr(wc[2], ixc, iyc)
-        x = (hc[0], hc[1], wc[0], wc[1])
-        tau_p = -float(k[0, 0] * x[0] + k[0, 1] * x[1] + k[0, 2] * x[2] + k[0, 3] * x[3])
-        tau_q = -float(k[1, 0] * x[0] + k[1, 1] * x[1] + k[1, 2] * x[2] + k[1, 3] * x[3])
+        (k00, k01, k02, k03), (k10, k11, k12, k13) = self._lqr(0 + r20 * p + r21 * q + r22 * r,
+                                                               ixc, iyc)
+        tau_p = -(k00 * x0 + k01 * x1 + k02 * x2 + k03 * x3)
+        tau_q = -(k10 * x0 + k11 * x1 + k12 * x2 + k13 * x3)
         an = min(max(attack_n, 0.0), fmax)
         f4 = an + tau_p / ell
         s13 = uf - an - f4
