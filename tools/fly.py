@@ -90,9 +90,6 @@ def run(args: argparse.Namespace) -> int:
             return 3
     for warning in check_scenario(scenario):
         print(f"tfl-mav fly: warning: {warning}", file=sys.stderr)
-    # The recovery law imports scipy at its first LQR design, right after an attack is
-    # found: 0.3-0.9 s without control in mid-flight. Pay it here, before flying.
-    import scipy.linalg  # noqa: F401
     recorder = None
     if args.mcap or live:
         from tfl_mav.control.paths import PathError
