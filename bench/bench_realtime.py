@@ -30,6 +30,7 @@ import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -75,15 +76,16 @@ def _vehicle_figures(rep: dict[str, Any]) -> dict[str, Any]:
 
 
 def flight(scenario: str, duration_s: float, *, loss: float = 0.0, jitter_s: float = 0.0,
-           seed: int = 0) -> dict[str, Any]:
+           seed: int = 0, mcap: bool = True, fly_args: Sequence[str] = ()) -> dict[str, Any]:
     """One real-time flight with MCAP on both sides, through the relay when ``loss`` or
     ``jitter_s``; the vehicle's figures, the daemon's summary, the true path distance."""
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
         gcs = GcsListener(scenario)
+        sim_mcap = ["--mcap", str(d / "run.mcap")] if mcap else []
         sim, port = start_sim(["--realtime", "--duration", str(duration_s), "--gcs",
-                               gcs.address, "--json", str(d / "sim.json"), "--mcap",
-                               str(d / "run.mcap")], scenario)
+                               gcs.address, "--json", str(d / "sim.json"), *sim_mcap],
+                              scenario)
         relay = None
         try:
             target = port
@@ -95,8 +97,9 @@ def flight(scenario: str, duration_s: float, *, loss: float = 0.0, jitter_s: flo
                 raise_priority(relay.native_thread_id or 0)
                 target = relay.listen_address[1]
             fly = Proc(["fly", scenario, "--realtime", "--quiet", "--vehicle",
-                        f"127.0.0.1:{target}", "--duration", str(duration_s), "--mcap",
-                        str(d / "ctl.mcap"), "--summary-json", str(d / "fly.json")],
+                        f"127.0.0.1:{target}", "--duration", str(duration_s),
+                        *(["--mcap", str(d / "ctl.mcap")] if mcap else []), *fly_args,
+                        "--summary-json", str(d / "fly.json")],
                        realtime=True)
             code = sim.wait(duration_s + 90)
             try:
