@@ -36,8 +36,7 @@ from typing import Any
 
 from bench_faults import GcsListener, _fmt, daemon_restart
 
-from harness.processes import CLI, Proc, raise_priority, start_sim
-from harness.relay import Faults, Relay
+from harness.processes import CLI, LISTEN_RE, START_TIMEOUT_S, Proc, start_sim
 
 LOSSES = (0.0, 0.05, 0.10, 0.20)
 TOL_M = 0.02
@@ -90,12 +89,15 @@ def flight(scenario: str, duration_s: float, *, loss: float = 0.0, jitter_s: flo
         try:
             target = port
             if loss or jitter_s:
-                faults = Faults(drop=loss, jitter_s=jitter_s)
-                relay = Relay(("127.0.0.1", port), to_vehicle=faults, to_daemon=faults,
-                              seed=seed)
-                relay.start()
-                raise_priority(relay.native_thread_id or 0)
-                target = relay.listen_address[1]
+                # Its own process at the loop's priority, as a user runs it: a relay thread
+                # in this process shares a GIL with the GCS listener and output readers, is
+                # stalled for tens of ms, and then releases a shuffled burst (one receive
+                # time, independent jitter): reordering no real network does.
+                relay = Proc(["relay", "--vehicle", f"127.0.0.1:{port}", "--drop", str(loss),
+                              "--jitter-ms", str(1000 * jitter_s), "--seed", str(seed)],
+                             realtime=True)
+                _, m = relay.wait_for(LISTEN_RE.pattern, START_TIMEOUT_S)
+                target = int(m.group(2))
             fly = Proc(["fly", scenario, "--realtime", "--quiet", "--vehicle",
                         f"127.0.0.1:{target}", "--duration", str(duration_s),
                         *(["--mcap", str(d / "ctl.mcap")] if mcap else []), *fly_args,
@@ -108,7 +110,7 @@ def flight(scenario: str, duration_s: float, *, loss: float = 0.0, jitter_s: flo
                 fly.close()
         finally:
             if relay is not None:
-                relay.close()
+                relay.stop()
             sim.close()
             gcs.close()
         rep, summ = _read_json(d / "sim.json"), _read_json(d / "fly.json")
