@@ -8,10 +8,14 @@ scenario error, 3 link or file error, 130/143 interrupted.
 from __future__ import annotations
 
 import argparse
+import collections
 import json
 import math
 import signal
 import sys
+import threading
+import time
+from collections.abc import Callable
 from typing import Any
 
 from tfl_mav.control.feasibility import check_scenario
@@ -21,7 +25,7 @@ from tfl_mav.link.transport import LinkError, parse_address
 from tfl_mav.scenario import ScenarioError, apply_overrides, load_scenario
 from tools.outputs import file_problem
 
-__all__ = ["add_parser", "open_recorder", "run"]
+__all__ = ["StartingRecorder", "add_parser", "open_recorder", "run"]
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -93,15 +97,9 @@ def run(args: argparse.Namespace) -> int:
     # The recovery law imports scipy at its first LQR design, right after an attack is
     # found: 0.3-0.9 s without control in mid-flight. Pay it here, before flying.
     import scipy.linalg  # noqa: F401
-    recorder = None
-    if args.mcap or live:
-        from tfl_mav.control.paths import PathError
-
-        try:
-            recorder = open_recorder(scenario, args.mcap, live)
-        except (OSError, PathError, ScenarioError) as exc:
-            print(f"{prog}: {exc}", file=sys.stderr)
-            return 3
+    # The recorder's child starts beside the controller's warm-up and never delays the
+    # first command (a restarted daemon has 0.25 s before the vehicle cuts its motors).
+    recorder = StartingRecorder(scenario, args.mcap, live) if args.mcap or live else None
 
     def on_event(level: str, text: str, t: float) -> None:
         if not args.quiet:
@@ -130,6 +128,11 @@ def run(args: argparse.Namespace) -> int:
         print(f"{prog}: {exc}", file=sys.stderr)
         if recorder is not None:
             recorder.close()
+        return 3
+    if recorder is not None and recorder.start_error:   # it failed while we warmed up
+        print(f"{prog}: {recorder.start_error}", file=sys.stderr)
+        daemon.close()
+        recorder.close()
         return 3
     got: dict[str, int] = {}
 
@@ -176,7 +179,8 @@ def run(args: argparse.Namespace) -> int:
 _DISTANCE = TICK_FIELDS.index("path_distance_m")
 
 
-def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None) -> Any:
+def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None,
+                  clock: Callable[[], float] = time.time) -> Any:
     """The controller's recorder: a :class:`~tfl_mav.flightlog.recorder_process.
     RecorderProcess` (a child process: the daemon hands it raw datagrams and compact tick
     tuples, the child decodes and encodes), told what to draw: the airframe's rotors, the
@@ -190,11 +194,97 @@ def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None)
     rec = RecorderProcess(mcap, rotor_xy_m=rotor_xy_m(scenario.vehicle),
                           thrust_max_n=scenario.vehicle.thrust_max_n,
                           controller_fields=TICK_FIELDS, controller_schema=TICK_SCHEMA,
-                          live=live)
+                          live=live, clock=clock)
     rec.metadata("scenario", {"name": scenario.name, "role": "controller",
                               "toml": json.dumps(scenario.to_dict())})
     rec.path(path)
     return rec
+
+
+class StartingRecorder:
+    """:func:`open_recorder` started on a thread, so the daemon's warm-up and first command
+    never wait for the recorder's child (a fresh interpreter: 0.3-2 s on a loaded machine).
+    Calls made before it is up are buffered in order with their wall-clock stamps and
+    handed over (a bounded number per call, so no single tick pays for the whole backlog)
+    from the calling thread; the stamps are preserved through the recorder's clock.
+    ``start_error``: why it did not start (the flight goes on unrecorded)."""
+
+    _FLUSH_PER_CALL = 256
+    _BUFFER_MAX = 500_000          # ~80 s of a 1 kHz flight: beyond it, calls are dropped
+
+    def __init__(self, scenario: Any, mcap: str | None,
+                 live: tuple[str, int] | None) -> None:
+        self._rec: Any = None
+        self._ready = False
+        self._buffer: collections.deque[tuple[float, str, tuple[Any, ...]]] = (
+            collections.deque())
+        self._stamp: float | None = None
+        self.dropped = 0
+        self.start_error: str | None = None
+        self._thread = threading.Thread(target=self._start, args=(scenario, mcap, live),
+                                        name="recorder-start", daemon=True)
+        self._thread.start()
+
+    def _start(self, scenario: Any, mcap: str | None, live: tuple[str, int] | None) -> None:
+        from tfl_mav.control.paths import PathError
+
+        try:
+            self._rec = open_recorder(scenario, mcap, live, clock=self._clock)
+        except (OSError, PathError, ScenarioError) as exc:
+            self.start_error = str(exc)
+        self._ready = True
+
+    def _clock(self) -> float:
+        return self._stamp if self._stamp is not None else time.time()
+
+    def _call(self, name: str, args: tuple[Any, ...]) -> None:
+        buf = self._buffer
+        if self._ready and not buf:
+            if self._rec is not None:
+                getattr(self._rec, name)(*args)
+            return
+        if len(buf) >= self._BUFFER_MAX:
+            self.dropped += 1
+        else:
+            buf.append((time.time(), name, args))
+        if self._ready:
+            self._flush(self._FLUSH_PER_CALL)
+
+    def _flush(self, n: int) -> None:
+        buf, rec = self._buffer, self._rec
+        while buf and n > 0:
+            stamp, name, args = buf.popleft()
+            n -= 1
+            if rec is not None:
+                self._stamp = stamp
+                try:
+                    getattr(rec, name)(*args)
+                finally:
+                    self._stamp = None
+
+    def on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
+        self._call("on_frame", (direction, bytes(raw), msg, time_s))
+
+    def controller(self, time_s: float, record: tuple[Any, ...]) -> None:
+        self._call("controller", (time_s, record))
+
+    def log(self, level: str, text: str, time_s: float | None = None) -> None:
+        self._call("log", (level, text, time_s))
+
+    @property
+    def error(self) -> str | None:
+        if self.start_error:
+            return self.start_error
+        err = self._rec.error if self._rec is not None else None
+        return err or (f"{self.dropped} calls dropped while the recorder started"
+                       if self.dropped else None)
+
+    def close(self) -> None:
+        """Wait for the start, hand over the backlog, finish the file."""
+        self._thread.join()
+        self._flush(len(self._buffer))
+        if self._rec is not None:
+            self._rec.close()
 
 
 _SILENCE_END_S = 10.0   # real time: no state this long after the flight started = vehicle gone
