@@ -113,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
     def on_tick(t: float, record: tuple[Any, ...]) -> None:
         if recorder is not None:
             recorder.controller(t, record)
+            recorder.go()
         if args.progress and t >= next_progress[0]:
             next_progress[0] = t + 1.0
             print(f"progress {t:.3f} {duration:.3f} {record[_DISTANCE]:.3e}",
@@ -212,6 +213,8 @@ class StartingRecorder:
     _FLUSH_PER_CALL = 256
     _BUFFER_MAX = 500_000          # ~80 s of a 1 kHz flight: beyond it, calls are dropped
 
+    _START_AFTER_S = 2.0           # start anyway if no command was sent by then
+
     def __init__(self, scenario: Any, mcap: str | None,
                  live: tuple[str, int] | None) -> None:
         self._rec: Any = None
@@ -221,6 +224,7 @@ class StartingRecorder:
         self._stamp: float | None = None
         self.dropped = 0
         self.start_error: str | None = None
+        self._go = threading.Event()
         self._thread = threading.Thread(target=self._start, args=(scenario, mcap, live),
                                         name="recorder-start", daemon=True)
         self._thread.start()
@@ -228,11 +232,18 @@ class StartingRecorder:
     def _start(self, scenario: Any, mcap: str | None, live: tuple[str, int] | None) -> None:
         from tfl_mav.control.paths import PathError
 
+        # The child (a fresh interpreter importing its stack) would compete for the CPU
+        # with the warm-up: it starts once the first command is out (see go()).
+        self._go.wait(self._START_AFTER_S)
         try:
             self._rec = open_recorder(scenario, mcap, live, clock=self._clock)
         except (OSError, PathError, ScenarioError) as exc:
             self.start_error = str(exc)
         self._ready = True
+
+    def go(self) -> None:
+        """The first command was sent: start the child now."""
+        self._go.set()
 
     def _clock(self) -> float:
         return self._stamp if self._stamp is not None else time.time()
@@ -281,6 +292,7 @@ class StartingRecorder:
 
     def close(self) -> None:
         """Wait for the start, hand over the backlog, finish the file."""
+        self._go.set()
         self._thread.join()
         self._flush(len(self._buffer))
         if self._rec is not None:

@@ -63,8 +63,6 @@ def _child_main(conn: Connection, results: Connection, path: str | None,
     """The child: one Recorder whose clock is the parent's stamp of the call at hand."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    with contextlib.suppress(OSError):
-        os.nice(NICE_INCREMENT)
     now = [0.0]
     try:
         rec = Recorder(path, clock=lambda: now[0], **kwargs)
@@ -137,6 +135,9 @@ class RecorderProcess:
                                  args=(child_conn, child_results,
                                        str(path) if path is not None else None, recorder_kw))
         self._proc.start()
+        with contextlib.suppress(OSError):   # from here, so its imports are nicer too
+            os.setpriority(os.PRIO_PROCESS, self._proc.pid,
+                           min(19, os.getpriority(os.PRIO_PROCESS, 0) + NICE_INCREMENT))
         child_conn.close()
         child_results.close()
         try:
