@@ -99,7 +99,8 @@ def run(args: argparse.Namespace) -> int:
     import scipy.linalg  # noqa: F401
     # The recorder's child starts beside the controller's warm-up and never delays the
     # first command (a restarted daemon has 0.25 s before the vehicle cuts its motors).
-    recorder = StartingRecorder(scenario, args.mcap, live) if args.mcap or live else None
+    recorder = (StartingRecorder(scenario, args.mcap, live, args.realtime)
+                if args.mcap or live else None)
 
     def on_event(level: str, text: str, t: float) -> None:
         if not args.quiet:
@@ -181,7 +182,7 @@ _DISTANCE = TICK_FIELDS.index("path_distance_m")
 
 
 def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None,
-                  clock: Callable[[], float] = time.time) -> Any:
+                  clock: Callable[[], float] = time.time, realtime: bool = False) -> Any:
     """The controller's recorder: a :class:`~tfl_mav.flightlog.recorder_process.
     RecorderProcess` (a child process: the daemon hands it raw datagrams and compact tick
     tuples, the child decodes and encodes), told what to draw: the airframe's rotors, the
@@ -195,7 +196,7 @@ def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None,
     rec = RecorderProcess(mcap, rotor_xy_m=rotor_xy_m(scenario.vehicle),
                           thrust_max_n=scenario.vehicle.thrust_max_n,
                           controller_fields=TICK_FIELDS, controller_schema=TICK_SCHEMA,
-                          live=live, clock=clock)
+                          live=live, clock=clock, realtime=realtime)
     rec.metadata("scenario", {"name": scenario.name, "role": "controller",
                               "toml": json.dumps(scenario.to_dict())})
     rec.path(path)
@@ -205,20 +206,26 @@ def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None,
 class StartingRecorder:
     """:func:`open_recorder` started on a thread, so the daemon's warm-up and first command
     never wait for the recorder's child (a fresh interpreter: 0.3-2 s on a loaded machine).
-    Calls made before it is up are buffered in order with their wall-clock stamps and
-    handed over (a bounded number per call, so no single tick pays for the whole backlog)
-    from the calling thread; the stamps are preserved through the recorder's clock.
-    ``start_error``: why it did not start (the flight goes on unrecorded)."""
 
-    _FLUSH_PER_CALL = 256
-    _BUFFER_MAX = 500_000          # ~80 s of a 1 kHz flight: beyond it, calls are dropped
+    Until the child is up and has the backlog, calls are buffered in order with their
+    wall-clock stamps (kept through the recorder's clock). The *starting* thread hands the
+    backlog over in small slices with a pause between them, so neither the loop thread nor
+    the GIL pays for seconds of backlog at once (handing it over from the loop stalled it
+    for tens of ms and crashed real-time flights); only when the buffer is empty do calls
+    go to the recorder directly, so the order is kept. ``start_error``: why it did not
+    start (the flight goes on unrecorded)."""
 
     _START_AFTER_S = 2.0           # start anyway if no command was sent by then
+    _SLICE = 128                   # calls handed over per slice ...
+    _PAUSE_S = 0.002               # ... then the GIL is left to the loop this long
+    _BUFFER_MAX = 500_000          # ~80 s of a 1 kHz flight: beyond it, calls are dropped
 
-    def __init__(self, scenario: Any, mcap: str | None,
-                 live: tuple[str, int] | None) -> None:
+    def __init__(self, scenario: Any, mcap: str | None, live: tuple[str, int] | None,
+                 realtime: bool = False) -> None:
+        self._realtime = realtime
         self._rec: Any = None
-        self._ready = False
+        self._direct = False       # backlog handed over: calls go straight to the recorder
+        self._lock = threading.Lock()
         self._buffer: collections.deque[tuple[float, str, tuple[Any, ...]]] = (
             collections.deque())
         self._stamp: float | None = None
@@ -236,10 +243,27 @@ class StartingRecorder:
         # with the warm-up: it starts once the first command is out (see go()).
         self._go.wait(self._START_AFTER_S)
         try:
-            self._rec = open_recorder(scenario, mcap, live, clock=self._clock)
+            self._rec = open_recorder(scenario, mcap, live, clock=self._clock,
+                                      realtime=self._realtime)
         except (OSError, PathError, ScenarioError) as exc:
             self.start_error = str(exc)
-        self._ready = True
+        self._hand_over(pause_s=self._PAUSE_S)
+
+    def _hand_over(self, pause_s: float) -> None:
+        buf, rec = self._buffer, self._rec
+        while True:
+            with self._lock:
+                if not buf:
+                    self._direct = rec is not None
+                    return
+                part = [buf.popleft() for _ in range(min(self._SLICE, len(buf)))]
+            if rec is not None:
+                for stamp, name, args in part:
+                    self._stamp = stamp
+                    getattr(rec, name)(*args)
+                self._stamp = None
+            if pause_s:
+                time.sleep(pause_s)
 
     def go(self) -> None:
         """The first command was sent: start the child now."""
@@ -249,29 +273,15 @@ class StartingRecorder:
         return self._stamp if self._stamp is not None else time.time()
 
     def _call(self, name: str, args: tuple[Any, ...]) -> None:
-        buf = self._buffer
-        if self._ready and not buf:
-            if self._rec is not None:
-                getattr(self._rec, name)(*args)
-            return
-        if len(buf) >= self._BUFFER_MAX:
-            self.dropped += 1
-        else:
-            buf.append((time.time(), name, args))
-        if self._ready:
-            self._flush(self._FLUSH_PER_CALL)
-
-    def _flush(self, n: int) -> None:
-        buf, rec = self._buffer, self._rec
-        while buf and n > 0:
-            stamp, name, args = buf.popleft()
-            n -= 1
-            if rec is not None:
-                self._stamp = stamp
-                try:
-                    getattr(rec, name)(*args)
-                finally:
-                    self._stamp = None
+        if not self._direct:
+            with self._lock:
+                if not self._direct:
+                    if len(self._buffer) >= self._BUFFER_MAX:
+                        self.dropped += 1
+                    else:
+                        self._buffer.append((time.time(), name, args))
+                    return
+        getattr(self._rec, name)(*args)
 
     def on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
         self._call("on_frame", (direction, bytes(raw), msg, time_s))
@@ -291,10 +301,10 @@ class StartingRecorder:
                        if self.dropped else None)
 
     def close(self) -> None:
-        """Wait for the start, hand over the backlog, finish the file."""
+        """Wait for the start and the hand-over, then finish the file."""
         self._go.set()
         self._thread.join()
-        self._flush(len(self._buffer))
+        self._hand_over(pause_s=0.0)      # anything buffered since (the loop has ended)
         if self._rec is not None:
             self._rec.close()
 

@@ -18,7 +18,10 @@ and SIGTERM so a Ctrl-C or ``kill`` of the process group still lets the parent c
 
 Backpressure: if the queue grows past ``batch_max`` × 8 calls (the sender thread starved),
 the flight thread sends inline; if the child falls behind, the pipe fills and the flight
-process waits.
+process waits. Not in real time (``realtime=True``): there the flight thread only ever
+appends, and past ``batch_max`` × 64 queued calls drops them (counted in ``dropped``) — a
+real-time loop that waits for its recorder misses its deadlines (#12). The child runs
+:data:`NICE_INCREMENT` nicer than its parent.
 Errors never raise into the loop: :attr:`error` reports the child's write error, or that
 the child died (later calls are counted in ``dropped``); :attr:`stats` is the child's
 final :class:`~tfl_mav.flightlog.recorder.RecorderStats`, filled in by :meth:`close`.
@@ -116,7 +119,8 @@ class RecorderProcess:
     child's ``Recorder``. Raises :class:`RecorderError` if the file cannot be written."""
 
     def __init__(self, path: str | Path | None, *, clock: Callable[[], float] = time.time,
-                 batch_s: float = 0.01, batch_max: int = 512, **recorder_kw: Any) -> None:
+                 batch_s: float = 0.01, batch_max: int = 512, realtime: bool = False,
+                 **recorder_kw: Any) -> None:
         self.file_path = Path(path) if path is not None else None
         self.clock = clock
         self.stats = RecorderStats()
@@ -124,6 +128,9 @@ class RecorderProcess:
         self._error: str | None = None
         self._batch_s = batch_s
         self._backlog_max = 8 * batch_max
+        # Real time (#12): the flight thread never waits for the child; past this many
+        # queued calls (seconds of a 1 kHz flight) new ones are dropped and counted.
+        self._realtime_max = 64 * batch_max if realtime else 0
         self._queue: collections.deque[tuple[Any, ...]] = collections.deque()
         self._send_lock = threading.Lock()
         self._alive = True
@@ -238,6 +245,12 @@ class RecorderProcess:
             self.stats.dropped += 1
             return
         q = self._queue
+        if self._realtime_max:
+            if len(q) >= self._realtime_max:
+                self.stats.dropped += 1
+            else:
+                q.append(item)
+            return
         q.append(item)
         if len(q) >= self._backlog_max:       # the sender thread is starved: send here
             self._send()
