@@ -162,7 +162,8 @@ class Daemon:
                  vehicle_sysid: int | None = None, key: bytes | None = None,
                  on_frame: FrameHook | None = None,
                  on_tick: Callable[[float, tuple[Any, ...]], None] | None = None,
-                 on_event: Callable[[str, str, float], None] | None = None) -> None:
+                 on_event: Callable[[str, str, float], None] | None = None,
+                 hold_start: Callable[[], bool] | None = None) -> None:
         """Open the socket towards ``vehicle`` (raises LinkError).
 
         ``key``: 32-byte MAVLink 2 signing secret (the vehicle's), or None (unsigned).
@@ -172,7 +173,9 @@ class Daemon:
         ``on_tick(sim_time_s, record)`` sees the controller's internals every tick as a
         compact tuple (:func:`tick_state`, fields :data:`TICK_FIELDS`; the recorder's
         ``/controller/state``); ``on_event(level, text, sim_time_s)`` every
-        event also sent as STATUSTEXT.
+        event also sent as STATUSTEXT. ``hold_start()``: while it returns True, a vehicle
+        waiting at t = 0 (its clock starts with our first command, so waiting is free) gets
+        no command yet — e.g. a recorder still starting; a take-over mid-flight never waits.
         """
         if not (math.isfinite(state_timeout_s) and state_timeout_s > 0):
             raise ValueError(f"state_timeout_s: must be > 0 s, got {state_timeout_s}")
@@ -191,6 +194,7 @@ class Daemon:
                                  signing=self.signing)
         self.on_tick = on_tick
         self.on_event = on_event
+        self.hold_start = hold_start
         self.stats = DaemonStats()
         self.thrust_max_n = scenario.vehicle.thrust_max_n
         self.k_f = scenario.vehicle.k_f
@@ -411,6 +415,10 @@ class Daemon:
         self._complete = []
         stats = self.stats
         state, applied_msg, rpm = batch[-1]
+        if stats.ticks == 0 and state.time_usec == 0 and self.hold_start is not None \
+                and self.hold_start():
+            self._newest_usec = -1     # its resend of t = 0 will be fresh again
+            return arrived
         stats.skipped_states += len(batch) - 1
         t_usec = state.time_usec
         dt_s = None

@@ -101,6 +101,8 @@ def run(args: argparse.Namespace) -> int:
     # first command (a restarted daemon has 0.25 s before the vehicle cuts its motors).
     recorder = (StartingRecorder(scenario, args.mcap, live, args.realtime)
                 if args.mcap or live else None)
+    if recorder is not None and not args.realtime:
+        recorder.wait_started()     # lockstep: nothing to gain, keep the old order exactly
 
     def on_event(level: str, text: str, t: float) -> None:
         if not args.quiet:
@@ -114,18 +116,26 @@ def run(args: argparse.Namespace) -> int:
     def on_tick(t: float, record: tuple[Any, ...]) -> None:
         if recorder is not None:
             recorder.controller(t, record)
-            recorder.go()
         if args.progress and t >= next_progress[0]:
             next_progress[0] = t + 1.0
             print(f"progress {t:.3f} {duration:.3f} {record[_DISTANCE]:.3e}",
                   file=sys.stderr, flush=True)
+
+    def hold_start() -> bool:
+        """A vehicle waiting at t = 0 waits for the recorder too (it costs nothing there);
+        one that fails to start ends the run, as it always did."""
+        assert recorder is not None
+        if recorder.start_error:
+            daemon.stop()
+        return recorder.starting
 
     try:
         daemon = Daemon(scenario, vehicle=vehicle, bind=bind, realtime=args.realtime,
                         state_timeout_s=args.state_timeout, key=key,
                         silence_end_s=_SILENCE_END_S if args.realtime else None,
                         on_frame=recorder.on_frame if recorder else None,
-                        on_tick=on_tick, on_event=on_event)
+                        on_tick=on_tick, on_event=on_event,
+                        hold_start=hold_start if recorder is not None else None)
     except (LinkError, ValueError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         if recorder is not None:
@@ -215,7 +225,6 @@ class StartingRecorder:
     go to the recorder directly, so the order is kept. ``start_error``: why it did not
     start (the flight goes on unrecorded)."""
 
-    _START_AFTER_S = 2.0           # start anyway if no command was sent by then
     _SLICE = 128                   # calls handed over per slice ...
     _PAUSE_S = 0.002               # ... then the GIL is left to the loop this long
     _BUFFER_MAX = 500_000          # ~80 s of a 1 kHz flight: beyond it, calls are dropped
@@ -231,7 +240,6 @@ class StartingRecorder:
         self._stamp: float | None = None
         self.dropped = 0
         self.start_error: str | None = None
-        self._go = threading.Event()
         self._thread = threading.Thread(target=self._start, args=(scenario, mcap, live),
                                         name="recorder-start", daemon=True)
         self._thread.start()
@@ -239,9 +247,6 @@ class StartingRecorder:
     def _start(self, scenario: Any, mcap: str | None, live: tuple[str, int] | None) -> None:
         from tfl_mav.control.paths import PathError
 
-        # The child (a fresh interpreter importing its stack) would compete for the CPU
-        # with the warm-up: it starts once the first command is out (see go()).
-        self._go.wait(self._START_AFTER_S)
         try:
             self._rec = open_recorder(scenario, mcap, live, clock=self._clock,
                                       realtime=self._realtime)
@@ -265,9 +270,13 @@ class StartingRecorder:
             if pause_s:
                 time.sleep(pause_s)
 
-    def go(self) -> None:
-        """The first command was sent: start the child now."""
-        self._go.set()
+    @property
+    def starting(self) -> bool:
+        """The child is not up yet (or its backlog not yet handed over)."""
+        return self._thread.is_alive()
+
+    def wait_started(self) -> None:
+        self._thread.join()
 
     def _clock(self) -> float:
         return self._stamp if self._stamp is not None else time.time()
@@ -302,7 +311,6 @@ class StartingRecorder:
 
     def close(self) -> None:
         """Wait for the start and the hand-over, then finish the file."""
-        self._go.set()
         self._thread.join()
         self._hand_over(pause_s=0.0)      # anything buffered since (the loop has ended)
         if self._rec is not None:
