@@ -247,3 +247,39 @@ def test_a_new_vehicle_waiting_at_its_first_state_is_a_restart(scripted):
     vehicle.send(0)                                # the 25th at the same time: a restart
     assert vehicle.collect(1) == [0]
     assert daemon.stats.rebuilds == 1 and daemon.computer is not old
+
+
+def _daemon_with_hold(sc: Scenario, vehicle: ScriptedVehicle, hold: list[bool]) -> Any:
+    daemon = Daemon(sc, vehicle=vehicle.link.local_address, realtime=True,
+                    state_timeout_s=30.0, hold_start=lambda: hold[0])
+    thread = threading.Thread(target=daemon.run, kwargs={"duration_s": 1e9}, daemon=True)
+    thread.start()
+    vehicle.await_controller()
+    return daemon, thread
+
+
+@pytest.mark.parametrize("first_usec", [0, 4_000_000])
+def test_only_a_vehicle_waiting_at_t0_waits_for_hold_start(first_usec):
+    """A vehicle at t = 0 has not started its clock (it waits for our first command): the
+    daemon may wait there (for its recorder). A vehicle already flying (a restart) is
+    answered at once, whatever hold_start says: its motors are cut 0.25 s after the last
+    command."""
+    sc = load_scenario("nominal")
+    vehicle = ScriptedVehicle(sc)
+    hold = [True]
+    daemon, thread = _daemon_with_hold(sc, vehicle, hold)
+    try:
+        vehicle.send(first_usec)
+        if first_usec == 0:
+            assert vehicle.quiet() == []
+            vehicle.send(0)                          # its resend every 10 ms ...
+            assert vehicle.quiet() == []
+            hold[0] = False
+            vehicle.send(0)                          # ... answered once the hold ends
+        assert vehicle.collect(1) == [first_usec]
+        assert daemon.stats.ticks == 1
+    finally:
+        daemon.stop()
+        thread.join(5.0)
+        daemon.close()
+        vehicle.link.close()
