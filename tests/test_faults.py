@@ -12,10 +12,12 @@ wall-clock bounds are one-sided where physics allows, and upper bounds carry
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import json
 import math
 import socket
+import subprocess
 import threading
 import time
 from pathlib import Path
@@ -309,19 +311,38 @@ def test_killed_vehicle_failsafe_then_a_new_vehicle_is_reacquired(sim_factory):
                 p.close()
 
 
+# Restart physics (nominal scenario, no attack: cutting all four motors applies no torque,
+# so the vehicle falls level). After t_off s with the motors cut it has fallen ½ g t_off² at
+# g t_off; the recovery law that takes over arrests a descent at ≤ MAX_VERTICAL_G g
+# (tfl_mav.control.recovery), so it stops within (g t_off)² / (2 · 0.5 g) = g t_off² more:
+# 1.5 g t_off² in all. The path's lowest point is 4 m (z = 8 − 4 cos y1) and the flight
+# starts there; with a 20 % margin for the law's own transient the vehicle must survive
+# when 1.5 g t_off² ≤ 0.8 · 4 m, i.e. t_off ≤ 0.47 s (offline: survives 0.50 s, falls at
+# 0.55 s). A fall that starts faster than 2 m/s (t_off ≥ 0.21 s) is not benign: the new
+# daemon's first tick must hand the vehicle to the recovery law, never to TFL.
+G = 9.81
+RESTART_FLOOR_M = 4.0
+RESTART_ARREST_G = 0.5
+RESTART_SAFE_OFF_S = math.sqrt(0.8 * RESTART_FLOOR_M / (G * (0.5 + 0.5 / RESTART_ARREST_G)))
+RESTART_NOT_BENIGN_OFF_S = 2.0 / G + 0.01
+
+
 @pytest.mark.slow
-def test_killed_daemon_motors_cut_then_restarted_daemon_reacquires(tmp_path, sim_factory,
+def test_killed_daemon_motors_cut_then_restarted_daemon_takes_over(tmp_path, sim_factory,
                                                                    free_port):
     """Real time, no relay. SIGKILL the daemon: the vehicle cuts its motors after
     --command-timeout (0.25 s) like an ESC that lost its signal; a new daemon bound to the
-    same address (the vehicle's peer pin is address + sysid) is accepted at once. Flown
-    on the path without an attack so the test is about the link, not the fall."""
+    same address (the vehicle's peer pin is address + sysid) is accepted at once, takes the
+    falling vehicle over with the recovery law, and the outcome is the one physics allows
+    for the time the motors were off (see RESTART_SAFE_OFF_S) — however long a loaded
+    machine made the restart take. Flown without an attack: the test is about the
+    take-over, not the attacked rotor (which flips the vehicle within 0.12 s of the cut)."""
     bind = f"127.0.0.1:{free_port}"
     sets = ["--set", "initial.position_m=[0,1,4]"]
-    sim, port = sim_factory(["--realtime", "--duration", "4", *sets, "--json",
+    sim, port = sim_factory(["--realtime", "--duration", "6", *sets, "--json",
                              str(tmp_path / "sim.json")], "nominal")
     fly_args = ["fly", "nominal", *sets, "--realtime", "--progress", "--vehicle",
-                f"127.0.0.1:{port}", "--bind", bind, "--duration", "4"]
+                f"127.0.0.1:{port}", "--bind", bind, "--duration", "6"]
     fly = Proc(fly_args, realtime=True)
     fly2 = None
     try:
@@ -330,16 +351,29 @@ def test_killed_daemon_motors_cut_then_restarted_daemon_reacquires(tmp_path, sim
         fly2 = Proc(fly_args, realtime=True)
         t_cut, _ = sim.wait_for(r"motors cut", 5 + LOAD_SLACK_S, after=t_kill)
         assert 0.24 <= t_cut - t_kill <= 0.25 + LOAD_SLACK_S
-        t_res, _ = sim.wait_for(r"commands resumed: motors restored", 10 + LOAD_SLACK_S,
-                                after=t_kill)
-        # The new daemon's start (a cold interpreter) plus its first command.
-        assert t_res - t_kill < 3.0 + LOAD_SLACK_S
-        sim.wait(30)
-        fly2.wait(30)
+        try:
+            t_res, _ = sim.wait_for(r"commands resumed: motors restored", 10 + LOAD_SLACK_S,
+                                    after=t_kill)
+        except TimeoutError:
+            t_res = None        # it hit the ground first: legitimate only after a long start
+        code = sim.wait(30)
+        with contextlib.suppress(subprocess.TimeoutExpired):   # no state ever: it waits
+            fly2.wait(15)
     finally:
         for p in (fly, fly2):
             if p is not None:
                 p.close()
-    st = _sim_json(tmp_path / "sim.json")["stats"]
+    report = _sim_json(tmp_path / "sim.json")
+    st = report["stats"]
     assert st["command_timeouts"] == 1
     assert st["control_link"]["foreign"] == 0          # same address: not a stranger
+    if t_res is None:
+        assert code == 1 and "hit the ground" in report["reason"], report["reason"]
+        return
+    t_off = t_res - t_cut
+    if t_off >= RESTART_NOT_BENIGN_OFF_S:
+        assert "recovery: take-over" in fly2.stderr(), fly2.stderr()[-2000:]
+    if t_off <= RESTART_SAFE_OFF_S:
+        assert code == 0, (t_off, report["reason"])
+    else:    # a fall it may not survive; if it does not, the ground ends it, not a flip
+        assert code == 0 or "hit the ground" in report["reason"], (t_off, report["reason"])

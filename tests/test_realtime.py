@@ -213,3 +213,73 @@ def test_one_forged_future_state_does_not_lock_the_daemon_out(scripted):
     assert vehicle.collect(1) == [1000]
     st = daemon.stats
     assert (st.ticks, st.implausible_states, st.rebuilds) == (2, 1, 0)
+
+
+def test_a_shuffled_burst_of_old_states_is_reordering_not_a_restart(scripted):
+    """A relay stalled for tens of ms releases its backlog shuffled: many old states in a
+    row, at *different* times. That is reordering (dropped, counted), never a restarted
+    vehicle — rebuilding the flight computer mid-flight would throw the flight away."""
+    vehicle, daemon = scripted
+    vehicle.send(100_000)
+    assert vehicle.collect(1) == [100_000]
+    late = list(range(1000, 100_000, 1000))        # 99 older states, each time once
+    random.Random(3).shuffle(late)
+    for t in late:
+        vehicle.send(t)
+    assert vehicle.quiet() == []
+    st = daemon.stats
+    assert (st.rebuilds, st.old_states) == (0, len(late))
+    vehicle.send(101_000)                          # the flight goes on, same controller
+    assert vehicle.collect(1) == [101_000]
+
+
+def test_a_new_vehicle_waiting_at_its_first_state_is_a_restart(scripted):
+    """A vehicle restarted less than _BACKSTEP_S into a flight resends its first state until
+    answered: old states in a row at one time are a new time line (rebuild)."""
+    vehicle, daemon = scripted
+    for k in range(1, 6):
+        vehicle.send(k * 20_000)                   # fly to t = 0.1 s
+        assert vehicle.collect(1) == [k * 20_000]
+    old = daemon.computer
+    for _ in range(24):                            # _RESTART_OLD_STATES − 1: still old
+        vehicle.send(0)
+    assert vehicle.quiet() == []
+    vehicle.send(0)                                # the 25th at the same time: a restart
+    assert vehicle.collect(1) == [0]
+    assert daemon.stats.rebuilds == 1 and daemon.computer is not old
+
+
+def _daemon_with_hold(sc: Scenario, vehicle: ScriptedVehicle, hold: list[bool]) -> Any:
+    daemon = Daemon(sc, vehicle=vehicle.link.local_address, realtime=True,
+                    state_timeout_s=30.0, hold_start=lambda: hold[0])
+    thread = threading.Thread(target=daemon.run, kwargs={"duration_s": 1e9}, daemon=True)
+    thread.start()
+    vehicle.await_controller()
+    return daemon, thread
+
+
+@pytest.mark.parametrize("first_usec", [0, 4_000_000])
+def test_only_a_vehicle_waiting_at_t0_waits_for_hold_start(first_usec):
+    """A vehicle at t = 0 has not started its clock (it waits for our first command): the
+    daemon may wait there (for its recorder). A vehicle already flying (a restart) is
+    answered at once, whatever hold_start says: its motors are cut 0.25 s after the last
+    command."""
+    sc = load_scenario("nominal")
+    vehicle = ScriptedVehicle(sc)
+    hold = [True]
+    daemon, thread = _daemon_with_hold(sc, vehicle, hold)
+    try:
+        vehicle.send(first_usec)
+        if first_usec == 0:
+            assert vehicle.quiet() == []
+            vehicle.send(0)                          # its resend every 10 ms ...
+            assert vehicle.quiet() == []
+            hold[0] = False
+            vehicle.send(0)                          # ... answered once the hold ends
+        assert vehicle.collect(1) == [first_usec]
+        assert daemon.stats.ticks == 1
+    finally:
+        daemon.stop()
+        thread.join(5.0)
+        daemon.close()
+        vehicle.link.close()

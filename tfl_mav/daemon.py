@@ -42,7 +42,9 @@ each other (0 ≤ Δt ≤ ``_AHEAD_S``; a restarted simulator's t = 0 state and 
 vehicle that jumped ahead while we were away) are a new time line: the flight computer
 (law and detector) is rebuilt and the new flight flown from that state (``rebuilds``); its
 recovery law takes over when the state is not benign. So are ``_RESTART_OLD_STATES`` old
-states in a row (a restart less than ``_BACKSTEP_S`` into a flight).
+states in a row *at one time* (a restart less than ``_BACKSTEP_S`` into a flight: the new
+vehicle resends its first state until answered). Old states at varying times are reordering
+(a relay stalled for tens of ms and then released a shuffled burst): never a restart.
 
 **Ready before time starts.** The flight computer is built and warmed (one throw-away
 evaluation on a separate instance) in the constructor, before the first HEARTBEAT: the
@@ -100,7 +102,7 @@ _GAP_FACTOR = 1.5                 # a gap over 1.5 control periods is integrated
 _BACKSTEP_S = 0.2                 # older by more than this: not reordering, implausible
 _AHEAD_S = 1.0                    # newer by more (+ wall elapsed in real time): implausible
 _JUMP_CONFIRM = 2                 # consistent implausible states in a row: a new time line
-_RESTART_OLD_STATES = 25          # ... or this many old states in a row
+_RESTART_OLD_STATES = 25          # ... or this many old states in a row at one time
 _DEGRADE_REPORT_S = 1.0           # at most one "degraded" STATUSTEXT per second of sim time
 
 
@@ -160,7 +162,8 @@ class Daemon:
                  vehicle_sysid: int | None = None, key: bytes | None = None,
                  on_frame: FrameHook | None = None,
                  on_tick: Callable[[float, tuple[Any, ...]], None] | None = None,
-                 on_event: Callable[[str, str, float], None] | None = None) -> None:
+                 on_event: Callable[[str, str, float], None] | None = None,
+                 hold_start: Callable[[], bool] | None = None) -> None:
         """Open the socket towards ``vehicle`` (raises LinkError).
 
         ``key``: 32-byte MAVLink 2 signing secret (the vehicle's), or None (unsigned).
@@ -170,7 +173,9 @@ class Daemon:
         ``on_tick(sim_time_s, record)`` sees the controller's internals every tick as a
         compact tuple (:func:`tick_state`, fields :data:`TICK_FIELDS`; the recorder's
         ``/controller/state``); ``on_event(level, text, sim_time_s)`` every
-        event also sent as STATUSTEXT.
+        event also sent as STATUSTEXT. ``hold_start()``: while it returns True, a vehicle
+        waiting at t = 0 (its clock starts with our first command, so waiting is free) gets
+        no command yet — e.g. a recorder still starting; a take-over mid-flight never waits.
         """
         if not (math.isfinite(state_timeout_s) and state_timeout_s > 0):
             raise ValueError(f"state_timeout_s: must be > 0 s, got {state_timeout_s}")
@@ -189,6 +194,7 @@ class Daemon:
                                  signing=self.signing)
         self.on_tick = on_tick
         self.on_event = on_event
+        self.hold_start = hold_start
         self.stats = DaemonStats()
         self.thrust_max_n = scenario.vehicle.thrust_max_n
         self.k_f = scenario.vehicle.k_f
@@ -203,6 +209,7 @@ class Daemon:
         self._jump_usec = -1          # the last implausible state, if the last one was
         self._jumps_in_row = 0
         self._old_in_row = 0
+        self._old_usec = -1           # time of the old states in a row (a waiting vehicle's)
         self._arrived = False         # a valid state arrived this loop (failsafe clock)
         self._next_degrade_report_s = 0.0
         self._hover = [scenario.vehicle.mass_kg * scenario.vehicle.gravity_mps2 / 4.0] * 4
@@ -374,7 +381,9 @@ class Daemon:
             if w - _BACKSTEP_S * 1e6 <= t_usec < w:
                 self._arrived = True
                 self._jumps_in_row = 0
-                self._old_in_row += 1
+                same = self._old_in_row > 0 and t_usec == self._old_usec
+                self._old_in_row = self._old_in_row + 1 if same else 1
+                self._old_usec = t_usec
                 if self._old_in_row < _RESTART_OLD_STATES:
                     stats.old_states += 1
                     return
@@ -406,6 +415,10 @@ class Daemon:
         self._complete = []
         stats = self.stats
         state, applied_msg, rpm = batch[-1]
+        if stats.ticks == 0 and state.time_usec == 0 and self.hold_start is not None \
+                and self.hold_start():
+            self._newest_usec = -1     # its resend of t = 0 will be fresh again
+            return arrived
         stats.skipped_states += len(batch) - 1
         t_usec = state.time_usec
         dt_s = None

@@ -8,10 +8,14 @@ scenario error, 3 link or file error, 130/143 interrupted.
 from __future__ import annotations
 
 import argparse
+import collections
 import json
 import math
 import signal
 import sys
+import threading
+import time
+from collections.abc import Callable
 from typing import Any
 
 from tfl_mav.control.feasibility import check_scenario
@@ -21,7 +25,7 @@ from tfl_mav.link.transport import LinkError, parse_address
 from tfl_mav.scenario import ScenarioError, apply_overrides, load_scenario
 from tools.outputs import file_problem
 
-__all__ = ["add_parser", "open_recorder", "run"]
+__all__ = ["StartingRecorder", "add_parser", "open_recorder", "run"]
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -90,15 +94,12 @@ def run(args: argparse.Namespace) -> int:
             return 3
     for warning in check_scenario(scenario):
         print(f"tfl-mav fly: warning: {warning}", file=sys.stderr)
-    recorder = None
-    if args.mcap or live:
-        from tfl_mav.control.paths import PathError
-
-        try:
-            recorder = open_recorder(scenario, args.mcap, live)
-        except (OSError, PathError, ScenarioError) as exc:
-            print(f"{prog}: {exc}", file=sys.stderr)
-            return 3
+    # The recorder's child starts beside the controller's warm-up and never delays the
+    # first command (a restarted daemon has 0.25 s before the vehicle cuts its motors).
+    recorder = (StartingRecorder(scenario, args.mcap, live, args.realtime)
+                if args.mcap or live else None)
+    if recorder is not None and not args.realtime:
+        recorder.wait_started()     # lockstep: nothing to gain, keep the old order exactly
 
     def on_event(level: str, text: str, t: float) -> None:
         if not args.quiet:
@@ -117,16 +118,30 @@ def run(args: argparse.Namespace) -> int:
             print(f"progress {t:.3f} {duration:.3f} {record[_DISTANCE]:.3e}",
                   file=sys.stderr, flush=True)
 
+    def hold_start() -> bool:
+        """A vehicle waiting at t = 0 waits for the recorder too (it costs nothing there);
+        one that fails to start ends the run, as it always did."""
+        assert recorder is not None
+        if recorder.start_error:
+            daemon.stop()
+        return recorder.starting
+
     try:
         daemon = Daemon(scenario, vehicle=vehicle, bind=bind, realtime=args.realtime,
                         state_timeout_s=args.state_timeout, key=key,
                         silence_end_s=_SILENCE_END_S if args.realtime else None,
                         on_frame=recorder.on_frame if recorder else None,
-                        on_tick=on_tick, on_event=on_event)
+                        on_tick=on_tick, on_event=on_event,
+                        hold_start=hold_start if recorder is not None else None)
     except (LinkError, ValueError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         if recorder is not None:
             recorder.close()
+        return 3
+    if recorder is not None and recorder.start_error:   # it failed while we warmed up
+        print(f"{prog}: {recorder.start_error}", file=sys.stderr)
+        daemon.close()
+        recorder.close()
         return 3
     got: dict[str, int] = {}
 
@@ -173,7 +188,8 @@ def run(args: argparse.Namespace) -> int:
 _DISTANCE = TICK_FIELDS.index("path_distance_m")
 
 
-def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None) -> Any:
+def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None,
+                  clock: Callable[[], float] = time.time, realtime: bool = False) -> Any:
     """The controller's recorder: a :class:`~tfl_mav.flightlog.recorder_process.
     RecorderProcess` (a child process: the daemon hands it raw datagrams and compact tick
     tuples, the child decodes and encodes), told what to draw: the airframe's rotors, the
@@ -187,11 +203,115 @@ def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None)
     rec = RecorderProcess(mcap, rotor_xy_m=rotor_xy_m(scenario.vehicle),
                           thrust_max_n=scenario.vehicle.thrust_max_n,
                           controller_fields=TICK_FIELDS, controller_schema=TICK_SCHEMA,
-                          live=live)
+                          live=live, clock=clock, realtime=realtime)
     rec.metadata("scenario", {"name": scenario.name, "role": "controller",
                               "toml": json.dumps(scenario.to_dict())})
     rec.path(path)
     return rec
+
+
+class StartingRecorder:
+    """:func:`open_recorder` started on a thread, so the daemon's warm-up and first command
+    never wait for the recorder's child (a fresh interpreter: 0.3-2 s on a loaded machine).
+
+    Until the child is up and has the backlog, calls are buffered in order with their
+    wall-clock stamps (kept through the recorder's clock). The *starting* thread hands the
+    backlog over in small slices with a pause between them, so neither the loop thread nor
+    the GIL pays for seconds of backlog at once (handing it over from the loop stalled it
+    for tens of ms and crashed real-time flights); only when the buffer is empty do calls
+    go to the recorder directly, so the order is kept. ``start_error``: why it did not
+    start (the flight goes on unrecorded)."""
+
+    _SLICE = 128                   # calls handed over per slice ...
+    _PAUSE_S = 0.002               # ... then the GIL is left to the loop this long
+    _BUFFER_MAX = 500_000          # ~80 s of a 1 kHz flight: beyond it, calls are dropped
+
+    def __init__(self, scenario: Any, mcap: str | None, live: tuple[str, int] | None,
+                 realtime: bool = False) -> None:
+        self._realtime = realtime
+        self._rec: Any = None
+        self._direct = False       # backlog handed over: calls go straight to the recorder
+        self._lock = threading.Lock()
+        self._buffer: collections.deque[tuple[float, str, tuple[Any, ...]]] = (
+            collections.deque())
+        self._stamp: float | None = None
+        self.dropped = 0
+        self.start_error: str | None = None
+        self._thread = threading.Thread(target=self._start, args=(scenario, mcap, live),
+                                        name="recorder-start", daemon=True)
+        self._thread.start()
+
+    def _start(self, scenario: Any, mcap: str | None, live: tuple[str, int] | None) -> None:
+        from tfl_mav.control.paths import PathError
+
+        try:
+            self._rec = open_recorder(scenario, mcap, live, clock=self._clock,
+                                      realtime=self._realtime)
+        except (OSError, PathError, ScenarioError) as exc:
+            self.start_error = str(exc)
+        self._hand_over(pause_s=self._PAUSE_S)
+
+    def _hand_over(self, pause_s: float) -> None:
+        buf, rec = self._buffer, self._rec
+        while True:
+            with self._lock:
+                if not buf:
+                    self._direct = rec is not None
+                    return
+                part = [buf.popleft() for _ in range(min(self._SLICE, len(buf)))]
+            if rec is not None:
+                for stamp, name, args in part:
+                    self._stamp = stamp
+                    getattr(rec, name)(*args)
+                self._stamp = None
+            if pause_s:
+                time.sleep(pause_s)
+
+    @property
+    def starting(self) -> bool:
+        """The child is not up yet (or its backlog not yet handed over)."""
+        return self._thread.is_alive()
+
+    def wait_started(self) -> None:
+        self._thread.join()
+
+    def _clock(self) -> float:
+        return self._stamp if self._stamp is not None else time.time()
+
+    def _call(self, name: str, args: tuple[Any, ...]) -> None:
+        if not self._direct:
+            with self._lock:
+                if not self._direct:
+                    if len(self._buffer) >= self._BUFFER_MAX:
+                        self.dropped += 1
+                    else:
+                        self._buffer.append((time.time(), name, args))
+                    return
+        getattr(self._rec, name)(*args)
+
+    def on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
+        self._call("on_frame", (direction, bytes(raw), msg, time_s))
+
+    def controller(self, time_s: float, record: tuple[Any, ...]) -> None:
+        self._call("controller", (time_s, record))
+
+    def log(self, level: str, text: str, time_s: float | None = None) -> None:
+        self._call("log", (level, text, time_s))
+
+    @property
+    def error(self) -> str | None:
+        if self.start_error:
+            return self.start_error
+        err = self._rec.error if self._rec is not None else None
+        return err or (f"{self.dropped} calls dropped while the recorder started"
+                       if self.dropped else None)
+
+    def close(self) -> None:
+        """Wait for the start and the hand-over, then finish the file."""
+        self._thread.join()
+        self._hand_over(pause_s=0.0)      # anything buffered since (the loop has ended)
+        if self._rec is not None:
+            self._rec.close()
 
 
 _SILENCE_END_S = 10.0   # real time: no state this long after the flight started = vehicle gone

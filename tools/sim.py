@@ -196,7 +196,8 @@ def _one_flight(args: argparse.Namespace, scenario: Scenario, listen: Address,
     recorder = None
     live = getattr(args, "live", None)
     if mcap or live:
-        recorder, code = _open_recorder(mcap, scenario, prog, live, duration)
+        recorder, code = _open_recorder(mcap, scenario, prog, live, duration,
+                                        args.realtime)
         if recorder is None:
             return code
     try:
@@ -309,8 +310,8 @@ def _duration(value: float | None, scenario: Scenario) -> float:
 
 
 def _open_recorder(path: str | None, scenario: Scenario, prog: str,
-                   live: tuple[str, int] | None = None,
-                   duration: float = math.inf) -> tuple[Any, int]:
+                   live: tuple[str, int] | None = None, duration: float = math.inf,
+                   realtime: bool = False) -> tuple[Any, int]:
     """The MCAP recorder (``tfl_mav.flightlog.recorder_process``), imported only when asked
     for. It runs in a child process so recording costs the lockstep loop ~1 µs per call,
     and it finishes the file even if this process is killed. Returns (recorder, 0) or
@@ -327,7 +328,7 @@ def _open_recorder(path: str | None, scenario: Scenario, prog: str,
     v = scenario.vehicle
     try:
         recorder = RecorderProcess(path, rotor_xy_m=rotor_xy_m(v), thrust_max_n=v.thrust_max_n,
-                                   live=live)
+                                   live=live, realtime=realtime)
     except RecorderError as exc:
         print(f"{prog}: {'--mcap: ' if path and 'foxglove' not in str(exc) else ''}{exc}",
               file=sys.stderr)

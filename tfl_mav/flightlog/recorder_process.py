@@ -15,11 +15,14 @@ Crash safety is better than in-process: if the flight process dies (even SIGKILL
 child reads end-of-file and *finishes* the file. Queued calls reach the child within
 ``batch_s`` (a background thread sends a batch that went stale). The child ignores SIGINT
 and SIGTERM so a Ctrl-C or ``kill`` of the process group still lets the parent close it.
-It runs at a lower priority than the flight (:data:`CHILD_NICE`).
+It runs at a lower priority than the flight (:data:`NICE_INCREMENT`).
 
 Backpressure: if the queue grows past ``batch_max`` × 8 calls (the sender thread starved),
 the flight thread sends inline; if the child falls behind, the pipe fills and the flight
-process waits.
+process waits. Not in real time (``realtime=True``): there the flight thread only ever
+appends, and past ``batch_max`` × 64 queued calls drops them (counted in ``dropped``) — a
+real-time loop that waits for its recorder misses its deadlines (#12). The child runs
+:data:`NICE_INCREMENT` nicer than its parent.
 Errors never raise into the loop: :attr:`error` reports the child's write error, or that
 the child died (later calls are counted in ``dropped``); :attr:`stats` is the child's
 final :class:`~tfl_mav.flightlog.recorder.RecorderStats`, filled in by :meth:`close`.
@@ -43,17 +46,18 @@ from typing import Any
 
 from tfl_mav.flightlog.recorder import Recorder, RecorderError, RecorderStats
 
-__all__ = ["CHILD_NICE", "RecorderProcess"]
+__all__ = ["NICE_INCREMENT", "RecorderProcess"]
 
 _FRAME, _TRUTH, _PATH, _LOG, _CONTROLLER, _SIM_TIME, _METADATA, _CLOSE = range(8)
 _START_TIMEOUT_S = 30.0
-CHILD_NICE = 5
-"""The recorder child runs this much nicer than its flight process. Why: on 2 cores a
-lockstep flight is 4 processes (sim, daemon, two recorder children) and the loop is the
-serial sim ↔ daemon chain; the children only need to keep up on average (the pipe buffers
-a backlog), so when the CPU is contended the chain should win it. Moderate on purpose: at
-+5 a child still gets ~1/4 of a contended core, so it cannot starve and back up into the
-flight (see "Backpressure")."""
+NICE_INCREMENT = 10
+"""The child runs this much nicer than the flight process. Why: on 2 cores a flight is 4
+processes (sim, daemon, two recorder children) and the loop is the serial sim ↔ daemon
+chain; the children only need to keep up on average (the pipe buffers a backlog), so when
+the CPU is contended the chain should win it. At equal priority a child's batch work
+(decode, JSON, protobuf, writing: milliseconds per 10 ms batch) delayed a real-time loop's
+wake-up on a busy machine and crashed the paper flight (#12); in lockstep a child that falls
+behind fills the pipe and the flight waits ("Backpressure"), so it cannot be starved."""
 _CLOSE_TIMEOUT_S = 60.0
 
 
@@ -84,8 +88,6 @@ def _child_loop(conn: Connection, results: Connection, path: str | None,
                 kwargs: dict[str, Any]) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, signal.SIG_IGN)
-    with contextlib.suppress(OSError):
-        os.nice(CHILD_NICE)
     now = [0.0]
     try:
         rec = Recorder(path, clock=lambda: now[0], **kwargs)
@@ -139,7 +141,8 @@ class RecorderProcess:
     child's ``Recorder``. Raises :class:`RecorderError` if the file cannot be written."""
 
     def __init__(self, path: str | Path | None, *, clock: Callable[[], float] = time.time,
-                 batch_s: float = 0.01, batch_max: int = 512, **recorder_kw: Any) -> None:
+                 batch_s: float = 0.01, batch_max: int = 512, realtime: bool = False,
+                 **recorder_kw: Any) -> None:
         self.file_path = Path(path) if path is not None else None
         self.clock = clock
         self.stats = RecorderStats()
@@ -147,6 +150,9 @@ class RecorderProcess:
         self._error: str | None = None
         self._batch_s = batch_s
         self._backlog_max = 8 * batch_max
+        # Real time (#12): the flight thread never waits for the child; past this many
+        # queued calls (seconds of a 1 kHz flight) new ones are dropped and counted.
+        self._realtime_max = 64 * batch_max if realtime else 0
         self._queue: collections.deque[tuple[Any, ...]] = collections.deque()
         self._send_lock = threading.Lock()
         self._alive = True
@@ -158,6 +164,9 @@ class RecorderProcess:
                                  args=(child_conn, child_results,
                                        str(path) if path is not None else None, recorder_kw))
         self._proc.start()
+        with contextlib.suppress(OSError):   # from here, so its imports are nicer too
+            os.setpriority(os.PRIO_PROCESS, self._proc.pid,
+                           min(19, os.getpriority(os.PRIO_PROCESS, 0) + NICE_INCREMENT))
         child_conn.close()
         child_results.close()
         try:
@@ -258,6 +267,12 @@ class RecorderProcess:
             self.stats.dropped += 1
             return
         q = self._queue
+        if self._realtime_max:
+            if len(q) >= self._realtime_max:
+                self.stats.dropped += 1
+            else:
+                q.append(item)
+            return
         q.append(item)
         if len(q) >= self._backlog_max:       # the sender thread is starved: send here
             self._send()
