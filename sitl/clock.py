@@ -9,13 +9,13 @@ LOCAL_NED pose, BODY_FRD twist) and ``ESC_TELEMETRY_1_TO_4`` (true rotor speed a
 measures it) in one datagram, ODOMETRY first (:meth:`~tfl_mav.link.transport.Link.send_many`),
 wait for ``HIL_ACTUATOR_CONTROLS`` whose ``time_usec`` equals k·T, apply it, integrate to
 k+1. Replies for another ``time_usec`` are counted (``stale_controls``) and ignored. No reply
-within the resend interval (wall time) sends the state again, quietly (``lockstep_resends``):
-a lost datagram costs milliseconds, not the timeout (the controller answers a resent state
-with the same command, never a second step). The interval adapts to the reply latency the
-way TCP's retransmission timeout does (smoothed latency + 4 deviations), between
-``resend_interval_s`` (default 5 ms, ~10 idle round trips) and 4× that (the ~20 ms that
-keeps a flood's stall near 1×), doubling after each resend of one tick: on a loaded
-machine a slow controller is not sent the same state again and again. No reply within
+within ``resend_interval_s`` (wall time, default 5 ms, ~10 idle round trips) sends the state
+again, quietly (``lockstep_resends``): a lost datagram costs milliseconds, not the timeout
+(the controller answers a resent state with the same command, never a second step). Further
+resends of the same tick back off, doubling up to 4× that (the ~20 ms that keeps a flood's
+stall near 1×), so a stalled controller is not sent 200 states a second. Measured under load
+(bench/bench_lockstep.py's full loop, 2 cores, load 5): ~0.1 % of ticks resent, so a
+longer first interval would buy nothing and cost every lost datagram more. No reply within
 ``lockstep_timeout_s`` is counted (``lockstep_timeouts``) and announced by STATUSTEXT (rate
 limited, with the count suppressed); the tick is never skipped, so a lockstep run is
 deterministic and runs as fast as both processes allow. The control port's HEARTBEAT is
@@ -58,7 +58,7 @@ __all__ = ["GCS_POLL_S", "RESEND_SPAN", "START_RESEND_S", "WAIT_SLICE_S", "Clock
 WAIT_SLICE_S = 0.05   # longest uninterrupted wait: bounds the reaction to Vehicle.stop()
 _OVERRUN_S = 0.1      # real time: re-anchor the clock when this far behind
 START_RESEND_S = 0.01  # real time: the t = 0 state is resent this often until commands flow
-RESEND_SPAN = 4       # lockstep: the adaptive resend interval is at most 4 × its floor
+RESEND_SPAN = 4       # lockstep: later resends of one tick back off to 4 × the first interval
 GCS_POLL_S = 0.01     # lockstep: the GCS port is read this often (wall), not every tick
 
 
@@ -139,34 +139,9 @@ class LockstepClock:
     def __init__(self, vehicle: Paced, timeout_s: float, resend_s: float = 0.005) -> None:
         self.vehicle = vehicle
         self.timeout_s = timeout_s   # wall seconds without a reply before reporting it
-        self.resend_s = min(resend_s, timeout_s)   # least wall seconds before a resend
-        self.resend_max_s = min(RESEND_SPAN * resend_s, timeout_s)   # ... and the most
-        self._srtt = -1.0            # smoothed reply latency (s); < 0: none measured yet
-        self._rttvar = 0.0           # its smoothed mean deviation (s)
+        self.resend_s = min(resend_s, timeout_s)   # wall seconds before the first resend
+        self.resend_max_s = min(RESEND_SPAN * resend_s, timeout_s)   # ... the later ones
         self._next_gcs_s = 0.0       # wall time the GCS port is next read
-
-    def resend_interval(self) -> float:
-        """Wall seconds without a reply before the state is resent: TCP's retransmission
-        timeout (RFC 6298: smoothed latency + 4 mean deviations) kept within
-        [``resend_s``, ``RESEND_SPAN`` × ``resend_s``].
-
-        Why adaptive: on an idle machine a reply takes well under a millisecond, so a lost
-        datagram should cost the floor (5 ms by default); on a loaded one the controller is
-        often descheduled for longer than that, and each needless resend is answered again
-        (the same command), decoded, and recorded twice by both recorders: load that makes
-        the next reply later still."""
-        if self._srtt < 0.0:
-            return self.resend_s
-        return min(max(self._srtt + 4.0 * self._rttvar, self.resend_s), self.resend_max_s)
-
-    def _reply_latency(self, rtt_s: float) -> None:
-        """One reply latency sample (a resent tick's whole wait, so that latencies beyond
-        the interval still raise it)."""
-        if self._srtt < 0.0:
-            self._srtt, self._rttvar = rtt_s, 0.5 * rtt_s
-        else:
-            self._rttvar += 0.25 * (abs(self._srtt - rtt_s) - self._rttvar)
-            self._srtt += 0.125 * (rtt_s - self._srtt)
 
     def run(self, n_ticks: float) -> tuple[ExitStatus, str]:
         v = self.vehicle
@@ -192,10 +167,10 @@ class LockstepClock:
         read every ``GCS_POLL_S`` of wall time, not on every tick (a GCS is a person)."""
         v = self.vehicle
         ctl = v.control_link
-        start = now = time.monotonic()
-        deadline = start + self.timeout_s
-        interval = self.resend_interval()
-        resend_at = start + interval
+        now = time.monotonic()
+        deadline = now + self.timeout_s
+        interval = self.resend_s
+        resend_at = now + interval
         while True:
             awaited = time_usec
             for msg in ctl.recv(min(WAIT_SLICE_S, resend_at - now)):
@@ -208,7 +183,6 @@ class LockstepClock:
                 self._next_gcs_s = now + GCS_POLL_S
                 v.serve_gcs()
             if awaited == -1:
-                self._reply_latency(now - start)
                 return True
             if v.stopped():
                 return False
