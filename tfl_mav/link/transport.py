@@ -422,6 +422,7 @@ class Link:
             return
         data = bytes(data)
         on_frame = self.on_frame
+        now = None                   # the hook's receipt time: one clock read a datagram
         i = 0
         while i < n:
             magic = data[i]
@@ -464,7 +465,9 @@ class Link:
                 continue
             st.rx_frames += 1
             if on_frame is not None:
-                on_frame("rx", raw, msg, self.clock())
+                if now is None:
+                    now = self.clock()
+                on_frame("rx", raw, msg, now)
             out.append(msg)
 
     def _decode_frame(self, raw: bytes) -> Any:
