@@ -173,7 +173,8 @@ class LockstepClock:
         resend_at = now + interval
         while True:
             awaited = time_usec
-            for msg in ctl.recv(min(WAIT_SLICE_S, resend_at - now)):
+            # One datagram a pass: the reply comes alone, and the loop reads what follows.
+            for msg in ctl.recv(min(WAIT_SLICE_S, resend_at - now), drain=False):
                 # Handle the whole batch (a command may follow the reply); once the reply
                 # is consumed, a duplicate for the same tick is stale (-1 matches nothing).
                 if v.dispatch(msg, awaited):

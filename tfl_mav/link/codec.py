@@ -159,11 +159,10 @@ class _Layout:
         self.unpack = cls.unpacker.unpack
         # array_lengths is in wire order (ordered_fieldnames), fieldtypes in fieldnames order
         lengths = dict(zip(cls.ordered_fieldnames, cls.array_lengths, strict=True))
-        # pack: the wire-ordered fields, arrays element by element (as pymavlink indexes them)
-        args = []
-        for name in cls.ordered_fieldnames:
-            n = lengths[name]
-            args += [f"m.{name}[{i}]" for i in range(n)] if n else [f"m.{name}"]
+        # pack: the wire-ordered fields, arrays as their first n elements (pymavlink indexes
+        # 0..n-1; one slice unpacked is cheaper than n subscripts)
+        args = [f"*m.{name}[:{lengths[name]}]" if lengths[name] else f"m.{name}"
+                for name in cls.ordered_fieldnames]
         # fields: wire tuple index of every field, in fieldnames order
         tip, where = 0, {}
         for name in cls.ordered_fieldnames:

@@ -355,13 +355,15 @@ class Link:
         return n
 
     # ------------------------------------------------------------------ receiving
-    def recv(self, timeout_s: float = 0.0) -> list[Any]:
+    def recv(self, timeout_s: float = 0.0, *, drain: bool = True) -> list[Any]:
         """Accepted messages from datagrams that arrive within ``timeout_s`` (0 = poll).
 
         Waits at most ``timeout_s`` (rounded up to whole milliseconds) for the first
         datagram, then drains whatever else is already queued (up to
-        ``max_datagrams_per_recv``) without waiting. May return an empty list even before
-        the timeout if only rejected traffic arrived.
+        ``max_datagrams_per_recv``) without waiting; ``drain=False`` returns after the
+        first datagram (a caller that loops anyway saves the read that finds the queue
+        empty). May return an empty list even before the timeout if only rejected traffic
+        arrived.
 
         The wait is the ``recvfrom`` itself (the socket blocks, with ``SO_RCVTIMEO`` set
         once per distinct timeout): one system call, no ``poll`` before it; reads that must
@@ -381,6 +383,9 @@ class Link:
             return out
         except OSError:
             self.stats.recv_errors += 1
+            return out
+        if not drain:
+            self._ingest(data, addr, out)
             return out
         for _ in range(self.max_datagrams_per_recv):
             self._ingest(data, addr, out)
