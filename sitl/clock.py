@@ -9,9 +9,13 @@ LOCAL_NED pose, BODY_FRD twist) and ``ESC_TELEMETRY_1_TO_4`` (true rotor speed a
 measures it) in one datagram, ODOMETRY first (:meth:`~tfl_mav.link.transport.Link.send_many`),
 wait for ``HIL_ACTUATOR_CONTROLS`` whose ``time_usec`` equals k·T, apply it, integrate to
 k+1. Replies for another ``time_usec`` are counted (``stale_controls``) and ignored. No reply
-within ``resend_interval_s`` (wall time, default 5 ms, ~10 round trips) sends the state
+within ``resend_interval_s`` (wall time, default 5 ms, ~10 idle round trips) sends the state
 again, quietly (``lockstep_resends``): a lost datagram costs milliseconds, not the timeout
-(the controller answers a resent state with the same command, never a second step). No reply within
+(the controller answers a resent state with the same command, never a second step). Further
+resends of the same tick back off, doubling up to 4× that (the ~20 ms that keeps a flood's
+stall near 1×), so a stalled controller is not sent 200 states a second. Measured under load
+(bench/bench_lockstep.py's full loop, 2 cores, load 5): ~0.1 % of ticks resent, so a
+longer first interval would buy nothing and cost every lost datagram more. No reply within
 ``lockstep_timeout_s`` is counted (``lockstep_timeouts``) and announced by STATUSTEXT (rate
 limited, with the count suppressed); the tick is never skipped, so a lockstep run is
 deterministic and runs as fast as both processes allow. The control port's HEARTBEAT is
@@ -48,12 +52,14 @@ from sitl.simulator import Simulator
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.transport import Link
 
-__all__ = ["START_RESEND_S", "WAIT_SLICE_S", "Clock", "HeldCommand", "LockstepClock", "Paced",
-           "RealtimeClock"]
+__all__ = ["GCS_POLL_S", "RESEND_SPAN", "START_RESEND_S", "WAIT_SLICE_S", "Clock", "HeldCommand",
+           "LockstepClock", "Paced", "RealtimeClock"]
 
 WAIT_SLICE_S = 0.05   # longest uninterrupted wait: bounds the reaction to Vehicle.stop()
 _OVERRUN_S = 0.1      # real time: re-anchor the clock when this far behind
 START_RESEND_S = 0.01  # real time: the t = 0 state is resent this often until commands flow
+RESEND_SPAN = 4       # lockstep: later resends of one tick back off to 4 × the first interval
+GCS_POLL_S = 0.01     # lockstep: the GCS port is read this often (wall), not every tick
 
 
 @dataclass
@@ -133,7 +139,9 @@ class LockstepClock:
     def __init__(self, vehicle: Paced, timeout_s: float, resend_s: float = 0.005) -> None:
         self.vehicle = vehicle
         self.timeout_s = timeout_s   # wall seconds without a reply before reporting it
-        self.resend_s = min(resend_s, timeout_s)   # wall seconds before resending the state
+        self.resend_s = min(resend_s, timeout_s)   # wall seconds before the first resend
+        self.resend_max_s = min(RESEND_SPAN * resend_s, timeout_s)   # ... the later ones
+        self._next_gcs_s = 0.0       # wall time the GCS port is next read
 
     def run(self, n_ticks: float) -> tuple[ExitStatus, str]:
         v = self.vehicle
@@ -153,39 +161,46 @@ class LockstepClock:
         return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
 
     def _await_reply(self, time_usec: int) -> bool:
-        """Block until the reply for ``time_usec`` is consumed; False if stopped."""
+        """Block until the reply for ``time_usec`` is consumed; False if stopped.
+
+        The wait is the control link's ``recvfrom`` itself (no select); the GCS port is
+        read every ``GCS_POLL_S`` of wall time, not on every tick (a GCS is a person)."""
         v = self.vehicle
         ctl = v.control_link
-        deadline = time.monotonic() + self.timeout_s
-        resend_at = time.monotonic() + self.resend_s
+        now = time.monotonic()
+        deadline = now + self.timeout_s
+        interval = self.resend_s
+        resend_at = now + interval
         while True:
-            # Wait first: the reply is at least one round trip away, and select() returns
-            # at once if it is already queued.
-            v.wait(min(WAIT_SLICE_S, resend_at - time.monotonic()))
             awaited = time_usec
-            for msg in ctl.recv(0.0):
+            # One datagram a pass: the reply comes alone, and the loop reads what follows.
+            for msg in ctl.recv(min(WAIT_SLICE_S, resend_at - now), drain=False):
                 # Handle the whole batch (a command may follow the reply); once the reply
                 # is consumed, a duplicate for the same tick is stale (-1 matches nothing).
                 if v.dispatch(msg, awaited):
                     awaited = -1
-            v.serve_gcs()
+            now = time.monotonic()
+            if now >= self._next_gcs_s:
+                self._next_gcs_s = now + GCS_POLL_S
+                v.serve_gcs()
             if awaited == -1:
                 return True
             if v.stopped():
                 return False
-            now = time.monotonic()
             if now >= deadline:
                 v.stats.lockstep_timeouts += 1
                 v.status(mav.MAV_SEVERITY_WARNING,
                          f"lockstep: no HIL_ACTUATOR_CONTROLS for time_usec {time_usec} "
                          f"within {self.timeout_s:g} s; state resent every "
-                         f"{1000 * self.resend_s:g} ms", key="lockstep_timeout")
+                         f"{1000 * self.resend_s:g}-{1000 * self.resend_max_s:g} ms",
+                         key="lockstep_timeout")
                 v.send_heartbeat()
                 deadline = now + self.timeout_s
             if now >= resend_at:
                 v.stats.lockstep_resends += 1
                 v.resend_state()
-                resend_at = now + self.resend_s
+                interval = min(2.0 * interval, self.resend_max_s)   # back off, as TCP does
+                resend_at = now + interval
                 v.gcs_periodic()
 
 

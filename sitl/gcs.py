@@ -8,7 +8,8 @@ the main mode (OFFBOARD: ``6 << 16``; MAVProxy shows ``OFFBOARD``, mavsdk ``Offb
 cut or after a crash, POWEROFF at the end. Who sends it when is the caller's business (the
 clocks on the control port, :class:`GcsTelemetry` on the GCS port).
 
-**GCS telemetry** (:class:`GcsTelemetry`, paced by wall clock): ``ATTITUDE``,
+**GCS telemetry** (:class:`GcsTelemetry`, paced by sim time in lockstep, by the wall clock
+in real time): ``ATTITUDE``,
 ``LOCAL_POSITION_NED`` (both NED/FRD from the same measured state as ODOMETRY),
 ``GLOBAL_POSITION_INT`` (the same position about the configurable :class:`Origin`, flat-earth
 approximation: metres-scale flights, error ≪ 1 mm per km),
@@ -183,12 +184,21 @@ class StatusText:
 
 
 class GcsTelemetry:
-    """The GCS port's periodic traffic: telemetry at ``period_s`` and HEARTBEAT at 1 Hz,
-    both on the wall clock (a GCS draws in real time even when lockstep runs faster)."""
+    """The GCS port's periodic traffic: telemetry every ``period_s`` and HEARTBEAT (with
+    HOME_POSITION) every second.
+
+    ``sim_time`` (lockstep): both are paced by sim time, as everything in PX4's lockstep
+    SITL is: the GCS gets one datagram per ``period_s`` of flight whatever the run's speed
+    (a slow run sends no more per tick than a fast one, the stream is the same on any
+    machine), HEARTBEAT and telemetry in one datagram. A lockstep run stalled by its
+    controller still sends HEARTBEAT once a wall second, so a GCS does not call the link
+    lost. Otherwise (real time) both follow the wall clock, which is then sim time anyway.
+    """
 
     def __init__(self, link: Link, period_s: float, *, sim: Simulator, power: PowerModel,
                  stats: VehicleStats, held: HeldCommand, flight: FlightStatus,
-                 report: StateReport, origin: Origin | None = None) -> None:
+                 report: StateReport, origin: Origin | None = None,
+                 sim_time: bool = False) -> None:
         self.link = link
         self.origin = origin or Origin()
         self.period_s = period_s
@@ -198,11 +208,19 @@ class GcsTelemetry:
         self.held = held
         self.flight = flight
         self.report = report
-        self._next_s = 0.0             # wall time the next telemetry datagram is due
-        self._next_heartbeat_s = 0.0   # wall time the next HEARTBEAT is due
+        self.sim_time = sim_time
+        self._next_s = 0.0             # time the next telemetry datagram is due
+        self._next_heartbeat_s = 0.0   # time the next HEARTBEAT is due
+        self._heartbeat_wall_s = -math.inf   # lockstep: wall time of the last HEARTBEAT
+        self._period_usec = max(1, round(period_s * 1e6))   # lockstep: sim µs
+        self._next_usec = 0
+        self._next_heartbeat_usec = 0
 
     def periodic(self) -> None:
         """Send what is due now, if anything."""
+        if self.sim_time:
+            self._periodic_sim()
+            return
         now = time.monotonic()
         if now < self._next_s:
             return
@@ -212,6 +230,22 @@ class GcsTelemetry:
                                  home_position(self.origin, self.sim.time_usec)])
             self._next_heartbeat_s = max(self._next_heartbeat_s + 1.0, now)
         self.link.send_many(self.messages())
+
+    def _periodic_sim(self) -> None:
+        # whole microseconds of sim time: a float sum of periods would drift off the ticks
+        t = self.sim.time_usec
+        if t < self._next_usec:
+            if time.monotonic() - self._heartbeat_wall_s >= 1.0:   # stalled: keep alive
+                self._heartbeat_wall_s = time.monotonic()
+                self.link.send(self.flight.heartbeat())
+            return
+        self._next_usec = max(self._next_usec + self._period_usec, t)
+        msgs = self.messages()
+        if t >= self._next_heartbeat_usec:
+            msgs[:0] = [self.flight.heartbeat(), home_position(self.origin, t)]
+            self._next_heartbeat_usec = max(self._next_heartbeat_usec + 1_000_000, t)
+            self._heartbeat_wall_s = time.monotonic()
+        self.link.send_many(msgs)
 
     def messages(self) -> list[Any]:
         """One telemetry datagram's messages, from the current tick's measured state."""

@@ -170,7 +170,8 @@ class Vehicle:
         self.ground.register(self.commands)
         self.gcs = (GcsTelemetry(self.gcs_link, 1.0 / gcs_rate_hz, sim=self.sim,
                                  power=self.power, stats=self.stats, held=self.held,
-                                 flight=self.flight, report=self.report, origin=self.origin)
+                                 flight=self.flight, report=self.report, origin=self.origin,
+                                 sim_time=not realtime)
                     if self.gcs_link is not None else None)
         self.clock: Clock = (RealtimeClock(self, command_timeout_s) if realtime
                              else LockstepClock(self, lockstep_timeout_s, resend_interval_s))

@@ -104,6 +104,11 @@ _AHEAD_S = 1.0                    # newer by more (+ wall elapsed in real time):
 _JUMP_CONFIRM = 2                 # consistent implausible states in a row: a new time line
 _RESTART_OLD_STATES = 25          # ... or this many old states in a row at one time
 _DEGRADE_REPORT_S = 1.0           # at most one "degraded" STATUSTEXT per second of sim time
+_ID_ODOMETRY = mav.MAVLINK_MSG_ID_ODOMETRY
+_ID_ACTUATOR_OUTPUT_STATUS = mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS
+_ID_ESC_TELEMETRY_1_TO_4 = mav.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4
+_HilActuatorControls = mav.MAVLink_hil_actuator_controls_message
+_UNUSED_CONTROLS = (0.0,) * 12    # HIL_ACTUATOR_CONTROLS.controls[4..15]
 
 
 @dataclass
@@ -319,7 +324,7 @@ class Daemon:
     def _handle(self, msg: Any) -> None:
         """Dispatch one accepted message; a complete state joins this batch's."""
         mid = msg.get_msgId()
-        if mid == mav.MAVLINK_MSG_ID_ODOMETRY:
+        if mid == _ID_ODOMETRY:
             self._pending_applied = None
             try:
                 self._pending_state = paper_from_odometry(msg)
@@ -330,12 +335,12 @@ class Daemon:
                 return
             self.stats.states += 1
             return
-        if mid == mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS:
+        if mid == _ID_ACTUATOR_OUTPUT_STATUS:
             self._pending_applied = msg
             return
-        if mid == mav.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4:
+        if mid == _ID_ESC_TELEMETRY_1_TO_4:
             state = self._pending_state
-            rpm = [float(r) for r in msg.rpm]
+            rpm = list(map(float, msg.rpm))
             self.stats.esc_reports += 1
             if state is None:
                 return
@@ -485,8 +490,9 @@ class Daemon:
 
     def _send_command(self, time_usec: int, thrust: list[float]) -> None:
         fmax = self.thrust_max_n
-        controls = [f / fmax for f in thrust] + [0.0] * 12
-        self.link.send(mav.MAVLink_hil_actuator_controls_message(
+        controls = [f / fmax for f in thrust]
+        controls += _UNUSED_CONTROLS
+        self.link.send(_HilActuatorControls(
             time_usec, controls, _ARMED, 0 if self.realtime else _LOCKSTEP_FLAG))
         self.stats.commands_sent += 1
 
@@ -540,14 +546,16 @@ class Daemon:
         est = det.estimate_n if det is not None else res.attack_estimate_n
         est = _f32(est, 0.0)
         dist = _f32(out.path_distance_m, -1.0)
-        for name, value in (("mode", float(out.mode)),
-                            ("det_rotor", float(res.attack_rotor)),
-                            ("atk_est_n", est), ("path_m", dist)):
-            self.link.send(mav.MAVLink_named_value_float_message(ms, name.encode(), value))
         arr = [*out.xi[0], *out.xi[1], *out.eta[1:]]
         arr = [_f32(v, 0.0) for v in arr]
-        self.link.send(mav.MAVLink_debug_float_array_message(
-            time_usec, b"tfl", 1, arr + [0.0] * (58 - len(arr))))
+        # one datagram (send_many): one sendto here, one recvfrom at the vehicle
+        self.link.send_many([
+            *(mav.MAVLink_named_value_float_message(ms, name, value)
+              for name, value in ((b"mode", float(out.mode)),
+                                  (b"det_rotor", float(res.attack_rotor)),
+                                  (b"atk_est_n", est), (b"path_m", dist))),
+            mav.MAVLink_debug_float_array_message(time_usec, b"tfl", 1,
+                                                  arr + [0.0] * (58 - len(arr)))])
 
     def _event(self, level: str, text: str, *, send: bool = True, quiet: bool = False) -> None:
         if self.on_event is not None and not quiet:

@@ -165,37 +165,38 @@ def paper_from_odometry(msg: object) -> State:
     that is not (close to) unit length; the caller counts and drops the message.
     """
     m = msg
-    # One sum tells whether all nine are finite (NaN/inf propagate); only a failure, or a
-    # finite sum that overflowed, walks the fields to name the culprit.
-    if not math.isfinite(m.x + m.y + m.z + m.vx + m.vy + m.vz + m.rollspeed + m.pitchspeed
-                         + m.yawspeed):
+    # Each field read once (a decoded message's fields may be properties). One sum tells
+    # whether all nine are finite (NaN/inf propagate); only a failure, or a finite sum that
+    # overflowed, walks the fields to name the culprit.
+    px, py, pz, vx, vy, vz = m.x, m.y, m.z, m.vx, m.vy, m.vz
+    p, q, r = m.rollspeed, m.pitchspeed, m.yawspeed
+    if not math.isfinite(px + py + pz + vx + vy + vz + p + q + r):
         for name in _ODOMETRY_FLOATS:
             if not math.isfinite(getattr(m, name)):
                 raise ValueError(f"ODOMETRY.{name}: not finite ({getattr(m, name)})")
     if m.frame_id != MAV_FRAME_LOCAL_NED:
         raise ValueError(f"ODOMETRY.frame_id: expected MAV_FRAME_LOCAL_NED (1), got {m.frame_id}")
-    qn = [float(c) for c in m.q]
-    qw, qx, qy, qz = qn
+    qw, qx, qy, qz = qn = [float(c) for c in m.q]
     if not (math.isfinite(qw) and math.isfinite(qx) and math.isfinite(qy)
             and math.isfinite(qz)):
         raise ValueError(f"ODOMETRY.q: not finite ({qn})")
-    norm = math.sqrt(sum(c * c for c in qn))
+    norm = math.sqrt(sum((qw * qw, qx * qx, qy * qy, qz * qz)))   # = sum of c*c, in order
     if abs(norm - 1.0) > 1e-3:
         raise ValueError(f"ODOMETRY.q: not a unit quaternion (|q| = {norm:.6f})")
-    w, x, y, z = (c / norm for c in qn)
+    w, x, y, z = qw / norm, qx / norm, qy / norm, qz / norm
     s = _SQRT1_2
     q_enu_flu = (s * (w + z), s * (x + y), s * (x - y), s * (w - z))   # the involution
     # Floats, not 3-vectors (this runs every tick in the daemon), except the one product
     # numpy computes differently (BLAS, fused multiply-add) from a float sum: kept as it
     # was, so the state is the same to the bit.
-    if m.child_frame_id == MAV_FRAME_BODY_FRD:
+    child = m.child_frame_id
+    if child == MAV_FRAME_BODY_FRD:
         velocity = (np.array(rotation_rows(q_enu_flu))   # = rotation_from_quaternion
-                    @ np.array((float(m.vx), -float(m.vy), -float(m.vz)))).tolist()
-    elif m.child_frame_id == MAV_FRAME_LOCAL_NED:
-        velocity = [float(m.vy), float(m.vx), -float(m.vz)]
+                    @ np.array((float(vx), -float(vy), -float(vz)))).tolist()
+    elif child == MAV_FRAME_LOCAL_NED:
+        velocity = [float(vy), float(vx), -float(vz)]
     else:
         raise ValueError("ODOMETRY.child_frame_id: expected MAV_FRAME_BODY_FRD (12) or "
-                         f"MAV_FRAME_LOCAL_NED (1), got {m.child_frame_id}")
-    return State((float(m.y), float(m.x), -float(m.z)), velocity, q_enu_flu,
-                 (float(m.rollspeed), -float(m.pitchspeed), -float(m.yawspeed)),
-                 int(m.time_usec))
+                         f"MAV_FRAME_LOCAL_NED (1), got {child}")
+    return State((float(py), float(px), -float(pz)), velocity, q_enu_flu,
+                 (float(p), -float(q), -float(r)), int(m.time_usec))

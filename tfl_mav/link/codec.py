@@ -15,6 +15,15 @@ same attributes its ``decode`` sets (fields, ``_header``, ``_msgbuf``, ``_payloa
 ``_signed``...), so callers cannot tell the difference. tests/test_codec.py checks both
 directions byte for byte and attribute for attribute against pymavlink (hypothesis), signed
 and truncated frames included. Anything else goes through pymavlink unchanged.
+
+:meth:`FastCodec.decode_lite` is what :class:`~tfl_mav.link.transport.Link` hands out on
+every tick: the same checks (CRC, lengths, the parser's signature count), but the message is
+a :class:`LiteMessage`, the unpacked wire tuple itself plus the frame bytes. Its fields are
+properties that read the tuple (arrays as fresh lists, as pymavlink gives them), so a field
+nobody reads costs nothing; the ``get_*`` methods, ``to_dict`` and ``str`` answer as
+pymavlink's message would (tests/test_codec.py checks every field and method). Building
+pymavlink's object (a dict of every field, the header object, two buffer copies) was most of
+a decode's cost.
 """
 
 from __future__ import annotations
@@ -22,11 +31,12 @@ from __future__ import annotations
 import hashlib
 import struct
 from collections.abc import Callable
+from operator import itemgetter
 from typing import Any
 
 from tfl_mav.link.dialect import mav
 
-__all__ = ["HOT_MESSAGE_IDS", "FastCodec"]
+__all__ = ["HOT_MESSAGE_IDS", "FastCodec", "LiteMessage"]
 
 HOT_MESSAGE_IDS = (
     mav.MAVLINK_MSG_ID_ODOMETRY,
@@ -34,12 +44,18 @@ HOT_MESSAGE_IDS = (
     mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS,
     mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS,
     mav.MAVLINK_MSG_ID_HEARTBEAT,
+    # the vehicle's GCS telemetry (sitl.gcs), 50 times a second of sim time in lockstep
+    mav.MAVLINK_MSG_ID_ATTITUDE,
+    mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
+    mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
+    mav.MAVLINK_MSG_ID_SYS_STATUS,
 )
 
 _HEADER = struct.Struct("<BBBBBBBHB")
 _SIGN_BLOCK = struct.Struct("<BQ")
 _IFLAG_SIGNED = 0x01
 _SIGNATURE_LEN = 13
+_new_tuple = tuple.__new__
 
 _crc16: Callable[[bytes, int], int]
 if mav.mcrf4xx is not None:     # pymavlink's own choice: fastcrc's C implementation
@@ -50,6 +66,84 @@ else:                           # pragma: no cover - pymavlink without fastcrc
         acc.crc = crc
         acc.accumulate(data)
         return acc.crc
+
+
+class LiteMessage(tuple):  # type: ignore[type-arg]
+    """A decoded hot message: the wire-order values of its payload, then the frame bytes
+    (the last item). Read it like pymavlink's message: ``m.time_usec``, ``m.rpm`` (a new
+    list), ``m.get_msgId()``, ``m.get_srcSystem()``, ``m.to_dict()``. Immutable."""
+
+    __slots__ = ()
+    _msgid = -1
+    _name = ""
+    _fieldnames: tuple[str, ...] = ()
+
+    def get_msgId(self) -> int:
+        return self._msgid
+
+    def get_type(self) -> str:
+        return self._name
+
+    def get_fieldnames(self) -> list[str]:
+        return list(self._fieldnames)
+
+    def get_srcSystem(self) -> int:
+        return int(self[-1][5])
+
+    def get_srcComponent(self) -> int:
+        return int(self[-1][6])
+
+    def get_seq(self) -> int:
+        return int(self[-1][4])
+
+    def get_signed(self) -> bool:
+        return False    # as pymavlink's parser without a key says (the Link verifies)
+
+    def get_link_id(self) -> None:
+        return None
+
+    def get_msgbuf(self) -> bytearray:
+        return bytearray(self[-1])
+
+    def _end(self) -> int:
+        raw = self[-1]
+        return len(raw) - 2 - (_SIGNATURE_LEN if raw[2] & _IFLAG_SIGNED else 0)
+
+    def get_payload(self) -> bytearray:
+        return bytearray(self[-1][6:self._end()])   # sic: pymavlink slices from 6
+
+    def get_crc(self) -> int:
+        raw, end = self[-1], self._end()
+        return int(raw[end] | raw[end + 1] << 8)
+
+    def get_header(self) -> Any:
+        raw = self[-1]
+        return mav.MAVLink_header(self._msgid, raw[2], raw[3], raw[1], raw[4], raw[5], raw[6])
+
+    def to_dict(self) -> dict[str, Any]:
+        d: dict[str, Any] = {"mavpackettype": self._name}
+        for name in self._fieldnames:
+            d[name] = getattr(self, name)
+        return d
+
+    def __str__(self) -> str:
+        inner = ", ".join(f"{name} : {getattr(self, name)}" for name in self._fieldnames)
+        return f"{self._name} {{{inner}}}"
+
+    __repr__ = __str__
+
+
+def _lite_class(cls: Any, where: dict[str, int], lengths: dict[str, int]) -> type[LiteMessage]:
+    """The LiteMessage subclass of one message class: a property per field."""
+    attrs: dict[str, Any] = {"__slots__": (), "_msgid": cls.id, "_name": cls.msgname,
+                             "_fieldnames": tuple(cls.fieldnames)}
+    for name in cls.fieldnames:
+        i, n = where[name], lengths[name]
+        if n:
+            attrs[name] = property(lambda m, i=i, j=i + n: list(m[i:j]))
+        else:
+            attrs[name] = property(itemgetter(i))
+    return type(f"Lite{cls.__name__}", (LiteMessage,), attrs)
 
 
 class _Layout:
@@ -65,11 +159,10 @@ class _Layout:
         self.unpack = cls.unpacker.unpack
         # array_lengths is in wire order (ordered_fieldnames), fieldtypes in fieldnames order
         lengths = dict(zip(cls.ordered_fieldnames, cls.array_lengths, strict=True))
-        # pack: the wire-ordered fields, arrays element by element (as pymavlink indexes them)
-        args = []
-        for name in cls.ordered_fieldnames:
-            n = lengths[name]
-            args += [f"m.{name}[{i}]" for i in range(n)] if n else [f"m.{name}"]
+        # pack: the wire-ordered fields, arrays as their first n elements (pymavlink indexes
+        # 0..n-1; one slice unpacked is cheaper than n subscripts)
+        args = [f"*m.{name}[:{lengths[name]}]" if lengths[name] else f"m.{name}"
+                for name in cls.ordered_fieldnames]
         # fields: wire tuple index of every field, in fieldnames order
         tip, where = 0, {}
         for name in cls.ordered_fieldnames:
@@ -90,6 +183,7 @@ class _Layout:
         exec(compile(src, f"<codec {cls.msgname}>", "exec"), scope)
         self.pack: Callable[[Any], bytes] = scope["pack"]
         self.fields: Callable[[tuple[Any, ...]], dict[str, Any]] = scope["fields"]
+        self.lite = _lite_class(cls, where, lengths)
 
 
 class FastCodec:
@@ -162,3 +256,24 @@ class FastCodec:
         msg = object.__new__(layout.cls)
         msg.__dict__ = d
         return msg
+
+    def decode_lite(self, raw: bytes, parser: Any) -> LiteMessage | None:
+        """:meth:`decode`, with the same checks and errors, answering a :class:`LiteMessage`
+        (``raw`` must be ``bytes``: the message keeps it)."""
+        layout = self.by_id.get(raw[7] | raw[8] << 8 | raw[9] << 16)
+        if layout is None:
+            return None
+        sig_len = _SIGNATURE_LEN if raw[2] & _IFLAG_SIGNED else 0
+        end = len(raw) - 2 - sig_len
+        crc = raw[end] | raw[end + 1] << 8
+        if _crc16(layout.crc_extra_byte, _crc16(raw[1:end], 0xFFFF)) != crc:
+            raise mav.MAVError(f"invalid MAVLink CRC in msgID {layout.msgid} 0x{crc:04x}")
+        if sig_len:
+            parser.signing.sig_count += 1
+        payload = raw[10:end]
+        short = layout.size - len(payload)
+        if short > 0:
+            payload += bytes(short)
+        elif short < 0:
+            payload = payload[:layout.size]
+        return _new_tuple(layout.lite, (*layout.unpack(payload), raw))

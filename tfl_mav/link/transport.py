@@ -15,8 +15,9 @@ retries behind one object):
   one later.
 * **One datagram at a time.** Each datagram is framed here and every frame is handed to
   pymavlink's ``decode`` (which checks length and CRC; never the signature, see below),
-  except the per-tick messages, which :mod:`tfl_mav.link.codec` packs and decodes ~3×
-  faster into the very same bytes and message objects.
+  except the per-tick messages, which :mod:`tfl_mav.link.codec` packs into the very same
+  bytes and decodes, with the same checks, into a light message read like pymavlink's
+  (:class:`~tfl_mav.link.codec.LiteMessage`: the unpacked wire tuple, fields as properties).
   Nothing is carried over between datagrams, so a truncated datagram cannot swallow the
   start of the next good one, as happens when datagrams are concatenated into one stream
   parser (``parse_buffer``). Every rejection is counted by reason in :class:`LinkStats`;
@@ -45,8 +46,8 @@ from __future__ import annotations
 
 import errno
 import math
-import select
 import socket
+import struct
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass
@@ -81,6 +82,7 @@ _IFLAG_SIGNED = 0x01
 _MIN_FRAME_V2 = _HEADER_LEN_V2 + _CRC_LEN
 _MAX_DATAGRAM = 65535
 _HEARTBEAT_ID = mav.MAVLINK_MSG_ID_HEARTBEAT
+_DONTWAIT = socket.MSG_DONTWAIT   # Linux/macOS: this read/send never blocks
 _CODEC = FastCodec()      # stateless: the hot messages' compiled layouts, shared
 
 
@@ -195,7 +197,8 @@ class Link:
                  max_datagrams_per_recv: int = 256,
                  signing: Signing | None = None, link_id: int = 0,
                  admit: Admit | None = None) -> None:
-        """Wrap a bound UDP socket (made non-blocking here).
+        """Wrap a bound UDP socket (made blocking here: :meth:`recv` waits in ``recvfrom``
+        with ``SO_RCVTIMEO``; every other read and every send passes ``MSG_DONTWAIT``).
 
         ``peer``: fixed peer address, or None to learn it from the first valid HEARTBEAT.
         ``peer_sysid``: pin the peer's system id; None learns it from its first HEARTBEAT.
@@ -205,7 +208,7 @@ class Link:
         ``admit(msg, addr)``: asked before a HEARTBEAT pins the peer (or its sysid); returns
         None to accept or the reason it is refused (counted ``refused_peer``, not pinned).
         """
-        sock.setblocking(False)
+        sock.setblocking(True)
         self._sock = sock
         self.packer = new_mavlink(src_system, src_component)
         self.parser = new_mavlink(src_system, src_component)
@@ -215,10 +218,10 @@ class Link:
         self.clock = clock
         self.max_datagrams_per_recv = max_datagrams_per_recv
         self.stats = LinkStats()
-        self._poll = select.poll()
-        self._poll.register(sock, select.POLLIN)
+        self._timeout_ms = 0          # SO_RCVTIMEO now set (0: none yet)
         self._decode = self.parser.decode
         self._codec = _CODEC
+        self._decode_lite = _CODEC.decode_lite
         self.signing = signing
         self.admit = admit
         if signing is not None:
@@ -300,7 +303,7 @@ class Link:
             st.unsent_no_peer += len(frames)
             return 0
         try:
-            n = self._sock.sendto(b"".join(frames), self.peer)
+            n = self._sock.sendto(b"".join(frames), _DONTWAIT, self.peer)
         except OSError:
             st.send_errors += 1
             return 0
@@ -321,7 +324,7 @@ class Link:
         raw = msg.pack(packer)
         packer.seq = (packer.seq + 1) & 0xFF
         try:
-            n = self._sock.sendto(raw, address)
+            n = self._sock.sendto(raw, _DONTWAIT, address)
         except OSError:
             self.stats.send_errors += 1
             return 0
@@ -341,7 +344,7 @@ class Link:
             st.unsent_no_peer += 1
             return 0
         try:
-            n = self._sock.sendto(raw, self.peer)
+            n = self._sock.sendto(raw, _DONTWAIT, self.peer)
         except OSError:
             st.send_errors += 1
             return 0
@@ -352,40 +355,56 @@ class Link:
         return n
 
     # ------------------------------------------------------------------ receiving
-    def recv(self, timeout_s: float = 0.0) -> list[Any]:
+    def recv(self, timeout_s: float = 0.0, *, drain: bool = True) -> list[Any]:
         """Accepted messages from datagrams that arrive within ``timeout_s`` (0 = poll).
 
-        Waits at most ``timeout_s`` for the first datagram, then drains whatever else is
-        already queued (up to ``max_datagrams_per_recv``) without waiting. May return an
-        empty list even before the timeout if only rejected traffic arrived.
+        Waits at most ``timeout_s`` (rounded up to whole milliseconds) for the first
+        datagram, then drains whatever else is already queued (up to
+        ``max_datagrams_per_recv``) without waiting; ``drain=False`` returns after the
+        first datagram (a caller that loops anyway saves the read that finds the queue
+        empty). May return an empty list even before the timeout if only rejected traffic
+        arrived.
+
+        The wait is the ``recvfrom`` itself (the socket blocks, with ``SO_RCVTIMEO`` set
+        once per distinct timeout): one system call, no ``poll`` before it; reads that must
+        not wait pass ``MSG_DONTWAIT``.
         """
         out: list[Any] = []
         sock = self._sock
         try:
-            data, addr = sock.recvfrom(_MAX_DATAGRAM)
-        except BlockingIOError:
-            if timeout_s <= 0.0 or not self._poll.poll(max(1, math.ceil(timeout_s * 1000.0))):
-                return out
-            try:
+            if timeout_s > 0.0:
+                ms = math.ceil(timeout_s * 1000.0)
+                if ms != self._timeout_ms:
+                    self._set_timeout_ms(ms)
                 data, addr = sock.recvfrom(_MAX_DATAGRAM)
-            except BlockingIOError:
-                return out
-            except OSError:
-                self.stats.recv_errors += 1
-                return out
+            else:
+                data, addr = sock.recvfrom(_MAX_DATAGRAM, _DONTWAIT)
+        except BlockingIOError:
+            return out
         except OSError:
             self.stats.recv_errors += 1
+            return out
+        if not drain:
+            self._ingest(data, addr, out)
             return out
         for _ in range(self.max_datagrams_per_recv):
             self._ingest(data, addr, out)
             try:
-                data, addr = sock.recvfrom(_MAX_DATAGRAM)
+                data, addr = sock.recvfrom(_MAX_DATAGRAM, _DONTWAIT)
             except BlockingIOError:
                 break
             except OSError:
                 self.stats.recv_errors += 1
                 break
         return out
+
+    def _set_timeout_ms(self, ms: int) -> None:
+        """How long a waiting ``recvfrom`` blocks (``SO_RCVTIMEO``; ≥ 1 ms, 0 would mean
+        forever)."""
+        ms = max(1, ms)
+        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO,
+                              struct.pack("ll", ms // 1000, (ms % 1000) * 1000))
+        self._timeout_ms = ms
 
     def _reject(self, reason: str, raw: bytes) -> None:
         setattr(self.stats, reason, getattr(self.stats, reason) + 1)
@@ -406,6 +425,9 @@ class Link:
         if n == 0:   # a zero-length datagram holds no frame: count it, like a cut-off one
             self._reject("truncated", data)
             return
+        data = bytes(data)
+        on_frame = self.on_frame
+        now = None                   # the hook's receipt time: one clock read a datagram
         i = 0
         while i < n:
             magic = data[i]
@@ -429,8 +451,8 @@ class Link:
             msg = self._decode_frame(raw)
             if msg is None:
                 continue
-            sysid = msg.get_srcSystem()
-            if self.peer is None or self.peer_sysid is None:
+            sysid = raw[5]               # = msg.get_srcSystem()
+            if self.peer_sysid is None or self.peer is None:
                 is_heartbeat = msg.get_msgId() == _HEARTBEAT_ID
                 if self.peer is None and (not is_heartbeat or (
                         self.peer_sysid is not None and sysid != self.peer_sysid)):
@@ -447,8 +469,10 @@ class Link:
                 self._reject("wrong_sysid", raw)
                 continue
             st.rx_frames += 1
-            if self.on_frame is not None:
-                self.on_frame("rx", raw, msg, self.clock())
+            if on_frame is not None:
+                if now is None:
+                    now = self.clock()
+                on_frame("rx", raw, msg, now)
             out.append(msg)
 
     def _decode_frame(self, raw: bytes) -> Any:
@@ -456,7 +480,8 @@ class Link:
 
         On a signed link the signature and timestamp are checked first (verify, then
         advance: :meth:`Signing.verify`), so forged or replayed frames cost one SHA-256
-        and never reach the decoder.
+        and never reach the decoder. The per-tick messages come back as
+        :class:`~tfl_mav.link.codec.LiteMessage`, the rest as pymavlink's messages.
         """
         signing = self.signing
         if signing is not None:
@@ -465,9 +490,10 @@ class Link:
                 self._reject(reason, raw)
                 return None
         try:
-            msg = self._codec.decode(raw, self.parser)
-            if msg is None:
-                msg = self._decode(bytearray(raw))
+            msg = self._decode_lite(raw, self.parser)
+            if msg is not None:
+                return msg
+            msg = self._decode(bytearray(raw))
         except mav.MAVError as exc:
             text = exc.message
             reason = ("bad_crc" if "CRC" in text
