@@ -55,6 +55,9 @@ from tfl_mav.state import State
 
 __all__ = ["ControlOutput", "LawConfig", "ModelParams", "TFLController", "chain_gains"]
 
+_NOMINAL, _ATTACKED, _FALLBACK = Mode.NOMINAL, Mode.ATTACKED, Mode.FALLBACK  # enum lookups
+_new_output = tuple.__new__   # ControlOutput from its fields in order, no keyword parsing
+
 
 def _floats(x: Sequence[float]) -> Sequence[float]:
     """``x`` with Python floats (``tolist`` of a numpy array; other sequences as they are)."""
@@ -142,6 +145,7 @@ class TFLController:
             self._axes = ((0, 1.0), (1, 1.0))
             self._ixyz = (ix, iy, iz)
             self._d = m.drag_thrust_ratio_m
+            self._set_mu2()
             return
         axes = []
         for row in frame.rot[:2]:
@@ -150,6 +154,12 @@ class TFLController:
         self._axes = (axes[0], axes[1])
         self._ixyz = (iy, ix, iz) if frame.swap_xy else (ix, iy, iz)
         self._d = m.drag_thrust_ratio_m * frame.d_sign
+        self._set_mu2()
+
+    def _set_mu2(self) -> None:
+        """μ2 = −p/I_z − l r/(2 I_x d) (eq. (18)): its constants, once per frame."""
+        m = self.model
+        self._mu2 = (m.inertia_kgm2[2], m.arm_m, 2 * m.inertia_kgm2[0] * self._d)
 
     def set_attack(self, rotor: int, estimate_n: float) -> None:
         """Declare rotor (1-4) attacked with the given thrust estimate (N); 0 = none.
@@ -196,26 +206,26 @@ class TFLController:
                   if self.lag_inverter is not None else None)
         if self.frame is not None:
             f, raw = self._allocate_attacked(uf, tau_p, tau_q, bounds)
-            mode = Mode.ATTACKED
+            mode = _ATTACKED
         else:
             f, raw = self._allocate_nominal(R, uf, tau_p, tau_q, qdot, pc, qc, rc, bounds)
-            mode = Mode.NOMINAL
+            mode = _NOMINAL
         if reason:
-            mode = Mode.FALLBACK
+            mode = _FALLBACK
         command, sat, applied_uf = self._saturate_and_apply(f, raw, pc, qc, rc)
         self._advance_extension(applied_uf, uf, duf, udd)
         self._settle(vo, reason)
-        p, _, r = rates
-        m = self.model
-        return ControlOutput(
-            rotor_thrust_n=command, mode=mode, saturated=sat,
-            xi=(tuple(vo.xi1[:4]), tuple(vo.xi2[:4])), eta=tuple(vo.eta[:4]),
-            mu=(math.atan2(R[1][0], R[0][0]),
-                -p / m.inertia_kgm2[2] - m.arm_m * r / (2 * m.inertia_kgm2[0] * self._d)),
-            path_distance_m=vo.distance_m, lam=vo.lam, cond_d=cond, thrust_n=uf,
-            mass_estimate_kg=mass, disturbance_radps2=(self.dob.d_p, self.dob.d_q),
-            fine_gains=self.fine, reason=reason,
-        )
+        xi1, xi2, eta = vo.xi1, vo.xi2, vo.eta
+        iz, arm, den = self._mu2
+        # ControlOutput's fields in order, built as the tuple it is (a keyword call of a
+        # named tuple costs more than a microsecond a tick).
+        return _new_output(ControlOutput, (
+            command, mode, sat, ((xi1[0], xi1[1], xi1[2], xi1[3]),
+                                 (xi2[0], xi2[1], xi2[2], xi2[3])),
+            (eta[0], eta[1], eta[2], eta[3]),
+            (math.atan2(R[1][0], R[0][0]), -rates[0] / iz - arm * rates[2] / den),
+            vo.distance_m, vo.lam, cond, uf, mass, (self.dob.d_p, self.dob.d_q), self.fine,
+            reason))
 
     # ------------------------------------------------------------------ the steps
     def _canonical_axes(self, R: list[list[float]], rates: Sequence[float]
@@ -274,6 +284,7 @@ class TFLController:
         matrix (eq. (15)). Returns (fallback reason or "", ü_f, ṗ, q̇, cond Dφ)."""
         cfg = self.cfg
         xi1, xi2, eta = vo.xi1, vo.xi2, vo.eta
+        iz, arm, den = self._mu2
         kx, ke = self.k_xi, self.k_eta
         v_xi1 = -(kx[0] * xi1[0] + kx[1] * xi1[1] + kx[2] * xi1[2] + kx[3] * xi1[3])
         v_xi2 = -(kx[0] * xi2[0] + kx[1] * xi2[1] + kx[2] * xi2[2] + kx[3] * xi2[3])
