@@ -294,7 +294,6 @@ class TFLController:
         matrix (eq. (15)). Returns (fallback reason or "", ü_f, ṗ, q̇, cond Dφ)."""
         cfg = self.cfg
         xi1, xi2, eta = vo.xi1, vo.xi2, vo.eta
-        iz, arm, den = self._mu2
         kx, ke = self.k_xi, self.k_eta
         v_xi1 = -(kx[0] * xi1[0] + kx[1] * xi1[1] + kx[2] * xi1[2] + kx[3] * xi1[3])
         v_xi2 = -(kx[0] * xi2[0] + kx[1] * xi2[1] + kx[2] * xi2[2] + kx[3] * xi2[3])
