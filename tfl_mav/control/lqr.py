@@ -157,10 +157,14 @@ def dlqr_zoh_many(a: np.ndarray, b: np.ndarray, q: np.ndarray, r: np.ndarray,
             done = diff <= 1e-15 * np.max(np.sum(np.abs(h_new), axis=-2), axis=-1)
             h_k = h_new
             finite = np.all(np.isfinite(h_k), axis=(-2, -1))
-            for j in np.flatnonzero(done & finite).tolist():
-                i = int(active[j])
-                x, bi, ai = h_k[j], bd[i], ad[i]
-                out[i] = np.linalg.solve(r + bi.T @ x @ bi, bi.T @ x @ ai)
+            fin = np.flatnonzero(done & finite)
+            if len(fin):
+                idx = active[fin]
+                x, bi, ai = h_k[fin], bd[idx], ad[idx]
+                bt = bi.swapaxes(-1, -2)
+                k = np.linalg.solve(r + bt @ x @ bi, bt @ x @ ai)
+                for j, i in enumerate(idx.tolist()):
+                    out[i] = k[j]
             keep = ~done & finite
             if not keep.any():
                 break

@@ -100,13 +100,21 @@ def gain_schedule(inertia_kgm2: Sequence[float], k_r: float, dt_s: float
     if sched is not None:
         return sched
     top = round(LQR_MAX_SPIN_RADPS * 2.0)
+    steps = np.arange(-top, top + 1)
     keys: list[GainKey] = []
-    mats = []
+    a_all, b_all = [], []
     for ixc, iyc in dict.fromkeys(((ix, iy), (iy, ix))):
-        for k in range(-top, top + 1):
-            keys.append((k, ixc > iyc))
-            mats.append(_spin_model(k / 2.0, ixc, iyc, iz, k_r))
-    gains = dlqr_zoh_many(np.array([m[0] for m in mats]), np.array([m[1] for m in mats]),
+        keys += [(k, ixc > iyc) for k in steps.tolist()]
+        # _spin_model for every step at once (the same IEEE operations, element-wise).
+        rr = steps / 2.0
+        a = np.zeros((len(steps), 4, 4))
+        a[:, 0, 1], a[:, 0, 3] = rr, -1.0
+        a[:, 1, 0], a[:, 1, 2] = -rr, 1.0
+        a[:, 2, 2], a[:, 2, 3] = -k_r / ixc, -(iz - iyc) * rr / ixc
+        a[:, 3, 2], a[:, 3, 3] = -(ixc - iz) * rr / iyc, -k_r / iyc
+        a_all.append(a)
+        b_all.append(np.repeat(_spin_model(0.0, ixc, iyc, iz, k_r)[1][None], len(steps), 0))
+    gains = dlqr_zoh_many(np.concatenate(a_all), np.concatenate(b_all),
                           np.diag(LQR_Q), np.diag(LQR_R), dt_s)
     sched = {key: (tuple(g[0].tolist()), tuple(g[1].tolist()))
              for key, g in zip(keys, gains, strict=True) if g is not None}
