@@ -17,7 +17,12 @@ import pytest
 
 from sitl.simulator import Simulator
 from tfl_mav.build import build_controller
-from tfl_mav.control.compiled import CompiledPathTracker, compile_path, make_tracker
+from tfl_mav.control.compiled import (
+    CompiledPathTracker,
+    _pi_kernel,
+    compile_path,
+    make_tracker,
+)
 from tfl_mav.control.jets import Jet, cos
 from tfl_mav.control.paths import Path, PathTracker, build_path
 from tfl_mav.scenario import load_scenario
@@ -172,3 +177,24 @@ def test_the_law_gives_the_same_thrusts_with_either_tracker(scenario, rotor):
         assert np.allclose(a.rotor_thrust_n, b.rotor_thrust_n, rtol=0, atol=1e-9 * fmax)
         sim.set_command(b.rotor_thrust_n)
         sim.step_control_period()
+
+
+@pytest.mark.parametrize("name", sorted(PATHS))
+def test_inlined_kernels_equal_one_line_per_operation(name):
+    """Writing single-use temporaries into their use keeps every operation and operand, so
+    the kernels agree with the one-line-per-operation tape bit for bit (selects included)."""
+    kind, params, y0 = PATHS[name]
+    path = build_path(kind, params)
+    fast, plain = compile_path(path), compile_path(path, inline=False)
+    assert fast.s4.source.count("\n") < plain.s4.source.count("\n")
+    pi_fast, pi_plain = _pi_kernel().fn, _pi_kernel(inline=False).fn
+    rng = random.Random(3)
+    for _ in range(50):
+        lam = rng.uniform(*path.lam_range)
+        assert fast.sigma2.fn((lam,)) == plain.sigma2.fn((lam,))
+        c = fast.sigma5.fn((lam,))
+        assert c == plain.sigma5.fn((lam,))
+        rows = [tuple(r) for r in _random_rows(rng, y0, rng.uniform(-1, 1))]
+        assert fast.s4.fn(*rows) == plain.s4.fn(*rows)
+        slope = (-rng.uniform(0.1, 2.0),)
+        assert pi_fast(c, *rows, slope) == pi_plain(c, *rows, slope)

@@ -13,7 +13,7 @@ from scipy.linalg import expm as scipy_expm
 from scipy.linalg import solve_discrete_are
 
 from tfl_mav.build import model_params
-from tfl_mav.control import lqr
+from tfl_mav.control import lqr, recovery
 from tfl_mav.control.recovery import LQR_MAX_SPIN_RADPS, LQR_Q, LQR_R, RecoveryLaw
 from tfl_mav.scenario import load_scenario
 from tfl_mav.state import State
@@ -104,7 +104,8 @@ def test_the_safe_law_designs_its_gains_without_scipy():
 
 def test_the_law_uses_the_scipy_equal_gains():
     law = RecoveryLaw(MP.mass_kg, MP.inertia_kgm2, MP.arm_m, MP.drag_thrust_ratio_m, MP.k_t,
-                      MP.k_r, MP.thrust_max_n, MP.gravity_mps2, 0.001, None, 0.5)
+                      MP.k_r, MP.thrust_max_n, MP.gravity_mps2, 0.001, None, 0.5,
+                      design_gains=False)
     law.hold((0.0, 0.0, 5.0))
     law.update(State((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), (0.1, 0.0, 40.0)),
                2, 0.1)
@@ -113,3 +114,21 @@ def test_the_law_uses_the_scipy_equal_gains():
     ixc, iyc = (ix, iy) if ixgt == (ix > iy) else (iy, ix)
     k_ref, _ = _scipy_gain(*_model(key / 2.0, ixc, iyc), 0.001)
     assert np.max(np.abs(np.array(gains) - k_ref)) <= 1e-10 * np.max(np.abs(k_ref))
+
+
+@pytest.mark.parametrize("inertia", [MP.inertia_kgm2, (0.0030, 0.0022, 0.0015)])
+def test_the_schedule_designed_at_once_is_the_gains_one_at_a_time(inertia):
+    """The whole schedule, designed by stacked numpy calls before the flight, holds the
+    very gains (bit for bit) that the law would design when first meeting each spin rate
+    (every 7th step of each inertia order, and both ends, checked one at a time)."""
+    sched = recovery.gain_schedule(inertia, MP.k_r, 0.001)
+    top = round(recovery.LQR_MAX_SPIN_RADPS * 2.0)
+    ix, iy = inertia[:2]
+    orders = {(ix, iy), (iy, ix)}
+    assert len(sched) == len(orders) * (2 * top + 1)
+    lazy = RecoveryLaw(MP.mass_kg, inertia, MP.arm_m, MP.drag_thrust_ratio_m, MP.k_t,
+                       MP.k_r, MP.thrust_max_n, MP.gravity_mps2, 0.001, None, 0.5,
+                       design_gains=False)
+    for ixc, iyc in orders:
+        for k in [*range(-top, top + 1, 7), top]:
+            assert lazy._lqr(k / 2.0, ixc, iyc) == sched[(k, ixc > iyc)]

@@ -63,8 +63,10 @@ def _coeffs(x: Any, n: int) -> tuple[Any, ...]:
     return tuple(x.c) if type(x) is TJet else (x,) + (0.0,) * (n - 1)
 
 
-def compile_path(path: Path) -> PathKernels:
-    """Trace ``path`` into its kernels; :class:`TraceError` if its code cannot be traced."""
+def compile_path(path: Path, *, inline: bool = True) -> PathKernels:
+    """Trace ``path`` into its kernels; :class:`TraceError` if its code cannot be traced.
+    (``inline``: as :func:`jetcode.compile_kernel`, False only to test that it changes
+    nothing.)"""
     if path.source is not None:
         s_exprs, sig_exprs = path.source
 
@@ -95,16 +97,18 @@ def compile_path(path: Path) -> PathKernels:
     name = "".join(ch if ch.isalnum() else "_" for ch in path.kind)
     try:
         return PathKernels(
-            compile_kernel(f"sigma2_{name}", [["lam"]], lambda lam: trace_sigma(lam, 2)),
-            compile_kernel(f"sigma5_{name}", [["lam"]], lambda lam: trace_sigma(lam, 5)),
-            compile_kernel(f"s4_{name}", _Y_NAMES, trace_s))
+            compile_kernel(f"sigma2_{name}", [["lam"]], lambda lam: trace_sigma(lam, 2),
+                           inline=inline),
+            compile_kernel(f"sigma5_{name}", [["lam"]], lambda lam: trace_sigma(lam, 5),
+                           inline=inline),
+            compile_kernel(f"s4_{name}", _Y_NAMES, trace_s, inline=inline))
     except (TraceError, ValueError, ZeroDivisionError, OverflowError, TypeError,
             AttributeError) as exc:
         raise TraceError(f"path kind {path.kind!r} cannot be compiled: {exc}") from exc
 
 
 @functools.cache
-def _pi_kernel() -> Kernel:
+def _pi_kernel(inline: bool = True) -> Kernel:
     """π's rates (path independent: made once a process)."""
     def sqrt(x: Any) -> Any:
         return x.tape.call("sqrt", x) if type(x) is Sym else math.sqrt(x)
@@ -115,7 +119,8 @@ def _pi_kernel() -> Kernel:
         # As Jet((π, p0, p1/2, p2/3, p3/4)).derivatives() in the reference.
         return [p[0], p[1] / 2.0 * 2.0, p[2] / 3.0 * 6.0, p[3] / 4.0 * 24.0]
 
-    return compile_kernel("pi_rates", [_C_NAMES, *_Y_NAMES, ["slope"]], trace_pi)
+    return compile_kernel("pi_rates", [_C_NAMES, *_Y_NAMES, ["slope"]], trace_pi,
+                          inline=inline)
 
 
 def _arc(cp: Sequence[float], cn: Sequence[float], delta: float) -> float:

@@ -35,6 +35,7 @@ closures), which tests/test_compiled.py checks.
 from __future__ import annotations
 
 import math
+import re
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
@@ -419,12 +420,53 @@ class Kernel:
     build_s: float
 
 
+_TEMP = re.compile(r"\bt\d+\b")
+_INLINE_MAX_CHARS = 160     # longer expressions stay temporaries (bounded nesting)
+
+
+def _inline_single_use(lines: Sequence[str], outputs: Sequence[str]
+                       ) -> tuple[list[str], list[str]]:
+    """The tape with each temporary that is used once written into its use, in
+    parentheses: ``t3 = (a * b) + c`` instead of ``t2 = a * b`` / ``t3 = t2 + c``.
+
+    Every operation keeps its operands (the same expression tree), so the results are the
+    same bit for bit; CPython just runs ~a third fewer instructions (no store and load per
+    intermediate). A select's branches are never inlined into (the operands of ``a if c else
+    b`` stay computed unconditionally, as the tape records them), and long expressions stay
+    temporaries so that nesting stays shallow."""
+    parsed = [ln.strip().split(" = ", 1) for ln in lines]
+    uses: dict[str, int] = {}
+    for text in [expr for _, expr in parsed] + list(outputs):
+        for tok in _TEMP.findall(text):
+            uses[tok] = uses.get(tok, 0) + 1
+    inline: dict[str, str] = {}
+
+    def subst(text: str) -> str:
+        return _TEMP.sub(lambda m: inline.pop(m.group(0), m.group(0)), text)
+
+    out_lines = []
+    for name, expr in parsed:
+        if " if " in expr:
+            # A select: what it reads is computed on its own line first, unconditionally.
+            for tok in _TEMP.findall(expr):
+                if tok in inline:
+                    out_lines.append(f"    {tok} = {inline.pop(tok)[1:-1]}")
+        else:
+            expr = subst(expr)
+        if uses.get(name, 0) == 1 and len(expr) <= _INLINE_MAX_CHARS:
+            inline[name] = f"({expr})"
+        else:
+            out_lines.append(f"    {name} = {expr}")
+    return out_lines, [subst(o) for o in outputs]
+
+
 def compile_kernel(name: str, inputs: Sequence[Sequence[str]],
-                   trace: Callable[..., Sequence[Any]]) -> Kernel:
+                   trace: Callable[..., Sequence[Any]], *, inline: bool = True) -> Kernel:
     """Trace ``trace(*symbol groups)`` and compile ``name(*groups)`` returning its outputs.
 
     ``inputs`` lists the argument groups: each group is one tuple argument of the compiled
-    function, unpacked into the named locals at entry.
+    function, unpacked into the named locals at entry. ``inline``: temporaries used once
+    are written into their use (:func:`_inline_single_use`; False: one line per operation).
     """
     t0 = time.perf_counter()
     tape = Tape()
@@ -435,7 +477,11 @@ def compile_kernel(name: str, inputs: Sequence[Sequence[str]],
     for arg, group in zip(args, inputs, strict=True):
         names = ", ".join(group)
         head.append(f"    {names}{',' if len(group) == 1 else ''} = {arg}")
-    body = [*head, *tape.lines, f"    return ({', '.join(_text(o) for o in outputs)},)"]
+    ret = [_text(o) for o in outputs]
+    lines = tape.lines
+    if inline:
+        lines, ret = _inline_single_use(lines, ret)
+    body = [*head, *lines, f"    return ({', '.join(ret)},)"]
     source = "\n".join(body) + "\n"
     namespace: dict[str, Any] = {f"_{k}": v for k, v in _FUNCS.items()}
     exec(compile(source, f"<tfl-mav kernel {name}>", "exec"), namespace)

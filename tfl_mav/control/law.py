@@ -55,6 +55,9 @@ from tfl_mav.state import State
 
 __all__ = ["ControlOutput", "LawConfig", "ModelParams", "TFLController", "chain_gains"]
 
+_NOMINAL, _ATTACKED, _FALLBACK = Mode.NOMINAL, Mode.ATTACKED, Mode.FALLBACK  # enum lookups
+_new_output = tuple.__new__   # ControlOutput from its fields in order, no keyword parsing
+
 
 def _floats(x: Sequence[float]) -> Sequence[float]:
     """``x`` with Python floats (``tolist`` of a numpy array; other sequences as they are)."""
@@ -142,6 +145,7 @@ class TFLController:
             self._axes = ((0, 1.0), (1, 1.0))
             self._ixyz = (ix, iy, iz)
             self._d = m.drag_thrust_ratio_m
+            self._set_mu2()
             return
         axes = []
         for row in frame.rot[:2]:
@@ -150,6 +154,12 @@ class TFLController:
         self._axes = (axes[0], axes[1])
         self._ixyz = (iy, ix, iz) if frame.swap_xy else (ix, iy, iz)
         self._d = m.drag_thrust_ratio_m * frame.d_sign
+        self._set_mu2()
+
+    def _set_mu2(self) -> None:
+        """μ2 = −p/I_z − l r/(2 I_x d) (eq. (18)): its constants, once per frame."""
+        m = self.model
+        self._mu2 = (m.inertia_kgm2[2], m.arm_m, 2 * m.inertia_kgm2[0] * self._d)
 
     def set_attack(self, rotor: int, estimate_n: float) -> None:
         """Declare rotor (1-4) attacked with the given thrust estimate (N); 0 = none.
@@ -196,26 +206,26 @@ class TFLController:
                   if self.lag_inverter is not None else None)
         if self.frame is not None:
             f, raw = self._allocate_attacked(uf, tau_p, tau_q, bounds)
-            mode = Mode.ATTACKED
+            mode = _ATTACKED
         else:
             f, raw = self._allocate_nominal(R, uf, tau_p, tau_q, qdot, pc, qc, rc, bounds)
-            mode = Mode.NOMINAL
+            mode = _NOMINAL
         if reason:
-            mode = Mode.FALLBACK
+            mode = _FALLBACK
         command, sat, applied_uf = self._saturate_and_apply(f, raw, pc, qc, rc)
         self._advance_extension(applied_uf, uf, duf, udd)
         self._settle(vo, reason)
-        p, _, r = rates
-        m = self.model
-        return ControlOutput(
-            rotor_thrust_n=command, mode=mode, saturated=sat,
-            xi=(tuple(vo.xi1[:4]), tuple(vo.xi2[:4])), eta=tuple(vo.eta[:4]),
-            mu=(math.atan2(R[1][0], R[0][0]),
-                -p / m.inertia_kgm2[2] - m.arm_m * r / (2 * m.inertia_kgm2[0] * self._d)),
-            path_distance_m=vo.distance_m, lam=vo.lam, cond_d=cond, thrust_n=uf,
-            mass_estimate_kg=mass, disturbance_radps2=(self.dob.d_p, self.dob.d_q),
-            fine_gains=self.fine, reason=reason,
-        )
+        xi1, xi2, eta = vo.xi1, vo.xi2, vo.eta
+        iz, arm, den = self._mu2
+        # ControlOutput's fields in order, built as the tuple it is (a keyword call of a
+        # named tuple costs more than a microsecond a tick).
+        return _new_output(ControlOutput, (
+            command, mode, sat, ((xi1[0], xi1[1], xi1[2], xi1[3]),
+                                 (xi2[0], xi2[1], xi2[2], xi2[3])),
+            (eta[0], eta[1], eta[2], eta[3]),
+            (math.atan2(R[1][0], R[0][0]), -rates[0] / iz - arm * rates[2] / den),
+            vo.distance_m, vo.lam, cond, uf, mass, (self.dob.d_p, self.dob.d_q), self.fine,
+            reason))
 
     # ------------------------------------------------------------------ the steps
     def _canonical_axes(self, R: list[list[float]], rates: Sequence[float]
@@ -255,16 +265,26 @@ class TFLController:
         dufm2 = 2.0 * duf / mass
         pr, qr = pc * rc, qc * rc
         pq2 = pc * pc + qc * qc
-        rows = []
-        for i in range(3):
-            ydd = ufm * b3[i] - kt * v[i]
-            if i == 2:
-                ydd -= self.model.gravity_mps2
-            db3 = qc * b1[i] - pc * b2[i]
-            yddd = dufm * b3[i] + ufm * db3 - kt * ydd
-            a0 = dufm2 * db3 + ufm * (pr * b1[i] + qr * b2[i] - pq2 * b3[i]) - kt * yddd
-            rows.append((y[i], v[i], ydd / 2.0, yddd / 6.0, a0 / 24.0))
-        return tuple(rows)
+        b1x, b1y, b1z = b1
+        b2x, b2y, b2z = b2
+        b3x, b3y, b3z = b3
+        vx, vy, vz = v
+        # x, y, z written out (this runs every tick); the same operations as one loop.
+        yddx = ufm * b3x - kt * vx
+        yddy = ufm * b3y - kt * vy
+        yddz = ufm * b3z - kt * vz - self.model.gravity_mps2
+        db3x = qc * b1x - pc * b2x
+        db3y = qc * b1y - pc * b2y
+        db3z = qc * b1z - pc * b2z
+        ydddx = dufm * b3x + ufm * db3x - kt * yddx
+        ydddy = dufm * b3y + ufm * db3y - kt * yddy
+        ydddz = dufm * b3z + ufm * db3z - kt * yddz
+        a0x = dufm2 * db3x + ufm * (pr * b1x + qr * b2x - pq2 * b3x) - kt * ydddx
+        a0y = dufm2 * db3y + ufm * (pr * b1y + qr * b2y - pq2 * b3y) - kt * ydddy
+        a0z = dufm2 * db3z + ufm * (pr * b1z + qr * b2z - pq2 * b3z) - kt * ydddz
+        return ((y[0], vx, yddx / 2.0, ydddx / 6.0, a0x / 24.0),
+                (y[1], vy, yddy / 2.0, ydddy / 6.0, a0y / 24.0),
+                (y[2], vz, yddz / 2.0, ydddz / 6.0, a0z / 24.0))
 
     def _decoupling_solve(self, vo: VirtualOutput, b1: Sequence[float], b2: Sequence[float],
                           b3: Sequence[float], mass: float, uf: float, duf: float,

@@ -47,13 +47,13 @@ from tfl_mav.control.allocation import RotorFrame, allocate_nominal, canonical_f
 from tfl_mav.control.compiled import PathKernels, compile_path
 from tfl_mav.control.jetcode import TraceError
 from tfl_mav.control.jets import Jet
-from tfl_mav.control.lqr import dlqr, zoh
+from tfl_mav.control.lqr import dlqr, dlqr_zoh_many, zoh
 from tfl_mav.control.paths import Path
 from tfl_mav.geometry import rotation_rows
 from tfl_mav.state import State
 
-__all__ = ["PathProjector", "RecoveryLaw", "RecoveryOutput", "projector_sigma2",
-           "reference_sigma2"]
+__all__ = ["PathProjector", "RecoveryLaw", "RecoveryOutput", "gain_schedule",
+           "projector_sigma2", "reference_sigma2"]
 
 MAX_TILT_RAD = math.radians(30.0)   # outer loop: horizontal acceleration ≤ g tan 30°
 MAX_VERTICAL_G = 0.5                # outer loop: |vertical acceleration| ≤ 0.5 g
@@ -72,6 +72,54 @@ LQR_R = (2500.0, 25.0)
 
 Sigma2 = Callable[[tuple[float]], Sequence[float]]
 Gains = tuple[tuple[float, float, float, float], tuple[float, float, float, float]]  # K, 2×4
+GainKey = tuple[int, bool]     # (spin rate in 0.5 rad/s steps, I_x' > I_y')
+_SCHEDULES: dict[tuple[float, ...], dict[GainKey, Gains]] = {}   # whole schedules, by model
+
+
+def _spin_model(rr: float, ix: float, iy: float, iz: float,
+                kr: float) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of the reduced attitude (h1, h2, p, q) linearised about the spin ``rr``."""
+    a = np.array([[0.0, rr, 0.0, -1.0],
+                  [-rr, 0.0, 1.0, 0.0],
+                  [0.0, 0.0, -kr / ix, -(iz - iy) * rr / ix],
+                  [0.0, 0.0, -(ix - iz) * rr / iy, -kr / iy]])
+    b = np.array([[0.0, 0.0], [0.0, 0.0], [1.0 / ix, 0.0], [0.0, 1.0 / iy]])
+    return a, b
+
+
+def gain_schedule(inertia_kgm2: Sequence[float], k_r: float, dt_s: float
+                  ) -> dict[GainKey, Gains]:
+    """Every gain :meth:`RecoveryLaw._lqr` can ask for (|r| ≤ LQR_MAX_SPIN_RADPS, either
+    canonical inertia order), designed at once by :func:`lqr.dlqr_zoh_many` — the same
+    gains bit for bit as one at a time, ~0.1 ms apiece instead of ~1 ms, so a flight never
+    designs one mid-air (an overrun at 1 kHz). Cached by model within a process (the daemon
+    builds a warm-up flight computer and then the real one; a sweep builds thousands)."""
+    ix, iy, iz = (float(x) for x in inertia_kgm2)
+    cache_key = (ix, iy, iz, float(k_r), float(dt_s))
+    sched = _SCHEDULES.get(cache_key)
+    if sched is not None:
+        return sched
+    top = round(LQR_MAX_SPIN_RADPS * 2.0)
+    steps = np.arange(-top, top + 1)
+    keys: list[GainKey] = []
+    a_all, b_all = [], []
+    for ixc, iyc in dict.fromkeys(((ix, iy), (iy, ix))):
+        keys += [(k, ixc > iyc) for k in steps.tolist()]
+        # _spin_model for every step at once (the same IEEE operations, element-wise).
+        rr = steps / 2.0
+        a = np.zeros((len(steps), 4, 4))
+        a[:, 0, 1], a[:, 0, 3] = rr, -1.0
+        a[:, 1, 0], a[:, 1, 2] = -rr, 1.0
+        a[:, 2, 2], a[:, 2, 3] = -k_r / ixc, -(iz - iyc) * rr / ixc
+        a[:, 3, 2], a[:, 3, 3] = -(ixc - iz) * rr / iyc, -k_r / iyc
+        a_all.append(a)
+        b_all.append(np.repeat(_spin_model(0.0, ixc, iyc, iz, k_r)[1][None], len(steps), 0))
+    gains = dlqr_zoh_many(np.concatenate(a_all), np.concatenate(b_all),
+                          np.diag(LQR_Q), np.diag(LQR_R), dt_s)
+    sched = {key: (tuple(g[0].tolist()), tuple(g[1].tolist()))
+             for key, g in zip(keys, gains, strict=True) if g is not None}
+    _SCHEDULES[cache_key] = sched
+    return sched
 
 
 def reference_sigma2(path: Path) -> Sigma2:
@@ -181,7 +229,7 @@ class RecoveryLaw:
                  drag_thrust_ratio_m: float, k_t: float, k_r: float, thrust_max_n: float,
                  gravity_mps2: float, dt_s: float, path: Path | None,
                  speed_mps: float, *, kernels: PathKernels | None = None,
-                 compiled_path: bool = True) -> None:
+                 compiled_path: bool = True, design_gains: bool = True) -> None:
         self.mass_kg = mass_kg
         self.inertia = tuple(inertia_kgm2)
         self.arm_m = arm_m
@@ -196,7 +244,9 @@ class RecoveryLaw:
         self.projector = (PathProjector(path, *projector_sigma2(path, kernels, compiled_path))
                           if path is not None else None)
         self.hold_m: list[float] | None = None    # held point (None: follow the path)
-        self._gains: dict[tuple[int, bool], Gains] = {}
+        # The LQR gains, designed now (``design_gains``) or when first met in flight.
+        self._gains: dict[GainKey, Gains] = (
+            dict(gain_schedule(inertia_kgm2, k_r, dt_s)) if design_gains else {})
         self._frames: dict[int, RotorFrame] = {}
 
     # ------------------------------------------------------------------ targets
@@ -247,13 +297,7 @@ class RecoveryLaw:
         k = self._gains.get(key)
         if k is not None:
             return k
-        rr = key[0] / 2.0
-        iz, kr = self.inertia[2], self.k_r
-        a = np.array([[0.0, rr, 0.0, -1.0],
-                      [-rr, 0.0, 1.0, 0.0],
-                      [0.0, 0.0, -kr / ix, -(iz - iy) * rr / ix],
-                      [0.0, 0.0, -(ix - iz) * rr / iy, -kr / iy]])
-        b = np.array([[0.0, 0.0], [0.0, 0.0], [1.0 / ix, 0.0], [0.0, 1.0 / iy]])
+        a, b = _spin_model(key[0] / 2.0, ix, iy, self.inertia[2], self.k_r)
         ad, bd = zoh(a, b, self.dt)
         k = dlqr(ad, bd, np.diag(LQR_Q), np.diag(LQR_R))
         gains = self._gains[key] = (tuple(k[0].tolist()), tuple(k[1].tolist()))

@@ -276,37 +276,59 @@ def poly_arc(c: Sequence[Sequence[Any]], delta: Any,
     return delta / 6.0 * (speed(0.0) + 4.0 * speed(0.5 * delta) + speed(delta))
 
 
-def _lambda_series(c: Sequence[Sequence[float]], taylor: Sequence[Sequence[float]],
-                   slope: float) -> tuple[float, float, float, float]:
-    """Taylor coefficients d₁…d₄ of δ(t) = λ(t) − λ0 from g(t) = ⟨Y − σ(λ), σ'(λ)⟩ ≡ 0.
+def _lambda_series(c: Sequence[Sequence[Any]], taylor: Sequence[Sequence[Any]],
+                   slope: Any) -> tuple[tuple[Any, Any, Any, Any], list[list[Any]]]:
+    """Taylor coefficients d₁…d₄ of δ(t) = λ(t) − λ0 from g(t) = ⟨Y − σ(λ), σ'(λ)⟩ ≡ 0,
+    and the coefficients T₀…T₃ of σ'(λ(t)) (per axis) found on the way.
 
-    Coefficient k of g is affine in d_k with slope ∂g/∂λ; computing it with d_k = 0 and
-    solving gives d_k, one order at a time (k = 1…4). ``c[j]`` = σ⁽ʲ⁾(λ0)/j!, ``taylor[i]``
-    = the position's Taylor coefficients. Unrolled: this runs every control tick.
+    With E = Y − σ(λ(t)) and T = σ'(λ(t)), g_k = Σ_{a+b=k} ⟨E_a, T_b⟩. Order k holds d_k
+    only in E_k (−σ' d_k) and T_k (+σ'' d_k), so g_k = (∂g/∂λ) d_k + g_k⁰ with g_k⁰ the
+    same sum at d_k = 0: d_k = −g_k⁰/(∂g/∂λ), one order at a time (k = 1…4). E_a, T_a of
+    the lower orders are kept, not recomputed (the coefficient k of δᵐ, m ≥ 2, holds only
+    d₁…d_{k−1}). ``c[j]`` = σ⁽ʲ⁾(λ0)/j!, ``taylor[i]`` = the position's Taylor
+    coefficients. Plain arithmetic, so it can be traced (:mod:`jetcode`).
     """
     inv = -1.0 / slope
-    d = [0.0, 0.0, 0.0, 0.0, 0.0]
-    for k in range(1, 5):
-        d1, d2, d3 = d[1], d[2], d[3]
-        # Powers of δ up to order k (δ has no constant term), with d_k still 0.
-        p2 = (0.0, 0.0, d1 * d1, 2.0 * d1 * d2, 2.0 * d1 * d3 + d2 * d2)
-        p3 = (0.0, 0.0, 0.0, d1 * d1 * d1, 3.0 * d1 * d1 * d2)
-        p4 = (0.0, 0.0, 0.0, 0.0, d1 * d1 * d1 * d1)
-        gk = 0.0
-        for i in range(3):
-            c0, c1, c2, c3, c4, c5 = (c[0][i], c[1][i], c[2][i], c[3][i], c[4][i], c[5][i])
-            y = taylor[i]
-            # E_n = Y_n − σ_n and T_n = σ'_n for n = 0..k.
-            e = [y[0] - c0]
-            t = [c1]
-            for n in range(1, k + 1):
-                e.append(y[n] - (c1 * d[n] + c2 * p2[n] + c3 * p3[n] + c4 * p4[n]))
-                t.append(2.0 * c2 * d[n] + 3.0 * c3 * p2[n] + 4.0 * c4 * p3[n]
-                         + 5.0 * c5 * p4[n])
-            for a in range(k + 1):
-                gk += e[a] * t[k - a]
-        d[k] = gk * inv
-    return d[1], d[2], d[3], d[4]
+    ax = range(3)
+    c1 = [c[1][i] for i in ax]
+    c2 = [c[2][i] for i in ax]
+    c3 = [c[3][i] for i in ax]
+    c4 = [c[4][i] for i in ax]
+    c5 = [c[5][i] for i in ax]
+    dc2 = [2.0 * c2[i] for i in ax]           # σ''/1!, the slope of T in d_k
+    tc3 = [3.0 * c3[i] for i in ax]
+    fc4 = [4.0 * c4[i] for i in ax]
+    E = [[taylor[i][0] - c[0][i] for i in ax]]
+    T = [c1]
+    # Order 1: E₁⁰ = Y₁, T₁⁰ = 0.
+    d1 = (taylor[0][1] * c1[0] + taylor[1][1] * c1[1] + taylor[2][1] * c1[2]) * inv
+    E.append([taylor[i][1] - c1[i] * d1 for i in ax])
+    T.append([dc2[i] * d1 for i in ax])
+    # Order 2: δ² = d₁² t² + …
+    p2_2 = d1 * d1
+    e0 = [taylor[i][2] - c2[i] * p2_2 for i in ax]
+    t0 = [tc3[i] * p2_2 for i in ax]
+    d2 = sum(E[0][i] * t0[i] + e0[i] * c1[i] + E[1][i] * T[1][i] for i in ax) * inv
+    E.append([e0[i] - c1[i] * d2 for i in ax])
+    T.append([t0[i] + dc2[i] * d2 for i in ax])
+    # Order 3.
+    p2_3 = 2.0 * d1 * d2
+    p3_3 = p2_2 * d1
+    e0 = [taylor[i][3] - (c2[i] * p2_3 + c3[i] * p3_3) for i in ax]
+    t0 = [tc3[i] * p2_3 + fc4[i] * p3_3 for i in ax]
+    d3 = sum(E[0][i] * t0[i] + e0[i] * c1[i] + E[1][i] * T[2][i] + E[2][i] * T[1][i]
+             for i in ax) * inv
+    E.append([e0[i] - c1[i] * d3 for i in ax])
+    T.append([t0[i] + dc2[i] * d3 for i in ax])
+    # Order 4 (E₄, T₄ themselves are not needed).
+    p2_4 = 2.0 * d1 * d3 + d2 * d2
+    p3_4 = 3.0 * p2_2 * d2
+    p4_4 = p2_2 * p2_2
+    e0 = [taylor[i][4] - (c2[i] * p2_4 + c3[i] * p3_4 + c4[i] * p4_4) for i in ax]
+    t0 = [tc3[i] * p2_4 + fc4[i] * p3_4 + 5.0 * c5[i] * p4_4 for i in ax]
+    d4 = sum(E[0][i] * t0[i] + e0[i] * c1[i] + E[1][i] * T[3][i] + E[2][i] * T[2][i]
+             + E[3][i] * T[1][i] for i in ax) * inv
+    return (d1, d2, d3, d4), T
 
 
 def _as_jet(x: Any) -> Jet:
@@ -322,23 +344,17 @@ def pi_rates(c: Sequence[Sequence[Any]], taylor: Sequence[Sequence[Any]], slope:
     """(π̇, π̈, π⃛, π⁽⁴⁾) from σ's Taylor coefficients ``c`` at the closest point, the
     position's ``taylor`` rows and the projection slope ∂g/∂λ (< 0 in the tube).
 
-    π̇ = |σ'(λ(t))| λ̇(t), with σ'(λ(t)) = Σ_j (j+1) c_{j+1} δʲ to order 3 and δ(t) from
+    π̇ = |σ'(λ(t))| λ̇(t), with σ'(λ(t)) = T₀ + T₁t + … and δ(t) from
     :func:`_lambda_series`. Plain arithmetic (``sqrt`` passed in), so it can be traced.
     """
-    d1, d2, d3, d4 = _lambda_series(c, taylor, slope)
-    p2_2, p2_3 = d1 * d1, 2.0 * d1 * d2
-    p3_3 = d1 * p2_2
+    (d1, d2, d3, d4), T = _lambda_series(c, taylor, slope)
+    t0, t1, t2, t3 = T
     speed2 = [0.0, 0.0, 0.0, 0.0]
     for i in range(3):
-        c1, c2, c3, c4 = 1.0 * c[1][i], 2.0 * c[2][i], 3.0 * c[3][i], 4.0 * c[4][i]
-        t0 = c1
-        t1 = c2 * d1
-        t2 = c2 * d2 + c3 * p2_2
-        t3 = c2 * d3 + c3 * p2_3 + c4 * p3_3
-        speed2[0] += t0 * t0
-        speed2[1] += 2.0 * t0 * t1
-        speed2[2] += 2.0 * t0 * t2 + t1 * t1
-        speed2[3] += 2.0 * (t0 * t3 + t1 * t2)
+        speed2[0] += t0[i] * t0[i]
+        speed2[1] += 2.0 * t0[i] * t1[i]
+        speed2[2] += 2.0 * t0[i] * t2[i] + t1[i] * t1[i]
+        speed2[3] += 2.0 * (t0[i] * t3[i] + t1[i] * t2[i])
     speed = sqrt_series(speed2, sqrt(speed2[0]))
     l1, l2, l3, l4 = d1, 2.0 * d2, 3.0 * d3, 4.0 * d4
     return (speed[0] * l1,
