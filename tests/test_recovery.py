@@ -6,6 +6,9 @@ agree to rounding, so the projection, its tangent and curvature, and the law's t
 agree to rounding too — for every path kind, ``kind = "expr"`` included. The projection is
 also checked to be the closest point (against a dense search), which no agreement between
 two implementations can show.
+
+Then the take-over of a restarted controller (#12, "Restart"), offline and deterministic: the
+same fall the real-time test (test_faults) can only catch by chance.
 """
 
 from __future__ import annotations
@@ -17,16 +20,22 @@ import numpy as np
 import pytest
 from test_compiled import PATHS
 
+from sitl.simulator import Simulator
 from tfl_mav.build import model_params
 from tfl_mav.control.compiled import compile_path
 from tfl_mav.control.paths import Path, build_path
 from tfl_mav.control.recovery import (
+    POS_OMEGA,
+    POS_ZETA,
     PathProjector,
     RecoveryLaw,
     projector_sigma2,
     reference_sigma2,
 )
-from tfl_mav.scenario import load_scenario
+from tfl_mav.flight_computer import TAKEOVER_TILT_RAD, FlightComputer
+from tfl_mav.geometry import rotation_rows
+from tfl_mav.modes import Mode
+from tfl_mav.scenario import apply_overrides, load_scenario
 from tfl_mav.state import State
 
 
@@ -131,3 +140,73 @@ def test_the_safe_law_gives_the_same_thrusts_with_either_projection(rotor):
         assert np.allclose(a.requested_n, b.requested_n, rtol=0, atol=1e-9 * mp.thrust_max_n)
         assert np.allclose(a.thrust_n, b.thrust_n, rtol=0, atol=1e-9 * mp.thrust_max_n)
         assert b.path_distance_m == pytest.approx(a.path_distance_m, rel=1e-9)
+
+
+# ------------------------------------------------------------------ restart take-over (#12)
+KILL_S = 1.0          # the old controller dies here (at the paper path's lowest bend) …
+HELD_S = 0.25         # … the vehicle holds its last command this long (--command-timeout) …
+AFTER_S = 1.6         # … and the new controller flies this long (the old flip came at 0.8 s)
+
+
+def _restart(t_off: float) -> tuple[list[Mode], list[float], list[float], State, str | None]:
+    """The real-time restart test's flight, offline: a flight computer flies the nominal
+    scenario from [0, 1, 4] (the path's lowest point) for ``KILL_S``; the vehicle holds
+    that command for ``HELD_S``, then all four motors are cut (no torque: it falls level)
+    for ``t_off``; a *fresh* flight computer takes over, told the command applied was 0 N
+    (what a restarted daemon reads from ACTUATOR_OUTPUT_STATUS). Returns the modes flown,
+    tilts (rad) and heights (m) from the take-over on, the take-over state, the crash."""
+    sc = apply_overrides(load_scenario("nominal"), ["initial.position_m=[0,1,4]"])
+    sim = Simulator(sc)
+    fc = FlightComputer(sc)
+    applied = list(sim.rotor_commands_n)
+    for _ in range(round(KILL_S / sim.control_dt_s)):
+        res = fc.step(sim.time_s, sim.measured_floats, sim.measured_rpm_floats, applied)
+        sim.set_command(res.thrust_n)
+        applied = list(sim.rotor_commands_n)
+        sim.step_control_period()
+    for _ in range(round(HELD_S / sim.control_dt_s)):
+        sim.step_control_period()
+    sim.set_command([0.0] * 4)
+    for _ in range(round(t_off / sim.control_dt_s)):
+        sim.step_control_period()
+    fc = FlightComputer(sc)
+    applied = [0.0] * 4
+    start = sim.measured_floats
+    modes, tilts, heights = [], [], []
+    for _ in range(round(AFTER_S / sim.control_dt_s)):
+        st = sim.measured_floats
+        res = fc.step(sim.time_s, st, sim.measured_rpm_floats, applied)
+        modes.append(res.mode)
+        tilts.append(math.acos(max(-1.0, min(1.0, rotation_rows(st.quaternion_wxyz)[2][2]))))
+        heights.append(float(st.position_m[2]))
+        sim.set_command(res.thrust_n)
+        applied = list(sim.rotor_commands_n)
+        sim.step_control_period()
+        if reason := sim.crash_reason():
+            return modes, tilts, heights, start, reason
+    return modes, tilts, heights, start, None
+
+
+def _peak_excursion_per_mps() -> float:
+    """Peak of x'' + 2ζω x' + ω² x = 0 from x = 0, x' = 1 m/s: the recovery law's altitude
+    hold (POS_OMEGA, POS_ZETA) arresting a fall (s; × the fall speed gives metres)."""
+    wd = POS_OMEGA * math.sqrt(1.0 - POS_ZETA ** 2)
+    t_peak = math.atan2(wd, POS_ZETA * POS_OMEGA) / wd
+    return math.exp(-POS_ZETA * POS_OMEGA * t_peak) * math.sin(wd * t_peak) / wd
+
+
+@pytest.mark.parametrize(("t_off", "mode"), [(0.10, Mode.NOMINAL), (0.18, Mode.RECOVERY)])
+def test_restarted_controller_takes_over_a_falling_vehicle_without_a_flip(t_off, mode):
+    """Motors cut 0.18 s: falling level at 1.65 m/s, more than the TFL law is started from
+    (it flipped 0.8 s after such a take-over, "thrust axis points down"): the recovery law
+    takes it on the first tick, never tilts past its own 30° limit, and stops the fall
+    within the altitude hold's peak excursion (linear loop, its 0.5 g cap not reached)
+    + 20 % for the levelling transient. Cut 0.10 s (0.9 m/s): TFL takes over directly."""
+    modes, tilts, heights, start, crash = _restart(t_off)
+    assert crash is None, crash
+    assert modes[0] is mode
+    assert max(tilts) < TAKEOVER_TILT_RAD
+    v_fall = -float(start.velocity_mps[2])
+    assert v_fall > 0.8                            # the case is the one it claims to be
+    if mode is Mode.RECOVERY:
+        assert heights[0] - min(heights) <= 1.2 * _peak_excursion_per_mps() * v_fall

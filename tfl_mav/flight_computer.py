@@ -26,13 +26,20 @@ Which law flies (issue #14; :mod:`tfl_mav.control.recovery` says why a second la
   the hand-back leaves no transient off the path. The band [0.3, 0.6] N is hysteresis: the
   paper's signal wanders across it with ESC noise on the estimate;
 * **recovery** (reduced attitude on four rotors) on the first tick when the state is not
-  benign (a controller restarted mid-flight: tilt > 30°, |v| > max(2, 2 × speed) m/s,
+  benign (a controller restarted mid-flight: tilt > 30°, |v| > max(0.5, 2 × speed) m/s,
   |(p, q)| > 2 rad/s, or |r| > 2 rad/s with no attack known), and whenever the TFL law has
   no valid answer (left the projection tube, D(x) singular). It levels the vehicle and holds
   the altitude where it took over (never the old frozen 1.9 g), then flies back to the path
   and hands back under the same conditions. The limits are those the TFL law is started
   from in every scenario (hover, still) with a margin, and the recovery law's own tilt
   limit (30°): anything outside is a state nobody has shown the TFL law converges from.
+  Speed especially: every flight starts the TFL law still, one path speed from its
+  reference velocity. A vehicle whose motors were cut for 0.18 s (a restarted daemon)
+  falls level at 1.65 m/s; taken over by TFL at the paper path's lowest bend (curvature
+  radius 0.24 m) it flips 0.8 s later — the same state flown from t = 0 by a fresh
+  flight computer flips identically, so it is the law's region of attraction, not a
+  leftover of the old flight. Measured there: |v| = 1.0 m/s peaks at 4° of tilt,
+  1.27 m/s at 26°, 1.65 m/s flips; hence 2 × speed (1 m/s on the paper path).
 
 Before the law (issue #14): with sensor noise in the scenario the state is filtered with the
 model (:mod:`tfl_mav.control.state_filter`; noise-free flights skip it); a yaw rate at the
@@ -85,6 +92,8 @@ HANDBACK_DIST_M = 0.15  # … including being this close to the path
 HOLD_BEFORE_PATH_S = 1.0  # take-over / lost path: level and hold this long, then fly back
 TAKEOVER_TILT_RAD = math.radians(30.0)
 TAKEOVER_RATE_RADPS = 2.0
+TAKEOVER_SPEED_FACTOR = 2.0      # TFL takes over up to this × path speed (module docstring)
+TAKEOVER_SPEED_FLOOR_MPS = 0.5   # … never below this (a slow path; velocity noise at rest)
 HANDBACK_TILT_RAD = math.radians(20.0)
 
 
@@ -348,13 +357,13 @@ class FlightComputer:
         tilt = math.acos(max(-1.0, min(1.0, R[2][2])))
         p, q, r = _floats(state.body_rates_radps)
         speed = math.sqrt(sum(c * c for c in _floats(state.velocity_mps)))
-        vmax = max(2.0, 2.0 * self.speed_mps)
+        vmax = max(TAKEOVER_SPEED_FLOOR_MPS, TAKEOVER_SPEED_FACTOR * self.speed_mps)
         if not all(math.isfinite(c) for c in (tilt, p, q, r, speed)):
             return "state not finite"
         if tilt > TAKEOVER_TILT_RAD:
             return f"tilted {math.degrees(tilt):.0f} deg"
         if speed > vmax:
-            return f"moving at {speed:.1f} m/s"
+            return f"moving at {speed:.1f} m/s (TFL takes over below {vmax:.1f} m/s)"
         if math.hypot(p, q) > TAKEOVER_RATE_RADPS or (not rotor
                                                       and abs(r) > TAKEOVER_RATE_RADPS):
             return f"rotating at {math.sqrt(p * p + q * q + r * r):.1f} rad/s"
