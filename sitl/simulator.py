@@ -157,7 +157,9 @@ class Simulator:
             rpm = [w * RADPS_TO_RPM for w in w_rotor]
             if noisy[0]:
                 rpm = [r + next(it) for r in rpm]
-            self._rpm = tuple([min(max(r, 0.0), 65535.0) for r in rpm])
+            if not (min(rpm) >= 0.0 and max(rpm) <= 65535.0):   # clamp only if needed
+                rpm = [min(max(r, 0.0), 65535.0) for r in rpm]
+            self._rpm = tuple(rpm)
             pos, vel, w = x[0:3], x[3:6], x[10:13]
             if noisy[1]:
                 pos = [c + next(it) for c in pos]
