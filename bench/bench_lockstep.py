@@ -111,11 +111,11 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
     applied_usec = 0
     for _ in range(n_ticks):
         t0 = cpu()
-        msgs = report.update(applied_usec)    # (ODOMETRY, ACTUATOR_OUTPUT_STATUS, ESC)
+        msgs = report.build(applied_usec)     # (ODOMETRY, ACTUATOR_OUTPUT_STATUS, ESC)
         t1 = cpu()
         vehicle.control_link.send_many(msgs)
         t2 = cpu()
-        raw = b"".join(m.pack(sim_link.packer) for m in msgs)
+        raw = b"".join(sim_link._codec.pack(m, sim_link.packer) for m in msgs)
         t2b = cpu()
         out: list = []
         daemon_link._ingest(raw, sender, out)
