@@ -36,6 +36,16 @@ class MotorBank:
         """Steady rotor speed (rad/s) for a thrust, clamped to [0, f_max]."""
         return math.sqrt(min(max(thrust_n, 0.0), self.thrust_max_n) / self.k_f)
 
+    def omegas_for_thrusts(self, thrust_n: Sequence[float]) -> list[float]:
+        """:meth:`omega_for_thrust` of each thrust (a control period's held targets)."""
+        fmax = self.thrust_max_n
+        kf = self.k_f
+        sqrt = math.sqrt
+        for f in thrust_n:
+            if not 0.0 <= f <= fmax:      # out of range or NaN: clamp each (rare)
+                return [self.omega_for_thrust(f) for f in thrust_n]
+        return [sqrt(f / kf) for f in thrust_n]   # in range: the clamp returns f itself
+
     @property
     def thrust_n(self) -> list[float]:
         """Instantaneous thrust of each rotor (N)."""

@@ -116,7 +116,7 @@ class Simulator:
         ell, d = self.params.arm_m, self.params.drag_thrust_ratio_m
         commands = self.rotor_commands_n
         omega_for_thrust = motors.omega_for_thrust
-        held = list(map(omega_for_thrust, commands))
+        held = motors.omegas_for_thrusts(commands)
         x = self._x
         for _ in range(self.steps_per_control):
             rotor = attacker.rotor
@@ -177,7 +177,7 @@ class Simulator:
             self._rpm = tuple([min(max(r * RADPS_TO_RPM, 0.0), 65535.0) for r in w_rotor])
             pos, vel, q, w = x[0:3], x[3:6], tuple(x[6:10]), x[10:13]
         g = self._gyro_range_radps
-        if g > 0:     # a real gyro saturates at its range
+        if g > 0 and not -g <= min(w) <= max(w) <= g:   # a real gyro saturates at its range
             w = [min(max(c, -g), g) for c in w]
         self._measured_floats = State(tuple(pos), tuple(vel), q, tuple(w), self.time_usec)
         self._measured: State | None = None
