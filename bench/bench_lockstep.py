@@ -17,7 +17,8 @@ Measures, on this machine:
    back, nothing else), and issue #13's same-run ratios of (2) and (3) to it.
 
 Usage: ``python bench/bench_lockstep.py [--ticks N] [--json FILE] [--breakdown-only |
---no-breakdown] [--no-profile]`` from the repository root.
+--no-breakdown] [--no-profile]`` from the repository root; ``--profile-vehicle FILE`` only
+profiles the sim process of (2) (cProfile, CPU timer) and prints where its time goes.
 """
 
 from __future__ import annotations
@@ -111,11 +112,11 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
     applied_usec = 0
     for _ in range(n_ticks):
         t0 = cpu()
-        msgs = report.update(applied_usec)    # (ODOMETRY, ACTUATOR_OUTPUT_STATUS, ESC)
+        msgs = report.build(applied_usec)     # (ODOMETRY, ACTUATOR_OUTPUT_STATUS, ESC)
         t1 = cpu()
         vehicle.control_link.send_many(msgs)
         t2 = cpu()
-        raw = b"".join(m.pack(sim_link.packer) for m in msgs)
+        raw = b"".join(sim_link._codec.pack(m, sim_link.packer) for m in msgs)
         t2b = cpu()
         out: list = []
         daemon_link._ingest(raw, sender, out)
@@ -246,17 +247,30 @@ def bench_pingpong(n_ticks: int) -> dict[str, float]:
     return {"ticks": measured, "seconds": elapsed, "ticks_per_s": measured / elapsed}
 
 
-def bench_vehicle(n_ticks: int, mcap: Path | None = None) -> dict[str, float]:
+def bench_vehicle(n_ticks: int, mcap: Path | None = None,
+                  profile: Path | None = None) -> dict[str, float]:
     """``tfl-mav sim`` in a subprocess (recording to ``mcap`` if given), flown in lockstep
-    by the Pilot."""
+    by the Pilot. ``profile``: run the sim under cProfile (CPU timer, bench/profiling.py)
+    and dump its stats there (the ticks/s are then the profiled ones)."""
     from tfl_mav.scenario import load_scenario
 
     sc = load_scenario("paper")
     duration_s = n_ticks / 1000.0
     extra = ["--mcap", str(mcap)] if mcap is not None else []
-    proc, address = popen_sim(["--set", "attack.rotor=0", "--set",
-                               "initial.position_m=[0, 0, 5]", "--duration",
-                               f"{duration_s:g}", *extra], "paper")
+    args = ["--set", "attack.rotor=0", "--set", "initial.position_m=[0, 0, 5]", "--duration",
+            f"{duration_s:g}", *extra]
+    if profile is None:
+        proc, address = popen_sim(args, "paper")
+    else:
+        proc = subprocess.Popen([sys.executable, _PROFILER, str(profile), "tools.cli", "sim",
+                                 "paper", "--listen", "127.0.0.1:0", *args],
+                                stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
+        assert proc.stdout is not None
+        match = LISTEN_RE.search(proc.stdout.readline())
+        if match is None:
+            proc.kill()
+            raise RuntimeError(f"sim did not start: {proc.communicate()[0]}")
+        address = (match.group(1), int(match.group(2)))
     try:
         result = lockstep_client(address, n_ticks, sc)
         out, _ = proc.communicate(timeout=20)
@@ -401,6 +415,9 @@ def main() -> int:
                         help="skip the in-process per-piece breakdown")
     parser.add_argument("--no-profile", action="store_true",
                         help="skip the profiled run of the full loop (per-process breakdown)")
+    parser.add_argument("--profile-vehicle", metavar="FILE",
+                        help="only: fly the lockstep sim (Pilot, no MCAP) under cProfile, "
+                             "dump the stats to FILE and print the top functions")
     parser.add_argument("--role", help=argparse.SUPPRESS)
     parser.add_argument("--port-file", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -411,6 +428,12 @@ def main() -> int:
         parser.error(f"--ticks: must be > {WARMUP_TICKS}")
     if args.breakdown_only and args.no_breakdown:
         parser.error("--breakdown-only and --no-breakdown exclude each other")
+    if args.profile_vehicle:
+        import pstats
+
+        bench_vehicle(args.ticks, profile=Path(args.profile_vehicle))
+        pstats.Stats(args.profile_vehicle).sort_stats("tottime").print_stats(30)
+        return 0
 
     physics = bench_physics(20000)
     breakdown = {} if args.no_breakdown else bench_breakdown(3000)

@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from tfl_mav.link.codec import UNSENT, lite_class
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.signing import Signing
 from tfl_mav.link.transport import Address, FrameHook, Link
@@ -39,6 +40,10 @@ returning True stops :meth:`Pilot.fly` there."""
 ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED          # 128: the HIL_ACTUATOR_CONTROLS mode
 _ENDS_RUN = (mav.MAV_STATE_POWEROFF, mav.MAV_STATE_EMERGENCY)
 _STATUSTEXT_CHUNK = 50                           # characters per STATUSTEXT frame
+_Controls = lite_class(mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS)
+_ZERO_CONTROLS = (0.0,) * 16
+_FLAGS = 1                                       # HIL_ACTUATOR_CONTROLS.flags: lockstep
+_new = tuple.__new__
 
 
 class NoStateError(AssertionError):
@@ -88,9 +93,11 @@ class Pilot:
         self.link.send(mav.MAVLink_heartbeat_message(
             mav.MAV_TYPE_ONBOARD_CONTROLLER, mav.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
 
-    def pump(self, timeout_s: float) -> None:
-        """Receive for up to ``timeout_s`` and sort what came (see the module docstring)."""
-        for m in self.link.recv(timeout_s):
+    def pump(self, timeout_s: float, *, drain: bool = True) -> None:
+        """Receive for up to ``timeout_s`` and sort what came (see the module docstring);
+        ``drain=False``: only the first datagram (a caller that loops saves the read that
+        finds the queue empty)."""
+        for m in self.link.recv(timeout_s, drain=drain):
             kind = m.get_type()
             if kind == "STATUSTEXT":
                 self._statustext(m)
@@ -136,15 +143,17 @@ class Pilot:
                 raise NoStateError(f"no state from the vehicle within {timeout_s} s")
             if self.ended and not self.queue:
                 raise NoStateError("no state from the vehicle: it ended the run")
-            self.pump(min(remaining, 0.05) if self.ended else remaining)
+            self.pump(min(remaining, 0.05) if self.ended else remaining, drain=False)
 
     def reply(self, odom: Any, controls: Sequence[float], mode: int = ARMED,
               time_usec: int | None = None) -> None:
         """Send HIL_ACTUATOR_CONTROLS for ``odom``'s tick (or ``time_usec``); ``controls``
         fill the first channels, the rest of the 16 are 0. ``mode`` 0 disarms."""
         t = odom.time_usec if time_usec is None else time_usec
-        self.link.send(mav.MAVLink_hil_actuator_controls_message(
-            t, [*controls] + [0.0] * (16 - len(controls)), mode, 1))
+        # Built as the codec's wire tuple (time_usec, flags, controls[16], mode): the bytes
+        # of pymavlink's message, without its constructor (this is the bare client).
+        self.link.send(_new(_Controls, (t, _FLAGS, *(*controls, *_ZERO_CONTROLS)[:16], mode,
+                                        UNSENT)))
 
     def fly(self, n_ticks: int | None, command: Command, *, timeout_s: float = 3.0,
             keep: bool = True, on_tick: TickHook | None = None) -> list[tuple[Any, Any]]:

@@ -41,6 +41,7 @@ CONTROL_TOLERANCE = 1e-4
 """Normalised controls within this of [0, 1] are clamped; beyond it they are rejected."""
 
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
+_LO, _HI = -CONTROL_TOLERANCE, 1.0 + CONTROL_TOLERANCE
 
 Handler = Callable[[Link, Any], None]
 """Handles one received message (or one COMMAND_LONG/INT) from the given port."""
@@ -87,7 +88,10 @@ class ActuatorControls:
             stats.stale_controls += 1
             return Outcome.STALE
         controls = msg.controls
-        problem = check_controls(controls)
+        c1, c2, c3, c4 = controls[:4]
+        # In range → finite (comparisons with NaN are False): one chained test for the norm.
+        problem = (None if _LO <= c1 <= _HI and _LO <= c2 <= _HI and _LO <= c3 <= _HI
+                   and _LO <= c4 <= _HI else check_controls(controls))
         if problem is not None:
             stats.rejected_controls += 1
             self.status.send(mav.MAV_SEVERITY_ERROR,
@@ -109,8 +113,7 @@ class ActuatorControls:
                              "disarmed by the controller (mode bit 128 clear): motors stopped")
         fmax = self.sim.thrust_max_n
         if armed and not flight.killed:   # a GCS disarm (kill switch) outranks the controller
-            self.sim.set_command([controls[0] * fmax, controls[1] * fmax,
-                                  controls[2] * fmax, controls[3] * fmax])
+            self.sim.set_command([c1 * fmax, c2 * fmax, c3 * fmax, c4 * fmax])
         else:
             self.sim.set_command([0.0, 0.0, 0.0, 0.0])
         stats.controls_applied += 1

@@ -250,10 +250,10 @@ class GcsTelemetry:
     def messages(self) -> list[Any]:
         """One telemetry datagram's messages, from the current tick's measured state."""
         sim = self.sim
-        m = sim.measured
+        m = sim.measured_floats     # the same numbers as sim.measured, without its arrays
         t_ms = int(sim.time_s * 1000.0) & 0xFFFFFFFF
-        f = odometry_from_paper(m.position_m.tolist(), m.velocity_mps.tolist(),
-                                m.quaternion_wxyz.tolist(), m.body_rates_radps.tolist())
+        f = odometry_from_paper(m.position_m, m.velocity_mps, m.quaternion_wxyz,
+                                m.body_rates_radps)
         roll, pitch, yaw = euler_zyx_from_rotation(rotation_from_quaternion(f.q))
         v_ned = enu_to_ned(m.velocity_mps)
         fmax = sim.thrust_max_n

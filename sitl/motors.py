@@ -29,10 +29,22 @@ class MotorBank:
         self.time_constant_s = time_constant_s
         self.omega_max_radps = math.sqrt(thrust_max_n / k_f)
         self.omega_radps = [self.omega_for_thrust(f) for f in initial_thrust_n]
+        self._lag: tuple[float, float, float, float] = (math.nan, 0.0, 0.0, 0.0)
+        """(h, e1, m1, m2) of the last step: the lag's constants depend on h alone."""
 
     def omega_for_thrust(self, thrust_n: float) -> float:
         """Steady rotor speed (rad/s) for a thrust, clamped to [0, f_max]."""
         return math.sqrt(min(max(thrust_n, 0.0), self.thrust_max_n) / self.k_f)
+
+    def omegas_for_thrusts(self, thrust_n: Sequence[float]) -> list[float]:
+        """:meth:`omega_for_thrust` of each thrust (a control period's held targets)."""
+        fmax = self.thrust_max_n
+        kf = self.k_f
+        sqrt = math.sqrt
+        for f in thrust_n:
+            if not 0.0 <= f <= fmax:      # out of range or NaN: clamp each (rare)
+                return [self.omega_for_thrust(f) for f in thrust_n]
+        return [sqrt(f / kf) for f in thrust_n]   # in range: the clamp returns f itself
 
     @property
     def thrust_n(self) -> list[float]:
@@ -51,14 +63,17 @@ class MotorBank:
         if tau <= 0.0:
             self.omega_radps = list(omega_target_radps)
             return [kf * w * w for w in self.omega_radps]
-        e1 = math.exp(-h / tau)
-        m1 = tau * (1.0 - e1) / h          # mean of exp(−t/τ) over the step
-        m2 = tau * (1.0 - e1 * e1) / (2.0 * h)  # mean of exp(−2t/τ)
-        mean = []
-        new = []
-        for w0, c in zip(self.omega_radps, omega_target_radps, strict=True):
-            dw = w0 - c
-            mean.append(kf * (c * c + 2.0 * c * dw * m1 + dw * dw * m2))
-            new.append(c + dw * e1)
-        self.omega_radps = new
-        return mean
+        h0, e1, m1, m2 = self._lag
+        if h != h0:
+            e1 = math.exp(-h / tau)
+            m1 = tau * (1.0 - e1) / h          # mean of exp(−t/τ) over the step
+            m2 = tau * (1.0 - e1 * e1) / (2.0 * h)  # mean of exp(−2t/τ)
+            self._lag = (h, e1, m1, m2)
+        w1, w2, w3, w4 = self.omega_radps
+        c1, c2, c3, c4 = omega_target_radps
+        d1, d2, d3, d4 = w1 - c1, w2 - c2, w3 - c3, w4 - c4
+        self.omega_radps = [c1 + d1 * e1, c2 + d2 * e1, c3 + d3 * e1, c4 + d4 * e1]
+        return [kf * (c1 * c1 + 2.0 * c1 * d1 * m1 + d1 * d1 * m2),
+                kf * (c2 * c2 + 2.0 * c2 * d2 * m1 + d2 * d2 * m2),
+                kf * (c3 * c3 + 2.0 * c3 * d3 * m1 + d3 * d3 * m2),
+                kf * (c4 * c4 + 2.0 * c4 * d4 * m1 + d4 * d4 * m2)]

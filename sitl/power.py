@@ -57,8 +57,11 @@ class PowerModel:
         self.ambient_c = ambient_c
         self.heating_c_per_a = heating_c_per_a
         self.thermal_tau_s = thermal_time_constant_s
-        self._consumed_mah = [0.0] * 4
-        self._temps_c = [ambient_c] * 4
+        self._consumed_mah = (0.0,) * 4
+        self._temps_c = (ambient_c,) * 4
+        self._dt_s = math.nan            # the step's constants, computed for this dt
+        self._mah_per_a = 0.0
+        self._decay = 1.0
         self._voltage_v = self.full_v
         self.sample = PowerSample(self.full_v, (0.0,) * 4, (0.0,) * 4, (ambient_c,) * 4, 100.0)
 
@@ -71,22 +74,34 @@ class PowerModel:
         v_prev = max(self._voltage_v, 1.0)
         kq_per_w = self.torque_coeff / (self.efficiency * v_prev)   # A per (rad/s)^3
         idle = self.idle_current_a
-        mah_per_a = 1000.0 * dt_s / 3600.0
-        e = math.exp(-dt_s / self.thermal_tau_s)
+        if dt_s != self._dt_s:       # constants of the step: dt is the same every tick
+            self._dt_s = dt_s
+            self._mah_per_a = 1000.0 * dt_s / 3600.0
+            self._decay = math.exp(-dt_s / self.thermal_tau_s)
+        mah_per_a = self._mah_per_a
+        e = self._decay
         amb, k = self.ambient_c, self.heating_c_per_a
-        currents: list[float] = []
-        consumed = self._consumed_mah
-        temps = self._temps_c
-        for i, w in enumerate(omega_radps):
-            current = kq_per_w * w * w * abs(w) + (idle if w > 0.0 else 0.0)
-            currents.append(current)
-            consumed[i] += current * mah_per_a
-            settle = amb + k * current
-            temps[i] = settle + (temps[i] - settle) * e
-        total_a = sum(currents)
-        soc = max(0.0, 1.0 - sum(consumed) / self.capacity_mah)
+        w1, w2, w3, w4 = omega_radps      # written out per ESC: this runs every tick
+        i1 = kq_per_w * w1 * w1 * abs(w1) + (idle if w1 > 0.0 else 0.0)
+        i2 = kq_per_w * w2 * w2 * abs(w2) + (idle if w2 > 0.0 else 0.0)
+        i3 = kq_per_w * w3 * w3 * abs(w3) + (idle if w3 > 0.0 else 0.0)
+        i4 = kq_per_w * w4 * w4 * abs(w4) + (idle if w4 > 0.0 else 0.0)
+        q1, q2, q3, q4 = self._consumed_mah
+        q1 += i1 * mah_per_a
+        q2 += i2 * mah_per_a
+        q3 += i3 * mah_per_a
+        q4 += i4 * mah_per_a
+        t1, t2, t3, t4 = self._temps_c
+        s1, s2, s3, s4 = amb + k * i1, amb + k * i2, amb + k * i3, amb + k * i4
+        temps = (s1 + (t1 - s1) * e, s2 + (t2 - s2) * e, s3 + (t3 - s3) * e,
+                 s4 + (t4 - s4) * e)
+        consumed = (q1, q2, q3, q4)
+        self._consumed_mah = consumed
+        self._temps_c = temps
+        total_a = i1 + i2 + i3 + i4
+        soc = max(0.0, 1.0 - (q1 + q2 + q3 + q4) / self.capacity_mah)
         v_oc = self.empty_v + (self.full_v - self.empty_v) * soc
         self._voltage_v = max(0.0, v_oc - self.r_int_ohm * total_a)
-        self.sample = PowerSample(self._voltage_v, tuple(currents), tuple(consumed),
-                                  tuple(temps), 100.0 * soc)
+        self.sample = PowerSample(self._voltage_v, (i1, i2, i3, i4), consumed, temps,
+                                  100.0 * soc)
         return self.sample

@@ -49,6 +49,7 @@ class Simulator:
         self.attacker = Attacker(scenario.attack, v.thrust_max_n)
         self.rotor_commands_n = [hover_n] * 4
         self.physics_steps = 0
+        self._time_usec = 0          # time_usec of physics_steps (set where it advances)
         self.tick = 0
         self.rejected_commands = 0
         self.attack = self.attacker.sample(0.0, tuple(ini.position_m), hover_n)
@@ -71,7 +72,7 @@ class Simulator:
     @property
     def time_usec(self) -> int:
         """Sim time in µs as sent on the wire (ODOMETRY.time_usec): k·T exactly."""
-        return round(self.physics_steps * 1_000_000 / self.scenario.run.physics_hz)
+        return self._time_usec
 
     def set_command(self, thrust_cmd_n: Sequence[float]) -> None:
         """Set the four rotor thrust commands (N), clamped to [0, f_max].
@@ -82,13 +83,18 @@ class Simulator:
         if len(thrust_cmd_n) != 4:
             self.rejected_commands += 1
             raise ValueError(f"thrust command: expected 4 values, got {len(thrust_cmd_n)}")
-        values = [float(f) for f in thrust_cmd_n]
-        if not math.isfinite(sum(values)):     # one test when all are finite (the norm)
-            for i, f in enumerate(values):
-                if not math.isfinite(f):
-                    self.rejected_commands += 1
-                    raise ValueError(f"thrust command[{i}] (rotor {i + 1}): not finite ({f})")
+        f1, f2, f3, f4 = map(float, thrust_cmd_n)
         fmax = self.thrust_max_n
+        # Comparisons are False for NaN: one chained test passes every finite command in
+        # range (the norm); anything else is checked, then clamped, one by one.
+        if 0.0 <= f1 <= fmax and 0.0 <= f2 <= fmax and 0.0 <= f3 <= fmax and 0.0 <= f4 <= fmax:
+            self.rotor_commands_n = [f1, f2, f3, f4]
+            return
+        values = [f1, f2, f3, f4]
+        for i, f in enumerate(values):
+            if not math.isfinite(f):
+                self.rejected_commands += 1
+                raise ValueError(f"thrust command[{i}] (rotor {i + 1}): not finite ({f})")
         self.rotor_commands_n = [min(max(f, 0.0), fmax) for f in values]
 
     def inject_failure(self, rotor: int, failure_type: int) -> None:
@@ -110,7 +116,7 @@ class Simulator:
         ell, d = self.params.arm_m, self.params.drag_thrust_ratio_m
         commands = self.rotor_commands_n
         omega_for_thrust = motors.omega_for_thrust
-        held = [omega_for_thrust(f) for f in commands]
+        held = motors.omegas_for_thrusts(commands)
         x = self._x
         for _ in range(self.steps_per_control):
             rotor = attacker.rotor
@@ -127,6 +133,7 @@ class Simulator:
                      d * (f1 - f2 + f3 - f4), h)
             self.physics_steps += 1
         self._x = x
+        self._time_usec = round(self.physics_steps * 1_000_000 / self.scenario.run.physics_hz)
         self.tick += 1
         self._measure()
 
@@ -150,7 +157,9 @@ class Simulator:
             rpm = [w * RADPS_TO_RPM for w in w_rotor]
             if noisy[0]:
                 rpm = [r + next(it) for r in rpm]
-            self._rpm = tuple([min(max(r, 0.0), 65535.0) for r in rpm])
+            if not (min(rpm) >= 0.0 and max(rpm) <= 65535.0):   # clamp only if needed
+                rpm = [min(max(r, 0.0), 65535.0) for r in rpm]
+            self._rpm = tuple(rpm)
             pos, vel, w = x[0:3], x[3:6], x[10:13]
             if noisy[1]:
                 pos = [c + next(it) for c in pos]
@@ -168,7 +177,7 @@ class Simulator:
             self._rpm = tuple([min(max(r * RADPS_TO_RPM, 0.0), 65535.0) for r in w_rotor])
             pos, vel, q, w = x[0:3], x[3:6], tuple(x[6:10]), x[10:13]
         g = self._gyro_range_radps
-        if g > 0:     # a real gyro saturates at its range
+        if g > 0 and not -g <= min(w) <= max(w) <= g:   # a real gyro saturates at its range
             w = [min(max(c, -g), g) for c in w]
         self._measured_floats = State(tuple(pos), tuple(vel), q, tuple(w), self.time_usec)
         self._measured: State | None = None

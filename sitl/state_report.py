@@ -17,7 +17,7 @@ fractions actually driven (0 when cut), ``active`` = 0b1111 (PX4 streams the sam
 for its outputs). A late, lost or reordered command is then never mistaken for a rotor that
 disobeys.
 
-The triple is built once per tick (:meth:`StateReport.update`) and kept, so a lockstep resend
+The triple is built once per tick (:meth:`StateReport.build`) and kept, so a lockstep resend
 sends the same messages again and the GCS telemetry can forward the tick's ESC message.
 """
 
@@ -28,6 +28,7 @@ from typing import Any
 from sitl.power import PowerModel
 from sitl.simulator import Simulator
 from tfl_mav.frames import MAV_FRAME_BODY_FRD, MAV_FRAME_LOCAL_NED, odometry_from_paper
+from tfl_mav.link.codec import UNSENT, LiteMessage, lite_class
 from tfl_mav.link.dialect import mav
 from tfl_mav.scenario import SensorConfig
 
@@ -36,74 +37,84 @@ __all__ = ["StateReport"]
 # ODOMETRY covariance arrays: upper triangle of a 6×6 matrix, row-major; diagonal indices.
 _COV_DIAGONAL = (0, 6, 11, 15, 18, 20)
 _ACTIVE = 0b1111          # ACTUATOR_OUTPUT_STATUS.active: outputs 1-4 in use
-_PAD28 = (0.0,) * 28     # actuator[4..31]
+_PAD28_UNSENT = (0.0,) * 28 + (UNSENT,)     # actuator[4..31], then the frame item
 _MOCAP = mav.MAV_ESTIMATOR_TYPE_MOCAP
-
-
-def _u8(x: float) -> int:
-    """Rounded and clamped to uint8."""
-    r = round(x)
-    return 0 if r < 0 else 255 if r > 255 else r
-
-
-def _u16(x: float) -> int:
-    """Rounded and clamped to ≤ 65535 (inputs here are ≥ 0: currents, charge, rpm)."""
-    r = round(x)
-    return 65535 if r > 65535 else r
+_new = tuple.__new__
+_Odometry = lite_class(mav.MAVLINK_MSG_ID_ODOMETRY)
+_Applied = lite_class(mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS)
+_Esc = lite_class(mav.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4)
 
 
 class StateReport:
-    """Builds and keeps the current tick's (ODOMETRY, ESC_TELEMETRY_1_TO_4)."""
+    """Builds and keeps the current tick's (ODOMETRY, ACTUATOR_OUTPUT_STATUS,
+    ESC_TELEMETRY_1_TO_4).
+
+    The messages are :class:`~tfl_mav.link.codec.LiteMessage` tuples in wire order, built
+    straight from the simulator's floats: the link packs each with one ``struct.pack``, into
+    the bytes pymavlink's message with the same fields packs to (pymavlink's constructor
+    and attribute-by-attribute packing were half the vehicle's non-physics cost per tick).
+    """
 
     def __init__(self, sim: Simulator, power: PowerModel, sensors: SensorConfig) -> None:
         self.sim = sim
         self.power = power
-        self._pose_cov = _covariance((sensors.position_noise_std_m,) * 3
-                                     + (sensors.attitude_noise_std_rad,) * 3)
-        self._vel_cov = _covariance((sensors.velocity_noise_std_mps,) * 3
-                                    + (sensors.rate_noise_std_radps,) * 3)
+        pose_cov = _covariance((sensors.position_noise_std_m,) * 3
+                               + (sensors.attitude_noise_std_rad,) * 3)
+        vel_cov = _covariance((sensors.velocity_noise_std_mps,) * 3
+                              + (sensors.rate_noise_std_radps,) * 3)
+        # ODOMETRY after yawspeed: covariances, frame ids, reset_counter, estimator, quality
+        self._odometry_tail = (*pose_cov, *vel_cov, MAV_FRAME_LOCAL_NED, MAV_FRAME_BODY_FRD,
+                               0, _MOCAP, 100, UNSENT)
         self._esc_count = 0
         self.latest: tuple[Any, Any, Any] | None = None
-        """The last tick's (ODOMETRY, ACTUATOR_OUTPUT_STATUS, ESC_TELEMETRY_1_TO_4), or None
-        before the first."""
+        """The last tick's (ODOMETRY, ACTUATOR_OUTPUT_STATUS, ESC_TELEMETRY_1_TO_4) as
+        LiteMessages, or None before the first."""
 
     @property
     def esc(self) -> Any | None:
         """The last tick's ESC_TELEMETRY_1_TO_4, or None before the first tick."""
         return self.latest[-1] if self.latest is not None else None
 
-    def update(self, applied_usec: int = 0) -> tuple[Any, Any, Any]:
-        """Build the current tick's messages from the simulator and the power model;
-        ``applied_usec``: time_usec of the command held over the period just ended (0:
-        none)."""
+    def build(self, applied_usec: int = 0) -> tuple[LiteMessage, LiteMessage, LiteMessage]:
+        """Build (and keep as :attr:`latest`) the current tick's messages from the simulator
+        and the power model; ``applied_usec``: time_usec of the command held over the period
+        just ended (0: none). Immutable LiteMessages (the vehicle's hot path)."""
         sim = self.sim
         m = sim.measured_floats       # float tuples: no arrays to build and convert back
-        f = odometry_from_paper(m.position_m, m.velocity_mps, m.quaternion_wxyz,
-                                m.body_rates_radps)
-        odometry = mav.MAVLink_odometry_message(
-            sim.time_usec, MAV_FRAME_LOCAL_NED, MAV_FRAME_BODY_FRD, f.x, f.y, f.z, f.q,
-            f.vx, f.vy, f.vz, f.rollspeed, f.pitchspeed, f.yawspeed, self._pose_cov,
-            self._vel_cov, 0, _MOCAP, 100)
-        p = self.power.sample
-        self._esc_count = count = (self._esc_count + 1) & 0xFFFF
-        cv = min(65535, round(p.voltage_v * 100.0))
-        t1, t2, t3, t4 = p.temperatures_c
-        i1, i2, i3, i4 = p.currents_a
-        c1, c2, c3, c4 = p.consumed_mah
-        r1, r2, r3, r4 = sim.measured_rpm_floats
-        esc = mav.MAVLink_esc_telemetry_1_to_4_message(
-            [_u8(t1), _u8(t2), _u8(t3), _u8(t4)],
-            [cv, cv, cv, cv],
-            [_u16(i1 * 100.0), _u16(i2 * 100.0), _u16(i3 * 100.0), _u16(i4 * 100.0)],
-            [_u16(c1), _u16(c2), _u16(c3), _u16(c4)],
-            [_u16(r1), _u16(r2), _u16(r3), _u16(r4)],   # rpm: already ≥ 0
-            [count, count, count, count])
+        x, y, z, q, vx, vy, vz, p, qq, r = odometry_from_paper(
+            m.position_m, m.velocity_mps, m.quaternion_wxyz, m.body_rates_radps)
+        odometry = _new(_Odometry, (sim.time_usec, x, y, z, *q, vx, vy, vz, p, qq, r,
+                                    *self._odometry_tail))
+        pw = self.power.sample
+        self._esc_count = n = (self._esc_count + 1) & 0xFFFF
+        cv = min(65535, round(pw.voltage_v * 100.0))
+        i1, i2, i3, i4 = pw.currents_a
+        # current (cA), totalcurrent (mAh), rpm: rounded, ≥ 0 here, clamped to uint16
+        u16 = list(map(round, (i1 * 100.0, i2 * 100.0, i3 * 100.0, i4 * 100.0,
+                               *pw.consumed_mah, *sim.measured_rpm_floats)))
+        if max(u16) > 65535:
+            u16 = [65535 if v > 65535 else v for v in u16]
+        u8 = list(map(round, pw.temperatures_c))    # temperature (°C): clamped to uint8
+        if min(u8) < 0 or max(u8) > 255:
+            u8 = [0 if v < 0 else 255 if v > 255 else v for v in u8]
+        esc = _new(_Esc, (cv, cv, cv, cv, *u16, n, n, n, n, *u8, UNSENT))
         fmax = sim.thrust_max_n
         f1, f2, f3, f4 = sim.rotor_commands_n
-        applied = mav.MAVLink_actuator_output_status_message(
-            applied_usec, _ACTIVE, [f1 / fmax, f2 / fmax, f3 / fmax, f4 / fmax, *_PAD28])
+        applied = _new(_Applied, (applied_usec, _ACTIVE, f1 / fmax, f2 / fmax, f3 / fmax,
+                                  f4 / fmax, *_PAD28_UNSENT))
         self.latest = (odometry, applied, esc)
         return self.latest
+
+    def update(self, applied_usec: int = 0) -> tuple[Any, Any, Any]:
+        """:meth:`build`, answered as pymavlink's message objects (mutable, e.g. for a
+        test that restamps ``time_usec``); :attr:`latest` keeps the LiteMessages."""
+        return tuple(_pymavlink(msg) for msg in self.build(applied_usec))  # type: ignore
+
+
+def _pymavlink(msg: LiteMessage) -> Any:
+    """pymavlink's message with a LiteMessage's fields (packs to the same bytes)."""
+    cls = mav.mavlink_map[msg.get_msgId()]
+    return cls(**{name: getattr(msg, name) for name in msg.get_fieldnames()})
 
 
 def _covariance(stds: tuple[float, ...]) -> list[float]:

@@ -348,7 +348,7 @@ class Vehicle:
     def publish_state(self) -> None:
         """ODOMETRY, ACTUATOR_OUTPUT_STATUS, ESC_TELEMETRY_1_TO_4 of the current tick to the
         controller (:mod:`sitl.state_report`)."""
-        self.report.update(self.held.applied_usec)
+        self.report.build(self.held.applied_usec)
         self.resend_state()
 
     _publish_state = publish_state   # bench/bench_lockstep.py times it under this name

@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tfl_mav.link.codec import HOT_MESSAGE_IDS, FastCodec
+from tfl_mav.link.codec import HOT_MESSAGE_IDS, UNSENT, FastCodec, lite_class
 from tfl_mav.link.dialect import mav, new_mavlink
 
 CODEC = FastCodec()
@@ -75,6 +75,41 @@ def test_pack_is_pymavlinks_frame(msg: Any, sysid: int, compid: int, seq: int,
     frame = CODEC.pack(msg, ours)
     assert frame == msg.pack(theirs)
     assert ours.signing.timestamp == theirs.signing.timestamp   # one step per signed frame
+
+
+def _wire_values(msg: Any) -> list[Any]:
+    """A pymavlink message's field values in wire order, arrays flattened."""
+    cls = type(msg)
+    values: list[Any] = []
+    for name, n in zip(cls.ordered_fieldnames, cls.array_lengths, strict=True):
+        value = getattr(msg, name)
+        values += list(value[:n]) if n else [value]
+    return values
+
+
+@settings(max_examples=300, deadline=None)
+@given(msg=hot_messages(), seq=st.integers(0, 255), signing=signings)
+def test_built_lite_message_packs_as_pymavlinks(msg: Any, seq: int,
+                                                signing: tuple[bytes, int, int] | None
+                                                ) -> None:
+    """A LiteMessage a sender builds (wire tuple + UNSENT) packs to pymavlink's frame of the
+    message with the same fields, and reads its fields as that message does."""
+    lite = tuple.__new__(lite_class(msg.get_msgId()), (*_wire_values(msg), UNSENT))
+    ours, theirs = _packer(1, 1, seq, signing), _packer(1, 1, seq, signing)
+    assert CODEC.pack(lite, ours) == msg.pack(theirs)
+    assert ours.signing.timestamp == theirs.signing.timestamp
+    for name in msg.get_fieldnames():
+        assert repr(getattr(lite, name)) == repr(getattr(msg, name)), name
+    assert lite.get_srcSystem() == 0 and lite.get_type() == msg.get_type()
+
+
+def test_lite_class_is_shared_and_only_for_hot_messages() -> None:
+    """Every codec packs the LiteMessages another module built (one class per message)."""
+    cls = lite_class(mav.MAVLINK_MSG_ID_ODOMETRY)
+    assert cls is lite_class(mav.MAVLINK_MSG_ID_ODOMETRY)
+    assert cls in FastCodec().by_lite
+    with pytest.raises(ValueError, match="not compiled"):
+        lite_class(mav.MAVLINK_MSG_ID_STATUSTEXT)
 
 
 def _same(a: Any, b: Any) -> None:

@@ -24,6 +24,11 @@ nobody reads costs nothing; the ``get_*`` methods, ``to_dict`` and ``str`` answe
 pymavlink's message would (tests/test_codec.py checks every field and method). Building
 pymavlink's object (a dict of every field, the header object, two buffer copies) was most of
 a decode's cost.
+
+A sender on the hot path can build the LiteMessage itself (:func:`lite_class`, its wire-order
+values and :data:`UNSENT` for the frame): :meth:`FastCodec.pack` packs it with one
+``struct.pack`` of the tuple, into the bytes pymavlink's message with the same fields packs to
+(tests/test_codec.py), without pymavlink's constructor or the per-field attribute reads.
 """
 
 from __future__ import annotations
@@ -36,7 +41,7 @@ from typing import Any
 
 from tfl_mav.link.dialect import mav
 
-__all__ = ["HOT_MESSAGE_IDS", "FastCodec", "LiteMessage"]
+__all__ = ["HOT_MESSAGE_IDS", "UNSENT", "FastCodec", "LiteMessage", "lite_class"]
 
 HOT_MESSAGE_IDS = (
     mav.MAVLINK_MSG_ID_ODOMETRY,
@@ -56,6 +61,9 @@ _SIGN_BLOCK = struct.Struct("<BQ")
 _IFLAG_SIGNED = 0x01
 _SIGNATURE_LEN = 13
 _new_tuple = tuple.__new__
+UNSENT = bytes(10)
+"""The frame item of a LiteMessage built to be sent: a zero header, so ``get_srcSystem()``,
+``get_seq()``... answer 0, as an unsent pymavlink message's do."""
 
 _crc16: Callable[[bytes, int], int]
 if mav.mcrf4xx is not None:     # pymavlink's own choice: fastcrc's C implementation
@@ -133,8 +141,15 @@ class LiteMessage(tuple):  # type: ignore[type-arg]
     __repr__ = __str__
 
 
+_LITE_CLASSES: dict[type, type[LiteMessage]] = {}
+
+
 def _lite_class(cls: Any, where: dict[str, int], lengths: dict[str, int]) -> type[LiteMessage]:
-    """The LiteMessage subclass of one message class: a property per field."""
+    """The LiteMessage subclass of one message class: a property per field. One per message
+    class in the process (every codec shares it, so any codec packs what another built)."""
+    lite = _LITE_CLASSES.get(cls)
+    if lite is not None:
+        return lite
     attrs: dict[str, Any] = {"__slots__": (), "_msgid": cls.id, "_name": cls.msgname,
                              "_fieldnames": tuple(cls.fieldnames)}
     for name in cls.fieldnames:
@@ -143,7 +158,17 @@ def _lite_class(cls: Any, where: dict[str, int], lengths: dict[str, int]) -> typ
             attrs[name] = property(lambda m, i=i, j=i + n: list(m[i:j]))
         else:
             attrs[name] = property(itemgetter(i))
-    return type(f"Lite{cls.__name__}", (LiteMessage,), attrs)
+    lite = _LITE_CLASSES[cls] = type(f"Lite{cls.__name__}", (LiteMessage,), attrs)
+    return lite
+
+
+def lite_class(msgid: int) -> type[LiteMessage]:
+    """The LiteMessage class of hot message ``msgid``. A message to send is
+    ``tuple.__new__(cls, (*wire_order_values, UNSENT))``, arrays flattened in place, every
+    array element given (the wire order is pymavlink's ``ordered_fieldnames``)."""
+    if msgid not in HOT_MESSAGE_IDS:
+        raise ValueError(f"lite_class: message id {msgid} is not compiled")
+    return _Layout(mav.mavlink_map[msgid]).lite
 
 
 class _Layout:
@@ -157,6 +182,7 @@ class _Layout:
         self.crc_extra_byte = bytes([cls.crc_extra])
         self.size = cls.unpacker.size
         self.unpack = cls.unpacker.unpack
+        self.pack_wire: Callable[..., bytes] = cls.unpacker.pack   # the wire-order values
         # array_lengths is in wire order (ordered_fieldnames), fieldtypes in fieldnames order
         lengths = dict(zip(cls.ordered_fieldnames, cls.array_lengths, strict=True))
         # pack: the wire-ordered fields, arrays as their first n elements (pymavlink indexes
@@ -192,20 +218,27 @@ class FastCodec:
     def __init__(self, ids: tuple[int, ...] = HOT_MESSAGE_IDS) -> None:
         self.by_class: dict[type, _Layout] = {}
         self.by_id: dict[int, _Layout] = {}
+        self.by_lite: dict[type, _Layout] = {}
         for msgid in ids:
             layout = _Layout(mav.mavlink_map[msgid])
             self.by_class[layout.cls] = layout
             self.by_id[msgid] = layout
+            self.by_lite[layout.lite] = layout
 
     def pack(self, msg: Any, packer: Any) -> bytes | None:
         """The frame ``msg.pack(packer)`` would return (same bytes, same signing timestamp
         step), or None if ``msg`` is not a hot message (the caller uses pymavlink).
         Unlike pymavlink, ``msg`` is not modified (no ``_msgbuf``/``_header`` cached on it).
+        A :class:`LiteMessage` (:func:`lite_class`) is packed from its tuple.
         """
         layout = self.by_class.get(type(msg))
-        if layout is None:
-            return None
-        payload = layout.pack(msg)
+        if layout is not None:
+            payload = layout.pack(msg)
+        else:
+            layout = self.by_lite.get(type(msg))
+            if layout is None:
+                return None
+            payload = layout.pack_wire(*msg[:-1])
         trimmed = payload.rstrip(b"\x00") or payload[:1]   # MAVLink 2: ≥ 1 payload byte
         signing = packer.signing
         signed = signing.sign_outgoing
