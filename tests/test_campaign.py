@@ -163,7 +163,9 @@ def test_failing_runs_are_rows_with_reasons(tmp_path: Path) -> None:
     assert row["crashed"] is True and row["success"] is False
     assert row["reason"].startswith("crashed: ") and " at t = " in row["reason"]
 
-    slow = load_spec(_spec(tmp_path, 'name = "slow"\nduration_s = 2.0\ntimeout_s = 0.3\n',
+    # 30 s of flight cost seconds of CPU even at the offline loop's best (~6 simulated s
+    # per CPU s, bench/bench_controller.py): never done within 0.3 s, so it must time out.
+    slow = load_spec(_spec(tmp_path, 'name = "slow"\nduration_s = 30.0\ntimeout_s = 0.3\n',
                            "t.toml"))
     t0 = time.monotonic()
     run_campaign(slow, tmp_path / "t", workers=1, progress=False)
