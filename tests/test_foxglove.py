@@ -17,6 +17,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -143,22 +144,33 @@ def test_live_websocket_serves_the_scene_while_it_flies(tmp_path):
                 assert (ch["schemaName"], ch["encoding"]) == (name, "protobuf")
                 _check_schema(name, base64.b64decode(ch["schema"]))
             subs = {1: "/tf", 2: "/scene/vehicle", 3: "/scene/path"}
-            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
-                {"id": i, "channelId": channels[t]["id"]} for i, t in subs.items()]}))
             got: dict[str, list] = {t: [] for t in subs.values()}
-            deadline = time.monotonic() + 20.0
-            # the path is re-sent with every flush (1 s); /tf and the vehicle at 50 Hz
-            while not (len(got["/tf"]) >= 20 and got["/scene/vehicle"] and got["/scene/path"]):
-                assert time.monotonic() < deadline, {t: len(v) for t, v in got.items()}
-                msg = ws.recv(timeout=20)
-                if isinstance(msg, str):
-                    continue
-                op, sub_id, ts_ns = struct.unpack_from("<BIQ", msg)
-                assert op == 1
-                topic = subs[sub_id]
-                cls = FrameTransform if topic == "/tf" else SceneUpdate
-                decoded = cls.FromString(msg[13:])
-                got[topic].append((ts_ns, decoded))
+
+            def subscribe(ids: tuple[int, ...]) -> None:
+                ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                    {"id": i, "channelId": channels[subs[i]]["id"]} for i in ids]}))
+
+            def receive_until(done: Any) -> None:
+                deadline = time.monotonic() + 20.0
+                while not done():
+                    assert time.monotonic() < deadline, {t: len(v) for t, v in got.items()}
+                    msg = ws.recv(timeout=20)
+                    if isinstance(msg, str):
+                        continue
+                    op, sub_id, ts_ns = struct.unpack_from("<BIQ", msg)
+                    assert op == 1
+                    topic = subs[sub_id]
+                    cls = FrameTransform if topic == "/tf" else SceneUpdate
+                    got[topic].append((ts_ns, cls.FromString(msg[13:])))
+
+            # The scene first, then /tf: in lockstep the flight runs ~2x real time, faster
+            # than this Python client reads, and the server drops what a slow client's queue
+            # cannot take; the small /tf messages (50 Hz of sim time) could crowd out every
+            # larger SceneUpdate. The path is re-sent with every flush (1 s).
+            subscribe((2, 3))
+            receive_until(lambda: got["/scene/vehicle"] and got["/scene/path"])
+            subscribe((1,))
+            receive_until(lambda: len(got["/tf"]) >= 20)
     finally:
         for p in (fly, sim):
             if p is not None and p.poll() is None:
