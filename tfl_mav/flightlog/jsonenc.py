@@ -17,6 +17,7 @@ from typing import Any
 
 from tfl_mav.flightlog.schemas import NONFINITE_KEY
 from tfl_mav.link.dialect import mav
+from tfl_mav.link.payload import frame_payload
 
 __all__ = ["JsonEncoder", "MavJson", "RecordFormat", "all_finite", "drop_nonfinite"]
 
@@ -220,13 +221,7 @@ class MavJson:
                                          and "char" not in cls.fieldtypes else None)
         if plan is None:
             return None
-        size = plan.size
-        payload = raw[10:len(raw) - (15 if raw[2] & 0x01 else 2)]
-        n = len(payload)
-        if n < size:
-            payload = bytes(payload) + bytes(size - n)   # MAVLink 2 trims trailing zeros
-        elif n > size:
-            payload = payload[:size]
+        payload = frame_payload(raw, plan.size)
         try:
             t = plan.unpack(payload)
         except Exception:   # struct.error: the careful path counts it

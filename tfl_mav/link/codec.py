@@ -40,6 +40,7 @@ from operator import itemgetter
 from typing import Any
 
 from tfl_mav.link.dialect import mav
+from tfl_mav.link.payload import frame_payload
 
 __all__ = ["HOT_MESSAGE_IDS", "UNSENT", "FastCodec", "LiteMessage", "lite_class"]
 
@@ -272,14 +273,7 @@ class FastCodec:
             raise mav.MAVError(f"invalid MAVLink CRC in msgID {layout.msgid} 0x{crc:04x}")
         if sig_len:
             parser.signing.sig_count += 1
-        payload = raw[10:end]
-        size = layout.size
-        n = len(payload)
-        if n < size:
-            payload += bytes(size - n)
-        elif n > size:
-            payload = payload[:size]
-        d = layout.fields(layout.unpack(payload))
+        d = layout.fields(layout.unpack(frame_payload(raw, layout.size, end)))
         msgbuf = bytearray(raw)
         d["_msgbuf"] = msgbuf
         d["_payload"] = msgbuf[6:end]        # sic: pymavlink slices from 6, as here
@@ -303,10 +297,5 @@ class FastCodec:
             raise mav.MAVError(f"invalid MAVLink CRC in msgID {layout.msgid} 0x{crc:04x}")
         if sig_len:
             parser.signing.sig_count += 1
-        payload = raw[10:end]
-        short = layout.size - len(payload)
-        if short > 0:
-            payload += bytes(short)
-        elif short < 0:
-            payload = payload[:layout.size]
-        return _new_tuple(layout.lite, (*layout.unpack(payload), raw))
+        return _new_tuple(layout.lite, (*layout.unpack(frame_payload(raw, layout.size, end)),
+                                        raw))

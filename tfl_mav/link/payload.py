@@ -20,7 +20,7 @@ from typing import Any
 
 from tfl_mav.link.dialect import mav
 
-__all__ = ["FrameHeader", "PayloadDecoder", "frame_header"]
+__all__ = ["FrameHeader", "PayloadDecoder", "frame_header", "frame_payload"]
 
 _HEADER_LEN = 10
 _CRC_LEN = 2
@@ -42,6 +42,22 @@ def frame_header(raw: bytes) -> FrameHeader | None:
         return None
     return FrameHeader(raw[7] | raw[8] << 8 | raw[9] << 16, raw[5], raw[6], raw[4])
 
+
+
+def frame_payload(raw: bytes, size: int, end: int | None = None) -> bytes:
+    """The payload of the complete MAVLink 2 frame ``raw`` fitted to the message's ``size``
+    bytes: MAVLink 2 trims trailing zero bytes, so a short payload is zero-extended, and a
+    longer one (extension fields this dialect does not know) is cut. ``end``: where the
+    payload ends, if the caller already knows (else: before the CRC and any signature)."""
+    if end is None:
+        end = len(raw) - _CRC_LEN - (_SIGNATURE_LEN if raw[2] & 0x01 else 0)
+    payload = raw[_HEADER_LEN:end]
+    n = len(payload)
+    if n < size:
+        return bytes(payload) + bytes(size - n)
+    if n > size:
+        return payload[:size]
+    return payload
 
 def _plan(cls: Any) -> Callable[[tuple[Any, ...]], dict[str, Any]]:
     """A function mapping the unpacked wire tuple of ``cls`` to its field dict."""
@@ -92,14 +108,7 @@ class PayloadDecoder:
                 return None
             plan = self._plans[msgid] = (cls.unpacker.unpack, cls.unpacker.size, _plan(cls))
         unpack, size, reshape = plan
-        end = len(raw) - _CRC_LEN - (_SIGNATURE_LEN if raw[2] & 0x01 else 0)
-        payload = raw[_HEADER_LEN:end]
-        n = len(payload)
-        if n < size:
-            payload = bytes(payload) + bytes(size - n)   # MAVLink 2 trims trailing zeros
-        elif n > size:
-            payload = payload[:size]
         try:
-            return reshape(unpack(payload))
+            return reshape(unpack(frame_payload(raw, size)))
         except (struct.error, UnicodeError, IndexError):
             return None
