@@ -257,22 +257,32 @@ class FastCodec:
             signing.timestamp += 1
         return buf
 
-    def decode(self, raw: bytes, parser: Any) -> Any:
-        """What ``parser.decode(bytearray(raw))`` returns for a complete MAVLink 2 frame of a
-        hot message: the message, or ``mav.MAVError`` raised for a bad CRC. None if the
-        frame is not a hot message (the caller uses pymavlink). ``parser`` must not hold a
-        signing key (the link verifies signatures itself, before decoding)."""
+    def _checked(self, raw: bytes, parser: Any) -> tuple[Any, int, int] | None:
+        """(layout, payload end, CRC) of a hot message's frame whose CRC checks (counting a
+        signature as pymavlink's parser does), None if not a hot message; raises
+        ``mav.MAVError`` for a bad CRC, as pymavlink does."""
         layout = self.by_id.get(raw[7] | raw[8] << 8 | raw[9] << 16)
         if layout is None:
             return None
-        incompat = raw[2]
-        sig_len = _SIGNATURE_LEN if incompat & _IFLAG_SIGNED else 0
+        sig_len = _SIGNATURE_LEN if raw[2] & _IFLAG_SIGNED else 0
         end = len(raw) - 2 - sig_len
         crc = raw[end] | raw[end + 1] << 8
         if _crc16(layout.crc_extra_byte, _crc16(raw[1:end], 0xFFFF)) != crc:
             raise mav.MAVError(f"invalid MAVLink CRC in msgID {layout.msgid} 0x{crc:04x}")
         if sig_len:
             parser.signing.sig_count += 1
+        return layout, end, crc
+
+    def decode(self, raw: bytes, parser: Any) -> Any:
+        """What ``parser.decode(bytearray(raw))`` returns for a complete MAVLink 2 frame of a
+        hot message: the message, or ``mav.MAVError`` raised for a bad CRC. None if the
+        frame is not a hot message (the caller uses pymavlink). ``parser`` must not hold a
+        signing key (the link verifies signatures itself, before decoding)."""
+        checked = self._checked(raw, parser)
+        if checked is None:
+            return None
+        layout, end, crc = checked
+        incompat = raw[2]
         d = layout.fields(layout.unpack(frame_payload(raw, layout.size, end)))
         msgbuf = bytearray(raw)
         d["_msgbuf"] = msgbuf
@@ -287,15 +297,9 @@ class FastCodec:
     def decode_lite(self, raw: bytes, parser: Any) -> LiteMessage | None:
         """:meth:`decode`, with the same checks and errors, answering a :class:`LiteMessage`
         (``raw`` must be ``bytes``: the message keeps it)."""
-        layout = self.by_id.get(raw[7] | raw[8] << 8 | raw[9] << 16)
-        if layout is None:
+        checked = self._checked(raw, parser)
+        if checked is None:
             return None
-        sig_len = _SIGNATURE_LEN if raw[2] & _IFLAG_SIGNED else 0
-        end = len(raw) - 2 - sig_len
-        crc = raw[end] | raw[end + 1] << 8
-        if _crc16(layout.crc_extra_byte, _crc16(raw[1:end], 0xFFFF)) != crc:
-            raise mav.MAVError(f"invalid MAVLink CRC in msgID {layout.msgid} 0x{crc:04x}")
-        if sig_len:
-            parser.signing.sig_count += 1
+        layout, end, _crc = checked
         return _new_tuple(layout.lite, (*layout.unpack(frame_payload(raw, layout.size, end)),
                                         raw))
