@@ -24,6 +24,7 @@ from harness.campaign.run import execute, run_isolated
 from harness.campaign.spec import Run
 from harness.offline import fly_offline
 from tfl_mav.flightlog.flight import summarize
+from tfl_mav.flightlog.metrics import detection, detection_from_alarms
 from tfl_mav.scenario import apply_overrides, load_scenario
 from tools.cli import main
 
@@ -63,6 +64,19 @@ def test_offline_run_is_fly_offline_bit_for_bit() -> None:
                 assert value == direct[key], key        # exact: same flight, same floats
         assert row["detected_rotor"] == 3 and row["false_alarms"] == 0
         assert 0.0 <= row["detection_latency_s"] < 0.05   # alarms within a few 1 ms ticks
+
+
+def test_offline_and_mavlink_runs_judge_detection_alike() -> None:
+    """An offline campaign run reads the detector's alarms (events) with the definition the
+    MAVLink demo uses on the per-tick series: the first alarm at or after the attack."""
+    alarms = [(0.5, 3), (2.1, 2), (5.0, 1)]          # early, right, later wrong
+    from_alarms = detection_from_alarms(alarms, 2, 2.0)
+    t = [i * 0.1 for i in range(61)]
+    series = [next((r for ta, r in reversed(alarms) if ta <= ti + 1e-12 and ti < ta + 0.3), 0)
+              for ti in t]
+    assert from_alarms == detection(t, series, 2, 2.0)
+    assert from_alarms["detected_rotor"] == 2 and from_alarms["false_alarms"] == 2
+    assert from_alarms["detection_latency_s"] == pytest.approx(0.1)
 
 
 def test_run_outcome_reasons() -> None:

@@ -87,29 +87,15 @@ def execute(run: Run) -> dict[str, Any]:
 def _fly_offline(sc: Scenario, run: Run) -> dict[str, Any]:
     from harness.offline import detections, fly_offline
     from tfl_mav.flightlog.flight import summarize
+    from tfl_mav.flightlog.metrics import detection_from_alarms
 
     log = fly_offline(sc, attack_info=run.attack_info)
     metrics = summarize(log)
     if run.attack_info == "detector":
-        metrics.update(detection_metrics(sc, detections(log)))
+        # The same definition as the MAVLink demo's (first alarm at or after the attack).
+        metrics.update(detection_from_alarms(detections(log), sc.attack.rotor,
+                                             sc.attack.start_s))
     return metrics
-
-
-def detection_metrics(sc: Scenario, alarms: list[tuple[float, int]]) -> dict[str, Any]:
-    """``tfl-mav demo``'s detection columns from the detector's alarms (time s, rotor).
-
-    As the daemon reports it, the detection is the last alarm; an alarm on a rotor that is
-    not attacked, or before the attack started, is a false alarm.
-    """
-    attacked, start = sc.attack.rotor, sc.attack.start_s
-    false = sum(1 for t, r in alarms if not attacked or r != attacked or t < start - 1e-9)
-    if not alarms:
-        return {"detected_rotor": 0, "detection_time_s": None, "detection_latency_s": None,
-                "false_alarms": false}
-    t_s, rotor = alarms[-1]
-    latency = t_s - start if attacked and rotor == attacked else None
-    return {"detected_rotor": rotor, "detection_time_s": t_s, "detection_latency_s": latency,
-            "false_alarms": false}
 
 
 def _fly_mavlink(sc: Scenario, run: Run) -> dict[str, Any]:

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 __all__ = ["DEFAULT_BOUND_M", "DEFAULT_WINDOW_S", "Convergence", "converged", "detection",
-           "flight_verdict", "saturated_fraction"]
+           "detection_from_alarms", "flight_verdict", "saturated_fraction"]
 
 DEFAULT_WINDOW_S = 10.0
 DEFAULT_BOUND_M = 0.02
@@ -104,6 +104,13 @@ def detection(t_s: Sequence[float], detected_rotor: Sequence[int], attack_rotor:
         if r and not prev:
             alarms.append((float(t), r))
         prev = r
+    return detection_from_alarms(alarms, attack_rotor, attack_start_s)
+
+
+def detection_from_alarms(alarms: Sequence[tuple[float, int]], attack_rotor: int,
+                          attack_start_s: float | None) -> dict[str, Any]:
+    """:func:`detection` from the alarms themselves, (time s, rotor 1-4) in order — what an
+    offline flight's events hold (no per-tick series)."""
     start = attack_start_s if attack_start_s is not None and math.isfinite(
         attack_start_s) else None
     late = [a for a in alarms if attack_rotor and (start is None or a[0] >= start - 1e-9)]
