@@ -101,6 +101,46 @@ def test_a_port_in_use_is_a_one_line_error(tmp_path):
     assert "Traceback" not in err
 
 
+def test_the_scene_is_advertised_on_connect_and_is_the_channel_the_recorder_gets():
+    """A viewer that connects before anything is written already has the scene channels
+    (channels made mid-connection can be refused by foxglove-sdk, see
+    :mod:`tfl_mav.flightlog.live`); the recorder's later ``channel()`` for one of them is that
+    same channel: what is logged on it reaches the viewer's subscription."""
+    from websockets.sync.client import connect
+
+    from tfl_mav.flightlog import foxglove as fg
+    from tfl_mav.flightlog.live import SCENE_TOPICS, LiveServer
+
+    server = LiveServer("127.0.0.1", 0)
+    try:
+        with connect(f"ws://127.0.0.1:{server.port}", open_timeout=10,
+                     subprotocols=["foxglove.websocket.v1", "foxglove.sdk.v1"]) as ws:
+            ops = [json.loads(ws.recv(timeout=10)) for _ in range(2)]
+            assert [op["op"] for op in ops] == ["serverInfo", "advertise"]
+            channels = {ch["topic"]: ch for ch in ops[1]["channels"]}
+            assert channels.keys() == SCENE_TOPICS.keys()
+            for topic, name in SCENE_TOPICS.items():
+                assert channels[topic]["schemaName"] == name
+                _check_schema(name, base64.b64decode(channels[topic]["schema"]))
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": 7, "channelId": channels["/tf"]["id"]}]}))
+            tf = server.channel("/tf", *fg.schema("foxglove.FrameTransform"), "protobuf")
+            data = fg.frame_transform(123, [1.0, 2.0, 3.0], [1.0, 0.0, 0.0, 0.0])
+            deadline = time.monotonic() + 10.0
+            while True:                         # the subscription lands asynchronously
+                assert time.monotonic() < deadline, "nothing on /tf"
+                tf.log(data, log_time=123)
+                try:
+                    msg = ws.recv(timeout=0.1)
+                except TimeoutError:
+                    continue
+                assert isinstance(msg, bytes), msg     # a status here: refused
+                break
+            assert struct.unpack_from("<BIQ", msg) == (1, 7, 123) and msg[13:] == data
+    finally:
+        server.close()
+
+
 @pytest.mark.slow
 def test_live_websocket_serves_the_scene_while_it_flies(tmp_path):
     """A real Foxglove WebSocket client on a running flight (``tfl-mav sim --foxglove``
