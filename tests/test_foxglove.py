@@ -17,7 +17,6 @@ import subprocess
 import sys
 import time
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 import pytest
@@ -102,13 +101,55 @@ def test_a_port_in_use_is_a_one_line_error(tmp_path):
     assert "Traceback" not in err
 
 
+def test_the_scene_is_advertised_on_connect_and_is_the_channel_the_recorder_gets():
+    """A viewer that connects before anything is written already has the scene channels
+    (channels made mid-connection can be refused by foxglove-sdk, see
+    :mod:`tfl_mav.flightlog.live`); the recorder's later ``channel()`` for one of them is that
+    same channel: what is logged on it reaches the viewer's subscription."""
+    from websockets.sync.client import connect
+
+    from tfl_mav.flightlog import foxglove as fg
+    from tfl_mav.flightlog.live import SCENE_TOPICS, LiveServer
+
+    server = LiveServer("127.0.0.1", 0)
+    try:
+        with connect(f"ws://127.0.0.1:{server.port}", open_timeout=10,
+                     subprotocols=["foxglove.websocket.v1", "foxglove.sdk.v1"]) as ws:
+            ops = [json.loads(ws.recv(timeout=10)) for _ in range(2)]
+            assert [op["op"] for op in ops] == ["serverInfo", "advertise"]
+            channels = {ch["topic"]: ch for ch in ops[1]["channels"]}
+            assert channels.keys() == SCENE_TOPICS.keys()
+            for topic, name in SCENE_TOPICS.items():
+                assert channels[topic]["schemaName"] == name
+                _check_schema(name, base64.b64decode(channels[topic]["schema"]))
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": 7, "channelId": channels["/tf"]["id"]}]}))
+            tf = server.channel("/tf", *fg.schema("foxglove.FrameTransform"), "protobuf")
+            data = fg.frame_transform(123, [1.0, 2.0, 3.0], [1.0, 0.0, 0.0, 0.0])
+            deadline = time.monotonic() + 10.0
+            while True:                         # the subscription lands asynchronously
+                assert time.monotonic() < deadline, "nothing on /tf"
+                tf.log(data, log_time=123)
+                try:
+                    msg = ws.recv(timeout=0.1)
+                except TimeoutError:
+                    continue
+                assert isinstance(msg, bytes), msg     # a status here: refused
+                break
+            assert struct.unpack_from("<BIQ", msg) == (1, 7, 123) and msg[13:] == data
+    finally:
+        server.close()
+
+
 @pytest.mark.slow
 def test_live_websocket_serves_the_scene_while_it_flies(tmp_path):
     """A real Foxglove WebSocket client on a running flight (``tfl-mav sim --foxglove``
     flown by ``tfl-mav fly``, lockstep: a loaded machine cannot crash it by falling behind
-    the wall clock, and it runs near real time anyway): the FrameTransform and SceneUpdate
-    channels are advertised with the official schemas; subscribed, their messages decode
-    with the official protobuf classes and follow the flight."""
+    the wall clock), connected before the flight starts, as a viewer waiting for it is: the
+    scene channels are advertised on connect (not mid-flight, where foxglove-sdk can refuse
+    an immediate subscription, see :mod:`tfl_mav.flightlog.live`) with the official schemas;
+    subscribed at once, as Foxglove subscribes, their messages decode with the official
+    protobuf classes and follow the flight, and the server reports no error."""
     from websockets.sync.client import connect
 
     ws_port, seconds = _free_port(), 60.0      # ended by SIGTERM once the client has seen it
@@ -116,27 +157,35 @@ def test_live_websocket_serves_the_scene_while_it_flies(tmp_path):
                "--foxglove", f"127.0.0.1:{ws_port}", stdout=subprocess.PIPE,
                stderr=subprocess.DEVNULL)
     fly = None
+    statuses: list[dict] = []                   # the server's status messages (errors)
     try:
         assert sim.stdout is not None
         line = sim.stdout.readline()
         assert "listening on" in line, line
         udp_port = int(line.split("listening on ")[1].split()[0].rsplit(":", 1)[1])
-        fly = _cli("fly", "--vehicle", f"127.0.0.1:{udp_port}", "--duration",
-                   f"{seconds:g}", "--quiet", stdout=subprocess.DEVNULL,
-                   stderr=subprocess.DEVNULL)
         # Foxglove's WebSocket protocol: "foxglove.websocket.v1" is its historical name;
         # foxglove-sdk >= 0.30 negotiates it as "foxglove.sdk.v1" (same messages)
         with connect(f"ws://127.0.0.1:{ws_port}", open_timeout=10,
                      subprotocols=["foxglove.websocket.v1", "foxglove.sdk.v1"]) as ws:
             assert ws.subprotocol in ("foxglove.websocket.v1", "foxglove.sdk.v1")
             channels: dict[str, dict] = {}
-            deadline = time.monotonic() + 20.0
-            while not {"/tf", "/scene/vehicle", "/scene/path"} <= channels.keys():
-                assert time.monotonic() < deadline, f"advertised only {sorted(channels)}"
-                msg = ws.recv(timeout=20)
-                if isinstance(msg, str) and json.loads(msg)["op"] == "advertise":
-                    for ch in json.loads(msg)["channels"]:
-                        channels[ch["topic"]] = ch
+
+            def text(msg: str) -> dict:
+                op = json.loads(msg)
+                if op["op"] == "advertise":
+                    channels.update((ch["topic"], ch) for ch in op["channels"])
+                elif op["op"] == "status":
+                    statuses.append(op)
+                return op
+
+            # on connect: serverInfo, then one advertise of every channel there is (batches
+            # of 100); the flight has not started, yet the scene is there
+            while text(ws.recv(timeout=20))["op"] != "advertise":
+                pass
+            assert {"/tf", "/scene/vehicle", "/scene/path"} <= channels.keys(), sorted(channels)
+            fly = _cli("fly", "--vehicle", f"127.0.0.1:{udp_port}", "--duration",
+                       f"{seconds:g}", "--quiet", stdout=subprocess.DEVNULL,
+                       stderr=subprocess.DEVNULL)
             for topic, name in (("/tf", "foxglove.FrameTransform"),
                                 ("/scene/vehicle", "foxglove.SceneUpdate"),
                                 ("/scene/path", "foxglove.SceneUpdate")):
@@ -145,37 +194,30 @@ def test_live_websocket_serves_the_scene_while_it_flies(tmp_path):
                 _check_schema(name, base64.b64decode(ch["schema"]))
             subs = {1: "/tf", 2: "/scene/vehicle", 3: "/scene/path"}
             got: dict[str, list] = {t: [] for t in subs.values()}
-
-            def subscribe(ids: tuple[int, ...]) -> None:
-                ws.send(json.dumps({"op": "subscribe", "subscriptions": [
-                    {"id": i, "channelId": channels[subs[i]]["id"]} for i in ids]}))
-
-            def receive_until(done: Any) -> None:
-                deadline = time.monotonic() + 20.0
-                while not done():
-                    assert time.monotonic() < deadline, {t: len(v) for t, v in got.items()}
-                    msg = ws.recv(timeout=20)
-                    if isinstance(msg, str):
-                        continue
-                    op, sub_id, ts_ns = struct.unpack_from("<BIQ", msg)
-                    assert op == 1
-                    topic = subs[sub_id]
-                    cls = FrameTransform if topic == "/tf" else SceneUpdate
-                    got[topic].append((ts_ns, cls.FromString(msg[13:])))
-
-            # The scene first, then /tf: in lockstep the flight runs ~2x real time, faster
-            # than this Python client reads, and the server drops what a slow client's queue
-            # cannot take; the small /tf messages (50 Hz of sim time) could crowd out every
-            # larger SceneUpdate. The path is re-sent with every flush (1 s).
-            subscribe((2, 3))
-            receive_until(lambda: got["/scene/vehicle"] and got["/scene/path"])
-            subscribe((1,))
-            receive_until(lambda: len(got["/tf"]) >= 20)
+            ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+                {"id": i, "channelId": channels[t]["id"]} for i, t in subs.items()]}))
+            # /tf and the vehicle at 50 Hz of sim time, the path with every flush (1 s); in
+            # lockstep the flight runs faster than real time and a slow client loses the
+            # oldest messages (the SDK's per-client queue, 1024), never a whole channel
+            deadline = time.monotonic() + 30.0
+            while not (len(got["/tf"]) >= 20 and got["/scene/vehicle"] and got["/scene/path"]):
+                assert time.monotonic() < deadline, ({t: len(v) for t, v in got.items()},
+                                                     statuses)
+                msg = ws.recv(timeout=20)
+                if isinstance(msg, str):
+                    text(msg)
+                    continue
+                op, sub_id, ts_ns = struct.unpack_from("<BIQ", msg)
+                assert op == 1
+                topic = subs[sub_id]
+                cls = FrameTransform if topic == "/tf" else SceneUpdate
+                got[topic].append((ts_ns, cls.FromString(msg[13:])))
     finally:
         for p in (fly, sim):
             if p is not None and p.poll() is None:
                 p.terminate()                   # a clean stop (SIGTERM): exit 143
                 p.wait(timeout=60)
+    assert not statuses, statuses               # e.g. "Unknown channel ID: 2"
     tfs = got["/tf"]
     assert all(tf.child_frame_id == "base_link" for _, tf in tfs)
     # the vehicle moves: positions are finite and the log times increase

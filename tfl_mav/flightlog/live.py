@@ -5,13 +5,28 @@ The Foxglove app connects with "Open connection" → ``ws://HOST:PORT`` (subprot
 same schemas and the same message bytes. It runs inside the recorder (in the recorder's
 child process for ``sim``/``fly``), so the flight loop never waits for a viewer: the
 server's own threads send, and a slow viewer loses messages, not the loop's time.
+
+The scene is advertised before anyone connects. foxglove-sdk (checked on 0.30.3) advertises a
+channel created while a viewer is connected *before* it records the channel for that viewer
+(``ConnectedClient::advertise_channels``: send, then insert), so a viewer that subscribes at
+once (Foxglove does, for every topic its layout shows) can be refused ("Unknown channel ID",
+a status message) and then never gets that channel: a vehicle missing for the whole flight.
+Channels that exist when a viewer connects are recorded before its messages are read, so
+``/tf``, ``/scene/vehicle``, ``/scene/path`` and ``/log`` (Foxglove's well-known types, fixed
+schemas) are created with the server; the recorder's later ``channel()`` for one of them
+gets that channel back. Channels first seen mid-flight (MAVLink and JSON topics) still
+depend on the SDK; a viewer refused one sees the status error and recovers by reconnecting.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-__all__ = ["LiveServer", "parse_live_address"]
+__all__ = ["SCENE_TOPICS", "LiveServer", "parse_live_address"]
+
+#: Advertised from the start (see the module docstring): topic → Foxglove schema name.
+SCENE_TOPICS = {"/tf": "foxglove.FrameTransform", "/scene/vehicle": "foxglove.SceneUpdate",
+                "/scene/path": "foxglove.SceneUpdate", "/log": "foxglove.Log"}
 
 
 def parse_live_address(text: str, option: str = "--foxglove") -> tuple[str, int]:
@@ -29,14 +44,20 @@ def parse_live_address(text: str, option: str = "--foxglove") -> tuple[str, int]
 
 
 class LiveServer:
-    """One Foxglove WebSocket server on (host, port); raises OSError (one line) if the port
-    cannot be bound."""
+    """One Foxglove WebSocket server on (host, port), the scene channels already advertised;
+    raises OSError (one line) if the port cannot be bound."""
 
     def __init__(self, host: str, port: int, name: str = "tfl-mav") -> None:
         import foxglove
 
+        from tfl_mav.flightlog import foxglove as fg
+
         self._fg = foxglove
         self._context = foxglove.Context()      # this server's channels only
+        # before the server accepts anyone: no viewer can see these advertised too early
+        self._channels: dict[str, tuple[tuple[str, str, bytes, str], Any]] = {}
+        for topic, type_name in SCENE_TOPICS.items():
+            self.channel(topic, *fg.schema(type_name), "protobuf")
         try:
             self._server = foxglove.start_server(name=name, host=host, port=port,
                                                  context=self._context)
@@ -48,12 +69,18 @@ class LiveServer:
 
     def channel(self, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes,
                 message_encoding: str) -> Any:
-        """A channel advertised to every viewer; ``.log(data, log_time=ns)`` publishes."""
-        return self._fg.Channel(topic, message_encoding=message_encoding,
-                                schema=self._fg.Schema(name=schema_name,
-                                                       encoding=schema_encoding,
-                                                       data=schema_data),
-                                context=self._context)
+        """A channel advertised to every viewer; ``.log(data, log_time=ns)`` publishes. The
+        same topic with the same schema is the same channel (the scene's, made at start)."""
+        key = (schema_name, schema_encoding, bytes(schema_data), message_encoding)
+        known = self._channels.get(topic)
+        if known is not None and known[0] == key:
+            return known[1]
+        ch = self._fg.Channel(topic, message_encoding=message_encoding,
+                              schema=self._fg.Schema(name=schema_name, encoding=schema_encoding,
+                                                     data=schema_data),
+                              context=self._context)
+        self._channels[topic] = (key, ch)
+        return ch
 
     def close(self) -> None:
         self._server.stop()
