@@ -137,6 +137,10 @@ class _Sink:
 
     def __init__(self) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        # Room for a whole replay (2 401 datagrams, ~1 KiB of kernel memory each): this
+        # thread shares the GIL with the replay it drains, and on a loaded machine the
+        # default ~208 KiB overflowed (frames lost at ~1 000), which is the test's fault.
+        self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
         self.sock.bind(("127.0.0.1", 0))
         self.sock.settimeout(0.05)
         self.port = self.sock.getsockname()[1]
