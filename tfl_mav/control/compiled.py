@@ -23,7 +23,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from tfl_mav.control.jetcode import TRACE_LIB, Kernel, Sym, TJet, TraceError, compile_kernel
+from tfl_mav.control.jetcode import TRACE_LIB, Sym, TJet, TraceError
+from tfl_mav.control.kernelgen import Kernel, compile_kernel
 from tfl_mav.control.paths import Path
 from tfl_mav.control.tracker import (
     MIN_TUBE_MARGIN,
@@ -65,7 +66,7 @@ def _coeffs(x: Any, n: int) -> tuple[Any, ...]:
 
 def compile_path(path: Path, *, inline: bool = True) -> PathKernels:
     """Trace ``path`` into its kernels; :class:`TraceError` if its code cannot be traced.
-    (``inline``: as :func:`jetcode.compile_kernel`, False only to test that it changes
+    (``inline``: as :func:`kernelgen.compile_kernel`, False only to test that it changes
     nothing.)"""
     if path.source is not None:
         s_exprs, sig_exprs = path.source
