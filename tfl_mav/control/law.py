@@ -46,6 +46,14 @@ from tfl_mav.control.allocation import (
 )
 from tfl_mav.control.compiled import make_tracker
 from tfl_mav.control.estimators import MassEstimator, RateDisturbanceObserver
+from tfl_mav.control.law_math import (
+    b0_inverse,
+    cofactors,
+    cramer,
+    linear_rhs,
+    output_rows,
+    torques,
+)
 from tfl_mav.control.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
 from tfl_mav.control.paths import Path
 from tfl_mav.control.tracker import VirtualOutput
@@ -66,21 +74,11 @@ def _floats(x: Sequence[float]) -> Sequence[float]:
 
 def _solve3(A: Sequence[Sequence[float]], b: Sequence[float]) -> tuple[list[float], float]:
     """Solve a 3×3 system by Cramer's rule; returns (x, |det| relative to the row norms)."""
-    (a, b_, c), (d, e, f), (g, h, i) = A
-    co0 = e * i - f * h
-    co1 = f * g - d * i
-    co2 = d * h - e * g
-    det = a * co0 + b_ * co1 + c * co2
-    norms = (math.sqrt(a * a + b_ * b_ + c * c) * math.sqrt(d * d + e * e + f * f)
-             * math.sqrt(g * g + h * h + i * i))
+    co0, co1, co2, det, norms = cofactors(A, math.sqrt)
     rel = abs(det) / norms if norms > 0 else 0.0
     if rel < 1e-12:
         return [0.0, 0.0, 0.0], rel
-    inv = 1.0 / det
-    x0 = (b[0] * co0 + b[1] * (c * h - b_ * i) + b[2] * (b_ * f - c * e)) * inv
-    x1 = (b[0] * co1 + b[1] * (a * i - c * g) + b[2] * (c * d - a * f)) * inv
-    x2 = (b[0] * co2 + b[1] * (b_ * g - a * h) + b[2] * (a * e - b_ * d)) * inv
-    return [x0, x1, x2], rel
+    return list(cramer(A, b, co0, co1, co2, 1.0 / det)), rel
 
 
 class TFLController:
@@ -255,36 +253,11 @@ class TFLController:
     def _output_taylor(self, y: Sequence[float], v: Sequence[float], b1: Sequence[float],
                        b2: Sequence[float], b3: Sequence[float], pc: float, qc: float,
                        rc: float, mass: float) -> tuple[tuple[float, ...], ...]:
-        """Taylor rows (y, ẏ, ÿ/2, y⃛/6, a₀/24) of the output y = x_q (eq. (5)) from the
-        model (eq. (3)) with the extension x13 = u_f, x14 = u̇_f (eq. (9)): ÿ = (u_f/m) b3
-        − g e3 − (k_t/m) ẏ, and a₀ = y⁽⁴⁾ at ü_f = ṗ = q̇ = 0 (the drift L_f⁴ of eq. (10))."""
-        uf, duf = self.x13, self.x14
-        kt = self.model.k_t / mass
-        ufm = uf / mass
-        dufm = duf / mass
-        dufm2 = 2.0 * duf / mass
-        pr, qr = pc * rc, qc * rc
-        pq2 = pc * pc + qc * qc
-        b1x, b1y, b1z = b1
-        b2x, b2y, b2z = b2
-        b3x, b3y, b3z = b3
-        vx, vy, vz = v
-        # x, y, z written out (this runs every tick); the same operations as one loop.
-        yddx = ufm * b3x - kt * vx
-        yddy = ufm * b3y - kt * vy
-        yddz = ufm * b3z - kt * vz - self.model.gravity_mps2
-        db3x = qc * b1x - pc * b2x
-        db3y = qc * b1y - pc * b2y
-        db3z = qc * b1z - pc * b2z
-        ydddx = dufm * b3x + ufm * db3x - kt * yddx
-        ydddy = dufm * b3y + ufm * db3y - kt * yddy
-        ydddz = dufm * b3z + ufm * db3z - kt * yddz
-        a0x = dufm2 * db3x + ufm * (pr * b1x + qr * b2x - pq2 * b3x) - kt * ydddx
-        a0y = dufm2 * db3y + ufm * (pr * b1y + qr * b2y - pq2 * b3y) - kt * ydddy
-        a0z = dufm2 * db3z + ufm * (pr * b1z + qr * b2z - pq2 * b3z) - kt * ydddz
-        return ((y[0], vx, yddx / 2.0, ydddx / 6.0, a0x / 24.0),
-                (y[1], vy, yddy / 2.0, ydddy / 6.0, a0y / 24.0),
-                (y[2], vz, yddz / 2.0, ydddz / 6.0, a0z / 24.0))
+        """Taylor rows of the output y = x_q (eq. (5)) from the model (eqs. (3), (9)):
+        :func:`law_math.output_rows`."""
+        m = self.model
+        return output_rows(y, v, b1, b2, b3, pc, qc, rc, self.x13, self.x14, mass, m.k_t,
+                           m.gravity_mps2)
 
     def _decoupling_solve(self, vo: VirtualOutput, b1: Sequence[float], b2: Sequence[float],
                           b3: Sequence[float], mass: float, uf: float, duf: float,
@@ -295,10 +268,7 @@ class TFLController:
         cfg = self.cfg
         xi1, xi2, eta = vo.xi1, vo.xi2, vo.eta
         kx, ke = self.k_xi, self.k_eta
-        v_xi1 = -(kx[0] * xi1[0] + kx[1] * xi1[1] + kx[2] * xi1[2] + kx[3] * xi1[3])
-        v_xi2 = -(kx[0] * xi2[0] + kx[1] * xi2[1] + kx[2] * xi2[2] + kx[3] * xi2[3])
-        v_eta = -(ke[0] * (eta[1] - cfg.speed_mps) + ke[1] * eta[2] + ke[2] * eta[3])
-        rhs = (v_xi1 - xi1[4], v_xi2 - xi2[4], v_eta - eta[4])
+        rhs = linear_rhs(xi1, xi2, eta, kx, ke, cfg.speed_mps)
         reason = ""
         if not vo.in_tube:
             reason = f"left the projection tube: {vo.reason}"
@@ -310,10 +280,10 @@ class TFLController:
         if not reason and cond > cfg.max_cond:
             reason = f"decoupling matrix ill-conditioned (cond {cond:.1e})"
         # … then B₀ w = z with B₀ = [b3/m, −(u_f/m) b2, (u_f/m) b1]: orthogonal columns.
-        z0, z1, z2 = z
-        udd = mass * (z0 * b3[0] + z1 * b3[1] + z2 * b3[2])
-        pdot = -mass / uf * (z0 * b2[0] + z1 * b2[1] + z2 * b2[2]) if uf > 0 else 0.0
-        qdot = mass / uf * (z0 * b1[0] + z1 * b1[1] + z2 * b1[2]) if uf > 0 else 0.0
+        if uf > 0:
+            udd, pdot, qdot = b0_inverse(z, b1, b2, b3, mass, uf)
+        else:
+            udd, pdot, qdot = mass * (z[0] * b3[0] + z[1] * b3[1] + z[2] * b3[2]), 0.0, 0.0
         if not reason and not (math.isfinite(udd) and math.isfinite(pdot)
                                and math.isfinite(qdot)):
             reason = "non-finite control (numerical failure)"
@@ -329,9 +299,7 @@ class TFLController:
                  ) -> tuple[float, float]:
         """τ_p, τ_q for the demanded ṗ, q̇ by Euler's equation with rate damping (eq. (3))."""
         ix, iy, iz = self._ixyz
-        kr = self.model.k_r
-        return (ix * pdot + kr * pc + (iz - iy) * qc * rc,
-                iy * qdot + kr * qc + (ix - iz) * pc * rc)
+        return torques(pdot, qdot, pc, qc, rc, ix, iy, iz, self.model.k_r)
 
     def _allocate_attacked(self, uf: float, tau_p: float, tau_q: float,
                            bounds: Bounds | None) -> tuple[list[float], list[float]]:
