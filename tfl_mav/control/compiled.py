@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -33,11 +33,12 @@ from tfl_mav.control.tracker import (
     pi_rates,
 )
 
-__all__ = ["CompiledPathTracker", "PathKernels", "compile_path", "make_tracker"]
+__all__ = ["C_NAMES", "Y_NAMES", "CompiledPathTracker", "PathKernels", "compile_path",
+           "make_tracker", "trace_pi", "traced_sqrt"]
 
 _AXES = "xyz"
-_C_NAMES = [f"c{j}{a}" for j in range(6) for a in _AXES]          # σ⁽ʲ⁾/j!, j-major
-_Y_NAMES = [[f"{a}{k}" for k in range(5)] for a in _AXES]          # position Taylor rows
+C_NAMES = [f"c{j}{a}" for j in range(6) for a in _AXES]          # σ⁽ʲ⁾/j!, j-major
+Y_NAMES = [[f"{a}{k}" for k in range(5)] for a in _AXES]          # position Taylor rows
 _FACT = (1.0, 1.0, 2.0, 6.0, 24.0)                                 # as Jet.derivatives
 _NEWTON_ITERS = 20
 
@@ -49,6 +50,10 @@ class PathKernels:
     sigma2: Kernel
     sigma5: Kernel
     s4: Kernel
+    # What was traced, to trace again into a larger function (:mod:`fused`):
+    # trace_sigma(λ symbols, order) → σ's coefficients j-major; trace_s(x, y, z rows) → s4.
+    trace_sigma: Callable[[list[Sym], int], list[Any]] | None = None
+    trace_s: Callable[[list[Sym], list[Sym], list[Sym]], list[Any]] | None = None
 
     @property
     def build_s(self) -> float:
@@ -102,25 +107,31 @@ def compile_path(path: Path, *, inline: bool = True) -> PathKernels:
                            inline=inline),
             compile_kernel(f"sigma5_{name}", [["lam"]], lambda lam: trace_sigma(lam, 5),
                            inline=inline),
-            compile_kernel(f"s4_{name}", _Y_NAMES, trace_s, inline=inline))
+            compile_kernel(f"s4_{name}", Y_NAMES, trace_s, inline=inline),
+            trace_sigma, trace_s)
     except (TraceError, ValueError, ZeroDivisionError, OverflowError, TypeError,
             AttributeError) as exc:
         raise TraceError(f"path kind {path.kind!r} cannot be compiled: {exc}") from exc
 
 
+def traced_sqrt(x: Any) -> Any:
+    """math.sqrt on a float, a run-time call on a traced symbol."""
+    return x.tape.call("sqrt", x) if type(x) is Sym else math.sqrt(x)
+
+
+def trace_pi(c: list[Sym], x: list[Sym], y: list[Sym], z: list[Sym],
+             slope: list[Sym]) -> list[Any]:
+    """π̇ … π⁽⁴⁾ traced from :func:`tracker.pi_rates` (inputs as :data:`C_NAMES`, the
+    position's Taylor rows, the slope)."""
+    p = pi_rates(_rows(c), [x, y, z], slope[0], traced_sqrt)
+    # As Jet((π, p0, p1/2, p2/3, p3/4)).derivatives() in the reference.
+    return [p[0], p[1] / 2.0 * 2.0, p[2] / 3.0 * 6.0, p[3] / 4.0 * 24.0]
+
+
 @functools.cache
 def _pi_kernel(inline: bool = True) -> Kernel:
     """π's rates (path independent: made once a process)."""
-    def sqrt(x: Any) -> Any:
-        return x.tape.call("sqrt", x) if type(x) is Sym else math.sqrt(x)
-
-    def trace_pi(c: list[Sym], x: list[Sym], y: list[Sym], z: list[Sym],
-                 slope: list[Sym]) -> list[Any]:
-        p = pi_rates(_rows(c), [x, y, z], slope[0], sqrt)
-        # As Jet((π, p0, p1/2, p2/3, p3/4)).derivatives() in the reference.
-        return [p[0], p[1] / 2.0 * 2.0, p[2] / 3.0 * 6.0, p[3] / 4.0 * 24.0]
-
-    return compile_kernel("pi_rates", [_C_NAMES, *_Y_NAMES, ["slope"]], trace_pi,
+    return compile_kernel("pi_rates", [C_NAMES, *Y_NAMES, ["slope"]], trace_pi,
                           inline=inline)
 
 

@@ -52,7 +52,7 @@ from tfl_mav.control.series import (
     tan_like_series,
 )
 
-__all__ = ["TRACE_LIB", "Sym", "TJet", "Tape", "TraceError"]
+__all__ = ["RAW", "TRACE_LIB", "Sym", "TJet", "Tape", "TraceError"]
 
 
 class TraceError(ValueError):
@@ -73,6 +73,9 @@ def _lit(x: Any) -> str:
     return f"({v!r})" if v < 0.0 or (v == 0.0 and math.copysign(1.0, v) < 0.0) else repr(v)
 
 
+RAW = "\x00"   # marks a hand-written statement among a tape's lines
+
+
 class Tape:
     """Straight-line code being recorded: one assignment per distinct operation."""
 
@@ -84,6 +87,11 @@ class Tape:
 
     def input(self, name: str) -> Sym:
         return Sym(self, name)
+
+    def raw(self, text: str) -> None:
+        """A hand-written statement (indented, may span lines) at this point of the code:
+        control flow around the traced operations (:func:`kernelgen.trace_block`)."""
+        self.lines.append(RAW + text)
 
     def emit(self, expr: str) -> Sym:
         """The symbol holding ``expr``: recorded once, reused when met again."""
@@ -198,6 +206,11 @@ class Sym:
         if type(o) is not Sym and o == 1.0:
             return self
         return self.tape.emit(f"{self.name} / {_text(o)}")
+
+    def __pow__(self, o: Any) -> Any:
+        if type(o) is not int:
+            return NotImplemented   # only x ** 2 and the like: float powers go through pow
+        return self.tape.emit(f"{self.name} ** {o}")
 
     def __rtruediv__(self, o: Any) -> Any:
         return self.tape.emit(f"{_lit(o)} / {self.name}")

@@ -16,7 +16,7 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from tfl_mav.control.jetcode import _FUNCS, Tape, _text
+from tfl_mav.control.jetcode import _FUNCS, RAW, Tape, _text
 
 __all__ = ["KERNEL_GLOBALS", "Kernel", "compile_kernel", "compile_source", "trace_block"]
 
@@ -37,8 +37,28 @@ class Kernel:
 _INLINE_MAX_CHARS = 160     # longer expressions stay temporaries (bounded nesting)
 
 
-def _inline_single_use(lines: Sequence[str], outputs: Sequence[str], prefix: str = "t"
-                       ) -> tuple[list[str], list[str]]:
+# Division by a run-time value, a power, a math function (a literal divisor cannot raise).
+_MAY_RAISE = re.compile(r"/ (?!\(?-?\d)|\*\*|\b_[a-z]+\(")
+
+
+def _drop_dead(lines: Sequence[str], outputs: Sequence[str], temp: re.Pattern[str]
+               ) -> list[str]:
+    """``lines`` without the operations nothing reads (folded constants leave some); an
+    operation that may raise (division, power, a math function) is kept, so that a tick
+    fails exactly where the unfused kernels would."""
+    live = {tok for o in outputs for tok in temp.findall(o)}
+    kept = []
+    for line in reversed(lines):
+        name, _, expr = line.strip().partition(" = ")
+        if not (line.startswith(RAW) or name in live or _MAY_RAISE.search(expr)):
+            continue
+        live.update(temp.findall(line if line.startswith(RAW) else expr))
+        kept.append(line)
+    return kept[::-1]
+
+
+def _inline_single_use(lines: Sequence[str], outputs: Sequence[str], prefix: str = "t",
+                       drop_dead: bool = False) -> tuple[list[str], list[str]]:
     """The tape with each temporary that is used once written into its use, in
     parentheses: ``t3 = (a * b) + c`` instead of ``t2 = a * b`` / ``t3 = t2 + c``.
 
@@ -46,9 +66,12 @@ def _inline_single_use(lines: Sequence[str], outputs: Sequence[str], prefix: str
     same bit for bit; CPython just runs ~a third fewer instructions (no store and load per
     intermediate). A select's branches are never inlined into (the operands of ``a if c else
     b`` stay computed unconditionally, as the tape records them), and long expressions stay
-    temporaries so that nesting stays shallow. Temporaries are ``prefix`` + a number."""
+    temporaries so that nesting stays shallow. Temporaries are ``prefix`` + a number;
+    ``drop_dead``: see :func:`_drop_dead`."""
     temp = re.compile(rf"\b{re.escape(prefix)}\d+\b")
-    parsed = [ln.strip().split(" = ", 1) for ln in lines]
+    if drop_dead:
+        lines = _drop_dead(lines, outputs, temp)
+    parsed = [("", ln) if ln.startswith(RAW) else ln.strip().split(" = ", 1) for ln in lines]
     uses: dict[str, int] = {}
     for text in [expr for _, expr in parsed] + list(outputs):
         for tok in temp.findall(text):
@@ -59,7 +82,14 @@ def _inline_single_use(lines: Sequence[str], outputs: Sequence[str], prefix: str
         return temp.sub(lambda m: inline.pop(m.group(0), m.group(0)), text)
 
     out_lines = []
-    for name, expr in parsed:
+    for line, (name, expr) in zip(lines, parsed, strict=True):
+        if line.startswith(RAW):
+            # Hand-written code: what it reads is computed before it, on its own lines.
+            for tok in temp.findall(line):
+                if tok in inline:
+                    out_lines.append(f"    {tok} = {inline.pop(tok)[1:-1]}")
+            out_lines.extend(line[len(RAW):].split("\n"))
+            continue
         if " if " in expr:
             # A select: what it reads is computed on its own line first, unconditionally.
             for tok in temp.findall(expr):
@@ -114,14 +144,17 @@ def trace_block(prefix: str, inputs: Sequence[Sequence[str]],
                 indent: str = "    ") -> tuple[list[str], int]:
     """Straight-line lines computing ``outputs`` (local names) from the locals ``inputs``
     (groups, passed to ``trace`` as lists of symbols), temporaries named ``prefix`` + a
-    number; returns (lines indented by ``indent``, number of traced operations)."""
+    number; returns (lines indented by ``indent``, number of traced operations). ``trace``
+    may put hand-written statements between the operations (:meth:`jetcode.Tape.raw`,
+    indented by 4 as the top level of a function)."""
     tape = Tape(prefix)
     groups = [[tape.input(n) for n in group] for group in inputs]
     results = trace(*groups)
     if len(results) != len(outputs):
         raise ValueError(f"block {prefix!r}: {len(results)} results for {len(outputs)} names")
-    lines, ret = _inline_single_use(tape.lines, [_text(r) for r in results], prefix)
-    body = [ln.strip() for ln in lines]
-    body += [f"{name} = {expr}" for name, expr in zip(outputs, ret, strict=True)
+    lines, ret = _inline_single_use(tape.lines, [_text(r) for r in results], prefix,
+                                    drop_dead=True)
+    body = [indent + ln[4:] for ln in lines]    # _inline_single_use indents by 4
+    body += [f"{indent}{name} = {expr}" for name, expr in zip(outputs, ret, strict=True)
              if name != expr]
-    return [indent + ln for ln in body], len(tape.lines)
+    return body, len(tape.lines)

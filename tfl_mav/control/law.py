@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -44,8 +45,9 @@ from tfl_mav.control.allocation import (
     allocate_nominal,
     canonical_frame,
 )
-from tfl_mav.control.compiled import make_tracker
+from tfl_mav.control.compiled import CompiledPathTracker, make_tracker
 from tfl_mav.control.estimators import MassEstimator, RateDisturbanceObserver
+from tfl_mav.control.fused import build_fused
 from tfl_mav.control.law_math import (
     b0_inverse,
     cofactors,
@@ -96,6 +98,9 @@ class TFLController:
         self.cfg = cfg
         self.dt = dt_s
         self.tracker, self.path_eval = make_tracker(path, compiled_path)
+        self._fused_for = self.tracker    # the fused tick is made for this tracker only
+        self._fused = (build_fused(model, self.tracker.kernels).fn
+                       if type(self.tracker) is CompiledPathTracker else None)
         self.mass_kg = model.mass_kg
         self.x13 = model.mass_kg * model.gravity_mps2   # u_f
         self.x14 = 0.0                                  # u̇_f
@@ -195,11 +200,11 @@ class TFLController:
         b1, b2, b3, pc, qc, rc = self._canonical_axes(R, rates)
         mass = self._update_estimators(v, R, pc, qc)
         uf, duf = self.x13, self.x14
-        vo = self.tracker.virtual_output(self._output_taylor(y, v, b1, b2, b3, pc, qc, rc,
-                                                             mass))
-        reason, udd, pdot, qdot, cond = self._decoupling_solve(vo, b1, b2, b3, mass, uf, duf,
-                                                               pc, qc)
-        tau_p, tau_q = self._torques(pdot, qdot, pc, qc, rc)
+        core = self._fused_core(y, v, b1, b2, b3, pc, qc, rc, mass)
+        reason = ""
+        if core is None:   # not a fused tick (or a fallback one): step by step
+            core, reason = self._stepwise_core(y, v, b1, b2, b3, pc, qc, rc, mass)
+        udd, qdot, tau_p, tau_q, cond, xi, eta, lam, distance = core
         bounds = (self.lag_inverter.reachable(rotor_speed_radps)
                   if self.lag_inverter is not None else None)
         if self.frame is not None:
@@ -212,20 +217,46 @@ class TFLController:
             mode = _FALLBACK
         command, sat, applied_uf = self._saturate_and_apply(f, raw, pc, qc, rc)
         self._advance_extension(applied_uf, uf, duf, udd)
-        self._settle(vo, reason)
-        xi1, xi2, eta = vo.xi1, vo.xi2, vo.eta
+        self._settle(xi[0][0], xi[1][0], reason)
         iz, arm, den = self._mu2
         # ControlOutput's fields in order, built as the tuple it is (a keyword call of a
         # named tuple costs more than a microsecond a tick).
         return _new_output(ControlOutput, (
-            command, mode, sat, ((xi1[0], xi1[1], xi1[2], xi1[3]),
-                                 (xi2[0], xi2[1], xi2[2], xi2[3])),
-            (eta[0], eta[1], eta[2], eta[3]),
+            command, mode, sat, xi, eta,
             (math.atan2(R[1][0], R[0][0]), -rates[0] / iz - arm * rates[2] / den),
-            vo.distance_m, vo.lam, cond, uf, mass, (self.dob.d_p, self.dob.d_q), self.fine,
-            reason))
+            distance, lam, cond, uf, mass, (self.dob.d_p, self.dob.d_q), self.fine, reason))
 
     # ------------------------------------------------------------------ the steps
+    def _fused_core(self, y: Sequence[float], v: Sequence[float], b1: Sequence[float],
+                    b2: Sequence[float], b3: Sequence[float], pc: float, qc: float,
+                    rc: float, mass: float) -> tuple[Any, ...] | None:
+        """The middle of the tick as the flight's one generated function (:mod:`fused`):
+        the same numbers as :meth:`_stepwise_core`, or None where that one must run."""
+        trk = self.tracker
+        if self._fused is None or trk is not self._fused_for or trk.lam is None:
+            return None
+        try:
+            return self._fused(self, trk, y, v, b1, b2, b3, pc, qc, rc, mass)
+        except (ValueError, ZeroDivisionError, OverflowError):
+            return None   # nothing committed: the step-by-step tick says what failed
+
+    def _stepwise_core(self, y: Sequence[float], v: Sequence[float], b1: Sequence[float],
+                       b2: Sequence[float], b3: Sequence[float], pc: float, qc: float,
+                       rc: float, mass: float) -> tuple[tuple[Any, ...], str]:
+        """Model rows, virtual output, decoupling solve and torques, one step at a time
+        (any tracker; every fallback). Returns (ü_f, q̇, τ_p, τ_q, cond, ξ rows, η, λ,
+        distance) and the fallback reason ("" if none)."""
+        uf, duf = self.x13, self.x14
+        vo = self.tracker.virtual_output(self._output_taylor(y, v, b1, b2, b3, pc, qc, rc,
+                                                             mass))
+        reason, udd, pdot, qdot, cond = self._decoupling_solve(vo, b1, b2, b3, mass, uf, duf,
+                                                               pc, qc)
+        tau_p, tau_q = self._torques(pdot, qdot, pc, qc, rc)
+        xi1, xi2, eta = vo.xi1, vo.xi2, vo.eta
+        return (udd, qdot, tau_p, tau_q, cond,
+                ((xi1[0], xi1[1], xi1[2], xi1[3]), (xi2[0], xi2[1], xi2[2], xi2[3])),
+                (eta[0], eta[1], eta[2], eta[3]), vo.lam, vo.distance_m), reason
+
     def _canonical_axes(self, R: list[list[float]], rates: Sequence[float]
                         ) -> tuple[tuple[float, float, float], tuple[float, float, float],
                                    tuple[float, float, float], float, float, float]:
@@ -407,12 +438,12 @@ class TFLController:
         self.x13 += dt * self.x14 + 0.5 * dt * dt * udd
         self.x14 += dt * udd
 
-    def _settle(self, vo: VirtualOutput, reason: str) -> None:
+    def _settle(self, alpha1: float, alpha2: float, reason: str) -> None:
         """The robust law's one-time switch to the fine ξ, η poles once |α| has stayed
         below ``settle_alpha`` for ``settle_time_s``."""
         cfg = self.cfg
         if self._use_switch and not self.fine and not reason:
-            alpha_norm = math.hypot(vo.xi1[0], vo.xi2[0])
+            alpha_norm = math.hypot(alpha1, alpha2)
             self._settled_s = self._settled_s + self.dt if alpha_norm < cfg.settle_alpha \
                 else 0.0
             if self._settled_s >= cfg.settle_time_s:
