@@ -144,6 +144,9 @@ class TFLController:
         self.frame = frame
         m = self.model
         ix, iy, iz = m.inertia_kgm2
+        # Physical rotor of canonical rotor i (perm) and canonical index of physical rotor j.
+        self._perm = frame.perm if frame is not None else (0, 1, 2, 3)
+        self._inv_perm = tuple(self._perm.index(j) for j in range(4))
         if frame is None:
             self._axes = ((0, 1.0), (1, 1.0))
             self._ixyz = (ix, iy, iz)
@@ -198,7 +201,7 @@ class TFLController:
         if self.psi_ref is None:
             self.psi_ref = math.atan2(R[1][0], R[0][0])
         b1, b2, b3, pc, qc, rc = self._canonical_axes(R, rates)
-        mass = self._update_estimators(v, R, pc, qc)
+        mass = self._update_estimators(v, b3, pc, qc)
         uf, duf = self.x13, self.x14
         core = self._fused_core(y, v, b1, b2, b3, pc, qc, rc, mass)
         reason = ""
@@ -269,14 +272,13 @@ class TFLController:
         b3 = (r0[2], r1[2], r2[2])
         return b1, b2, b3, s1 * rates[m1], s2 * rates[m2], rates[2]
 
-    def _update_estimators(self, v: Sequence[float], R: list[list[float]], pc: float,
+    def _update_estimators(self, v: Sequence[float], b3: Sequence[float], pc: float,
                            qc: float) -> float:
         """Robust add-ons fed with what was applied over the last period; returns the mass
         (kg) the law uses this tick."""
         if self._use_mass:
             lo = self._last_out
-            self.mass_kg = self.mass_est.update(self.dt, v, lo[0] + lo[1] + lo[2] + lo[3],
-                                                (R[0][2], R[1][2], R[2][2]))
+            self.mass_kg = self.mass_est.update(self.dt, v, lo[0] + lo[1] + lo[2] + lo[3], b3)
         if self._use_dob and self._pred is not None:
             self.dob.update(self.dt, pc, qc, self._pred[0], self._pred[1])
         return self.mass_kg
@@ -337,21 +339,19 @@ class TFLController:
         """Rotor thrusts with f₂ = A (eq. (6)): τ_r from τ_p, rotor order restored.
         Returns (feasible thrusts, unbounded thrusts) in physical order."""
         m = self.model
-        frame = self.frame
-        assert frame is not None
         d = self._d
         a_n = self.attack_estimate_n
-        tau_r = d * (uf - 2.0 * (tau_p + 2.0 * m.arm_m * a_n) / m.arm_m)   # eq. (6)
-        raw_c = allocate_attacked(uf, tau_q, tau_r, a_n, m.arm_m, d)
-        perm = frame.perm
+        arm = m.arm_m
+        tau_r = d * (uf - 2.0 * (tau_p + 2.0 * arm * a_n) / arm)   # eq. (6)
+        raw = allocate_attacked(uf, tau_q, tau_r, a_n, arm, d)
+        perm = self._perm
         cb = None if bounds is None else tuple([b[phys] for phys in perm] for b in bounds)
-        canon = allocate_attacked(uf, tau_q, tau_r, a_n, m.arm_m, d, m.thrust_max_n,
-                                  cb)  # type: ignore[arg-type]
-        f = [0.0] * 4
-        raw = [0.0] * 4
-        for i, phys in enumerate(perm):
-            f[phys] = canon[i]
-            raw[phys] = raw_c[i]
+        f = allocate_attacked(uf, tau_q, tau_r, a_n, arm, d, m.thrust_max_n,
+                              cb)  # type: ignore[arg-type]
+        i0, i1, i2, i3 = self._inv_perm
+        if i0:   # not rotor 2 itself: back to the physical order
+            f = [f[i0], f[i1], f[i2], f[i3]]
+            raw = [raw[i0], raw[i1], raw[i2], raw[i3]]
         return f, raw
 
     def _allocate_nominal(self, R: list[list[float]], uf: float, tau_p: float, tau_q: float,
@@ -388,41 +388,35 @@ class TFLController:
         will deliver. Returns (command, saturated, applied u_f)."""
         m = self.model
         fmax = m.thrust_max_n
-        last = self._last_out
         hi = fmax + 1e-9
         sat = [not (-1e-9 <= fi <= hi) for fi in raw]
-        clipped = []
-        for i in range(4):
-            fi = f[i]
-            if math.isfinite(fi):
-                fi = 0.0 if fi < 0.0 else fi          # max(fi, 0), min(·, f_max) written out
-                clipped.append(fmax if fmax < fi else fi)
-            else:
-                clipped.append(last[i])
-        f = clipped
+        # max(f, 0), min(·, f_max) written out; a non-finite f (x − x is NaN) keeps the last.
+        f = [(0.0 if fi < 0.0 else (fmax if fmax < fi else fi)) if fi - fi == 0.0 else li
+             for fi, li in zip(f, self._last_out, strict=True)]
         frame = self.frame
+        p0, p1, p2, p3 = self._perm
         if frame is not None:
-            f[frame.perm[1]] = self.attack_estimate_n
+            f[p1] = self.attack_estimate_n
         if sat[0] or sat[1] or sat[2] or sat[3]:
             self.saturation_count += 1
         applied_uf = f[0] + f[1] + f[2] + f[3]
-        command = f
-        delivered = f
+        command = delivered = f
         if self.lag_inverter is not None:
             inv = self.lag_inverter.invert(f)
             command, delivered = inv.command_n, inv.expected_mean_n
             if frame is not None:
-                command[frame.perm[1]] = f[frame.perm[1]]
-                delivered[frame.perm[1]] = f[frame.perm[1]]
+                command[p1] = f[p1]
+                delivered[p1] = f[p1]
             if any(inv.clamped):
                 self.lag_clamped_count += 1
-        fc = [delivered[phys] for phys in frame.perm] if frame is not None else delivered
         ix, iy, iz = self._ixyz
         kr = m.k_r
-        tp_app = m.arm_m * (fc[3] - fc[1])
-        tq_app = m.arm_m * (fc[2] - fc[0])
-        self._pred = ((tp_app - kr * pc - (iz - iy) * qc * rc) / ix,
-                      (tq_app - kr * qc - (ix - iz) * pc * rc) / iy)
+        arm = m.arm_m
+        # Canonical rotor i is physical perm[i]: τ_p' = l (f₄' − f₂'), τ_q' = l (f₃' − f₁').
+        self._pred = ((arm * (delivered[p3] - delivered[p1]) - kr * pc - (iz - iy) * qc * rc)
+                      / ix,
+                      (arm * (delivered[p2] - delivered[p0]) - kr * qc - (ix - iz) * pc * rc)
+                      / iy)
         self._last_out = delivered
         return command, sat, applied_uf
 
