@@ -27,6 +27,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+
 from tfl_mav.control.compiled import (
     _NEWTON_ITERS,
     Y_NAMES,
@@ -43,6 +45,7 @@ from tfl_mav.control.law_math import (
     cramer,
     linear_rhs,
     output_rows,
+    rotation,
     torques,
 )
 from tfl_mav.control.law_types import ModelParams
@@ -147,7 +150,8 @@ def _after_projection(model: ModelParams, trace_sigma: Callable[..., list[Any]],
     xi = f"(({', '.join(t(v) for v in a[0:4])}), ({', '.join(t(v) for v in a[5:9])}))"
     raw("trk._arc_m = arc", "trk._lam_prev = lam0", "trk.lam = lam", "trk._expansion = (lam, c)",
         f"return ({t(udd)}, {t(qdot)}, {t(tau_p)}, {t(tau_q)}, cond, {xi}, "
-        f"(arc, {t(p1)}, {t(p2)}, {t(p3)}), lam, {t(distance)})")
+        f"(arc, {t(p1)}, {t(p2)}, {t(p3)}), lam, {t(distance)}, psi, (r20, r21, r22), rates, "
+        "pc, qc, rc, mass)")
     return []
 
 
@@ -177,34 +181,62 @@ def build_fused(model: ModelParams, kernels: PathKernels) -> FusedTick:
     after = block("t_", [["lam"], *Y_NAMES, ["pc", "qc", "rc", "mass", "uf"],
                          ["b1x", "b1y", "b1z"], ["b2x", "b2y", "b2z"], ["b3x", "b3y", "b3z"]],
                   lambda *g: _after_projection(model, trace_sigma, trace_s, *g), [])
+    rot = block("q_", [["qw", "qx", "qy", "qz"]], lambda q: rotation(q, traced_sqrt),
+                [f"r{i}{j}" for i in range(3) for j in range(3)])
     rows = " + ".join(_flat(Y_NAMES))
+    middle = [
+        "uf = ctl.x13",
+        "duf = ctl.x14",
+        "cfg = ctl.cfg",
+        "if not (uf >= cfg.min_thrust_n and uf > 0.0):",
+        "    return None",
+        "yx, yy, yz = y",
+        "vx, vy, vz = v",
+        *(ln[4:] for ln in model_rows),
+        f"if not _isfinite({rows}):",
+        "    return None",
+        "# The projection (eq. (13)): compiled.CompiledPathTracker._project_compiled.",
+        "lam0 = trk.lam",
+        "prev = trk._expansion",
+        "fresh = prev is not None and prev[0] == lam0",
+        "lp = trk._lam_prev",
+        "lam = 2.0 * lam0 - lp if fresh and lp is not None else lam0",
+        f"for _ in range({_NEWTON_ITERS}):",
+        *(ln[4:] for ln in sigma2),
+        "else:",
+        "    return None",
+        "cp = prev[1] if fresh else trk._sigma5((lam0,))",
+        *(ln[4:] for ln in after),
+    ]
+    bail = ("return (None, y, v, psi, (r20, r21, r22), rates, (b1x, b1y, b1z), (b2x, b2y, b2z), "
+            "(b3x, b3y, b3z), pc, qc, rc, mass)")
     source = "\n".join([
-        "def fused_tick(ctl, trk, y, v, b1, b2, b3, pc, qc, rc, mass):",
-        "    uf = ctl.x13",
-        "    duf = ctl.x14",
-        "    cfg = ctl.cfg",
-        "    if not (uf >= cfg.min_thrust_n and uf > 0.0):",
-        "        return None",
-        "    yx, yy, yz = y",
-        "    vx, vy, vz = v",
-        "    b1x, b1y, b1z = b1",
-        "    b2x, b2y, b2z = b2",
-        "    b3x, b3y, b3z = b3",
-        *model_rows,
-        f"    if not _isfinite({rows}):",
-        "        return None",
-        "    # The projection (eq. (13)): compiled.CompiledPathTracker._project_compiled.",
-        "    lam0 = trk.lam",
-        "    prev = trk._expansion",
-        "    fresh = prev is not None and prev[0] == lam0",
-        "    lp = trk._lam_prev",
-        "    lam = 2.0 * lam0 - lp if fresh and lp is not None else lam0",
-        f"    for _ in range({_NEWTON_ITERS}):",
-        *sigma2,
-        "    else:",
-        "        return None",
-        "    cp = prev[1] if fresh else trk._sigma5((lam0,))",
-        *after,
+        "def fused_tick(ctl, trk, s):",
+        "    # The prelude: law.TFLController._prelude.",
+        *(f"    {name} = s.{field}\n    if type({name}) is _ndarray:\n"
+          f"        {name} = {name}.tolist()"
+          for name, field in (("y", "position_m"), ("v", "velocity_mps"),
+                              ("quat", "quaternion_wxyz"), ("rates", "body_rates_radps"))),
+        "    qw, qx, qy, qz = quat",
+        *rot,
+        "    psi = _atan2(r10, r00)",
+        "    if ctl.psi_ref is None:",
+        "        ctl.psi_ref = psi",
+        "    (m1, s1), (m2, s2) = ctl._axes",
+        "    cols = ((r00, r10, r20), (r01, r11, r21))",
+        "    col = cols[m1]",
+        "    b1x, b1y, b1z = s1 * col[0], s1 * col[1], s1 * col[2]",
+        "    col = cols[m2]",
+        "    b2x, b2y, b2z = s2 * col[0], s2 * col[1], s2 * col[2]",
+        "    b3x, b3y, b3z = r02, r12, r22",
+        "    pc, qc, rc = s1 * rates[m1], s2 * rates[m2], rates[2]",
+        "    mass = ctl._update_estimators(v, (b3x, b3y, b3z), pc, qc)",
+        "    # The middle; on any bail the step-by-step tick takes over from here.",
+        "    try:",
+        *(f"        {ln.replace('return None', bail)}" for ln in middle),
+        "    except (ValueError, ZeroDivisionError, OverflowError):",
+        f"        {bail}",
     ]) + "\n"
-    fn = compile_source("fused_tick", source, {"_isfinite": math.isfinite, "_arc": _arc})
+    fn = compile_source("fused_tick", source, {"_isfinite": math.isfinite, "_arc": _arc,
+                                               "_atan2": math.atan2, "_ndarray": np.ndarray})
     return FusedTick(fn, source, n_ops, time.perf_counter() - t0)

@@ -32,7 +32,7 @@ which give the same numbers, for the benchmark and the tests).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -48,6 +48,7 @@ from tfl_mav.control.allocation import (
 from tfl_mav.control.compiled import CompiledPathTracker, make_tracker
 from tfl_mav.control.estimators import MassEstimator, RateDisturbanceObserver
 from tfl_mav.control.fused import build_fused
+from tfl_mav.control.jetcode import TraceError
 from tfl_mav.control.law_math import (
     b0_inverse,
     cofactors,
@@ -58,7 +59,7 @@ from tfl_mav.control.law_math import (
 )
 from tfl_mav.control.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
 from tfl_mav.control.paths import Path
-from tfl_mav.control.tracker import VirtualOutput
+from tfl_mav.control.tracker import PathTracker, VirtualOutput
 from tfl_mav.geometry import rotation_rows
 from tfl_mav.modes import Mode
 from tfl_mav.state import State
@@ -98,9 +99,15 @@ class TFLController:
         self.cfg = cfg
         self.dt = dt_s
         self.tracker, self.path_eval = make_tracker(path, compiled_path)
-        self._fused_for = self.tracker    # the fused tick is made for this tracker only
-        self._fused = (build_fused(model, self.tracker.kernels).fn
-                       if type(self.tracker) is CompiledPathTracker else None)
+        # The generated tick (:mod:`fused`), made for this tracker only.
+        self._fused_for: PathTracker | None = None
+        self._fused: Callable[..., tuple[Any, ...]] | None = None
+        if type(self.tracker) is CompiledPathTracker:
+            try:
+                self._fused = build_fused(model, self.tracker.kernels).fn
+                self._fused_for = self.tracker
+            except (TraceError, ArithmeticError, ValueError):
+                pass
         self.mass_kg = model.mass_kg
         self.x13 = model.mass_kg * model.gravity_mps2   # u_f
         self.x14 = 0.0                                  # u̇_f
@@ -194,27 +201,28 @@ class TFLController:
         """Compute the rotor thrusts (N) for this control period from the measured state
         and, with motor lag, the measured rotor speeds ω (rad/s, from ESC rpm)."""
         self.ticks += 1
-        # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
-        y, v, quat, rates = (_floats(s.position_m), _floats(s.velocity_mps),
-                             _floats(s.quaternion_wxyz), _floats(s.body_rates_radps))
-        R = rotation_rows(quat)
-        if self.psi_ref is None:
-            self.psi_ref = math.atan2(R[1][0], R[0][0])
-        b1, b2, b3, pc, qc, rc = self._canonical_axes(R, rates)
-        mass = self._update_estimators(v, b3, pc, qc)
-        uf, duf = self.x13, self.x14
-        core = self._fused_core(y, v, b1, b2, b3, pc, qc, rc, mass)
+        trk = self.tracker
+        # The flight's generated tick (:mod:`fused`) when it can run; it hands back to the
+        # step-by-step tick after the prelude for every fallback and failure.
+        k = self._fused_tick(trk, s) if trk is self._fused_for and trk.lam is not None \
+            else None
         reason = ""
-        if core is None:   # not a fused tick (or a fallback one): step by step
+        if k is None or k[0] is None:
+            y, v, psi, r2, rates, b1, b2, b3, pc, qc, rc, mass = \
+                self._prelude(s) if k is None else k[1:]
             core, reason = self._stepwise_core(y, v, b1, b2, b3, pc, qc, rc, mass)
-        udd, qdot, tau_p, tau_q, cond, xi, eta, lam, distance = core
+            udd, qdot, tau_p, tau_q, cond, xi, eta, lam, distance = core
+        else:
+            udd, qdot, tau_p, tau_q, cond, xi, eta, lam, distance, psi, r2, rates, pc, qc, rc, \
+                mass = k
+        uf, duf = self.x13, self.x14
         bounds = (self.lag_inverter.reachable(rotor_speed_radps)
                   if self.lag_inverter is not None else None)
         if self.frame is not None:
             f, raw = self._allocate_attacked(uf, tau_p, tau_q, bounds)
             mode = _ATTACKED
         else:
-            f, raw = self._allocate_nominal(R, uf, tau_p, tau_q, qdot, pc, qc, rc, bounds)
+            f, raw = self._allocate_nominal(psi, r2, uf, tau_p, tau_q, qdot, pc, qc, rc, bounds)
             mode = _NOMINAL
         if reason:
             mode = _FALLBACK
@@ -226,22 +234,29 @@ class TFLController:
         # named tuple costs more than a microsecond a tick).
         return _new_output(ControlOutput, (
             command, mode, sat, xi, eta,
-            (math.atan2(R[1][0], R[0][0]), -rates[0] / iz - arm * rates[2] / den),
+            (psi, -rates[0] / iz - arm * rates[2] / den),
             distance, lam, cond, uf, mass, (self.dob.d_p, self.dob.d_q), self.fine, reason))
 
     # ------------------------------------------------------------------ the steps
-    def _fused_core(self, y: Sequence[float], v: Sequence[float], b1: Sequence[float],
-                    b2: Sequence[float], b3: Sequence[float], pc: float, qc: float,
-                    rc: float, mass: float) -> tuple[Any, ...] | None:
-        """The middle of the tick as the flight's one generated function (:mod:`fused`):
-        the same numbers as :meth:`_stepwise_core`, or None where that one must run."""
-        trk = self.tracker
-        if self._fused is None or trk is not self._fused_for or trk.lam is None:
-            return None
-        try:
-            return self._fused(self, trk, y, v, b1, b2, b3, pc, qc, rc, mass)
-        except (ValueError, ZeroDivisionError, OverflowError):
-            return None   # nothing committed: the step-by-step tick says what failed
+    def _fused_tick(self, trk: PathTracker, s: State) -> tuple[Any, ...]:
+        """Prelude and middle of the tick as the flight's one generated function
+        (:mod:`fused`): the numbers of :meth:`_prelude` + :meth:`_stepwise_core`, or
+        (None, the prelude's results) where the step-by-step middle must run."""
+        return self._fused(self, trk, s)  # type: ignore[misc]
+
+    def _prelude(self, s: State) -> tuple[Any, ...]:
+        """State as floats, attitude, canonical axes and rates, estimators: (y, v, ψ, R's
+        last row, rates, b1, b2, b3, p, q, r, mass)."""
+        # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
+        y, v, quat, rates = (_floats(s.position_m), _floats(s.velocity_mps),
+                             _floats(s.quaternion_wxyz), _floats(s.body_rates_radps))
+        R = rotation_rows(quat)
+        psi = math.atan2(R[1][0], R[0][0])
+        if self.psi_ref is None:
+            self.psi_ref = psi
+        b1, b2, b3, pc, qc, rc = self._canonical_axes(R, rates)
+        mass = self._update_estimators(v, b3, pc, qc)
+        return y, v, psi, R[2], rates, b1, b2, b3, pc, qc, rc, mass
 
     def _stepwise_core(self, y: Sequence[float], v: Sequence[float], b1: Sequence[float],
                        b2: Sequence[float], b3: Sequence[float], pc: float, qc: float,
@@ -354,16 +369,15 @@ class TFLController:
             raw = [raw[i0], raw[i1], raw[i2], raw[i3]]
         return f, raw
 
-    def _allocate_nominal(self, R: list[list[float]], uf: float, tau_p: float, tau_q: float,
-                          qdot: float, pc: float, qc: float, rc: float,
+    def _allocate_nominal(self, psi_e: float, r2: Sequence[float], uf: float, tau_p: float,
+                          tau_q: float, qdot: float, pc: float, qc: float, rc: float,
                           bounds: Bounds | None) -> tuple[list[float], list[float]]:
         """All four rotors (inverse of eq. (4)); τ_r from the yaw loop ψ̈ = −k₁ψ̇ −
         k₀(ψ − ψ_ref), exact through the Euler chart (eq. (2)). (feasible, unbounded)."""
         m = self.model
         ix, iy, iz = self._ixyz
-        phi_e = math.atan2(R[2][1], R[2][2])
-        th_e = -math.asin(max(-1.0, min(1.0, R[2][0])))
-        psi_e = math.atan2(R[1][0], R[0][0])
+        phi_e = math.atan2(r2[1], r2[2])            # r2: R's last row, ψ_e = atan2(R₁₀, R₀₀)
+        th_e = -math.asin(max(-1.0, min(1.0, r2[0])))
         sph, cph = math.sin(phi_e), math.cos(phi_e)
         cth, sth = math.cos(th_e), math.sin(th_e)
         dphi = pc + (qc * sph + rc * cph) * sth / cth

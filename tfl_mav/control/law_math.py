@@ -11,9 +11,21 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["b0_inverse", "cofactors", "cramer", "linear_rhs", "output_rows", "torques"]
+__all__ = ["b0_inverse", "cofactors", "cramer", "linear_rhs", "output_rows", "rotation",
+           "torques"]
 
 V3 = Sequence[Any]
+
+
+def rotation(q: V3, sqrt: Callable[[Any], Any]) -> tuple[Any, ...]:
+    """R(q) row by row (9 values) of the quaternion (w, x, y, z), normalised first: the same
+    operations as :func:`tfl_mav.geometry.rotation_rows` (the step-by-step law's), to trace."""
+    w, x, y, z = q
+    n = sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
 
 
 def output_rows(y: V3, v: V3, b1: V3, b2: V3, b3: V3, pc: Any, qc: Any, rc: Any, uf: Any,
