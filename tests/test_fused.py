@@ -117,7 +117,7 @@ def test_fused_source_holds_no_scenario_text():
     functions and the template's own names reach compile()."""
     kind, params, _ = PATHS["expr-all-functions"]
     src = build_fused(model_params(_SC), compile_path(build_path(kind, params))).source
-    template = set("""
+    template = set(re.findall(r"\S+", """
         def return if else not and is None for in range break abs _ try except ValueError
         ZeroDivisionError OverflowError type tolist _ndarray s position_m velocity_mps
         quaternion_wxyz body_rates_radps quat rates psi psi_ref _axes m1 m2 s1 s2 cols col
@@ -125,7 +125,7 @@ def test_fused_source_holds_no_scenario_text():
         distance rel cond inv speed udd pdot qdot ix iy iz y v pc qc rc mass uf duf x13 x14
         min_thrust_n max_cond speed_mps k_xi k_eta _use_dob d_p d_q _ixyz _expansion
         _lam_prev _sigma5 _arc_m min_tube_margin _arc _isfinite _atan2 _sin _cos _tan _exp
-        _log _sqrt _atan _tanh _pow _abs e""".split())
+        _log _sqrt _atan _tanh _pow _abs e"""))
     names = re.compile(r"[mgtq]_\d+|q[wxyz]|r[012][012]|[xyz]\d|[xyz][xyz]|v[xyz]|b[123][xyz]"
                        r"|k[xe]\d")
     code = re.sub(r"#.*", "", src)       # the template's comments
