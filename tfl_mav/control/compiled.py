@@ -135,16 +135,17 @@ def _pi_kernel(inline: bool = True) -> Kernel:
                           inline=inline)
 
 
-def _arc(cp: Sequence[float], cn: Sequence[float], delta: float) -> float:
+def _arc(cp: Sequence[Any], cn: Sequence[Any], delta: Any,
+         sqrt: Callable[[Any], Any] = math.sqrt) -> Any:
     """∫|σ'| dλ over [λ, λ + δ] by Simpson's rule: |σ'| at both ends from the expansions
     ``cp`` (at λ) and ``cn`` (at λ + δ), at the middle from ``cp``'s polynomial."""
     h = 0.5 * delta
     mx = cp[3] + h * (2.0 * cp[6] + h * (3.0 * cp[9] + h * (4.0 * cp[12] + h * 5.0 * cp[15])))
     my = cp[4] + h * (2.0 * cp[7] + h * (3.0 * cp[10] + h * (4.0 * cp[13] + h * 5.0 * cp[16])))
     mz = cp[5] + h * (2.0 * cp[8] + h * (3.0 * cp[11] + h * (4.0 * cp[14] + h * 5.0 * cp[17])))
-    return delta / 6.0 * (math.sqrt(cp[3] * cp[3] + cp[4] * cp[4] + cp[5] * cp[5])
-                          + 4.0 * math.sqrt(mx * mx + my * my + mz * mz)
-                          + math.sqrt(cn[3] * cn[3] + cn[4] * cn[4] + cn[5] * cn[5]))
+    return delta / 6.0 * (sqrt(cp[3] * cp[3] + cp[4] * cp[4] + cp[5] * cp[5])
+                          + 4.0 * sqrt(mx * mx + my * my + mz * mz)
+                          + sqrt(cn[3] * cn[3] + cn[4] * cn[4] + cn[5] * cn[5]))
 
 
 class CompiledPathTracker(PathTracker):

@@ -109,7 +109,10 @@ def _after_projection(model: ModelParams, trace_sigma: Callable[..., list[Any]],
 
     c = trace_sigma([lam], 5)
     raw(f"c = ({', '.join(t(v) for v in c)},)",
-        "arc = trk._arc_m + _arc(cp, c, lam - lam0)")
+        f"{', '.join(f'cp{j}' for j in range(18))} = cp")
+    cp = [tape.input(f"cp{j}") for j in range(18)]
+    local("arc", tape.input("trk._arc_m")
+          + _arc(cp, c, lam - tape.input("lam0"), traced_sqrt))
     # compiled.CompiledPathTracker.virtual_output: slope, tube margin, distance.
     c0x, c0y, c0z, c1x, c1y, c1z = c[0:6]
     e0x, e0y, e0z = x[0] - c0x, y[0] - c0y, z[0] - c0z
