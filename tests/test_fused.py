@@ -127,7 +127,7 @@ def test_fused_source_holds_no_scenario_text():
         _lam_prev _sigma5 _arc_m min_tube_margin _arc _isfinite _atan2 _sin _cos _tan _exp
         _log _sqrt _atan _tanh _pow _abs e"""))
     names = re.compile(r"[mgtq]_\d+|q[wxyz]|r[012][012]|[xyz]\d|[xyz][xyz]|v[xyz]|b[123][xyz]"
-                       r"|k[xe]\d")
+                       r"|k[xe]\d|cp\d+")
     code = re.sub(r"#.*", "", src)       # the template's comments
     for word in re.findall(r"[A-Za-z_][A-Za-z_0-9]*", code):
         assert word in template or names.fullmatch(word), word
