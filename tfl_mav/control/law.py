@@ -403,10 +403,17 @@ class TFLController:
         m = self.model
         fmax = m.thrust_max_n
         hi = fmax + 1e-9
-        sat = [not (-1e-9 <= fi <= hi) for fi in raw]
-        # max(f, 0), min(·, f_max) written out; a non-finite f (x − x is NaN) keeps the last.
-        f = [(0.0 if fi < 0.0 else (fmax if fmax < fi else fi)) if fi - fi == 0.0 else li
-             for fi, li in zip(f, self._last_out, strict=True)]
+        r0, r1, r2, r3 = raw
+        sat = [not -1e-9 <= r0 <= hi, not -1e-9 <= r1 <= hi, not -1e-9 <= r2 <= hi,
+               not -1e-9 <= r3 <= hi]
+        # max(f, 0), min(·, f_max) written out, rotor by rotor (this runs every tick); a
+        # non-finite f (f − f is NaN) keeps the last command.
+        f0, f1, f2, f3 = f
+        l0, l1, l2, l3 = self._last_out
+        f = [(0.0 if f0 < 0.0 else (fmax if fmax < f0 else f0)) if f0 - f0 == 0.0 else l0,
+             (0.0 if f1 < 0.0 else (fmax if fmax < f1 else f1)) if f1 - f1 == 0.0 else l1,
+             (0.0 if f2 < 0.0 else (fmax if fmax < f2 else f2)) if f2 - f2 == 0.0 else l2,
+             (0.0 if f3 < 0.0 else (fmax if fmax < f3 else f3)) if f3 - f3 == 0.0 else l3]
         frame = self.frame
         p0, p1, p2, p3 = self._perm
         if frame is not None:
