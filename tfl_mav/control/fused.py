@@ -2,7 +2,8 @@
 
 A tick of the law (paper §V) is ~1 000 floating-point operations spread over ~30 Python
 calls; the calls, tuple packs and attribute reads cost more than the arithmetic. A path and
-the model are fixed for a flight, so at start-up this module writes the middle of the tick —
+the model are fixed for a flight, so at start-up this module writes the tick up to the
+rotor allocation — the state as floats, R(q) and the canonical axes, the estimators (called),
 the output's Taylor rows from the model (eqs. (3), (9)), the closest-point projection
 (eq. (13), Newton warm-started as :class:`compiled.CompiledPathTracker`), π's rates and
 α = s(y) with Dφ (eqs. (8), (14), (15)), the ξ, η controllers (eqs. (23), (24)), the
@@ -10,13 +11,17 @@ decoupling solve (eq. (21)) and the torques (eq. (3)) — as the body of one Pyt
 the straight-line pieces are traced (:mod:`jetcode`) from the very functions the
 step-by-step law and the compiled tracker run (:mod:`law_math`, :func:`tracker.pi_rates`,
 the path's σ and s), the loop and the checks are written here around them. Same operations
-in the same order, so the same numbers bit for bit.
+in the same order, so the same numbers bit for bit. One tape holds everything after the
+Newton loop, so what the path makes constant (σ' = (1, ·, ·) on the paper path, ∂s/∂y rows
+of 0 and 1) folds through π, Dφ and Cramer's rule, and operations nothing reads are dropped.
 
-The function is pure until it succeeds: every condition under which the law would fall back
-(projection lost, tube margin, u_f too small, Dφ singular or ill-conditioned, a non-finite
-result, an evaluation error) makes it return ``None`` before it has changed anything, and
-the law then runs the step-by-step tick, whose fallbacks and reasons are unchanged. On
-success it commits the tracker's state (λ, the expansion, π) and returns the tick's numbers.
+After the prelude (which the step-by-step tick would have run the same way, estimators
+included) the function changes nothing until it succeeds: every condition under which the
+law would fall back (projection lost, tube margin, u_f too small, Dφ singular or
+ill-conditioned, a non-finite result, an evaluation error) makes it return ``(None, the
+prelude's results)``, and the law runs its step-by-step middle from there, whose fallbacks
+and reasons are unchanged. On success it commits the tracker's state (λ, the expansion, π)
+and returns the tick's numbers.
 """
 
 from __future__ import annotations
@@ -52,14 +57,11 @@ from tfl_mav.control.law_types import ModelParams
 
 __all__ = ["FusedTick", "build_fused"]
 
-_A_NAMES = [f"a{k}" for k in range(16)]                       # s4: α1, α2 rows, ∂s/∂y
-_JAC = [["a10", "a11", "a12"], ["a13", "a14", "a15"], ["j0", "j1", "j2"]]
-
-
 @dataclass(frozen=True)
 class FusedTick:
-    """The generated tick: ``fn(ctl, trk, y, v, b1, b2, b3, pc, qc, rc, mass)`` →
-    (ü_f, q̇, τ_p, τ_q, cond Dφ, ξ rows, η, λ, distance) or None (see module doc)."""
+    """The generated tick: ``fn(ctl, trk, state)`` → (ü_f, q̇, τ_p, τ_q, cond Dφ, ξ rows,
+    η, λ, distance, ψ, R's last row, rates, p, q, r, mass), or (None, y, v, ψ, R's last row,
+    rates, b1, b2, b3, p, q, r, mass) for the step-by-step middle (see module doc)."""
 
     fn: Callable[..., tuple[Any, ...] | None]
     source: str

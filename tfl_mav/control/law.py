@@ -26,7 +26,9 @@ settled on the path.
 :meth:`TFLController.update` is the tick, one small step per idea, in the order the paper
 builds the law. The path's derivatives come from :class:`compiled.CompiledPathTracker`
 (straight-line code generated at start-up; ``compiled_path=False`` flies the reference jets,
-which give the same numbers, for the benchmark and the tests).
+which give the same numbers, for the benchmark and the tests). With the compiled tracker the
+steps up to the decoupling solve run as the flight's one generated function (:mod:`fused`,
+the same operations), which hands every fallback back to the steps.
 """
 
 from __future__ import annotations
@@ -49,14 +51,7 @@ from tfl_mav.control.compiled import CompiledPathTracker, make_tracker
 from tfl_mav.control.estimators import MassEstimator, RateDisturbanceObserver
 from tfl_mav.control.fused import build_fused
 from tfl_mav.control.jetcode import TraceError
-from tfl_mav.control.law_math import (
-    b0_inverse,
-    cofactors,
-    cramer,
-    linear_rhs,
-    output_rows,
-    torques,
-)
+from tfl_mav.control.law_math import b0_inverse, linear_rhs, output_rows, solve3, torques
 from tfl_mav.control.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
 from tfl_mav.control.paths import Path
 from tfl_mav.control.tracker import PathTracker, VirtualOutput
@@ -73,15 +68,6 @@ _new_output = tuple.__new__   # ControlOutput from its fields in order, no keywo
 def _floats(x: Sequence[float]) -> Sequence[float]:
     """``x`` with Python floats (``tolist`` of a numpy array; other sequences as they are)."""
     return x.tolist() if type(x) is np.ndarray else x
-
-
-def _solve3(A: Sequence[Sequence[float]], b: Sequence[float]) -> tuple[list[float], float]:
-    """Solve a 3×3 system by Cramer's rule; returns (x, |det| relative to the row norms)."""
-    co0, co1, co2, det, norms = cofactors(A, math.sqrt)
-    rel = abs(det) / norms if norms > 0 else 0.0
-    if rel < 1e-12:
-        return [0.0, 0.0, 0.0], rel
-    return list(cramer(A, b, co0, co1, co2, 1.0 / det)), rel
 
 
 class TFLController:
@@ -323,7 +309,7 @@ class TFLController:
         elif uf < cfg.min_thrust_n:
             reason = f"total thrust {uf:.2f} N too small: D(x) singular"
         # First Dφ z = rhs (z = B₀ w, the commanded snap) …
-        z, rel = _solve3(vo.jacobian, rhs)
+        z, rel = solve3(vo.jacobian, rhs)
         cond = 1.0 / rel if rel > 0 else math.inf
         if not reason and cond > cfg.max_cond:
             reason = f"decoupling matrix ill-conditioned (cond {cond:.1e})"

@@ -8,11 +8,12 @@ order. Branches (a singular matrix, u_f ≤ 0) stay with the callers.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
 __all__ = ["b0_inverse", "cofactors", "cramer", "linear_rhs", "output_rows", "rotation",
-           "torques"]
+           "solve3", "torques"]
 
 V3 = Sequence[Any]
 
@@ -91,6 +92,16 @@ def cramer(A: Sequence[V3], b: V3, co0: Any, co1: Any, co2: Any, inv: Any
     x1 = (b[0] * co1 + b[1] * (a * i - c * g) + b[2] * (c * d - a * f)) * inv
     x2 = (b[0] * co2 + b[1] * (b_ * g - a * h) + b[2] * (a * e - b_ * d)) * inv
     return x0, x1, x2
+
+
+def solve3(A: Sequence[Sequence[float]], b: Sequence[float]) -> tuple[list[float], float]:
+    """Solve a 3×3 system by Cramer's rule; returns (x, |det| relative to the row norms),
+    x = 0 when that is below 1e-12 (floats only: the fused tick branches itself)."""
+    co0, co1, co2, det, norms = cofactors(A, math.sqrt)
+    rel = abs(det) / norms if norms > 0 else 0.0
+    if rel < 1e-12:
+        return [0.0, 0.0, 0.0], rel
+    return list(cramer(A, b, co0, co1, co2, 1.0 / det)), rel
 
 
 def b0_inverse(z: V3, b1: V3, b2: V3, b3: V3, mass: Any, uf: Any) -> tuple[Any, Any, Any]:
