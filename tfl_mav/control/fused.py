@@ -175,7 +175,7 @@ def build_fused(model: ModelParams, kernels: PathKernels) -> FusedTick:
         return lines
 
     model_rows = block(
-        "m_", [["yx", "yy", "yz"], ["vx", "vy", "vz"], ["b1x", "b1y", "b1z"],
+        "m_", [["x0", "y0", "z0"], ["x1", "y1", "z1"], ["b1x", "b1y", "b1z"],
                ["b2x", "b2y", "b2z"], ["b3x", "b3y", "b3z"], ["pc", "qc", "rc", "uf", "duf",
                                                                "mass"]],
         lambda y, v, b1, b2, b3, s: _flat(output_rows(y, v, b1, b2, b3, *s, model.k_t,
@@ -188,15 +188,16 @@ def build_fused(model: ModelParams, kernels: PathKernels) -> FusedTick:
                   lambda *g: _after_projection(model, trace_sigma, trace_s, *g), [])
     rot = block("q_", [["qw", "qx", "qy", "qz"]], lambda q: rotation(q, traced_sqrt),
                 [f"r{i}{j}" for i in range(3) for j in range(3)])
-    rows = " + ".join(_flat(Y_NAMES))
+    # As the tracker's isfinite(sum(tx) + sum(ty) + sum(tz)): the same additions.
+    rows = " + ".join(f"({' + '.join(r)})" for r in Y_NAMES)
     middle = [
         "uf = ctl.x13",
         "duf = ctl.x14",
         "cfg = ctl.cfg",
         "if not (uf >= cfg.min_thrust_n and uf > 0.0):",
         "    return None",
-        "yx, yy, yz = y",
-        "vx, vy, vz = v",
+        "x0, y0, z0 = y",
+        "x1, y1, z1 = v",
         *(ln[4:] for ln in model_rows),
         f"if not _isfinite({rows}):",
         "    return None",
