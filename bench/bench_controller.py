@@ -90,7 +90,7 @@ def time_law(sc: Scenario, ticks: int, compiled_path: bool) -> list[float]:
 
 # ----- breakdown ----------------------------------------------------------------------------
 STEPS: list[tuple[str, Any, str]] = [
-    ("fused tick: state, R, axes, path, (15), (21)", law.TFLController, "_fused_tick"),
+    ("fused tick: state, R, path, (15), (21)", law.TFLController, "_fused_tick"),
     ("body axes (R, canonical frame)", law.TFLController, "_prelude"),
     ("body axes (R, canonical frame)", law.TFLController, "_canonical_axes"),
     ("estimators (mass, rate DOB)", law.TFLController, "_update_estimators"),
