@@ -6,7 +6,8 @@ offline loop against a plain numpy RK4 physics-only loop — all in the same run
 
 1. ``TFLController.update`` alone, median and p90 µs over a closed-loop flight (so the
    projection is warm-started as in real use), with the path evaluated by the reference jets
-   (``compiled_path=False``, the law before #13) and by the compiled tracker (the default).
+   (``compiled_path=False``, the law before #13) and by the compiled tracker (the default:
+   the fused tick, prelude + path + decoupling solve as one generated call, ``fused``).
 2. Where an update's time goes, per step of :meth:`TFLController.update` (exclusive µs per
    tick, by wrapping each step with a timer: absolute numbers include the wrapper's cost,
    use the shares).
@@ -89,6 +90,8 @@ def time_law(sc: Scenario, ticks: int, compiled_path: bool) -> list[float]:
 
 # ----- breakdown ----------------------------------------------------------------------------
 STEPS: list[tuple[str, Any, str]] = [
+    ("fused tick: state, R, path, (15), (21)", law.TFLController, "_fused_tick"),
+    ("body axes (R, canonical frame)", law.TFLController, "_prelude"),
     ("body axes (R, canonical frame)", law.TFLController, "_canonical_axes"),
     ("estimators (mass, rate DOB)", law.TFLController, "_update_estimators"),
     ("model derivatives ÿ…y⁽⁴⁾ (3), (9)", law.TFLController, "_output_taylor"),

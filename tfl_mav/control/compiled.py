@@ -19,11 +19,12 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from tfl_mav.control.jetcode import TRACE_LIB, Kernel, Sym, TJet, TraceError, compile_kernel
+from tfl_mav.control.jetcode import TRACE_LIB, Sym, TJet, TraceError
+from tfl_mav.control.kernelgen import Kernel, compile_kernel
 from tfl_mav.control.paths import Path
 from tfl_mav.control.tracker import (
     MIN_TUBE_MARGIN,
@@ -32,11 +33,12 @@ from tfl_mav.control.tracker import (
     pi_rates,
 )
 
-__all__ = ["CompiledPathTracker", "PathKernels", "compile_path", "make_tracker"]
+__all__ = ["C_NAMES", "Y_NAMES", "CompiledPathTracker", "PathKernels", "compile_path",
+           "make_tracker", "trace_pi", "traced_sqrt"]
 
 _AXES = "xyz"
-_C_NAMES = [f"c{j}{a}" for j in range(6) for a in _AXES]          # σ⁽ʲ⁾/j!, j-major
-_Y_NAMES = [[f"{a}{k}" for k in range(5)] for a in _AXES]          # position Taylor rows
+C_NAMES = [f"c{j}{a}" for j in range(6) for a in _AXES]          # σ⁽ʲ⁾/j!, j-major
+Y_NAMES = [[f"{a}{k}" for k in range(5)] for a in _AXES]          # position Taylor rows
 _FACT = (1.0, 1.0, 2.0, 6.0, 24.0)                                 # as Jet.derivatives
 _NEWTON_ITERS = 20
 
@@ -48,6 +50,10 @@ class PathKernels:
     sigma2: Kernel
     sigma5: Kernel
     s4: Kernel
+    # What was traced, to trace again into a larger function (:mod:`fused`):
+    # trace_sigma(λ symbols, order) → σ's coefficients j-major; trace_s(x, y, z rows) → s4.
+    trace_sigma: Callable[[list[Sym], int], list[Any]] | None = None
+    trace_s: Callable[[list[Sym], list[Sym], list[Sym]], list[Any]] | None = None
 
     @property
     def build_s(self) -> float:
@@ -65,7 +71,7 @@ def _coeffs(x: Any, n: int) -> tuple[Any, ...]:
 
 def compile_path(path: Path, *, inline: bool = True) -> PathKernels:
     """Trace ``path`` into its kernels; :class:`TraceError` if its code cannot be traced.
-    (``inline``: as :func:`jetcode.compile_kernel`, False only to test that it changes
+    (``inline``: as :func:`kernelgen.compile_kernel`, False only to test that it changes
     nothing.)"""
     if path.source is not None:
         s_exprs, sig_exprs = path.source
@@ -101,38 +107,45 @@ def compile_path(path: Path, *, inline: bool = True) -> PathKernels:
                            inline=inline),
             compile_kernel(f"sigma5_{name}", [["lam"]], lambda lam: trace_sigma(lam, 5),
                            inline=inline),
-            compile_kernel(f"s4_{name}", _Y_NAMES, trace_s, inline=inline))
+            compile_kernel(f"s4_{name}", Y_NAMES, trace_s, inline=inline),
+            trace_sigma, trace_s)
     except (TraceError, ValueError, ZeroDivisionError, OverflowError, TypeError,
             AttributeError) as exc:
         raise TraceError(f"path kind {path.kind!r} cannot be compiled: {exc}") from exc
 
 
+def traced_sqrt(x: Any) -> Any:
+    """math.sqrt on a float, a run-time call on a traced symbol."""
+    return x.tape.call("sqrt", x) if type(x) is Sym else math.sqrt(x)
+
+
+def trace_pi(c: list[Sym], x: list[Sym], y: list[Sym], z: list[Sym],
+             slope: list[Sym]) -> list[Any]:
+    """π̇ … π⁽⁴⁾ traced from :func:`tracker.pi_rates` (inputs as :data:`C_NAMES`, the
+    position's Taylor rows, the slope)."""
+    p = pi_rates(_rows(c), [x, y, z], slope[0], traced_sqrt)
+    # As Jet((π, p0, p1/2, p2/3, p3/4)).derivatives() in the reference.
+    return [p[0], p[1] / 2.0 * 2.0, p[2] / 3.0 * 6.0, p[3] / 4.0 * 24.0]
+
+
 @functools.cache
 def _pi_kernel(inline: bool = True) -> Kernel:
     """π's rates (path independent: made once a process)."""
-    def sqrt(x: Any) -> Any:
-        return x.tape.call("sqrt", x) if type(x) is Sym else math.sqrt(x)
-
-    def trace_pi(c: list[Sym], x: list[Sym], y: list[Sym], z: list[Sym],
-                 slope: list[Sym]) -> list[Any]:
-        p = pi_rates(_rows(c), [x, y, z], slope[0], sqrt)
-        # As Jet((π, p0, p1/2, p2/3, p3/4)).derivatives() in the reference.
-        return [p[0], p[1] / 2.0 * 2.0, p[2] / 3.0 * 6.0, p[3] / 4.0 * 24.0]
-
-    return compile_kernel("pi_rates", [_C_NAMES, *_Y_NAMES, ["slope"]], trace_pi,
+    return compile_kernel("pi_rates", [C_NAMES, *Y_NAMES, ["slope"]], trace_pi,
                           inline=inline)
 
 
-def _arc(cp: Sequence[float], cn: Sequence[float], delta: float) -> float:
+def _arc(cp: Sequence[Any], cn: Sequence[Any], delta: Any,
+         sqrt: Callable[[Any], Any] = math.sqrt) -> Any:
     """∫|σ'| dλ over [λ, λ + δ] by Simpson's rule: |σ'| at both ends from the expansions
     ``cp`` (at λ) and ``cn`` (at λ + δ), at the middle from ``cp``'s polynomial."""
     h = 0.5 * delta
     mx = cp[3] + h * (2.0 * cp[6] + h * (3.0 * cp[9] + h * (4.0 * cp[12] + h * 5.0 * cp[15])))
     my = cp[4] + h * (2.0 * cp[7] + h * (3.0 * cp[10] + h * (4.0 * cp[13] + h * 5.0 * cp[16])))
     mz = cp[5] + h * (2.0 * cp[8] + h * (3.0 * cp[11] + h * (4.0 * cp[14] + h * 5.0 * cp[17])))
-    return delta / 6.0 * (math.sqrt(cp[3] * cp[3] + cp[4] * cp[4] + cp[5] * cp[5])
-                          + 4.0 * math.sqrt(mx * mx + my * my + mz * mz)
-                          + math.sqrt(cn[3] * cn[3] + cn[4] * cn[4] + cn[5] * cn[5]))
+    return delta / 6.0 * (sqrt(cp[3] * cp[3] + cp[4] * cp[4] + cp[5] * cp[5])
+                          + 4.0 * sqrt(mx * mx + my * my + mz * mz)
+                          + sqrt(cn[3] * cn[3] + cn[4] * cn[4] + cn[5] * cn[5]))
 
 
 class CompiledPathTracker(PathTracker):

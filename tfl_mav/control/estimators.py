@@ -38,8 +38,9 @@ class MassEstimator:
         self.lo = model_mass_kg * (1.0 - band)
         self.hi = model_mass_kg * (1.0 + band)
         self.min_excitation = min_excitation
-        self._v_lp: list[float] | None = None
-        self._phi_lp = [0.0, 0.0, 0.0]
+        self._min_den = min_excitation ** 2
+        self._v_lp: tuple[float, ...] | None = None
+        self._phi_lp: tuple[float, ...] = (0.0, 0.0, 0.0)
         self._g_lp = 0.0
         self.updates = 0
 
@@ -47,9 +48,9 @@ class MassEstimator:
                b3: Sequence[float]) -> float:
         """Advance by ``dt`` s; returns the current mass estimate (kg)."""
         if self._v_lp is None:
-            self._v_lp = list(velocity_mps)
-            self._phi_lp = [thrust_n * b - self.k_t * v for b, v in zip(b3, velocity_mps,
-                                                                         strict=True)]
+            self._v_lp = tuple(velocity_mps)
+            self._phi_lp = tuple(thrust_n * b - self.k_t * v
+                                 for b, v in zip(b3, velocity_mps, strict=True))
             self._g_lp = self.g
             return self.mass_kg
         # Unrolled over x, y, z (runs every tick); same operations as the vector form.
@@ -57,24 +58,29 @@ class MassEstimator:
         a = dt / tau_dt
         vx, vy, vz = velocity_mps
         lx, ly, lz = self._v_lp
+        dx, dy, dz = vx - lx, vy - ly, vz - lz
         # Filtered acceleration = (v − LP(v))/τ is LP(v̇); the regressor gets the same LP.
-        ax, ay, az = (vx - lx) / tau_dt, (vy - ly) / tau_dt, (vz - lz) / tau_dt
-        self._v_lp = [lx + a * (vx - lx), ly + a * (vy - ly), lz + a * (vz - lz)]
+        ax, ay, az = dx / tau_dt, dy / tau_dt, dz / tau_dt
+        self._v_lp = (lx + a * dx, ly + a * dy, lz + a * dz)
         kt = self.k_t
-        fx, fy, fz = thrust_n * b3[0] - kt * vx, thrust_n * b3[1] - kt * vy, \
-            thrust_n * b3[2] - kt * vz
+        bx, by, bz = b3
         px, py, pz = self._phi_lp
-        px, py, pz = px + a * (fx - px), py + a * (fy - py), pz + a * (fz - pz)
-        self._phi_lp = [px, py, pz]
+        px = px + a * (thrust_n * bx - kt * vx - px)
+        py = py + a * (thrust_n * by - kt * vy - py)
+        pz = pz + a * (thrust_n * bz - kt * vz - pz)
+        self._phi_lp = (px, py, pz)
         az += self.g
         den = ax ** 2 + ay ** 2 + az ** 2
-        if den < self.min_excitation ** 2 or not math.isfinite(den):
+        if not self._min_den <= den < math.inf:
             return self.mass_kg  # free fall or nonsense: nothing to learn from
         m_inst = (px * ax + py * ay + pz * az) / den
-        if not math.isfinite(m_inst):
-            return self.mass_kg
-        b = dt / (self.ratio_tau_s + dt)
-        self.mass_kg = min(max(self.mass_kg + b * (m_inst - self.mass_kg), self.lo), self.hi)
+        mass = self.mass_kg
+        if not -math.inf < m_inst < math.inf:
+            return mass
+        m = mass + dt / (self.ratio_tau_s + dt) * (m_inst - mass)
+        lo, hi = self.lo, self.hi
+        m = lo if lo > m else m          # min(max(m, lo), hi) written out
+        self.mass_kg = hi if hi < m else m
         self.updates += 1
         return self.mass_kg
 
@@ -95,11 +101,17 @@ class RateDisturbanceObserver:
 
     def update(self, dt: float, p: float, q: float, pdot_pred: float, qdot_pred: float) -> None:
         """Feed the rates measured now and the model's ṗ, q̇ for the command just applied."""
-        if self._prev is not None:
-            a = dt / (self.tau_s + dt)
-            raw_p = (p - self._prev[0]) / dt - pdot_pred
-            raw_q = (q - self._prev[1]) / dt - qdot_pred
-            lim = self.limit
-            self.d_p = min(max(self.d_p + a * (raw_p - self.d_p), -lim), lim)
-            self.d_q = min(max(self.d_q + a * (raw_q - self.d_q), -lim), lim)
+        prev = self._prev
         self._prev = (p, q)
+        if prev is None:
+            return
+        a = dt / (self.tau_s + dt)
+        lim = self.limit
+        d = self.d_p
+        d += a * ((p - prev[0]) / dt - pdot_pred - d)
+        d = -lim if -lim > d else d      # min(max(d, −lim), lim) written out
+        self.d_p = lim if lim < d else d
+        d = self.d_q
+        d += a * ((q - prev[1]) / dt - qdot_pred - d)
+        d = -lim if -lim > d else d
+        self.d_q = lim if lim < d else d

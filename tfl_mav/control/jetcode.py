@@ -4,7 +4,7 @@ The reference jets (:mod:`jets`) build tuples and objects for every operation of
 tick, yet a path is fixed for a flight. So the path's own code is run *once* on symbolic
 jets (:class:`TJet`), whose coefficients are :class:`Sym` names on a :class:`Tape`: every
 operation the reference would perform on floats is recorded as one assignment instead, and
-the tape becomes the body of a Python function compiled with :func:`compile`. The
+the tape becomes the body of a Python function (:mod:`kernelgen` compiles it). The
 recurrences are the very ones of :mod:`series` (the reference uses them too), so the
 compiled code performs the reference's floating-point operations in the reference's order;
 the tape only drops operations whose result is known exactly (``x·1``, ``x·0``, ``x + 0``)
@@ -35,10 +35,7 @@ closures), which tests/test_compiled.py checks.
 from __future__ import annotations
 
 import math
-import re
-import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import dataclass
 from types import MappingProxyType
 from typing import Any
 
@@ -55,7 +52,7 @@ from tfl_mav.control.series import (
     tan_like_series,
 )
 
-__all__ = ["TRACE_LIB", "Kernel", "Sym", "TJet", "Tape", "TraceError", "compile_kernel"]
+__all__ = ["RAW", "TRACE_LIB", "Sym", "TJet", "Tape", "TraceError"]
 
 
 class TraceError(ValueError):
@@ -76,10 +73,14 @@ def _lit(x: Any) -> str:
     return f"({v!r})" if v < 0.0 or (v == 0.0 and math.copysign(1.0, v) < 0.0) else repr(v)
 
 
+RAW = "\x00"   # marks a hand-written statement among a tape's lines
+
+
 class Tape:
     """Straight-line code being recorded: one assignment per distinct operation."""
 
-    def __init__(self) -> None:
+    def __init__(self, prefix: str = "t") -> None:
+        self.prefix = prefix        # temporaries are named prefix0, prefix1, …
         self.lines: list[str] = []
         self._memo: dict[str, Sym] = {}
         self._negated: dict[str, Sym] = {}
@@ -87,11 +88,16 @@ class Tape:
     def input(self, name: str) -> Sym:
         return Sym(self, name)
 
+    def raw(self, text: str) -> None:
+        """A hand-written statement (indented, may span lines) at this point of the code:
+        control flow around the traced operations (:func:`kernelgen.trace_block`)."""
+        self.lines.append(RAW + text)
+
     def emit(self, expr: str) -> Sym:
         """The symbol holding ``expr``: recorded once, reused when met again."""
         sym = self._memo.get(expr)
         if sym is None:
-            sym = Sym(self, f"t{len(self.lines)}")
+            sym = Sym(self, f"{self.prefix}{len(self.lines)}")
             self.lines.append(f"    {sym.name} = {expr}")
             self._memo[expr] = sym
         return sym
@@ -200,6 +206,11 @@ class Sym:
         if type(o) is not Sym and o == 1.0:
             return self
         return self.tape.emit(f"{self.name} / {_text(o)}")
+
+    def __pow__(self, o: Any) -> Any:
+        if type(o) is not int:
+            return NotImplemented   # only x ** 2 and the like: float powers go through pow
+        return self.tape.emit(f"{self.name} ** {o}")
 
     def __rtruediv__(self, o: Any) -> Any:
         return self.tape.emit(f"{_lit(o)} / {self.name}")
@@ -407,82 +418,3 @@ TRACE_LIB: Mapping[str, Callable[..., Any]] = MappingProxyType({
     "clip": lambda x, lo, hi: _pick("<=", _pick(">=", x, lo), hi),
     "step": _step,
 })
-
-
-# ----- compiling a tape -------------------------------------------------------------------
-@dataclass(frozen=True)
-class Kernel:
-    """A compiled straight-line function and what it cost to make."""
-
-    fn: Callable[..., tuple[float, ...]]
-    source: str
-    n_ops: int
-    build_s: float
-
-
-_TEMP = re.compile(r"\bt\d+\b")
-_INLINE_MAX_CHARS = 160     # longer expressions stay temporaries (bounded nesting)
-
-
-def _inline_single_use(lines: Sequence[str], outputs: Sequence[str]
-                       ) -> tuple[list[str], list[str]]:
-    """The tape with each temporary that is used once written into its use, in
-    parentheses: ``t3 = (a * b) + c`` instead of ``t2 = a * b`` / ``t3 = t2 + c``.
-
-    Every operation keeps its operands (the same expression tree), so the results are the
-    same bit for bit; CPython just runs ~a third fewer instructions (no store and load per
-    intermediate). A select's branches are never inlined into (the operands of ``a if c else
-    b`` stay computed unconditionally, as the tape records them), and long expressions stay
-    temporaries so that nesting stays shallow."""
-    parsed = [ln.strip().split(" = ", 1) for ln in lines]
-    uses: dict[str, int] = {}
-    for text in [expr for _, expr in parsed] + list(outputs):
-        for tok in _TEMP.findall(text):
-            uses[tok] = uses.get(tok, 0) + 1
-    inline: dict[str, str] = {}
-
-    def subst(text: str) -> str:
-        return _TEMP.sub(lambda m: inline.pop(m.group(0), m.group(0)), text)
-
-    out_lines = []
-    for name, expr in parsed:
-        if " if " in expr:
-            # A select: what it reads is computed on its own line first, unconditionally.
-            for tok in _TEMP.findall(expr):
-                if tok in inline:
-                    out_lines.append(f"    {tok} = {inline.pop(tok)[1:-1]}")
-        else:
-            expr = subst(expr)
-        if uses.get(name, 0) == 1 and len(expr) <= _INLINE_MAX_CHARS:
-            inline[name] = f"({expr})"
-        else:
-            out_lines.append(f"    {name} = {expr}")
-    return out_lines, [subst(o) for o in outputs]
-
-
-def compile_kernel(name: str, inputs: Sequence[Sequence[str]],
-                   trace: Callable[..., Sequence[Any]], *, inline: bool = True) -> Kernel:
-    """Trace ``trace(*symbol groups)`` and compile ``name(*groups)`` returning its outputs.
-
-    ``inputs`` lists the argument groups: each group is one tuple argument of the compiled
-    function, unpacked into the named locals at entry. ``inline``: temporaries used once
-    are written into their use (:func:`_inline_single_use`; False: one line per operation).
-    """
-    t0 = time.perf_counter()
-    tape = Tape()
-    groups = [[tape.input(n) for n in group] for group in inputs]
-    outputs = trace(*groups)
-    args = [f"a{g}" for g in range(len(inputs))]
-    head = [f"def {name}({', '.join(args)}):"]
-    for arg, group in zip(args, inputs, strict=True):
-        names = ", ".join(group)
-        head.append(f"    {names}{',' if len(group) == 1 else ''} = {arg}")
-    ret = [_text(o) for o in outputs]
-    lines = tape.lines
-    if inline:
-        lines, ret = _inline_single_use(lines, ret)
-    body = [*head, *lines, f"    return ({', '.join(ret)},)"]
-    source = "\n".join(body) + "\n"
-    namespace: dict[str, Any] = {f"_{k}": v for k, v in _FUNCS.items()}
-    exec(compile(source, f"<tfl-mav kernel {name}>", "exec"), namespace)
-    return Kernel(namespace[name], source, len(tape.lines), time.perf_counter() - t0)

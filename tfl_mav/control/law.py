@@ -26,13 +26,16 @@ settled on the path.
 :meth:`TFLController.update` is the tick, one small step per idea, in the order the paper
 builds the law. The path's derivatives come from :class:`compiled.CompiledPathTracker`
 (straight-line code generated at start-up; ``compiled_path=False`` flies the reference jets,
-which give the same numbers, for the benchmark and the tests).
+which give the same numbers, for the benchmark and the tests). With the compiled tracker the
+steps up to the decoupling solve run as the flight's one generated function (:mod:`fused`,
+the same operations), which hands every fallback back to the steps.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -44,11 +47,14 @@ from tfl_mav.control.allocation import (
     allocate_nominal,
     canonical_frame,
 )
-from tfl_mav.control.compiled import make_tracker
+from tfl_mav.control.compiled import CompiledPathTracker, make_tracker
 from tfl_mav.control.estimators import MassEstimator, RateDisturbanceObserver
+from tfl_mav.control.fused import build_fused
+from tfl_mav.control.jetcode import TraceError
+from tfl_mav.control.law_math import b0_inverse, linear_rhs, output_rows, solve3, torques
 from tfl_mav.control.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
 from tfl_mav.control.paths import Path
-from tfl_mav.control.tracker import VirtualOutput
+from tfl_mav.control.tracker import PathTracker, VirtualOutput
 from tfl_mav.geometry import rotation_rows
 from tfl_mav.modes import Mode
 from tfl_mav.state import State
@@ -62,25 +68,6 @@ _new_output = tuple.__new__   # ControlOutput from its fields in order, no keywo
 def _floats(x: Sequence[float]) -> Sequence[float]:
     """``x`` with Python floats (``tolist`` of a numpy array; other sequences as they are)."""
     return x.tolist() if type(x) is np.ndarray else x
-
-
-def _solve3(A: Sequence[Sequence[float]], b: Sequence[float]) -> tuple[list[float], float]:
-    """Solve a 3×3 system by Cramer's rule; returns (x, |det| relative to the row norms)."""
-    (a, b_, c), (d, e, f), (g, h, i) = A
-    co0 = e * i - f * h
-    co1 = f * g - d * i
-    co2 = d * h - e * g
-    det = a * co0 + b_ * co1 + c * co2
-    norms = (math.sqrt(a * a + b_ * b_ + c * c) * math.sqrt(d * d + e * e + f * f)
-             * math.sqrt(g * g + h * h + i * i))
-    rel = abs(det) / norms if norms > 0 else 0.0
-    if rel < 1e-12:
-        return [0.0, 0.0, 0.0], rel
-    inv = 1.0 / det
-    x0 = (b[0] * co0 + b[1] * (c * h - b_ * i) + b[2] * (b_ * f - c * e)) * inv
-    x1 = (b[0] * co1 + b[1] * (a * i - c * g) + b[2] * (c * d - a * f)) * inv
-    x2 = (b[0] * co2 + b[1] * (b_ * g - a * h) + b[2] * (a * e - b_ * d)) * inv
-    return [x0, x1, x2], rel
 
 
 class TFLController:
@@ -98,6 +85,15 @@ class TFLController:
         self.cfg = cfg
         self.dt = dt_s
         self.tracker, self.path_eval = make_tracker(path, compiled_path)
+        # The generated tick (:mod:`fused`), made for this tracker only.
+        self._fused_for: PathTracker | None = None
+        self._fused: Callable[..., tuple[Any, ...]] | None = None
+        if type(self.tracker) is CompiledPathTracker:
+            try:
+                self._fused = build_fused(model, self.tracker.kernels).fn
+                self._fused_for = self.tracker
+            except (TraceError, ArithmeticError, ValueError):
+                pass
         self.mass_kg = model.mass_kg
         self.x13 = model.mass_kg * model.gravity_mps2   # u_f
         self.x14 = 0.0                                  # u̇_f
@@ -141,6 +137,9 @@ class TFLController:
         self.frame = frame
         m = self.model
         ix, iy, iz = m.inertia_kgm2
+        # Physical rotor of canonical rotor i (perm) and canonical index of physical rotor j.
+        self._perm = frame.perm if frame is not None else (0, 1, 2, 3)
+        self._inv_perm = tuple(self._perm.index(j) for j in range(4))
         if frame is None:
             self._axes = ((0, 1.0), (1, 1.0))
             self._ixyz = (ix, iy, iz)
@@ -188,46 +187,80 @@ class TFLController:
         """Compute the rotor thrusts (N) for this control period from the measured state
         and, with motor lag, the measured rotor speeds ω (rad/s, from ESC rpm)."""
         self.ticks += 1
-        # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
-        y, v, quat, rates = (_floats(s.position_m), _floats(s.velocity_mps),
-                             _floats(s.quaternion_wxyz), _floats(s.body_rates_radps))
-        R = rotation_rows(quat)
-        if self.psi_ref is None:
-            self.psi_ref = math.atan2(R[1][0], R[0][0])
-        b1, b2, b3, pc, qc, rc = self._canonical_axes(R, rates)
-        mass = self._update_estimators(v, R, pc, qc)
+        trk = self.tracker
+        # The flight's generated tick (:mod:`fused`) when it can run; it hands back to the
+        # step-by-step tick after the prelude for every fallback and failure.
+        k = self._fused_tick(trk, s) if trk is self._fused_for and trk.lam is not None \
+            else None
+        reason = ""
+        if k is None or k[0] is None:
+            y, v, psi, r2, rates, b1, b2, b3, pc, qc, rc, mass = \
+                self._prelude(s) if k is None else k[1:]
+            core, reason = self._stepwise_core(y, v, b1, b2, b3, pc, qc, rc, mass)
+            udd, qdot, tau_p, tau_q, cond, xi, eta, lam, distance = core
+        else:
+            udd, qdot, tau_p, tau_q, cond, xi, eta, lam, distance, psi, r2, rates, pc, qc, rc, \
+                mass = k
         uf, duf = self.x13, self.x14
-        vo = self.tracker.virtual_output(self._output_taylor(y, v, b1, b2, b3, pc, qc, rc,
-                                                             mass))
-        reason, udd, pdot, qdot, cond = self._decoupling_solve(vo, b1, b2, b3, mass, uf, duf,
-                                                               pc, qc)
-        tau_p, tau_q = self._torques(pdot, qdot, pc, qc, rc)
         bounds = (self.lag_inverter.reachable(rotor_speed_radps)
                   if self.lag_inverter is not None else None)
         if self.frame is not None:
             f, raw = self._allocate_attacked(uf, tau_p, tau_q, bounds)
             mode = _ATTACKED
         else:
-            f, raw = self._allocate_nominal(R, uf, tau_p, tau_q, qdot, pc, qc, rc, bounds)
+            f, raw = self._allocate_nominal(psi, r2, uf, tau_p, tau_q, qdot, pc, qc, rc, bounds)
             mode = _NOMINAL
         if reason:
             mode = _FALLBACK
         command, sat, applied_uf = self._saturate_and_apply(f, raw, pc, qc, rc)
         self._advance_extension(applied_uf, uf, duf, udd)
-        self._settle(vo, reason)
-        xi1, xi2, eta = vo.xi1, vo.xi2, vo.eta
+        self._settle(xi[0][0], xi[1][0], reason)
         iz, arm, den = self._mu2
         # ControlOutput's fields in order, built as the tuple it is (a keyword call of a
         # named tuple costs more than a microsecond a tick).
         return _new_output(ControlOutput, (
-            command, mode, sat, ((xi1[0], xi1[1], xi1[2], xi1[3]),
-                                 (xi2[0], xi2[1], xi2[2], xi2[3])),
-            (eta[0], eta[1], eta[2], eta[3]),
-            (math.atan2(R[1][0], R[0][0]), -rates[0] / iz - arm * rates[2] / den),
-            vo.distance_m, vo.lam, cond, uf, mass, (self.dob.d_p, self.dob.d_q), self.fine,
-            reason))
+            command, mode, sat, xi, eta,
+            (psi, -rates[0] / iz - arm * rates[2] / den),
+            distance, lam, cond, uf, mass, (self.dob.d_p, self.dob.d_q), self.fine, reason))
 
     # ------------------------------------------------------------------ the steps
+    def _fused_tick(self, trk: PathTracker, s: State) -> tuple[Any, ...]:
+        """Prelude and middle of the tick as the flight's one generated function
+        (:mod:`fused`): the numbers of :meth:`_prelude` + :meth:`_stepwise_core`, or
+        (None, the prelude's results) where the step-by-step middle must run."""
+        return self._fused(self, trk, s)  # type: ignore[misc]
+
+    def _prelude(self, s: State) -> tuple[Any, ...]:
+        """State as floats, attitude, canonical axes and rates, estimators: (y, v, ψ, R's
+        last row, rates, b1, b2, b3, p, q, r, mass)."""
+        # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
+        y, v, quat, rates = (_floats(s.position_m), _floats(s.velocity_mps),
+                             _floats(s.quaternion_wxyz), _floats(s.body_rates_radps))
+        R = rotation_rows(quat)
+        psi = math.atan2(R[1][0], R[0][0])
+        if self.psi_ref is None:
+            self.psi_ref = psi
+        b1, b2, b3, pc, qc, rc = self._canonical_axes(R, rates)
+        mass = self._update_estimators(v, b3, pc, qc)
+        return y, v, psi, R[2], rates, b1, b2, b3, pc, qc, rc, mass
+
+    def _stepwise_core(self, y: Sequence[float], v: Sequence[float], b1: Sequence[float],
+                       b2: Sequence[float], b3: Sequence[float], pc: float, qc: float,
+                       rc: float, mass: float) -> tuple[tuple[Any, ...], str]:
+        """Model rows, virtual output, decoupling solve and torques, one step at a time
+        (any tracker; every fallback). Returns (ü_f, q̇, τ_p, τ_q, cond, ξ rows, η, λ,
+        distance) and the fallback reason ("" if none)."""
+        uf, duf = self.x13, self.x14
+        vo = self.tracker.virtual_output(self._output_taylor(y, v, b1, b2, b3, pc, qc, rc,
+                                                             mass))
+        reason, udd, pdot, qdot, cond = self._decoupling_solve(vo, b1, b2, b3, mass, uf, duf,
+                                                               pc, qc)
+        tau_p, tau_q = self._torques(pdot, qdot, pc, qc, rc)
+        xi1, xi2, eta = vo.xi1, vo.xi2, vo.eta
+        return (udd, qdot, tau_p, tau_q, cond,
+                ((xi1[0], xi1[1], xi1[2], xi1[3]), (xi2[0], xi2[1], xi2[2], xi2[3])),
+                (eta[0], eta[1], eta[2], eta[3]), vo.lam, vo.distance_m), reason
+
     def _canonical_axes(self, R: list[list[float]], rates: Sequence[float]
                         ) -> tuple[tuple[float, float, float], tuple[float, float, float],
                                    tuple[float, float, float], float, float, float]:
@@ -240,14 +273,13 @@ class TFLController:
         b3 = (r0[2], r1[2], r2[2])
         return b1, b2, b3, s1 * rates[m1], s2 * rates[m2], rates[2]
 
-    def _update_estimators(self, v: Sequence[float], R: list[list[float]], pc: float,
+    def _update_estimators(self, v: Sequence[float], b3: Sequence[float], pc: float,
                            qc: float) -> float:
         """Robust add-ons fed with what was applied over the last period; returns the mass
         (kg) the law uses this tick."""
         if self._use_mass:
             lo = self._last_out
-            self.mass_kg = self.mass_est.update(self.dt, v, lo[0] + lo[1] + lo[2] + lo[3],
-                                                (R[0][2], R[1][2], R[2][2]))
+            self.mass_kg = self.mass_est.update(self.dt, v, lo[0] + lo[1] + lo[2] + lo[3], b3)
         if self._use_dob and self._pred is not None:
             self.dob.update(self.dt, pc, qc, self._pred[0], self._pred[1])
         return self.mass_kg
@@ -255,36 +287,11 @@ class TFLController:
     def _output_taylor(self, y: Sequence[float], v: Sequence[float], b1: Sequence[float],
                        b2: Sequence[float], b3: Sequence[float], pc: float, qc: float,
                        rc: float, mass: float) -> tuple[tuple[float, ...], ...]:
-        """Taylor rows (y, ẏ, ÿ/2, y⃛/6, a₀/24) of the output y = x_q (eq. (5)) from the
-        model (eq. (3)) with the extension x13 = u_f, x14 = u̇_f (eq. (9)): ÿ = (u_f/m) b3
-        − g e3 − (k_t/m) ẏ, and a₀ = y⁽⁴⁾ at ü_f = ṗ = q̇ = 0 (the drift L_f⁴ of eq. (10))."""
-        uf, duf = self.x13, self.x14
-        kt = self.model.k_t / mass
-        ufm = uf / mass
-        dufm = duf / mass
-        dufm2 = 2.0 * duf / mass
-        pr, qr = pc * rc, qc * rc
-        pq2 = pc * pc + qc * qc
-        b1x, b1y, b1z = b1
-        b2x, b2y, b2z = b2
-        b3x, b3y, b3z = b3
-        vx, vy, vz = v
-        # x, y, z written out (this runs every tick); the same operations as one loop.
-        yddx = ufm * b3x - kt * vx
-        yddy = ufm * b3y - kt * vy
-        yddz = ufm * b3z - kt * vz - self.model.gravity_mps2
-        db3x = qc * b1x - pc * b2x
-        db3y = qc * b1y - pc * b2y
-        db3z = qc * b1z - pc * b2z
-        ydddx = dufm * b3x + ufm * db3x - kt * yddx
-        ydddy = dufm * b3y + ufm * db3y - kt * yddy
-        ydddz = dufm * b3z + ufm * db3z - kt * yddz
-        a0x = dufm2 * db3x + ufm * (pr * b1x + qr * b2x - pq2 * b3x) - kt * ydddx
-        a0y = dufm2 * db3y + ufm * (pr * b1y + qr * b2y - pq2 * b3y) - kt * ydddy
-        a0z = dufm2 * db3z + ufm * (pr * b1z + qr * b2z - pq2 * b3z) - kt * ydddz
-        return ((y[0], vx, yddx / 2.0, ydddx / 6.0, a0x / 24.0),
-                (y[1], vy, yddy / 2.0, ydddy / 6.0, a0y / 24.0),
-                (y[2], vz, yddz / 2.0, ydddz / 6.0, a0z / 24.0))
+        """Taylor rows of the output y = x_q (eq. (5)) from the model (eqs. (3), (9)):
+        :func:`law_math.output_rows`."""
+        m = self.model
+        return output_rows(y, v, b1, b2, b3, pc, qc, rc, self.x13, self.x14, mass, m.k_t,
+                           m.gravity_mps2)
 
     def _decoupling_solve(self, vo: VirtualOutput, b1: Sequence[float], b2: Sequence[float],
                           b3: Sequence[float], mass: float, uf: float, duf: float,
@@ -295,25 +302,22 @@ class TFLController:
         cfg = self.cfg
         xi1, xi2, eta = vo.xi1, vo.xi2, vo.eta
         kx, ke = self.k_xi, self.k_eta
-        v_xi1 = -(kx[0] * xi1[0] + kx[1] * xi1[1] + kx[2] * xi1[2] + kx[3] * xi1[3])
-        v_xi2 = -(kx[0] * xi2[0] + kx[1] * xi2[1] + kx[2] * xi2[2] + kx[3] * xi2[3])
-        v_eta = -(ke[0] * (eta[1] - cfg.speed_mps) + ke[1] * eta[2] + ke[2] * eta[3])
-        rhs = (v_xi1 - xi1[4], v_xi2 - xi2[4], v_eta - eta[4])
+        rhs = linear_rhs(xi1, xi2, eta, kx, ke, cfg.speed_mps)
         reason = ""
         if not vo.in_tube:
             reason = f"left the projection tube: {vo.reason}"
         elif uf < cfg.min_thrust_n:
             reason = f"total thrust {uf:.2f} N too small: D(x) singular"
         # First Dφ z = rhs (z = B₀ w, the commanded snap) …
-        z, rel = _solve3(vo.jacobian, rhs)
+        z, rel = solve3(vo.jacobian, rhs)
         cond = 1.0 / rel if rel > 0 else math.inf
         if not reason and cond > cfg.max_cond:
             reason = f"decoupling matrix ill-conditioned (cond {cond:.1e})"
         # … then B₀ w = z with B₀ = [b3/m, −(u_f/m) b2, (u_f/m) b1]: orthogonal columns.
-        z0, z1, z2 = z
-        udd = mass * (z0 * b3[0] + z1 * b3[1] + z2 * b3[2])
-        pdot = -mass / uf * (z0 * b2[0] + z1 * b2[1] + z2 * b2[2]) if uf > 0 else 0.0
-        qdot = mass / uf * (z0 * b1[0] + z1 * b1[1] + z2 * b1[2]) if uf > 0 else 0.0
+        if uf > 0:
+            udd, pdot, qdot = b0_inverse(z, b1, b2, b3, mass, uf)
+        else:
+            udd, pdot, qdot = mass * (z[0] * b3[0] + z[1] * b3[1] + z[2] * b3[2]), 0.0, 0.0
         if not reason and not (math.isfinite(udd) and math.isfinite(pdot)
                                and math.isfinite(qdot)):
             reason = "non-finite control (numerical failure)"
@@ -329,42 +333,37 @@ class TFLController:
                  ) -> tuple[float, float]:
         """τ_p, τ_q for the demanded ṗ, q̇ by Euler's equation with rate damping (eq. (3))."""
         ix, iy, iz = self._ixyz
-        kr = self.model.k_r
-        return (ix * pdot + kr * pc + (iz - iy) * qc * rc,
-                iy * qdot + kr * qc + (ix - iz) * pc * rc)
+        return torques(pdot, qdot, pc, qc, rc, ix, iy, iz, self.model.k_r)
 
     def _allocate_attacked(self, uf: float, tau_p: float, tau_q: float,
                            bounds: Bounds | None) -> tuple[list[float], list[float]]:
         """Rotor thrusts with f₂ = A (eq. (6)): τ_r from τ_p, rotor order restored.
         Returns (feasible thrusts, unbounded thrusts) in physical order."""
         m = self.model
-        frame = self.frame
-        assert frame is not None
         d = self._d
         a_n = self.attack_estimate_n
-        tau_r = d * (uf - 2.0 * (tau_p + 2.0 * m.arm_m * a_n) / m.arm_m)   # eq. (6)
-        raw_c = allocate_attacked(uf, tau_q, tau_r, a_n, m.arm_m, d)
-        perm = frame.perm
+        arm = m.arm_m
+        tau_r = d * (uf - 2.0 * (tau_p + 2.0 * arm * a_n) / arm)   # eq. (6)
+        raw = allocate_attacked(uf, tau_q, tau_r, a_n, arm, d)
+        perm = self._perm
         cb = None if bounds is None else tuple([b[phys] for phys in perm] for b in bounds)
-        canon = allocate_attacked(uf, tau_q, tau_r, a_n, m.arm_m, d, m.thrust_max_n,
-                                  cb)  # type: ignore[arg-type]
-        f = [0.0] * 4
-        raw = [0.0] * 4
-        for i, phys in enumerate(perm):
-            f[phys] = canon[i]
-            raw[phys] = raw_c[i]
+        f = allocate_attacked(uf, tau_q, tau_r, a_n, arm, d, m.thrust_max_n,
+                              cb)  # type: ignore[arg-type]
+        i0, i1, i2, i3 = self._inv_perm
+        if i0:   # not rotor 2 itself: back to the physical order
+            f = [f[i0], f[i1], f[i2], f[i3]]
+            raw = [raw[i0], raw[i1], raw[i2], raw[i3]]
         return f, raw
 
-    def _allocate_nominal(self, R: list[list[float]], uf: float, tau_p: float, tau_q: float,
-                          qdot: float, pc: float, qc: float, rc: float,
+    def _allocate_nominal(self, psi_e: float, r2: Sequence[float], uf: float, tau_p: float,
+                          tau_q: float, qdot: float, pc: float, qc: float, rc: float,
                           bounds: Bounds | None) -> tuple[list[float], list[float]]:
         """All four rotors (inverse of eq. (4)); τ_r from the yaw loop ψ̈ = −k₁ψ̇ −
         k₀(ψ − ψ_ref), exact through the Euler chart (eq. (2)). (feasible, unbounded)."""
         m = self.model
         ix, iy, iz = self._ixyz
-        phi_e = math.atan2(R[2][1], R[2][2])
-        th_e = -math.asin(max(-1.0, min(1.0, R[2][0])))
-        psi_e = math.atan2(R[1][0], R[0][0])
+        phi_e = math.atan2(r2[1], r2[2])            # r2: R's last row, ψ_e = atan2(R₁₀, R₀₀)
+        th_e = -math.asin(max(-1.0, min(1.0, r2[0])))
         sph, cph = math.sin(phi_e), math.cos(phi_e)
         cth, sth = math.cos(th_e), math.sin(th_e)
         dphi = pc + (qc * sph + rc * cph) * sth / cth
@@ -389,41 +388,42 @@ class TFLController:
         will deliver. Returns (command, saturated, applied u_f)."""
         m = self.model
         fmax = m.thrust_max_n
-        last = self._last_out
         hi = fmax + 1e-9
-        sat = [not (-1e-9 <= fi <= hi) for fi in raw]
-        clipped = []
-        for i in range(4):
-            fi = f[i]
-            if math.isfinite(fi):
-                fi = 0.0 if fi < 0.0 else fi          # max(fi, 0), min(·, f_max) written out
-                clipped.append(fmax if fmax < fi else fi)
-            else:
-                clipped.append(last[i])
-        f = clipped
+        r0, r1, r2, r3 = raw
+        sat = [not -1e-9 <= r0 <= hi, not -1e-9 <= r1 <= hi, not -1e-9 <= r2 <= hi,
+               not -1e-9 <= r3 <= hi]
+        # max(f, 0), min(·, f_max) written out, rotor by rotor (this runs every tick); a
+        # non-finite f (f − f is NaN) keeps the last command.
+        f0, f1, f2, f3 = f
+        l0, l1, l2, l3 = self._last_out
+        f = [(0.0 if f0 < 0.0 else (fmax if fmax < f0 else f0)) if f0 - f0 == 0.0 else l0,
+             (0.0 if f1 < 0.0 else (fmax if fmax < f1 else f1)) if f1 - f1 == 0.0 else l1,
+             (0.0 if f2 < 0.0 else (fmax if fmax < f2 else f2)) if f2 - f2 == 0.0 else l2,
+             (0.0 if f3 < 0.0 else (fmax if fmax < f3 else f3)) if f3 - f3 == 0.0 else l3]
         frame = self.frame
+        p0, p1, p2, p3 = self._perm
         if frame is not None:
-            f[frame.perm[1]] = self.attack_estimate_n
+            f[p1] = self.attack_estimate_n
         if sat[0] or sat[1] or sat[2] or sat[3]:
             self.saturation_count += 1
         applied_uf = f[0] + f[1] + f[2] + f[3]
-        command = f
-        delivered = f
+        command = delivered = f
         if self.lag_inverter is not None:
             inv = self.lag_inverter.invert(f)
             command, delivered = inv.command_n, inv.expected_mean_n
             if frame is not None:
-                command[frame.perm[1]] = f[frame.perm[1]]
-                delivered[frame.perm[1]] = f[frame.perm[1]]
+                command[p1] = f[p1]
+                delivered[p1] = f[p1]
             if any(inv.clamped):
                 self.lag_clamped_count += 1
-        fc = [delivered[phys] for phys in frame.perm] if frame is not None else delivered
         ix, iy, iz = self._ixyz
         kr = m.k_r
-        tp_app = m.arm_m * (fc[3] - fc[1])
-        tq_app = m.arm_m * (fc[2] - fc[0])
-        self._pred = ((tp_app - kr * pc - (iz - iy) * qc * rc) / ix,
-                      (tq_app - kr * qc - (ix - iz) * pc * rc) / iy)
+        arm = m.arm_m
+        # Canonical rotor i is physical perm[i]: τ_p' = l (f₄' − f₂'), τ_q' = l (f₃' − f₁').
+        self._pred = ((arm * (delivered[p3] - delivered[p1]) - kr * pc - (iz - iy) * qc * rc)
+                      / ix,
+                      (arm * (delivered[p2] - delivered[p0]) - kr * qc - (ix - iz) * pc * rc)
+                      / iy)
         self._last_out = delivered
         return command, sat, applied_uf
 
@@ -439,12 +439,12 @@ class TFLController:
         self.x13 += dt * self.x14 + 0.5 * dt * dt * udd
         self.x14 += dt * udd
 
-    def _settle(self, vo: VirtualOutput, reason: str) -> None:
+    def _settle(self, alpha1: float, alpha2: float, reason: str) -> None:
         """The robust law's one-time switch to the fine ξ, η poles once |α| has stayed
         below ``settle_alpha`` for ``settle_time_s``."""
         cfg = self.cfg
         if self._use_switch and not self.fine and not reason:
-            alpha_norm = math.hypot(vo.xi1[0], vo.xi2[0])
+            alpha_norm = math.hypot(alpha1, alpha2)
             self._settled_s = self._settled_s + self.dt if alpha_norm < cfg.settle_alpha \
                 else 0.0
             if self._settled_s >= cfg.settle_time_s:

@@ -1,0 +1,248 @@
+"""The TFL law's arithmetic for one flight as one generated function (issue #13).
+
+A tick of the law (paper §V) is ~1 000 floating-point operations spread over ~30 Python
+calls; the calls, tuple packs and attribute reads cost more than the arithmetic. A path and
+the model are fixed for a flight, so at start-up this module writes the tick up to the
+rotor allocation — the state as floats, R(q) and the canonical axes, the estimators (called),
+the output's Taylor rows from the model (eqs. (3), (9)), the closest-point projection
+(eq. (13), Newton warm-started as :class:`compiled.CompiledPathTracker`), π's rates and
+α = s(y) with Dφ (eqs. (8), (14), (15)), the ξ, η controllers (eqs. (23), (24)), the
+decoupling solve (eq. (21)) and the torques (eq. (3)) — as the body of one Python function:
+the straight-line pieces are traced (:mod:`jetcode`) from the very functions the
+step-by-step law and the compiled tracker run (:mod:`law_math`, :func:`tracker.pi_rates`,
+the path's σ and s), the loop and the checks are written here around them. Same operations
+in the same order, so the same numbers bit for bit. One tape holds everything after the
+Newton loop, so what the path makes constant (σ' = (1, ·, ·) on the paper path, ∂s/∂y rows
+of 0 and 1) folds through π, Dφ and Cramer's rule, and operations nothing reads are dropped.
+
+After the prelude (which the step-by-step tick would have run the same way, estimators
+included) the function changes nothing until it succeeds: every condition under which the
+law would fall back (projection lost, tube margin, u_f too small, Dφ singular or
+ill-conditioned, a non-finite result, an evaluation error) makes it return ``(None, the
+prelude's results)``, and the law runs its step-by-step middle from there, whose fallbacks
+and reasons are unchanged. On success it commits the tracker's state (λ, the expansion, π)
+and returns the tick's numbers.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from tfl_mav.control.compiled import (
+    _NEWTON_ITERS,
+    Y_NAMES,
+    PathKernels,
+    _arc,
+    trace_pi,
+    traced_sqrt,
+)
+from tfl_mav.control.jetcode import Sym, _text
+from tfl_mav.control.kernelgen import compile_source, trace_block
+from tfl_mav.control.law_math import (
+    b0_inverse,
+    cofactors,
+    cramer,
+    linear_rhs,
+    output_rows,
+    rotation,
+    torques,
+)
+from tfl_mav.control.law_types import ModelParams
+
+__all__ = ["FusedTick", "build_fused"]
+
+@dataclass(frozen=True)
+class FusedTick:
+    """The generated tick: ``fn(ctl, trk, state)`` → (ü_f, q̇, τ_p, τ_q, cond Dφ, ξ rows,
+    η, λ, distance, ψ, R's last row, rates, p, q, r, mass), or (None, y, v, ψ, R's last row,
+    rates, b1, b2, b3, p, q, r, mass) for the step-by-step middle (see module doc)."""
+
+    fn: Callable[..., tuple[Any, ...] | None]
+    source: str
+    n_ops: int
+    build_s: float
+
+
+def _flat(rows: Any) -> list[Any]:
+    return [x for row in rows for x in row]
+
+
+def _newton_step(trace_sigma: Callable[..., list[Any]], lam_: list[Sym], y0: list[Sym]
+                 ) -> list[Any]:
+    """One Newton step of the projection, as compiled.CompiledPathTracker._project_compiled
+    (the loop around it is written in :func:`build_fused`)."""
+    tape = lam_[0].tape
+    c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = trace_sigma(lam_, 2)
+    ex, ey, ez = y0[0] - c0x, y0[1] - c0y, y0[2] - c0z
+    dg = 2.0 * (ex * c2x + ey * c2y + ez * c2z) - (c1x * c1x + c1y * c1y + c1z * c1z)
+    step = -(ex * c1x + ey * c1y + ez * c1z)
+    tape.raw("\n".join(f"    {ln}" for ln in (
+        f"if not {_text(dg)} < 0.0:", "    return None",
+        f"step = {_text(step)} / {_text(dg)}", "lam += step",
+        "if not abs(lam - lam0) <= 0.05:", "    return None",
+        "if abs(step) < 1e-9:", "    break")))
+    return []
+
+
+def _after_projection(model: ModelParams, trace_sigma: Callable[..., list[Any]],
+                      trace_s: Callable[..., list[Any]], lam_: list[Sym], x: list[Sym],
+                      y: list[Sym], z: list[Sym], s: list[Sym], b1: list[Sym], b2: list[Sym],
+                      b3: list[Sym]) -> list[Any]:
+    """The tick after the Newton loop, traced on one tape so that what the path makes
+    constant (σ' = (1, ·, ·), ∂s/∂y = (·, 1, 0) …) folds through π, Dφ and Cramer's rule
+    (only x·1, x·0, x ± 0, exact for the finite values of a tick that succeeds)."""
+    lam = lam_[0]
+    tape = lam.tape
+    pc, qc, rc, mass, uf = s
+    t = _text
+
+    def raw(*lines: str) -> None:
+        tape.raw("\n".join(f"    {ln}" for ln in lines))
+
+    def local(name: str, value: Any) -> Sym:
+        raw(f"{name} = {t(value)}")
+        return tape.input(name)
+
+    c = trace_sigma([lam], 5)
+    raw(f"c = ({', '.join(t(v) for v in c)},)",
+        f"{', '.join(f'cp{j}' for j in range(18))} = cp")
+    cp = [tape.input(f"cp{j}") for j in range(18)]
+    local("arc", tape.input("trk._arc_m")
+          + _arc(cp, c, lam - tape.input("lam0"), traced_sqrt))
+    # compiled.CompiledPathTracker.virtual_output: slope, tube margin, distance.
+    c0x, c0y, c0z, c1x, c1y, c1z = c[0:6]
+    e0x, e0y, e0z = x[0] - c0x, y[0] - c0y, z[0] - c0z
+    s1sq = c1x ** 2 + c1y ** 2 + c1z ** 2
+    slope = -s1sq + 2.0 * (e0x * c[6] + e0y * c[7] + e0z * c[8])
+    raw(f"if not ({t(s1sq)} > 0.0 and -{t(slope)} / {t(s1sq)} >= trk.min_tube_margin):",
+        "    return None")
+    distance = local("distance", traced_sqrt(e0x ** 2 + e0y ** 2 + e0z ** 2))
+    p1, p2, p3, p4 = trace_pi(c, x, y, z, [slope])
+    a = trace_s(x, y, z)
+    k = traced_sqrt(s1sq) / -slope
+    jac = (a[10:13], a[13:16], (k * c1x, k * c1y, k * c1z))
+    # law.TFLController._decoupling_solve, law_math.
+    raw("kx0, kx1, kx2, kx3 = ctl.k_xi", "ke0, ke1, ke2 = ctl.k_eta")
+    kx = [tape.input(f"kx{i}") for i in range(4)]
+    ke = [tape.input(f"ke{i}") for i in range(3)]
+    raw("speed = cfg.speed_mps")
+    speed = tape.input("speed")
+    r = linear_rhs(a[0:5], a[5:10], (None, p1, p2, p3, p4), kx, ke, speed)
+    co0, co1, co2, det, norms = cofactors(jac, traced_sqrt)
+    raw(f"if not {t(norms)} > 0:", "    return None",
+        f"rel = abs({t(det)}) / {t(norms)}",
+        "if not rel >= 1e-12:", "    return None",
+        "cond = 1.0 / rel",
+        "if not cond <= cfg.max_cond:", "    return None")
+    inv = local("inv", 1.0 / det)
+    udd, pdot, qdot = b0_inverse(cramer(jac, r, co0, co1, co2, inv), b1, b2, b3, mass, uf)
+    udd, pdot, qdot = local("udd", udd), local("pdot", pdot), local("qdot", qdot)
+    raw("if not (_isfinite(udd) and _isfinite(pdot) and _isfinite(qdot)):",
+        "    return None",
+        "if ctl._use_dob:",
+        "    dob = ctl.dob",
+        "    pdot -= dob.d_p",
+        "    qdot -= dob.d_q",
+        "ix, iy, iz = ctl._ixyz")
+    ixyz = [tape.input(n) for n in ("ix", "iy", "iz")]
+    tau_p, tau_q = torques(pdot, qdot, pc, qc, rc, *ixyz, model.k_r)
+    xi = f"(({', '.join(t(v) for v in a[0:4])}), ({', '.join(t(v) for v in a[5:9])}))"
+    raw("trk._arc_m = arc", "trk._lam_prev = lam0", "trk.lam = lam", "trk._expansion = (lam, c)",
+        f"return ({t(udd)}, {t(qdot)}, {t(tau_p)}, {t(tau_q)}, cond, {xi}, "
+        f"(arc, {t(p1)}, {t(p2)}, {t(p3)}), lam, {t(distance)}, psi, (r20, r21, r22), rates, "
+        "pc, qc, rc, mass)")
+    return []
+
+
+def build_fused(model: ModelParams, kernels: PathKernels) -> FusedTick:
+    """Generate the fused tick for ``model`` and the path of ``kernels``."""
+    t0 = time.perf_counter()
+    assert kernels.trace_sigma is not None and kernels.trace_s is not None
+    trace_sigma, trace_s = kernels.trace_sigma, kernels.trace_s
+    n_ops = 0
+
+    def block(prefix: str, inputs: list[list[str]], trace: Callable[..., Any],
+              outputs: list[str], indent: str = "    ") -> list[str]:
+        nonlocal n_ops
+        lines, n = trace_block(prefix, inputs, trace, outputs, indent)
+        n_ops += n
+        return lines
+
+    model_rows = block(
+        "m_", [["x0", "y0", "z0"], ["x1", "y1", "z1"], ["b1x", "b1y", "b1z"],
+               ["b2x", "b2y", "b2z"], ["b3x", "b3y", "b3z"], ["pc", "qc", "rc", "uf", "duf",
+                                                               "mass"]],
+        lambda y, v, b1, b2, b3, s: _flat(output_rows(y, v, b1, b2, b3, *s, model.k_t,
+                                                      model.gravity_mps2)),
+        _flat(Y_NAMES))
+    sigma2 = block("g_", [["lam"], ["x0", "y0", "z0"]],
+                   lambda lam, y0: _newton_step(trace_sigma, lam, y0), [], " " * 8)
+    after = block("t_", [["lam"], *Y_NAMES, ["pc", "qc", "rc", "mass", "uf"],
+                         ["b1x", "b1y", "b1z"], ["b2x", "b2y", "b2z"], ["b3x", "b3y", "b3z"]],
+                  lambda *g: _after_projection(model, trace_sigma, trace_s, *g), [])
+    rot = block("q_", [["qw", "qx", "qy", "qz"]], lambda q: rotation(q, traced_sqrt),
+                [f"r{i}{j}" for i in range(3) for j in range(3)])
+    # As the tracker's isfinite(sum(tx) + sum(ty) + sum(tz)): the same additions.
+    rows = " + ".join(f"({' + '.join(r)})" for r in Y_NAMES)
+    middle = [
+        "uf = ctl.x13",
+        "duf = ctl.x14",
+        "cfg = ctl.cfg",
+        "if not (uf >= cfg.min_thrust_n and uf > 0.0):",
+        "    return None",
+        "x0, y0, z0 = y",
+        "x1, y1, z1 = v",
+        *(ln[4:] for ln in model_rows),
+        f"if not _isfinite({rows}):",
+        "    return None",
+        "# The projection (eq. (13)): compiled.CompiledPathTracker._project_compiled.",
+        "lam0 = trk.lam",
+        "prev = trk._expansion",
+        "fresh = prev is not None and prev[0] == lam0",
+        "lp = trk._lam_prev",
+        "lam = 2.0 * lam0 - lp if fresh and lp is not None else lam0",
+        f"for _ in range({_NEWTON_ITERS}):",
+        *(ln[4:] for ln in sigma2),
+        "else:",
+        "    return None",
+        "cp = prev[1] if fresh else trk._sigma5((lam0,))",
+        *(ln[4:] for ln in after),
+    ]
+    bail = ("return (None, y, v, psi, (r20, r21, r22), rates, (b1x, b1y, b1z), (b2x, b2y, b2z), "
+            "(b3x, b3y, b3z), pc, qc, rc, mass)")
+    source = "\n".join([
+        "def fused_tick(ctl, trk, s):",
+        "    # The prelude: law.TFLController._prelude.",
+        *(f"    {name} = s.{field}\n    if type({name}) is _ndarray:\n"
+          f"        {name} = {name}.tolist()"
+          for name, field in (("y", "position_m"), ("v", "velocity_mps"),
+                              ("quat", "quaternion_wxyz"), ("rates", "body_rates_radps"))),
+        "    qw, qx, qy, qz = quat",
+        *rot,
+        "    psi = _atan2(r10, r00)",
+        "    if ctl.psi_ref is None:",
+        "        ctl.psi_ref = psi",
+        "    (m1, s1), (m2, s2) = ctl._axes",
+        "    cols = ((r00, r10, r20), (r01, r11, r21))",
+        "    col = cols[m1]",
+        "    b1x, b1y, b1z = s1 * col[0], s1 * col[1], s1 * col[2]",
+        "    col = cols[m2]",
+        "    b2x, b2y, b2z = s2 * col[0], s2 * col[1], s2 * col[2]",
+        "    b3x, b3y, b3z = r02, r12, r22",
+        "    pc, qc, rc = s1 * rates[m1], s2 * rates[m2], rates[2]",
+        "    mass = ctl._update_estimators(v, (b3x, b3y, b3z), pc, qc)",
+        "    # The middle; on any bail the step-by-step tick takes over from here.",
+        "    try:",
+        *(f"        {ln.replace('return None', bail)}" for ln in middle),
+        "    except (ValueError, ZeroDivisionError, OverflowError):",
+        f"        {bail}",
+    ]) + "\n"
+    fn = compile_source("fused_tick", source, {"_isfinite": math.isfinite, "_arc": _arc,
+                                               "_atan2": math.atan2, "_ndarray": np.ndarray})
+    return FusedTick(fn, source, n_ops, time.perf_counter() - t0)
