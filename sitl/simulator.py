@@ -42,8 +42,12 @@ class Simulator:
         self.thrust_max_n = v.thrust_max_n
         self._rk4 = rk4_stepper(self.params)
         ini = scenario.initial
-        q0 = euler_to_quaternion(*ini.euler_rad)
-        self._x = [*ini.position_m, *ini.velocity_mps, *q0, *ini.body_rates_radps]
+        # Python floats throughout: a numpy scalar (euler_to_quaternion's elements) would
+        # make every derived state component a numpy scalar, and RK4's ~700 operations on
+        # those cost 4-6× as much as on floats (the same IEEE results: tests/test_golden.py).
+        q0 = euler_to_quaternion(*ini.euler_rad).tolist()
+        self._x = [float(c) for c in (*ini.position_m, *ini.velocity_mps, *q0,
+                                      *ini.body_rates_radps)]
         hover_n = v.mass_kg * v.gravity_mps2 / 4.0
         self.motors = MotorBank(v.k_f, v.thrust_max_n, v.motor_time_constant_s, [hover_n] * 4)
         self.attacker = Attacker(scenario.attack, v.thrust_max_n)
