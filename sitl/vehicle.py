@@ -431,10 +431,11 @@ def truth_hook(recorder: TruthSink) -> Callable[[Simulator], None]:
     """``Vehicle.on_truth`` → ``recorder.truth``: true state, rotor thrusts and attack."""
 
     def on_truth(sim: Simulator) -> None:
-        st = sim.state
+        # the float state vector, sliced (sim.state would build five arrays a tick only to
+        # turn them back into these very lists)
+        x = sim.state_vector
         att = sim.attack
-        recorder.truth(sim.time_s, st.position_m.tolist(), st.velocity_mps.tolist(),
-                       st.quaternion_wxyz.tolist(), st.body_rates_radps.tolist(),
+        recorder.truth(sim.time_s, x[0:3], x[3:6], x[6:10], x[10:13],
                        sim.rotor_thrusts_n, att.rotor, att.applied_n, att.raw_n)
 
     return on_truth
