@@ -15,7 +15,7 @@ from typing import NamedTuple
 from tfl_mav.expr import Expr, compile_expr
 from tfl_mav.scenario import AttackConfig
 
-__all__ = ["FAILURE_TYPES", "AttackSample", "Attacker"]
+__all__ = ["FAILURE_TYPES", "NO_ATTACK", "AttackSample", "Attacker"]
 
 # MAV_CMD_INJECT_FAILURE param2 (FAILURE_TYPE) → the signal it starts. 0 (OK) ends the attack.
 FAILURE_TYPES: dict[int, str] = {0: "ok", 1: "off", 2: "stuck", 4: "wrong", 8: "drift"}

@@ -39,8 +39,8 @@ from sitl.power import PowerModel
 from sitl.results import VehicleStats
 from sitl.simulator import Simulator
 from sitl.state_report import StateReport
-from tfl_mav.frames import enu_to_ned, odometry_from_paper
-from tfl_mav.geometry import euler_zyx_from_rotation, rotation_from_quaternion
+from tfl_mav.frames import odometry_from_paper
+from tfl_mav.geometry import rotation_rows
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.transport import Link
 
@@ -254,8 +254,9 @@ class GcsTelemetry:
         t_ms = int(sim.time_s * 1000.0) & 0xFFFFFFFF
         f = odometry_from_paper(m.position_m, m.velocity_mps, m.quaternion_wxyz,
                                 m.body_rates_radps)
-        roll, pitch, yaw = euler_zyx_from_rotation(rotation_from_quaternion(f.q))
-        v_ned = enu_to_ned(m.velocity_mps)
+        roll, pitch, yaw = _euler_zyx(rotation_rows(f.q))
+        ve, vn, vu = m.velocity_mps
+        v_ned = (vn, ve, -vu)               # enu_to_ned, as floats
         fmax = sim.thrust_max_n
         actuators = [c / fmax for c in sim.rotor_commands_n] + [0.0] * 28
         p = self.power.sample
@@ -291,6 +292,17 @@ class GcsTelemetry:
         if esc is not None:
             msgs.append(esc)   # this tick's ESC_TELEMETRY_1_TO_4: rpm
         return msgs
+
+
+def _euler_zyx(rows: list[list[float]]) -> tuple[float, float, float]:
+    """:func:`~tfl_mav.geometry.euler_zyx_from_rotation` of R given as float rows: the
+    same operations on the same numbers (so the same angles), without building an array
+    (this runs with every GCS telemetry datagram)."""
+    s = -rows[2][0]
+    theta = math.asin(max(-1.0, min(1.0, s)))
+    if abs(s) > 1.0 - 1e-12:
+        return 0.0, theta, math.atan2(-rows[0][1], rows[1][1])
+    return math.atan2(rows[2][1], rows[2][2]), theta, math.atan2(rows[1][0], rows[0][0])
 
 
 def _cm(v_mps: float) -> int:

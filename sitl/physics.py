@@ -28,7 +28,7 @@ import numpy as np
 from tfl_mav.airframe import mix
 from tfl_mav.geometry import rotation_from_quaternion
 
-__all__ = ["RigidBodyParams", "RigidBodyState", "mix", "rk4_step", "rk4_stepper"]
+__all__ = ["RigidBodyParams", "RigidBodyState", "Rk4Step", "mix", "rk4_step", "rk4_stepper"]
 
 
 @dataclass(frozen=True)

@@ -32,7 +32,11 @@ class AgeHistogram:
         self.max_usec = 0
 
     def add(self, age_usec: int) -> None:
-        age = max(0, age_usec)
+        if age_usec <= 0:           # on time (lockstep: always): bin 0, the maximum holds
+            self.counts[0] += 1
+            self.n += 1
+            return
+        age = age_usec
         self.counts[min(-(-age // self.BIN_USEC), self.N_BINS - 1)] += 1
         self.n += 1
         if age > self.max_usec:

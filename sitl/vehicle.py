@@ -87,6 +87,9 @@ __all__ = [
 
 _ID_HEARTBEAT = mav.MAVLINK_MSG_ID_HEARTBEAT
 _ID_HIL_ACTUATOR_CONTROLS = mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
+# The daemon's own telemetry (tfl_mav.daemon, ≤ 50 Hz): the vehicle only records it, so the
+# control link checks and counts those frames but does not decode them.
+_IGNORED_IDS = (mav.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT, mav.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY)
 _CONTROL_LINK_ID, _GCS_LINK_ID = 0, 1      # MAVLink signing link ids of our two ports
 _FINAL_HEARTBEATS, _FINAL_HEARTBEAT_GAP_S = 3, 0.01   # the last HEARTBEAT, sent 3 times
 _REFUSAL_INTERVAL_S = 1.0                   # STATUSTEXT to one refused sender at most 1/s
@@ -137,7 +140,8 @@ class Vehicle:
         self.lockstep_timeout_s = lockstep_timeout_s
         self.control_link = Link.listen(listen, src_system=sysid, src_component=compid,
                                         peer=peer, on_frame=on_frame, signing=self.signing,
-                                        link_id=_CONTROL_LINK_ID, admit=self._admit)
+                                        link_id=_CONTROL_LINK_ID, admit=self._admit,
+                                        skim_ids=_IGNORED_IDS)
         self.gcs_link: Link | None = None
         if gcs is not None:
             try:
@@ -427,10 +431,11 @@ def truth_hook(recorder: TruthSink) -> Callable[[Simulator], None]:
     """``Vehicle.on_truth`` → ``recorder.truth``: true state, rotor thrusts and attack."""
 
     def on_truth(sim: Simulator) -> None:
-        st = sim.state
+        # the float state vector, sliced (sim.state would build five arrays a tick only to
+        # turn them back into these very lists)
+        x = sim.state_vector
         att = sim.attack
-        recorder.truth(sim.time_s, st.position_m.tolist(), st.velocity_mps.tolist(),
-                       st.quaternion_wxyz.tolist(), st.body_rates_radps.tolist(),
+        recorder.truth(sim.time_s, x[0:3], x[3:6], x[6:10], x[10:13],
                        sim.rotor_thrusts_n, att.rotor, att.applied_n, att.raw_n)
 
     return on_truth

@@ -274,3 +274,16 @@ def test_crash_reasons_are_sentences(scenario):
     while sim.crash_reason() is None:
         sim.step_control_period()
     assert "hit the ground" in sim.crash_reason()
+
+
+def test_the_state_is_plain_floats_and_a_diverging_one_ends_the_run(scenario):
+    """Python floats throughout (numpy scalars cost RK4 4-6×); where floats would raise on a
+    diverging state (a zero quaternion norm, ``**`` overflowing), the step falls back to
+    numpy's inf/NaN and the run ends with a reason, never an exception."""
+    sim = Simulator(scenario)
+    sim.step_control_period()
+    assert all(type(c) is float for c in sim.state_vector)
+    assert all(type(c) is float for c in sim.measured_floats.quaternion_wxyz)
+    sim._x[6:10] = [0.0, 0.0, 0.0, 0.0]      # |q| = 0: floats raise ZeroDivisionError
+    sim.step_control_period()
+    assert "non-finite" in sim.crash_reason()

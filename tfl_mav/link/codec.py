@@ -42,7 +42,8 @@ from typing import Any
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.payload import frame_payload
 
-__all__ = ["HOT_MESSAGE_IDS", "UNSENT", "FastCodec", "LiteMessage", "lite_class"]
+__all__ = ["HOT_MESSAGE_IDS", "UNSENT", "FastCodec", "LiteMessage", "SkimmedMessage",
+           "lite_class", "skim"]
 
 HOT_MESSAGE_IDS = (
     mav.MAVLINK_MSG_ID_ODOMETRY,
@@ -303,3 +304,68 @@ class FastCodec:
         layout, end, _crc = checked
         return _new_tuple(layout.lite, (*layout.unpack(frame_payload(raw, layout.size, end)),
                                         raw))
+
+
+class SkimmedMessage:
+    """A frame that passed every check pymavlink's ``decode`` makes (known id, CRC, the
+    signature count) but was not decoded: for messages a receiver only routes, counts or
+    records by their bytes (the vehicle ignores the daemon's NAMED_VALUE_FLOAT and
+    DEBUG_FLOAT_ARRAY telemetry; the recorders decode ``raw`` themselves). The ``get_*``
+    header methods answer from the frame; any field is decoded by pymavlink on first read,
+    so ``m.value`` is what pymavlink's message would say (tests/test_link_skim.py)."""
+
+    __slots__ = ("_decoded", "raw")
+
+    def __init__(self, raw: bytes) -> None:
+        self.raw = raw
+        self._decoded: Any = None
+
+    def get_msgId(self) -> int:
+        raw = self.raw
+        return raw[7] | raw[8] << 8 | raw[9] << 16
+
+    def get_type(self) -> str:
+        return str(mav.mavlink_map[self.get_msgId()].msgname)
+
+    def get_srcSystem(self) -> int:
+        return int(self.raw[5])
+
+    def get_srcComponent(self) -> int:
+        return int(self.raw[6])
+
+    def get_seq(self) -> int:
+        return int(self.raw[4])
+
+    def decoded(self) -> Any:
+        """pymavlink's message of the frame (decoded once, by a parser of its own, so the
+        link's parser counts the frame's signature once, as when it was checked)."""
+        if self._decoded is None:
+            self._decoded = mav.MAVLink(None).decode(bytearray(self.raw))
+        return self._decoded
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self.decoded(), name)
+
+    def __str__(self) -> str:
+        return str(self.decoded())
+
+
+def skim(raw: bytes, parser: Any) -> SkimmedMessage | None:
+    """What ``parser.decode(bytearray(raw))`` accepts or rejects, without decoding: a
+    :class:`SkimmedMessage` for a complete MAVLink 2 frame of a known message whose CRC
+    checks (a signature counted on ``parser``, as its decode counts it), ``mav.MAVError``
+    for a bad CRC, None for an id not in the dialect (the caller lets pymavlink answer).
+    As for :meth:`FastCodec.decode`, ``parser`` holds no signing key: the link verifies."""
+    cls = mav.mavlink_map.get(raw[7] | raw[8] << 8 | raw[9] << 16)
+    if cls is None:
+        return None
+    sig_len = _SIGNATURE_LEN if raw[2] & _IFLAG_SIGNED else 0
+    end = len(raw) - 2 - sig_len
+    crc = raw[end] | raw[end + 1] << 8
+    if _crc16(bytes((cls.crc_extra,)), _crc16(raw[1:end], 0xFFFF)) != crc:
+        raise mav.MAVError(f"invalid MAVLink CRC in msgID {cls.id} 0x{crc:04x}")
+    if sig_len:
+        parser.signing.sig_count += 1
+    return SkimmedMessage(raw)

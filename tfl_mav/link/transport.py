@@ -53,7 +53,7 @@ from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from tfl_mav.link.codec import FastCodec
+from tfl_mav.link.codec import FastCodec, skim
 from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.link.signing import Signing
 
@@ -196,7 +196,7 @@ class Link:
                  clock: Callable[[], float] = time.time,
                  max_datagrams_per_recv: int = 256,
                  signing: Signing | None = None, link_id: int = 0,
-                 admit: Admit | None = None) -> None:
+                 admit: Admit | None = None, skim_ids: Iterable[int] = ()) -> None:
         """Wrap a bound UDP socket (made blocking here: :meth:`recv` waits in ``recvfrom``
         with ``SO_RCVTIMEO``; every other read and every send passes ``MSG_DONTWAIT``).
 
@@ -207,6 +207,9 @@ class Link:
         that verify; None (default): neither.
         ``admit(msg, addr)``: asked before a HEARTBEAT pins the peer (or its sysid); returns
         None to accept or the reason it is refused (counted ``refused_peer``, not pinned).
+        ``skim_ids``: message ids this receiver only routes or records, never reads: their
+        frames get every check and count a decode gets, but are handed out undecoded
+        (:class:`~tfl_mav.link.codec.SkimmedMessage`, fields decoded on first read).
         """
         sock.setblocking(True)
         self._sock = sock
@@ -224,6 +227,7 @@ class Link:
         self._decode_lite = _CODEC.decode_lite
         self.signing = signing
         self.admit = admit
+        self.skim_ids = frozenset(skim_ids)
         if signing is not None:
             signing.configure_packer(self.packer, link_id)
 
@@ -493,6 +497,10 @@ class Link:
             msg = self._decode_lite(raw, self.parser)
             if msg is not None:
                 return msg
+            if self.skim_ids and raw[7] | raw[8] << 8 | raw[9] << 16 in self.skim_ids:
+                msg = skim(raw, self.parser)
+                if msg is not None:
+                    return msg
             msg = self._decode(bytearray(raw))
         except mav.MAVError as exc:
             text = exc.message
