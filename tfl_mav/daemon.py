@@ -75,7 +75,7 @@ import gc
 import math
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
@@ -85,6 +85,7 @@ from tfl_mav.flight_computer import FlightComputer, TickResult
 from tfl_mav.flightlog import schemas
 from tfl_mav.frames import paper_from_odometry
 from tfl_mav.geometry import euler_to_quaternion
+from tfl_mav.link.codec import UNSENT, lite_class
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.signing import Signing
 from tfl_mav.link.transport import Address, FrameHook, Link
@@ -108,8 +109,14 @@ _DEGRADE_REPORT_S = 1.0           # at most one "degraded" STATUSTEXT per second
 _ID_ODOMETRY = mav.MAVLINK_MSG_ID_ODOMETRY
 _ID_ACTUATOR_OUTPUT_STATUS = mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS
 _ID_ESC_TELEMETRY_1_TO_4 = mav.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4
-_HilActuatorControls = mav.MAVLink_hil_actuator_controls_message
-_UNUSED_CONTROLS = (0.0,) * 12    # HIL_ACTUATOR_CONTROLS.controls[4..15]
+# Sent as LiteMessages (wire-order tuples, packed with one struct.pack by the link's codec):
+# the same bytes as pymavlink's messages, without their constructors (tests/test_codec.py).
+_new = tuple.__new__
+_Hil = lite_class(mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS)   # time_usec, flags, controls, mode
+_NamedValueFloat = lite_class(mav.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT)  # time_boot_ms, value, name
+_DebugFloatArray = lite_class(mav.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY)  # usec, array_id, name, data
+_HIL_TAIL = (0.0,) * 12 + (_ARMED, UNSENT)   # controls[4..15], mode, the frame item
+_TFL_ARRAY_LEN = 58                          # DEBUG_FLOAT_ARRAY.data
 
 
 @dataclass
@@ -228,6 +235,7 @@ class Daemon:
         self._distance = math.nan
         self._vehicle_done = ""
         self._statustext_id = 0
+        self._hil_flags = 0 if realtime else _LOCKSTEP_FLAG
 
     def _new_computer(self) -> FlightComputer:
         """A flight computer for a new flight, warmed: one throw-away tick on a separate
@@ -496,12 +504,12 @@ class Daemon:
         self._event("warning", f"degraded: {st.skipped_states} states skipped, "
                                f"{st.gap_ticks} gaps integrated")
 
-    def _send_command(self, time_usec: int, thrust: list[float]) -> None:
+    def _send_command(self, time_usec: int, thrust: Sequence[float]) -> None:
+        """HIL_ACTUATOR_CONTROLS: controls[0..3] = thrust / f_max, 12 zeros, armed."""
         fmax = self.thrust_max_n
-        controls = [f / fmax for f in thrust]
-        controls += _UNUSED_CONTROLS
-        self.link.send(_HilActuatorControls(
-            time_usec, controls, _ARMED, 0 if self.realtime else _LOCKSTEP_FLAG))
+        f1, f2, f3, f4 = thrust
+        self.link.send(_new(_Hil, (time_usec, self._hil_flags, f1 / fmax, f2 / fmax,
+                                   f3 / fmax, f4 / fmax, *_HIL_TAIL)))
         self.stats.commands_sent += 1
 
     def _tick(self, state: State, rpm: list[float], applied: list[float],
@@ -556,14 +564,14 @@ class Daemon:
         dist = _f32(out.path_distance_m, -1.0)
         arr = [*out.xi[0], *out.xi[1], *out.eta[1:]]
         arr = [_f32(v, 0.0) for v in arr]
+        arr += [0.0] * (_TFL_ARRAY_LEN - len(arr))
         # one datagram (send_many): one sendto here, one recvfrom at the vehicle
         self.link.send_many([
-            *(mav.MAVLink_named_value_float_message(ms, name, value)
+            *(_new(_NamedValueFloat, (ms, value, name, UNSENT))
               for name, value in ((b"mode", float(out.mode)),
                                   (b"det_rotor", float(res.attack_rotor)),
                                   (b"atk_est_n", est), (b"path_m", dist))),
-            mav.MAVLink_debug_float_array_message(time_usec, b"tfl", 1,
-                                                  arr + [0.0] * (58 - len(arr)))])
+            _new(_DebugFloatArray, (time_usec, 1, b"tfl", *arr[:_TFL_ARRAY_LEN], UNSENT))])
 
     def _event(self, level: str, text: str, *, send: bool = True, quiet: bool = False) -> None:
         if self.on_event is not None and not quiet:
