@@ -29,6 +29,7 @@ get this right in both directions (and the latter also accepts a LOCAL_NED twist
 from __future__ import annotations
 
 import math
+import struct
 import threading
 from collections.abc import Sequence
 from typing import NamedTuple
@@ -161,17 +162,18 @@ def odometry_from_paper(position_m: Sequence[float], velocity_mps: Sequence[floa
 class _Scratch(threading.local):
     """Preallocated arrays for the one matrix product of :func:`paper_from_odometry`, one
     set per thread: R (3×3) and v (3) are views of one 12-float buffer, filled with one
-    assignment, multiplied into ``out`` (``np.dot``, whose call costs half of ``@``'s). The
-    same BLAS product as ``np.array(R) @ np.array(v)`` on fresh arrays, bit for bit
-    (tests/test_frames.py), ~1.5 µs cheaper."""
+    ``struct.pack_into`` (cheaper than numpy's own assignment), multiplied into ``out``
+    (``np.dot``: its call costs half of ``@``'s). The same BLAS product as ``np.array(R) @
+    np.array(v)`` on fresh arrays, bit for bit (tests/test_frames.py), ~2 µs cheaper."""
 
     def __init__(self) -> None:
         buf = np.empty(12)
-        self.arrays = (buf, buf[:9].reshape(3, 3), buf[9:], np.empty(3))
+        self.arrays = (memoryview(buf).cast("B"), buf[:9].reshape(3, 3), buf[9:], np.empty(3))
 
 
 _SCRATCH = _Scratch()
 _dot = np.dot
+_pack_12_doubles = struct.Struct("=12d").pack_into   # numpy's float64: native
 
 
 def body_to_inertial(rows: Sequence[Sequence[float]], v: Sequence[float]) -> list[float]:
@@ -180,7 +182,7 @@ def body_to_inertial(rows: Sequence[Sequence[float]], v: Sequence[float]) -> lis
     the float sum of products), on per-thread preallocated arrays."""
     buf, matrix, vec, out = _SCRATCH.arrays
     r0, r1, r2 = rows
-    buf[:] = (*r0, *r1, *r2, *v)
+    _pack_12_doubles(buf, 0, *r0, *r1, *r2, *v)
     _dot(matrix, vec, out)
     return out.tolist()
 
