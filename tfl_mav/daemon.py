@@ -188,6 +188,7 @@ class Daemon:
         self._vehicle_done = ""
         self._statustext_id = 0
         self._hil_flags = 0 if realtime else LOCKSTEP_FLAG
+        self._gap_usec = _GAP_FACTOR * (scenario.run.control_dt_s * 1e6)
         self._handlers: dict[type, Callable[[Any], None]] = {   # the per-tick messages
             lite_class(_ID_ODOMETRY): self._on_odometry,
             lite_class(_ID_ACTUATOR_OUTPUT_STATUS): self._on_applied,
@@ -417,8 +418,7 @@ class Daemon:
         stats.skipped_states += len(batch) - 1
         t_usec = state.time_usec
         dt_s = None
-        period_usec = self.scenario.run.control_dt_s * 1e6
-        if self._last_usec >= 0 and t_usec - self._last_usec > _GAP_FACTOR * period_usec:
+        if self._last_usec >= 0 and t_usec - self._last_usec > self._gap_usec:
             dt_s = (t_usec - self._last_usec) * 1e-6
             stats.gap_ticks += 1
             self._report_degraded(t_usec * 1e-6)

@@ -25,6 +25,7 @@ from tfl_mav.flight_computer import TickResult
 from tfl_mav.flightlog import schemas
 from tfl_mav.link.codec import UNSENT, LiteMessage, lite_class
 from tfl_mav.link.dialect import mav
+from tfl_mav.modes import Mode
 
 __all__ = ["LOCKSTEP_FLAG", "TICK_FIELDS", "TICK_SCHEMA", "DaemonResult", "DaemonStats",
            "command_message", "telemetry_messages", "tick_state"]
@@ -138,12 +139,15 @@ chains ξ1, ξ2 as two lists, is left untyped: Foxglove's JSON-schema reader tak
 arrays)."""
 
 
+_MODE_NAMES = {mode: mode.name.lower() for mode in Mode}   # Enum.name is a Python property
+
+
 def tick_state(res: TickResult) -> tuple[Any, ...]:
     """The controller's internals of one tick, compact: plain values in
     :data:`TICK_FIELDS` order (the recording child names them and encodes JSON)."""
     out, det = res.law, res.detection
     est = det.estimate_n if det is not None else res.attack_estimate_n
-    return (out.mode.name.lower(), res.attack_rotor, est, out.path_distance_m,
+    return (_MODE_NAMES[out.mode], res.attack_rotor, est, out.path_distance_m,
             any(out.saturated), res.thrust_n, out.xi, out.eta, out.mass_estimate_kg,
             out.fine_gains, out.reason, det.cusum if det is not None else ())
 

@@ -276,6 +276,7 @@ class StartingRecorder:
         :meth:`on_frame`/:meth:`controller` are the recorder's own (a call through an old
         reference still reaches it, in order, through :meth:`_call`)."""
         rec = self._rec
+        rec.clock = time.time                   # no backlog left to stamp (see _clock)
         self.on_frame = rec.on_frame            # type: ignore[method-assign]
         self.controller = rec.controller        # type: ignore[method-assign]
         for link in self._links:
