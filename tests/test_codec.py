@@ -12,7 +12,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tfl_mav.link.codec import HOT_MESSAGE_IDS, UNSENT, FastCodec, lite_class
+from tfl_mav.link.codec import HOT_MESSAGE_IDS, PACK_ONLY_IDS, UNSENT, FastCodec, lite_class
 from tfl_mav.link.dialect import mav, new_mavlink
 
 CODEC = FastCodec()
@@ -101,6 +101,44 @@ def test_built_lite_message_packs_as_pymavlinks(msg: Any, seq: int,
     for name in msg.get_fieldnames():
         assert repr(getattr(lite, name)) == repr(getattr(msg, name)), name
     assert lite.get_srcSystem() == 0 and lite.get_type() == msg.get_type()
+
+
+@st.composite
+def pack_only_messages(draw: st.DrawFn) -> tuple[Any, tuple[Any, ...]]:
+    """(pymavlink's message, the same fields in wire order with the char field as bytes)."""
+    cls = mav.mavlink_map[draw(st.sampled_from(PACK_ONLY_IDS))]
+    lengths = dict(zip(cls.ordered_fieldnames, cls.array_lengths, strict=True))
+    kwargs: dict[str, Any] = {}
+    for name, ftype in zip(cls.fieldnames, cls.fieldtypes, strict=True):
+        n = lengths[name]
+        if ftype == "char":     # a name: up to 10 printable bytes, NUL-padded on the wire
+            kwargs[name] = draw(st.binary(min_size=0, max_size=n).filter(
+                lambda b: b"\x00" not in b))
+            continue
+        value = _value(ftype)
+        kwargs[name] = draw(st.lists(value, min_size=n, max_size=n)) if n else draw(value)
+    wire: list[Any] = []
+    for name, n in zip(cls.ordered_fieldnames, cls.array_lengths, strict=True):
+        value = kwargs[name]
+        wire += list(value) if n and not isinstance(value, bytes) else [value]
+    return cls(**kwargs), tuple(wire)
+
+
+@settings(max_examples=300, deadline=None)
+@given(pair=pack_only_messages(), seq=st.integers(0, 255), signing=signings)
+def test_pack_only_lite_message_packs_as_pymavlinks(pair: tuple[Any, tuple[Any, ...]],
+                                                     seq: int,
+                                                     signing: tuple[bytes, int, int] | None
+                                                     ) -> None:
+    """The controller's telemetry (NAMED_VALUE_FLOAT, DEBUG_FLOAT_ARRAY) built as a
+    LiteMessage, name as bytes, packs to pymavlink's frame; decoding stays pymavlink's."""
+    msg, wire = pair
+    lite = tuple.__new__(lite_class(msg.get_msgId()), (*wire, UNSENT))
+    ours, theirs = _packer(1, 191, seq, signing), _packer(1, 191, seq, signing)
+    assert CODEC.pack(lite, ours) == msg.pack(theirs)
+    assert ours.signing.timestamp == theirs.signing.timestamp
+    assert CODEC.pack(msg, _packer(1, 191, seq, None)) is None   # pymavlink's: not compiled
+    assert msg.get_msgId() not in CODEC.by_id                    # never decoded here
 
 
 def test_lite_class_is_shared_and_only_for_hot_messages() -> None:

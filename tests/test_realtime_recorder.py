@@ -23,6 +23,7 @@ from mcap.reader import make_reader
 
 from tfl_mav.daemon import TICK_FIELDS
 from tfl_mav.flightlog.recorder_process import RecorderProcess
+from tfl_mav.link.transport import Link
 from tfl_mav.scenario import load_scenario
 from tools.fly import StartingRecorder
 
@@ -62,6 +63,35 @@ def test_starting_recorder_keeps_what_came_before_the_child_was_up(tmp_path):
     # before each call: preemption in between allowed for), not the time they were handed
     # over, which is after the child's start (a fresh interpreter: > 0.1 s later)
     assert all(abs(t_ns * 1e-9 - s) < 0.05 for (t_ns, _m), s in zip(got, stamps, strict=False))
+
+
+@pytest.mark.slow
+def test_an_attached_link_is_recorded_before_and_after_the_child_is_up(tmp_path):
+    """Frames of a link attached while the child starts are buffered; once it is up the
+    link's hook is the recorder's own (no wrapper on the hot path) and nothing is lost."""
+    path = tmp_path / "ctl.mcap"
+    rec = StartingRecorder(load_scenario("nominal"), str(path), None, realtime=True)
+    sink = Link.listen(("127.0.0.1", 0), src_system=1, src_component=1)
+    link = Link.connect(sink.local_address, src_system=1, src_component=191)
+    try:
+        rec.attach(link)
+        sent = 0
+        deadline = time.monotonic() + 60
+        while not rec._direct and time.monotonic() < deadline:
+            sent += link.send_raw(b"\xfdbefore") > 0
+            time.sleep(0.001)
+        assert rec._direct and link.on_frame == rec._rec.on_frame
+        for _ in range(10):
+            sent += link.send_raw(b"\xfdafter") > 0
+    finally:
+        link.close()
+        sink.close()
+        rec.close()
+    assert rec.error is None
+    with open(path, "rb") as fh:
+        raw = [json.loads(m.data) for _s, ch, m in make_reader(fh).iter_messages()
+               if ch.topic == "/mavlink/raw"]
+    assert len(raw) == sent and all(r["direction"] == "tx" for r in raw)
 
 
 @pytest.mark.slow

@@ -13,13 +13,12 @@ One :class:`Daemon` talks MAVLink 2 over one UDP socket to one vehicle (docs/des
   history is kept), else ``actuator[0..3]`` × f_max (a restarted daemon, motors cut). A
   late, lost, duplicated or reordered command is then never an attack; in lockstep the
   applied command is the last one sent, so nothing changes there;
-* answers every state with ``HIL_ACTUATOR_CONTROLS`` (``controls[0..3]`` = rotor thrust /
-  f_max, ``time_usec`` echoing the state's, ``mode`` armed, ``flags`` bit 0 = lockstep);
+* answers every state with ``HIL_ACTUATOR_CONTROLS`` (:mod:`tfl_mav.daemon_io`, with the
+  telemetry and the recorder's tick record);
 * is **not told** about the attack: :class:`~tfl_mav.control.detector.AttackDetector`
   finds it from rpm alone and switches the law (STATUSTEXT on detection);
-* publishes its own telemetry at ≤ 50 Hz of sim time: ``NAMED_VALUE_FLOAT`` ``mode``
-  (0 nominal, 1 attacked, 2 fallback, 3 failsafe), ``det_rotor``, ``atk_est_n``,
-  ``path_m``, and ``DEBUG_FLOAT_ARRAY`` ``tfl`` = (ξ1 chain, ξ2 chain, η chain).
+* publishes its own telemetry at ≤ 50 Hz of sim time (``NAMED_VALUE_FLOAT`` mode, det_rotor,
+  atk_est_n, path_m; ``DEBUG_FLOAT_ARRAY`` tfl = ξ1, ξ2, η chains).
 
 **Degrade, don't fall.** Each complete state is classified as it arrives, against the
 newest state accepted so far (the *watermark*), into exactly one of: *fresh* (newer, by a
@@ -75,16 +74,25 @@ import gc
 import math
 import threading
 import time
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, field
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
+from tfl_mav.daemon_io import (
+    LOCKSTEP_FLAG,
+    TICK_FIELDS,
+    TICK_SCHEMA,
+    DaemonResult,
+    DaemonStats,
+    command_message,
+    telemetry_messages,
+    tick_state,
+)
 from tfl_mav.flight_computer import FlightComputer, TickResult
-from tfl_mav.flightlog import schemas
 from tfl_mav.frames import paper_from_odometry
 from tfl_mav.geometry import euler_to_quaternion
+from tfl_mav.link.codec import lite_class
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.signing import Signing
 from tfl_mav.link.transport import Address, FrameHook, Link
@@ -96,7 +104,6 @@ __all__ = ["TICK_FIELDS", "TICK_SCHEMA", "Daemon", "DaemonResult", "DaemonStats"
 
 _TELEMETRY_PERIOD_S = 0.02        # ≤ 50 Hz of sim time
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
-_LOCKSTEP_FLAG = 1
 _WAITING_REPORT_PERIOD_S = 2.0
 _HISTORY = 512                    # commands remembered by time_usec (0.5 s at 1 kHz)
 _GAP_FACTOR = 1.5                 # a gap over 1.5 control periods is integrated as such
@@ -108,54 +115,6 @@ _DEGRADE_REPORT_S = 1.0           # at most one "degraded" STATUSTEXT per second
 _ID_ODOMETRY = mav.MAVLINK_MSG_ID_ODOMETRY
 _ID_ACTUATOR_OUTPUT_STATUS = mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS
 _ID_ESC_TELEMETRY_1_TO_4 = mav.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4
-_HilActuatorControls = mav.MAVLink_hil_actuator_controls_message
-_UNUSED_CONTROLS = (0.0,) * 12    # HIL_ACTUATOR_CONTROLS.controls[4..15]
-
-
-@dataclass
-class DaemonStats:
-    """Counters of one run (link counters are in ``link``)."""
-
-    ticks: int = 0
-    states: int = 0
-    bad_states: int = 0
-    esc_reports: int = 0
-    bad_esc: int = 0
-    ignored_messages: int = 0
-    commands_sent: int = 0
-    failsafes: int = 0
-    recoveries: int = 0
-    fallback_ticks: int = 0
-    saturated_ticks: int = 0
-    skipped_states: int = 0      # older states in a batch: the law ran on the newest only
-    old_states: int = 0          # not newer than the last state controlled: dropped
-    repeated_states: int = 0     # the last state again (lockstep resend): same command resent
-    implausible_states: int = 0  # time too far ahead/behind the watermark: not controlled
-    gap_ticks: int = 0           # ticks whose law integrated over more than one period
-    applied_from_history: int = 0  # applied command = our own copy (ACTUATOR_OUTPUT_STATUS)
-    applied_from_wire: int = 0   # applied command = ACTUATOR_OUTPUT_STATUS.actuator × f_max
-    applied_unknown: int = 0     # no ACTUATOR_OUTPUT_STATUS: last command sent assumed
-    rebuilds: int = 0            # vehicle time went backwards: flight computer rebuilt
-    law_errors: int = 0          # a tick the laws raised on: no command sent that tick
-    link: dict[str, int] = field(default_factory=dict)
-
-
-@dataclass
-class DaemonResult:
-    """What a run did, for the CLI summary and the demo."""
-
-    reason: str
-    sim_time_s: float
-    wall_time_s: float
-    detected_rotor: int
-    detection_time_s: float
-    attack_estimate_samples: int
-    final_path_distance_m: float
-    mode: str
-    stats: DaemonStats
-
-    def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 class Daemon:
@@ -228,6 +187,12 @@ class Daemon:
         self._distance = math.nan
         self._vehicle_done = ""
         self._statustext_id = 0
+        self._hil_flags = 0 if realtime else LOCKSTEP_FLAG
+        self._gap_usec = _GAP_FACTOR * (scenario.run.control_dt_s * 1e6)
+        self._handlers: dict[type, Callable[[Any], None]] = {   # the per-tick messages
+            lite_class(_ID_ODOMETRY): self._on_odometry,
+            lite_class(_ID_ACTUATOR_OUTPUT_STATUS): self._on_applied,
+            lite_class(_ID_ESC_TELEMETRY_1_TO_4): self._on_esc}
 
     def _new_computer(self) -> FlightComputer:
         """A flight computer for a new flight, warmed: one throw-away tick on a separate
@@ -269,6 +234,7 @@ class Daemon:
         last_state_wall = time.monotonic()
         reason = "stopped"
         next_waiting_report = wall0 + _WAITING_REPORT_PERIOD_S
+        handlers = self._handlers
         while not self._stop.is_set():
             now = time.monotonic()
             if now >= next_heartbeat:
@@ -277,7 +243,11 @@ class Daemon:
                     _ARMED, 0, mav.MAV_STATE_ACTIVE, 3))
                 next_heartbeat = now + 1.0
             for msg in self.link.recv(timeout_s=0.05):
-                self._handle(msg)
+                handler = handlers.get(type(msg))    # the per-tick messages, directly
+                if handler is None:
+                    self._handle(msg)
+                else:
+                    handler(msg)
             ticked = self._control_newest()
             now = time.monotonic()
             if ticked:
@@ -331,30 +301,19 @@ class Daemon:
     # ------------------------------------------------------------------ messages
     def _handle(self, msg: Any) -> None:
         """Dispatch one accepted message; a complete state joins this batch's."""
+        handler = self._handlers.get(type(msg))      # the link's LiteMessage classes
+        if handler is not None:
+            handler(msg)
+            return
         mid = msg.get_msgId()
         if mid == _ID_ODOMETRY:
-            self._pending_applied = None
-            try:
-                self._pending_state = paper_from_odometry(msg)
-            except ValueError as exc:
-                self.stats.bad_states += 1
-                self._event("warning", f"ODOMETRY rejected: {exc}", quiet=True)
-                self._pending_state = None
-                return
-            self.stats.states += 1
+            self._on_odometry(msg)
             return
         if mid == _ID_ACTUATOR_OUTPUT_STATUS:
             self._pending_applied = msg
             return
         if mid == _ID_ESC_TELEMETRY_1_TO_4:
-            state = self._pending_state
-            rpm = list(map(float, msg.rpm))
-            self.stats.esc_reports += 1
-            if state is None:
-                return
-            self._pending_state = None
-            applied, self._pending_applied = self._pending_applied, None
-            self._arrive(state, applied, rpm)
+            self._on_esc(msg)
             return
         if mid == mav.MAVLINK_MSG_ID_HEARTBEAT:
             if msg.system_status in (mav.MAV_STATE_POWEROFF, mav.MAV_STATE_EMERGENCY) \
@@ -374,13 +333,37 @@ class Daemon:
             return
         self.stats.ignored_messages += 1
 
+    def _on_odometry(self, msg: Any) -> None:
+        self._pending_applied = None
+        try:
+            self._pending_state = paper_from_odometry(msg)
+        except ValueError as exc:
+            self.stats.bad_states += 1
+            self._event("warning", f"ODOMETRY rejected: {exc}", quiet=True)
+            self._pending_state = None
+            return
+        self.stats.states += 1
+
+    def _on_applied(self, msg: Any) -> None:
+        self._pending_applied = msg
+
+    def _on_esc(self, msg: Any) -> None:
+        state = self._pending_state
+        rpm = list(map(float, msg.rpm))
+        self.stats.esc_reports += 1
+        if state is None:
+            return
+        self._pending_state = None
+        applied, self._pending_applied = self._pending_applied, None
+        self._arrive(state, applied, rpm)
+
     def _arrive(self, state: State, applied_msg: Any, rpm: list[float]) -> None:
         """Classify one complete state against the watermark (see "Degrade, don't fall",
         "Implausible time", "Restart")."""
         stats = self.stats
         t_usec = state.time_usec
         w = self._newest_usec
-        now = time.monotonic()
+        now = time.monotonic() if self.realtime else 0.0    # only real time reads it
         ahead_usec = _AHEAD_S * 1e6
         if w >= 0:
             limit = ahead_usec + ((now - self._newest_wall) * 1e6 if self.realtime else 0.0)
@@ -435,8 +418,7 @@ class Daemon:
         stats.skipped_states += len(batch) - 1
         t_usec = state.time_usec
         dt_s = None
-        period_usec = self.scenario.run.control_dt_s * 1e6
-        if self._last_usec >= 0 and t_usec - self._last_usec > _GAP_FACTOR * period_usec:
+        if self._last_usec >= 0 and t_usec - self._last_usec > self._gap_usec:
             dt_s = (t_usec - self._last_usec) * 1e-6
             stats.gap_ticks += 1
             self._report_degraded(t_usec * 1e-6)
@@ -496,12 +478,10 @@ class Daemon:
         self._event("warning", f"degraded: {st.skipped_states} states skipped, "
                                f"{st.gap_ticks} gaps integrated")
 
-    def _send_command(self, time_usec: int, thrust: list[float]) -> None:
-        fmax = self.thrust_max_n
-        controls = [f / fmax for f in thrust]
-        controls += _UNUSED_CONTROLS
-        self.link.send(_HilActuatorControls(
-            time_usec, controls, _ARMED, 0 if self.realtime else _LOCKSTEP_FLAG))
+    def _send_command(self, time_usec: int, thrust: Sequence[float]) -> None:
+        """HIL_ACTUATOR_CONTROLS: controls[0..3] = thrust / f_max, 12 zeros, armed."""
+        self.link.send(command_message(time_usec, thrust, self.thrust_max_n,
+                                       self._hil_flags))
         self.stats.commands_sent += 1
 
     def _tick(self, state: State, rpm: list[float], applied: list[float],
@@ -548,22 +528,8 @@ class Daemon:
             self._telemetry(state.time_usec, res)
 
     def _telemetry(self, time_usec: int, res: TickResult) -> None:
-        out = res.law
-        ms = (time_usec // 1000) & 0xFFFFFFFF
-        det = res.detection
-        est = det.estimate_n if det is not None else res.attack_estimate_n
-        est = _f32(est, 0.0)
-        dist = _f32(out.path_distance_m, -1.0)
-        arr = [*out.xi[0], *out.xi[1], *out.eta[1:]]
-        arr = [_f32(v, 0.0) for v in arr]
         # one datagram (send_many): one sendto here, one recvfrom at the vehicle
-        self.link.send_many([
-            *(mav.MAVLink_named_value_float_message(ms, name, value)
-              for name, value in ((b"mode", float(out.mode)),
-                                  (b"det_rotor", float(res.attack_rotor)),
-                                  (b"atk_est_n", est), (b"path_m", dist))),
-            mav.MAVLink_debug_float_array_message(time_usec, b"tfl", 1,
-                                                  arr + [0.0] * (58 - len(arr)))])
+        self.link.send_many(telemetry_messages(time_usec, res))
 
     def _event(self, level: str, text: str, *, send: bool = True, quiet: bool = False) -> None:
         if self.on_event is not None and not quiet:
@@ -575,47 +541,3 @@ class Daemon:
         self._statustext_id = (self._statustext_id % 0xFFFF) + 1
         self.link.send(mav.MAVLink_statustext_message(severity, text[:50].encode(),
                                                       self._statustext_id, 0))
-
-
-TICK_FIELDS = ("mode", "detected_rotor", "attack_estimate_n", "path_distance_m", "saturated",
-               "rotor_thrust_cmd_n", "xi", "eta", "mass_estimate_kg", "fine_gains", "reason",
-               "cusum")
-"""Names of the values of :func:`tick_state`, in order (the recorder's ``controller_fields``)."""
-
-TICK_SCHEMA = schemas.record_schema(
-    "tfl_mav.ControllerState", "The controller's internals of one tick at sim time t_s", {
-        "mode": {"type": "string", "description": "nominal, attacked, fallback or failsafe"},
-        "detected_rotor": {"type": "integer", "minimum": 0, "maximum": 4,
-                           "description": "rotor the detector isolated, 0 = none"},
-        "attack_estimate_n": {"type": "number", "description": "estimated attack thrust (N)"},
-        "path_distance_m": {"type": "number", "description": "distance to the path (m)"},
-        "saturated": {"type": "boolean", "description": "a rotor command hit 0 or f_max"},
-        "rotor_thrust_cmd_n": schemas.vec(4, "rotor thrust commands 1-4 (N)"),
-        "eta": schemas.vec(None, "tangential chain η"),
-        "mass_estimate_kg": {"type": "number", "description": "estimated mass (kg)"},
-        "fine_gains": {"type": "boolean", "description": "fine gains engaged"},
-        "reason": {"type": "string", "description": "why the law fell back, if it did"},
-        "cusum": schemas.vec(None, "detector CUSUM statistic per rotor")}, [])
-"""JSON Schema of ``/controller/state`` as the daemon records it (``xi``, the transversal
-chains ξ1, ξ2 as two lists, is left untyped: Foxglove's JSON-schema reader takes no array of
-arrays)."""
-
-
-def tick_state(res: TickResult) -> tuple[Any, ...]:
-    """The controller's internals of one tick, compact: plain values in
-    :data:`TICK_FIELDS` order (the recording child names them and encodes JSON)."""
-    out, det = res.law, res.detection
-    est = det.estimate_n if det is not None else res.attack_estimate_n
-    return (out.mode.name.lower(), res.attack_rotor, est, out.path_distance_m,
-            any(out.saturated), res.thrust_n, out.xi, out.eta, out.mass_estimate_kg,
-            out.fine_gains, out.reason, det.cusum if det is not None else ())
-
-
-_F32_MAX = 3.4028234663852886e38
-
-
-def _f32(value: float, unknown: float) -> float:
-    """A telemetry float as the wire can carry it (float32): ``unknown`` for a value that is
-    not finite or beyond float32's range (a state far outside any flight: the fuzzer sends
-    them; packing it would raise, and the loop must not die)."""
-    return value if math.isfinite(value) and abs(value) <= _F32_MAX else unknown

@@ -29,6 +29,8 @@ get this right in both directions (and the latter also accepts a LOCAL_NED twist
 from __future__ import annotations
 
 import math
+import struct
+import threading
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -43,6 +45,7 @@ __all__ = [
     "P_ENU_TO_NED",
     "Q_FLU_TO_FRD",
     "OdometryFields",
+    "body_to_inertial",
     "enu_to_ned",
     "flu_to_frd",
     "frd_to_flu",
@@ -156,6 +159,34 @@ def odometry_from_paper(position_m: Sequence[float], velocity_mps: Sequence[floa
     )
 
 
+class _Scratch(threading.local):
+    """Preallocated arrays for the one matrix product of :func:`paper_from_odometry`, one
+    set per thread: R (3×3) and v (3) are views of one 12-float buffer, filled with one
+    ``struct.pack_into`` (cheaper than numpy's own assignment), multiplied into ``out``
+    (``np.dot``: its call costs half of ``@``'s). The same BLAS product as ``np.array(R) @
+    np.array(v)`` on fresh arrays, bit for bit (tests/test_frames.py), ~2 µs cheaper."""
+
+    def __init__(self) -> None:
+        buf = np.empty(12)
+        self.arrays = (memoryview(buf).cast("B"), buf[:9].reshape(3, 3), buf[9:], np.empty(3))
+
+
+_SCRATCH = _Scratch()
+_dot = np.dot
+_pack_12_doubles = struct.Struct("=12d").pack_into   # numpy's float64: native
+
+
+def body_to_inertial(rows: Sequence[Sequence[float]], v: Sequence[float]) -> list[float]:
+    """R v for R given by its ``rows`` (:func:`~tfl_mav.geometry.rotation_rows`), computed
+    as numpy computes ``np.array(rows) @ np.array(v)`` (BLAS: fused multiply-adds, so not
+    the float sum of products), on per-thread preallocated arrays."""
+    buf, matrix, vec, out = _SCRATCH.arrays
+    r0, r1, r2 = rows
+    _pack_12_doubles(buf, 0, *r0, *r1, *r2, *v)
+    _dot(matrix, vec, out)
+    return out.tolist()
+
+
 def paper_from_odometry(msg: object) -> State:
     """A decoded ODOMETRY message → :class:`~tfl_mav.state.State` (ENU/FLU, SI units).
 
@@ -180,7 +211,7 @@ def paper_from_odometry(msg: object) -> State:
     if not (math.isfinite(qw) and math.isfinite(qx) and math.isfinite(qy)
             and math.isfinite(qz)):
         raise ValueError(f"ODOMETRY.q: not finite ({qn})")
-    norm = math.sqrt(sum((qw * qw, qx * qx, qy * qy, qz * qz)))   # = sum of c*c, in order
+    norm = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)   # summed in this order
     if abs(norm - 1.0) > 1e-3:
         raise ValueError(f"ODOMETRY.q: not a unit quaternion (|q| = {norm:.6f})")
     w, x, y, z = qw / norm, qx / norm, qy / norm, qz / norm
@@ -191,8 +222,8 @@ def paper_from_odometry(msg: object) -> State:
     # was, so the state is the same to the bit.
     child = m.child_frame_id
     if child == MAV_FRAME_BODY_FRD:
-        velocity = (np.array(rotation_rows(q_enu_flu))   # = rotation_from_quaternion
-                    @ np.array((float(vx), -float(vy), -float(vz)))).tolist()
+        velocity = body_to_inertial(rotation_rows(q_enu_flu),   # = rotation_from_quaternion
+                                    (float(vx), -float(vy), -float(vz)))
     elif child == MAV_FRAME_LOCAL_NED:
         velocity = [float(vy), float(vx), -float(vz)]
     else:

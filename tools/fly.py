@@ -130,7 +130,6 @@ def run(args: argparse.Namespace) -> int:
         daemon = Daemon(scenario, vehicle=vehicle, bind=bind, realtime=args.realtime,
                         state_timeout_s=args.state_timeout, key=key,
                         silence_end_s=_SILENCE_END_S if args.realtime else None,
-                        on_frame=recorder.on_frame if recorder else None,
                         on_tick=on_tick, on_event=on_event,
                         hold_start=hold_start if recorder is not None else None)
     except (LinkError, ValueError) as exc:
@@ -138,6 +137,8 @@ def run(args: argparse.Namespace) -> int:
         if recorder is not None:
             recorder.close()
         return 3
+    if recorder is not None:
+        recorder.attach(daemon.link)
     if recorder is not None and recorder.start_error:   # it failed while we warmed up
         print(f"{prog}: {recorder.start_error}", file=sys.stderr)
         daemon.close()
@@ -235,6 +236,7 @@ class StartingRecorder:
         self._buffer: collections.deque[tuple[float, str, tuple[Any, ...]]] = (
             collections.deque())
         self._stamp: float | None = None
+        self._links: list[Any] = []
         self.dropped = 0
         self.start_error: str | None = None
         self._thread = threading.Thread(target=self._start, args=(scenario, mcap, live),
@@ -257,6 +259,8 @@ class StartingRecorder:
             with self._lock:
                 if not buf:
                     self._direct = rec is not None
+                    if self._direct:
+                        self._go_direct()
                     return
                 part = [buf.popleft() for _ in range(min(self._SLICE, len(buf)))]
             if rec is not None:
@@ -266,6 +270,24 @@ class StartingRecorder:
                 self._stamp = None
             if pause_s:
                 time.sleep(pause_s)
+
+    def _go_direct(self) -> None:
+        """From now on the hot calls skip this wrapper: the attached links' frame hook and
+        :meth:`on_frame`/:meth:`controller` are the recorder's own (a call through an old
+        reference still reaches it, in order, through :meth:`_call`)."""
+        rec = self._rec
+        rec.clock = time.time                   # no backlog left to stamp (see _clock)
+        self.on_frame = rec.on_frame            # type: ignore[method-assign]
+        self.controller = rec.controller        # type: ignore[method-assign]
+        for link in self._links:
+            link.on_frame = rec.on_frame
+
+    def attach(self, link: Any) -> None:
+        """Record ``link``'s frames (its ``on_frame`` hook; once the child is up, the
+        recorder's own)."""
+        with self._lock:
+            self._links.append(link)
+            link.on_frame = self.on_frame
 
     @property
     def starting(self) -> bool:

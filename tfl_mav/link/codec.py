@@ -42,8 +42,8 @@ from typing import Any
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.payload import frame_payload
 
-__all__ = ["HOT_MESSAGE_IDS", "UNSENT", "FastCodec", "LiteMessage", "SkimmedMessage",
-           "lite_class", "skim"]
+__all__ = ["HOT_MESSAGE_IDS", "PACK_ONLY_IDS", "UNSENT", "FastCodec", "LiteMessage",
+           "SkimmedMessage", "lite_class", "skim"]
 
 HOT_MESSAGE_IDS = (
     mav.MAVLINK_MSG_ID_ODOMETRY,
@@ -57,6 +57,15 @@ HOT_MESSAGE_IDS = (
     mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
     mav.MAVLINK_MSG_ID_SYS_STATUS,
 )
+
+PACK_ONLY_IDS = (
+    # the controller's own telemetry (tfl_mav.daemon), 50 times a second of sim time
+    mav.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT,
+    mav.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY,
+)
+"""Messages compiled for sending only, from a :class:`LiteMessage` whose char field holds the
+raw ``bytes`` pymavlink packs (``_name_raw``); never decoded here (pymavlink decodes a char
+field to ``str``), so a receiver still gets pymavlink's message."""
 
 _HEADER = struct.Struct("<BBBBBBBHB")
 _SIGN_BLOCK = struct.Struct("<BQ")
@@ -168,16 +177,19 @@ def lite_class(msgid: int) -> type[LiteMessage]:
     """The LiteMessage class of hot message ``msgid``. A message to send is
     ``tuple.__new__(cls, (*wire_order_values, UNSENT))``, arrays flattened in place, every
     array element given (the wire order is pymavlink's ``ordered_fieldnames``)."""
-    if msgid not in HOT_MESSAGE_IDS:
-        raise ValueError(f"lite_class: message id {msgid} is not compiled")
-    return _Layout(mav.mavlink_map[msgid]).lite
+    if msgid in HOT_MESSAGE_IDS:
+        return _Layout(mav.mavlink_map[msgid]).lite
+    if msgid in PACK_ONLY_IDS:       # a char field is given as bytes
+        return _Layout(mav.mavlink_map[msgid], chars=True).lite
+    raise ValueError(f"lite_class: message id {msgid} is not compiled")
 
 
 class _Layout:
-    """One message class compiled: ``pack(msg) -> payload`` and ``fields(tuple) -> dict``."""
+    """One message class compiled: ``pack(msg) -> payload`` and ``fields(tuple) -> dict``.
+    ``chars``: allow char fields (packing a LiteMessage only, see :data:`PACK_ONLY_IDS`)."""
 
-    def __init__(self, cls: Any) -> None:
-        if "char" in cls.fieldtypes:
+    def __init__(self, cls: Any, chars: bool = False) -> None:
+        if "char" in cls.fieldtypes and not chars:
             raise ValueError(f"{cls.msgname}: char fields are not compiled")
         self.cls = cls
         self.msgid = cls.id
@@ -217,7 +229,8 @@ class _Layout:
 class FastCodec:
     """Pack and decode the hot messages exactly as pymavlink does, faster. One per link."""
 
-    def __init__(self, ids: tuple[int, ...] = HOT_MESSAGE_IDS) -> None:
+    def __init__(self, ids: tuple[int, ...] = HOT_MESSAGE_IDS,
+                 pack_only: tuple[int, ...] = PACK_ONLY_IDS) -> None:
         self.by_class: dict[type, _Layout] = {}
         self.by_id: dict[int, _Layout] = {}
         self.by_lite: dict[type, _Layout] = {}
@@ -225,6 +238,9 @@ class FastCodec:
             layout = _Layout(mav.mavlink_map[msgid])
             self.by_class[layout.cls] = layout
             self.by_id[msgid] = layout
+            self.by_lite[layout.lite] = layout
+        for msgid in pack_only:          # LiteMessages only: pymavlink's still pack as before
+            layout = _Layout(mav.mavlink_map[msgid], chars=True)
             self.by_lite[layout.lite] = layout
 
     def pack(self, msg: Any, packer: Any) -> bytes | None:
