@@ -48,7 +48,8 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
     ``hook(sim)`` is called before every control tick (benches use it to inject failures
     mid-flight, as MAV_CMD_INJECT_FAILURE does on the link).
     """
-    fc = FlightComputer(sc, attack_info=attack_info)
+    # No deadline here: the safe law designs its gains when first met (the same gains).
+    fc = FlightComputer(sc, attack_info=attack_info, design_gains=False)
     sim = Simulator(sc)
     ctrl = fc.controller
     v = sc.vehicle

@@ -131,7 +131,11 @@ def _floats(x: Sequence[float]) -> Sequence[float]:
 class FlightComputer:
     """Detector + TFL law for one flight of one scenario. See the module docstring."""
 
-    def __init__(self, scenario: Scenario, *, attack_info: str = "detector") -> None:
+    def __init__(self, scenario: Scenario, *, attack_info: str = "detector",
+                 design_gains: bool = True) -> None:
+        """``design_gains``: design the safe law's whole LQR gain schedule now (a real-time
+        flight never designs one mid-air), or False: a block at a time when first met
+        (offline: no deadline; the same gains, a fraction of the start-up)."""
         if attack_info not in ATTACK_INFO:
             raise ValueError(f"attack_info: must be one of {', '.join(ATTACK_INFO)}, "
                              f"got {attack_info!r}")
@@ -156,7 +160,8 @@ class FlightComputer:
                                     mp.gravity_mps2, scenario.run.control_dt_s,
                                     scenario_path(scenario), self.speed_mps,
                                     kernels=getattr(self.controller.tracker, "kernels", None),
-                                    compiled_path=self.controller.path_eval == "compiled")
+                                    compiled_path=self.controller.path_eval == "compiled",
+                                    design_gains=design_gains)
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
         if self.controller.lag_inverter is not None:   # ESC noise: filter ω (actuators)
             self.controller.lag_inverter.set_rpm_noise(detector_config(scenario).rpm_noise_std)

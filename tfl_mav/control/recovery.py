@@ -74,6 +74,8 @@ Sigma2 = Callable[[tuple[float]], Sequence[float]]
 Gains = tuple[tuple[float, float, float, float], tuple[float, float, float, float]]  # K, 2×4
 GainKey = tuple[int, bool]     # (spin rate in 0.5 rad/s steps, I_x' > I_y')
 _SCHEDULES: dict[tuple[float, ...], dict[GainKey, Gains]] = {}   # whole schedules, by model
+_PARTIAL: dict[tuple[float, ...], dict[GainKey, Gains]] = {}     # blocks met so far, by model
+GAIN_BLOCK = 32    # spin-rate steps (16 rad/s) designed together when first met (lazy law)
 
 
 def _spin_model(rr: float, ix: float, iy: float, iz: float,
@@ -100,26 +102,33 @@ def gain_schedule(inertia_kgm2: Sequence[float], k_r: float, dt_s: float
     if sched is not None:
         return sched
     top = round(LQR_MAX_SPIN_RADPS * 2.0)
-    steps = np.arange(-top, top + 1)
-    keys: list[GainKey] = []
-    a_all, b_all = [], []
+    sched = {}
     for ixc, iyc in dict.fromkeys(((ix, iy), (iy, ix))):
-        keys += [(k, ixc > iyc) for k in steps.tolist()]
-        # _spin_model for every step at once (the same IEEE operations, element-wise).
-        rr = steps / 2.0
-        a = np.zeros((len(steps), 4, 4))
-        a[:, 0, 1], a[:, 0, 3] = rr, -1.0
-        a[:, 1, 0], a[:, 1, 2] = -rr, 1.0
-        a[:, 2, 2], a[:, 2, 3] = -k_r / ixc, -(iz - iyc) * rr / ixc
-        a[:, 3, 2], a[:, 3, 3] = -(ixc - iz) * rr / iyc, -k_r / iyc
-        a_all.append(a)
-        b_all.append(np.repeat(_spin_model(0.0, ixc, iyc, iz, k_r)[1][None], len(steps), 0))
-    gains = dlqr_zoh_many(np.concatenate(a_all), np.concatenate(b_all),
-                          np.diag(LQR_Q), np.diag(LQR_R), dt_s)
-    sched = {key: (tuple(g[0].tolist()), tuple(g[1].tolist()))
-             for key, g in zip(keys, gains, strict=True) if g is not None}
+        sched.update(_design_steps(ixc, iyc, iz, float(k_r), float(dt_s), -top, top + 1))
     _SCHEDULES[cache_key] = sched
+    _PARTIAL[cache_key] = dict(sched)
     return sched
+
+
+def _design_steps(ixc: float, iyc: float, iz: float, k_r: float, dt_s: float, lo: int,
+                  hi: int) -> dict[GainKey, Gains]:
+    """The gains of spin-rate steps lo … hi−1 (0.5 rad/s each) in one inertia order, by
+    stacked calls (:func:`lqr.dlqr_zoh_many`: item by item the same operations, so the same
+    gains bit for bit whatever else is in the stack); a step whose design fails is left out
+    (:meth:`RecoveryLaw._lqr` then designs it alone and reports the failure)."""
+    steps = np.arange(lo, hi)
+    # _spin_model for every step at once (the same IEEE operations, element-wise).
+    rr = steps / 2.0
+    a = np.zeros((len(steps), 4, 4))
+    a[:, 0, 1], a[:, 0, 3] = rr, -1.0
+    a[:, 1, 0], a[:, 1, 2] = -rr, 1.0
+    a[:, 2, 2], a[:, 2, 3] = -k_r / ixc, -(iz - iyc) * rr / ixc
+    a[:, 3, 2], a[:, 3, 3] = -(ixc - iz) * rr / iyc, -k_r / iyc
+    b = np.repeat(_spin_model(0.0, ixc, iyc, iz, k_r)[1][None], len(steps), 0)
+    gains = dlqr_zoh_many(a, b, np.diag(LQR_Q), np.diag(LQR_R), dt_s)
+    order = ixc > iyc
+    return {(k, order): (tuple(g[0].tolist()), tuple(g[1].tolist()))
+            for k, g in zip(steps.tolist(), gains, strict=True) if g is not None}
 
 
 def reference_sigma2(path: Path) -> Sigma2:
@@ -244,9 +253,15 @@ class RecoveryLaw:
         self.projector = (PathProjector(path, *projector_sigma2(path, kernels, compiled_path))
                           if path is not None else None)
         self.hold_m: list[float] | None = None    # held point (None: follow the path)
-        # The LQR gains, designed now (``design_gains``) or when first met in flight.
+        # The LQR gains: the whole schedule designed now (``design_gains``: a real-time
+        # flight never designs mid-air), or a block of GAIN_BLOCK steps when a spin rate of
+        # it is first met (offline: a flight meets a few blocks, ~3 ms each, not the 38 of
+        # the schedule); the same gains either way, shared by every law of this model.
+        ix, iy, iz = (float(x) for x in inertia_kgm2)
+        self._model_key = (ix, iy, iz, float(k_r), float(dt_s))
         self._gains: dict[GainKey, Gains] = (
-            dict(gain_schedule(inertia_kgm2, k_r, dt_s)) if design_gains else {})
+            dict(gain_schedule(inertia_kgm2, k_r, dt_s)) if design_gains
+            else _PARTIAL.setdefault(self._model_key, {}))
         self._frames: dict[int, RotorFrame] = {}
 
     # ------------------------------------------------------------------ targets
@@ -294,6 +309,13 @@ class RecoveryLaw:
         # and no overflow in expm.
         r = min(max(r, -LQR_MAX_SPIN_RADPS), LQR_MAX_SPIN_RADPS) if math.isfinite(r) else 0.0
         key = (round(r * 2.0), ix > iy)
+        k = self._gains.get(key)
+        if k is not None:
+            return k
+        top = round(LQR_MAX_SPIN_RADPS * 2.0)
+        lo = key[0] // GAIN_BLOCK * GAIN_BLOCK
+        self._gains.update(_design_steps(ix, iy, self.inertia[2], self.k_r, self.dt,
+                                         max(lo, -top), min(lo + GAIN_BLOCK, top + 1)))
         k = self._gains.get(key)
         if k is not None:
             return k
