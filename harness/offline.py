@@ -13,7 +13,8 @@ import gc
 import math
 import re
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from itertools import chain
 from typing import Any
 
 import numpy as np
@@ -21,7 +22,6 @@ import numpy as np
 from sitl.simulator import Simulator
 from tfl_mav.flight_computer import FlightComputer
 from tfl_mav.flightlog.flight import FlightLog
-from tfl_mav.geometry import yaw_from_quaternion
 from tfl_mav.scenario import Scenario
 
 __all__ = ["DETECTION_EVENT", "detections", "fly_offline"]
@@ -126,27 +126,40 @@ def _fill(log: FlightLog, rows: list[tuple[Any, ...]], sim: Simulator, *,
     if not rows:
         return
     cols = list(zip(*rows, strict=True))
-    x = np.array(cols[1], dtype=float)             # (N, 13) true state, paper frame
+    n = len(rows)
+    x = _matrix(cols[1], 13)                       # (N, 13) true state, paper frame
     yaw_rad = []
     yaw_prev = None
     unwrapped = 0.0
-    for q in x[:, 6:10].tolist():
-        yaw = yaw_from_quaternion(q)
-        unwrapped = yaw if yaw_prev is None else unwrapped + math.remainder(yaw - yaw_prev,
-                                                                             math.tau)
+    atan2, remainder, tau = math.atan2, math.remainder, math.tau
+    for s in cols[1]:
+        # ψ = yaw_from_quaternion(q), written out (the same operations): 20 000 a flight
+        w, qx, qy, qz = s[6], s[7], s[8], s[9]
+        yaw = atan2(2 * (w * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
+        unwrapped = yaw if yaw_prev is None else unwrapped + remainder(yaw - yaw_prev, tau)
         yaw_prev = yaw
         yaw_rad.append(unwrapped)
-    f = np.array(cols[4], dtype=float)             # (N, 4) true rotor thrusts
+    f = _matrix(cols[4], 4)                        # (N, 4) true rotor thrusts
     f1, f2, f3, f4 = f.T
     ell, d = sim.params.arm_m, sim.params.drag_thrust_ratio_m
     data = log.data
     for key, value in (
-            ("t_s", cols[0]), ("position_m", x[:, 0:3]), ("velocity_mps", x[:, 3:6]),
+            ("t_s", np.fromiter(cols[0], float, n)), ("position_m", x[:, 0:3]),
+            ("velocity_mps", x[:, 3:6]),
             ("body_rates_radps", x[:, 10:13]), ("yaw_rad", yaw_rad),
-            ("path_distance_m", cols[7]), ("thrust_cmd_n", cols[2]), ("thrust_req_n", cols[3]),
-            ("thrust_true_n", f), ("attack_true_n", cols[5]), ("attack_estimate_n", cols[6]),
+            ("path_distance_m", np.fromiter(cols[7], float, n)),
+            ("thrust_cmd_n", _matrix(cols[2], 4)), ("thrust_req_n", _matrix(cols[3], 4)),
+            ("thrust_true_n", f), ("attack_true_n", np.fromiter(cols[5], float, n)),
+            ("attack_estimate_n", np.fromiter(cols[6], float, n)),
             ("uf_n", f1 + f2 + f3 + f4),
             ("torque_nm", np.stack([ell * (f4 - f2), ell * (f3 - f1), d * (f1 - f2 + f3 - f4)],
                                    axis=1)),
-            ("saturated", cols[8]), ("mode", cols[9])):
+            ("saturated", np.fromiter(cols[8], float, n)),
+            ("mode", np.fromiter(cols[9], float, n))):
         data[key] = np.ascontiguousarray(value, dtype=float)
+
+
+def _matrix(rows: tuple[Sequence[float], ...], width: int) -> np.ndarray:
+    """(N, width) floats from N rows: one flat pass (``np.array`` of a tuple of lists looks
+    at every row as a sequence first, several times slower; the same values)."""
+    return np.fromiter(chain.from_iterable(rows), float, len(rows) * width).reshape(-1, width)
