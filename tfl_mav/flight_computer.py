@@ -197,6 +197,8 @@ class FlightComputer:
         # 2000 deg/s): past it the yaw rate comes from the model (_unclip_yaw_rate).
         self.gyro_range_radps = sens.gyro_range_radps
         self._model = mp
+        self._needs_omega = (self.state_filter is not None or self.gyro_range_radps > 0.0
+                             or self.controller.lag_inverter is not None)
         self._r_hat: float | None = None
         self.yaw_rate_substituted_ticks = 0
         self.law_name = "tfl"          # "tfl" | "recovery" | "lost_rotor"
@@ -291,7 +293,9 @@ class FlightComputer:
             w = rpm[rotor - 1] * RPM_TO_RADPS
             estimate = self.k_f * w * w
             ctrl.set_attack(rotor, estimate)
-        omega = [r * RPM_TO_RADPS for r in rpm]
+        # ω (rad/s) for the state filter, the yaw-rate model and the law's lag inverse; the
+        # law reads it only with motor lag (TFLController.update), so nothing else needs it.
+        omega = [r * RPM_TO_RADPS for r in rpm] if self._needs_omega else None
         last = self._last_t
         if last is None:
             dt = ctrl.dt
