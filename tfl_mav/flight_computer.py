@@ -72,7 +72,7 @@ from tfl_mav.control.detector import AttackDetector, DetectorOutput
 from tfl_mav.control.feasibility import attack_limit_n, feasible_speed_mps, path_demand
 from tfl_mav.control.law import ControlOutput, TFLController
 from tfl_mav.control.recovery import RecoveryLaw, RecoveryOutput
-from tfl_mav.control.state_filter import StateFilter
+from tfl_mav.control.state_filter import StateFilter, YawRateModel
 from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario
 from tfl_mav.state import State
@@ -194,13 +194,12 @@ class FlightComputer:
                         rate_std_radps=sens.rate_noise_std_radps,
                         translation=trans, rotation=rot) if trans or rot else None)
         # A gyro saturates at its range (the attacked vehicle spins near 60 rad/s, beyond
-        # 2000 deg/s): past it the yaw rate comes from the model (_unclip_yaw_rate).
+        # 2000 deg/s): past it the yaw rate comes from the model (state_filter).
         self.gyro_range_radps = sens.gyro_range_radps
-        self._model = mp
-        self._needs_omega = (self.state_filter is not None or self.gyro_range_radps > 0.0
+        self.yaw_model = (YawRateModel(mp, self.k_f, sens.gyro_range_radps)
+                          if sens.gyro_range_radps > 0.0 else None)
+        self._needs_omega = (self.state_filter is not None or self.yaw_model is not None
                              or self.controller.lag_inverter is not None)
-        self._r_hat: float | None = None
-        self.yaw_rate_substituted_ticks = 0
         self.law_name = "tfl"          # "tfl" | "recovery" | "lost_rotor"
         self.switches = 0
         self._ticks = 0
@@ -209,6 +208,11 @@ class FlightComputer:
         self._good_s = 0.0             # time the hand-back conditions have held
         self._last_t: float | None = None
         self._last_tfl: ControlOutput | None = None
+
+    @property
+    def yaw_rate_substituted_ticks(self) -> int:
+        """Ticks whose yaw rate came from the model (the gyro at its range)."""
+        return self.yaw_model.substituted_ticks if self.yaw_model is not None else 0
 
     def _flyable_speed(self, sc: Scenario) -> float:
         """The path speed to fly: the scenario's, or the highest the vehicle can fly when the
@@ -309,8 +313,8 @@ class FlightComputer:
             # the attacked rotor's included.
             k_f = self.k_f
             state = self.state_filter.update(state, [k_f * w * w for w in omega], dt)
-        if self.gyro_range_radps > 0.0:
-            state = self._unclip_yaw_rate(state, omega, dt, events)
+        if self.yaw_model is not None:
+            state = self.yaw_model.update(state, omega, dt, events)
         if self._ticks == 0:
             events[:0] = self._pending_events
             why = self._not_benign(state, rotor)
@@ -349,33 +353,6 @@ class FlightComputer:
         out = self._as_output(rec, ctrl)
         return self._result(rec.thrust_n, rec.requested_n, out, detection, rotor, estimate,
                             new, events)
-
-    def _unclip_yaw_rate(self, state: State, omega: Sequence[float], dt: float,
-                         events: list[str]) -> State:
-        """A yaw rate at the gyro's range is a lower bound, not a measurement: integrate
-        ṙ = (τ_r − k_r r − (I_y − I_x) p q)/I_z (eq. (3)) from the ESC-reported thrusts
-        instead, starting from the last unsaturated reading. The spin's steady value τ_r/k_r
-        does not depend on the (uncertain) inertia."""
-        p, q, r = (float(c) for c in state.body_rates_radps)
-        rng = self.gyro_range_radps
-        if abs(r) < 0.99 * rng or not math.isfinite(r):
-            self._r_hat = r
-            return state
-        m = self._model
-        f1, f2, f3, f4 = (self.k_f * w * w for w in omega)
-        ix, iy, iz = m.inertia_kgm2
-        r_hat = r if self._r_hat is None else self._r_hat
-        tau_r = m.drag_thrust_ratio_m * (f1 - f2 + f3 - f4)
-        r_hat += dt * (tau_r - m.k_r * r_hat - (iy - ix) * p * q) / iz
-        if r_hat * r <= 0.0 or abs(r_hat) < abs(r):
-            r_hat = r                    # the true rate is at least what the gyro shows
-        if self.yaw_rate_substituted_ticks == 0:
-            events.append(f"yaw rate at the gyro's range (±{rng:g} rad/s): using the "
-                          "model's yaw-rate estimate while it is saturated")
-        self.yaw_rate_substituted_ticks += 1
-        self._r_hat = r_hat
-        return State(state.position_m, state.velocity_mps, state.quaternion_wxyz,
-                     (p, q, r_hat), state.time_usec)
 
     # ------------------------------------------------------------------ switching
     def _not_benign(self, state: State, rotor: int) -> str:
