@@ -15,7 +15,9 @@ offline loop against a plain numpy RK4 physics-only loop — all in the same run
    tick by tick over a whole offline flight of the scenario (``fly_offline`` with the
    detector; the step wrapped from here, the runner untouched): median and p90 µs, by the
    mode that flew the tick (the paper flight spends ~a quarter of its ticks in the safe
-   reduced-attitude law, ``LOST_ROTOR``).
+   reduced-attitude law, ``LOST_ROTOR``); and the same step split into the detector, the
+   TFL law, the safe law and the flight computer's own work, by replaying the flight's
+   inputs (:func:`flight_computer_parts`).
 4. Issue #13's table row 2: the offline loop (physics + law + detector at 1 kHz,
    ``harness.offline.fly_offline``, and the whole ``tfl-mav offline`` process) against a
    plain numpy RK4 loop of the same rigid body with the physics only, as the ratio of
@@ -50,6 +52,7 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from fc_parts import flight_computer_parts
 
 from harness.offline import fly_offline
 from sitl.simulator import Simulator
@@ -358,6 +361,16 @@ def main(argv: list[str] | None = None) -> int:
             r = fc_rows[mode]
             print(f"{mode:12s} {r['ticks']:6d} {r['median_us']:8.1f} {r['p90_us']:8.1f}")
         result["flight_computer_step"] = fc_rows
+        parts = flight_computer_parts(sc0, args.flight_s)
+        print("\nthe same step, mean CPU µs per tick of the flight (replayed; own: the parts "
+              "replaced by their recorded outputs)")
+        rows = [(label, parts[label]) for label in ("detector", "TFL law", "safe law", "own")]
+        rows += [("step (replayed whole)", parts["step"]),
+                 ("overhead: step − TFL law − safe law",
+                  parts["step"] - parts["TFL law"] - parts["safe law"])]
+        for label, us in rows:
+            print(f"  {label:40s} {us:7.1f}")
+        result["flight_computer_parts_us"] = parts
 
     if args.no_offline:
         _write(args.json, result)

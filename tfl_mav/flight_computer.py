@@ -72,8 +72,7 @@ from tfl_mav.control.detector import AttackDetector, DetectorOutput
 from tfl_mav.control.feasibility import attack_limit_n, feasible_speed_mps, path_demand
 from tfl_mav.control.law import ControlOutput, TFLController
 from tfl_mav.control.recovery import RecoveryLaw, RecoveryOutput
-from tfl_mav.control.state_filter import StateFilter
-from tfl_mav.geometry import rotation_rows
+from tfl_mav.control.state_filter import StateFilter, YawRateModel
 from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario
 from tfl_mav.state import State
@@ -121,6 +120,7 @@ class TickResult(NamedTuple):
 
 
 _MODE_TEXT = {m: str(m) for m in Mode}    # formatting an enum costs µs: once, here
+_FALLBACK, _LOST_ROTOR, _RECOVERY = Mode.FALLBACK, Mode.LOST_ROTOR, Mode.RECOVERY
 
 
 def _floats(x: Sequence[float]) -> Sequence[float]:
@@ -128,10 +128,24 @@ def _floats(x: Sequence[float]) -> Sequence[float]:
     return x.tolist() if type(x) is np.ndarray else x
 
 
+def _tilt_rad(q: Sequence[float]) -> float:
+    """Angle between b3 and the vertical: acos of R₂₂ of the normalised quaternion, by the
+    very operations :func:`~tfl_mav.geometry.rotation_rows` computes R₂₂ with (the other
+    eight entries are not needed: this runs on every safe-law tick)."""
+    w, x, y, z = _floats(q)
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    x, y = x / n, y / n
+    return math.acos(max(-1.0, min(1.0, 1 - 2 * (x * x + y * y))))
+
+
 class FlightComputer:
     """Detector + TFL law for one flight of one scenario. See the module docstring."""
 
-    def __init__(self, scenario: Scenario, *, attack_info: str = "detector") -> None:
+    def __init__(self, scenario: Scenario, *, attack_info: str = "detector",
+                 design_gains: bool = True) -> None:
+        """``design_gains``: design the safe law's whole LQR gain schedule now (a real-time
+        flight never designs one mid-air), or False: a block at a time when first met
+        (offline: no deadline; the same gains, a fraction of the start-up)."""
         if attack_info not in ATTACK_INFO:
             raise ValueError(f"attack_info: must be one of {', '.join(ATTACK_INFO)}, "
                              f"got {attack_info!r}")
@@ -156,8 +170,10 @@ class FlightComputer:
                                     mp.gravity_mps2, scenario.run.control_dt_s,
                                     scenario_path(scenario), self.speed_mps,
                                     kernels=getattr(self.controller.tracker, "kernels", None),
-                                    compiled_path=self.controller.path_eval == "compiled")
+                                    compiled_path=self.controller.path_eval == "compiled",
+                                    design_gains=design_gains)
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
+        self._probe_high_n = min(self._hover_share_n + 1.5, self.thrust_max_n)
         if self.controller.lag_inverter is not None:   # ESC noise: filter ω (actuators)
             self.controller.lag_inverter.set_rpm_noise(detector_config(scenario).rpm_noise_std)
         # Beyond this attack thrust the path cannot be flown at all (feasibility module):
@@ -178,11 +194,12 @@ class FlightComputer:
                         rate_std_radps=sens.rate_noise_std_radps,
                         translation=trans, rotation=rot) if trans or rot else None)
         # A gyro saturates at its range (the attacked vehicle spins near 60 rad/s, beyond
-        # 2000 deg/s): past it the yaw rate comes from the model (_unclip_yaw_rate).
+        # 2000 deg/s): past it the yaw rate comes from the model (state_filter).
         self.gyro_range_radps = sens.gyro_range_radps
-        self._model = mp
-        self._r_hat: float | None = None
-        self.yaw_rate_substituted_ticks = 0
+        self.yaw_model = (YawRateModel(mp, self.k_f, sens.gyro_range_radps)
+                          if sens.gyro_range_radps > 0.0 else None)
+        self._needs_omega = (self.state_filter is not None or self.yaw_model is not None
+                             or self.controller.lag_inverter is not None)
         self.law_name = "tfl"          # "tfl" | "recovery" | "lost_rotor"
         self.switches = 0
         self._ticks = 0
@@ -191,6 +208,11 @@ class FlightComputer:
         self._good_s = 0.0             # time the hand-back conditions have held
         self._last_t: float | None = None
         self._last_tfl: ControlOutput | None = None
+
+    @property
+    def yaw_rate_substituted_ticks(self) -> int:
+        """Ticks whose yaw rate came from the model (the gyro at its range)."""
+        return self.yaw_model.substituted_ticks if self.yaw_model is not None else 0
 
     def _flyable_speed(self, sc: Scenario) -> float:
         """The path speed to fly: the scenario's, or the highest the vehicle can fly when the
@@ -245,23 +267,26 @@ class FlightComputer:
 
     def _step(self, t_s: float, state: State, rpm: Sequence[float],
               applied_n: Sequence[float], dt_s: float | None) -> TickResult:
+        # Runs every tick (#13): attribute look-ups hoisted, the NaN/range tests written as
+        # comparisons (False for NaN), the decisions and their order exactly as in words.
         ctrl = self.controller
         if type(rpm) is np.ndarray:          # the simulator's: floats are 3-5× cheaper
             rpm = rpm.tolist()
-        events_pre: list[str] = []
+        events: list[str] = []
         detection = None
         new = False
         estimate = math.nan
         rotor = 0
-        if self.detector is not None:
-            detection = self.detector.update(t_s, rpm, applied_n)
+        detector = self.detector
+        if detector is not None:
+            detection = detector.update(t_s, rpm, applied_n)
             if detection.released:
                 ctrl.set_attack(0, 0.0)
                 self.detected_rotor = 0
-                events_pre.append("rotor obeys its commands again: attack over, "
-                                  "four-rotor law")
-            if detection.detected_rotor:
-                rotor, estimate = detection.detected_rotor, detection.estimate_n
+                events.append("rotor obeys its commands again: attack over, four-rotor law")
+            rotor = detection.detected_rotor
+            if rotor:
+                estimate = detection.estimate_n
                 if detection.alarm:
                     new = True
                     self.detected_rotor = rotor
@@ -272,36 +297,43 @@ class FlightComputer:
             w = rpm[rotor - 1] * RPM_TO_RADPS
             estimate = self.k_f * w * w
             ctrl.set_attack(rotor, estimate)
-        omega = [r * RPM_TO_RADPS for r in rpm]
-        dt = ctrl.dt if self._last_t is None else max(t_s - self._last_t, 0.0) or ctrl.dt
+        # ω (rad/s) for the state filter, the yaw-rate model and the law's lag inverse; the
+        # law reads it only with motor lag (TFLController.update), so nothing else needs it.
+        omega = [r * RPM_TO_RADPS for r in rpm] if self._needs_omega else None
+        last = self._last_t
+        if last is None:
+            dt = ctrl.dt
+        else:                      # max(t − last, 0) or the period (a NaN stays NaN)
+            dt = t_s - last
+            if not (dt > 0.0 or dt != dt):
+                dt = ctrl.dt
         self._last_t = t_s
         if self.state_filter is not None:
             # The thrusts that acted over the last period: what the ESCs report (f = k_f ω²),
             # the attacked rotor's included.
             k_f = self.k_f
             state = self.state_filter.update(state, [k_f * w * w for w in omega], dt)
-        if self.gyro_range_radps > 0.0:
-            state = self._unclip_yaw_rate(state, omega, dt, events_pre)
-        events: list[str] = events_pre
-        first = self._ticks == 0
-        if first and self._pending_events:
+        if self.yaw_model is not None:
+            state = self.yaw_model.update(state, omega, dt, events)
+        if self._ticks == 0:
             events[:0] = self._pending_events
-        self._ticks += 1
-        if first:
             why = self._not_benign(state, rotor)
             if why:
                 self._enter("recovery", state, f"take-over: {why}", events, hold=True)
-        if rotor and math.isfinite(estimate) and estimate < A_ENTER_N \
-                and self.law_name != "lost_rotor":
-            self._enter("lost_rotor", state, f"rotor {rotor} at {estimate:.2f} N < "
-                        f"{A_ENTER_N} N: no roll authority, reduced-attitude law", events,
-                        hold=self.law_name == "recovery")
-        if rotor and math.isfinite(estimate) and estimate > self.attack_limit_n \
-                and self.law_name != "lost_rotor":
-            self._enter("lost_rotor", state, f"rotor {rotor} at {estimate:.2f} N: beyond what "
-                        "the path allows; keeping attitude, cannot follow the path", events,
-                        hold=self.law_name == "recovery")
-        if self.law_name == "tfl":
+        self._ticks += 1
+        law_name = self.law_name
+        if rotor and law_name != "lost_rotor":
+            # The estimate is finite in both tests (NaN fails a comparison; ±inf is refused).
+            if estimate < A_ENTER_N and math.isfinite(estimate):
+                self._enter("lost_rotor", state, f"rotor {rotor} at {estimate:.2f} N < "
+                            f"{A_ENTER_N} N: no roll authority, reduced-attitude law",
+                            events, hold=law_name == "recovery")
+            elif estimate > self.attack_limit_n and math.isfinite(estimate):
+                self._enter("lost_rotor", state, f"rotor {rotor} at {estimate:.2f} N: beyond "
+                            "what the path allows; keeping attitude, cannot follow the path",
+                            events, hold=law_name == "recovery")
+            law_name = self.law_name
+        if law_name == "tfl":
             if dt_s is None:
                 out = ctrl.update(state, omega)
             else:   # states were skipped: integrate the law's states over the real gap
@@ -312,49 +344,20 @@ class FlightComputer:
                 finally:
                     ctrl.dt = period
             self._last_tfl = out
-            if out.mode is Mode.FALLBACK:
-                self._enter("recovery", state, f"TFL: {out.reason}; level, hold altitude",
-                            events, hold=True)
-            else:
-                return self._result(out.rotor_thrust_n, list(out.rotor_thrust_n), out,
-                                    detection, rotor, estimate, new, events)
+            if out.mode is not _FALLBACK:
+                return self._result(out.rotor_thrust_n, None, out, detection, rotor,
+                                    estimate, new, events)
+            self._enter("recovery", state, f"TFL: {out.reason}; level, hold altitude",
+                        events, hold=True)
         rec = self._fly_safe(t_s, dt, state, rotor, estimate, events)
         out = self._as_output(rec, ctrl)
         return self._result(rec.thrust_n, rec.requested_n, out, detection, rotor, estimate,
                             new, events)
 
-    def _unclip_yaw_rate(self, state: State, omega: Sequence[float], dt: float,
-                         events: list[str]) -> State:
-        """A yaw rate at the gyro's range is a lower bound, not a measurement: integrate
-        ṙ = (τ_r − k_r r − (I_y − I_x) p q)/I_z (eq. (3)) from the ESC-reported thrusts
-        instead, starting from the last unsaturated reading. The spin's steady value τ_r/k_r
-        does not depend on the (uncertain) inertia."""
-        p, q, r = (float(c) for c in state.body_rates_radps)
-        rng = self.gyro_range_radps
-        if abs(r) < 0.99 * rng or not math.isfinite(r):
-            self._r_hat = r
-            return state
-        m = self._model
-        f1, f2, f3, f4 = (self.k_f * w * w for w in omega)
-        ix, iy, iz = m.inertia_kgm2
-        r_hat = r if self._r_hat is None else self._r_hat
-        tau_r = m.drag_thrust_ratio_m * (f1 - f2 + f3 - f4)
-        r_hat += dt * (tau_r - m.k_r * r_hat - (iy - ix) * p * q) / iz
-        if r_hat * r <= 0.0 or abs(r_hat) < abs(r):
-            r_hat = r                    # the true rate is at least what the gyro shows
-        if self.yaw_rate_substituted_ticks == 0:
-            events.append(f"yaw rate at the gyro's range (±{rng:g} rad/s): using the "
-                          "model's yaw-rate estimate while it is saturated")
-        self.yaw_rate_substituted_ticks += 1
-        self._r_hat = r_hat
-        return State(state.position_m, state.velocity_mps, state.quaternion_wxyz,
-                     (p, q, r_hat), state.time_usec)
-
     # ------------------------------------------------------------------ switching
     def _not_benign(self, state: State, rotor: int) -> str:
         """Why the state is not one the TFL law may be started from ('' if it is)."""
-        R = rotation_rows(_floats(state.quaternion_wxyz))
-        tilt = math.acos(max(-1.0, min(1.0, R[2][2])))
+        tilt = _tilt_rad(state.quaternion_wxyz)
         p, q, r = _floats(state.body_rates_radps)
         speed = math.sqrt(sum(c * c for c in _floats(state.velocity_mps)))
         vmax = max(TAKEOVER_SPEED_FLOOR_MPS, TAKEOVER_SPEED_FACTOR * self.speed_mps)
@@ -403,8 +406,7 @@ class FlightComputer:
         return out
 
     def _calm_fail(self, state: State, rotor: int) -> bool:
-        R = rotation_rows(_floats(state.quaternion_wxyz))
-        tilt = math.acos(max(-1.0, min(1.0, R[2][2])))
+        tilt = _tilt_rad(state.quaternion_wxyz)
         p, q, r = _floats(state.body_rates_radps)
         return (tilt > HANDBACK_TILT_RAD or math.hypot(p, q) > TAKEOVER_RATE_RADPS
                 or (not rotor and abs(r) > TAKEOVER_RATE_RADPS))
@@ -429,36 +431,42 @@ class FlightComputer:
             tracker.lam = self.recovery.projector.lam
 
     def _as_output(self, rec: RecoveryOutput, ctrl: TFLController) -> ControlOutput:
-        mode = Mode.LOST_ROTOR if self.law_name == "lost_rotor" else Mode.RECOVERY
-        fmax = self.thrust_max_n
+        mode = _LOST_ROTOR if self.law_name == "lost_rotor" else _RECOVERY
+        hi = self.thrust_max_n + 1e-9
         zero4 = (0.0, 0.0, 0.0, 0.0)
-        return ControlOutput(
-            rotor_thrust_n=list(rec.thrust_n), mode=mode,
-            saturated=[not (-1e-9 <= f <= fmax + 1e-9) for f in rec.requested_n],
-            xi=(zero4, zero4), eta=zero4, mu=(0.0, 0.0),
-            path_distance_m=rec.path_distance_m, lam=math.nan, cond_d=math.nan,
-            thrust_n=rec.uf_n, mass_estimate_kg=ctrl.mass_kg,
-            disturbance_radps2=(0.0, 0.0), fine_gains=False,
-            reason=f"{_MODE_TEXT[mode]}: tilt error {math.degrees(rec.tilt_error_rad):.0f} deg")
+        return ControlOutput(   # positional: the fields in order (rotor_thrust_n … reason)
+            list(rec.thrust_n), mode, [not (-1e-9 <= f <= hi) for f in rec.requested_n],
+            (zero4, zero4), zero4, (0.0, 0.0), rec.path_distance_m, math.nan, math.nan,
+            rec.uf_n, ctrl.mass_kg, (0.0, 0.0), False,
+            f"{_MODE_TEXT[mode]}: tilt error {math.degrees(rec.tilt_error_rad):.0f} deg")
 
-    def _result(self, thrust: Sequence[float], requested: Sequence[float], out: ControlOutput,
-                detection: DetectorOutput | None, rotor: int, estimate: float, new: bool,
-                events: list[str]) -> TickResult:
+    def _result(self, thrust: Sequence[float], requested: Sequence[float] | None,
+                out: ControlOutput, detection: DetectorOutput | None, rotor: int,
+                estimate: float, new: bool, events: list[str]) -> TickResult:
+        """The command to send: each thrust min(max(f, 0), f_max), a NaN → 0 N; what the law
+        asked (``requested``; None: the same as ``thrust``) with a NaN → 0 N."""
         fmax = self.thrust_max_n
-        isfinite = math.isfinite
-        applied = []
-        for f in thrust:          # min(max(f, 0), f_max), NaN → 0: written out (every tick)
-            if isfinite(f):
-                f = 0.0 if f < 0.0 else f
-                applied.append(fmax if fmax < f else f)
-            else:
-                applied.append(0.0)
-        req = [f if isfinite(f) else 0.0 for f in requested]
+        f1, f2, f3, f4 = thrust
+        # One chained test passes four thrusts in range (comparisons are False for NaN).
+        if 0.0 <= f1 <= fmax and 0.0 <= f2 <= fmax and 0.0 <= f3 <= fmax \
+                and 0.0 <= f4 <= fmax:
+            applied = [f1, f2, f3, f4]
+            if requested is None:
+                requested = applied
+        else:
+            applied = [(fmax if fmax < f else (0.0 if f < 0.0 else f)) if math.isfinite(f)
+                       else 0.0 for f in thrust]
+            if requested is None:
+                requested = thrust
+        r1, r2, r3, r4 = requested
+        if math.isfinite(r1 + r2 + r3 + r4):        # a finite sum: all four finite
+            req = [r1, r2, r3, r4]
+        else:
+            req = [r if math.isfinite(r) else 0.0 for r in requested]
         if rotor and self.detector is not None:
             # The attacked rotor's command is not ours to use: send it a probe away from its
             # estimate, so that a rotor the attacker lets go shows it by following (detector).
             est = estimate if math.isfinite(estimate) else 0.0
-            probe = self._hover_share_n if abs(self._hover_share_n - est) > 1.0 \
-                else min(self._hover_share_n + 1.5, fmax)
-            applied[rotor - 1] = probe
+            hover = self._hover_share_n
+            applied[rotor - 1] = hover if abs(hover - est) > 1.0 else self._probe_high_n
         return TickResult(applied, out, detection, rotor, estimate, new, req, tuple(events))

@@ -224,15 +224,21 @@ class AttackDetector:
         elif last is not None and t <= last:
             self.rejected_samples += 1
             return self._reissue(alarm=False)
-        rpm = [r if abs(r) <= RPM_VALID_LIMIT else math.nan  # NaN fails the test too
-               for r in map(float, rpm_measured)]
-        cmd = self._cmd                 # the last valid command per rotor
-        for i in range(4):
-            f = float(thrust_cmd_n[i])
-            if math.isfinite(f):
-                cmd[i] = f
-            else:           # the vehicle rejects a non-finite command and keeps the last one
-                self.rejected_samples += 1
+        lim = RPM_VALID_LIMIT
+        r0, r1, r2, r3 = rpm = list(map(float, rpm_measured))
+        if not (-lim <= r0 <= lim and -lim <= r1 <= lim and -lim <= r2 <= lim
+                and -lim <= r3 <= lim):
+            rpm = [r if -lim <= r <= lim else math.nan for r in rpm]   # NaN fails too
+        c0, c1, c2, c3 = map(float, thrust_cmd_n)
+        if math.isfinite(c0 + c1 + c2 + c3):        # a finite sum: all four finite
+            cmd = self._cmd = [c0, c1, c2, c3]
+        else:
+            cmd = self._cmd                 # the last valid command per rotor
+            for i, f in enumerate((c0, c1, c2, c3)):
+                if math.isfinite(f):
+                    cmd[i] = f
+                else:       # the vehicle rejects a non-finite command and keeps the last one
+                    self.rejected_samples += 1
         bands = self._band
         tau = self.tau_s
         lagged = False
@@ -258,34 +264,35 @@ class AttackDetector:
         s_his, s_los, zs, rpms, resid, var = (self._s_hi, self._s_lo, self._z, self._rpm,
                                               self._resid, self._var)
         k_f = self.k_f
+        sqrt = math.sqrt
         if lagged:
             fmax = self.thrust_max_n
             e0, e1, e2, e3, e4 = self._decay
             e44 = e4 * e4
         for i in range(4):
+            r = rpm[i]
             if lagged:   # the lag solution with the command held
                 c = cmd[i]
                 c = 0.0 if c < 0.0 else c
-                c = fmax if fmax < c else c
-                c = math.sqrt(c / k_f)
+                c = sqrt((fmax if fmax < c else c) / k_f)
                 w0, w1, w2, w3, w4 = bands[i]
                 band = bands[i] = [c + (w0 - c) * e0, c + (w1 - c) * e1, c + (w2 - c) * e2,
                                    c + (w3 - c) * e3, c + (w4 - c) * e4]
                 var[i] *= e44                   # the slowest model forgets slowest
             else:
                 band = bands[i]
-            r = rpm[i]
-            if math.isnan(r):
+            if r != r:                          # NaN: skipped (counted)
                 self.rejected_samples += 1
                 continue
             lo, hi = min(band), max(band)
             pad = BAND_PAD * (hi - lo)
             # min/max of two written out (same results, NaN included): runs 4× a tick.
-            w, lim = r * RPM_TO_RADPS, lo - pad
-            w = lim if lim > w else w
+            wm = r * RPM_TO_RADPS
+            w = lo - pad
+            w = w if w > wm else wm
             lim = hi + pad
             w = lim if lim < w else w                # nearest speed in the band
-            z = (r - w * RADPS_TO_RPM) / math.sqrt(sig2 + var[i])
+            z = (r - w * RADPS_TO_RPM) / sqrt(sig2 + var[i])
             zc = -cap if -cap > z else z
             zc = cap if cap < zc else zc
             s_hi = s_his[i] + zc - k
@@ -294,23 +301,22 @@ class AttackDetector:
             s_los[i] = s_lo if s_lo > 0.0 else 0.0
             zs[i] = z
             rpms[i] = r
-            wm = r * RPM_TO_RADPS
             resid[i] = k_f * (wm * wm - w * w)
 
         alarm = False
         released = False
-        cfg = self.config
         d = self.detected_rotor
-        if cfg.enabled:
-            h_alarm = self.h * (1.0 - _ALARM_TOL)
+        if self.config.enabled:
             # The largest statistic among the rotors that may alarm: the isolation (which
-            # rotor, ties by |z| then the higher number) only when it reaches h.
+            # rotor, ties by |z| then the higher number) only when it reaches h. Statistics
+            # are ≥ 0, so the latched rotor is left out as a 0.
+            a0, a1, a2, a3 = s_his
+            b0, b1, b2, b3 = s_los
+            m = [a0 if a0 > b0 else b0, a1 if a1 > b1 else b1, a2 if a2 > b2 else b2,
+                 a3 if a3 > b3 else b3]
             if d:
-                j = d - 1
-                top = max(s_his[:j] + s_his[d:] + s_los[:j] + s_los[d:])
-            else:
-                top = max(s_his + s_los)
-            if top >= h_alarm:
+                m[d - 1] = 0.0
+            if max(m) >= self.h * (1.0 - _ALARM_TOL):
                 if d:
                     self.moves += 1             # the attacker moved
                 _, _, rotor = max((max(s_his[i], s_los[i]), abs(zs[i]), i + 1)

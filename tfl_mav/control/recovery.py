@@ -39,7 +39,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -49,7 +49,6 @@ from tfl_mav.control.jetcode import TraceError
 from tfl_mav.control.jets import Jet
 from tfl_mav.control.lqr import dlqr, dlqr_zoh_many, zoh
 from tfl_mav.control.paths import Path
-from tfl_mav.geometry import rotation_rows
 from tfl_mav.state import State
 
 __all__ = ["PathProjector", "RecoveryLaw", "RecoveryOutput", "gain_schedule",
@@ -65,6 +64,8 @@ YAW_DAMP = 2.0                      # healthy: r decays at 2 /s
 # LQR weights on (h1, h2, p, q) and (τ_p, τ_q): Bryson's rule with 0.1 of h (≈ 6°),
 # 10 rad/s of p, q and 0.2 N m of τ_q; τ_p costs 100× (one-sided, only for a slow spin).
 _TAN_MAX_TILT = math.tan(MAX_TILT_RAD)
+_KP = POS_OMEGA * POS_OMEGA            # outer-loop PD gains
+_KD = 2.0 * POS_ZETA * POS_OMEGA
 LQR_MAX_SPIN_RADPS = 150.0   # gain schedule range (see RecoveryLaw._lqr)
 LQR_Q = (100.0, 100.0, 0.01, 0.01)
 LQR_R = (2500.0, 25.0)
@@ -74,6 +75,8 @@ Sigma2 = Callable[[tuple[float]], Sequence[float]]
 Gains = tuple[tuple[float, float, float, float], tuple[float, float, float, float]]  # K, 2×4
 GainKey = tuple[int, bool]     # (spin rate in 0.5 rad/s steps, I_x' > I_y')
 _SCHEDULES: dict[tuple[float, ...], dict[GainKey, Gains]] = {}   # whole schedules, by model
+_PARTIAL: dict[tuple[float, ...], dict[GainKey, Gains]] = {}     # blocks met so far, by model
+GAIN_BLOCK = 32    # spin-rate steps (16 rad/s) designed together when first met (lazy law)
 
 
 def _spin_model(rr: float, ix: float, iy: float, iz: float,
@@ -100,26 +103,33 @@ def gain_schedule(inertia_kgm2: Sequence[float], k_r: float, dt_s: float
     if sched is not None:
         return sched
     top = round(LQR_MAX_SPIN_RADPS * 2.0)
-    steps = np.arange(-top, top + 1)
-    keys: list[GainKey] = []
-    a_all, b_all = [], []
+    sched = {}
     for ixc, iyc in dict.fromkeys(((ix, iy), (iy, ix))):
-        keys += [(k, ixc > iyc) for k in steps.tolist()]
-        # _spin_model for every step at once (the same IEEE operations, element-wise).
-        rr = steps / 2.0
-        a = np.zeros((len(steps), 4, 4))
-        a[:, 0, 1], a[:, 0, 3] = rr, -1.0
-        a[:, 1, 0], a[:, 1, 2] = -rr, 1.0
-        a[:, 2, 2], a[:, 2, 3] = -k_r / ixc, -(iz - iyc) * rr / ixc
-        a[:, 3, 2], a[:, 3, 3] = -(ixc - iz) * rr / iyc, -k_r / iyc
-        a_all.append(a)
-        b_all.append(np.repeat(_spin_model(0.0, ixc, iyc, iz, k_r)[1][None], len(steps), 0))
-    gains = dlqr_zoh_many(np.concatenate(a_all), np.concatenate(b_all),
-                          np.diag(LQR_Q), np.diag(LQR_R), dt_s)
-    sched = {key: (tuple(g[0].tolist()), tuple(g[1].tolist()))
-             for key, g in zip(keys, gains, strict=True) if g is not None}
+        sched.update(_design_steps(ixc, iyc, iz, float(k_r), float(dt_s), -top, top + 1))
     _SCHEDULES[cache_key] = sched
+    _PARTIAL[cache_key] = dict(sched)
     return sched
+
+
+def _design_steps(ixc: float, iyc: float, iz: float, k_r: float, dt_s: float, lo: int,
+                  hi: int) -> dict[GainKey, Gains]:
+    """The gains of spin-rate steps lo … hi−1 (0.5 rad/s each) in one inertia order, by
+    stacked calls (:func:`lqr.dlqr_zoh_many`: item by item the same operations, so the same
+    gains bit for bit whatever else is in the stack); a step whose design fails is left out
+    (:meth:`RecoveryLaw._lqr` then designs it alone and reports the failure)."""
+    steps = np.arange(lo, hi)
+    # _spin_model for every step at once (the same IEEE operations, element-wise).
+    rr = steps / 2.0
+    a = np.zeros((len(steps), 4, 4))
+    a[:, 0, 1], a[:, 0, 3] = rr, -1.0
+    a[:, 1, 0], a[:, 1, 2] = -rr, 1.0
+    a[:, 2, 2], a[:, 2, 3] = -k_r / ixc, -(iz - iyc) * rr / ixc
+    a[:, 3, 2], a[:, 3, 3] = -(ixc - iz) * rr / iyc, -k_r / iyc
+    b = np.repeat(_spin_model(0.0, ixc, iyc, iz, k_r)[1][None], len(steps), 0)
+    gains = dlqr_zoh_many(a, b, np.diag(LQR_Q), np.diag(LQR_R), dt_s)
+    order = ixc > iyc
+    return {(k, order): (tuple(g[0].tolist()), tuple(g[1].tolist()))
+            for k, g in zip(steps.tolist(), gains, strict=True) if g is not None}
 
 
 def reference_sigma2(path: Path) -> Sigma2:
@@ -211,9 +221,9 @@ class PathProjector:
                 math.sqrt(ex * ex + ey * ey + ez * ez))
 
 
-@dataclass
-class RecoveryOutput:
-    """One decision of the recovery law (physical rotor order, N)."""
+class RecoveryOutput(NamedTuple):
+    """One decision of the recovery law (physical rotor order, N; a named tuple: one is
+    made every safe-law tick)."""
 
     requested_n: list[float]     # what the law asked for (may be outside [0, f_max])
     thrust_n: list[float]        # clipped to [0, f_max] (the attacked rotor: its estimate)
@@ -244,10 +254,17 @@ class RecoveryLaw:
         self.projector = (PathProjector(path, *projector_sigma2(path, kernels, compiled_path))
                           if path is not None else None)
         self.hold_m: list[float] | None = None    # held point (None: follow the path)
-        # The LQR gains, designed now (``design_gains``) or when first met in flight.
+        # The LQR gains: the whole schedule designed now (``design_gains``: a real-time
+        # flight never designs mid-air), or a block of GAIN_BLOCK steps when a spin rate of
+        # it is first met (offline: a flight meets a few blocks, ~3 ms each, not the 38 of
+        # the schedule); the same gains either way, shared by every law of this model.
+        ix, iy, iz = (float(x) for x in inertia_kgm2)
+        self._model_key = (ix, iy, iz, float(k_r), float(dt_s))
         self._gains: dict[GainKey, Gains] = (
-            dict(gain_schedule(inertia_kgm2, k_r, dt_s)) if design_gains else {})
+            dict(gain_schedule(inertia_kgm2, k_r, dt_s)) if design_gains
+            else _PARTIAL.setdefault(self._model_key, {}))
         self._frames: dict[int, RotorFrame] = {}
+        self._inverse_perm: dict[int, tuple[int, int, int, int]] = {}
 
     # ------------------------------------------------------------------ targets
     def hold(self, position_m: Sequence[float]) -> None:
@@ -257,34 +274,41 @@ class RecoveryLaw:
     def follow_path(self) -> None:
         self.hold_m = None
 
-    def _accel_demand(self, y: Sequence[float], v: Sequence[float]) -> tuple[list[float],
-                                                                             float]:
-        kp = POS_OMEGA * POS_OMEGA
-        kd = 2.0 * POS_ZETA * POS_OMEGA
+    def _accel_demand(self, y: Sequence[float], v: Sequence[float]
+                      ) -> tuple[float, float, float, float]:
+        """(a_x, a_y, a_z, path distance): the outer loop's wanted acceleration (m/s²) —
+        PD towards the closest path point (or the held point) plus the path's centripetal
+        term, limited to MAX_TILT_RAD and ±MAX_VERTICAL_G — and the distance (NaN when
+        holding)."""
+        kp, kd = _KP, _KD
         dist = math.nan
         proj = None
-        if self.hold_m is None and self.projector is not None:
+        hold = self.hold_m
+        if hold is None and self.projector is not None:
             proj = self.projector.project(y)
         if proj is not None:
-            p0, t, kn, dist = proj
+            (p0, p1, p2), (t0, t1, t2), (k0, k1, k2), dist = proj
             sp = self.speed
             sp2 = sp * sp
-            a = [kp * (p0[0] - y[0]) + kd * (sp * t[0] - v[0]) + sp2 * kn[0],
-                 kp * (p0[1] - y[1]) + kd * (sp * t[1] - v[1]) + sp2 * kn[1],
-                 kp * (p0[2] - y[2]) + kd * (sp * t[2] - v[2]) + sp2 * kn[2]]
+            a0 = kp * (p0 - y[0]) + kd * (sp * t0 - v[0]) + sp2 * k0
+            a1 = kp * (p1 - y[1]) + kd * (sp * t1 - v[1]) + sp2 * k1
+            a2 = kp * (p2 - y[2]) + kd * (sp * t2 - v[2]) + sp2 * k2
         else:
-            tgt = self.hold_m if self.hold_m is not None else list(y)
-            if self.hold_m is None:
-                self.hold_m = tgt
-            a = [kp * (tgt[i] - y[i]) - kd * v[i] for i in range(3)]
-        az = max(-MAX_VERTICAL_G * self.g, min(MAX_VERTICAL_G * self.g, a[2]))
-        ah = math.hypot(a[0], a[1])
+            if hold is None:
+                hold = self.hold_m = list(y)
+            a0 = kp * (hold[0] - y[0]) - kd * v[0]
+            a1 = kp * (hold[1] - y[1]) - kd * v[1]
+            a2 = kp * (hold[2] - y[2]) - kd * v[2]
+        # max(−lim, min(lim, a2)), written out (the same result, NaN included)
+        lim = MAX_VERTICAL_G * self.g
+        az = a2 if a2 < lim else lim
+        az = az if az > -lim else -lim
+        ah = math.hypot(a0, a1)
         amax = (self.g + az) * _TAN_MAX_TILT
         if ah > amax:
-            a[0] *= amax / ah
-            a[1] *= amax / ah
-        a[2] = az
-        return a, dist
+            a0 *= amax / ah
+            a1 *= amax / ah
+        return a0, a1, az, dist
 
     # ------------------------------------------------------------------ gains
     def _lqr(self, r: float, ix: float, iy: float) -> Gains:
@@ -297,6 +321,13 @@ class RecoveryLaw:
         k = self._gains.get(key)
         if k is not None:
             return k
+        top = round(LQR_MAX_SPIN_RADPS * 2.0)
+        lo = key[0] // GAIN_BLOCK * GAIN_BLOCK
+        self._gains.update(_design_steps(ix, iy, self.inertia[2], self.k_r, self.dt,
+                                         max(lo, -top), min(lo + GAIN_BLOCK, top + 1)))
+        k = self._gains.get(key)
+        if k is not None:
+            return k
         a, b = _spin_model(key[0] / 2.0, ix, iy, self.inertia[2], self.k_r)
         ad, bd = zoh(a, b, self.dt)
         k = dlqr(ad, bd, np.diag(LQR_Q), np.diag(LQR_R))
@@ -306,29 +337,39 @@ class RecoveryLaw:
     # ------------------------------------------------------------------ the law
     def update(self, s: State, attacked_rotor: int = 0,
                attack_n: float = 0.0) -> RecoveryOutput:
-        """Rotor thrusts for this period; ``attacked_rotor`` 0 = four healthy rotors."""
+        """Rotor thrusts for this period; ``attacked_rotor`` 0 = four healthy rotors.
+
+        Runs on every safe-law tick, so it is written out on floats (#13): R(q) as the nine
+        entries :func:`~tfl_mav.geometry.rotation_rows` computes, min/max as comparisons
+        (the same results, NaN included)."""
         # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
-        R = rotation_rows(_floats(s.quaternion_wxyz))
-        y, v = list(_floats(s.position_m)), list(_floats(s.velocity_mps))
+        qw, qx, qy, qz = _floats(s.quaternion_wxyz)
+        nq = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        qw, qx, qy, qz = qw / nq, qx / nq, qy / nq, qz / nq
+        y, v = _floats(s.position_m), _floats(s.velocity_mps)
         p, q, r = _floats(s.body_rates_radps)
-        a, dist = self._accel_demand(y, v)
-        m = self.mass_kg
-        F = [m * a[0] + self.k_t * v[0], m * a[1] + self.k_t * v[1],
-             m * (a[2] + self.g) + self.k_t * v[2]]
-        fn = math.sqrt(F[0] ** 2 + F[1] ** 2 + F[2] ** 2)
-        n = [c / fn for c in F] if fn > 1e-9 else [0.0, 0.0, 1.0]
-        R0, R1, R2 = R
-        n0, n1, n2 = n
-        h = [R0[0] * n0 + R1[0] * n1 + R2[0] * n2, R0[1] * n0 + R1[1] * n1 + R2[1] * n2,
-             R0[2] * n0 + R1[2] * n1 + R2[2] * n2]
-        tilt_err = math.acos(max(-1.0, min(1.0, h[2])))
+        a0, a1, a2, dist = self._accel_demand(y, v)
+        m, k_t = self.mass_kg, self.k_t
+        F0, F1, F2 = m * a0 + k_t * v[0], m * a1 + k_t * v[1], m * (a2 + self.g) + k_t * v[2]
+        fn = math.sqrt(F0 ** 2 + F1 ** 2 + F2 ** 2)
+        n0, n1, n2 = (F0 / fn, F1 / fn, F2 / fn) if fn > 1e-9 else (0.0, 0.0, 1.0)
+        # h = Rᵀ n, R's rows as rotation_rows builds them
+        h0 = ((1 - 2 * (qy * qy + qz * qz)) * n0 + (2 * (qx * qy + qw * qz)) * n1
+              + (2 * (qx * qz - qw * qy)) * n2)
+        h1 = ((2 * (qx * qy - qw * qz)) * n0 + (1 - 2 * (qx * qx + qz * qz)) * n1
+              + (2 * (qy * qz + qw * qx)) * n2)
+        h2 = ((2 * (qx * qz + qw * qy)) * n0 + (2 * (qy * qz - qw * qx)) * n1
+              + (1 - 2 * (qx * qx + qy * qy)) * n2)
+        c = h2 if h2 < 1.0 else 1.0
+        tilt_err = math.acos(c if c > -1.0 else -1.0)
         # Thrust along b3: the component of F there; never negative (upside down: idle).
-        uf = max(fn * h[2], 0.0)
+        uf = fn * h2
+        uf = 0.0 if uf < 0.0 else uf
         ix, iy, iz = self.inertia
         ell, fmax = self.arm_m, self.fmax
         if not attacked_rotor:
-            tau_p = ix * (ATT_KP * -h[1] - ATT_KD * p) + (iz - iy) * q * r + self.k_r * p
-            tau_q = iy * (ATT_KP * h[0] - ATT_KD * q) + (ix - iz) * p * r + self.k_r * q
+            tau_p = ix * (ATT_KP * -h1 - ATT_KD * p) + (iz - iy) * q * r + self.k_r * p
+            tau_q = iy * (ATT_KP * h0 - ATT_KD * q) + (ix - iz) * p * r + self.k_r * q
             tau_r = -iz * YAW_DAMP * r + self.k_r * r
             req = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m)
             f = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m, fmax)
@@ -336,8 +377,9 @@ class RecoveryLaw:
         fr = self._frames.get(attacked_rotor)
         if fr is None:
             fr = self._frames[attacked_rotor] = canonical_frame(attacked_rotor)
+            # canonical rotor i is physical fr.perm[i]: physical j is canonical inv[j]
+            self._inverse_perm[attacked_rotor] = tuple(fr.perm.index(j) for j in range(4))
         (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = fr.rot
-        h0, h1, h2 = h
         # Canonical components (as sum() over the integer rotation: the same roundings).
         x0 = 0 + r00 * h0 + r01 * h1 + r02 * h2
         x1 = 0 + r10 * h0 + r11 * h1 + r12 * h2
@@ -348,20 +390,22 @@ class RecoveryLaw:
                                                                ixc, iyc)
         tau_p = -(k00 * x0 + k01 * x1 + k02 * x2 + k03 * x3)
         tau_q = -(k10 * x0 + k11 * x1 + k12 * x2 + k13 * x3)
-        an = min(max(attack_n, 0.0), fmax)
+        an = 0.0 if attack_n < 0.0 else attack_n          # min(max(A, 0), f_max)
+        an = fmax if fmax < an else an
         f4 = an + tau_p / ell
         s13 = uf - an - f4
         half = 0.5 * tau_q / ell
-        canon_req = [0.5 * s13 - half, an, 0.5 * s13 + half, f4]
-        f4c = min(max(f4, 0.0), fmax)
-        s13c = min(max(uf - an - f4c, 0.0), 2.0 * fmax)
+        f4c = 0.0 if f4 < 0.0 else f4
+        f4c = fmax if fmax < f4c else f4c
+        s13c = uf - an - f4c
+        s13c = 0.0 if s13c < 0.0 else s13c
+        s13c = 2.0 * fmax if 2.0 * fmax < s13c else s13c
         mid = 0.5 * s13c
-        halfc = max(-mid, min(mid, half)) if mid <= 0.5 * fmax else \
-            max(-(fmax - mid), min(fmax - mid, half))
-        canon = [mid - halfc, an, mid + halfc, f4c]
-        req = [0.0] * 4
-        f = [0.0] * 4
-        for i, phys in enumerate(fr.perm):
-            req[phys] = canon_req[i]
-            f[phys] = canon[i]
-        return RecoveryOutput(req, f, tilt_err, dist, uf)
+        bound = mid if mid <= 0.5 * fmax else fmax - mid   # max(−b, min(b, half))
+        halfc = half if half < bound else bound
+        halfc = halfc if halfc > -bound else -bound
+        canon_req = (0.5 * s13 - half, an, 0.5 * s13 + half, f4)
+        canon = (mid - halfc, an, mid + halfc, f4c)
+        j0, j1, j2, j3 = self._inverse_perm[attacked_rotor]
+        return RecoveryOutput([canon_req[j0], canon_req[j1], canon_req[j2], canon_req[j3]],
+                              [canon[j0], canon[j1], canon[j2], canon[j3]], tilt_err, dist, uf)

@@ -30,7 +30,7 @@ from tfl_mav.control.law_types import ModelParams
 from tfl_mav.geometry import rotation_rows
 from tfl_mav.state import State
 
-__all__ = ["StateFilter"]
+__all__ = ["StateFilter", "YawRateModel"]
 
 # Model-error budget (process noise), white densities per √s:
 ACCEL_WHITE_MPS2 = 0.3     # unmodelled acceleration: ESC-noise thrust (0.2 N/1.1 kg) + drag
@@ -145,3 +145,42 @@ class StateFilter:
             self._w = w
         return State(out_p, out_v, quat, out_w, state.time_usec)
 
+
+
+class YawRateModel:
+    """A yaw rate at the gyro's range is a lower bound, not a measurement: integrate
+    ṙ = (τ_r − k_r r − (I_y − I_x) p q)/I_z (eq. (3)) from the ESC-reported thrusts
+    (f = k_f ω²) instead, starting from the last unsaturated reading. The spin's steady value
+    τ_r/k_r does not depend on the (uncertain) inertia."""
+
+    def __init__(self, mp: ModelParams, k_f: float, gyro_range_radps: float) -> None:
+        self.model = mp
+        self.k_f = k_f
+        self.range_radps = gyro_range_radps
+        self._r_hat: float | None = None
+        self.substituted_ticks = 0
+
+    def update(self, state: State, omega: Sequence[float], dt: float,
+               events: list[str]) -> State:
+        """``state`` with its yaw rate replaced while the gyro is at its range (said once in
+        ``events``); ``omega`` the rotor speeds (rad/s), ``dt`` the period (s)."""
+        p, q, r = (float(c) for c in state.body_rates_radps)
+        rng = self.range_radps
+        if abs(r) < 0.99 * rng or not math.isfinite(r):
+            self._r_hat = r
+            return state
+        m = self.model
+        f1, f2, f3, f4 = (self.k_f * w * w for w in omega)
+        ix, iy, iz = m.inertia_kgm2
+        r_hat = r if self._r_hat is None else self._r_hat
+        tau_r = m.drag_thrust_ratio_m * (f1 - f2 + f3 - f4)
+        r_hat += dt * (tau_r - m.k_r * r_hat - (iy - ix) * p * q) / iz
+        if r_hat * r <= 0.0 or abs(r_hat) < abs(r):
+            r_hat = r                    # the true rate is at least what the gyro shows
+        if self.substituted_ticks == 0:
+            events.append(f"yaw rate at the gyro's range (±{rng:g} rad/s): using the "
+                          "model's yaw-rate estimate while it is saturated")
+        self.substituted_ticks += 1
+        self._r_hat = r_hat
+        return State(state.position_m, state.velocity_mps, state.quaternion_wxyz,
+                     (p, q, r_hat), state.time_usec)
