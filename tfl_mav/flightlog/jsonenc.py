@@ -152,54 +152,50 @@ def _element_offsets(fmt: str) -> list[int]:
     return [*offsets, at]
 
 
+_GROUP = 8                       # array values per cached piece (see _MavPlan)
+
+
 class _MavPlan:
-    """One message class, precompiled (see :class:`MavJson`). Array fields are formatted
-    once per distinct wire bytes and cached: covariances, padding and unused channels
-    (zeros) repeat every tick, and printing a float costs ~0.3-0.8 µs."""
+    """One message class, precompiled (see :class:`MavJson`): the whole JSON object is one
+    ``str.format`` template over the unpacked wire tuple (``{i!r}``: fields in
+    ``fieldnames`` order, whatever the wire order). Arrays of 8 or more values are printed
+    in pieces of up to 8, each cached by its wire bytes: covariances, padding and unused
+    channels (zeros) repeat every tick, and printing a float costs ~0.3-0.8 µs; such a piece
+    comes in pre-printed, as an extra argument after the tuple."""
 
     def __init__(self, cls: Any) -> None:
         self.unpack = cls.unpacker.unpack
         self.size = cls.unpacker.size
         offsets = _element_offsets(cls.unpacker.format)
         lengths = cls.lengths            # values per wire-ordered field
-        items: list[tuple[str, int | str]] = []
-        self.parts: list[tuple[int, int, int, int, str]] = []   # scalar: (tip, -1, ...)
+        n_values = sum(lengths)
+        parts: list[str] = []
+        # cached pieces: (byte start, byte end, first value, end value, "%r,..." format)
+        self.pieces: list[tuple[int, int, int, int, str]] = []
         self.time_index: int | None = None
         for i, name in enumerate(cls.fieldnames):
             wire = cls.orders[i]
             tip = sum(lengths[:wire])
             count = lengths[wire]
-            if count > 1:                # as PayloadDecoder: a list only for count > 1
-                items.append((name, "%s"))
-                self.parts.append((tip, tip + count, offsets[tip], offsets[tip + count],
-                                   "[" + ",".join(["%r"] * count) + "]"))
-            else:
-                items.append((name, 0))
-                self.parts.append((tip, -1, 0, 0, ""))
+            if count == 1:
+                parts.append(f'"{name}":{{{tip}!r}}')
                 if name == "time_usec":
                     self.time_index = tip
-        self.form = RecordFormat(items)
+            elif count < _GROUP:      # as PayloadDecoder: a list only for count > 1
+                parts.append(f'"{name}":[' + ",".join(f"{{{j}!r}}" for j in
+                                                       range(tip, tip + count)) + "]")
+            else:
+                refs = []
+                for lo in range(tip, tip + count, _GROUP):
+                    hi = min(lo + _GROUP, tip + count)
+                    refs.append(f"{{{n_values + len(self.pieces)}}}")
+                    self.pieces.append((offsets[lo], offsets[hi], lo, hi,
+                                        ",".join(["%r"] * (hi - lo))))
+                parts.append(f'"{name}":[' + ",".join(refs) + "]")
+        self.template = "{{" + ",".join(parts) + "}}"
+        self.format = self.template.format
+        self.letters = self.format(*[0] * n_values, *[""] * len(self.pieces)).count("n")
         self.cache: dict[bytes, str] = {}
-
-    def values(self, t: tuple[Any, ...], payload: bytes) -> tuple[Any, ...] | None:
-        """The format's arguments; None if an array holds NaN/inf."""
-        out: list[Any] = []
-        cache = self.cache
-        for tip, stop, a, b, fmt in self.parts:
-            if stop < 0:
-                out.append(t[tip])
-                continue
-            key = payload[a:b]
-            text = cache.get(key)
-            if text is None:
-                text = fmt % t[tip:stop]
-                if "n" in text:
-                    return None
-                if len(cache) >= _ARRAY_CACHE_MAX:
-                    cache.clear()
-                cache[key] = text
-            out.append(text)
-        return tuple(out)
 
 
 class MavJson:
@@ -226,10 +222,23 @@ class MavJson:
             t = plan.unpack(payload)
         except Exception:   # struct.error: the careful path counts it
             return None
-        values = plan.values(t, payload)
-        if values is None:
+        if plan.pieces:
+            cache = plan.cache
+            texts = []
+            for a, b, lo, hi, fmt in plan.pieces:
+                key = payload[a:b]
+                text = cache.get(key)
+                if text is None:
+                    text = fmt % t[lo:hi]
+                    if "n" in text:          # NaN/inf: the careful path
+                        return None
+                    if len(cache) >= _ARRAY_CACHE_MAX:
+                        cache.clear()
+                    cache[key] = text
+                texts.append(text)
+            s = plan.format(*t, *texts)
+        else:
+            s = plan.format(*t)
+        if s.count("n") != plan.letters:
             return None
-        data = plan.form.encode(values)
-        if data is None:
-            return None
-        return data, (t[plan.time_index] if plan.time_index is not None else None)
+        return s.encode(), (t[plan.time_index] if plan.time_index is not None else None)
