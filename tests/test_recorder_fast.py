@@ -96,7 +96,7 @@ def test_truth_formats_match_the_dict_encoder(v: list[float], rotor: int) -> Non
         (_TRUTH_STATE.encode((t, *pos, *vel, *quat, *rates)),
          {"t_s": t, "position_m": pos, "velocity_mps": vel, "quaternion_wxyz": quat,
           "body_rates_radps": rates}),
-        (_TRUTH_ATTACK.encode((t, rotor, "true" if rotor else "false", v[1], v[2])),
+        (_TRUTH_ATTACK["true" if rotor else "false"].encode((t, rotor, v[1], v[2])),
          {"t_s": t, "rotor": rotor, "active": rotor != 0, "applied_n": v[1],
           "requested_n": v[2]}),
         (_TRUTH_THRUSTS.encode((t, *thrust, rotor)),

@@ -68,7 +68,7 @@ class _NoFile:
     def add_message(self, *_a: Any) -> None:
         pass
 
-    add_metadata = flush = finish = add_message
+    add_metadata = flush = finish = add_pair = add_message
 
 
 
@@ -262,6 +262,26 @@ class McapOutput:
                 self.stats.messages += 1
             if self._live is not None and channel_id in self._live_channels:
                 self._live_channels[channel_id].log(data, log_time=log_ns)
+            if time.monotonic() >= self._next_flush:
+                self._flush()
+        except Exception as exc:
+            self._failed(exc)
+
+    def _write_pair(self, cid_a: int, data_a: bytes, cid_b: int, data_b: bytes, log_ns: int,
+                    pub_ns: int) -> None:
+        """Two messages with the same times (a frame's raw and decoded records)."""
+        if not self._open:
+            self.stats.dropped += 2
+            return
+        try:
+            with self._lock:
+                self._writer.add_pair(cid_a, data_a, cid_b, data_b, log_ns, pub_ns)
+                self._pending += 2
+                self.stats.messages += 2
+            if self._live is not None:
+                for cid, data in ((cid_a, data_a), (cid_b, data_b)):
+                    if cid in self._live_channels:
+                        self._live_channels[cid].log(data, log_time=log_ns)
             if time.monotonic() >= self._next_flush:
                 self._flush()
         except Exception as exc:

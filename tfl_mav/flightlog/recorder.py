@@ -58,6 +58,7 @@ from __future__ import annotations
 import base64
 import math
 import time
+from binascii import b2a_base64
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -101,8 +102,9 @@ class _MavChannel:
 
 _TRUTH_STATE = RecordFormat([("t_s", 0), ("position_m", 3), ("velocity_mps", 3),
                              ("quaternion_wxyz", 4), ("body_rates_radps", 3)])
-_TRUTH_ATTACK = RecordFormat([("t_s", 0), ("rotor", 0), ("active", "%s"), ("applied_n", 0),
-                              ("requested_n", 0)])
+_TRUTH_ATTACK = {active: RecordFormat([("t_s", 0), ("rotor", 0), ("active", active),
+                                        ("applied_n", 0), ("requested_n", 0)])
+                 for active in ("true", "false")}
 _TRUTH_THRUSTS = RecordFormat([("t_s", 0), ("thrust_n", 4), ("attack_rotor", 0)])
 _DEFAULT_RECORD = schemas.record_schema("tfl_mav.Record", "a caller's record", {}, [])
 
@@ -152,6 +154,9 @@ class Recorder(McapOutput):
         self._decoder = PayloadDecoder()
         self._mav_json = MavJson().encode
         self._mav_channels: dict[tuple[int, int, int], _MavChannel] = {}
+        # (direction, raw[5:10] = sysid, compid, msgid) → (channel, msgid, raw JSON head, rx)
+        self._frame_fast: dict[tuple[str, bytes], tuple[_MavChannel, int, bytes, bool]] = {}
+        self._raw_cid = 0
         self._sim_ns = 0
         self._sim_known = False
         self._last_scene_t = -math.inf
@@ -191,6 +196,35 @@ class Recorder(McapOutput):
         frame. ``msg`` is the decoded message, or None for a rejected rx frame or a
         ``send_raw`` tx frame; only whether it is None matters, the fields are decoded
         from ``raw``. ``time_s`` is the receipt time (s) on the recorder's clock."""
+        # The hot path (#13): a (direction, sysid, compid, msgid) seen before whose fields
+        # encode by MavJson: both records in one write, the raw one from a pre-printed head.
+        fast = self._frame_fast.get((direction, raw[5:10])) if msg is not None else None
+        if fast is None:
+            self._on_frame(direction, raw, msg, time_s)
+            return
+        chan, msgid, head, rx = fast
+        enc = self._mav_json(raw, msgid)
+        if enc is None:               # NaN/inf, or a payload that does not unpack
+            self._on_frame(direction, raw, msg, time_s)
+            return
+        try:
+            log_ns = min(max(int(time_s * 1e9), 0), _MAX_NS)
+        except (TypeError, ValueError, OverflowError):
+            log_ns = self._now_ns()
+        if rx:
+            self.stats.frames_rx += 1
+        else:
+            self.stats.frames_tx += 1
+        if chan.sim_time and enc[1] * 1000 <= _MAX_NS:
+            self._sim_ns = enc[1] * 1000
+            self._sim_known = True
+        chan.nonfinite = False
+        self._write_pair(self._raw_cid, b'%s%d,"len":%d,"data":"%s"}' % (
+            head, raw[4], len(raw), b2a_base64(raw, newline=False)),
+            chan.channel_id, enc[0], log_ns, self._sim_ns)
+
+    def _on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
+        """:meth:`on_frame`, every case (first sight of a channel, rejected frames, NaN)."""
         try:
             log_ns = min(max(int(time_s * 1e9), 0), _MAX_NS)
         except (TypeError, ValueError, OverflowError):
@@ -241,6 +275,11 @@ class Recorder(McapOutput):
         if fast is not None:        # never STATUSTEXT (char fields)
             chan.nonfinite = False
             self._write(chan.channel_id, fast[0], log_ns, pub_ns)
+            self._raw_cid = self._raw_channel()
+            self._frame_fast[(direction, raw[5:10])] = (
+                chan, msgid, f'{{"direction":"{direction}","accepted":true,"name":"{name}",'
+                f'"msgid":{msgid},"sysid":{sysid},"compid":{compid},"seq":'.encode(),
+                direction == "rx")
             return
         if fields is None:
             self._bad(f"frame: {name} (#{msgid}) did not decode from its wire bytes")
@@ -288,8 +327,8 @@ class Recorder(McapOutput):
                                     "quaternion_wxyz": quat, "body_rates_radps": rates}),
                     log_ns, pub_ns)
         self._write(self._channel("/sim/truth/attack", schemas.TRUTH_ATTACK),
-                    _TRUTH_ATTACK.encode((t, rotor, "true" if rotor != 0 else "false",
-                                          applied, requested))
+                    _TRUTH_ATTACK["true" if rotor != 0 else "false"].encode(
+                        (t, rotor, applied, requested))
                     or self._dumps({"t_s": t, "rotor": rotor, "active": rotor != 0,
                                     "applied_n": applied, "requested_n": requested}),
                     log_ns, pub_ns)
