@@ -10,9 +10,8 @@ from __future__ import annotations
 import base64
 import json
 import math
-import re
-import struct
 from collections.abc import Iterable, Mapping
+from json.encoder import encode_basestring_ascii
 from operator import itemgetter
 from typing import Any
 
@@ -161,128 +160,109 @@ class RecordFormat:
 
 
 _MISSING: Any = object()
-_ARRAY_CACHE_MAX = 256           # formatted arrays kept per message type (constants hit)
+_CHAR_CACHE_MAX = 1024           # char-field texts kept per message type
 
 
-def _element_offsets(fmt: str) -> list[int]:
-    """Byte offset of every value of a little-endian ``struct`` format (no padding), plus
-    the end."""
-    offsets, at = [], 0
-    for count, code in re.findall(r"(\d*)([a-zA-Z?])", fmt):
-        n = int(count or 1)
-        if code == "s":
-            offsets.append(at)
-            at += n
-        else:
-            size = struct.calcsize("<" + code)
-            for _ in range(n):
-                offsets.append(at)
-                at += size
-    return [*offsets, at]
-
-
-_GROUP = 8                       # array values per cached piece (see _MavPlan)
-
-
-class _MavPlan:
-    """One message class, precompiled (see :class:`MavJson`): the whole JSON object is one
-    ``str.format`` template over the unpacked wire tuple (``{i!r}``: fields in
-    ``fieldnames`` order, whatever the wire order). Arrays of 8 or more values are printed
-    in pieces of up to 8, each cached by its wire bytes: covariances, padding and unused
-    channels (zeros) repeat every tick, and printing a float costs ~0.3-0.8 µs; such a piece
-    comes in pre-printed, as an extra argument after the tuple."""
+class MavPlan:
+    """One message class, precompiled (see :class:`MavJson`): ``unpack`` the payload
+    (``size`` bytes), then :meth:`json` of the wire tuple. ``time_index``: where
+    ``time_usec`` sits in the tuple (None: no such field)."""
 
     def __init__(self, cls: Any) -> None:
         self.unpack = cls.unpacker.unpack
         self.size = cls.unpacker.size
-        offsets = _element_offsets(cls.unpacker.format)
-        lengths = cls.lengths            # values per wire-ordered field
-        n_values = sum(lengths)
-        parts: list[str] = []
-        # cached pieces: (byte start, byte end, first value, end value, "%r,..." format)
-        self.pieces: list[tuple[int, int, int, int, str]] = []
+        lengths = cls.lengths            # values per wire-ordered field ('10s' counts 1)
         self.time_index: int | None = None
-        for i, name in enumerate(cls.fieldnames):
-            wire = cls.orders[i]
-            tip = sum(lengths[:wire])
-            count = lengths[wire]
-            if count == 1:
-                parts.append(f'"{name}":{{{tip}!r}}')
-                if name == "time_usec":
-                    self.time_index = tip
-            elif count < _GROUP:      # as PayloadDecoder: a list only for count > 1
-                parts.append(f'"{name}":[' + ",".join(f"{{{j}!r}}" for j in
-                                                       range(tip, tip + count)) + "]")
-            else:
-                refs = []
-                for lo in range(tip, tip + count, _GROUP):
-                    hi = min(lo + _GROUP, tip + count)
-                    refs.append(f"{{{n_values + len(self.pieces)}}}")
-                    self.pieces.append((offsets[lo], offsets[hi], lo, hi,
-                                        ",".join(["%r"] * (hi - lo))))
-                parts.append(f'"{name}":[' + ",".join(refs) + "]")
-        self.template = "{{" + ",".join(parts) + "}}"
-        self.format = self.template.format
-        self.letters = self.format(*[0] * n_values, *[""] * len(self.pieces)).count("n")
-        # the msgspec path: every value a %s, in fieldnames order
-        order: list[int] = []
-        bparts = []
+        chars = [t == "char" for t in cls.fieldtypes]
+        numeric: list[int] = []          # tuple indices of the numbers, fieldnames order
+        self.char_index: list[int] = []  # tuple indices of the char fields
+        slots: list[tuple[str, list[int]]] = []
         for i, name in enumerate(cls.fieldnames):
             tip = sum(lengths[:cls.orders[i]])
             count = lengths[cls.orders[i]]
-            order += range(tip, tip + count)
-            bparts.append(f'"{name}":%s' if count == 1
-                          else f'"{name}":[' + ",".join(["%s"] * count) + "]")
-        self.getter = itemgetter(*order) if len(order) > 1 else lambda p: (p[0],)
-        self.bfmt = ("{" + ",".join(bparts) + "}").encode()
-        self.cache: dict[bytes, str] = {}
+            if chars[i]:
+                self.char_index.append(tip)
+                slots.append((name, [-len(self.char_index)]))
+                continue
+            if name == "time_usec" and count == 1:
+                self.time_index = tip
+            slots.append((name, list(range(len(numeric), len(numeric) + count))))
+            numeric += range(tip, tip + count)
+        n_num = len(numeric)
+        order: list[int] = []
+        parts, rparts = [], []
+        for name, refs in slots:
+            refs = [n_num - r - 1 if r < 0 else r for r in refs]   # chars after numbers
+            order += refs
+            if len(refs) == 1:       # as PayloadDecoder: a list only for count > 1
+                parts.append(f'"{name}":%s')
+                rparts.append(f'"{name}":{{{refs[0]}}}')
+            else:
+                parts.append(f'"{name}":[' + ",".join(["%s"] * len(refs)) + "]")
+                rparts.append(f'"{name}":[' + ",".join(f"{{{r}}}" for r in refs) + "]")
+        self._numbers = itemgetter(*numeric) if n_num > 1 else (
+            (lambda t: (t[numeric[0]],)) if numeric else (lambda t: ()))
+        self._order = itemgetter(*order) if len(order) > 1 else lambda p: (p[0],)
+        self._bfmt = ("{" + ",".join(parts) + "}").encode()
+        self._rfmt = ("{{" + ",".join(rparts) + "}}").format
+        self._chars: dict[bytes, bytes] = {}
+
+    def _char_texts(self, t: tuple[Any, ...]) -> list[bytes]:
+        out = []
+        cache = self._chars
+        for i in self.char_index:
+            raw = t[i]
+            text = cache.get(raw)
+            if text is None:          # as PayloadDecoder + JsonEncoder (ensure_ascii)
+                text = encode_basestring_ascii(
+                    raw.split(b"\x00", 1)[0].decode("ascii", "replace")).encode()
+                if len(cache) >= _CHAR_CACHE_MAX:
+                    cache.clear()
+                cache[raw] = text
+            out.append(text)
+        return out
+
+    def json(self, t: tuple[Any, ...]) -> bytes | None:
+        """The message's JSON from its wire tuple ``t``; None if a value is NaN/inf."""
+        nums = self._numbers(t)
+        parts = _numbers_json(nums)
+        if parts is None:            # notation may differ, or NaN/inf: print with repr
+            if not all(map(math.isfinite, nums)):
+                return None
+            parts = [repr(v).encode() for v in nums]
+        if self.char_index:
+            parts += self._char_texts(t)
+        return self._bfmt % self._order(parts)
 
 
 class MavJson:
     """JSON of a MAVLink 2 frame's fields from its wire bytes, byte-identical to
     ``JsonEncoder.dumps(PayloadDecoder.fields(raw, msgid))`` (fields in ``fieldnames``
-    order, arrays as lists), without building the dict. Messages with char fields, NaN/inf
-    values or a payload that does not unpack are not encoded here (None): the caller takes
-    the careful path."""
+    order, arrays as lists, char fields as text), without building the dict. Messages with
+    NaN/inf values or a payload that does not unpack are not encoded here (None): the
+    caller takes the careful path."""
 
     def __init__(self) -> None:
-        self._plans: dict[int, _MavPlan | None] = {}
+        self._plans: dict[int, MavPlan | None] = {}
 
-    def encode(self, raw: bytes, msgid: int) -> tuple[bytes, int | None] | None:
-        """(JSON, ``time_usec`` or None if the message has none), or None (see class)."""
+    def plan(self, msgid: int) -> MavPlan | None:
+        """The precompiled plan of ``msgid`` (None: not in the dialect)."""
         plan = self._plans.get(msgid, _MISSING)
         if plan is _MISSING:
             cls = mav.mavlink_map.get(msgid)
-            plan = self._plans[msgid] = (_MavPlan(cls) if cls is not None
-                                         and "char" not in cls.fieldtypes else None)
+            plan = self._plans[msgid] = MavPlan(cls) if cls is not None else None
+        return plan
+
+    def encode(self, raw: bytes, msgid: int) -> tuple[bytes, int | None] | None:
+        """(JSON, ``time_usec`` or None if the message has none), or None (see class)."""
+        plan = self.plan(msgid)
         if plan is None:
             return None
-        payload = frame_payload(raw, plan.size)
         try:
-            t = plan.unpack(payload)
+            t = plan.unpack(frame_payload(raw, plan.size))
         except Exception:   # struct.error: the careful path counts it
             return None
-        parts = _numbers_json(t)
-        if parts is not None:
-            return (plan.bfmt % plan.getter(parts),
-                    t[plan.time_index] if plan.time_index is not None else None)
-        if plan.pieces:
-            cache = plan.cache
-            texts = []
-            for a, b, lo, hi, fmt in plan.pieces:
-                key = payload[a:b]
-                text = cache.get(key)
-                if text is None:
-                    text = fmt % t[lo:hi]
-                    if "n" in text:          # NaN/inf: the careful path
-                        return None
-                    if len(cache) >= _ARRAY_CACHE_MAX:
-                        cache.clear()
-                    cache[key] = text
-                texts.append(text)
-            s = plan.format(*t, *texts)
-        else:
-            s = plan.format(*t)
-        if s.count("n") != plan.letters:
+        data = plan.json(t)
+        if data is None:
             return None
-        return s.encode(), (t[plan.time_index] if plan.time_index is not None else None)
+        return data, (t[plan.time_index] if plan.time_index is not None else None)

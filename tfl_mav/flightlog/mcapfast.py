@@ -148,7 +148,8 @@ class FastWriter(Writer):
 
     def add_pair(self, cid_a: int, data_a: bytes, cid_b: int, data_b: bytes, log_time: int,
                  publish_time: int) -> None:
-        """Two messages with the same times (a frame's raw and decoded records)."""
+        """Two messages with the same times (a frame's raw and decoded records), as two
+        :meth:`add_message` calls (a chunk may end between them)."""
         if not self._fast:
             super().add_message(cid_a, log_time, data_a, publish_time, 0)
             super().add_message(cid_b, log_time, data_b, publish_time, 0)
@@ -156,19 +157,22 @@ class FastWriter(Writer):
         ch = self._chunk
         buf = ch.buf
         index = ch.index
-        off = len(buf)
         flat = index.get(cid_a)
         if flat is None:
             flat = index[cid_a] = []
-        flat += (log_time, off)
-        n = len(data_a)
-        buf += _MESSAGE_HEADER.pack(_MESSAGE_OPCODE, _MESSAGE_FIXED + n, cid_a, 0, log_time,
-                                    publish_time)
+        flat += (log_time, len(buf))
+        buf += _MESSAGE_HEADER.pack(_MESSAGE_OPCODE, _MESSAGE_FIXED + len(data_a), cid_a, 0,
+                                    log_time, publish_time)
         buf += data_a
+        if len(buf) > self._limit:
+            self._finalize()
+            ch = self._chunk
+            buf = ch.buf
+            index = ch.index
         flat = index.get(cid_b)
         if flat is None:
             flat = index[cid_b] = []
-        flat += (log_time, off + 31 + n)
+        flat += (log_time, len(buf))
         buf += _MESSAGE_HEADER.pack(_MESSAGE_OPCODE, _MESSAGE_FIXED + len(data_b), cid_b, 0,
                                     log_time, publish_time)
         buf += data_b

@@ -55,27 +55,22 @@ are never written to a JSON channel: such values are left out and listed in
 
 from __future__ import annotations
 
-import base64
 import math
 import time
-from binascii import b2a_base64
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from tfl_mav.flightlog import foxglove as fg
 from tfl_mav.flightlog import schemas
-from tfl_mav.flightlog.jsonenc import JsonEncoder, MavJson, RecordFormat
-from tfl_mav.flightlog.mcapout import MAX_NS, McapOutput, RecorderError, RecorderStats
+from tfl_mav.flightlog.framerec import FrameRecorder
+from tfl_mav.flightlog.jsonenc import RecordFormat
+from tfl_mav.flightlog.mcapout import MAX_NS, RecorderError, RecorderStats
 from tfl_mav.flightlog.polyline import Polyline
-from tfl_mav.link.dialect import mav
-from tfl_mav.link.payload import PayloadDecoder
 
 __all__ = ["Recorder", "RecorderError", "RecorderStats"]
 
 _MAX_NS = MAX_NS
-_STATUSTEXT_ID = mav.MAVLINK_MSG_ID_STATUSTEXT
 _MAX_PATH_POINTS = 2000
 
 
@@ -91,15 +86,6 @@ def _floats(values: Any, n: int, field: str) -> list[float]:
     return out
 
 
-@dataclass
-class _MavChannel:
-    channel_id: int
-    name: str
-    sim_time: bool          # time_usec of this message is sim time
-    statustext: bool
-    nonfinite: bool = False  # NaN/inf seen on this channel: check before encoding
-
-
 _TRUTH_STATE = RecordFormat([("t_s", 0), ("position_m", 3), ("velocity_mps", 3),
                              ("quaternion_wxyz", 4), ("body_rates_radps", 3)])
 _TRUTH_ATTACK = {active: RecordFormat([("t_s", 0), ("rotor", 0), ("active", active),
@@ -109,7 +95,7 @@ _TRUTH_THRUSTS = RecordFormat([("t_s", 0), ("thrust_n", 4), ("attack_rotor", 0)]
 _DEFAULT_RECORD = schemas.record_schema("tfl_mav.Record", "a caller's record", {}, [])
 
 
-class Recorder(McapOutput):
+class Recorder(FrameRecorder):
     """Writes one MCAP file; see the module docstring. Use as a context manager."""
 
     def __init__(self, path: str | Path | None, *, clock: Callable[[], float] = time.time,
@@ -146,19 +132,8 @@ class Recorder(McapOutput):
         self._thrust_max_n = thrust_max_n
         self._controller_fields = tuple(controller_fields)
         self._controller_schema = dict(controller_schema or _DEFAULT_RECORD)
-        self._sim_time_ids = {mav_id for mav_id, cls in mav.mavlink_map.items()
-                              if cls.msgname in set(sim_time_messages)
-                              and "time_usec" in cls.fieldnames}
-        self._json = JsonEncoder()
+        self._init_frames(sim_time_messages)
         self._dumps = self._json.dumps
-        self._decoder = PayloadDecoder()
-        self._mav_json = MavJson().encode
-        self._mav_channels: dict[tuple[int, int, int], _MavChannel] = {}
-        # (direction, raw[5:10] = sysid, compid, msgid) → (channel, msgid, raw JSON head, rx)
-        self._frame_fast: dict[tuple[str, bytes], tuple[_MavChannel, int, bytes, bool]] = {}
-        self._raw_cid = 0
-        self._sim_ns = 0
-        self._sim_known = False
         self._last_scene_t = -math.inf
         self._polyline: Polyline | None = None
         super().__init__(path, clock=clock, flush_interval_s=flush_interval_s, profile=profile,
@@ -189,108 +164,6 @@ class Recorder(McapOutput):
             self._sim_known = True
         else:
             self._bad(f"time_s: out of range ({time_s})")
-
-    # ------------------------------------------------------------------ link hook
-    def on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
-        """The :class:`~tfl_mav.link.transport.Link` frame hook (``on_frame``): record one
-        frame. ``msg`` is the decoded message, or None for a rejected rx frame or a
-        ``send_raw`` tx frame; only whether it is None matters, the fields are decoded
-        from ``raw``. ``time_s`` is the receipt time (s) on the recorder's clock."""
-        # The hot path (#13): a (direction, sysid, compid, msgid) seen before whose fields
-        # encode by MavJson: both records in one write, the raw one from a pre-printed head.
-        fast = self._frame_fast.get((direction, raw[5:10])) if msg is not None else None
-        if fast is None:
-            self._on_frame(direction, raw, msg, time_s)
-            return
-        chan, msgid, head, rx = fast
-        enc = self._mav_json(raw, msgid)
-        if enc is None:               # NaN/inf, or a payload that does not unpack
-            self._on_frame(direction, raw, msg, time_s)
-            return
-        try:
-            log_ns = min(max(int(time_s * 1e9), 0), _MAX_NS)
-        except (TypeError, ValueError, OverflowError):
-            log_ns = self._now_ns()
-        if rx:
-            self.stats.frames_rx += 1
-        else:
-            self.stats.frames_tx += 1
-        if chan.sim_time and enc[1] * 1000 <= _MAX_NS:
-            self._sim_ns = enc[1] * 1000
-            self._sim_known = True
-        chan.nonfinite = False
-        self._write_pair(self._raw_cid, b'%s%d,"len":%d,"data":"%s"}' % (
-            head, raw[4], len(raw), b2a_base64(raw, newline=False)),
-            chan.channel_id, enc[0], log_ns, self._sim_ns)
-
-    def _on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
-        """:meth:`on_frame`, every case (first sight of a channel, rejected frames, NaN)."""
-        try:
-            log_ns = min(max(int(time_s * 1e9), 0), _MAX_NS)
-        except (TypeError, ValueError, OverflowError):
-            log_ns = self._now_ns()
-        st = self.stats
-        if direction == "rx":
-            st.frames_rx += 1
-        elif direction == "tx":
-            st.frames_tx += 1
-        else:
-            self._bad(f"direction: expected 'rx' or 'tx', got {direction!r}")
-            return
-        data = base64.b64encode(raw).decode("ascii")
-        if msg is None:
-            if direction == "rx":
-                st.frames_rejected += 1
-            accepted = "false" if direction == "rx" else "true"
-            self._write(self._raw_channel(),
-                        f'{{"direction":"{direction}","accepted":{accepted},'
-                        f'"len":{len(raw)},"data":"{data}"}}'.encode(), log_ns, self._sim_ns)
-            return
-        msgid = raw[7] | raw[8] << 8 | raw[9] << 16
-        sysid, compid = raw[5], raw[6]
-        chan = self._mav_channels.get((sysid, compid, msgid))
-        if chan is None:
-            chan = self._new_mav_channel(sysid, compid, msgid)
-        # precompiled JSON of the fields (all-number messages, all finite), else the dict
-        fast = self._mav_json(raw, msgid) if chan is not None else None
-        if fast is not None:
-            fields = None
-            usec = fast[1]
-            if chan.sim_time and usec * 1000 <= _MAX_NS:
-                self._sim_ns = usec * 1000
-                self._sim_known = True
-        else:
-            fields = self._decoder.fields(raw, msgid) if chan is not None else None
-            if fields is not None and chan.sim_time:
-                usec = fields["time_usec"]
-                if usec * 1000 <= _MAX_NS:
-                    self._sim_ns = usec * 1000
-                    self._sim_known = True
-        pub_ns = self._sim_ns
-        name = chan.name if chan is not None else f"#{msgid}"
-        self._write(self._raw_channel(),
-                    f'{{"direction":"{direction}","accepted":true,"name":"{name}",'
-                    f'"msgid":{msgid},"sysid":{sysid},"compid":{compid},"seq":{raw[4]},'
-                    f'"len":{len(raw)},"data":"{data}"}}'.encode(), log_ns, pub_ns)
-        if fast is not None:        # never STATUSTEXT (char fields)
-            chan.nonfinite = False
-            self._write(chan.channel_id, fast[0], log_ns, pub_ns)
-            self._raw_cid = self._raw_channel()
-            self._frame_fast[(direction, raw[5:10])] = (
-                chan, msgid, f'{{"direction":"{direction}","accepted":true,"name":"{name}",'
-                f'"msgid":{msgid},"sysid":{sysid},"compid":{compid},"seq":'.encode(),
-                direction == "rx")
-            return
-        if fields is None:
-            self._bad(f"frame: {name} (#{msgid}) did not decode from its wire bytes")
-            return
-        data, chan.nonfinite = self._json.dumps_sticky(fields, chan.nonfinite)
-        self._write(chan.channel_id, data, log_ns, pub_ns)
-        if chan.statustext:
-            self._write(self._fg_channel("/log", "foxglove.Log"),
-                        fg.log_entry(log_ns, fg.mav_severity_to_level(fields["severity"]),
-                                     self._with_time(fields["text"]),
-                                     f"mavlink/{sysid}/{compid} {direction}"), log_ns, pub_ns)
 
     # ------------------------------------------------------------------ ground truth, scene
     def truth(self, time_s: float, position_m: Sequence[float], velocity_mps: Sequence[float],
@@ -414,21 +287,3 @@ class Recorder(McapOutput):
                     self._now_ns(), self._sim_ns)
 
     # ------------------------------------------------------------------ internals
-    def _with_time(self, text: str) -> str:
-        return f"[t={self._sim_ns * 1e-9:.3f}s] {text}" if self._sim_known else text
-
-    def _raw_channel(self) -> int:
-        cid = self._channel_ids.get("/mavlink/raw")
-        return cid if cid is not None else self._channel("/mavlink/raw", schemas.RAW_FRAME)
-
-    def _new_mav_channel(self, sysid: int, compid: int, msgid: int) -> _MavChannel | None:
-        cls = mav.mavlink_map.get(msgid)
-        if cls is None:
-            return None
-        cid = self._channel(f"/mavlink/{sysid}/{compid}/{cls.msgname}",
-                            schemas.mavlink_schema(msgid))
-        chan = _MavChannel(cid, cls.msgname, msgid in self._sim_time_ids,
-                           msgid == _STATUSTEXT_ID)
-        self._mav_channels[(sysid, compid, msgid)] = chan
-        return chan
-

@@ -116,10 +116,19 @@ def _child_loop(conn: Connection, results: Connection, path: str | None,
 def handle_batch(rec: Recorder, data: bytes, now: list[float]) -> bool:
     """Apply one pickled batch of calls to ``rec`` (``now[0]``: the stamp of the call at
     hand, the recorder's clock). False when the batch ends with close."""
-    for item in pickle.loads(data):
+    items = pickle.loads(data)
+    i, n = 0, len(items)
+    while i < n:
+        item = items[i]
         op, now[0] = item[0], item[1]
-        if op == _FRAME:
-            rec.on_frame(item[2], item[3], True if item[4] else None, item[1])
+        i += 1
+        if op == _FRAME:              # a run of frames in one call (the hot path)
+            j = i
+            while j < n and items[j][0] == _FRAME:
+                j += 1
+            now[0] = items[j - 1][1]
+            rec.on_frames(items[i - 1:j])
+            i = j
         elif op == _TRUTH:
             rec.truth(*item[2])
         elif op == _CONTROLLER:
