@@ -117,19 +117,27 @@ try:
     _encode_numbers: Any = _MsgspecEncoder().encode
 except ImportError:                      # pragma: no cover - msgspec is a dependency
     def _encode_numbers(values: Any) -> bytes:
-        return b"e"                      # "suspect": always the repr path
+        if not all(type(v) in (int, float) and math.isfinite(v) for v in values):
+            raise ValueError("not finite plain numbers")
+        return ("[" + ",".join(map(repr, values)) + "]").encode()
 
 
 def _numbers_json(values: tuple[Any, ...]) -> list[bytes] | None:
-    """The JSON text of each number of ``values`` as ``repr`` prints it, via msgspec; None
-    when its notation may differ (see above) or a value is not a plain number."""
+    """The JSON text of each number of ``values`` (ints and floats, no bools) as ``repr``
+    prints it: msgspec's, with the values whose notation differs (see above) re-printed
+    by ``repr``; None if a value is NaN/inf or not a plain number."""
     try:
         b = _encode_numbers(values)
     except (TypeError, ValueError, OverflowError):
         return None
-    if b"e" in b or b"l" in b or b"0.0000" in b:
-        return None
-    return b[1:-1].split(b",")
+    parts = b[1:-1].split(b",")
+    if b"e" in b or b"l" in b or b"0.0000" in b or b'"' in b:
+        if b"l" in b or b'"' in b or b"t" in b or len(parts) != len(values):
+            return None                  # NaN/inf (null), text, bools, nested lists
+        for i, p in enumerate(parts):
+            if b"e" in p or p.startswith((b"0.0000", b"-0.0000")):
+                parts[i] = repr(values[i]).encode()
+    return parts
 
 
 class RecordFormat:
@@ -146,17 +154,12 @@ class RecordFormat:
                 parts.append(f'"{key}":%s')
             else:
                 parts.append(f'"{key}":[{",".join(["%s"] * n)}]')
-        self.fmt = "{" + ",".join(parts) + "}"
-        self.bfmt = self.fmt.encode()
+        self.bfmt = ("{" + ",".join(parts) + "}").encode()
 
     def encode(self, values: tuple[Any, ...]) -> bytes | None:
         """The JSON of ``values`` (numbers, in format order), or None if one is NaN/inf."""
         parts = _numbers_json(values)
-        if parts is not None:
-            return self.bfmt % tuple(parts)
-        if not all(map(math.isfinite, values)):
-            return None
-        return (self.fmt % tuple(map(repr, values))).encode()
+        return None if parts is None else self.bfmt % tuple(parts)
 
 
 _MISSING: Any = object()
@@ -190,21 +193,18 @@ class MavPlan:
             numeric += range(tip, tip + count)
         n_num = len(numeric)
         order: list[int] = []
-        parts, rparts = [], []
+        parts = []
         for name, refs in slots:
             refs = [n_num - r - 1 if r < 0 else r for r in refs]   # chars after numbers
             order += refs
             if len(refs) == 1:       # as PayloadDecoder: a list only for count > 1
                 parts.append(f'"{name}":%s')
-                rparts.append(f'"{name}":{{{refs[0]}}}')
             else:
                 parts.append(f'"{name}":[' + ",".join(["%s"] * len(refs)) + "]")
-                rparts.append(f'"{name}":[' + ",".join(f"{{{r}}}" for r in refs) + "]")
         self._numbers = itemgetter(*numeric) if n_num > 1 else (
             (lambda t: (t[numeric[0]],)) if numeric else (lambda t: ()))
         self._order = itemgetter(*order) if len(order) > 1 else lambda p: (p[0],)
         self._bfmt = ("{" + ",".join(parts) + "}").encode()
-        self._rfmt = ("{{" + ",".join(rparts) + "}}").format
         self._chars: dict[bytes, bytes] = {}
 
     def _char_texts(self, t: tuple[Any, ...]) -> list[bytes]:
@@ -224,12 +224,9 @@ class MavPlan:
 
     def json(self, t: tuple[Any, ...]) -> bytes | None:
         """The message's JSON from its wire tuple ``t``; None if a value is NaN/inf."""
-        nums = self._numbers(t)
-        parts = _numbers_json(nums)
-        if parts is None:            # notation may differ, or NaN/inf: print with repr
-            if not all(map(math.isfinite, nums)):
-                return None
-            parts = [repr(v).encode() for v in nums]
+        parts = _numbers_json(self._numbers(t))
+        if parts is None:            # NaN/inf
+            return None
         if self.char_index:
             parts += self._char_texts(t)
         return self._bfmt % self._order(parts)

@@ -267,6 +267,28 @@ class McapOutput:
         except Exception as exc:
             self._failed(exc)
 
+    def _write_many(self, items: tuple[tuple[int, bytes], ...], log_ns: int,
+                    pub_ns: int) -> None:
+        """Several (channel id, data) with the same times, under one lock."""
+        if not self._open:
+            self.stats.dropped += len(items)
+            return
+        try:
+            with self._lock:
+                add = self._writer.add_message
+                for cid, data in items:
+                    add(cid, log_ns, data, pub_ns)
+                self._pending += len(items)
+                self.stats.messages += len(items)
+            if self._live is not None:
+                for cid, data in items:
+                    if cid in self._live_channels:
+                        self._live_channels[cid].log(data, log_time=log_ns)
+            if time.monotonic() >= self._next_flush:
+                self._flush()
+        except Exception as exc:
+            self._failed(exc)
+
     def _write_pair(self, cid_a: int, data_a: bytes, cid_b: int, data_b: bytes, log_ns: int,
                     pub_ns: int) -> None:
         """Two messages with the same times (a frame's raw and decoded records)."""

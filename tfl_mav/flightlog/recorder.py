@@ -64,7 +64,7 @@ from typing import Any
 from tfl_mav.flightlog import foxglove as fg
 from tfl_mav.flightlog import schemas
 from tfl_mav.flightlog.framerec import FrameRecorder
-from tfl_mav.flightlog.jsonenc import RecordFormat
+from tfl_mav.flightlog.jsonenc import RecordFormat, _numbers_json
 from tfl_mav.flightlog.mcapout import MAX_NS, RecorderError, RecorderStats
 from tfl_mav.flightlog.polyline import Polyline
 
@@ -135,6 +135,7 @@ class Recorder(FrameRecorder):
         self._init_frames(sim_time_messages)
         self._dumps = self._json.dumps
         self._last_scene_t = -math.inf
+        self._truth_cids: tuple[int, int, int] | None = None
         self._polyline: Polyline | None = None
         super().__init__(path, clock=clock, flush_interval_s=flush_interval_s, profile=profile,
                          compression=compression, chunk_size_bytes=chunk_size_bytes, live=live)
@@ -175,6 +176,30 @@ class Recorder(FrameRecorder):
         rates (rad/s), true rotor thrusts 1-4 (N), attacked rotor (1-4, 0 = none), applied
         and requested attack thrust (N). Also drives ``/tf``, ``/scene/vehicle`` and
         ``/sim/truth/path_distance`` at up to ``scene_hz``."""
+        try:                 # the hot path: plain values, all finite, channels known
+            fast = (self._truth_cids is not None and len(position_m) == 3
+                    and len(velocity_mps) == 3 and len(quaternion_wxyz) == 4
+                    and len(body_rates_radps) == 3 and len(rotor_thrust_n) == 4
+                    and type(attack_rotor) is int and 0 <= attack_rotor <= 4)
+            if fast:
+                vals = tuple(map(float, (time_s, *position_m, *velocity_mps, *quaternion_wxyz,
+                                         *body_rates_radps, attack_applied_n,
+                                         attack_requested_n, *rotor_thrust_n)))
+        except (TypeError, ValueError):
+            fast = False
+        parts = _numbers_json((*vals, attack_rotor)) if fast else None
+        if parts is not None:
+            self.set_sim_time(vals[0])
+            log_ns = self._now_ns()
+            state_cid, attack_cid, thrusts_cid = self._truth_cids
+            self._write_many((
+                (state_cid, _TRUTH_STATE.bfmt % tuple(parts[:14])),
+                (attack_cid, _TRUTH_ATTACK["true" if attack_rotor else "false"].bfmt
+                 % (parts[0], parts[20], parts[14], parts[15])),
+                (thrusts_cid, _TRUTH_THRUSTS.bfmt % (parts[0], *parts[16:20], parts[20]))),
+                log_ns, self._sim_ns)
+            self._scene(vals[0], log_ns, vals[1:4], vals[7:11], vals[16:20], attack_rotor)
+            return
         try:
             if not math.isfinite(time_s):
                 raise ValueError(f"time_s: not finite ({time_s})")
@@ -209,11 +234,20 @@ class Recorder(FrameRecorder):
                     _TRUTH_THRUSTS.encode((t, *thrust, rotor))
                     or self._dumps({"t_s": t, "thrust_n": thrust, "attack_rotor": rotor}),
                     log_ns, pub_ns)
+        self._truth_cids = (self._channel_ids.get("/sim/truth/state", 0),
+                            self._channel_ids.get("/sim/truth/attack", 0),
+                            self._channel_ids.get("/sim/truth/thrusts", 0))
+        self._scene(t, log_ns, pos, quat, thrust, rotor)
+
+    def _scene(self, t: float, log_ns: int, pos: Sequence[float], quat: Sequence[float],
+               thrust: Sequence[float], rotor: int) -> None:
+        """``/tf``, ``/scene/vehicle``, ``/sim/truth/path_distance`` at up to scene_hz."""
+        pub_ns = self._sim_ns
         # 1 µs slack so k·dt rounding does not push a sample to the next tick
         if self._last_scene_t <= t < self._last_scene_t + self._scene_period_s - 1e-6:
             return
         self._last_scene_t = t
-        if not all(map(math.isfinite, pos + quat + thrust)):
+        if not all(map(math.isfinite, (*pos, *quat, *thrust))):
             self._bad(f"truth: position/attitude/thrust not finite at t = {t} s; "
                       "scene not drawn")
             return
