@@ -10,6 +10,7 @@ from __future__ import annotations
 import base64
 import json
 import math
+import re
 from collections.abc import Iterable, Mapping
 from json.encoder import encode_basestring_ascii
 from operator import itemgetter
@@ -122,6 +123,10 @@ except ImportError:                      # pragma: no cover - msgspec is a depen
         return ("[" + ",".join(map(repr, values)) + "]").encode()
 
 
+# a number msgspec prints otherwise than repr: an exponent, or 0.0000x (positional < 1e-4)
+_ODD = re.compile(rb"[^,]*e[^,]*|(?<![^,])-?0\.0000[^,]*").finditer
+
+
 def _numbers_json(values: tuple[Any, ...]) -> list[bytes] | None:
     """The JSON text of each number of ``values`` (ints and floats, no bools) as ``repr``
     prints it: msgspec's, with the values whose notation differs (see above) re-printed
@@ -130,13 +135,14 @@ def _numbers_json(values: tuple[Any, ...]) -> list[bytes] | None:
         b = _encode_numbers(values)
     except (TypeError, ValueError, OverflowError):
         return None
-    parts = b[1:-1].split(b",")
+    body = b[1:-1]
+    parts = body.split(b",")
     if b"e" in b or b"l" in b or b"0.0000" in b or b'"' in b:
         if b"l" in b or b'"' in b or b"t" in b or len(parts) != len(values):
             return None                  # NaN/inf (null), text, bools, nested lists
-        for i, p in enumerate(parts):
-            if b"e" in p or p.startswith((b"0.0000", b"-0.0000")):
-                parts[i] = repr(values[i]).encode()
+        for m in _ODD(body):             # the few values to print with repr
+            i = body.count(b",", 0, m.start())
+            parts[i] = repr(values[i]).encode()
     return parts
 
 

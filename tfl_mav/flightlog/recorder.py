@@ -67,11 +67,13 @@ from tfl_mav.flightlog.framerec import FrameRecorder
 from tfl_mav.flightlog.jsonenc import RecordFormat, _numbers_json
 from tfl_mav.flightlog.mcapout import MAX_NS, RecorderError, RecorderStats
 from tfl_mav.flightlog.polyline import Polyline
+from tfl_mav.flightlog.recordplan import record_plan
 
 __all__ = ["Recorder", "RecorderError", "RecorderStats"]
 
 _MAX_NS = MAX_NS
 _MAX_PATH_POINTS = 2000
+_MAX_RECORD_PLANS = 4             # controller record shapes precompiled (then: the dict path)
 
 
 def _floats(values: Any, n: int, field: str) -> list[float]:
@@ -136,6 +138,10 @@ class Recorder(FrameRecorder):
         self._dumps = self._json.dumps
         self._last_scene_t = -math.inf
         self._truth_cids: tuple[int, int, int] | None = None
+        # record plans of the shapes seen (recordplan), [plan, checked]; by shape
+        self._ctl_plans: list[list[Any]] = []
+        self._ctl_shapes: dict[tuple[Any, ...], Any] = {}
+        self._ctl_cid = 0
         self._polyline: Polyline | None = None
         super().__init__(path, clock=clock, flush_interval_s=flush_interval_s, profile=profile,
                          compression=compression, chunk_size_bytes=chunk_size_bytes, live=live)
@@ -302,6 +308,21 @@ class Recorder(FrameRecorder):
         a sequence of values named by ``controller_fields`` (the compact per-tick form), or
         a mapping. numpy values are fine; NaN/inf/None values are left out
         (``_nonfinite``)."""
+        if self._ctl_plans and type(time_s) is float and not isinstance(state, Mapping):
+            for entry in self._ctl_plans:           # the hot path: a record plan
+                data = entry[0](state, time_s)
+                if data is None:
+                    continue
+                if not entry[1]:                    # its first record: checked once
+                    if data != self._dumps({**dict(zip(self._controller_fields, state,
+                                                       strict=True)), "t_s": time_s}):
+                        self._ctl_plans.remove(entry)
+                        break
+                    entry[1] = True
+                self.set_sim_time(time_s)
+                self._write(self._ctl_cid, data, self._now_ns(), self._sim_ns)
+                return
+        record = state
         try:
             t = float(time_s)
             if not math.isfinite(t):
@@ -319,5 +340,14 @@ class Recorder(FrameRecorder):
         self.set_sim_time(t)
         self._write(self._channel("/controller/state", self._controller_schema), data,
                     self._now_ns(), self._sim_ns)
+        if isinstance(record, Mapping) or len(self._ctl_shapes) >= _MAX_RECORD_PLANS:
+            return
+        shape = tuple((type(v), len(v)) if type(v) in (list, tuple) else type(v)
+                      for v in record)
+        if shape not in self._ctl_shapes:           # a new shape: precompile it once
+            plan = self._ctl_shapes[shape] = record_plan(self._controller_fields, record)
+            if plan is not None:
+                self._ctl_plans.append([plan, False])
+                self._ctl_cid = self._channel_ids.get("/controller/state", 0)
 
     # ------------------------------------------------------------------ internals
