@@ -13,9 +13,11 @@ from __future__ import annotations
 import io
 import math
 import random
+from typing import Any
 
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from mcap.reader import make_reader
 from mcap.writer import CompressionType, IndexType, Writer
 
 from tfl_mav.flightlog.jsonenc import JsonEncoder, MavJson
@@ -25,10 +27,11 @@ from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.link.payload import PayloadDecoder
 
 
-def _write(cls: type, seed: int) -> bytes:
+def _write(cls: type, seed: int, **kw: Any) -> bytes:
     out = io.BytesIO()
-    w = cls(out, chunk_size=1 << 14, compression=CompressionType.ZSTD,
-            index_types=IndexType.CHUNK | IndexType.MESSAGE | IndexType.METADATA)
+    kw.setdefault("compression", CompressionType.ZSTD)
+    w = cls(out, chunk_size=1 << 14,
+            index_types=IndexType.CHUNK | IndexType.MESSAGE | IndexType.METADATA, **kw)
     w.start("tfl-mav", "test")
     sid = w.register_schema("s", "jsonschema", b"{}")
     cids = [w.register_channel(f"/t{i}", "json", sid) for i in range(4)]
@@ -56,6 +59,21 @@ def _write(cls: type, seed: int) -> bytes:
 def test_fast_writer_is_byte_identical_to_mcap_writer() -> None:
     for seed in range(3):
         assert _write(FastWriter, seed) == _write(Writer, seed)
+
+
+def _messages(data: bytes) -> list[tuple[str, int, int, bytes]]:
+    reader = make_reader(io.BytesIO(data))
+    return [(c.topic, m.log_time, m.publish_time, m.data)
+            for _s, c, m in reader.iter_messages(log_time_order=False)]
+
+
+def test_other_compressions_read_back_the_same_messages() -> None:
+    """The recorder's zstd level 1 (and lz4, none) change the chunk bytes, not a message."""
+    ref = _messages(_write(Writer, 7))
+    assert len(ref) == 5000 + 5000 // 3 + 1
+    for kw in ({"zstd_level": 1}, {"compression": CompressionType.LZ4},
+               {"compression": CompressionType.NONE}):
+        assert _messages(_write(FastWriter, 7, **kw)) == ref
 
 
 _floats = st.one_of(st.floats(width=32), st.sampled_from([0.0, -0.0, math.nan, math.inf]))

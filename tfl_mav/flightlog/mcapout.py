@@ -32,6 +32,11 @@ __all__ = ["McapOutput", "RecorderError", "RecorderStats"]
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE}
 MAX_NS = 2**63 - 1
+ZSTD_LEVEL = 1
+"""zstd level of the chunks. Why not the library's 3: on a flight's chunks (base64 frames,
+JSON) level 1 compresses as well (18.5 % vs 19.0 % of the raw size) at ~60 % of the CPU;
+lz4 costs about as much CPU as level 1 for files ~1.7x larger, none ~5x larger (issue #13,
+bench/recorder_replay.py --compression)."""
 
 
 class RecorderError(OSError):
@@ -122,6 +127,7 @@ class McapOutput:
         try:
             self._writer = FastWriter(self._file, chunk_size=chunk_size_bytes,
                                       compression=_COMPRESSION[compression],
+                                      zstd_level=ZSTD_LEVEL,
                                       index_types=IndexType.CHUNK | IndexType.MESSAGE
                                       | IndexType.METADATA)
             self._writer.start(profile, library=f"tfl-mav {__version__}; {LIBRARY_IDENTIFIER}")
