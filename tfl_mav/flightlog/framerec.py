@@ -25,7 +25,7 @@ from typing import Any
 
 from tfl_mav.flightlog import foxglove as fg
 from tfl_mav.flightlog import schemas
-from tfl_mav.flightlog.jsonenc import JsonEncoder, MavJson, MavPlan
+from tfl_mav.flightlog.jsonenc import JsonEncoder, MavJson, MavPlan, _encode_numbers
 from tfl_mav.flightlog.mcapout import MAX_NS, McapOutput
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.payload import PayloadDecoder, frame_payload
@@ -80,6 +80,7 @@ class FrameRecorder(McapOutput):
                 self._on_frame(f[2], f[3], True if f[4] else None, f[1])
             return
         get = self._frame_fast.get
+        encode = _encode_numbers
         add_pair = w.add_pair
         live = self._live_channels if self._live is not None else None
         n_rx = n_tx = 0
@@ -98,8 +99,13 @@ class FrameRecorder(McapOutput):
                             payload = frame_payload(raw, plan.size)
                         try:
                             t = plan.unpack(payload)
-                            data = plan.json(t)
                             log_ns = int(time_s * 1e9)
+                            # MavPlan.json written out for an all-number message whose
+                            # numbers msgspec prints as repr does (the usual case)
+                            b = encode(plan.numbers(t)) if plan.simple else b"e"
+                            data = (plan.bfmt % plan.order(b[1:-1].split(b","))
+                                    if not (b"e" in b or b"l" in b or b"0.0000" in b)
+                                    else plan.json(t))
                         except Exception:     # struct.error, a bad stamp: the careful path
                             data = None
                     if data is None or not 0 <= log_ns <= MAX_NS:

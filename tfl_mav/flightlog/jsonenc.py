@@ -207,11 +207,12 @@ class MavPlan:
                 parts.append(f'"{name}":%s')
             else:
                 parts.append(f'"{name}":[' + ",".join(["%s"] * len(refs)) + "]")
-        self._numbers = itemgetter(*numeric) if n_num > 1 else (
+        self.numbers = itemgetter(*numeric) if n_num > 1 else (
             (lambda t: (t[numeric[0]],)) if numeric else (lambda t: ()))
-        self._order = itemgetter(*order) if len(order) > 1 else lambda p: (p[0],)
-        self._bfmt = ("{" + ",".join(parts) + "}").encode()
+        self.order = itemgetter(*order) if len(order) > 1 else lambda p: (p[0],)
+        self.bfmt = ("{" + ",".join(parts) + "}").encode()
         self._chars: dict[bytes, bytes] = {}
+        self.simple = not self.char_index   # numbers only
 
     def _char_texts(self, t: tuple[Any, ...]) -> list[bytes]:
         out = []
@@ -230,12 +231,12 @@ class MavPlan:
 
     def json(self, t: tuple[Any, ...]) -> bytes | None:
         """The message's JSON from its wire tuple ``t``; None if a value is NaN/inf."""
-        parts = _numbers_json(self._numbers(t))
+        parts = _numbers_json(self.numbers(t))
         if parts is None:            # NaN/inf
             return None
         if self.char_index:
             parts += self._char_texts(t)
-        return self._bfmt % self._order(parts)
+        return self.bfmt % self.order(parts)
 
 
 class MavJson:
