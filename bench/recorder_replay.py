@@ -14,13 +14,19 @@ niced child on a shared machine is noisy. Here:
    truth call on the sim side, one controller record on the daemon side); optionally under
    cProfile, split by :func:`profiling.categorize`'s recorder categories.
 
+Same-run before/after: ``--tree DIR`` replays with the ``tfl_mav`` of another checkout
+(e.g. the main branch, whose child has no ``handle_batch``: its old per-item dispatch is
+used), so both trees chew the very same batches; ``--before DIR`` runs that tree in a
+subprocess and prints both side by side, alternating runs.
+
 Usage: ``python bench/recorder_replay.py [--ticks N] [--repeats R] [--capture DIR]
-[--replay DIR] [--profile] [--compression zstd|lz4|none]``.
+[--replay DIR] [--profile] [--compression zstd|lz4|none] [--before DIR] [--json FILE]``.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import pickle
 import re
@@ -86,20 +92,46 @@ def capture(n_ticks: int, out_dir: Path, scenario: str = "paper") -> None:
             sim.kill()
 
 
+def _old_handle_batch(rec: Any, data: bytes, now: list[float]) -> bool:
+    """The child's per-item dispatch before ``handle_batch`` existed (older trees)."""
+    from tfl_mav.flightlog import recorder_process as rp
+
+    for item in pickle.loads(data):
+        op, now[0] = item[0], item[1]
+        if op == rp._FRAME:
+            rec.on_frame(item[2], item[3], True if item[4] else None, item[1])
+        elif op == rp._TRUTH:
+            rec.truth(*item[2])
+        elif op == rp._CONTROLLER:
+            rec.controller(item[2], item[3])
+        elif op == rp._LOG:
+            rec.log(item[2], item[3], item[4], source=item[5])
+        elif op == rp._SIM_TIME:
+            rec.set_sim_time(item[2])
+        elif op == rp._PATH:
+            rec.path(item[2])
+        elif op == rp._METADATA:
+            rec.metadata(item[2], item[3])
+        elif op == rp._CLOSE:
+            return False
+    return True
+
+
 def replay(batches_file: Path, out: Path, kwargs: dict[str, Any],
-           profile: Path | None = None) -> dict[str, float]:
-    """CPU µs per tick of the child's batch handler over one side's captured batches."""
+           profile: Path | None = None, ticks: int = 0) -> dict[str, float]:
+    """CPU µs per tick of the child's batch handler over one side's captured batches
+    (``ticks``: per how many ticks; 0: count them, truth or controller calls)."""
     from tfl_mav.flightlog import recorder_process as rp
     from tfl_mav.flightlog.recorder import Recorder
 
     batches: list[bytes] = pickle.loads(batches_file.read_bytes())
-    ticks = 0
-    for b in batches:
-        for item in pickle.loads(b):
-            ticks += item[0] in (rp._TRUTH, rp._CONTROLLER)
+    if not ticks:
+        for b in batches:
+            for item in pickle.loads(b):
+                ticks += item[0] in (rp._TRUTH, rp._CONTROLLER)
     now = [0.0]
     rec = Recorder(out, clock=lambda: now[0], **kwargs)
-    handle = rp.handle_batch
+    handle = getattr(rp, "handle_batch", _old_handle_batch)
     prof = None
     if profile is not None:
         import cProfile
@@ -131,6 +163,60 @@ def _side_kwargs(side: str) -> dict[str, Any]:
     return kw
 
 
+# where a child's CPU goes, unprofiled: the same replay with only one kind of call kept
+# (plus the set-up calls: metadata, path), each with its own MCAP writes and compression
+PIECES = {"frames (decode, JSON, raw record, write)": ("_FRAME",),
+          "truth + scene (sim side)": ("_TRUTH",),
+          "controller record (daemon side)": ("_CONTROLLER",),
+          "logs, sim time": ("_LOG", "_SIM_TIME")}
+
+
+def _only(batches_file: Path, ops: tuple[str, ...], out_file: Path) -> Path:
+    """A copy of the captured batches with only ``ops`` (and the set-up calls) kept."""
+    from tfl_mav.flightlog import recorder_process as rp
+
+    keep = {getattr(rp, name) for name in (*ops, "_PATH", "_METADATA", "_CLOSE")}
+    batches = [pickle.dumps([it for it in pickle.loads(b) if it[0] in keep])
+               for b in pickle.loads(batches_file.read_bytes())]
+    out_file.write_bytes(pickle.dumps(batches))
+    return out_file
+
+
+def unpickle_us(batches_file: Path, ticks: int) -> float:
+    """CPU µs per tick of unpickling the hand-off batches alone."""
+    batches = pickle.loads(batches_file.read_bytes())
+    t0 = time.process_time()
+    for b in batches:
+        pickle.loads(b)
+    return (time.process_time() - t0) / max(1, ticks) * 1e6
+
+
+def measure(src: Path, repeats: int, profile: bool, compression: str | None,
+            tmp: Path) -> dict[str, Any]:
+    """Both sides' CPU µs per tick (min of ``repeats``) and, if ``profile``, by piece."""
+    out: dict[str, Any] = {}
+    for side in ("run", "ctl"):
+        kw = _side_kwargs(side)
+        if compression:
+            kw["compression"] = compression
+        runs = [replay(src / f"{side}.mcap.batches", tmp / f"{side}-r.mcap", kw)
+                for _ in range(repeats)]
+        res: dict[str, Any] = {"ticks": runs[0]["ticks"],
+                               "cpu_us_per_tick": min(r["cpu_us_per_tick"] for r in runs),
+                               "mib_per_min": runs[0]["bytes"] / 2**20 * 60000
+                               / max(1, runs[0]["ticks"])}
+        if profile:
+            src_file = src / f"{side}.mcap.batches"
+            res["pieces_us"] = {"hand-off: unpickle": unpickle_us(src_file, res["ticks"])}
+            for name, ops in PIECES.items():
+                only = _only(src_file, ops, tmp / f"{side}-only.batches")
+                res["pieces_us"][name] = min(
+                    replay(only, tmp / f"{side}-o.mcap", kw, ticks=res["ticks"])
+                    ["cpu_us_per_tick"] for _ in range(repeats))
+        out[side] = res
+    return out
+
+
 def main() -> int:
     if len(sys.argv) > 2 and sys.argv[1] == "--wrap":
         _wrap(sys.argv[2], sys.argv[3], sys.argv[4:])
@@ -140,40 +226,71 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--capture", metavar="DIR", help="capture into DIR (kept) and replay")
     ap.add_argument("--replay", metavar="DIR", help="replay an earlier capture, no flight")
-    ap.add_argument("--profile", action="store_true", help="also a profiled replay, by piece")
+    ap.add_argument("--profile", action="store_true",
+                    help="also by piece: replays keeping one kind of call each")
     ap.add_argument("--compression", choices=["zstd", "lz4", "none"], default=None)
+    ap.add_argument("--tree", metavar="DIR", help=argparse.SUPPRESS)  # set before imports
+    ap.add_argument("--before", metavar="DIR", help="also replay with this checkout's "
+                    "tfl_mav (e.g. main), alternating, and print both")
+    ap.add_argument("--rounds", type=int, default=3, help="alternations with --before")
+    ap.add_argument("--json", metavar="FILE", help="also write the numbers as JSON")
     args = ap.parse_args()
     tmp = tempfile.TemporaryDirectory()
     src = Path(args.replay or args.capture or tmp.name)
     if not args.replay:
         src.mkdir(parents=True, exist_ok=True)
         capture(args.ticks, src)
-    print(f"load {os.getloadavg()[0]:.2f}; batches from {src}")
-    print(f"{'side':12s} {'ticks':>6s} {'µs/tick (min of runs)':>22s} {'MiB/min':>8s}")
-    for side, label in (("run", "sim child"), ("ctl", "daemon child")):
-        kw = _side_kwargs(side)
-        if args.compression:
-            kw["compression"] = args.compression
-        runs = [replay(src / f"{side}.mcap.batches", Path(tmp.name) / f"{side}-r.mcap", kw)
-                for _ in range(args.repeats)]
-        best = min(r["cpu_us_per_tick"] for r in runs)
-        mib = runs[0]["bytes"] / 2**20 * 60000 / max(1, runs[0]["ticks"])
-        print(f"{label:12s} {runs[0]['ticks']:6d} {best:22.1f} {mib:8.2f}")
-        if args.profile:
-            from profiling import STARTUP, categorize
-
-            prof = Path(tmp.name) / f"{side}.prof"
-            r = replay(src / f"{side}.mcap.batches", Path(tmp.name) / f"{side}-p.mcap", kw,
-                       profile=prof)
-            shares = categorize(prof, "recorder")
-            shares.pop(STARTUP)
-            total = sum(shares.values()) or 1.0
-            for k, v in shares.items():
-                print(f"    {k:40s} {best * v / total:7.1f} µs")
-            del r
+    if args.tree:                       # a child run for --before: print JSON only
+        print(json.dumps(measure(src, args.repeats, args.profile, args.compression,
+                                 Path(tmp.name))))
+        tmp.cleanup()
+        return 0
+    rounds = args.rounds if args.before else 1
+    now: list[dict[str, Any]] = []
+    before: list[dict[str, Any]] = []
+    for _ in range(rounds):
+        if args.before:
+            cmd = [sys.executable, __file__, "--tree", args.before, "--replay", str(src),
+                   "--repeats", str(args.repeats)]
+            cmd += ["--profile"] if args.profile else []
+            cmd += ["--compression", args.compression] if args.compression else []
+            before.append(json.loads(subprocess.run(cmd, check=True, capture_output=True,
+                                                    text=True).stdout.splitlines()[-1]))
+        now.append(measure(src, args.repeats, args.profile, args.compression, Path(tmp.name)))
+    print(f"load {os.getloadavg()[0]:.2f}; batches from {src}; CPU µs per tick, min of "
+          f"{args.repeats} runs{f', {rounds} rounds alternating' if args.before else ''}")
+    for side, label in (("run", "sim-side child"), ("ctl", "daemon-side child")):
+        ticks = now[0][side]["ticks"]
+        print(f"\n{label} ({ticks} ticks){'':26s}" + ("   before      now  ratio"
+                                                      if args.before else "      now"))
+        rows = [(f"round {i + 1}", (before[i][side] if before else None), now[i][side])
+                for i in range(rounds)]
+        for name, b, n in rows:
+            line = f"  {name:44s}"
+            if b is not None:
+                line += f"{b['cpu_us_per_tick']:9.1f}{n['cpu_us_per_tick']:9.1f}"
+                line += f"{n['cpu_us_per_tick'] / b['cpu_us_per_tick']:7.2f}"
+            else:
+                line += f"{n['cpu_us_per_tick']:9.1f}"
+            print(line)
+        print(f"  {'file MiB per flight-minute':44s}"
+              + (f"{before[0][side]['mib_per_min']:9.1f}" if before else "")
+              + f"{now[0][side]['mib_per_min']:9.1f}")
+        if args.profile:              # each piece: the least of its rounds
+            print("  by piece (replays keeping one kind of call; least of the rounds)")
+            for k in now[0][side]["pieces_us"]:
+                b = min(r[side]["pieces_us"][k] for r in before) if before else None
+                v = min(r[side]["pieces_us"][k] for r in now)
+                print(f"    {k:42s}" + (f"{b:9.1f}" if b is not None else "")
+                      + f"{v:9.1f}" + (f"{v / b:7.2f}" if b else ""))
+    if args.json:
+        Path(args.json).write_text(json.dumps({"now": now, "before": before,
+                                               "load_1min": os.getloadavg()[0]}, indent=2))
     tmp.cleanup()
     return 0
 
 
 if __name__ == "__main__":
+    if "--tree" in sys.argv:            # another checkout's tfl_mav, before any import
+        sys.path.insert(0, sys.argv[sys.argv.index("--tree") + 1])
     sys.exit(main())
