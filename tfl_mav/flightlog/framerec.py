@@ -69,7 +69,10 @@ class FrameRecorder(McapOutput):
         frame. ``msg`` is the decoded message, or None for a rejected rx frame or a
         ``send_raw`` tx frame; only whether it is None matters, the fields are decoded
         from ``raw``. ``time_s`` is the receipt time (s) on the recorder's clock."""
-        self.on_frames(((None, time_s, direction, raw, msg is not None),))
+        if msg is None or (direction, raw[5:10]) not in self._frame_fast:
+            self._on_frame(direction, raw, msg, time_s)
+        else:
+            self.on_frames(((None, time_s, direction, raw, True),))
 
     def on_frames(self, frames: Iterable[tuple[Any, float, str, bytes, bool]]) -> None:
         """Record many frames: (anything, ``time_s``, direction, raw, accepted) each, as
