@@ -12,6 +12,9 @@ Measures, on this machine, in one run:
    scaled to one minute of flight.
 3. **live server**: the same demo without and with ``--foxglove`` (a WebSocket client
    subscribed to every channel), wall time ratio (only where ``--foxglove`` exists).
+4. **recording children**: their CPU per tick on a real lockstep flight's hand-off batches
+   (``bench/recorder_replay.py``, which also compares two checkouts and splits by piece),
+   and on synthetic frames with and without the live server.
 
 ``--before FILE``: a JSON written by an earlier run (e.g. on the commit before the change)
 printed side by side. Usage: ``python bench/bench_recorder.py [--seconds S] [--repeats N]
@@ -253,6 +256,19 @@ def bench_child_cost(ticks: int = 3000) -> dict[str, float]:
     return out
 
 
+def bench_child_flight(seconds: float) -> dict[str, float]:
+    """The recording children's CPU per tick on a real lockstep flight's hand-off batches
+    (bench/recorder_replay.py: captured, then replayed through the child's batch handler)."""
+    sys.path.insert(0, str(REPO / "bench"))
+    import recorder_replay
+
+    with tempfile.TemporaryDirectory() as d:
+        recorder_replay.capture(round(seconds * 1000), Path(d))
+        res = recorder_replay.measure(Path(d), 3, False, None, Path(d))
+    return {"flight_sim_child_us_per_tick": res["run"]["cpu_us_per_tick"],
+            "flight_daemon_child_us_per_tick": res["ctl"]["cpu_us_per_tick"]}
+
+
 def _free_port() -> int:
     import socket
 
@@ -309,6 +325,7 @@ def main() -> int:
                     else bench_files_and_live(args.seconds, args.repeats, live))
     if live:
         res["child"] = bench_child_cost()
+    res["child"] = {**res.get("child", {}), **bench_child_flight(args.seconds)}
     before = json.loads(Path(args.before).read_text()) if args.before else None
     rows = [("recorder hand-off on the fly control path, µs/tick",
              ("control_path", "hook_us_per_tick"), ".1f"),
@@ -324,6 +341,10 @@ def main() -> int:
             ("live server slowdown of the loop", ("files", "live_slowdown"), "+.1%"),
             ("recording child CPU µs/tick (sim side)", ("child", "child_cpu_us_per_tick"),
              ".1f"),
+            ("recording child CPU µs/tick, real flight, sim side",
+             ("child", "flight_sim_child_us_per_tick"), ".1f"),
+            ("recording child CPU µs/tick, real flight, daemon side",
+             ("child", "flight_daemon_child_us_per_tick"), ".1f"),
             ("... with the live server + 1 client", ("child", "child_cpu_us_per_tick_live"),
              ".1f"),
             ("live server's extra CPU in the child", ("child", "live_extra_cpu_fraction"),

@@ -11,8 +11,9 @@ import base64
 import json
 import math
 import re
-import struct
 from collections.abc import Iterable, Mapping
+from json.encoder import encode_basestring_ascii
+from operator import itemgetter
 from typing import Any
 
 from tfl_mav.flightlog.schemas import NONFINITE_KEY
@@ -99,137 +100,173 @@ class JsonEncoder:
 
 # ------------------------------------------------------------------ precompiled encoders
 # Why: the recorder children encode ~12 messages per 1 ms tick; json.JSONEncoder on a dict
-# costs ~4-8 µs each, a precompiled ``%`` format of the values ~1 µs. The output is
-# byte-identical to JsonEncoder's: JSON prints a finite float as ``float.__repr__`` and an
-# int as ``int.__repr__``, which is what ``%r`` prints. A NaN/inf prints as ``nan``/``inf``
-# under ``%r``, and no other value printed by ``%r`` (numbers only) holds the letter ``n``:
-# so counting the ``n`` of the result against the format's own finds them in one C-level
-# scan, and such a message goes to the careful encoder (NaN/inf left out, ``_nonfinite``).
+# costs ~4-8 µs each, and even a precompiled ``%r`` format of the values is dominated by
+# printing the floats (~0.4-1 µs each: ``float.__repr__``, David Gay's shortest digits).
+# msgspec prints a whole tuple of numbers in one C call, ~10x faster per float, with the
+# same shortest round-trip digits; only its notation differs from ``repr`` (and so from
+# ``json``) in places that show in the output: exponents (``1e-9`` vs ``1e-09``), values in
+# [1e-5, 1e-4) printed positionally (``0.00001234`` vs ``1.234e-05``), and NaN/inf as
+# ``null``. So its output is used only when it holds no ``e``, no ``l`` and no ``0.0000``
+# (numbers only: a false alarm such as ``10.00001`` just takes the slower path); otherwise
+# the values are printed with ``repr``, byte-identical to JsonEncoder's (JSON prints a
+# finite float as ``float.__repr__`` and an int as ``int.__repr__``). Checked against
+# ``repr`` on ~1.5 million floats across every decade and the notation thresholds, and by
+# tests/test_recorder_fast.py. Without msgspec installed everything takes the ``repr`` path.
+try:
+    from msgspec.json import Encoder as _MsgspecEncoder
+
+    _encode_numbers: Any = _MsgspecEncoder().encode
+except ImportError:                      # pragma: no cover - msgspec is a dependency
+    def _encode_numbers(values: Any) -> bytes:
+        if not all(type(v) in (int, float) and math.isfinite(v) for v in values):
+            raise ValueError("not finite plain numbers")
+        return ("[" + ",".join(map(repr, values)) + "]").encode()
+
+
+# a number msgspec prints otherwise than repr: an exponent, or 0.0000x (positional < 1e-4)
+_ODD = re.compile(rb"[^,]*e[^,]*|(?<![^,])-?0\.0000[^,]*").finditer
+
+
+def _numbers_json(values: tuple[Any, ...]) -> list[bytes] | None:
+    """The JSON text of each number of ``values`` (ints and floats, no bools) as ``repr``
+    prints it: msgspec's, with the values whose notation differs (see above) re-printed
+    by ``repr``; None if a value is NaN/inf or not a plain number."""
+    try:
+        b = _encode_numbers(values)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    body = b[1:-1]
+    parts = body.split(b",")
+    if b"e" in b or b"l" in b or b"0.0000" in b or b'"' in b:
+        if b"l" in b or b'"' in b or b"t" in b or len(parts) != len(values):
+            return None                  # NaN/inf (null), text, bools, nested lists
+        for m in _ODD(body):             # the few values to print with repr
+            i = body.count(b",", 0, m.start())
+            parts[i] = repr(values[i]).encode()
+    return parts
 
 
 class RecordFormat:
     """A JSON object of fixed keys whose values are numbers (scalars or fixed-length lists)
-    or fixed literals, filled by one ``%``. ``items``: (key, n) with n = 0 for a number,
-    n ≥ 1 for a list of n numbers, or a ``str`` for a value given pre-printed (``true``,
-    ``"text"``: must hold no ``n``, checked by the caller)."""
+    or fixed literals. ``items``: (key, n) with n = 0 for a number, n ≥ 1 for a list of n
+    numbers, or a ``str``: JSON text written as it is (``true``, ``"text"``)."""
 
     def __init__(self, items: Iterable[tuple[str, int | str]]) -> None:
         parts = []
         for key, n in items:
             if isinstance(n, str):
-                parts.append(f'"{key}":%s')
+                parts.append(f'"{key}":{n.replace("%", "%%")}')
             elif n == 0:
-                parts.append(f'"{key}":%r')
+                parts.append(f'"{key}":%s')
             else:
-                parts.append(f'"{key}":[{",".join(["%r"] * n)}]')
-        self.fmt = "{" + ",".join(parts) + "}"
-        self.letters = self.fmt.replace("%r", "").replace("%s", "").count("n")
+                parts.append(f'"{key}":[{",".join(["%s"] * n)}]')
+        self.bfmt = ("{" + ",".join(parts) + "}").encode()
 
     def encode(self, values: tuple[Any, ...]) -> bytes | None:
-        """The JSON of ``values`` (in format order), or None if one is NaN/inf."""
-        s = self.fmt % values
-        return s.encode() if s.count("n") == self.letters else None
+        """The JSON of ``values`` (numbers, in format order), or None if one is NaN/inf."""
+        parts = _numbers_json(values)
+        return None if parts is None else self.bfmt % tuple(parts)
 
 
 _MISSING: Any = object()
-_ARRAY_CACHE_MAX = 256           # formatted arrays kept per message type (constants hit)
+_CHAR_CACHE_MAX = 1024           # char-field texts kept per message type
 
 
-def _element_offsets(fmt: str) -> list[int]:
-    """Byte offset of every value of a little-endian ``struct`` format (no padding), plus
-    the end."""
-    offsets, at = [], 0
-    for count, code in re.findall(r"(\d*)([a-zA-Z?])", fmt):
-        n = int(count or 1)
-        if code == "s":
-            offsets.append(at)
-            at += n
-        else:
-            size = struct.calcsize("<" + code)
-            for _ in range(n):
-                offsets.append(at)
-                at += size
-    return [*offsets, at]
-
-
-class _MavPlan:
-    """One message class, precompiled (see :class:`MavJson`). Array fields are formatted
-    once per distinct wire bytes and cached: covariances, padding and unused channels
-    (zeros) repeat every tick, and printing a float costs ~0.3-0.8 µs."""
+class MavPlan:
+    """One message class, precompiled (see :class:`MavJson`): ``unpack`` the payload
+    (``size`` bytes), then :meth:`json` of the wire tuple. ``time_index``: where
+    ``time_usec`` sits in the tuple (None: no such field)."""
 
     def __init__(self, cls: Any) -> None:
         self.unpack = cls.unpacker.unpack
         self.size = cls.unpacker.size
-        offsets = _element_offsets(cls.unpacker.format)
-        lengths = cls.lengths            # values per wire-ordered field
-        items: list[tuple[str, int | str]] = []
-        self.parts: list[tuple[int, int, int, int, str]] = []   # scalar: (tip, -1, ...)
+        lengths = cls.lengths            # values per wire-ordered field ('10s' counts 1)
         self.time_index: int | None = None
+        chars = [t == "char" for t in cls.fieldtypes]
+        numeric: list[int] = []          # tuple indices of the numbers, fieldnames order
+        self.char_index: list[int] = []  # tuple indices of the char fields
+        slots: list[tuple[str, list[int]]] = []
         for i, name in enumerate(cls.fieldnames):
-            wire = cls.orders[i]
-            tip = sum(lengths[:wire])
-            count = lengths[wire]
-            if count > 1:                # as PayloadDecoder: a list only for count > 1
-                items.append((name, "%s"))
-                self.parts.append((tip, tip + count, offsets[tip], offsets[tip + count],
-                                   "[" + ",".join(["%r"] * count) + "]"))
-            else:
-                items.append((name, 0))
-                self.parts.append((tip, -1, 0, 0, ""))
-                if name == "time_usec":
-                    self.time_index = tip
-        self.form = RecordFormat(items)
-        self.cache: dict[bytes, str] = {}
-
-    def values(self, t: tuple[Any, ...], payload: bytes) -> tuple[Any, ...] | None:
-        """The format's arguments; None if an array holds NaN/inf."""
-        out: list[Any] = []
-        cache = self.cache
-        for tip, stop, a, b, fmt in self.parts:
-            if stop < 0:
-                out.append(t[tip])
+            tip = sum(lengths[:cls.orders[i]])
+            count = lengths[cls.orders[i]]
+            if chars[i]:
+                self.char_index.append(tip)
+                slots.append((name, [-len(self.char_index)]))
                 continue
-            key = payload[a:b]
-            text = cache.get(key)
-            if text is None:
-                text = fmt % t[tip:stop]
-                if "n" in text:
-                    return None
-                if len(cache) >= _ARRAY_CACHE_MAX:
+            if name == "time_usec" and count == 1:
+                self.time_index = tip
+            slots.append((name, list(range(len(numeric), len(numeric) + count))))
+            numeric += range(tip, tip + count)
+        n_num = len(numeric)
+        order: list[int] = []
+        parts = []
+        for name, refs in slots:
+            refs = [n_num - r - 1 if r < 0 else r for r in refs]   # chars after numbers
+            order += refs
+            if len(refs) == 1:       # as PayloadDecoder: a list only for count > 1
+                parts.append(f'"{name}":%s')
+            else:
+                parts.append(f'"{name}":[' + ",".join(["%s"] * len(refs)) + "]")
+        self.numbers = itemgetter(*numeric) if n_num > 1 else (
+            (lambda t: (t[numeric[0]],)) if numeric else (lambda t: ()))
+        self.order = itemgetter(*order) if len(order) > 1 else lambda p: (p[0],)
+        self.bfmt = ("{" + ",".join(parts) + "}").encode()
+        self._chars: dict[bytes, bytes] = {}
+        self.simple = not self.char_index   # numbers only
+
+    def _char_texts(self, t: tuple[Any, ...]) -> list[bytes]:
+        out = []
+        cache = self._chars
+        for i in self.char_index:
+            raw = t[i]
+            text = cache.get(raw)
+            if text is None:          # as PayloadDecoder + JsonEncoder (ensure_ascii)
+                text = encode_basestring_ascii(
+                    raw.split(b"\x00", 1)[0].decode("ascii", "replace")).encode()
+                if len(cache) >= _CHAR_CACHE_MAX:
                     cache.clear()
-                cache[key] = text
+                cache[raw] = text
             out.append(text)
-        return tuple(out)
+        return out
+
+    def json(self, t: tuple[Any, ...]) -> bytes | None:
+        """The message's JSON from its wire tuple ``t``; None if a value is NaN/inf."""
+        parts = _numbers_json(self.numbers(t))
+        if parts is None:            # NaN/inf
+            return None
+        if self.char_index:
+            parts += self._char_texts(t)
+        return self.bfmt % self.order(parts)
 
 
 class MavJson:
     """JSON of a MAVLink 2 frame's fields from its wire bytes, byte-identical to
     ``JsonEncoder.dumps(PayloadDecoder.fields(raw, msgid))`` (fields in ``fieldnames``
-    order, arrays as lists), without building the dict. Messages with char fields, NaN/inf
-    values or a payload that does not unpack are not encoded here (None): the caller takes
-    the careful path."""
+    order, arrays as lists, char fields as text), without building the dict. Messages with
+    NaN/inf values or a payload that does not unpack are not encoded here (None): the
+    caller takes the careful path."""
 
     def __init__(self) -> None:
-        self._plans: dict[int, _MavPlan | None] = {}
+        self._plans: dict[int, MavPlan | None] = {}
 
-    def encode(self, raw: bytes, msgid: int) -> tuple[bytes, int | None] | None:
-        """(JSON, ``time_usec`` or None if the message has none), or None (see class)."""
+    def plan(self, msgid: int) -> MavPlan | None:
+        """The precompiled plan of ``msgid`` (None: not in the dialect)."""
         plan = self._plans.get(msgid, _MISSING)
         if plan is _MISSING:
             cls = mav.mavlink_map.get(msgid)
-            plan = self._plans[msgid] = (_MavPlan(cls) if cls is not None
-                                         and "char" not in cls.fieldtypes else None)
+            plan = self._plans[msgid] = MavPlan(cls) if cls is not None else None
+        return plan
+
+    def encode(self, raw: bytes, msgid: int) -> tuple[bytes, int | None] | None:
+        """(JSON, ``time_usec`` or None if the message has none), or None (see class)."""
+        plan = self.plan(msgid)
         if plan is None:
             return None
-        payload = frame_payload(raw, plan.size)
         try:
-            t = plan.unpack(payload)
+            t = plan.unpack(frame_payload(raw, plan.size))
         except Exception:   # struct.error: the careful path counts it
             return None
-        values = plan.values(t, payload)
-        if values is None:
-            return None
-        data = plan.form.encode(values)
+        data = plan.json(t)
         if data is None:
             return None
         return data, (t[plan.time_index] if plan.time_index is not None else None)

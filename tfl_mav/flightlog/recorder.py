@@ -55,27 +55,25 @@ are never written to a JSON channel: such values are left out and listed in
 
 from __future__ import annotations
 
-import base64
 import math
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
 from tfl_mav.flightlog import foxglove as fg
 from tfl_mav.flightlog import schemas
-from tfl_mav.flightlog.jsonenc import JsonEncoder, MavJson, RecordFormat
-from tfl_mav.flightlog.mcapout import MAX_NS, McapOutput, RecorderError, RecorderStats
+from tfl_mav.flightlog.framerec import FrameRecorder
+from tfl_mav.flightlog.jsonenc import RecordFormat, _numbers_json
+from tfl_mav.flightlog.mcapout import MAX_NS, RecorderError, RecorderStats
 from tfl_mav.flightlog.polyline import Polyline
-from tfl_mav.link.dialect import mav
-from tfl_mav.link.payload import PayloadDecoder
+from tfl_mav.flightlog.recordplan import record_plan
 
 __all__ = ["Recorder", "RecorderError", "RecorderStats"]
 
 _MAX_NS = MAX_NS
-_STATUSTEXT_ID = mav.MAVLINK_MSG_ID_STATUSTEXT
 _MAX_PATH_POINTS = 2000
+_MAX_RECORD_PLANS = 4             # controller record shapes precompiled (then: the dict path)
 
 
 def _floats(values: Any, n: int, field: str) -> list[float]:
@@ -90,24 +88,16 @@ def _floats(values: Any, n: int, field: str) -> list[float]:
     return out
 
 
-@dataclass
-class _MavChannel:
-    channel_id: int
-    name: str
-    sim_time: bool          # time_usec of this message is sim time
-    statustext: bool
-    nonfinite: bool = False  # NaN/inf seen on this channel: check before encoding
-
-
 _TRUTH_STATE = RecordFormat([("t_s", 0), ("position_m", 3), ("velocity_mps", 3),
                              ("quaternion_wxyz", 4), ("body_rates_radps", 3)])
-_TRUTH_ATTACK = RecordFormat([("t_s", 0), ("rotor", 0), ("active", "%s"), ("applied_n", 0),
-                              ("requested_n", 0)])
+_TRUTH_ATTACK = {active: RecordFormat([("t_s", 0), ("rotor", 0), ("active", active),
+                                        ("applied_n", 0), ("requested_n", 0)])
+                 for active in ("true", "false")}
 _TRUTH_THRUSTS = RecordFormat([("t_s", 0), ("thrust_n", 4), ("attack_rotor", 0)])
 _DEFAULT_RECORD = schemas.record_schema("tfl_mav.Record", "a caller's record", {}, [])
 
 
-class Recorder(McapOutput):
+class Recorder(FrameRecorder):
     """Writes one MCAP file; see the module docstring. Use as a context manager."""
 
     def __init__(self, path: str | Path | None, *, clock: Callable[[], float] = time.time,
@@ -144,17 +134,14 @@ class Recorder(McapOutput):
         self._thrust_max_n = thrust_max_n
         self._controller_fields = tuple(controller_fields)
         self._controller_schema = dict(controller_schema or _DEFAULT_RECORD)
-        self._sim_time_ids = {mav_id for mav_id, cls in mav.mavlink_map.items()
-                              if cls.msgname in set(sim_time_messages)
-                              and "time_usec" in cls.fieldnames}
-        self._json = JsonEncoder()
+        self._init_frames(sim_time_messages)
         self._dumps = self._json.dumps
-        self._decoder = PayloadDecoder()
-        self._mav_json = MavJson().encode
-        self._mav_channels: dict[tuple[int, int, int], _MavChannel] = {}
-        self._sim_ns = 0
-        self._sim_known = False
         self._last_scene_t = -math.inf
+        self._truth_cids: tuple[int, int, int] | None = None
+        # record plans of the shapes seen (recordplan), [plan, checked]; by shape
+        self._ctl_plans: list[list[Any]] = []
+        self._ctl_shapes: dict[tuple[Any, ...], Any] = {}
+        self._ctl_cid = 0
         self._polyline: Polyline | None = None
         super().__init__(path, clock=clock, flush_interval_s=flush_interval_s, profile=profile,
                          compression=compression, chunk_size_bytes=chunk_size_bytes, live=live)
@@ -185,74 +172,6 @@ class Recorder(McapOutput):
         else:
             self._bad(f"time_s: out of range ({time_s})")
 
-    # ------------------------------------------------------------------ link hook
-    def on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
-        """The :class:`~tfl_mav.link.transport.Link` frame hook (``on_frame``): record one
-        frame. ``msg`` is the decoded message, or None for a rejected rx frame or a
-        ``send_raw`` tx frame; only whether it is None matters, the fields are decoded
-        from ``raw``. ``time_s`` is the receipt time (s) on the recorder's clock."""
-        try:
-            log_ns = min(max(int(time_s * 1e9), 0), _MAX_NS)
-        except (TypeError, ValueError, OverflowError):
-            log_ns = self._now_ns()
-        st = self.stats
-        if direction == "rx":
-            st.frames_rx += 1
-        elif direction == "tx":
-            st.frames_tx += 1
-        else:
-            self._bad(f"direction: expected 'rx' or 'tx', got {direction!r}")
-            return
-        data = base64.b64encode(raw).decode("ascii")
-        if msg is None:
-            if direction == "rx":
-                st.frames_rejected += 1
-            accepted = "false" if direction == "rx" else "true"
-            self._write(self._raw_channel(),
-                        f'{{"direction":"{direction}","accepted":{accepted},'
-                        f'"len":{len(raw)},"data":"{data}"}}'.encode(), log_ns, self._sim_ns)
-            return
-        msgid = raw[7] | raw[8] << 8 | raw[9] << 16
-        sysid, compid = raw[5], raw[6]
-        chan = self._mav_channels.get((sysid, compid, msgid))
-        if chan is None:
-            chan = self._new_mav_channel(sysid, compid, msgid)
-        # precompiled JSON of the fields (all-number messages, all finite), else the dict
-        fast = self._mav_json(raw, msgid) if chan is not None else None
-        if fast is not None:
-            fields = None
-            usec = fast[1]
-            if chan.sim_time and usec * 1000 <= _MAX_NS:
-                self._sim_ns = usec * 1000
-                self._sim_known = True
-        else:
-            fields = self._decoder.fields(raw, msgid) if chan is not None else None
-            if fields is not None and chan.sim_time:
-                usec = fields["time_usec"]
-                if usec * 1000 <= _MAX_NS:
-                    self._sim_ns = usec * 1000
-                    self._sim_known = True
-        pub_ns = self._sim_ns
-        name = chan.name if chan is not None else f"#{msgid}"
-        self._write(self._raw_channel(),
-                    f'{{"direction":"{direction}","accepted":true,"name":"{name}",'
-                    f'"msgid":{msgid},"sysid":{sysid},"compid":{compid},"seq":{raw[4]},'
-                    f'"len":{len(raw)},"data":"{data}"}}'.encode(), log_ns, pub_ns)
-        if fast is not None:        # never STATUSTEXT (char fields)
-            chan.nonfinite = False
-            self._write(chan.channel_id, fast[0], log_ns, pub_ns)
-            return
-        if fields is None:
-            self._bad(f"frame: {name} (#{msgid}) did not decode from its wire bytes")
-            return
-        data, chan.nonfinite = self._json.dumps_sticky(fields, chan.nonfinite)
-        self._write(chan.channel_id, data, log_ns, pub_ns)
-        if chan.statustext:
-            self._write(self._fg_channel("/log", "foxglove.Log"),
-                        fg.log_entry(log_ns, fg.mav_severity_to_level(fields["severity"]),
-                                     self._with_time(fields["text"]),
-                                     f"mavlink/{sysid}/{compid} {direction}"), log_ns, pub_ns)
-
     # ------------------------------------------------------------------ ground truth, scene
     def truth(self, time_s: float, position_m: Sequence[float], velocity_mps: Sequence[float],
               quaternion_wxyz: Sequence[float], body_rates_radps: Sequence[float],
@@ -263,6 +182,30 @@ class Recorder(McapOutput):
         rates (rad/s), true rotor thrusts 1-4 (N), attacked rotor (1-4, 0 = none), applied
         and requested attack thrust (N). Also drives ``/tf``, ``/scene/vehicle`` and
         ``/sim/truth/path_distance`` at up to ``scene_hz``."""
+        try:                 # the hot path: plain values, all finite, channels known
+            fast = (self._truth_cids is not None and len(position_m) == 3
+                    and len(velocity_mps) == 3 and len(quaternion_wxyz) == 4
+                    and len(body_rates_radps) == 3 and len(rotor_thrust_n) == 4
+                    and type(attack_rotor) is int and 0 <= attack_rotor <= 4)
+            if fast:
+                vals = tuple(map(float, (time_s, *position_m, *velocity_mps, *quaternion_wxyz,
+                                         *body_rates_radps, attack_applied_n,
+                                         attack_requested_n, *rotor_thrust_n)))
+        except (TypeError, ValueError):
+            fast = False
+        parts = _numbers_json((*vals, attack_rotor)) if fast else None
+        if parts is not None:
+            self.set_sim_time(vals[0])
+            log_ns = self._now_ns()
+            state_cid, attack_cid, thrusts_cid = self._truth_cids
+            self._write_many((
+                (state_cid, _TRUTH_STATE.bfmt % tuple(parts[:14])),
+                (attack_cid, _TRUTH_ATTACK["true" if attack_rotor else "false"].bfmt
+                 % (parts[0], parts[20], parts[14], parts[15])),
+                (thrusts_cid, _TRUTH_THRUSTS.bfmt % (parts[0], *parts[16:20], parts[20]))),
+                log_ns, self._sim_ns)
+            self._scene(vals[0], log_ns, vals[1:4], vals[7:11], vals[16:20], attack_rotor)
+            return
         try:
             if not math.isfinite(time_s):
                 raise ValueError(f"time_s: not finite ({time_s})")
@@ -288,8 +231,8 @@ class Recorder(McapOutput):
                                     "quaternion_wxyz": quat, "body_rates_radps": rates}),
                     log_ns, pub_ns)
         self._write(self._channel("/sim/truth/attack", schemas.TRUTH_ATTACK),
-                    _TRUTH_ATTACK.encode((t, rotor, "true" if rotor != 0 else "false",
-                                          applied, requested))
+                    _TRUTH_ATTACK["true" if rotor != 0 else "false"].encode(
+                        (t, rotor, applied, requested))
                     or self._dumps({"t_s": t, "rotor": rotor, "active": rotor != 0,
                                     "applied_n": applied, "requested_n": requested}),
                     log_ns, pub_ns)
@@ -297,11 +240,20 @@ class Recorder(McapOutput):
                     _TRUTH_THRUSTS.encode((t, *thrust, rotor))
                     or self._dumps({"t_s": t, "thrust_n": thrust, "attack_rotor": rotor}),
                     log_ns, pub_ns)
+        self._truth_cids = (self._channel_ids.get("/sim/truth/state", 0),
+                            self._channel_ids.get("/sim/truth/attack", 0),
+                            self._channel_ids.get("/sim/truth/thrusts", 0))
+        self._scene(t, log_ns, pos, quat, thrust, rotor)
+
+    def _scene(self, t: float, log_ns: int, pos: Sequence[float], quat: Sequence[float],
+               thrust: Sequence[float], rotor: int) -> None:
+        """``/tf``, ``/scene/vehicle``, ``/sim/truth/path_distance`` at up to scene_hz."""
+        pub_ns = self._sim_ns
         # 1 µs slack so k·dt rounding does not push a sample to the next tick
         if self._last_scene_t <= t < self._last_scene_t + self._scene_period_s - 1e-6:
             return
         self._last_scene_t = t
-        if not all(map(math.isfinite, pos + quat + thrust)):
+        if not all(map(math.isfinite, (*pos, *quat, *thrust))):
             self._bad(f"truth: position/attitude/thrust not finite at t = {t} s; "
                       "scene not drawn")
             return
@@ -356,6 +308,21 @@ class Recorder(McapOutput):
         a sequence of values named by ``controller_fields`` (the compact per-tick form), or
         a mapping. numpy values are fine; NaN/inf/None values are left out
         (``_nonfinite``)."""
+        if self._ctl_plans and type(time_s) is float and not isinstance(state, Mapping):
+            for entry in self._ctl_plans:           # the hot path: a record plan
+                data = entry[0](state, time_s)
+                if data is None:
+                    continue
+                if not entry[1]:                    # its first record: checked once
+                    if data != self._dumps({**dict(zip(self._controller_fields, state,
+                                                       strict=True)), "t_s": time_s}):
+                        self._ctl_plans.remove(entry)
+                        break
+                    entry[1] = True
+                self.set_sim_time(time_s)
+                self._write(self._ctl_cid, data, self._now_ns(), self._sim_ns)
+                return
+        record = state
         try:
             t = float(time_s)
             if not math.isfinite(t):
@@ -373,23 +340,14 @@ class Recorder(McapOutput):
         self.set_sim_time(t)
         self._write(self._channel("/controller/state", self._controller_schema), data,
                     self._now_ns(), self._sim_ns)
+        if isinstance(record, Mapping) or len(self._ctl_shapes) >= _MAX_RECORD_PLANS:
+            return
+        shape = tuple((type(v), len(v)) if type(v) in (list, tuple) else type(v)
+                      for v in record)
+        if shape not in self._ctl_shapes:           # a new shape: precompile it once
+            plan = self._ctl_shapes[shape] = record_plan(self._controller_fields, record)
+            if plan is not None:
+                self._ctl_plans.append([plan, False])
+                self._ctl_cid = self._channel_ids.get("/controller/state", 0)
 
     # ------------------------------------------------------------------ internals
-    def _with_time(self, text: str) -> str:
-        return f"[t={self._sim_ns * 1e-9:.3f}s] {text}" if self._sim_known else text
-
-    def _raw_channel(self) -> int:
-        cid = self._channel_ids.get("/mavlink/raw")
-        return cid if cid is not None else self._channel("/mavlink/raw", schemas.RAW_FRAME)
-
-    def _new_mav_channel(self, sysid: int, compid: int, msgid: int) -> _MavChannel | None:
-        cls = mav.mavlink_map.get(msgid)
-        if cls is None:
-            return None
-        cid = self._channel(f"/mavlink/{sysid}/{compid}/{cls.msgname}",
-                            schemas.mavlink_schema(msgid))
-        chan = _MavChannel(cid, cls.msgname, msgid in self._sim_time_ids,
-                           msgid == _STATUSTEXT_ID)
-        self._mav_channels[(sysid, compid, msgid)] = chan
-        return chan
-

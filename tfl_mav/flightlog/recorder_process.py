@@ -99,39 +99,54 @@ def _child_loop(conn: Connection, results: Connection, path: str | None,
     try:
         while True:
             try:
-                items = pickle.loads(conn.recv_bytes())
+                data = conn.recv_bytes()
             except EOFError:            # the parent is gone: finish the file anyway
                 break
-            for item in items:
-                op, now[0] = item[0], item[1]
-                if op == _FRAME:
-                    rec.on_frame(item[2], item[3], True if item[4] else None, item[1])
-                elif op == _TRUTH:
-                    rec.truth(*item[2])
-                elif op == _CONTROLLER:
-                    rec.controller(item[2], item[3])
-                elif op == _LOG:
-                    rec.log(item[2], item[3], item[4], source=item[5])
-                elif op == _SIM_TIME:
-                    rec.set_sim_time(item[2])
-                elif op == _PATH:
-                    try:
-                        rec.path(item[2])
-                    except ValueError as exc:
-                        rec.log("error", f"path not recorded: {exc}")
-                elif op == _METADATA:
-                    rec.metadata(item[2], item[3])
-                elif op == _CLOSE:
-                    raise StopIteration
+            if not handle_batch(rec, data, now):
+                break
             if rec.error and not reported:
                 results.send(("error", rec.error))
                 reported = True
-    except StopIteration:
-        pass
     finally:
         rec.close()
         with contextlib.suppress(OSError):
             results.send(("done", rec.error, rec.last_bad_input, rec.stats.as_dict()))
+
+
+def handle_batch(rec: Recorder, data: bytes, now: list[float]) -> bool:
+    """Apply one pickled batch of calls to ``rec`` (``now[0]``: the stamp of the call at
+    hand, the recorder's clock). False when the batch ends with close."""
+    items = pickle.loads(data)
+    i, n = 0, len(items)
+    while i < n:
+        item = items[i]
+        op, now[0] = item[0], item[1]
+        i += 1
+        if op == _FRAME:              # a run of frames in one call (the hot path)
+            j = i
+            while j < n and items[j][0] == _FRAME:
+                j += 1
+            now[0] = items[j - 1][1]
+            rec.on_frames(items[i - 1:j])
+            i = j
+        elif op == _TRUTH:
+            rec.truth(*item[2])
+        elif op == _CONTROLLER:
+            rec.controller(item[2], item[3])
+        elif op == _LOG:
+            rec.log(item[2], item[3], item[4], source=item[5])
+        elif op == _SIM_TIME:
+            rec.set_sim_time(item[2])
+        elif op == _PATH:
+            try:
+                rec.path(item[2])
+            except ValueError as exc:
+                rec.log("error", f"path not recorded: {exc}")
+        elif op == _METADATA:
+            rec.metadata(item[2], item[3])
+        elif op == _CLOSE:
+            return False
+    return True
 
 
 class RecorderProcess:

@@ -1,0 +1,235 @@
+"""The recorder's MAVLink frames: ``/mavlink/raw`` and ``/mavlink/{sysid}/{compid}/{MSG}``.
+
+Every frame makes two messages: the raw record (wire bytes as base64, direction, whether
+the link accepted it) and, for an accepted frame, its fields decoded from the wire bytes.
+See :mod:`~tfl_mav.flightlog.recorder` for the channels and the time stamps.
+
+Why a module of its own (issue #13): frames are most of what a recorder child does (4-5 a
+1 ms tick per side). :meth:`FrameRecorder.on_frames` takes a whole hand-off batch: for a
+(direction, sysid, compid, msgid) seen before whose fields print by the precompiled
+:class:`~tfl_mav.flightlog.jsonenc.MavPlan`, a frame costs one unpack, one msgspec call,
+two ``%`` formats and one two-message append to the chunk (:meth:`FastWriter.add_pair`),
+under one lock for the batch. Everything else (first sight of a channel, rejected frames,
+NaN/inf, STATUSTEXT, a failed file) takes :meth:`FrameRecorder._on_frame`, the careful
+path, which writes the same bytes.
+"""
+
+from __future__ import annotations
+
+import base64
+import time
+from binascii import b2a_base64
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import Any
+
+from tfl_mav.flightlog import foxglove as fg
+from tfl_mav.flightlog import schemas
+from tfl_mav.flightlog.jsonenc import JsonEncoder, MavJson, MavPlan, _encode_numbers
+from tfl_mav.flightlog.mcapout import MAX_NS, McapOutput
+from tfl_mav.link.dialect import mav
+from tfl_mav.link.payload import PayloadDecoder, frame_payload
+
+__all__ = ["FrameRecorder"]
+
+_STATUSTEXT_ID = mav.MAVLINK_MSG_ID_STATUSTEXT
+
+
+@dataclass
+class _MavChannel:
+    channel_id: int
+    name: str
+    sim_time: bool          # time_usec of this message is sim time
+    statustext: bool
+    nonfinite: bool = False  # NaN/inf seen on this channel: check before encoding
+
+
+# (direction, raw[5:10] = sysid, compid, msgid) → what the hot path needs
+_Fast = tuple[_MavChannel, MavPlan, bytes, bool, int]   # channel, plan, raw JSON head, rx,
+                                                        # the raw channel's id
+
+
+class FrameRecorder(McapOutput):
+    """The frame half of :class:`~tfl_mav.flightlog.recorder.Recorder`."""
+
+    def _init_frames(self, sim_time_messages: Iterable[str]) -> None:
+        names = set(sim_time_messages)
+        self._sim_time_ids = {mav_id for mav_id, cls in mav.mavlink_map.items()
+                              if cls.msgname in names and "time_usec" in cls.fieldnames}
+        self._json = JsonEncoder()
+        self._decoder = PayloadDecoder()
+        self._mav = MavJson()
+        self._mav_channels: dict[tuple[int, int, int], _MavChannel] = {}
+        self._frame_fast: dict[tuple[str, bytes], _Fast] = {}
+        self._sim_ns = 0
+        self._sim_known = False
+
+    def on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
+        """The :class:`~tfl_mav.link.transport.Link` frame hook (``on_frame``): record one
+        frame. ``msg`` is the decoded message, or None for a rejected rx frame or a
+        ``send_raw`` tx frame; only whether it is None matters, the fields are decoded
+        from ``raw``. ``time_s`` is the receipt time (s) on the recorder's clock."""
+        if msg is None or (direction, raw[5:10]) not in self._frame_fast:
+            self._on_frame(direction, raw, msg, time_s)
+        else:
+            self.on_frames(((None, time_s, direction, raw, True),))
+
+    def on_frames(self, frames: Iterable[tuple[Any, float, str, bytes, bool]]) -> None:
+        """Record many frames: (anything, ``time_s``, direction, raw, accepted) each, as
+        :meth:`on_frame` would one by one (a hand-off batch's frame items)."""
+        w = self._writer
+        if not (self._open and getattr(w, "_fast", False)):
+            for f in frames:
+                self._on_frame(f[2], f[3], True if f[4] else None, f[1])
+            return
+        get = self._frame_fast.get
+        encode = _encode_numbers
+        add_pair = w.add_pair
+        live = self._live_channels if self._live is not None else None
+        n_rx = n_tx = 0
+        todo = iter(frames)
+        with self._lock:
+            try:
+                for f in todo:
+                    _, time_s, direction, raw, accepted = f
+                    fast = get((direction, raw[5:10])) if accepted and self._open else None
+                    data = None
+                    if fast is not None:
+                        chan, plan, head, rx, raw_cid = fast
+                        n = len(raw)
+                        payload = raw[10:n - 15 if raw[2] & 1 else n - 2]
+                        if len(payload) != plan.size:
+                            payload = frame_payload(raw, plan.size)
+                        try:
+                            t = plan.unpack(payload)
+                            log_ns = int(time_s * 1e9)
+                            # MavPlan.json written out for an all-number message whose
+                            # numbers msgspec prints as repr does (the usual case)
+                            b = encode(plan.numbers(t)) if plan.simple else b"e"
+                            data = (plan.bfmt % plan.order(b[1:-1].split(b","))
+                                    if not (b"e" in b or b"l" in b or b"0.0000" in b)
+                                    else plan.json(t))
+                        except Exception:     # struct.error, a bad stamp: the careful path
+                            data = None
+                    if data is None or not 0 <= log_ns <= MAX_NS:
+                        self._on_frame(direction, raw, True if accepted else None, time_s)
+                        continue
+                    if chan.sim_time and t[plan.time_index] * 1000 <= MAX_NS:
+                        self._sim_ns = t[plan.time_index] * 1000
+                        self._sim_known = True
+                    if chan.nonfinite:
+                        chan.nonfinite = False
+                    raw_json = b'%s%d,"len":%d,"data":"%s"}' % (
+                        head, raw[4], n, b2a_base64(raw, newline=False))
+                    add_pair(raw_cid, raw_json, chan.channel_id, data, log_ns, self._sim_ns)
+                    if rx:
+                        n_rx += 1
+                    else:
+                        n_tx += 1
+                    if live is not None:
+                        for cid, d in ((raw_cid, raw_json), (chan.channel_id, data)):
+                            if cid in live:
+                                live[cid].log(d, log_time=log_ns)
+            except Exception as exc:          # a write failed: the file stops here
+                self._failed(exc)
+            finally:
+                st = self.stats
+                st.frames_rx += n_rx
+                st.frames_tx += n_tx
+                st.messages += 2 * (n_rx + n_tx)
+                self._pending += 2 * (n_rx + n_tx)
+        for f in todo:                        # after a failure: counted as dropped
+            self._on_frame(f[2], f[3], True if f[4] else None, f[1])
+        if time.monotonic() >= self._next_flush:
+            try:
+                self._flush()
+            except Exception as exc:
+                self._failed(exc)
+
+    def _on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
+        """:meth:`on_frame`, every case (first sight of a channel, rejected frames, NaN)."""
+        try:
+            log_ns = min(max(int(time_s * 1e9), 0), MAX_NS)
+        except (TypeError, ValueError, OverflowError):
+            log_ns = self._now_ns()
+        st = self.stats
+        if direction == "rx":
+            st.frames_rx += 1
+        elif direction == "tx":
+            st.frames_tx += 1
+        else:
+            self._bad(f"direction: expected 'rx' or 'tx', got {direction!r}")
+            return
+        data = base64.b64encode(raw).decode("ascii")
+        if msg is None:
+            if direction == "rx":
+                st.frames_rejected += 1
+            accepted = "false" if direction == "rx" else "true"
+            self._write(self._raw_channel(),
+                        f'{{"direction":"{direction}","accepted":{accepted},'
+                        f'"len":{len(raw)},"data":"{data}"}}'.encode(), log_ns, self._sim_ns)
+            return
+        msgid = raw[7] | raw[8] << 8 | raw[9] << 16
+        sysid, compid = raw[5], raw[6]
+        chan = self._mav_channels.get((sysid, compid, msgid))
+        if chan is None:
+            chan = self._new_mav_channel(sysid, compid, msgid)
+        # precompiled JSON of the fields (all finite; STATUSTEXT also makes a /log entry)
+        fast = (self._mav.encode(raw, msgid) if chan is not None and not chan.statustext
+                else None)
+        if fast is not None:
+            fields = None
+            usec = fast[1]
+            if chan.sim_time and usec * 1000 <= MAX_NS:
+                self._sim_ns = usec * 1000
+                self._sim_known = True
+        else:
+            fields = self._decoder.fields(raw, msgid) if chan is not None else None
+            if fields is not None and chan.sim_time:
+                usec = fields["time_usec"]
+                if usec * 1000 <= MAX_NS:
+                    self._sim_ns = usec * 1000
+                    self._sim_known = True
+        pub_ns = self._sim_ns
+        name = chan.name if chan is not None else f"#{msgid}"
+        head = (f'{{"direction":"{direction}","accepted":true,"name":"{name}",'
+                f'"msgid":{msgid},"sysid":{sysid},"compid":{compid},"seq":')
+        self._write(self._raw_channel(),
+                    f'{head}{raw[4]},"len":{len(raw)},"data":"{data}"}}'.encode(),
+                    log_ns, pub_ns)
+        if fast is not None:
+            chan.nonfinite = False
+            self._write(chan.channel_id, fast[0], log_ns, pub_ns)
+            plan = self._mav.plan(msgid)
+            if plan is not None and (plan.time_index is not None or not chan.sim_time):
+                self._frame_fast[(direction, raw[5:10])] = (
+                    chan, plan, head.encode(), direction == "rx", self._raw_channel())
+            return
+        if fields is None:
+            self._bad(f"frame: {name} (#{msgid}) did not decode from its wire bytes")
+            return
+        data, chan.nonfinite = self._json.dumps_sticky(fields, chan.nonfinite)
+        self._write(chan.channel_id, data, log_ns, pub_ns)
+        if chan.statustext:
+            self._write(self._fg_channel("/log", "foxglove.Log"),
+                        fg.log_entry(log_ns, fg.mav_severity_to_level(fields["severity"]),
+                                     self._with_time(fields["text"]),
+                                     f"mavlink/{sysid}/{compid} {direction}"), log_ns, pub_ns)
+
+    def _with_time(self, text: str) -> str:
+        return f"[t={self._sim_ns * 1e-9:.3f}s] {text}" if self._sim_known else text
+
+    def _raw_channel(self) -> int:
+        cid = self._channel_ids.get("/mavlink/raw")
+        return cid if cid is not None else self._channel("/mavlink/raw", schemas.RAW_FRAME)
+
+    def _new_mav_channel(self, sysid: int, compid: int, msgid: int) -> _MavChannel | None:
+        cls = mav.mavlink_map.get(msgid)
+        if cls is None:
+            return None
+        cid = self._channel(f"/mavlink/{sysid}/{compid}/{cls.msgname}",
+                            schemas.mavlink_schema(msgid))
+        chan = _MavChannel(cid, cls.msgname, msgid in self._sim_time_ids,
+                           msgid == _STATUSTEXT_ID)
+        self._mav_channels[(sysid, compid, msgid)] = chan
+        return chan
