@@ -56,12 +56,14 @@ CATEGORIES: dict[str, list[tuple[str, tuple[str, ...]]]] = {
     "recorder": [("pipe read + unpickle", ("'read'", "posix.read", "connection.py",
                                            "pickle", "_pickle", "'loads'")),
                  ("decode (payload)", ("payload.py", "link/codec.py", "<codec")),
-                 ("JSON", ("jsonenc.py", "json/", "_json", "'encode'", "isfinite")),
+                 ("JSON", ("jsonenc.py", "recordplan.py", "msgspec", "json/", "_json", "'encode'",
+                           "isfinite")),
                  ("compression (zstd/lz4)", ("compress", "zstandard", "lz4")),
-                 ("MCAP write", ("mcap/", "mcapout.py", "fastmcap.py", "BytesIO",
+                 ("MCAP write", ("mcap/", "mcapout.py", "mcapfast.py", "BytesIO",
                                  "_struct", "'pack'", "'write'", "crc32")),
                  ("protobuf (scene, tf, log)", ("foxglove", "protobuf")),
-                 ("frame/record handling", ("recorder.py", "b64encode", "base64"))],
+                 ("frame/record handling", ("recorder.py", "framerec.py", "b64encode",
+                                            "base64"))],
 }
 
 
