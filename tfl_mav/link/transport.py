@@ -14,9 +14,10 @@ retries behind one object):
   (``mavlink1``): accepting them would let anyone downgrade a signed link to an unsigned
   one later.
 * **One datagram at a time** (:mod:`tfl_mav.link.receive`). Each datagram is framed
-  there and every frame is handed to pymavlink's ``decode`` (which checks length and CRC; never the signature, see below),
-  except the per-tick messages, which :mod:`tfl_mav.link.codec` packs into the very same
-  bytes and whose decoding, with the same checks, is written out in the receive loop, into a light message read like pymavlink's
+  there and every frame is handed to pymavlink's ``decode`` (which checks length and CRC;
+  never the signature, see below), except the per-tick messages, which
+  :mod:`tfl_mav.link.codec` packs into the very same bytes and which the receive loop
+  decodes itself, with the same checks, into a light message read like pymavlink's
   (:class:`~tfl_mav.link.codec.LiteMessage`: the unpacked wire tuple, fields as properties).
   Nothing is carried over between datagrams, so a truncated datagram cannot swallow the
   start of the next good one, as happens when datagrams are concatenated into one stream
