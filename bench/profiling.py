@@ -32,10 +32,12 @@ _CLK_TCK = os.sysconf("SC_CLK_TCK")
 
 # (category, substrings of "file:function"); first match wins, per process role.
 _LINK = [("decode (link)", ("link/codec.py:decode", "<codec", "transport.py:_ingest",
-                            "transport.py:_decode_frame", "pymavlink", "ardupilotmega.py")),
+                            "transport.py:_decode_frame", "receive.py:_ingest",
+                            "receive.py:_decode_other", "pymavlink", "ardupilotmega.py")),
          ("pack (link)", ("link/codec.py:pack", "transport.py:send", "signing.py")),
          ("syscalls (sendto, recvfrom, select/poll)", ("sendto", "recvfrom", "select",
-                                                       "'poll'", "transport.py:recv"))]
+                                                       "'poll'", "transport.py:recv",
+                                                       "receive.py:recv"))]
 _HANDOFF = [("recorder hand-off (queue, pickle, pipe)",
              ("recorder_process.py", "pickle", "connection.py", "threading.py",
               "_thread", "'acquire'", "'wait'"))]

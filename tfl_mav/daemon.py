@@ -20,30 +20,15 @@ One :class:`Daemon` talks MAVLink 2 over one UDP socket to one vehicle (docs/des
 * publishes its own telemetry at ≤ 50 Hz of sim time (``NAMED_VALUE_FLOAT`` mode, det_rotor,
   atk_est_n, path_m; ``DEBUG_FLOAT_ARRAY`` tfl = ξ1, ξ2, η chains).
 
-**Degrade, don't fall.** Each complete state is classified as it arrives, against the
-newest state accepted so far (the *watermark*), into exactly one of: *fresh* (newer, by a
-plausible step), ``repeated_states`` (the watermark's time again, e.g. a lockstep resend
-after a lost reply: answered with the same command, the law is not rerun), ``old_states``
-(older, by at most ``_BACKSTEP_S``: reordered, dropped) and ``implausible_states`` (see
-below). Each loop drains the socket and runs the law once, on the newest fresh state; the
-other fresh states of the batch are skipped (``skipped_states``). When states were skipped
-the law integrates over the real gap (``gap_ticks``); a rate-limited STATUSTEXT says so.
-
-**Implausible time.** A state more than ``_AHEAD_S`` of sim time ahead of the watermark
-(plus, in real time, the wall time elapsed since the watermark arrived), or more than
-``_BACKSTEP_S`` behind it, is not a successor of the flight being flown: it is counted
-(``implausible_states``), not controlled, and does not move the watermark. One forged or
-corrupted datagram (say time_usec = 2^63) therefore cannot lock the daemon out of the
-genuine states that follow.
-
-**Restart.** ``_JUMP_CONFIRM`` implausible states in a row that are plausible successors of
-each other (0 ≤ Δt ≤ ``_AHEAD_S``; a restarted simulator's t = 0 state and its resend, or a
-vehicle that jumped ahead while we were away) are a new time line: the flight computer
-(law and detector) is rebuilt and the new flight flown from that state (``rebuilds``); its
-recovery law takes over when the state is not benign. So are ``_RESTART_OLD_STATES`` old
-states in a row *at one time* (a restart less than ``_BACKSTEP_S`` into a flight: the new
-vehicle resends its first state until answered). Old states at varying times are reordering
-(a relay stalled for tens of ms and then released a shuffled burst): never a restart.
+**Degrade, don't fall.** Each complete state is classified as it arrives
+(:mod:`tfl_mav.arrivals`: fresh, repeated, old, implausible, or a restart that rebuilds the
+flight computer, ``rebuilds``); repeated states get the same command again, old and
+implausible ones are counted (``repeated_states``, ``old_states``, ``implausible_states``).
+Each loop drains the socket and runs the law once, on the newest fresh state; the other
+fresh states of the batch are skipped (``skipped_states``). When states were skipped the law
+integrates over the real gap (``gap_ticks``); a rate-limited STATUSTEXT says so. After a
+restart (a restarted simulator, a vehicle that went on while we were away) the recovery law
+takes over when the state is not benign.
 
 **Ready before time starts.** The flight computer is built and warmed (one throw-away
 evaluation on a separate instance) in the constructor, before the first HEARTBEAT: the
@@ -79,15 +64,19 @@ from typing import Any
 
 import numpy as np
 
+from tfl_mav import arrivals
+from tfl_mav.arrivals import FRESH, OLD, REPEATED, RESTART, Arrivals
 from tfl_mav.daemon_io import (
     LOCKSTEP_FLAG,
     TICK_FIELDS,
     TICK_SCHEMA,
     DaemonResult,
     DaemonStats,
+    applied_thrusts,
     command_message,
     telemetry_messages,
     tick_state,
+    waiting_text,
 )
 from tfl_mav.flight_computer import FlightComputer, TickResult
 from tfl_mav.frames import paper_from_odometry
@@ -102,15 +91,14 @@ from tfl_mav.state import State
 
 __all__ = ["TICK_FIELDS", "TICK_SCHEMA", "Daemon", "DaemonResult", "DaemonStats", "tick_state"]
 
+# the arrival limits, where harness/fuzz.py reads them
+_AHEAD_S, _BACKSTEP_S, _JUMP_CONFIRM, _RESTART_OLD_STATES = (
+    arrivals._AHEAD_S, arrivals._BACKSTEP_S, arrivals._JUMP_CONFIRM, arrivals._RESTART_OLD_STATES)
 _TELEMETRY_PERIOD_S = 0.02        # ≤ 50 Hz of sim time
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
 _WAITING_REPORT_PERIOD_S = 2.0
 _HISTORY = 512                    # commands remembered by time_usec (0.5 s at 1 kHz)
 _GAP_FACTOR = 1.5                 # a gap over 1.5 control periods is integrated as such
-_BACKSTEP_S = 0.2                 # older by more than this: not reordering, implausible
-_AHEAD_S = 1.0                    # newer by more (+ wall elapsed in real time): implausible
-_JUMP_CONFIRM = 2                 # consistent implausible states in a row: a new time line
-_RESTART_OLD_STATES = 25          # ... or this many old states in a row at one time
 _DEGRADE_REPORT_S = 1.0           # at most one "degraded" STATUSTEXT per second of sim time
 _ID_ODOMETRY = mav.MAVLINK_MSG_ID_ODOMETRY
 _ID_ACTUATOR_OUTPUT_STATUS = mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS
@@ -169,12 +157,7 @@ class Daemon:
         self._complete: list[tuple[State, Any, list[float]]] = []   # this batch's states
         self._history: dict[int, list[float]] = {}                  # time_usec → thrust_n
         self._last_usec = -1          # time_usec of the last state controlled
-        self._newest_usec = -1        # the watermark: newest fresh state accepted
-        self._newest_wall = 0.0       # monotonic wall time it arrived
-        self._jump_usec = -1          # the last implausible state, if the last one was
-        self._jumps_in_row = 0
-        self._old_in_row = 0
-        self._old_usec = -1           # time of the old states in a row (a waiting vehicle's)
+        self._arrivals = Arrivals(realtime)   # the watermark and the restart rule
         self._arrived = False         # a valid state arrived this loop (failsafe clock)
         self._next_degrade_report_s = 0.0
         self._hover = [scenario.vehicle.mass_kg * scenario.vehicle.gravity_mps2 / 4.0] * 4
@@ -286,17 +269,8 @@ class Daemon:
 
     def _report_waiting(self, waited_s: float) -> None:
         """Before the first tick: say (locally) what arrived and what to check."""
-        st = self.link.stats
-        host, port = self.link.peer or ("?", 0)
-        text = (f"no vehicle state after {waited_s:.0f} s: {st.rx_frames} frames accepted, "
-                f"{st.rejected} rejected from {host}:{port}")
-        if self.signing is not None:
-            text += (f" (signing: bad_signature {st.bad_signature}, unsigned {st.unsigned}, "
-                     f"replayed {st.replayed}, bad_timestamp {st.bad_timestamp}); is the "
-                     "vehicle running, with the same --key-file?")
-        else:
-            text += "; is the vehicle running there (tfl-mav sim)?"
-        self._event("warning", text, send=False)
+        self._event("warning", waiting_text(waited_s, self.link, self.signing is not None),
+                    send=False)
 
     # ------------------------------------------------------------------ messages
     def _handle(self, msg: Any) -> None:
@@ -358,46 +332,30 @@ class Daemon:
         self._arrive(state, applied, rpm)
 
     def _arrive(self, state: State, applied_msg: Any, rpm: list[float]) -> None:
-        """Classify one complete state against the watermark (see "Degrade, don't fall",
-        "Implausible time", "Restart")."""
-        stats = self.stats
+        """Classify one complete state (:mod:`tfl_mav.arrivals`) and act on it."""
         t_usec = state.time_usec
-        w = self._newest_usec
-        now = time.monotonic() if self.realtime else 0.0    # only real time reads it
-        ahead_usec = _AHEAD_S * 1e6
-        if w >= 0:
-            limit = ahead_usec + ((now - self._newest_wall) * 1e6 if self.realtime else 0.0)
-            if t_usec == w:
-                stats.repeated_states += 1
-                self._arrived = True
-                self._jumps_in_row = 0
-                if not self._complete and self._last_usec == w:
-                    self._send_command(t_usec, self._last_cmd)
-                return
-            if w - _BACKSTEP_S * 1e6 <= t_usec < w:
-                self._arrived = True
-                self._jumps_in_row = 0
-                same = self._old_in_row > 0 and t_usec == self._old_usec
-                self._old_in_row = self._old_in_row + 1 if same else 1
-                self._old_usec = t_usec
-                if self._old_in_row < _RESTART_OLD_STATES:
-                    stats.old_states += 1
-                    return
-                self._rebuild(t_usec)
-            elif not w < t_usec <= w + limit:
-                j = self._jump_usec
-                chained = self._jumps_in_row > 0 and 0 <= t_usec - j <= ahead_usec
-                self._jumps_in_row = self._jumps_in_row + 1 if chained else 1
-                self._jump_usec = t_usec
-                if self._jumps_in_row < _JUMP_CONFIRM:
-                    stats.implausible_states += 1
-                    return
-                self._rebuild(t_usec)
-        self._jumps_in_row = 0
-        self._old_in_row = 0
+        kind = self._arrivals.classify(t_usec)
+        if kind == FRESH:
+            self._arrived = True
+            self._complete.append((state, applied_msg, rpm))
+            return
+        stats = self.stats
+        if kind == REPEATED:
+            stats.repeated_states += 1
+            self._arrived = True
+            if not self._complete and self._last_usec == t_usec:
+                self._send_command(t_usec, self._last_cmd)
+            return
+        if kind == OLD:
+            self._arrived = True
+            stats.old_states += 1
+            return
+        if kind != RESTART:
+            stats.implausible_states += 1
+            return
+        self._rebuild(t_usec)
+        self._arrivals.accept(t_usec)
         self._arrived = True
-        self._newest_usec = t_usec
-        self._newest_wall = now
         self._complete.append((state, applied_msg, rpm))
 
     def _control_newest(self) -> bool:
@@ -413,7 +371,7 @@ class Daemon:
         state, applied_msg, rpm = batch[-1]
         if stats.ticks == 0 and state.time_usec == 0 and self.hold_start is not None \
                 and self.hold_start():
-            self._newest_usec = -1     # its resend of t = 0 will be fresh again
+            self._arrivals.newest_usec = -1    # its resend of t = 0 will be fresh again
             return arrived
         stats.skipped_states += len(batch) - 1
         t_usec = state.time_usec
@@ -432,23 +390,9 @@ class Daemon:
         if msg is None:
             self.stats.applied_unknown += 1
             return self._last_cmd
-        mine = self._history.get(msg.time_usec)
-        if mine is not None and msg.time_usec != 0:
-            self.stats.applied_from_history += 1
-            return mine
-        # time_usec 0: the command for t = 0, or none (before the first command: the initial
-        # hover; motors cut; disarmed). The wire's thrusts say which; when they match our
-        # float64 copy (to float32 precision) use the copy, so lockstep stays bit-identical.
-        fmax = self.thrust_max_n
-        wire = [min(max(float(a), 0.0), 1.0) * fmax if math.isfinite(a) else 0.0
-                for a in msg.actuator[:4]]
-        ref = mine if mine is not None else (self._hover if self._last_usec < 0 else None)
-        if ref is not None and all(abs(w - r) <= 1e-6 * fmax
-                                   for w, r in zip(wire, ref, strict=True)):
-            self.stats.applied_from_history += 1
-            return ref
-        self.stats.applied_from_wire += 1
-        return wire
+        return applied_thrusts(msg, self._history,
+                               self._hover if self._last_usec < 0 else None,
+                               self.thrust_max_n, self.stats)
 
     def _rebuild(self, t_usec: int) -> None:
         """Vehicle time jumped (a restarted simulator, or a vehicle that went on while we
@@ -456,16 +400,14 @@ class Daemon:
         belongs to the old time line."""
         self.stats.rebuilds += 1
         self._event("warning", f"vehicle time jumped to t={t_usec * 1e-6:.3f} s "
-                               f"(from {self._newest_usec * 1e-6:.3f} s): new time line, "
+                               f"(from {self._arrivals.newest_usec * 1e-6:.3f} s): new time line, "
                                "controller rebuilt")
         self.stats.skipped_states += len(self._complete)
         self._complete = []
         self.computer = self._new_computer()
         self._history.clear()
         self._last_usec = -1
-        self._newest_usec = -1
-        self._jumps_in_row = 0
-        self._old_in_row = 0
+        self._arrivals.reset()
         self._last_cmd = list(self._hover)
         self._next_telemetry_s = 0.0
         self._next_degrade_report_s = 0.0

@@ -6,7 +6,9 @@
   ``path_m`` and ``DEBUG_FLOAT_ARRAY`` ``tfl`` (docs/design.md, "The wire");
 * :func:`tick_state`: the controller's internals of one tick as the compact tuple the
   recorder's child names (:data:`TICK_FIELDS`) and encodes (``/controller/state``);
-* :class:`DaemonStats`, :class:`DaemonResult`: what a run counted and did.
+* :func:`applied_thrusts`: which command the vehicle held, from ACTUATOR_OUTPUT_STATUS;
+* :class:`DaemonStats`, :class:`DaemonResult`: what a run counted and did; the waiting
+  report's text (:func:`waiting_text`).
 
 The messages are built as :class:`~tfl_mav.link.codec.LiteMessage` tuples in wire order and
 packed by the link's codec with one ``struct.pack``: the same bytes as pymavlink's messages
@@ -28,7 +30,8 @@ from tfl_mav.link.dialect import mav
 from tfl_mav.modes import Mode
 
 __all__ = ["LOCKSTEP_FLAG", "TICK_FIELDS", "TICK_SCHEMA", "DaemonResult", "DaemonStats",
-           "command_message", "telemetry_messages", "tick_state"]
+           "applied_thrusts", "command_message", "telemetry_messages", "tick_state",
+           "waiting_text"]
 
 LOCKSTEP_FLAG = 1                 # HIL_ACTUATOR_CONTROLS.flags bit 0
 _new = tuple.__new__
@@ -160,3 +163,42 @@ def _f32(value: float, unknown: float) -> float:
     not finite or beyond float32's range (a state far outside any flight: the fuzzer sends
     them; packing it would raise, and the loop must not die)."""
     return value if math.isfinite(value) and abs(value) <= _F32_MAX else unknown
+
+
+def applied_thrusts(msg: Any, history: dict[int, list[float]], hover: list[float] | None,
+                    thrust_max_n: float, stats: DaemonStats) -> list[float]:
+    """The thrusts (N) the vehicle held over the period that just ended, by
+    ACTUATOR_OUTPUT_STATUS ``msg``: our own float64 copy of the command it names
+    (``history``: time_usec → thrust_n), else its ``actuator[0..3]`` × f_max. ``hover``: the
+    initial hover command while no state has been controlled yet, else None. Counted in
+    ``stats`` (``applied_from_history``, ``applied_from_wire``)."""
+    mine = history.get(msg.time_usec)
+    if mine is not None and msg.time_usec != 0:
+        stats.applied_from_history += 1
+        return mine
+    # time_usec 0: the command for t = 0, or none (before the first command: the initial
+    # hover; motors cut; disarmed). The wire's thrusts say which; when they match our
+    # float64 copy (to float32 precision) use the copy, so lockstep stays bit-identical.
+    fmax = thrust_max_n
+    wire = [min(max(float(a), 0.0), 1.0) * fmax if math.isfinite(a) else 0.0
+            for a in msg.actuator[:4]]
+    ref = mine if mine is not None else hover
+    if ref is not None and all(abs(w - r) <= 1e-6 * fmax
+                               for w, r in zip(wire, ref, strict=True)):
+        stats.applied_from_history += 1
+        return ref
+    stats.applied_from_wire += 1
+    return wire
+
+
+def waiting_text(waited_s: float, link: Any, signed: bool) -> str:
+    """Before the first state: what arrived on ``link`` and what to check."""
+    st = link.stats
+    host, port = link.peer or ("?", 0)
+    text = (f"no vehicle state after {waited_s:.0f} s: {st.rx_frames} frames accepted, "
+            f"{st.rejected} rejected from {host}:{port}")
+    if signed:
+        return text + (f" (signing: bad_signature {st.bad_signature}, unsigned {st.unsigned}, "
+                       f"replayed {st.replayed}, bad_timestamp {st.bad_timestamp}); is the "
+                       "vehicle running, with the same --key-file?")
+    return text + "; is the vehicle running there (tfl-mav sim)?"

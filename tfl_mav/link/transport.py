@@ -13,10 +13,11 @@ retries behind one object):
 * **MAVLink 2 only.** Frames with the MAVLink 1 magic (0xFE) are rejected and counted
   (``mavlink1``): accepting them would let anyone downgrade a signed link to an unsigned
   one later.
-* **One datagram at a time.** Each datagram is framed here and every frame is handed to
-  pymavlink's ``decode`` (which checks length and CRC; never the signature, see below),
-  except the per-tick messages, which :mod:`tfl_mav.link.codec` packs into the very same
-  bytes and decodes, with the same checks, into a light message read like pymavlink's
+* **One datagram at a time** (:mod:`tfl_mav.link.receive`). Each datagram is framed
+  there and every frame is handed to pymavlink's ``decode`` (which checks length and CRC;
+  never the signature, see below), except the per-tick messages, which
+  :mod:`tfl_mav.link.codec` packs into the very same bytes and which the receive loop
+  decodes itself, with the same checks, into a light message read like pymavlink's
   (:class:`~tfl_mav.link.codec.LiteMessage`: the unpacked wire tuple, fields as properties).
   Nothing is carried over between datagrams, so a truncated datagram cannot swallow the
   start of the next good one, as happens when datagrams are concatenated into one stream
@@ -47,14 +48,14 @@ from __future__ import annotations
 import errno
 import math
 import socket
-import struct
 import time
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
-from tfl_mav.link.codec import FastCodec, skim
-from tfl_mav.link.dialect import mav, new_mavlink
+from tfl_mav.link.codec import FastCodec
+from tfl_mav.link.dialect import new_mavlink
+from tfl_mav.link.receive import Receiver
 from tfl_mav.link.signing import Signing
 
 __all__ = [
@@ -73,17 +74,8 @@ FrameHook = Callable[[str, bytes, Any, float], None]
 Admit = Callable[[Any, "Address"], "str | None"]
 """``admit(heartbeat, sender) -> None`` (may pin) or the reason it may not."""
 
-MAGIC_V2 = 0xFD
-MAGIC_V1 = 0xFE
-_HEADER_LEN_V2 = 10
-_CRC_LEN = 2
-_SIGNATURE_LEN = 13
-_IFLAG_SIGNED = 0x01
-_MIN_FRAME_V2 = _HEADER_LEN_V2 + _CRC_LEN
-_MAX_DATAGRAM = 65535
-_HEARTBEAT_ID = mav.MAVLINK_MSG_ID_HEARTBEAT
 _DONTWAIT = socket.MSG_DONTWAIT   # Linux/macOS: this read/send never blocks
-_CODEC = FastCodec()      # stateless: the hot messages' compiled layouts, shared
+_CODEC = FastCodec()      # stateless: the hot messages' compiled layouts, shared (packing)
 
 
 class LinkError(Exception):
@@ -187,7 +179,7 @@ def finite_fields(msg: Any, names: Iterable[str]) -> bool:
     return nonfinite_field(msg, names) is None
 
 
-class Link:
+class Link(Receiver):
     """One UDP socket talking MAVLink 2 to exactly one peer. See the module docstring."""
 
     def __init__(self, sock: socket.socket, *, src_system: int, src_component: int,
@@ -221,13 +213,12 @@ class Link:
         self.clock = clock
         self.max_datagrams_per_recv = max_datagrams_per_recv
         self.stats = LinkStats()
-        self._timeout_ms = 0          # SO_RCVTIMEO now set (0: none yet)
         self._decode = self.parser.decode
         self._codec = _CODEC
-        self._decode_lite = _CODEC.decode_lite
         self.signing = signing
         self.admit = admit
         self.skim_ids = frozenset(skim_ids)
+        self._init_receiver()
         if signing is not None:
             signing.configure_packer(self.packer, link_id)
 
@@ -357,164 +348,6 @@ class Link:
         if self.on_frame is not None:
             self.on_frame("tx", raw, msg, self.clock())
         return n
-
-    # ------------------------------------------------------------------ receiving
-    def recv(self, timeout_s: float = 0.0, *, drain: bool = True) -> list[Any]:
-        """Accepted messages from datagrams that arrive within ``timeout_s`` (0 = poll).
-
-        Waits at most ``timeout_s`` (rounded up to whole milliseconds) for the first
-        datagram, then drains whatever else is already queued (up to
-        ``max_datagrams_per_recv``) without waiting; ``drain=False`` returns after the
-        first datagram (a caller that loops anyway saves the read that finds the queue
-        empty). May return an empty list even before the timeout if only rejected traffic
-        arrived.
-
-        The wait is the ``recvfrom`` itself (the socket blocks, with ``SO_RCVTIMEO`` set
-        once per distinct timeout): one system call, no ``poll`` before it; reads that must
-        not wait pass ``MSG_DONTWAIT``.
-        """
-        out: list[Any] = []
-        sock = self._sock
-        try:
-            if timeout_s > 0.0:
-                ms = math.ceil(timeout_s * 1000.0)
-                if ms != self._timeout_ms:
-                    self._set_timeout_ms(ms)
-                data, addr = sock.recvfrom(_MAX_DATAGRAM)
-            else:
-                data, addr = sock.recvfrom(_MAX_DATAGRAM, _DONTWAIT)
-        except BlockingIOError:
-            return out
-        except OSError:
-            self.stats.recv_errors += 1
-            return out
-        if not drain:
-            self._ingest(data, addr, out)
-            return out
-        for _ in range(self.max_datagrams_per_recv):
-            self._ingest(data, addr, out)
-            try:
-                data, addr = sock.recvfrom(_MAX_DATAGRAM, _DONTWAIT)
-            except BlockingIOError:
-                break
-            except OSError:
-                self.stats.recv_errors += 1
-                break
-        return out
-
-    def _set_timeout_ms(self, ms: int) -> None:
-        """How long a waiting ``recvfrom`` blocks (``SO_RCVTIMEO``; ≥ 1 ms, 0 would mean
-        forever)."""
-        ms = max(1, ms)
-        self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVTIMEO,
-                              struct.pack("ll", ms // 1000, (ms % 1000) * 1000))
-        self._timeout_ms = ms
-
-    def _reject(self, reason: str, raw: bytes) -> None:
-        setattr(self.stats, reason, getattr(self.stats, reason) + 1)
-        if self.on_frame is not None:
-            self.on_frame("rx", raw, None, self.clock())
-
-    def _ingest(self, data: bytes, addr: Any, out: list[Any]) -> None:
-        """Split one datagram into frames; append accepted messages to ``out``."""
-        st = self.stats
-        st.rx_datagrams += 1
-        n = len(data)
-        st.rx_bytes += n
-        peer = self.peer
-        addr = (addr[0], addr[1])
-        if peer is not None and addr != peer:
-            self._reject("foreign", data)
-            return
-        if n == 0:   # a zero-length datagram holds no frame: count it, like a cut-off one
-            self._reject("truncated", data)
-            return
-        data = bytes(data)
-        on_frame = self.on_frame
-        now = None                   # the hook's receipt time: one clock read a datagram
-        i = 0
-        while i < n:
-            magic = data[i]
-            if magic != MAGIC_V2:
-                # Cannot resynchronise inside a datagram: reject the rest of it.
-                self._reject("mavlink1" if magic == MAGIC_V1 else "garbage", data[i:])
-                return
-            if n - i < _MIN_FRAME_V2:
-                self._reject("truncated", data[i:])
-                return
-            incompat = data[i + 2]
-            if incompat & ~_IFLAG_SIGNED:
-                self._reject("bad_flags", data[i:])
-                return
-            end = i + _MIN_FRAME_V2 + data[i + 1] + (_SIGNATURE_LEN if incompat else 0)
-            if end > n:
-                self._reject("truncated", data[i:])
-                return
-            raw = data[i:end]
-            i = end
-            msg = self._decode_frame(raw)
-            if msg is None:
-                continue
-            sysid = raw[5]               # = msg.get_srcSystem()
-            if self.peer_sysid is None or self.peer is None:
-                is_heartbeat = msg.get_msgId() == _HEARTBEAT_ID
-                if self.peer is None and (not is_heartbeat or (
-                        self.peer_sysid is not None and sysid != self.peer_sysid)):
-                    self._reject("no_peer", raw)
-                    continue
-                if is_heartbeat and self.admit is not None and self.admit(msg, addr):
-                    self._reject("refused_peer", raw)
-                    continue
-                if self.peer is None:
-                    self.peer = peer = addr
-                if is_heartbeat:
-                    self.peer_sysid = sysid
-            elif sysid != self.peer_sysid:
-                self._reject("wrong_sysid", raw)
-                continue
-            st.rx_frames += 1
-            if on_frame is not None:
-                if now is None:
-                    now = self.clock()
-                on_frame("rx", raw, msg, now)
-            out.append(msg)
-
-    def _decode_frame(self, raw: bytes) -> Any:
-        """Decode one complete MAVLink 2 frame, or count why not and return None.
-
-        On a signed link the signature and timestamp are checked first (verify, then
-        advance: :meth:`Signing.verify`), so forged or replayed frames cost one SHA-256
-        and never reach the decoder. The per-tick messages come back as
-        :class:`~tfl_mav.link.codec.LiteMessage`, the rest as pymavlink's messages.
-        """
-        signing = self.signing
-        if signing is not None:
-            reason = signing.verify(raw)
-            if reason is not None:
-                self._reject(reason, raw)
-                return None
-        try:
-            msg = self._decode_lite(raw, self.parser)
-            if msg is not None:
-                return msg
-            if self.skim_ids and raw[7] | raw[8] << 8 | raw[9] << 16 in self.skim_ids:
-                msg = skim(raw, self.parser)
-                if msg is not None:
-                    return msg
-            msg = self._decode(bytearray(raw))
-        except mav.MAVError as exc:
-            text = exc.message
-            reason = ("bad_crc" if "CRC" in text
-                      else "bad_signature" if "signature" in text else "malformed")
-            self._reject(reason, raw)
-            return None
-        except Exception:  # struct/ctor errors on hostile payloads must not escape
-            self._reject("malformed", raw)
-            return None
-        if isinstance(msg, mav.MAVLink_unknown):
-            self._reject("unknown_id", raw)
-            return None
-        return msg
 
 
 def _bound_socket(bind: Address, field: str) -> socket.socket:
