@@ -2,7 +2,8 @@
 offline loop against a plain numpy RK4 physics-only loop — all in the same run.
 
     python bench/bench_controller.py [--scenario paper] [--ticks 4000] [--offline-s 20]
-                                     [--numpy-s 5] [--offline-only] [--json FILE]
+                                     [--numpy-s 5] [--offline-only [--fc-parts]]
+                                     [--json FILE]
 
 1. ``TFLController.update`` alone, median and p90 µs over a closed-loop flight (so the
    projection is warm-started as in real use), with the path evaluated by the reference jets
@@ -299,6 +300,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--no-offline", action="store_true", help="skip the offline-loop table")
     ap.add_argument("--offline-only", action="store_true",
                     help="only the offline-loop table (skip the controller tables)")
+    ap.add_argument("--fc-parts", action="store_true",
+                    help="with --offline-only: the flight computer step's parts too")
     ap.add_argument("--flight-s", type=float, default=None,
                     help="simulated s of the flight-computer flight (default: the scenario's)")
     ap.add_argument("--no-flight", action="store_true",
@@ -308,6 +311,8 @@ def main(argv: list[str] | None = None) -> int:
     sc0 = load_scenario(args.scenario)
     result: dict[str, Any] = {"scenario": args.scenario, "ticks": args.ticks}
     if args.offline_only:
+        if args.fc_parts:
+            _parts_table(sc0, args, result)
         return _offline_table(sc0, args, result)
 
     t0 = _cpu()
@@ -361,21 +366,27 @@ def main(argv: list[str] | None = None) -> int:
             r = fc_rows[mode]
             print(f"{mode:12s} {r['ticks']:6d} {r['median_us']:8.1f} {r['p90_us']:8.1f}")
         result["flight_computer_step"] = fc_rows
-        parts = flight_computer_parts(sc0, args.flight_s)
-        print("\nthe same step, mean CPU µs per tick of the flight (replayed; own: the parts "
-              "replaced by their recorded outputs)")
-        rows = [(label, parts[label]) for label in ("detector", "TFL law", "safe law", "own")]
-        rows += [("step (replayed whole)", parts["step"]),
-                 ("overhead: step − TFL law − safe law",
-                  parts["step"] - parts["TFL law"] - parts["safe law"])]
-        for label, us in rows:
-            print(f"  {label:40s} {us:7.1f}")
-        result["flight_computer_parts_us"] = parts
+        _parts_table(sc0, args, result)
 
     if args.no_offline:
         _write(args.json, result)
         return 0
     return _offline_table(sc0, args, result)
+
+
+def _parts_table(sc0: Scenario, args: argparse.Namespace, result: dict[str, Any]) -> None:
+    parts = flight_computer_parts(sc0, args.flight_s)
+    print("\nthe flight computer step, mean CPU µs per tick of the flight (replayed; own: the "
+          "parts replaced by their recorded outputs)")
+    rows = [(label, parts[label]) for label in ("detector", "TFL law", "safe law", "own")]
+    rows += [("step (replayed whole)", parts["step"]),
+             ("overhead: step − TFL law − safe law",
+              parts["step"] - parts["TFL law"] - parts["safe law"]),
+             ("detector in situ (no timer)", parts["detector in situ"]),
+             ("detector alone (its inputs, in a loop)", parts["detector alone"])]
+    for label, us in rows:
+        print(f"  {label:40s} {us:7.1f}")
+    result["flight_computer_parts_us"] = parts
 
 
 def _write(path: str | None, result: dict[str, Any]) -> None:
