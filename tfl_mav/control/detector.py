@@ -33,7 +33,7 @@ from __future__ import annotations
 
 import linecache
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, NamedTuple
 
@@ -157,6 +157,7 @@ class AttackDetector:
         tol = 1.0 + cfg.time_constant_tolerance
         self._taus = tuple(self.tau_s * tol ** (j / 2) for j in range(-2, 3))
         self._sig2 = self.sigma_rpm ** 2
+        self._rotors = _kernel(self.tau_s > 0.0)   # the four rotors' tick (generated)
         self._sd0 = math.sqrt(self._sig2 + 0.0)   # the residual's std without lag
         self._h_alarm = self.h * (1.0 - _ALARM_TOL)
         # The per-rotor state as float tuples, rotor-major (read and rewritten whole each
@@ -212,7 +213,7 @@ class AttackDetector:
         ValueError only for a wrong number of values.
 
         Runs every tick, so the four rotors' model, residual and CUSUM are straight-line
-        float code (:func:`_rotors`, generated at import from one rotor's template); the
+        float code (generated once from one rotor's template: :func:`_rotors_source`); the
         isolation runs only on a tick whose largest statistic reaches ``h``. The same
         floating-point operations, in the same order, as the step-by-step form before #13
         (the golden flights are bit-identical).
@@ -250,7 +251,7 @@ class AttackDetector:
             c0, c1, c2, c3 = cmd_t
         self._last_time = t
         if self.tau_s <= 0.0:           # no lag: the speed is the command's, every tick
-            top = _rotors_instant(self, r0, r1, r2, r3, c0, c1, c2, c3)
+            top = self._rotors(self, r0, r1, r2, r3, c0, c1, c2, c3)
         else:
             decay = None
             if last is None:
@@ -263,7 +264,7 @@ class AttackDetector:
                         self._decays.clear()
                     decay = self._decays[dt] = tuple(math.exp(-dt / tau_j)
                                                      for tau_j in self._taus)
-            top = _rotors_lagged(self, r0, r1, r2, r3, c0, c1, c2, c3, decay)
+            top = self._rotors(self, r0, r1, r2, r3, c0, c1, c2, c3, decay)
 
         alarm = False
         released = False
@@ -314,7 +315,7 @@ class AttackDetector:
 
 # ---------------------------------------------------------------------- the rotors' tick
 # One rotor's tick; ``{i}`` is the rotor (0-3). Expanded for the four rotors into one function
-# at import: straight-line float code on locals (no per-rotor loop, list or index on the hot
+# on first use: straight-line float code on locals (no per-rotor loop, list or index on the hot
 # path), the constants as literals. min/max and the clamps are written as the comparisons
 # the builtins make (the same results).
 _PROPAGATE = """\
@@ -433,14 +434,17 @@ def _rotors_instant(self, r0, r1, r2, r3, c0, c1, c2, c3):
 """ + "".join(rotor.format(i=i, **consts) for i in range(4)) + tail + stores + _TOP)
 
 
-def _compile(lagged: bool) -> Any:
-    src = _rotors_source(lagged)
-    name = f"<tfl_mav.control.detector._rotors_{'lagged' if lagged else 'instant'}>"
-    linecache.cache[name] = (len(src), None, src.splitlines(True), name)  # tracebacks
-    scope: dict[str, Any] = {"sqrt": math.sqrt}
-    exec(compile(src, name, "exec"), scope)  # our own template, at import
-    return scope[name[len("<tfl_mav.control.detector."):-1]]
+_KERNELS: dict[bool, Callable[..., float]] = {}
 
 
-_rotors_lagged = _compile(True)
-_rotors_instant = _compile(False)
+def _kernel(lagged: bool) -> Callable[..., float]:
+    """The compiled kernel, built on first use (a process flies one kind: ~2 ms each)."""
+    fn = _KERNELS.get(lagged)
+    if fn is None:
+        src = _rotors_source(lagged)
+        name = f"<tfl_mav.control.detector._rotors_{'lagged' if lagged else 'instant'}>"
+        linecache.cache[name] = (len(src), None, src.splitlines(True), name)  # tracebacks
+        scope: dict[str, Any] = {"sqrt": math.sqrt}
+        exec(compile(src, name, "exec"), scope)  # our own template
+        fn = _KERNELS[lagged] = scope[name[len("<tfl_mav.control.detector."):-1]]
+    return fn
