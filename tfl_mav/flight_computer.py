@@ -26,9 +26,10 @@ Which law flies (issue #14; :mod:`tfl_mav.control.recovery` says why a second la
   the hand-back leaves no transient off the path. The band [0.3, 0.6] N is hysteresis: the
   paper's signal wanders across it with ESC noise on the estimate;
 * **recovery** (reduced attitude on four rotors) on the first tick when the state is not
-  benign (a controller restarted mid-flight: tilt > 30°, |v| > max(0.5, 2 × speed) m/s,
-  |(p, q)| > 2 rad/s, or |r| > 2 rad/s with no attack known), and whenever the TFL law has
-  no valid answer (left the projection tube, D(x) singular). It levels the vehicle and holds
+  benign (:mod:`~tfl_mav.control.takeover`; a controller restarted mid-flight: tilt > 30°,
+  |v| > max(0.5, 2 × speed) m/s, |(p, q)| > 2 rad/s, or |r| > 2 rad/s with no attack
+  known), and whenever the TFL law has no valid answer (left the projection tube, D(x)
+  singular). It levels the vehicle and holds
   the altitude where it took over (never the old frozen 1.9 g), then flies back to the path
   and hands back under the same conditions. The limits are those the TFL law is started
   from in every scenario (hover, still) with a margin, and the recovery law's own tilt
@@ -73,11 +74,12 @@ from tfl_mav.control.feasibility import attack_limit_n, feasible_speed_mps, path
 from tfl_mav.control.law import ControlOutput, TFLController
 from tfl_mav.control.recovery import RecoveryLaw, RecoveryOutput
 from tfl_mav.control.state_filter import StateFilter, YawRateModel
+from tfl_mav.control.takeover import TAKEOVER_TILT_RAD, calm_fail, not_benign
 from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario
 from tfl_mav.state import State
 
-__all__ = ["ATTACK_INFO", "FlightComputer", "TickResult"]
+__all__ = ["ATTACK_INFO", "TAKEOVER_TILT_RAD", "FlightComputer", "TickResult"]
 
 ATTACK_INFO = ("detector", "oracle")
 RPM_TO_RADPS = 2.0 * math.pi / 60.0   # ESC rpm → rotor speed ω (rad/s)
@@ -89,11 +91,6 @@ A_LIMIT_BAND_N = 0.3     # … and hand back this far below that
 HANDBACK_S = 0.5       # conditions for handing back must hold this long
 HANDBACK_DIST_M = 0.15  # … including being this close to the path
 HOLD_BEFORE_PATH_S = 1.0  # take-over / lost path: level and hold this long, then fly back
-TAKEOVER_TILT_RAD = math.radians(30.0)
-TAKEOVER_RATE_RADPS = 2.0
-TAKEOVER_SPEED_FACTOR = 2.0      # TFL takes over up to this × path speed (module docstring)
-TAKEOVER_SPEED_FLOOR_MPS = 0.5   # … never below this (a slow path; velocity noise at rest)
-HANDBACK_TILT_RAD = math.radians(20.0)
 
 
 class TickResult(NamedTuple):
@@ -121,21 +118,6 @@ class TickResult(NamedTuple):
 
 _MODE_TEXT = {m: str(m) for m in Mode}    # formatting an enum costs µs: once, here
 _FALLBACK, _LOST_ROTOR, _RECOVERY = Mode.FALLBACK, Mode.LOST_ROTOR, Mode.RECOVERY
-
-
-def _floats(x: Sequence[float]) -> Sequence[float]:
-    """``x`` with Python floats (``tolist`` of a numpy array; other sequences as they are)."""
-    return x.tolist() if type(x) is np.ndarray else x
-
-
-def _tilt_rad(q: Sequence[float]) -> float:
-    """Angle between b3 and the vertical: acos of R₂₂ of the normalised quaternion, by the
-    very operations :func:`~tfl_mav.geometry.rotation_rows` computes R₂₂ with (the other
-    eight entries are not needed: this runs on every safe-law tick)."""
-    w, x, y, z = _floats(q)
-    n = math.sqrt(w * w + x * x + y * y + z * z)
-    x, y = x / n, y / n
-    return math.acos(max(-1.0, min(1.0, 1 - 2 * (x * x + y * y))))
 
 
 class FlightComputer:
@@ -317,7 +299,7 @@ class FlightComputer:
             state = self.yaw_model.update(state, omega, dt, events)
         if self._ticks == 0:
             events[:0] = self._pending_events
-            why = self._not_benign(state, rotor)
+            why = not_benign(state, rotor, self.speed_mps)
             if why:
                 self._enter("recovery", state, f"take-over: {why}", events, hold=True)
         self._ticks += 1
@@ -355,23 +337,6 @@ class FlightComputer:
                             new, events)
 
     # ------------------------------------------------------------------ switching
-    def _not_benign(self, state: State, rotor: int) -> str:
-        """Why the state is not one the TFL law may be started from ('' if it is)."""
-        tilt = _tilt_rad(state.quaternion_wxyz)
-        p, q, r = _floats(state.body_rates_radps)
-        speed = math.sqrt(sum(c * c for c in _floats(state.velocity_mps)))
-        vmax = max(TAKEOVER_SPEED_FLOOR_MPS, TAKEOVER_SPEED_FACTOR * self.speed_mps)
-        if not all(math.isfinite(c) for c in (tilt, p, q, r, speed)):
-            return "state not finite"
-        if tilt > TAKEOVER_TILT_RAD:
-            return f"tilted {math.degrees(tilt):.0f} deg"
-        if speed > vmax:
-            return f"moving at {speed:.1f} m/s (TFL takes over below {vmax:.1f} m/s)"
-        if math.hypot(p, q) > TAKEOVER_RATE_RADPS or (not rotor
-                                                      and abs(r) > TAKEOVER_RATE_RADPS):
-            return f"rotating at {math.sqrt(p * p + q * q + r * r):.1f} rad/s"
-        return ""
-
     def _enter(self, law: str, state: State, why: str, events: list[str], *,
                hold: bool) -> None:
         if self.law_name != law:
@@ -391,25 +356,19 @@ class FlightComputer:
         rec = self.recovery
         self._since_s += dt
         if rec.hold_m is not None and self._since_s >= HOLD_BEFORE_PATH_S \
-                and not self._not_benign(state, rotor) and rec.projector is not None:
+                and not not_benign(state, rotor, self.speed_mps) and rec.projector is not None:
             rec.projector.lam = None          # a fresh global search: we may be far away
             rec.follow_path()
         a_n = estimate if rotor and math.isfinite(estimate) else 0.0
         out = rec.update(state, rotor if self.law_name == "lost_rotor" else 0, a_n)
         ok = (rec.hold_m is None and math.isfinite(out.path_distance_m)
-              and out.path_distance_m < HANDBACK_DIST_M and not self._calm_fail(state, rotor)
+              and out.path_distance_m < HANDBACK_DIST_M and not calm_fail(state, rotor)
               and (not rotor or (math.isfinite(estimate) and A_EXIT_N < estimate
                                  < self.attack_limit_n - A_LIMIT_BAND_N)))
         self._good_s = self._good_s + dt if ok else 0.0
         if self._good_s >= HANDBACK_S:
             self._hand_back(state, out, events)
         return out
-
-    def _calm_fail(self, state: State, rotor: int) -> bool:
-        tilt = _tilt_rad(state.quaternion_wxyz)
-        p, q, r = _floats(state.body_rates_radps)
-        return (tilt > HANDBACK_TILT_RAD or math.hypot(p, q) > TAKEOVER_RATE_RADPS
-                or (not rotor and abs(r) > TAKEOVER_RATE_RADPS))
 
     def _hand_back(self, state: State, out: RecoveryOutput, events: list[str]) -> None:
         """Back to TFL, bumpless: its dynamic extension starts at the thrust now applied."""

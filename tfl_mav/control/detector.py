@@ -31,8 +31,9 @@ period). An attacker who forces a rotor's thrust makes that rotor's speed leave 
 
 from __future__ import annotations
 
+import linecache
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, NamedTuple
 
@@ -54,6 +55,7 @@ BAND_PAD = 0.25
 # |z| < k is a false-release probability of ~P(|N(0,1)| < 2)^50 ≈ 0.1 for a rotor whose
 # speed merely sits near the probe by chance, and none while it is held elsewhere.
 RELEASE_TICKS = 50
+N_MODELS = 5   # lag models of the band (τ spaced geometrically)
 
 
 def _param(default: float, unit: str = "", *, lo: float | None = None,
@@ -154,17 +156,21 @@ class AttackDetector:
         self._omega_max = math.sqrt(self.thrust_max_n / self.k_f)
         tol = 1.0 + cfg.time_constant_tolerance
         self._taus = tuple(self.tau_s * tol ** (j / 2) for j in range(-2, 3))
-        # Per rotor, the speed (rad/s) each model of the band predicts (τ/tol … τ·tol).
-        self._band = [[0.0] * len(self._taus) for _ in range(4)]
-        self._var = [0.0] * 4           # variance of the band's start (rpm²), decays with lag
-        self._decay_dt = math.nan
-        self._decay: list[float] = []
-        self._cmd = [0.0] * 4           # last valid command (N)
-        self._s_hi = [0.0] * 4
-        self._s_lo = [0.0] * 4
-        self._resid = list(_ZERO4)
-        self._z = list(_ZERO4)          # last normalised residual (σ), for isolation ties
-        self._rpm = list(_ZERO4)        # last finite rpm sample, for the estimate
+        self._sig2 = self.sigma_rpm ** 2
+        self._rotors = _kernel(self.tau_s > 0.0)   # the four rotors' tick (generated)
+        self._sd0 = math.sqrt(self._sig2 + 0.0)   # the residual's std without lag
+        self._h_alarm = self.h * (1.0 - _ALARM_TOL)
+        # The per-rotor state as float tuples, rotor-major (read and rewritten whole each
+        # tick by _rotors): per rotor the speed (rad/s) each model of the band predicts
+        # (τ/tol … τ·tol), the variance of the band's start (rpm², decays with the lag), the
+        # CUSUM statistics, the last residuals, normalised residual (σ, for isolation ties)
+        # and finite rpm sample (for the estimate).
+        self._band: tuple[float, ...] = (0.0,) * (4 * N_MODELS)
+        self._var = self._s_hi = self._s_lo = self._resid = self._z = self._rpm = _ZERO4
+        # exp(−dt/τ_j) per elapsed dt: the sim's tick times are float sums, so dt takes a
+        # handful of values a bit apart (14 in the paper flight): each computed once.
+        self._decays: dict[float, tuple[float, ...]] = {}
+        self._cmd = _ZERO4              # last valid command (N)
         self._last_time: float | None = None
         self.rejected_samples = 0
         self.detected_rotor = 0
@@ -180,17 +186,18 @@ class AttackDetector:
         """Steady speed (rad/s) for a command, clamped like the motor clamps it."""
         return math.sqrt(min(max(thrust_n, 0.0), self.thrust_max_n) / self.k_f)
 
-    def _start(self, rpm: list[float], cmd: list[float]) -> None:
-        """First tick: take the motor state from the measurement (ω before any lag acts)."""
+    def _start(self, rpm: Sequence[float], cmd: Sequence[float]) -> None:
+        """First tick with lag: the motor state from the measurement (ω before any lag
+        acts)."""
+        band, var = [], []
         for i in range(4):
-            if self.tau_s <= 0.0:
-                w, var = self._omega_target(cmd[i]), 0.0
-            elif not math.isnan(rpm[i]):
-                w, var = max(rpm[i], 0.0) * RPM_TO_RADPS, self.sigma_rpm ** 2
+            if not math.isnan(rpm[i]):
+                w, v = max(rpm[i], 0.0) * RPM_TO_RADPS, self.sigma_rpm ** 2
             else:           # unknown start: the model is as uncertain as the rotor's range
-                w, var = self._omega_target(cmd[i]), (self._omega_max * RADPS_TO_RPM) ** 2
-            self._band[i] = [w] * len(self._taus)
-            self._var[i] = var
+                w, v = self._omega_target(cmd[i]), (self._omega_max * RADPS_TO_RPM) ** 2
+            band += [w] * N_MODELS
+            var.append(v)
+        self._band, self._var = tuple(band), tuple(var)
 
     # ------------------------------------------------------------------ update
     def update(self, time_s: float, rpm_measured: Sequence[float],
@@ -205,12 +212,11 @@ class AttackDetector:
         sample) rejects the whole update (counted) and returns the previous verdict. Raises
         ValueError only for a wrong number of values.
 
-        Runs every tick, so it is written out on floats (#13): the model's propagation —
-        the exact solution of the vehicle's lag dω/dt = (ω_target − ω)/τ for a target held
-        over the period (with τ = 0 the speed is the target) — the residual and the CUSUM in
-        one pass per rotor, the isolation only on a tick whose largest statistic reaches
-        ``h``; the same floating-point operations, in the same order, as the step-by-step
-        form before #13 (the golden flights are bit-identical).
+        Runs every tick, so the four rotors' model, residual and CUSUM are straight-line
+        float code (generated once from one rotor's template: :func:`_rotors_source`); the
+        isolation runs only on a tick whose largest statistic reaches ``h``. The same
+        floating-point operations, in the same order, as the step-by-step form before #13
+        (the golden flights are bit-identical).
         """
         if len(rpm_measured) != 4:
             raise ValueError(f"rpm_measured: expected 4 values, got {len(rpm_measured)}")
@@ -225,136 +231,220 @@ class AttackDetector:
             self.rejected_samples += 1
             return self._reissue(alarm=False)
         lim = RPM_VALID_LIMIT
-        r0, r1, r2, r3 = rpm = list(map(float, rpm_measured))
+        r0, r1, r2, r3 = rpm_measured
+        r0, r1, r2, r3 = float(r0), float(r1), float(r2), float(r3)
         if not (-lim <= r0 <= lim and -lim <= r1 <= lim and -lim <= r2 <= lim
-                and -lim <= r3 <= lim):
-            rpm = [r if -lim <= r <= lim else math.nan for r in rpm]   # NaN fails too
-        c0, c1, c2, c3 = map(float, thrust_cmd_n)
+                and -lim <= r3 <= lim):                 # NaN fails too
+            r0, r1, r2, r3 = (r if -lim <= r <= lim else math.nan for r in (r0, r1, r2, r3))
+        c0, c1, c2, c3 = thrust_cmd_n
+        c0, c1, c2, c3 = float(c0), float(c1), float(c2), float(c3)
         if math.isfinite(c0 + c1 + c2 + c3):        # a finite sum: all four finite
-            cmd = self._cmd = [c0, c1, c2, c3]
+            self._cmd = (c0, c1, c2, c3)
         else:
-            cmd = self._cmd                 # the last valid command per rotor
+            cmd = list(self._cmd)           # the last valid command per rotor
             for i, f in enumerate((c0, c1, c2, c3)):
                 if math.isfinite(f):
                     cmd[i] = f
                 else:       # the vehicle rejects a non-finite command and keeps the last one
                     self.rejected_samples += 1
-        bands = self._band
-        tau = self.tau_s
-        lagged = False
-        if last is None:
-            self._start(rpm, cmd)
-        elif tau <= 0.0:
-            fmax, k_f = self.thrust_max_n, self.k_f
-            for i in range(4):
-                c = cmd[i]
-                c = 0.0 if c < 0.0 else c            # min(max(c, 0), f_max), written out
-                c = fmax if fmax < c else c
-                bands[i] = [math.sqrt(c / k_f)]
-        else:
-            dt = t - last
-            if dt != self._decay_dt:            # the period is usually constant: exp once
-                self._decay_dt = dt
-                self._decay = [math.exp(-dt / tau_j) for tau_j in self._taus]
-            lagged = True
+            self._cmd = cmd_t = tuple(cmd)
+            c0, c1, c2, c3 = cmd_t
         self._last_time = t
-
-        k, cap = self.k, self.z_cap
-        sig2 = self.sigma_rpm ** 2
-        s_his, s_los, zs, rpms, resid, var = (self._s_hi, self._s_lo, self._z, self._rpm,
-                                              self._resid, self._var)
-        k_f = self.k_f
-        sqrt = math.sqrt
-        if lagged:
-            fmax = self.thrust_max_n
-            e0, e1, e2, e3, e4 = self._decay
-            e44 = e4 * e4
-        for i in range(4):
-            r = rpm[i]
-            if lagged:   # the lag solution with the command held
-                c = cmd[i]
-                c = 0.0 if c < 0.0 else c
-                c = sqrt((fmax if fmax < c else c) / k_f)
-                w0, w1, w2, w3, w4 = bands[i]
-                band = bands[i] = [c + (w0 - c) * e0, c + (w1 - c) * e1, c + (w2 - c) * e2,
-                                   c + (w3 - c) * e3, c + (w4 - c) * e4]
-                var[i] *= e44                   # the slowest model forgets slowest
+        if self.tau_s <= 0.0:           # no lag: the speed is the command's, every tick
+            top = self._rotors(self, r0, r1, r2, r3, c0, c1, c2, c3)
+        else:
+            decay = None
+            if last is None:
+                self._start((r0, r1, r2, r3), (c0, c1, c2, c3))
             else:
-                band = bands[i]
-            if r != r:                          # NaN: skipped (counted)
-                self.rejected_samples += 1
-                continue
-            lo, hi = min(band), max(band)
-            pad = BAND_PAD * (hi - lo)
-            # min/max of two written out (same results, NaN included): runs 4× a tick.
-            wm = r * RPM_TO_RADPS
-            w = lo - pad
-            w = w if w > wm else wm
-            lim = hi + pad
-            w = lim if lim < w else w                # nearest speed in the band
-            z = (r - w * RADPS_TO_RPM) / sqrt(sig2 + var[i])
-            zc = -cap if -cap > z else z
-            zc = cap if cap < zc else zc
-            s_hi = s_his[i] + zc - k
-            s_his[i] = s_hi if s_hi > 0.0 else 0.0
-            s_lo = s_los[i] - zc - k
-            s_los[i] = s_lo if s_lo > 0.0 else 0.0
-            zs[i] = z
-            rpms[i] = r
-            resid[i] = k_f * (wm * wm - w * w)
+                dt = t - last
+                decay = self._decays.get(dt)
+                if decay is None:
+                    if len(self._decays) >= 1024:   # a clock with many distinct periods
+                        self._decays.clear()
+                    decay = self._decays[dt] = tuple(math.exp(-dt / tau_j)
+                                                     for tau_j in self._taus)
+            top = self._rotors(self, r0, r1, r2, r3, c0, c1, c2, c3, decay)
 
         alarm = False
         released = False
         d = self.detected_rotor
         if self.config.enabled:
-            # The largest statistic among the rotors that may alarm: the isolation (which
-            # rotor, ties by |z| then the higher number) only when it reaches h. Statistics
-            # are ≥ 0, so the latched rotor is left out as a 0.
-            a0, a1, a2, a3 = s_his
-            b0, b1, b2, b3 = s_los
-            m = [a0 if a0 > b0 else b0, a1 if a1 > b1 else b1, a2 if a2 > b2 else b2,
-                 a3 if a3 > b3 else b3]
-            if d:
-                m[d - 1] = 0.0
-            if max(m) >= self.h * (1.0 - _ALARM_TOL):
+            if top >= self._h_alarm:
                 if d:
                     self.moves += 1             # the attacker moved
+                s_his, s_los, zs = self._s_hi, self._s_lo, self._z
                 _, _, rotor = max((max(s_his[i], s_los[i]), abs(zs[i]), i + 1)
                                   for i in range(4) if i + 1 != d)
                 self._latch(rotor, t)
                 alarm = True
             elif d:
-                self._obey = self._obey + 1 if abs(zs[d - 1]) < k else 0
+                self._obey = self._obey + 1 if abs(self._z[d - 1]) < self.k else 0
                 if self._obey >= RELEASE_TICKS:             # it follows its commands again
                     self.releases += 1
                     self.detected_rotor = 0
                     self.estimate_n = math.nan
-                    self._s_hi = [0.0] * 4
-                    self._s_lo = [0.0] * 4
+                    self._s_hi = self._s_lo = _ZERO4
                     released = True
         if self.detected_rotor:
-            w = max(rpms[self.detected_rotor - 1], 0.0) * RPM_TO_RADPS
-            self.estimate_n = min(k_f * w * w, self.thrust_max_n)
+            w = max(self._rpm[self.detected_rotor - 1], 0.0) * RPM_TO_RADPS
+            self.estimate_n = min(self.k_f * w * w, self.thrust_max_n)
         return self._reissue(alarm, released)
 
     def _latch(self, rotor: int, t: float) -> None:
         self.detected_rotor = rotor
         self.detection_time_s = t
         self._obey = 0
-        self._s_hi = [0.0] * 4      # a fresh start: the old rotor's evidence is spent
-        self._s_lo = [0.0] * 4
+        self._s_hi = self._s_lo = _ZERO4   # a fresh start: the old rotor's evidence is spent
 
     def _reissue(self, alarm: bool, released: bool = False) -> DetectorOutput:
         h0, h1, h2, h3 = self._s_hi
         l0, l1, l2, l3 = self._s_lo
         cusum = (h0 if h0 >= l0 else -l0, h1 if h1 >= l1 else -l1,
                  h2 if h2 >= l2 else -l2, h3 if h3 >= l3 else -l3)
-        self._out = out = DetectorOutput(self.detected_rotor, self.estimate_n,
-                                         tuple(self._resid), cusum, self.detection_time_s,
-                                         alarm, self.rejected_samples, released)
+        self._out = out = DetectorOutput(self.detected_rotor, self.estimate_n, self._resid,
+                                         cusum, self.detection_time_s, alarm,
+                                         self.rejected_samples, released)
         return out
 
     @property
     def output(self) -> DetectorOutput:
         """The latest verdict (what :meth:`update` last returned)."""
         return self._out
+
+
+# ---------------------------------------------------------------------- the rotors' tick
+# One rotor's tick; ``{i}`` is the rotor (0-3). Expanded for the four rotors into one function
+# on first use: straight-line float code on locals (no per-rotor loop, list or index on the hot
+# path), the constants as literals. min/max and the clamps are written as the comparisons
+# the builtins make (the same results).
+_PROPAGATE = """\
+    if lagged:      # the lag solution with the command held
+        c = c{i}
+        c = 0.0 if c < 0.0 else c
+        c = sqrt((fmax if fmax < c else c) / k_f)
+        w{i}_0 = c + (w{i}_0 - c) * e0
+        w{i}_1 = c + (w{i}_1 - c) * e1
+        w{i}_2 = c + (w{i}_2 - c) * e2
+        w{i}_3 = c + (w{i}_3 - c) * e3
+        w{i}_4 = c + (w{i}_4 - c) * e4
+        v{i} *= e44                     # the slowest model forgets slowest
+"""
+_NEAREST_IN_BAND = """\
+        lo = w{i}_0
+        lo = w{i}_1 if w{i}_1 < lo else lo
+        lo = w{i}_2 if w{i}_2 < lo else lo
+        lo = w{i}_3 if w{i}_3 < lo else lo
+        lo = w{i}_4 if w{i}_4 < lo else lo
+        hi = w{i}_0
+        hi = w{i}_1 if w{i}_1 > hi else hi
+        hi = w{i}_2 if w{i}_2 > hi else hi
+        hi = w{i}_3 if w{i}_3 > hi else hi
+        hi = w{i}_4 if w{i}_4 > hi else hi
+        pad = {BAND_PAD!r} * (hi - lo)
+        wm = r{i} * {RPM_TO_RADPS!r}
+        w = lo - pad
+        w = w if w > wm else wm
+        lim = hi + pad
+        w = lim if lim < w else w       # nearest speed in the band
+        z = (r{i} - w * {RADPS_TO_RPM!r}) / sqrt(sig2 + v{i})
+"""
+# Without lag the band is the command's speed alone (lo = hi, no pad: nearest is that speed)
+# and the start's variance stays 0: its std is sqrt(σ² + 0), once.
+_INSTANT = """\
+        c = c{i}
+        c = 0.0 if c < 0.0 else c
+        w = sqrt((fmax if fmax < c else c) / k_f)
+        wm = r{i} * {RPM_TO_RADPS!r}
+        z = (r{i} - w * {RADPS_TO_RPM!r}) / sd
+"""
+_CUSUM = """\
+        zc = ncap if ncap > z else z
+        zc = cap if cap < zc else zc
+        s = h{i} + zc - k
+        h{i} = s if s > 0.0 else 0.0
+        s = l{i} - zc - k
+        l{i} = s if s > 0.0 else 0.0
+        z{i} = z
+        m{i} = r{i}
+        q{i} = k_f * (wm * wm - w * w)
+"""
+_SKIP_NAN = """\
+    if r{i} != r{i}:                    # NaN: skipped (counted)
+        self.rejected_samples += 1
+    else:
+"""
+
+
+def _four(fmt: str, sep: str = ", ") -> str:
+    return sep.join(fmt.format(i=i) for i in range(4))
+
+
+_STATE = ("_s_hi", "h"), ("_s_lo", "l"), ("_z", "z"), ("_rpm", "m"), ("_resid", "q")
+_TOP = f"""\
+{_four("    x{i} = h{i} if h{i} > l{i} else l{i}", chr(10))}
+    d = self.detected_rotor
+    if d:
+{_four("        x{i} = 0.0 if d == {i} + 1 else x{i}", chr(10))}
+    top = x0
+{"".join(f"    top = x{i} if x{i} > top else top{chr(10)}" for i in range(1, 4))}\
+    return top
+"""
+
+
+def _rotors_source(lagged: bool) -> str:
+    """The source of ``_rotors_lagged(det, r0…r3, c0…c3, decay) -> top`` (``decay``: the
+    models' exp(−dt/τ_j), None on the first tick) or ``_rotors_instant(det, r0…r3, c0…c3)
+    -> top``: the four rotors' tick on ``det``'s state, returning the largest statistic
+    among the rotors that may alarm (the latched rotor left out as a 0: statistics are
+    ≥ 0)."""
+    consts = {"BAND_PAD": BAND_PAD, "RPM_TO_RADPS": RPM_TO_RADPS,
+              "RADPS_TO_RPM": RADPS_TO_RPM}
+    state = list(_STATE)
+    if lagged:
+        band = ", ".join(f"w{i}_{j}" for i in range(4) for j in range(N_MODELS))
+        state += [("_var", "v")]
+        head = f"""\
+def _rotors_lagged(self, r0, r1, r2, r3, c0, c1, c2, c3, decay):
+    {band} = self._band
+    sig2 = self._sig2
+    lagged = decay is not None
+    if lagged:
+        fmax = self.thrust_max_n
+        e0, e1, e2, e3, e4 = decay
+        e44 = e4 * e4
+"""
+        rotor = _PROPAGATE + _SKIP_NAN + _NEAREST_IN_BAND + _CUSUM
+        tail = f"    self._band = ({band})\n"
+    else:
+        head = """\
+def _rotors_instant(self, r0, r1, r2, r3, c0, c1, c2, c3):
+    fmax = self.thrust_max_n
+    sd = self._sd0
+"""
+        rotor = _SKIP_NAN + _INSTANT + _CUSUM
+        tail = ""
+    loads = "".join(f"    {_four(v + '{i}')} = self.{attr}\n" for attr, v in state)
+    stores = "".join(f"    self.{attr} = ({_four(v + '{i}')})\n" for attr, v in state)
+    return (head + loads + """\
+    k = self.k
+    cap = self.z_cap
+    ncap = -cap
+    k_f = self.k_f
+""" + "".join(rotor.format(i=i, **consts) for i in range(4)) + tail + stores + _TOP)
+
+
+_KERNELS: dict[bool, Callable[..., float]] = {}
+
+
+def _kernel(lagged: bool) -> Callable[..., float]:
+    """The compiled kernel, built on first use (a process flies one kind: ~2 ms each)."""
+    fn = _KERNELS.get(lagged)
+    if fn is None:
+        src = _rotors_source(lagged)
+        name = f"<tfl_mav.control.detector._rotors_{'lagged' if lagged else 'instant'}>"
+        linecache.cache[name] = (len(src), None, src.splitlines(True), name)  # tracebacks
+        scope: dict[str, Any] = {"sqrt": math.sqrt}
+        exec(compile(src, name, "exec"), scope)  # our own template
+        fn = _KERNELS[lagged] = scope[name[len("<tfl_mav.control.detector."):-1]]
+    return fn
