@@ -125,7 +125,12 @@ def test_fused_source_holds_no_scenario_text():
         distance rel cond inv speed udd pdot qdot ix iy iz y v pc qc rc mass uf duf x13 x14
         min_thrust_n max_cond speed_mps k_xi k_eta _use_dob d_p d_q _ixyz _expansion
         _lam_prev _sigma5 _arc_m min_tube_margin _arc _isfinite _atan2 _sin _cos _tan _exp
-        _log _sqrt _atan _tanh _pow _abs e"""))
+        _log _sqrt _atan _tanh _pow _abs e
+        or True tau_p tau_q tau_r xi eta frame lag_inverter attack_estimate_n a_n d _d
+        _alloc_att _alloc_nom _yaw_tau_r k_yaw _inv_perm i0 i1 i2 i3 raw f mode _ATTACKED
+        _NOMINAL _saturate _last_out sat saturation_count _perm p0 p1 p2 p3 applied_uf d0 d1 d2
+        d3 pp pq _pred dt _use_switch fine _hypot settle_alpha settle_time_s settled
+        _settled_s _set_gains _mu2 iz_ arm_ den _new _ControlOutput"""))
     names = re.compile(r"[mgtq]_\d+|q[wxyz]|r[012][012]|[xyz]\d|[xyz][xyz]|v[xyz]|b[123][xyz]"
                        r"|k[xe]\d|cp\d+")
     code = re.sub(r"#.*", "", src)       # the template's comments

@@ -44,16 +44,22 @@ from tfl_mav.control.compiled import (
 )
 from tfl_mav.control.jetcode import Sym, _text
 from tfl_mav.control.kernelgen import compile_source, trace_block
+from tfl_mav.control.allocation import allocate_attacked, allocate_nominal
 from tfl_mav.control.law_math import (
+    attacked_tau_r,
     b0_inverse,
     cofactors,
     cramer,
     linear_rhs,
     output_rows,
+    rate_prediction,
     rotation,
+    saturate,
     torques,
+    yaw_tau_r,
 )
-from tfl_mav.control.law_types import ModelParams
+from tfl_mav.control.law_types import ControlOutput, ModelParams
+from tfl_mav.modes import Mode
 
 __all__ = ["FusedTick", "build_fused"]
 
@@ -152,11 +158,10 @@ def _after_projection(model: ModelParams, trace_sigma: Callable[..., list[Any]],
         "ix, iy, iz = ctl._ixyz")
     ixyz = [tape.input(n) for n in ("ix", "iy", "iz")]
     tau_p, tau_q = torques(pdot, qdot, pc, qc, rc, *ixyz, model.k_r)
-    xi = f"(({', '.join(t(v) for v in a[0:4])}), ({', '.join(t(v) for v in a[5:9])}))"
-    raw("trk._arc_m = arc", "trk._lam_prev = lam0", "trk.lam = lam", "trk._expansion = (lam, c)",
-        f"return ({t(udd)}, {t(qdot)}, {t(tau_p)}, {t(tau_q)}, cond, {xi}, "
-        f"(arc, {t(p1)}, {t(p2)}, {t(p3)}), lam, {t(distance)}, psi, (r20, r21, r22), rates, "
-        "pc, qc, rc, mass)")
+    raw(f"tau_p = {t(tau_p)}", f"tau_q = {t(tau_q)}",
+        f"xi = (({', '.join(t(v) for v in a[0:4])}), ({', '.join(t(v) for v in a[5:9])}))",
+        f"eta = (arc, {t(p1)}, {t(p2)}, {t(p3)})",
+        "trk._arc_m = arc", "trk._lam_prev = lam0", "trk.lam = lam", "trk._expansion = (lam, c)")
     return []
 
 
@@ -214,6 +219,7 @@ def build_fused(model: ModelParams, kernels: PathKernels) -> FusedTick:
         "cp = prev[1] if fresh else trk._sigma5((lam0,))",
         *(ln[4:] for ln in after),
     ]
+    tail = _tail(model, block)
     bail = ("return (None, y, v, psi, (r20, r21, r22), rates, (b1x, b1y, b1z), (b2x, b2y, b2z), "
             "(b3x, b3y, b3z), pc, qc, rc, mass)")
     source = "\n".join([
@@ -242,7 +248,79 @@ def build_fused(model: ModelParams, kernels: PathKernels) -> FusedTick:
         *(f"        {ln.replace('return None', bail)}" for ln in middle),
         "    except (ValueError, ZeroDivisionError, OverflowError):",
         f"        {bail}",
+        *tail,
     ]) + "\n"
-    fn = compile_source("fused_tick", source, {"_isfinite": math.isfinite, "_arc": _arc,
-                                               "_atan2": math.atan2, "_ndarray": np.ndarray})
+    fn = compile_source("fused_tick", source, {
+        "_isfinite": math.isfinite, "_arc": _arc, "_atan2": math.atan2, "_hypot": math.hypot,
+        "_ndarray": np.ndarray, "_alloc_att": allocate_attacked, "_alloc_nom": allocate_nominal,
+        "_yaw_tau_r": yaw_tau_r, "_saturate": saturate, "_new": tuple.__new__,
+        "_ControlOutput": ControlOutput, "_NOMINAL": Mode.NOMINAL, "_ATTACKED": Mode.ATTACKED})
     return FusedTick(fn, source, n_ops, time.perf_counter() - t0)
+
+
+def _tail(model: ModelParams, block: Callable[..., list[str]]) -> list[str]:
+    """The tick after the torques, as :meth:`law.TFLController.update` runs it on a tick
+    without fallback: allocation ((4), (6) and the yaw loop), saturation and the ṗ, q̇
+    prediction, the extension (9), the gain switch, the output record. With motor lag the
+    function returns the middle's numbers and the law's own steps run the tail."""
+    arm, kr, fmax = model.arm_m, model.k_r, model.thrust_max_n
+    tau_r = block("a_", [["uf", "tau_p", "a_n", "d"]],
+                  lambda g: [attacked_tau_r(g[0], g[1], g[2], arm, g[3])], ["tau_r"], " " * 8)
+    pred = block("p_", [["d0", "d1", "d2", "d3", "pc", "qc", "rc", "ix", "iy", "iz"]],
+                 lambda g: rate_prediction(*g, kr, arm), ["pp", "pq"])
+    return [
+        "    # The tail: law.TFLController.update after the middle (motor lag: the law's).",
+        "    if ctl.lag_inverter is not None:",
+        "        return (udd, qdot, tau_p, tau_q, cond, xi, eta, lam, distance, psi,"
+        " (r20, r21, r22), rates, pc, qc, rc, mass)",
+        "    frame = ctl.frame",
+        "    d = ctl._d",
+        "    if frame is not None:",
+        "        a_n = ctl.attack_estimate_n",
+        *tau_r,
+        f"        raw = _alloc_att(uf, tau_q, tau_r, a_n, {arm!r}, d)",
+        f"        f = _alloc_att(uf, tau_q, tau_r, a_n, {arm!r}, d, {fmax!r}, None)",
+        "        i0, i1, i2, i3 = ctl._inv_perm",
+        "        if i0:",
+        "            f = [f[i0], f[i1], f[i2], f[i3]]",
+        "            raw = [raw[i0], raw[i1], raw[i2], raw[i3]]",
+        "        mode = _ATTACKED",
+        "    else:",
+        "        tau_r = _yaw_tau_r((r20, r21, r22), psi, ctl.psi_ref, pc, qc, rc, qdot, ctl.k_yaw,"
+        f" (ix, iy, iz), {kr!r})",
+        f"        raw = _alloc_nom(uf, tau_p, tau_q, tau_r, {arm!r}, d)",
+        f"        f = _alloc_nom(uf, tau_p, tau_q, tau_r, {arm!r}, d, {fmax!r}, None)",
+        "        mode = _NOMINAL",
+        "    # law.TFLController._saturate_and_apply",
+        f"    f, sat = _saturate(f, raw, ctl._last_out, {fmax!r})",
+        "    p0, p1, p2, p3 = ctl._perm",
+        "    if frame is not None:",
+        "        f[p1] = a_n",
+        "    if sat[0] or sat[1] or sat[2] or sat[3]:",
+        "        ctl.saturation_count += 1",
+        "    applied_uf = f[0] + f[1] + f[2] + f[3]",
+        "    d0, d1, d2, d3 = f[p0], f[p1], f[p2], f[p3]",
+        *pred,
+        "    ctl._pred = (pp, pq)",
+        "    ctl._last_out = f",
+        "    # law.TFLController._advance_extension, _settle",
+        "    dt = ctl.dt",
+        "    x13, x14 = uf, duf",
+        "    if abs(applied_uf - uf) > 1e-9:",
+        "        x13 = applied_uf",
+        "        if (applied_uf - uf) * duf < 0:",
+        "            x14 = 0.0",
+        "    ctl.x13 = x13 + (dt * x14 + 0.5 * dt * dt * udd)",
+        "    ctl.x14 = x14 + dt * udd",
+        "    if ctl._use_switch and not ctl.fine:",
+        "        settled = ctl._settled_s + dt if _hypot(xi[0][0], xi[1][0]) < cfg.settle_alpha"
+        " else 0.0",
+        "        ctl._settled_s = settled",
+        "        if settled >= cfg.settle_time_s:",
+        "            ctl._set_gains(fine=True)",
+        "    iz_, arm_, den = ctl._mu2",
+        "    dob = ctl.dob",
+        "    return _new(_ControlOutput, (f, mode, sat, xi, eta,"
+        " (psi, -rates[0] / iz_ - arm_ * rates[2] / den), distance, lam, cond, uf, mass,"
+        " (dob.d_p, dob.d_q), ctl.fine, ''))",
+    ]
