@@ -42,6 +42,14 @@ from tfl_mav.control.compiled import (
     trace_pi,
     traced_sqrt,
 )
+from tfl_mav.control.estimators import (
+    MassEstimator,
+    RateDisturbanceObserver,
+    clamp,
+    dob_step,
+    mass_blend,
+    mass_filters,
+)
 from tfl_mav.control.jetcode import Sym, _text
 from tfl_mav.control.kernelgen import compile_source, trace_block
 from tfl_mav.control.allocation import allocate_attacked, allocate_nominal
@@ -165,8 +173,12 @@ def _after_projection(model: ModelParams, trace_sigma: Callable[..., list[Any]],
     return []
 
 
-def build_fused(model: ModelParams, kernels: PathKernels) -> FusedTick:
-    """Generate the fused tick for ``model`` and the path of ``kernels``."""
+def build_fused(model: ModelParams, kernels: PathKernels, *, dt_s: float | None = None,
+                mass_est: MassEstimator | None = None,
+                dob: RateDisturbanceObserver | None = None) -> FusedTick:
+    """Generate the fused tick for ``model`` and the path of ``kernels``; with the period
+    and the law's estimators (their constants fold in) their updates are generated too,
+    else the tick calls the law's."""
     t0 = time.perf_counter()
     assert kernels.trace_sigma is not None and kernels.trace_s is not None
     trace_sigma, trace_s = kernels.trace_sigma, kernels.trace_s
@@ -242,7 +254,9 @@ def build_fused(model: ModelParams, kernels: PathKernels) -> FusedTick:
         "    b2x, b2y, b2z = s2 * col[0], s2 * col[1], s2 * col[2]",
         "    b3x, b3y, b3z = r02, r12, r22",
         "    pc, qc, rc = s1 * rates[m1], s2 * rates[m2], rates[2]",
-        "    mass = ctl._update_estimators(v, (b3x, b3y, b3z), pc, qc)",
+        *(_estimators(block, dt_s, mass_est, dob) if dt_s is not None and mass_est is not None
+          and dob is not None else
+          ["    mass = ctl._update_estimators(v, (b3x, b3y, b3z), pc, qc)"]),
         "    # The middle; on any bail the step-by-step tick takes over from here.",
         "    try:",
         *(f"        {ln.replace('return None', bail)}" for ln in middle),
@@ -254,8 +268,65 @@ def build_fused(model: ModelParams, kernels: PathKernels) -> FusedTick:
         "_isfinite": math.isfinite, "_arc": _arc, "_atan2": math.atan2, "_hypot": math.hypot,
         "_ndarray": np.ndarray, "_alloc_att": allocate_attacked, "_alloc_nom": allocate_nominal,
         "_yaw_tau_r": yaw_tau_r, "_saturate": saturate, "_new": tuple.__new__,
-        "_ControlOutput": ControlOutput, "_NOMINAL": Mode.NOMINAL, "_ATTACKED": Mode.ATTACKED})
+        "_ControlOutput": ControlOutput, "_clamp": clamp, "_inf": math.inf, "_NOMINAL": Mode.NOMINAL, "_ATTACKED": Mode.ATTACKED})
     return FusedTick(fn, source, n_ops, time.perf_counter() - t0)
+
+
+def _estimators(block: Callable[..., list[str]], dt: float, me: MassEstimator,
+                dob: RateDisturbanceObserver) -> list[str]:
+    """law.TFLController._update_estimators with the estimators' arithmetic traced (their
+    constants folded) and their state read and written once."""
+    filters = block("e_", [["vx", "vy", "vz"], ["thrust"], ["b3x", "b3y", "b3z"],
+                           ["lx", "ly", "lz"], ["phx", "phy", "phz"]],
+                    lambda v, f, b3, vlp, phi: list(mass_filters(
+                        dt, me.accel_tau_s, me.k_t, me.g, v, f[0], b3, vlp, phi)),
+                    ["nlx", "nly", "nlz", "npx", "npy", "npz", "num", "den"], " " * 12)
+    blend = block("h_", [["mass", "m_inst"]],
+                  lambda g: [mass_blend(g[0], g[1], dt, me.ratio_tau_s)], ["blend"], " " * 20)
+    a = dt / (dob.tau_s + dt)
+    steps = block("o_", [["dp", "dq", "pc", "qc", "rp", "rq", "pp", "pq"]],
+                  lambda g: [dob_step(g[0], g[2], g[4], g[6], dt, a),
+                             dob_step(g[1], g[3], g[5], g[7], dt, a)], ["ndp", "ndq"], " " * 16)
+    lo, hi, lim = me.lo, me.hi, dob.limit
+    return [
+        "    # law.TFLController._update_estimators (estimators.MassEstimator.update, "
+        "RateDisturbanceObserver.update)",
+        "    if ctl._use_mass:",
+        "        me = ctl.mass_est",
+        "        lo_ = ctl._last_out",
+        "        thrust = lo_[0] + lo_[1] + lo_[2] + lo_[3]",
+        "        if me._v_lp is None:",
+        f"            ctl.mass_kg = me.update({dt!r}, v, thrust, (b3x, b3y, b3z))",
+        "        else:",
+        "            vx, vy, vz = v",
+        "            lx, ly, lz = me._v_lp",
+        "            phx, phy, phz = me._phi_lp",
+        *filters,
+        "            me._v_lp = (nlx, nly, nlz)",
+        "            me._phi_lp = (npx, npy, npz)",
+        f"            if {me._min_den!r} <= den < _inf:",
+        "                m_inst = num / den",
+        "                mass = me.mass_kg",
+        "                if -_inf < m_inst < _inf:",
+        *blend,
+        f"                    me.mass_kg = _clamp(blend, {lo!r}, {hi!r})",
+        "                    me.updates += 1",
+        "            ctl.mass_kg = me.mass_kg",
+        "    mass = ctl.mass_kg",
+        "    if ctl._use_dob:",
+        "        pred = ctl._pred",
+        "        if pred is not None:",
+        "            dob = ctl.dob",
+        "            rprev = dob._prev",
+        "            dob._prev = (pc, qc)",
+        "            if rprev is not None:",
+        "                pp, pq = pred",
+        "                rp, rq = rprev",
+        "                dp, dq = dob.d_p, dob.d_q",
+        *steps,
+        f"                dob.d_p = _clamp(ndp, {-lim!r}, {lim!r})",
+        f"                dob.d_q = _clamp(ndq, {-lim!r}, {lim!r})",
+    ]
 
 
 def _tail(model: ModelParams, block: Callable[..., list[str]]) -> list[str]:

@@ -95,15 +95,6 @@ class TFLController:
         self.cfg = cfg
         self.dt = dt_s
         self.tracker, self.path_eval = make_tracker(path, compiled_path)
-        # The generated tick (:mod:`fused`), made for this tracker only.
-        self._fused_for: PathTracker | None = None
-        self._fused: Callable[..., tuple[Any, ...]] | None = None
-        if type(self.tracker) is CompiledPathTracker:
-            try:
-                self._fused = build_fused(model, self.tracker.kernels).fn
-                self._fused_for = self.tracker
-            except (TraceError, ArithmeticError, ValueError):
-                pass
         self.mass_kg = model.mass_kg
         self.x13 = model.mass_kg * model.gravity_mps2   # u_f
         self.x14 = 0.0                                  # u̇_f
@@ -129,6 +120,16 @@ class TFLController:
         self._use_switch = cfg.robust and cfg.gain_switch
         self._set_frame(None)
         self._set_gains(fine=False)
+        # The generated tick (:mod:`fused`), made for this tracker only.
+        self._fused_for: PathTracker | None = None
+        self._fused: Callable[..., tuple[Any, ...]] | None = None
+        if type(self.tracker) is CompiledPathTracker:
+            try:
+                self._fused = build_fused(model, self.tracker.kernels, dt_s=dt_s,
+                                          mass_est=self.mass_est, dob=self.dob).fn
+                self._fused_for = self.tracker
+            except (TraceError, ArithmeticError, ValueError):
+                pass
 
     # ------------------------------------------------------------------ configuration
     def _set_gains(self, fine: bool) -> None:
