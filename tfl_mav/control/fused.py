@@ -34,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from tfl_mav.control.allocation import allocate_attacked, allocate_nominal
 from tfl_mav.control.compiled import (
     _NEWTON_ITERS,
     Y_NAMES,
@@ -52,7 +53,6 @@ from tfl_mav.control.estimators import (
 )
 from tfl_mav.control.jetcode import Sym, _text
 from tfl_mav.control.kernelgen import compile_source, trace_block
-from tfl_mav.control.allocation import allocate_attacked, allocate_nominal
 from tfl_mav.control.law_math import (
     attacked_tau_r,
     b0_inverse,
@@ -136,7 +136,7 @@ def _after_projection(model: ModelParams, trace_sigma: Callable[..., list[Any]],
     slope = -s1sq + 2.0 * (e0x * c[6] + e0y * c[7] + e0z * c[8])
     raw(f"if not ({t(s1sq)} > 0.0 and -{t(slope)} / {t(s1sq)} >= trk.min_tube_margin):",
         "    return None")
-    distance = local("distance", traced_sqrt(e0x ** 2 + e0y ** 2 + e0z ** 2))
+    local("distance", traced_sqrt(e0x ** 2 + e0y ** 2 + e0z ** 2))
     p1, p2, p3, p4 = trace_pi(c, x, y, z, [slope])
     a = trace_s(x, y, z)
     k = traced_sqrt(s1sq) / -slope
@@ -268,7 +268,8 @@ def build_fused(model: ModelParams, kernels: PathKernels, *, dt_s: float | None 
         "_isfinite": math.isfinite, "_arc": _arc, "_atan2": math.atan2, "_hypot": math.hypot,
         "_ndarray": np.ndarray, "_alloc_att": allocate_attacked, "_alloc_nom": allocate_nominal,
         "_yaw_tau_r": yaw_tau_r, "_saturate": saturate, "_new": tuple.__new__,
-        "_ControlOutput": ControlOutput, "_clamp": clamp, "_inf": math.inf, "_NOMINAL": Mode.NOMINAL, "_ATTACKED": Mode.ATTACKED})
+        "_ControlOutput": ControlOutput, "_clamp": clamp, "_inf": math.inf,
+        "_NOMINAL": Mode.NOMINAL, "_ATTACKED": Mode.ATTACKED})
     return FusedTick(fn, source, n_ops, time.perf_counter() - t0)
 
 
