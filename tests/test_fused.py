@@ -133,7 +133,7 @@ def test_fused_source_holds_no_scenario_text():
         _settled_s _set_gains _mu2 iz_ arm_ den _new _ControlOutput _use_mass me mass_est lo_
         thrust _v_lp update _phi_lp nlx nly nlz npx npy npz num _inf m_inst _clamp blend
         mass_kg updates pred rprev _prev pp pq rp rq dp dq ndp ndq lx ly lz phx phy phz"""))
-    names = re.compile(r"[mgtq]_\d+|q[wxyz]|r[012][012]|[xyz]\d|[xyz][xyz]|v[xyz]|b[123][xyz]"
+    names = re.compile(r"[mgtqw]_\d+|q[wxyz]|r[012][012]|[xyz]\d|[xyz][xyz]|v[xyz]|b[123][xyz]"
                        r"|k[xe]\d|cp\d+")
     code = re.sub(r"#.*", "", src)       # the template's comments
     for word in re.findall(r"[A-Za-z_][A-Za-z_0-9]*", code):

@@ -52,7 +52,7 @@ from tfl_mav.control.estimators import (
     mass_filters,
 )
 from tfl_mav.control.jetcode import Sym, _text
-from tfl_mav.control.kernelgen import compile_source, trace_block
+from tfl_mav.control.kernelgen import compile_source, reuse_slots, trace_block
 from tfl_mav.control.law_math import (
     attacked_tau_r,
     b0_inverse,
@@ -264,6 +264,7 @@ def build_fused(model: ModelParams, kernels: PathKernels, *, dt_s: float | None 
         f"        {bail}",
         *tail,
     ]) + "\n"
+    source = reuse_slots(source)
     fn = compile_source("fused_tick", source, {
         "_isfinite": math.isfinite, "_arc": _arc, "_atan2": math.atan2, "_hypot": math.hypot,
         "_ndarray": np.ndarray, "_alloc_att": allocate_attacked, "_alloc_nom": allocate_nominal,

@@ -18,7 +18,8 @@ from typing import Any
 
 from tfl_mav.control.jetcode import _FUNCS, RAW, Tape, _text
 
-__all__ = ["KERNEL_GLOBALS", "Kernel", "compile_kernel", "compile_source", "trace_block"]
+__all__ = ["KERNEL_GLOBALS", "Kernel", "compile_kernel", "compile_source", "reuse_slots",
+           "trace_block"]
 
 #: The names generated code may call: the whitelisted math functions, ``_sin`` etc.
 KERNEL_GLOBALS: dict[str, Callable[..., float]] = {f"_{k}": v for k, v in _FUNCS.items()}
@@ -102,6 +103,54 @@ def _inline_single_use(lines: Sequence[str], outputs: Sequence[str], prefix: str
         else:
             out_lines.append(f"    {name} = {expr}")
     return out_lines, [subst(o) for o in outputs]
+
+
+_TEMP = re.compile(r"\b[a-z]_\d+\b")
+
+
+def reuse_slots(source: str, slot: str = "w_") -> str:
+    """``source`` with its temporaries (``x_123``) renamed onto as few locals as their live
+    ranges allow (``slot`` + a number): the same operations on the same values, but a
+    frame of a few dozen locals instead of hundreds, which CPython zeroes and clears on
+    every call and addresses with an extra EXTENDED_ARG instruction beyond 256.
+
+    Live ranges are textual (first line to last line naming the temporary); one that
+    enters a ``for`` loop from before it lives to the loop's end (its next iteration
+    reads it again). Straight-line code and ``if`` blocks need nothing more."""
+    lines = source.split("\n")
+    first: dict[str, int] = {}
+    last: dict[str, int] = {}
+    for i, line in enumerate(lines):
+        for tok in _TEMP.findall(line):
+            first.setdefault(tok, i)
+            last[tok] = i
+    loops = []
+    for i, line in enumerate(lines):
+        if line.lstrip().startswith("for "):
+            ind = len(line) - len(line.lstrip())
+            end = next((j for j in range(i + 1, len(lines)) if lines[j].strip()
+                        and len(lines[j]) - len(lines[j].lstrip()) <= ind
+                        and not lines[j].lstrip().startswith("else:")), len(lines))
+            loops.append((i, end))
+    for tok in first:
+        for a, b in loops:
+            if first[tok] < a < last[tok] < b:
+                last[tok] = b
+    names: dict[str, str] = {}
+    free: list[str] = []
+    ending: dict[int, list[str]] = {}
+    n_slots = 0
+    for tok in sorted(first, key=first.__getitem__):
+        for line in [ln for ln in list(ending) if ln < first[tok]]:
+            free.extend(names[t] for t in ending.pop(line))
+        if free:
+            names[tok] = free.pop()
+        else:
+            names[tok] = f"{slot}{n_slots}"
+            n_slots += 1
+        ending.setdefault(last[tok], []).append(tok)
+    return "\n".join(_TEMP.sub(lambda m: names.get(m.group(0), m.group(0)), ln)
+                     for ln in lines)
 
 
 def compile_source(name: str, source: str, extra: dict[str, Any] | None = None
