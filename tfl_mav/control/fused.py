@@ -46,7 +46,6 @@ from tfl_mav.control.compiled import (
 from tfl_mav.control.estimators import (
     MassEstimator,
     RateDisturbanceObserver,
-    clamp,
     dob_step,
     mass_blend,
     mass_filters,
@@ -269,9 +268,16 @@ def build_fused(model: ModelParams, kernels: PathKernels, *, dt_s: float | None 
         "_isfinite": math.isfinite, "_arc": _arc, "_atan2": math.atan2, "_hypot": math.hypot,
         "_ndarray": np.ndarray, "_alloc_att": allocate_attacked, "_alloc_nom": allocate_nominal,
         "_yaw_tau_r": yaw_tau_r, "_saturate": saturate, "_new": tuple.__new__,
-        "_ControlOutput": ControlOutput, "_clamp": clamp, "_inf": math.inf,
+        "_ControlOutput": ControlOutput, "_inf": math.inf,
         "_NOMINAL": Mode.NOMINAL, "_ATTACKED": Mode.ATTACKED})
     return FusedTick(fn, source, n_ops, time.perf_counter() - t0)
+
+
+def _clamped(indent: str, target: str, x: str, lo: float, hi: float) -> list[str]:
+    """``target = estimators.clamp(x, lo, hi)`` for constant bounds, its two selects
+    written out (a call costs more than the selects)."""
+    return [f"{indent}{x} = {lo!r} if {lo!r} > {x} else {x}",
+            f"{indent}{target} = {hi!r} if {hi!r} < {x} else {x}"]
 
 
 def _estimators(block: Callable[..., list[str]], dt: float, me: MassEstimator,
@@ -311,7 +317,7 @@ def _estimators(block: Callable[..., list[str]], dt: float, me: MassEstimator,
         "                mass = me.mass_kg",
         "                if -_inf < m_inst < _inf:",
         *blend,
-        f"                    me.mass_kg = _clamp(blend, {lo!r}, {hi!r})",
+        *_clamped("                    ", "me.mass_kg", "blend", lo, hi),
         "                    me.updates += 1",
         "            ctl.mass_kg = me.mass_kg",
         "    mass = ctl.mass_kg",
@@ -326,8 +332,8 @@ def _estimators(block: Callable[..., list[str]], dt: float, me: MassEstimator,
         "                rp, rq = rprev",
         "                dp, dq = dob.d_p, dob.d_q",
         *steps,
-        f"                dob.d_p = _clamp(ndp, {-lim!r}, {lim!r})",
-        f"                dob.d_q = _clamp(ndq, {-lim!r}, {lim!r})",
+        *_clamped("                ", "dob.d_p", "ndp", -lim, lim),
+        *_clamped("                ", "dob.d_q", "ndq", -lim, lim),
     ]
 
 
