@@ -51,7 +51,7 @@ from tfl_mav.control.estimators import (
     mass_filters,
 )
 from tfl_mav.control.jetcode import Sym, _text
-from tfl_mav.control.kernelgen import compile_source, reuse_slots, trace_block
+from tfl_mav.control.kernelgen import compile_source, reuse_slots, trace_block, traceable
 from tfl_mav.control.law_math import (
     attacked_tau_r,
     b0_inverse,
@@ -266,7 +266,7 @@ def build_fused(model: ModelParams, kernels: PathKernels, *, dt_s: float | None 
     source = reuse_slots(source)
     fn = compile_source("fused_tick", source, {
         "_isfinite": math.isfinite, "_arc": _arc, "_atan2": math.atan2, "_hypot": math.hypot,
-        "_ndarray": np.ndarray, "_alloc_att": allocate_attacked, "_alloc_nom": allocate_nominal,
+        "_ndarray": np.ndarray, "_alloc_nom": allocate_nominal,
         "_yaw_tau_r": yaw_tau_r, "_saturate": saturate, "_new": tuple.__new__,
         "_ControlOutput": ControlOutput, "_inf": math.inf,
         "_NOMINAL": Mode.NOMINAL, "_ATTACKED": Mode.ATTACKED})
@@ -343,8 +343,17 @@ def _tail(model: ModelParams, block: Callable[..., list[str]]) -> list[str]:
     prediction, the extension (9), the gain switch, the output record. With motor lag the
     function returns the middle's numbers and the law's own steps run the tail."""
     arm, kr, fmax = model.arm_m, model.k_r, model.thrust_max_n
-    tau_r = block("a_", [["uf", "tau_p", "a_n", "d"]],
-                  lambda g: [attacked_tau_r(g[0], g[1], g[2], arm, g[3])], ["tau_r"], " " * 8)
+    alloc = traceable(allocate_attacked)
+
+    def attacked(g: list[Sym]) -> list[Any]:
+        uf, tau_p, tau_q, a_n, d, inf = g
+        tau_r = attacked_tau_r(uf, tau_p, a_n, arm, d)
+        # The unbounded thrusts (for the saturation flags) with f_max = ∞ at run time.
+        return [tau_r, *alloc(uf, tau_q, tau_r, a_n, arm, d, inf),
+                *alloc(uf, tau_q, tau_r, a_n, arm, d, fmax, None)]
+
+    att = block("a_", [["uf", "tau_p", "tau_q", "a_n", "d", "_inf"]], attacked,
+                ["tau_r", "r0", "r1", "r2", "r3", "f0", "f1", "f2", "f3"], " " * 8)
     pred = block("p_", [["d0", "d1", "d2", "d3", "pc", "qc", "rc", "ix", "iy", "iz"]],
                  lambda g: rate_prediction(*g, kr, arm), ["pp", "pq"])
     return [
@@ -356,9 +365,9 @@ def _tail(model: ModelParams, block: Callable[..., list[str]]) -> list[str]:
         "    d = ctl._d",
         "    if frame is not None:",
         "        a_n = ctl.attack_estimate_n",
-        *tau_r,
-        f"        raw = _alloc_att(uf, tau_q, tau_r, a_n, {arm!r}, d)",
-        f"        f = _alloc_att(uf, tau_q, tau_r, a_n, {arm!r}, d, {fmax!r}, None)",
+        *att,
+        "        raw = [r0, r1, r2, r3]",
+        "        f = [f0, f1, f2, f3]",
         "        i0, i1, i2, i3 = ctl._inv_perm",
         "        if i0:",
         "            f = [f[i0], f[i1], f[i2], f[i3]]",

@@ -9,17 +9,22 @@ so the same results bit for bit, with ~40 % fewer bytecodes.
 """
 
 from __future__ import annotations
+import __future__
 
+import ast
+import inspect
+import math
 import re
+import textwrap
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from tfl_mav.control.jetcode import _FUNCS, RAW, Tape, _text
+from tfl_mav.control.jetcode import _FUNCS, RAW, Sym, Tape, _text
 
 __all__ = ["KERNEL_GLOBALS", "Kernel", "compile_kernel", "compile_source", "reuse_slots",
-           "trace_block"]
+           "trace_block", "traceable"]
 
 #: The names generated code may call: the whitelisted math functions, ``_sin`` etc.
 KERNEL_GLOBALS: dict[str, Callable[..., float]] = {f"_{k}": v for k, v in _FUNCS.items()}
@@ -207,3 +212,53 @@ def trace_block(prefix: str, inputs: Sequence[Sequence[str]],
     body += [f"{indent}{name} = {expr}" for name, expr in zip(outputs, ret, strict=True)
              if name != expr]
     return body, len(tape.lines)
+
+
+_OPS = {ast.Lt: "<", ast.LtE: "<=", ast.Gt: ">", ast.GtE: ">="}
+
+
+def _operand(x: Any) -> str:
+    """Source text of a select's operand; ±inf as the generated code's ``_inf``."""
+    if type(x) is not Sym and math.isinf(x):
+        return "_inf" if x > 0 else "(-_inf)"
+    return _text(x)
+
+
+def _select(op: str, left: Any, right: Any, a: Any, b: Any) -> Any:
+    """``a if left op right else b`` on traced values: decided now for two constants, else
+    one run-time select (the same comparison, so the same choice, NaN included)."""
+    syms = [x for x in (left, right) if type(x) is Sym]
+    if not syms:
+        return a if {"<": left < right, "<=": left <= right, ">": left > right,
+                     ">=": left >= right}[op] else b
+    if _operand(a) == _operand(b):
+        return a
+    return syms[0].tape.emit(f"{_operand(a)} if {_operand(left)} {op} {_operand(right)} "
+                             f"else {_operand(b)}")
+
+
+class _Selects(ast.NodeTransformer):
+    def visit_IfExp(self, node: ast.IfExp) -> ast.AST:
+        self.generic_visit(node)
+        t = node.test
+        if (isinstance(t, ast.Compare) and len(t.ops) == 1
+                and type(t.ops[0]) in _OPS):
+            return ast.copy_location(ast.Call(
+                ast.Name("_select", ast.Load()),
+                [ast.Constant(_OPS[type(t.ops[0])]), t.left, t.comparators[0], node.body,
+                 node.orelse], []), node)
+        return node
+
+
+def traceable(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``fn`` (a plain function whose value-dependent choices are conditional expressions
+    ``a if x < y else b``) recompiled from its own source so that those choices become
+    run-time selects when it runs on traced values (:mod:`jetcode`): the one definition
+    the step-by-step law calls on floats, traced into generated code (:mod:`fused`). The
+    generated code needs ``_inf`` among its globals if a bound is infinite."""
+    tree = ast.parse(textwrap.dedent(inspect.getsource(fn)))
+    tree = ast.fix_missing_locations(_Selects().visit(tree))
+    namespace = {**fn.__globals__, "_select": _select}
+    exec(compile(tree, f"<traceable {fn.__name__}>", "exec",
+                 flags=__future__.annotations.compiler_flag, dont_inherit=True), namespace)
+    return namespace[fn.__name__]  # type: ignore[no-any-return]
