@@ -1,27 +1,33 @@
-"""The TFL law's arithmetic for one flight as one generated function (issue #13).
+"""The TFL law's tick for one flight as one generated function (issue #13).
 
 A tick of the law (paper §V) is ~1 000 floating-point operations spread over ~30 Python
 calls; the calls, tuple packs and attribute reads cost more than the arithmetic. A path and
-the model are fixed for a flight, so at start-up this module writes the tick up to the
-rotor allocation — the state as floats, R(q) and the canonical axes, the estimators (called),
-the output's Taylor rows from the model (eqs. (3), (9)), the closest-point projection
-(eq. (13), Newton warm-started as :class:`compiled.CompiledPathTracker`), π's rates and
-α = s(y) with Dφ (eqs. (8), (14), (15)), the ξ, η controllers (eqs. (23), (24)), the
-decoupling solve (eq. (21)) and the torques (eq. (3)) — as the body of one Python function:
-the straight-line pieces are traced (:mod:`jetcode`) from the very functions the
-step-by-step law and the compiled tracker run (:mod:`law_math`, :func:`tracker.pi_rates`,
-the path's σ and s), the loop and the checks are written here around them. Same operations
-in the same order, so the same numbers bit for bit. One tape holds everything after the
-Newton loop, so what the path makes constant (σ' = (1, ·, ·) on the paper path, ∂s/∂y rows
-of 0 and 1) folds through π, Dφ and Cramer's rule, and operations nothing reads are dropped.
+the model are fixed for a flight, so at start-up this module writes the tick — the state as
+floats, R(q) and the canonical axes, the estimators' updates (:mod:`estimators`), the
+output's Taylor rows from the model (eqs. (3), (9)), the closest-point projection (eq. (13),
+Newton warm-started as :class:`compiled.CompiledPathTracker`), π's rates and α = s(y) with
+Dφ (eqs. (8), (14), (15)), the ξ, η controllers (eqs. (23), (24)), the decoupling solve
+(eq. (21)), the torques (eq. (3)) and, without motor lag, the rest: rotor allocation (eqs.
+(4), (6)), saturation and the ṗ, q̇ prediction, the extension (eq. (9)), the gain switch
+and the output record — as the body of one Python function: the straight-line pieces are
+traced (:mod:`jetcode`) from the very functions the step-by-step law, the estimators and
+the compiled tracker run (:mod:`law_math`, :mod:`estimators`, :func:`tracker.pi_rates`,
+the path's σ and s; the attacked allocation from its own source through
+:func:`kernelgen.traceable`), the loop, the checks and the bookkeeping are written here
+around them. Same operations in the same order (up to exact rewrites: x/2ᵏ as x·2⁻ᵏ, a
+negation folded into a constant factor), so the same numbers bit for bit. One tape holds
+the middle after the Newton loop, so what the path makes constant (σ' = (1, ·, ·) on the
+paper path, ∂s/∂y rows of 0 and 1) folds through π, Dφ and Cramer's rule, and operations
+nothing reads are dropped; the temporaries then share locals (:func:`kernelgen.reuse_slots`).
 
 After the prelude (which the step-by-step tick would have run the same way, estimators
-included) the function changes nothing until it succeeds: every condition under which the
-law would fall back (projection lost, tube margin, u_f too small, Dφ singular or
+included) the function changes nothing until the middle succeeds: every condition under
+which the law would fall back (projection lost, tube margin, u_f too small, Dφ singular or
 ill-conditioned, a non-finite result, an evaluation error) makes it return ``(None, the
 prelude's results)``, and the law runs its step-by-step middle from there, whose fallbacks
 and reasons are unchanged. On success it commits the tracker's state (λ, the expansion, π)
-and returns the tick's numbers.
+and returns the :class:`ControlOutput` (with motor lag: the middle's numbers, and the law's
+own steps run the lag inverse and the rest).
 """
 
 from __future__ import annotations
@@ -72,9 +78,10 @@ __all__ = ["FusedTick", "build_fused"]
 
 @dataclass(frozen=True)
 class FusedTick:
-    """The generated tick: ``fn(ctl, trk, state)`` → (ü_f, q̇, τ_p, τ_q, cond Dφ, ξ rows,
-    η, λ, distance, ψ, R's last row, rates, p, q, r, mass), or (None, y, v, ψ, R's last row,
-    rates, b1, b2, b3, p, q, r, mass) for the step-by-step middle (see module doc)."""
+    """The generated tick: ``fn(ctl, trk, state)`` → the tick's :class:`ControlOutput`;
+    with motor lag (ü_f, q̇, τ_p, τ_q, cond Dφ, ξ rows, η, λ, distance, ψ, R's last row,
+    rates, p, q, r, mass) for the law's tail; or (None, y, v, ψ, R's last row, rates, b1,
+    b2, b3, p, q, r, mass) for the step-by-step middle (see module doc)."""
 
     fn: Callable[..., tuple[Any, ...] | None]
     source: str

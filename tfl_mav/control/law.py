@@ -27,8 +27,8 @@ settled on the path.
 builds the law. The path's derivatives come from :class:`compiled.CompiledPathTracker`
 (straight-line code generated at start-up; ``compiled_path=False`` flies the reference jets,
 which give the same numbers, for the benchmark and the tests). With the compiled tracker the
-steps up to the decoupling solve run as the flight's one generated function (:mod:`fused`,
-the same operations), which hands every fallback back to the steps.
+tick runs as the flight's one generated function (:mod:`fused`, the same operations; with
+motor lag up to the torques), which hands every fallback back to the steps.
 """
 
 from __future__ import annotations
