@@ -12,6 +12,8 @@ from __future__ import annotations
 import __future__
 
 import ast
+import functools
+import heapq
 import inspect
 import math
 import re
@@ -143,17 +145,17 @@ def reuse_slots(source: str, slot: str = "w_") -> str:
                 last[tok] = b
     names: dict[str, str] = {}
     free: list[str] = []
-    ending: dict[int, list[str]] = {}
+    ending: list[tuple[int, str]] = []     # heap of (last line, slot) of the live ones
     n_slots = 0
     for tok in sorted(first, key=first.__getitem__):
-        for line in [ln for ln in list(ending) if ln < first[tok]]:
-            free.extend(names[t] for t in ending.pop(line))
+        while ending and ending[0][0] < first[tok]:
+            free.append(heapq.heappop(ending)[1])
         if free:
             names[tok] = free.pop()
         else:
             names[tok] = f"{slot}{n_slots}"
             n_slots += 1
-        ending.setdefault(last[tok], []).append(tok)
+        heapq.heappush(ending, (last[tok], names[tok]))
     return "\n".join(_TEMP.sub(lambda m: names.get(m.group(0), m.group(0)), ln)
                      for ln in lines)
 
@@ -250,6 +252,7 @@ class _Selects(ast.NodeTransformer):
         return node
 
 
+@functools.cache
 def traceable(fn: Callable[..., Any]) -> Callable[..., Any]:
     """``fn`` (a plain function whose value-dependent choices are conditional expressions
     ``a if x < y else b``) recompiled from its own source so that those choices become
