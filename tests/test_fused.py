@@ -125,9 +125,40 @@ def test_fused_source_holds_no_scenario_text():
         distance rel cond inv speed udd pdot qdot ix iy iz y v pc qc rc mass uf duf x13 x14
         min_thrust_n max_cond speed_mps k_xi k_eta _use_dob d_p d_q _ixyz _expansion
         _lam_prev _sigma5 _arc_m min_tube_margin _arc _isfinite _atan2 _sin _cos _tan _exp
-        _log _sqrt _atan _tanh _pow _abs e"""))
-    names = re.compile(r"[mgtq]_\d+|q[wxyz]|r[012][012]|[xyz]\d|[xyz][xyz]|v[xyz]|b[123][xyz]"
+        _log _sqrt _atan _tanh _pow _abs e
+        or True tau_p tau_q tau_r xi eta frame lag_inverter attack_estimate_n a_n d _d
+        _alloc_att _alloc_nom _yaw_tau_r k_yaw _inv_perm i0 i1 i2 i3 raw f mode _ATTACKED
+        _NOMINAL _saturate _last_out sat saturation_count _perm p0 p1 p2 p3 applied_uf d0 d1 d2
+        d3 pp pq _pred dt _use_switch fine _hypot settle_alpha settle_time_s settled
+        _settled_s _set_gains _mu2 iz_ arm_ den _new _ControlOutput _use_mass me mass_est lo_
+        thrust _v_lp update _phi_lp nlx nly nlz npx npy npz num _inf m_inst _clamp blend
+        mass_kg updates pred rprev _prev pp pq rp rq dp dq ndp ndq lx ly lz phx phy phz
+        r0 r1 r2 r3 f0 f1 f2 f3"""))
+    names = re.compile(r"[mgtqw]_\d+|q[wxyz]|r[012][012]|[xyz]\d|[xyz][xyz]|v[xyz]|b[123][xyz]"
                        r"|k[xe]\d|cp\d+")
     code = re.sub(r"#.*", "", src)       # the template's comments
     for word in re.findall(r"[A-Za-z_][A-Za-z_0-9]*", code):
         assert word in template or names.fullmatch(word), word
+
+
+def test_traced_allocation_is_the_allocation_bit_for_bit():
+    """The attacked allocation traced from its own source (kernelgen.traceable: its
+    conditional expressions become run-time selects) gives the float function's thrusts
+    exactly, clipped or not, with the f_max = ∞ of the unbounded call at run time."""
+    import math as _m
+
+    from tfl_mav.control.allocation import allocate_attacked
+    from tfl_mav.control.kernelgen import compile_kernel, compile_source, traceable
+
+    alloc = traceable(allocate_attacked)
+    k = compile_kernel("alloc", [["uf", "tq", "tr", "a", "d", "_inf"]],
+                       lambda g: [*alloc(*g[:4], 0.2656, g[4], g[5]),
+                                  *alloc(*g[:4], 0.2656, g[4], 8.0, None)], inline=True)
+    fn = compile_source("alloc", k.source, {"_inf": _m.inf})
+    rng = random.Random(5)
+    for _ in range(2000):
+        uf, tq, tr = rng.uniform(-5, 40), rng.uniform(-3, 3), rng.uniform(-0.5, 0.5)
+        a, d = rng.choice([0.0, rng.uniform(0, 8)]), rng.choice([0.016, -0.016])
+        want = [*allocate_attacked(uf, tq, tr, a, 0.2656, d),
+                *allocate_attacked(uf, tq, tr, a, 0.2656, d, 8.0, None)]
+        assert list(fn((uf, tq, tr, a, d, _m.inf))) == want

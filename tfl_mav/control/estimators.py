@@ -19,8 +19,50 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
-__all__ = ["MassEstimator", "RateDisturbanceObserver"]
+__all__ = ["MassEstimator", "RateDisturbanceObserver", "clamp", "dob_step", "mass_blend",
+           "mass_filters"]
+
+V3 = Sequence[Any]
+
+
+def clamp(x: float, lo: float, hi: float) -> float:
+    """``min(max(x, lo), hi)`` written out (the same result, NaN and ties included)."""
+    x = lo if lo > x else x
+    return hi if hi < x else x
+
+
+def mass_filters(dt: Any, tau_s: Any, kt: Any, g: Any, v: V3, thrust: Any, b3: V3,
+                 v_lp: V3, phi_lp: V3) -> tuple[Any, ...]:
+    """One step of :class:`MassEstimator`'s two first-order filters (arithmetic only, so
+    that :mod:`fused` traces the same operations): (LP(v) ×3, LP(φ) ×3, numerator and
+    denominator of the instantaneous mass (LP(φ)·â / |â|², â = LP(v̇) + g e3))."""
+    tau_dt = tau_s + dt
+    a = dt / tau_dt
+    vx, vy, vz = v
+    lx, ly, lz = v_lp
+    dx, dy, dz = vx - lx, vy - ly, vz - lz
+    # Filtered acceleration = (v − LP(v))/τ is LP(v̇); the regressor gets the same LP.
+    ax, ay, az = dx / tau_dt, dy / tau_dt, dz / tau_dt
+    bx, by, bz = b3
+    px, py, pz = phi_lp
+    px = px + a * (thrust * bx - kt * vx - px)
+    py = py + a * (thrust * by - kt * vy - py)
+    pz = pz + a * (thrust * bz - kt * vz - pz)
+    az = az + g
+    return (lx + a * dx, ly + a * dy, lz + a * dz, px, py, pz,
+            px * ax + py * ay + pz * az, ax ** 2 + ay ** 2 + az ** 2)
+
+
+def mass_blend(mass: Any, m_inst: Any, dt: Any, ratio_tau_s: Any) -> Any:
+    """The mass estimate low-passed towards the instantaneous one (before its clamp)."""
+    return mass + dt / (ratio_tau_s + dt) * (m_inst - mass)
+
+
+def dob_step(d: Any, rate: Any, rate_prev: Any, pred: Any, dt: Any, a: Any) -> Any:
+    """:class:`RateDisturbanceObserver`'s filter on one axis, before its clamp."""
+    return d + a * ((rate - rate_prev) / dt - pred - d)
 
 
 class MassEstimator:
@@ -53,34 +95,18 @@ class MassEstimator:
                                  for b, v in zip(b3, velocity_mps, strict=True))
             self._g_lp = self.g
             return self.mass_kg
-        # Unrolled over x, y, z (runs every tick); same operations as the vector form.
-        tau_dt = self.accel_tau_s + dt
-        a = dt / tau_dt
-        vx, vy, vz = velocity_mps
-        lx, ly, lz = self._v_lp
-        dx, dy, dz = vx - lx, vy - ly, vz - lz
-        # Filtered acceleration = (v − LP(v))/τ is LP(v̇); the regressor gets the same LP.
-        ax, ay, az = dx / tau_dt, dy / tau_dt, dz / tau_dt
-        self._v_lp = (lx + a * dx, ly + a * dy, lz + a * dz)
-        kt = self.k_t
-        bx, by, bz = b3
-        px, py, pz = self._phi_lp
-        px = px + a * (thrust_n * bx - kt * vx - px)
-        py = py + a * (thrust_n * by - kt * vy - py)
-        pz = pz + a * (thrust_n * bz - kt * vz - pz)
+        lx, ly, lz, px, py, pz, num, den = mass_filters(dt, self.accel_tau_s, self.k_t, self.g,
+                                                        velocity_mps, thrust_n, b3, self._v_lp,
+                                                        self._phi_lp)
+        self._v_lp = (lx, ly, lz)
         self._phi_lp = (px, py, pz)
-        az += self.g
-        den = ax ** 2 + ay ** 2 + az ** 2
         if not self._min_den <= den < math.inf:
             return self.mass_kg  # free fall or nonsense: nothing to learn from
-        m_inst = (px * ax + py * ay + pz * az) / den
+        m_inst = num / den
         mass = self.mass_kg
         if not -math.inf < m_inst < math.inf:
             return mass
-        m = mass + dt / (self.ratio_tau_s + dt) * (m_inst - mass)
-        lo, hi = self.lo, self.hi
-        m = lo if lo > m else m          # min(max(m, lo), hi) written out
-        self.mass_kg = hi if hi < m else m
+        self.mass_kg = clamp(mass_blend(mass, m_inst, dt, self.ratio_tau_s), self.lo, self.hi)
         self.updates += 1
         return self.mass_kg
 
@@ -107,11 +133,5 @@ class RateDisturbanceObserver:
             return
         a = dt / (self.tau_s + dt)
         lim = self.limit
-        d = self.d_p
-        d += a * ((p - prev[0]) / dt - pdot_pred - d)
-        d = -lim if -lim > d else d      # min(max(d, −lim), lim) written out
-        self.d_p = lim if lim < d else d
-        d = self.d_q
-        d += a * ((q - prev[1]) / dt - qdot_pred - d)
-        d = -lim if -lim > d else d
-        self.d_q = lim if lim < d else d
+        self.d_p = clamp(dob_step(self.d_p, p, prev[0], pdot_pred, dt, a), -lim, lim)
+        self.d_q = clamp(dob_step(self.d_q, q, prev[1], qdot_pred, dt, a), -lim, lim)

@@ -1,27 +1,33 @@
-"""The TFL law's arithmetic for one flight as one generated function (issue #13).
+"""The TFL law's tick for one flight as one generated function (issue #13).
 
 A tick of the law (paper §V) is ~1 000 floating-point operations spread over ~30 Python
 calls; the calls, tuple packs and attribute reads cost more than the arithmetic. A path and
-the model are fixed for a flight, so at start-up this module writes the tick up to the
-rotor allocation — the state as floats, R(q) and the canonical axes, the estimators (called),
-the output's Taylor rows from the model (eqs. (3), (9)), the closest-point projection
-(eq. (13), Newton warm-started as :class:`compiled.CompiledPathTracker`), π's rates and
-α = s(y) with Dφ (eqs. (8), (14), (15)), the ξ, η controllers (eqs. (23), (24)), the
-decoupling solve (eq. (21)) and the torques (eq. (3)) — as the body of one Python function:
-the straight-line pieces are traced (:mod:`jetcode`) from the very functions the
-step-by-step law and the compiled tracker run (:mod:`law_math`, :func:`tracker.pi_rates`,
-the path's σ and s), the loop and the checks are written here around them. Same operations
-in the same order, so the same numbers bit for bit. One tape holds everything after the
-Newton loop, so what the path makes constant (σ' = (1, ·, ·) on the paper path, ∂s/∂y rows
-of 0 and 1) folds through π, Dφ and Cramer's rule, and operations nothing reads are dropped.
+the model are fixed for a flight, so at start-up this module writes the tick — the state as
+floats, R(q) and the canonical axes, the estimators' updates (:mod:`estimators`), the
+output's Taylor rows from the model (eqs. (3), (9)), the closest-point projection (eq. (13),
+Newton warm-started as :class:`compiled.CompiledPathTracker`), π's rates and α = s(y) with
+Dφ (eqs. (8), (14), (15)), the ξ, η controllers (eqs. (23), (24)), the decoupling solve
+(eq. (21)), the torques (eq. (3)) and, without motor lag, the rest: rotor allocation (eqs.
+(4), (6)), saturation and the ṗ, q̇ prediction, the extension (eq. (9)), the gain switch
+and the output record — as the body of one Python function: the straight-line pieces are
+traced (:mod:`jetcode`) from the very functions the step-by-step law, the estimators and
+the compiled tracker run (:mod:`law_math`, :mod:`estimators`, :func:`tracker.pi_rates`,
+the path's σ and s; the attacked allocation from its own source through
+:func:`kernelgen.traceable`), the loop, the checks and the bookkeeping are written here
+around them. Same operations in the same order (up to exact rewrites: x/2ᵏ as x·2⁻ᵏ, a
+negation folded into a constant factor), so the same numbers bit for bit. One tape holds
+the middle after the Newton loop, so what the path makes constant (σ' = (1, ·, ·) on the
+paper path, ∂s/∂y rows of 0 and 1) folds through π, Dφ and Cramer's rule, and operations
+nothing reads are dropped; the temporaries then share locals (:func:`kernelgen.reuse_slots`).
 
 After the prelude (which the step-by-step tick would have run the same way, estimators
-included) the function changes nothing until it succeeds: every condition under which the
-law would fall back (projection lost, tube margin, u_f too small, Dφ singular or
+included) the function changes nothing until the middle succeeds: every condition under
+which the law would fall back (projection lost, tube margin, u_f too small, Dφ singular or
 ill-conditioned, a non-finite result, an evaluation error) makes it return ``(None, the
 prelude's results)``, and the law runs its step-by-step middle from there, whose fallbacks
 and reasons are unchanged. On success it commits the tracker's state (λ, the expansion, π)
-and returns the tick's numbers.
+and returns the :class:`ControlOutput` (with motor lag: the middle's numbers, and the law's
+own steps run the lag inverse and the rest).
 """
 
 from __future__ import annotations
@@ -34,6 +40,7 @@ from typing import Any
 
 import numpy as np
 
+from tfl_mav.control.allocation import allocate_attacked, allocate_nominal
 from tfl_mav.control.compiled import (
     _NEWTON_ITERS,
     Y_NAMES,
@@ -42,26 +49,39 @@ from tfl_mav.control.compiled import (
     trace_pi,
     traced_sqrt,
 )
+from tfl_mav.control.estimators import (
+    MassEstimator,
+    RateDisturbanceObserver,
+    dob_step,
+    mass_blend,
+    mass_filters,
+)
 from tfl_mav.control.jetcode import Sym, _text
-from tfl_mav.control.kernelgen import compile_source, trace_block
+from tfl_mav.control.kernelgen import compile_source, reuse_slots, trace_block, traceable
 from tfl_mav.control.law_math import (
+    attacked_tau_r,
     b0_inverse,
     cofactors,
     cramer,
     linear_rhs,
     output_rows,
+    rate_prediction,
     rotation,
+    saturate,
     torques,
+    yaw_tau_r,
 )
-from tfl_mav.control.law_types import ModelParams
+from tfl_mav.control.law_types import ControlOutput, ModelParams
+from tfl_mav.modes import Mode
 
 __all__ = ["FusedTick", "build_fused"]
 
 @dataclass(frozen=True)
 class FusedTick:
-    """The generated tick: ``fn(ctl, trk, state)`` → (ü_f, q̇, τ_p, τ_q, cond Dφ, ξ rows,
-    η, λ, distance, ψ, R's last row, rates, p, q, r, mass), or (None, y, v, ψ, R's last row,
-    rates, b1, b2, b3, p, q, r, mass) for the step-by-step middle (see module doc)."""
+    """The generated tick: ``fn(ctl, trk, state)`` → the tick's :class:`ControlOutput`;
+    with motor lag (ü_f, q̇, τ_p, τ_q, cond Dφ, ξ rows, η, λ, distance, ψ, R's last row,
+    rates, p, q, r, mass) for the law's tail; or (None, y, v, ψ, R's last row, rates, b1,
+    b2, b3, p, q, r, mass) for the step-by-step middle (see module doc)."""
 
     fn: Callable[..., tuple[Any, ...] | None]
     source: str
@@ -122,7 +142,7 @@ def _after_projection(model: ModelParams, trace_sigma: Callable[..., list[Any]],
     slope = -s1sq + 2.0 * (e0x * c[6] + e0y * c[7] + e0z * c[8])
     raw(f"if not ({t(s1sq)} > 0.0 and -{t(slope)} / {t(s1sq)} >= trk.min_tube_margin):",
         "    return None")
-    distance = local("distance", traced_sqrt(e0x ** 2 + e0y ** 2 + e0z ** 2))
+    local("distance", traced_sqrt(e0x ** 2 + e0y ** 2 + e0z ** 2))
     p1, p2, p3, p4 = trace_pi(c, x, y, z, [slope])
     a = trace_s(x, y, z)
     k = traced_sqrt(s1sq) / -slope
@@ -152,16 +172,19 @@ def _after_projection(model: ModelParams, trace_sigma: Callable[..., list[Any]],
         "ix, iy, iz = ctl._ixyz")
     ixyz = [tape.input(n) for n in ("ix", "iy", "iz")]
     tau_p, tau_q = torques(pdot, qdot, pc, qc, rc, *ixyz, model.k_r)
-    xi = f"(({', '.join(t(v) for v in a[0:4])}), ({', '.join(t(v) for v in a[5:9])}))"
-    raw("trk._arc_m = arc", "trk._lam_prev = lam0", "trk.lam = lam", "trk._expansion = (lam, c)",
-        f"return ({t(udd)}, {t(qdot)}, {t(tau_p)}, {t(tau_q)}, cond, {xi}, "
-        f"(arc, {t(p1)}, {t(p2)}, {t(p3)}), lam, {t(distance)}, psi, (r20, r21, r22), rates, "
-        "pc, qc, rc, mass)")
+    raw(f"tau_p = {t(tau_p)}", f"tau_q = {t(tau_q)}",
+        f"xi = (({', '.join(t(v) for v in a[0:4])}), ({', '.join(t(v) for v in a[5:9])}))",
+        f"eta = (arc, {t(p1)}, {t(p2)}, {t(p3)})",
+        "trk._arc_m = arc", "trk._lam_prev = lam0", "trk.lam = lam", "trk._expansion = (lam, c)")
     return []
 
 
-def build_fused(model: ModelParams, kernels: PathKernels) -> FusedTick:
-    """Generate the fused tick for ``model`` and the path of ``kernels``."""
+def build_fused(model: ModelParams, kernels: PathKernels, *, dt_s: float | None = None,
+                mass_est: MassEstimator | None = None,
+                dob: RateDisturbanceObserver | None = None) -> FusedTick:
+    """Generate the fused tick for ``model`` and the path of ``kernels``; with the period
+    and the law's estimators (their constants fold in) their updates are generated too,
+    else the tick calls the law's."""
     t0 = time.perf_counter()
     assert kernels.trace_sigma is not None and kernels.trace_s is not None
     trace_sigma, trace_s = kernels.trace_sigma, kernels.trace_s
@@ -214,6 +237,7 @@ def build_fused(model: ModelParams, kernels: PathKernels) -> FusedTick:
         "cp = prev[1] if fresh else trk._sigma5((lam0,))",
         *(ln[4:] for ln in after),
     ]
+    tail = _tail(model, block)
     bail = ("return (None, y, v, psi, (r20, r21, r22), rates, (b1x, b1y, b1z), (b2x, b2y, b2z), "
             "(b3x, b3y, b3z), pc, qc, rc, mass)")
     source = "\n".join([
@@ -236,13 +260,162 @@ def build_fused(model: ModelParams, kernels: PathKernels) -> FusedTick:
         "    b2x, b2y, b2z = s2 * col[0], s2 * col[1], s2 * col[2]",
         "    b3x, b3y, b3z = r02, r12, r22",
         "    pc, qc, rc = s1 * rates[m1], s2 * rates[m2], rates[2]",
-        "    mass = ctl._update_estimators(v, (b3x, b3y, b3z), pc, qc)",
+        *(_estimators(block, dt_s, mass_est, dob) if dt_s is not None and mass_est is not None
+          and dob is not None else
+          ["    mass = ctl._update_estimators(v, (b3x, b3y, b3z), pc, qc)"]),
         "    # The middle; on any bail the step-by-step tick takes over from here.",
         "    try:",
         *(f"        {ln.replace('return None', bail)}" for ln in middle),
         "    except (ValueError, ZeroDivisionError, OverflowError):",
         f"        {bail}",
+        *tail,
     ]) + "\n"
-    fn = compile_source("fused_tick", source, {"_isfinite": math.isfinite, "_arc": _arc,
-                                               "_atan2": math.atan2, "_ndarray": np.ndarray})
+    source = reuse_slots(source)
+    fn = compile_source("fused_tick", source, {
+        "_isfinite": math.isfinite, "_arc": _arc, "_atan2": math.atan2, "_hypot": math.hypot,
+        "_ndarray": np.ndarray, "_alloc_nom": allocate_nominal,
+        "_yaw_tau_r": yaw_tau_r, "_saturate": saturate, "_new": tuple.__new__,
+        "_ControlOutput": ControlOutput, "_inf": math.inf,
+        "_NOMINAL": Mode.NOMINAL, "_ATTACKED": Mode.ATTACKED})
     return FusedTick(fn, source, n_ops, time.perf_counter() - t0)
+
+
+def _clamped(indent: str, target: str, x: str, lo: float, hi: float) -> list[str]:
+    """``target = estimators.clamp(x, lo, hi)`` for constant bounds, its two selects
+    written out (a call costs more than the selects)."""
+    return [f"{indent}{x} = {lo!r} if {lo!r} > {x} else {x}",
+            f"{indent}{target} = {hi!r} if {hi!r} < {x} else {x}"]
+
+
+def _estimators(block: Callable[..., list[str]], dt: float, me: MassEstimator,
+                dob: RateDisturbanceObserver) -> list[str]:
+    """law.TFLController._update_estimators with the estimators' arithmetic traced (their
+    constants folded) and their state read and written once."""
+    filters = block("e_", [["vx", "vy", "vz"], ["thrust"], ["b3x", "b3y", "b3z"],
+                           ["lx", "ly", "lz"], ["phx", "phy", "phz"]],
+                    lambda v, f, b3, vlp, phi: list(mass_filters(
+                        dt, me.accel_tau_s, me.k_t, me.g, v, f[0], b3, vlp, phi)),
+                    ["nlx", "nly", "nlz", "npx", "npy", "npz", "num", "den"], " " * 12)
+    blend = block("h_", [["mass", "m_inst"]],
+                  lambda g: [mass_blend(g[0], g[1], dt, me.ratio_tau_s)], ["blend"], " " * 20)
+    a = dt / (dob.tau_s + dt)
+    steps = block("o_", [["dp", "dq", "pc", "qc", "rp", "rq", "pp", "pq"]],
+                  lambda g: [dob_step(g[0], g[2], g[4], g[6], dt, a),
+                             dob_step(g[1], g[3], g[5], g[7], dt, a)], ["ndp", "ndq"], " " * 16)
+    lo, hi, lim = me.lo, me.hi, dob.limit
+    return [
+        "    # law.TFLController._update_estimators (estimators.MassEstimator.update, "
+        "RateDisturbanceObserver.update)",
+        "    if ctl._use_mass:",
+        "        me = ctl.mass_est",
+        "        lo_ = ctl._last_out",
+        "        thrust = lo_[0] + lo_[1] + lo_[2] + lo_[3]",
+        "        if me._v_lp is None:",
+        f"            ctl.mass_kg = me.update({dt!r}, v, thrust, (b3x, b3y, b3z))",
+        "        else:",
+        "            vx, vy, vz = v",
+        "            lx, ly, lz = me._v_lp",
+        "            phx, phy, phz = me._phi_lp",
+        *filters,
+        "            me._v_lp = (nlx, nly, nlz)",
+        "            me._phi_lp = (npx, npy, npz)",
+        f"            if {me._min_den!r} <= den < _inf:",
+        "                m_inst = num / den",
+        "                mass = me.mass_kg",
+        "                if -_inf < m_inst < _inf:",
+        *blend,
+        *_clamped("                    ", "me.mass_kg", "blend", lo, hi),
+        "                    me.updates += 1",
+        "            ctl.mass_kg = me.mass_kg",
+        "    mass = ctl.mass_kg",
+        "    if ctl._use_dob:",
+        "        pred = ctl._pred",
+        "        if pred is not None:",
+        "            dob = ctl.dob",
+        "            rprev = dob._prev",
+        "            dob._prev = (pc, qc)",
+        "            if rprev is not None:",
+        "                pp, pq = pred",
+        "                rp, rq = rprev",
+        "                dp, dq = dob.d_p, dob.d_q",
+        *steps,
+        *_clamped("                ", "dob.d_p", "ndp", -lim, lim),
+        *_clamped("                ", "dob.d_q", "ndq", -lim, lim),
+    ]
+
+
+def _tail(model: ModelParams, block: Callable[..., list[str]]) -> list[str]:
+    """The tick after the torques, as :meth:`law.TFLController.update` runs it on a tick
+    without fallback: allocation ((4), (6) and the yaw loop), saturation and the ṗ, q̇
+    prediction, the extension (9), the gain switch, the output record. With motor lag the
+    function returns the middle's numbers and the law's own steps run the tail."""
+    arm, kr, fmax = model.arm_m, model.k_r, model.thrust_max_n
+    alloc = traceable(allocate_attacked)
+
+    def attacked(g: list[Sym]) -> list[Any]:
+        uf, tau_p, tau_q, a_n, d, inf = g
+        tau_r = attacked_tau_r(uf, tau_p, a_n, arm, d)
+        # The unbounded thrusts (for the saturation flags) with f_max = ∞ at run time.
+        return [tau_r, *alloc(uf, tau_q, tau_r, a_n, arm, d, inf),
+                *alloc(uf, tau_q, tau_r, a_n, arm, d, fmax, None)]
+
+    att = block("a_", [["uf", "tau_p", "tau_q", "a_n", "d", "_inf"]], attacked,
+                ["tau_r", "r0", "r1", "r2", "r3", "f0", "f1", "f2", "f3"], " " * 8)
+    pred = block("p_", [["d0", "d1", "d2", "d3", "pc", "qc", "rc", "ix", "iy", "iz"]],
+                 lambda g: rate_prediction(*g, kr, arm), ["pp", "pq"])
+    return [
+        "    # The tail: law.TFLController.update after the middle (motor lag: the law's).",
+        "    if ctl.lag_inverter is not None:",
+        "        return (udd, qdot, tau_p, tau_q, cond, xi, eta, lam, distance, psi,"
+        " (r20, r21, r22), rates, pc, qc, rc, mass)",
+        "    frame = ctl.frame",
+        "    d = ctl._d",
+        "    if frame is not None:",
+        "        a_n = ctl.attack_estimate_n",
+        *att,
+        "        raw = [r0, r1, r2, r3]",
+        "        f = [f0, f1, f2, f3]",
+        "        i0, i1, i2, i3 = ctl._inv_perm",
+        "        if i0:",
+        "            f = [f[i0], f[i1], f[i2], f[i3]]",
+        "            raw = [raw[i0], raw[i1], raw[i2], raw[i3]]",
+        "        mode = _ATTACKED",
+        "    else:",
+        "        tau_r = _yaw_tau_r((r20, r21, r22), psi, ctl.psi_ref, pc, qc, rc, qdot, ctl.k_yaw,"
+        f" (ix, iy, iz), {kr!r})",
+        f"        raw = _alloc_nom(uf, tau_p, tau_q, tau_r, {arm!r}, d)",
+        f"        f = _alloc_nom(uf, tau_p, tau_q, tau_r, {arm!r}, d, {fmax!r}, None)",
+        "        mode = _NOMINAL",
+        "    # law.TFLController._saturate_and_apply",
+        f"    f, sat = _saturate(f, raw, ctl._last_out, {fmax!r})",
+        "    p0, p1, p2, p3 = ctl._perm",
+        "    if frame is not None:",
+        "        f[p1] = a_n",
+        "    if sat[0] or sat[1] or sat[2] or sat[3]:",
+        "        ctl.saturation_count += 1",
+        "    applied_uf = f[0] + f[1] + f[2] + f[3]",
+        "    d0, d1, d2, d3 = f[p0], f[p1], f[p2], f[p3]",
+        *pred,
+        "    ctl._pred = (pp, pq)",
+        "    ctl._last_out = f",
+        "    # law.TFLController._advance_extension, _settle",
+        "    dt = ctl.dt",
+        "    x13, x14 = uf, duf",
+        "    if abs(applied_uf - uf) > 1e-9:",
+        "        x13 = applied_uf",
+        "        if (applied_uf - uf) * duf < 0:",
+        "            x14 = 0.0",
+        "    ctl.x13 = x13 + (dt * x14 + 0.5 * dt * dt * udd)",
+        "    ctl.x14 = x14 + dt * udd",
+        "    if ctl._use_switch and not ctl.fine:",
+        "        settled = ctl._settled_s + dt if _hypot(xi[0][0], xi[1][0]) < cfg.settle_alpha"
+        " else 0.0",
+        "        ctl._settled_s = settled",
+        "        if settled >= cfg.settle_time_s:",
+        "            ctl._set_gains(fine=True)",
+        "    iz_, arm_, den = ctl._mu2",
+        "    dob = ctl.dob",
+        "    return _new(_ControlOutput, (f, mode, sat, xi, eta,"
+        " (psi, -rates[0] / iz_ - arm_ * rates[2] / den), distance, lam, cond, uf, mass,"
+        " (dob.d_p, dob.d_q), ctl.fine, ''))",
+    ]

@@ -84,6 +84,7 @@ class Tape:
         self.lines: list[str] = []
         self._memo: dict[str, Sym] = {}
         self._negated: dict[str, Sym] = {}
+        self._scaled: dict[str, tuple[Sym, float]] = {}   # name → (a, c): the value a · c
 
     def input(self, name: str) -> Sym:
         return Sym(self, name)
@@ -106,8 +107,21 @@ class Tape:
         back = self._negated.get(a.name)
         if back is not None:
             return back
-        out = self.emit(f"-{a.name}")
+        scaled = self._scaled.get(a.name)
+        # −(b·c) = b·(−c) exactly (IEEE rounding is symmetric): one operation, not two.
+        out = (self.scale(scaled[0], -scaled[1]) if scaled is not None
+               else self.emit(f"-{a.name}"))
         self._negated[out.name] = a
+        return out
+
+    def scale(self, a: Sym, c: float) -> Sym:
+        """a · c for a constant c, folding a negated ``a`` into the constant:
+        (−b)·c = b·(−c) exactly."""
+        base = self._negated.get(a.name)
+        if base is not None:
+            a, c = base, -c
+        out = self.emit(f"{a.name} * {_lit(c)}")
+        self._scaled.setdefault(out.name, (a, c))
         return out
 
     def call(self, fn: str, *args: Any) -> Any:
@@ -129,6 +143,13 @@ class Tape:
         if _text(a) == _text(b):
             return a
         return self.emit(f"{_text(a)} if {cond.name} else {_text(b)}")
+
+
+def _power_of_two(c: Any) -> bool:
+    """c = ±2ᵏ with 1/c a normal float (so x / c = x · (1/c) exactly)."""
+    c = float(c)
+    return (math.isfinite(c) and c != 0.0 and math.frexp(c)[0] in (0.5, -0.5)
+            and abs(1.0 / c) >= 2.2250738585072014e-308 and math.isfinite(1.0 / c))
 
 
 def _text(x: Any) -> str:
@@ -155,11 +176,21 @@ class Sym:
         return f"Sym({self.name})"
 
     # Only these folds are exact for every finite operand.
+    # A negated operand is folded where that is exact: x + (−b) = x − b, x − (−b) = x + b,
+    # (−b)·c = b·(−c), and x / 2ᵏ = x · 2⁻ᵏ (the same real number, so the same rounding).
     def __add__(self, o: Any) -> Any:
         if type(o) is TJet:
             return NotImplemented
-        if type(o) is not Sym and o == 0.0:
-            return self
+        if type(o) is not Sym:
+            if o == 0.0:
+                return self
+        else:
+            base = self.tape._negated.get(o.name)
+            if base is not None:
+                return self.tape.emit(f"{self.name} - {base.name}")
+            base = self.tape._negated.get(self.name)
+            if base is not None:
+                return self.tape.emit(f"{o.name} - {base.name}")
         return self.tape.emit(f"{self.name} + {_text(o)}")
 
     def __radd__(self, o: Any) -> Any:
@@ -170,13 +201,21 @@ class Sym:
     def __sub__(self, o: Any) -> Any:
         if type(o) is TJet:
             return NotImplemented
-        if type(o) is not Sym and o == 0.0:
-            return self
+        if type(o) is not Sym:
+            if o == 0.0:
+                return self
+        else:
+            base = self.tape._negated.get(o.name)
+            if base is not None:
+                return self.tape.emit(f"{self.name} + {base.name}")
         return self.tape.emit(f"{self.name} - {_text(o)}")
 
     def __rsub__(self, o: Any) -> Any:
         if o == 0.0:
             return self.tape.neg(self)
+        base = self.tape._negated.get(self.name)
+        if base is not None:
+            return self.tape.emit(f"{_lit(o)} + {base.name}")
         return self.tape.emit(f"{_lit(o)} - {self.name}")
 
     def __mul__(self, o: Any) -> Any:
@@ -189,6 +228,7 @@ class Sym:
                 return 0.0
             if o == -1.0:
                 return self.tape.neg(self)
+            return self.tape.scale(self, float(o))
         return self.tape.emit(f"{self.name} * {_text(o)}")
 
     def __rmul__(self, o: Any) -> Any:
@@ -198,13 +238,19 @@ class Sym:
             return 0.0
         if o == -1.0:
             return self.tape.neg(self)
-        return self.tape.emit(f"{_lit(o)} * {self.name}")
+        return self.tape.scale(self, float(o))
 
     def __truediv__(self, o: Any) -> Any:
         if type(o) is TJet:
             return NotImplemented
-        if type(o) is not Sym and o == 1.0:
-            return self
+        if type(o) is not Sym:
+            if o == 1.0:
+                return self
+            if _power_of_two(o):
+                return self.tape.scale(self, 1.0 / o)
+            base = self.tape._negated.get(self.name)
+            if base is not None:
+                return self.tape.emit(f"{base.name} / {_lit(-o)}")
         return self.tape.emit(f"{self.name} / {_text(o)}")
 
     def __pow__(self, o: Any) -> Any:

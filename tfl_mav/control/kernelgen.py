@@ -9,16 +9,24 @@ so the same results bit for bit, with ~40 % fewer bytecodes.
 """
 
 from __future__ import annotations
+import __future__
 
+import ast
+import functools
+import heapq
+import inspect
+import math
 import re
+import textwrap
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from tfl_mav.control.jetcode import _FUNCS, RAW, Tape, _text
+from tfl_mav.control.jetcode import _FUNCS, RAW, Sym, Tape, _text
 
-__all__ = ["KERNEL_GLOBALS", "Kernel", "compile_kernel", "compile_source", "trace_block"]
+__all__ = ["KERNEL_GLOBALS", "Kernel", "compile_kernel", "compile_source", "reuse_slots",
+           "trace_block", "traceable"]
 
 #: The names generated code may call: the whitelisted math functions, ``_sin`` etc.
 KERNEL_GLOBALS: dict[str, Callable[..., float]] = {f"_{k}": v for k, v in _FUNCS.items()}
@@ -104,6 +112,54 @@ def _inline_single_use(lines: Sequence[str], outputs: Sequence[str], prefix: str
     return out_lines, [subst(o) for o in outputs]
 
 
+_TEMP = re.compile(r"\b[a-z]_\d+\b")
+
+
+def reuse_slots(source: str, slot: str = "w_") -> str:
+    """``source`` with its temporaries (``x_123``) renamed onto as few locals as their live
+    ranges allow (``slot`` + a number): the same operations on the same values, but a
+    frame of a few dozen locals instead of hundreds, which CPython zeroes and clears on
+    every call and addresses with an extra EXTENDED_ARG instruction beyond 256.
+
+    Live ranges are textual (first line to last line naming the temporary); one that
+    enters a ``for`` loop from before it lives to the loop's end (its next iteration
+    reads it again). Straight-line code and ``if`` blocks need nothing more."""
+    lines = source.split("\n")
+    first: dict[str, int] = {}
+    last: dict[str, int] = {}
+    for i, line in enumerate(lines):
+        for tok in _TEMP.findall(line):
+            first.setdefault(tok, i)
+            last[tok] = i
+    loops = []
+    for i, line in enumerate(lines):
+        if line.lstrip().startswith("for "):
+            ind = len(line) - len(line.lstrip())
+            end = next((j for j in range(i + 1, len(lines)) if lines[j].strip()
+                        and len(lines[j]) - len(lines[j].lstrip()) <= ind
+                        and not lines[j].lstrip().startswith("else:")), len(lines))
+            loops.append((i, end))
+    for tok in first:
+        for a, b in loops:
+            if first[tok] < a < last[tok] < b:
+                last[tok] = b
+    names: dict[str, str] = {}
+    free: list[str] = []
+    ending: list[tuple[int, str]] = []     # heap of (last line, slot) of the live ones
+    n_slots = 0
+    for tok in sorted(first, key=first.__getitem__):
+        while ending and ending[0][0] < first[tok]:
+            free.append(heapq.heappop(ending)[1])
+        if free:
+            names[tok] = free.pop()
+        else:
+            names[tok] = f"{slot}{n_slots}"
+            n_slots += 1
+        heapq.heappush(ending, (last[tok], names[tok]))
+    return "\n".join(_TEMP.sub(lambda m: names.get(m.group(0), m.group(0)), ln)
+                     for ln in lines)
+
+
 def compile_source(name: str, source: str, extra: dict[str, Any] | None = None
                    ) -> Callable[..., Any]:
     """The function ``name`` defined by generated ``source`` (globals: the math functions
@@ -158,3 +214,54 @@ def trace_block(prefix: str, inputs: Sequence[Sequence[str]],
     body += [f"{indent}{name} = {expr}" for name, expr in zip(outputs, ret, strict=True)
              if name != expr]
     return body, len(tape.lines)
+
+
+_OPS = {ast.Lt: "<", ast.LtE: "<=", ast.Gt: ">", ast.GtE: ">="}
+
+
+def _operand(x: Any) -> str:
+    """Source text of a select's operand; ±inf as the generated code's ``_inf``."""
+    if type(x) is not Sym and math.isinf(x):
+        return "_inf" if x > 0 else "(-_inf)"
+    return _text(x)
+
+
+def _select(op: str, left: Any, right: Any, a: Any, b: Any) -> Any:
+    """``a if left op right else b`` on traced values: decided now for two constants, else
+    one run-time select (the same comparison, so the same choice, NaN included)."""
+    syms = [x for x in (left, right) if type(x) is Sym]
+    if not syms:
+        return a if {"<": left < right, "<=": left <= right, ">": left > right,
+                     ">=": left >= right}[op] else b
+    if _operand(a) == _operand(b):
+        return a
+    return syms[0].tape.emit(f"{_operand(a)} if {_operand(left)} {op} {_operand(right)} "
+                             f"else {_operand(b)}")
+
+
+class _Selects(ast.NodeTransformer):
+    def visit_IfExp(self, node: ast.IfExp) -> ast.AST:
+        self.generic_visit(node)
+        t = node.test
+        if (isinstance(t, ast.Compare) and len(t.ops) == 1
+                and type(t.ops[0]) in _OPS):
+            return ast.copy_location(ast.Call(
+                ast.Name("_select", ast.Load()),
+                [ast.Constant(_OPS[type(t.ops[0])]), t.left, t.comparators[0], node.body,
+                 node.orelse], []), node)
+        return node
+
+
+@functools.cache
+def traceable(fn: Callable[..., Any]) -> Callable[..., Any]:
+    """``fn`` (a plain function whose value-dependent choices are conditional expressions
+    ``a if x < y else b``) recompiled from its own source so that those choices become
+    run-time selects when it runs on traced values (:mod:`jetcode`): the one definition
+    the step-by-step law calls on floats, traced into generated code (:mod:`fused`). The
+    generated code needs ``_inf`` among its globals if a bound is infinite."""
+    tree = ast.parse(textwrap.dedent(inspect.getsource(fn)))
+    tree = ast.fix_missing_locations(_Selects().visit(tree))
+    namespace = {**fn.__globals__, "_select": _select}
+    exec(compile(tree, f"<traceable {fn.__name__}>", "exec",
+                 flags=__future__.annotations.compiler_flag, dont_inherit=True), namespace)
+    return namespace[fn.__name__]  # type: ignore[no-any-return]

@@ -27,8 +27,8 @@ settled on the path.
 builds the law. The path's derivatives come from :class:`compiled.CompiledPathTracker`
 (straight-line code generated at start-up; ``compiled_path=False`` flies the reference jets,
 which give the same numbers, for the benchmark and the tests). With the compiled tracker the
-steps up to the decoupling solve run as the flight's one generated function (:mod:`fused`,
-the same operations), which hands every fallback back to the steps.
+tick runs as the flight's one generated function (:mod:`fused`, the same operations; with
+motor lag up to the torques), which hands every fallback back to the steps.
 """
 
 from __future__ import annotations
@@ -51,7 +51,17 @@ from tfl_mav.control.compiled import CompiledPathTracker, make_tracker
 from tfl_mav.control.estimators import MassEstimator, RateDisturbanceObserver
 from tfl_mav.control.fused import build_fused
 from tfl_mav.control.jetcode import TraceError
-from tfl_mav.control.law_math import b0_inverse, linear_rhs, output_rows, solve3, torques
+from tfl_mav.control.law_math import (
+    attacked_tau_r,
+    b0_inverse,
+    linear_rhs,
+    output_rows,
+    rate_prediction,
+    saturate,
+    solve3,
+    torques,
+    yaw_tau_r,
+)
 from tfl_mav.control.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
 from tfl_mav.control.paths import Path
 from tfl_mav.control.tracker import PathTracker, VirtualOutput
@@ -85,15 +95,6 @@ class TFLController:
         self.cfg = cfg
         self.dt = dt_s
         self.tracker, self.path_eval = make_tracker(path, compiled_path)
-        # The generated tick (:mod:`fused`), made for this tracker only.
-        self._fused_for: PathTracker | None = None
-        self._fused: Callable[..., tuple[Any, ...]] | None = None
-        if type(self.tracker) is CompiledPathTracker:
-            try:
-                self._fused = build_fused(model, self.tracker.kernels).fn
-                self._fused_for = self.tracker
-            except (TraceError, ArithmeticError, ValueError):
-                pass
         self.mass_kg = model.mass_kg
         self.x13 = model.mass_kg * model.gravity_mps2   # u_f
         self.x14 = 0.0                                  # u̇_f
@@ -119,6 +120,16 @@ class TFLController:
         self._use_switch = cfg.robust and cfg.gain_switch
         self._set_frame(None)
         self._set_gains(fine=False)
+        # The generated tick (:mod:`fused`), made for this tracker only.
+        self._fused_for: PathTracker | None = None
+        self._fused: Callable[..., tuple[Any, ...]] | None = None
+        if type(self.tracker) is CompiledPathTracker:
+            try:
+                self._fused = build_fused(model, self.tracker.kernels, dt_s=dt_s,
+                                          mass_est=self.mass_est, dob=self.dob).fn
+                self._fused_for = self.tracker
+            except (TraceError, ArithmeticError, ValueError):
+                pass
 
     # ------------------------------------------------------------------ configuration
     def _set_gains(self, fine: bool) -> None:
@@ -190,8 +201,11 @@ class TFLController:
         trk = self.tracker
         # The flight's generated tick (:mod:`fused`) when it can run; it hands back to the
         # step-by-step tick after the prelude for every fallback and failure.
-        k = self._fused_tick(trk, s) if trk is self._fused_for and trk.lam is not None \
-            else None
+        k = None
+        if trk is self._fused_for and trk.lam is not None:
+            k = self._fused_tick(trk, s)
+            if type(k) is ControlOutput:    # the whole tick, fused
+                return k
         reason = ""
         if k is None or k[0] is None:
             y, v, psi, r2, rates, b1, b2, b3, pc, qc, rc, mass = \
@@ -343,7 +357,7 @@ class TFLController:
         d = self._d
         a_n = self.attack_estimate_n
         arm = m.arm_m
-        tau_r = d * (uf - 2.0 * (tau_p + 2.0 * arm * a_n) / arm)   # eq. (6)
+        tau_r = attacked_tau_r(uf, tau_p, a_n, arm, d)   # eq. (6)
         raw = allocate_attacked(uf, tau_q, tau_r, a_n, arm, d)
         perm = self._perm
         cb = None if bounds is None else tuple([b[phys] for phys in perm] for b in bounds)
@@ -361,21 +375,9 @@ class TFLController:
         """All four rotors (inverse of eq. (4)); τ_r from the yaw loop ψ̈ = −k₁ψ̇ −
         k₀(ψ − ψ_ref), exact through the Euler chart (eq. (2)). (feasible, unbounded)."""
         m = self.model
-        ix, iy, iz = self._ixyz
-        phi_e = math.atan2(r2[1], r2[2])            # r2: R's last row, ψ_e = atan2(R₁₀, R₀₀)
-        th_e = -math.asin(max(-1.0, min(1.0, r2[0])))
-        sph, cph = math.sin(phi_e), math.cos(phi_e)
-        cth, sth = math.cos(th_e), math.sin(th_e)
-        dphi = pc + (qc * sph + rc * cph) * sth / cth
-        dth = qc * cph - rc * sph
-        dpsi = (qc * sph + rc * cph) / cth
         assert self.psi_ref is not None
-        err = math.remainder(psi_e - self.psi_ref, math.tau)
-        psi_dd = -self.k_yaw[1] * dpsi - self.k_yaw[0] * err
-        drift = (qc * cph * dphi - rc * sph * dphi) / cth + (qc * sph + rc * cph) * sth \
-            * dth / (cth * cth)
-        rdot = ((psi_dd - drift) * cth - qdot * sph) / cph
-        tau_r = iz * rdot + m.k_r * rc + (iy - ix) * pc * qc
+        tau_r = yaw_tau_r(r2, psi_e, self.psi_ref, pc, qc, rc, qdot, self.k_yaw, self._ixyz,
+                          m.k_r)
         d = self._d
         raw = allocate_nominal(uf, tau_p, tau_q, tau_r, m.arm_m, d)
         f = allocate_nominal(uf, tau_p, tau_q, tau_r, m.arm_m, d, m.thrust_max_n, bounds)
@@ -388,18 +390,7 @@ class TFLController:
         will deliver. Returns (command, saturated, applied u_f)."""
         m = self.model
         fmax = m.thrust_max_n
-        hi = fmax + 1e-9
-        r0, r1, r2, r3 = raw
-        sat = [not -1e-9 <= r0 <= hi, not -1e-9 <= r1 <= hi, not -1e-9 <= r2 <= hi,
-               not -1e-9 <= r3 <= hi]
-        # max(f, 0), min(·, f_max) written out, rotor by rotor (this runs every tick); a
-        # non-finite f (f − f is NaN) keeps the last command.
-        f0, f1, f2, f3 = f
-        l0, l1, l2, l3 = self._last_out
-        f = [(0.0 if f0 < 0.0 else (fmax if fmax < f0 else f0)) if f0 - f0 == 0.0 else l0,
-             (0.0 if f1 < 0.0 else (fmax if fmax < f1 else f1)) if f1 - f1 == 0.0 else l1,
-             (0.0 if f2 < 0.0 else (fmax if fmax < f2 else f2)) if f2 - f2 == 0.0 else l2,
-             (0.0 if f3 < 0.0 else (fmax if fmax < f3 else f3)) if f3 - f3 == 0.0 else l3]
+        f, sat = saturate(f, raw, self._last_out, fmax)
         frame = self.frame
         p0, p1, p2, p3 = self._perm
         if frame is not None:
@@ -417,13 +408,8 @@ class TFLController:
             if any(inv.clamped):
                 self.lag_clamped_count += 1
         ix, iy, iz = self._ixyz
-        kr = m.k_r
-        arm = m.arm_m
-        # Canonical rotor i is physical perm[i]: τ_p' = l (f₄' − f₂'), τ_q' = l (f₃' − f₁').
-        self._pred = ((arm * (delivered[p3] - delivered[p1]) - kr * pc - (iz - iy) * qc * rc)
-                      / ix,
-                      (arm * (delivered[p2] - delivered[p0]) - kr * qc - (ix - iz) * pc * rc)
-                      / iy)
+        self._pred = rate_prediction(delivered[p0], delivered[p1], delivered[p2], delivered[p3],
+                                     pc, qc, rc, ix, iy, iz, m.k_r, m.arm_m)
         self._last_out = delivered
         return command, sat, applied_uf
 

@@ -12,8 +12,8 @@ import math
 from collections.abc import Callable, Sequence
 from typing import Any
 
-__all__ = ["b0_inverse", "cofactors", "cramer", "linear_rhs", "output_rows", "rotation",
-           "solve3", "torques"]
+__all__ = ["attacked_tau_r", "b0_inverse", "cofactors", "cramer", "linear_rhs", "output_rows",
+           "rate_prediction", "rotation", "saturate", "solve3", "torques", "yaw_tau_r"]
 
 V3 = Sequence[Any]
 
@@ -119,3 +119,53 @@ def torques(pdot: Any, qdot: Any, pc: Any, qc: Any, rc: Any, ix: Any, iy: Any, i
     """τ_p, τ_q for the demanded ṗ, q̇ by Euler's equation with rate damping (eq. (3))."""
     return (ix * pdot + kr * pc + (iz - iy) * qc * rc,
             iy * qdot + kr * qc + (ix - iz) * pc * rc)
+
+
+def attacked_tau_r(uf: Any, tau_p: Any, attack_n: Any, arm: Any, d: Any) -> Any:
+    """τ_r from τ_p with f₂ = A (eq. (6))."""
+    return d * (uf - 2.0 * (tau_p + 2.0 * arm * attack_n) / arm)
+
+
+def yaw_tau_r(r2: V3, psi_e: float, psi_ref: float, pc: float, qc: float, rc: float,
+              qdot: float, k_yaw: V3, ixyz: V3, kr: float) -> float:
+    """τ_r of the nominal law's yaw loop ψ̈ = −k₁ψ̇ − k₀(ψ − ψ_ref), exact through the
+    Euler chart (eq. (2)); ``r2`` is R's last row, ψ_e = atan2(R₁₀, R₀₀) (floats only)."""
+    ix, iy, iz = ixyz
+    phi_e = math.atan2(r2[1], r2[2])
+    th_e = -math.asin(max(-1.0, min(1.0, r2[0])))
+    sph, cph = math.sin(phi_e), math.cos(phi_e)
+    cth, sth = math.cos(th_e), math.sin(th_e)
+    dphi = pc + (qc * sph + rc * cph) * sth / cth
+    dth = qc * cph - rc * sph
+    dpsi = (qc * sph + rc * cph) / cth
+    err = math.remainder(psi_e - psi_ref, math.tau)
+    psi_dd = -k_yaw[1] * dpsi - k_yaw[0] * err
+    drift = (qc * cph * dphi - rc * sph * dphi) / cth + (qc * sph + rc * cph) * sth \
+        * dth / (cth * cth)
+    rdot = ((psi_dd - drift) * cth - qdot * sph) / cph
+    return iz * rdot + kr * rc + (iy - ix) * pc * qc
+
+
+def saturate(f: Sequence[float], raw: Sequence[float], last: Sequence[float], fmax: float
+             ) -> tuple[list[float], list[bool]]:
+    """(f clipped to [0, f_max], saturated flags of the unbounded thrusts ``raw``); a
+    non-finite thrust (f − f is NaN) keeps the ``last`` command (floats only)."""
+    hi = fmax + 1e-9
+    r0, r1, r2, r3 = raw
+    sat = [not -1e-9 <= r0 <= hi, not -1e-9 <= r1 <= hi, not -1e-9 <= r2 <= hi,
+           not -1e-9 <= r3 <= hi]
+    # max(f, 0), min(·, f_max) written out, rotor by rotor (this runs every tick).
+    f0, f1, f2, f3 = f
+    l0, l1, l2, l3 = last
+    return [(0.0 if f0 < 0.0 else (fmax if fmax < f0 else f0)) if f0 - f0 == 0.0 else l0,
+            (0.0 if f1 < 0.0 else (fmax if fmax < f1 else f1)) if f1 - f1 == 0.0 else l1,
+            (0.0 if f2 < 0.0 else (fmax if fmax < f2 else f2)) if f2 - f2 == 0.0 else l2,
+            (0.0 if f3 < 0.0 else (fmax if fmax < f3 else f3)) if f3 - f3 == 0.0 else l3], sat
+
+
+def rate_prediction(d0: Any, d1: Any, d2: Any, d3: Any, pc: Any, qc: Any, rc: Any, ix: Any,
+                    iy: Any, iz: Any, kr: Any, arm: Any) -> tuple[Any, Any]:
+    """ṗ, q̇ the model predicts (eq. (3)) for the thrusts d0…d3 canonical rotors 1-4
+    deliver: τ_p' = l (f₄' − f₂'), τ_q' = l (f₃' − f₁')."""
+    return ((arm * (d3 - d1) - kr * pc - (iz - iy) * qc * rc) / ix,
+            (arm * (d2 - d0) - kr * qc - (ix - iz) * pc * rc) / iy)
