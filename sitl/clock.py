@@ -120,6 +120,12 @@ class Paced(Protocol):
     def step(self) -> str | None:
         """Integrate one control period; the crash reason, if any."""
 
+    def defer_recording(self, defer: bool) -> None:
+        """Queue the recorder hooks (True) or hand them over and call them at once again."""
+
+    def hand_off(self) -> None:
+        """Call the queued recorder hooks, in order (the simulator is as it was queued)."""
+
     def status(self, severity: int, text: str, *, key: str | None = None) -> None:
         """STATUSTEXT to both peers (rate-limited per ``key``)."""
 
@@ -144,21 +150,38 @@ class LockstepClock:
         self._next_gcs_s = 0.0       # wall time the GCS port is next read
 
     def run(self, n_ticks: float) -> tuple[ExitStatus, str]:
+        """The tick, ordered for the critical path: the reply k → apply → integrate → the
+        HEARTBEAT if due and the state k+1 on the wire; then, while the controller
+        computes, what only reports on the tick (recorder hand-off, GCS). Same messages,
+        same order on each port as "state, GCS, wait, step" (the recorder's calls are
+        queued in between and handed over in order: :meth:`Paced.hand_off`)."""
         v = self.vehicle
         sim = v.sim
         stats = v.stats
         ticks_per_heartbeat = max(1, round(1.0 / sim.control_dt_s))
-        while stats.ticks < n_ticks:
+        if stats.ticks >= n_ticks:
+            return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
+        v.defer_recording(True)
+        try:
             if stats.ticks % ticks_per_heartbeat == 0:
                 v.send_heartbeat()
             v.publish_state()
-            v.gcs_periodic()
-            if not self._await_reply(sim.time_usec):
-                return ExitStatus.STOPPED, "stopped on request"
-            crash = v.step()
-            if crash is not None:
-                return ExitStatus.CRASHED, crash
-        return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
+            while True:
+                v.gcs_periodic()
+                if not self._await_reply(sim.time_usec):
+                    return ExitStatus.STOPPED, "stopped on request"
+                # --- critical path: reply consumed → next state sent
+                crash = v.step()
+                if crash is not None:
+                    return ExitStatus.CRASHED, crash
+                if stats.ticks >= n_ticks:
+                    return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
+                if stats.ticks % ticks_per_heartbeat == 0:
+                    v.send_heartbeat()
+                v.publish_state()
+                # --- the controller computes from here: report on the tick
+        finally:
+            v.defer_recording(False)
 
     def _await_reply(self, time_usec: int) -> bool:
         """Block until the reply for ``time_usec`` is consumed; False if stopped.
@@ -172,6 +195,7 @@ class LockstepClock:
         interval = self.resend_s
         resend_at = now + interval
         while True:
+            v.hand_off()      # the recorder's share of the tick, before we block
             awaited = time_usec
             # One datagram a pass: the reply comes alone, and the loop reads what follows.
             for msg in ctl.recv(min(WAIT_SLICE_S, resend_at - now), drain=False):

@@ -48,7 +48,12 @@ a key mismatch is visible at once.
 **Recorder hooks.** ``on_frame(direction, raw, msg, time_s)`` is given to both links (every
 frame, both directions, exact bytes); ``on_truth(sim)`` is called with the simulator at every
 control tick's state: once for the initial state and once after each step.
-:func:`truth_hook` makes one from a flight recorder.
+:func:`truth_hook` makes one from a flight recorder. In lockstep the hooks run off the
+critical path: from the controller's reply to the next state on the wire they are queued
+(frames with the wall time the link stamped them, truth as a marker: the simulator does
+not change until the next reply), and handed over, in the order they happened, while the
+controller computes (:meth:`Vehicle.hand_off`). What a recorder gets is the same calls
+with the same arguments in the same order, only later.
 
 Single-threaded: :meth:`Vehicle.run` must be called from one thread; :meth:`Vehicle.stop` is
 safe from any thread or a signal handler.
@@ -93,6 +98,7 @@ _IGNORED_IDS = (mav.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT, mav.MAVLINK_MSG_ID_DEBUG_F
 _CONTROL_LINK_ID, _GCS_LINK_ID = 0, 1      # MAVLink signing link ids of our two ports
 _FINAL_HEARTBEATS, _FINAL_HEARTBEAT_GAP_S = 3, 0.01   # the last HEARTBEAT, sent 3 times
 _REFUSAL_INTERVAL_S = 1.0                   # STATUSTEXT to one refused sender at most 1/s
+_TRUTH: tuple[Any, ...] = ("truth",)        # queued marker: call on_truth with the sim
 
 
 class Vehicle:
@@ -130,6 +136,10 @@ class Vehicle:
         self.scenario = scenario
         self.sim = Simulator(scenario)
         self.on_truth = on_truth
+        self.on_frame = on_frame
+        # Lockstep: recorder calls queued on the critical path (None: call them at once).
+        self._deferred: list[tuple[Any, ...]] | None = None
+        hook = self._frame_hook if on_frame is not None else None
         # The links.
         self.signing = Signing(key) if key is not None else None
         self.announce = announce
@@ -139,14 +149,14 @@ class Vehicle:
         self._flight_wall0 = 0.0
         self.lockstep_timeout_s = lockstep_timeout_s
         self.control_link = Link.listen(listen, src_system=sysid, src_component=compid,
-                                        peer=peer, on_frame=on_frame, signing=self.signing,
+                                        peer=peer, on_frame=hook, signing=self.signing,
                                         link_id=_CONTROL_LINK_ID, admit=self._admit,
                                         skim_ids=_IGNORED_IDS)
         self.gcs_link: Link | None = None
         if gcs is not None:
             try:
                 self.gcs_link = Link.connect(gcs, src_system=sysid, src_component=compid,
-                                             on_frame=on_frame, signing=self.signing,
+                                             on_frame=hook, signing=self.signing,
                                              link_id=_GCS_LINK_ID)
             except Exception:
                 self.control_link.close()
@@ -405,10 +415,45 @@ class Vehicle:
         sim = self.sim
         sim.step_control_period()
         self.stats.ticks += 1
-        self.power.step(sim.motors.omega_radps, sim.control_dt_s)
+        self.power.step(sim.motors.omega_radps, sim.control_dt_s)   # the next ESC report
         if self.on_truth is not None:
-            self.on_truth(sim)
+            deferred = self._deferred
+            if deferred is None:
+                self.on_truth(sim)
+            else:
+                deferred.append(_TRUTH)
         return sim.crash_reason()
+
+    # ------------------------------------------------------------------ recorder hand-off
+    def defer_recording(self, defer: bool) -> None:
+        """Queue the recorder hooks from now on (lockstep's critical path), or hand over
+        what is queued and call them at once again."""
+        if defer:
+            if self._deferred is None:
+                self._deferred = []
+        else:
+            self.hand_off()
+            self._deferred = None
+
+    def hand_off(self) -> None:
+        """Call the queued recorder hooks, in the order they happened."""
+        queued = self._deferred
+        if not queued:
+            return
+        self._deferred = []
+        on_frame = self.on_frame
+        for item in queued:
+            if item is _TRUTH:
+                self.on_truth(self.sim)   # type: ignore[misc]
+            else:
+                on_frame(*item)           # type: ignore[misc]
+
+    def _frame_hook(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
+        deferred = self._deferred
+        if deferred is None:
+            self.on_frame(direction, raw, msg, time_s)   # type: ignore[misc]
+        else:
+            deferred.append((direction, raw, msg, time_s))
 
     def status(self, severity: int, text: str, *, key: str | None = None) -> None:
         self.statustext.send(severity, text, key=key)
