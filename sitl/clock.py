@@ -186,8 +186,10 @@ class LockstepClock:
     def _await_reply(self, time_usec: int) -> bool:
         """Block until the reply for ``time_usec`` is consumed; False if stopped.
 
-        The wait is the control link's ``recvfrom`` itself (no select); the GCS port is
-        read every ``GCS_POLL_S`` of wall time, not on every tick (a GCS is a person)."""
+        The wait is the control link's ``recvfrom`` itself (no select). Before each wait:
+        the recorder hand-off, and the GCS port, read every ``GCS_POLL_S`` of wall time,
+        not on every tick (a GCS is a person): both while the controller computes, so
+        the consumed reply goes straight on to the next state."""
         v = self.vehicle
         ctl = v.control_link
         now = time.monotonic()
@@ -195,7 +197,10 @@ class LockstepClock:
         interval = self.resend_s
         resend_at = now + interval
         while True:
-            v.hand_off()      # the recorder's share of the tick, before we block
+            v.hand_off()      # the recorder's share of the tick
+            if now >= self._next_gcs_s:
+                self._next_gcs_s = now + GCS_POLL_S
+                v.serve_gcs()
             awaited = time_usec
             # One datagram a pass: the reply comes alone, and the loop reads what follows.
             for msg in ctl.recv(min(WAIT_SLICE_S, resend_at - now), drain=False):
@@ -203,12 +208,9 @@ class LockstepClock:
                 # is consumed, a duplicate for the same tick is stale (-1 matches nothing).
                 if v.dispatch(msg, awaited):
                     awaited = -1
-            now = time.monotonic()
-            if now >= self._next_gcs_s:
-                self._next_gcs_s = now + GCS_POLL_S
-                v.serve_gcs()
             if awaited == -1:
                 return True
+            now = time.monotonic()
             if v.stopped():
                 return False
             if now >= deadline:
