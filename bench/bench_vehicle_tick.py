@@ -30,6 +30,7 @@ import json
 import platform
 import socket
 import statistics
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -104,6 +105,8 @@ def measure_clock(ticks: int, blocks: int, record: bool) -> dict[str, float]:
         marks.append((1, clock()))
         return n
 
+    # the block's replies wait on the socket: room for them (default buffers hold ~200)
+    ctl._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
     ctl.recv = timed_recv              # type: ignore[method-assign]
     ctl.send_many = timed_send_many    # type: ignore[method-assign]
     whole, critical = float("inf"), float("inf")
@@ -116,7 +119,10 @@ def measure_clock(ticks: int, blocks: int, record: bool) -> dict[str, float]:
             if k % 20 == 0:
                 sink.sendto(telemetry, vehicle.listen_address)
         marks.clear()
+        watchdog = threading.Timer(60.0, vehicle.stop)   # a lost reply would wait forever
+        watchdog.start()
         status, reason = vehicle.clock.run(k0 + ticks)
+        watchdog.cancel()
         if vehicle.stats.ticks != k0 + ticks:
             raise RuntimeError(f"clock run ended early: {status} {reason}")
         gaps = [b[1] - a[1] for a, b in itertools.pairwise(marks) if a[0] == 0 and b[0] == 1]
@@ -207,7 +213,7 @@ def main() -> int:
     result = measure(args.calls, args.blocks)
     for record in (False, True):
         label = "with a recorder's hand-off" if record else "no recorder"
-        clocked = measure_clock(max(50, args.calls // 10), args.blocks, record)
+        clocked = measure_clock(100, max(args.blocks, args.calls // 100), record)
         result[f"lockstep clock, {label}: whole tick"] = clocked["whole tick"]
         result[f"lockstep clock, {label}: reply → next state sent"] = clocked["critical path"]
     print(f"bench_vehicle_tick (python {platform.python_version()}, min of {args.blocks} "

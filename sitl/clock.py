@@ -20,7 +20,11 @@ longer first interval would buy nothing and cost every lost datagram more. No re
 limited, with the count suppressed); the tick is never skipped, so a lockstep run is
 deterministic and runs as fast as both processes allow. The control port's HEARTBEAT is
 paced by sim time (every 1 s of it), so the control port's traffic is a pure function of the
-scenario and the controller's replies.
+scenario and the controller's replies. The loop is serial, so only the work from the reply
+to the next state delays it: that stretch is apply, integrate, the power model and the crash
+check, then the state on the wire; the recorder's hooks are queued meanwhile and handed
+over, in order, with the GCS port's traffic, while the controller computes
+(bench/bench_vehicle_tick.py times both stretches).
 
 **Real time** (:class:`RealtimeClock`). Sim time starts only once commands flow: after the
 controller's HEARTBEAT the vehicle sends the t = 0 state every 10 ms (time not advancing,

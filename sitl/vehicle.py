@@ -49,11 +49,7 @@ a key mismatch is visible at once.
 frame, both directions, exact bytes); ``on_truth(sim)`` is called with the simulator at every
 control tick's state: once for the initial state and once after each step.
 :func:`truth_hook` makes one from a flight recorder. In lockstep the hooks run off the
-critical path: from the controller's reply to the next state on the wire they are queued
-(frames with the wall time the link stamped them, truth as a marker: the simulator does
-not change until the next reply), and handed over, in the order they happened, while the
-controller computes (:meth:`Vehicle.hand_off`). What a recorder gets is the same calls
-with the same arguments in the same order, only later.
+critical path (:mod:`sitl.recording`): the same calls in the same order, only later.
 
 Single-threaded: :meth:`Vehicle.run` must be called from one thread; :meth:`Vehicle.stop` is
 safe from any thread or a signal handler.
@@ -65,14 +61,15 @@ import math
 import select
 import threading
 import time
-from collections.abc import Callable, Sequence
-from typing import Any, Protocol
+from collections.abc import Callable
+from typing import Any
 
 from sitl.clock import WAIT_SLICE_S, Clock, HeldCommand, LockstepClock, RealtimeClock
 from sitl.commands import CONTROL_TOLERANCE, ActuatorControls, CommandHandler, Outcome
 from sitl.gcs import FlightStatus, GcsTelemetry, Origin, StatusText
 from sitl.ground import GroundCommands
 from sitl.power import PowerModel
+from sitl.recording import HandOff, TruthSink, truth_hook
 from sitl.results import ExitStatus, VehicleResult, VehicleStats
 from sitl.simulator import Simulator
 from sitl.state_report import StateReport
@@ -84,6 +81,7 @@ from tfl_mav.scenario import Scenario
 __all__ = [
     "CONTROL_TOLERANCE",
     "ExitStatus",
+    "TruthSink",
     "Vehicle",
     "VehicleResult",
     "VehicleStats",
@@ -98,7 +96,6 @@ _IGNORED_IDS = (mav.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT, mav.MAVLINK_MSG_ID_DEBUG_F
 _CONTROL_LINK_ID, _GCS_LINK_ID = 0, 1      # MAVLink signing link ids of our two ports
 _FINAL_HEARTBEATS, _FINAL_HEARTBEAT_GAP_S = 3, 0.01   # the last HEARTBEAT, sent 3 times
 _REFUSAL_INTERVAL_S = 1.0                   # STATUSTEXT to one refused sender at most 1/s
-_TRUTH: tuple[Any, ...] = ("truth",)        # queued marker: call on_truth with the sim
 
 
 class Vehicle:
@@ -135,11 +132,8 @@ class Vehicle:
             raise ValueError(f"gcs_rate_hz: must be in (0, 50] Hz, got {gcs_rate_hz}")
         self.scenario = scenario
         self.sim = Simulator(scenario)
-        self.on_truth = on_truth
-        self.on_frame = on_frame
-        # Lockstep: recorder calls queued on the critical path (None: call them at once).
-        self._deferred: list[tuple[Any, ...]] | None = None
-        hook = self._frame_hook if on_frame is not None else None
+        self.recording = HandOff(self.sim, on_frame, on_truth)
+        hook = self.recording.frame if on_frame is not None else None
         # The links.
         self.signing = Signing(key) if key is not None else None
         self.announce = announce
@@ -198,6 +192,14 @@ class Vehicle:
         self._refused_reported = 0   # signing refusals already announced before the flight
 
     # ------------------------------------------------------------------ lifecycle
+    @property
+    def on_truth(self) -> Callable[[Simulator], None] | None:
+        return self.recording.on_truth
+
+    @on_truth.setter
+    def on_truth(self, hook: Callable[[Simulator], None] | None) -> None:
+        self.recording.on_truth = hook
+
     @property
     def listen_address(self) -> Address:
         """The control port actually bound (resolves an ephemeral port 0)."""
@@ -416,71 +418,17 @@ class Vehicle:
         sim.step_control_period()
         self.stats.ticks += 1
         self.power.step(sim.motors.omega_radps, sim.control_dt_s)   # the next ESC report
-        if self.on_truth is not None:
-            deferred = self._deferred
-            if deferred is None:
-                self.on_truth(sim)
-            else:
-                deferred.append(_TRUTH)
+        self.recording.truth()
         return sim.crash_reason()
 
-    # ------------------------------------------------------------------ recorder hand-off
     def defer_recording(self, defer: bool) -> None:
-        """Queue the recorder hooks from now on (lockstep's critical path), or hand over
-        what is queued and call them at once again."""
-        if defer:
-            if self._deferred is None:
-                self._deferred = []
-        else:
-            self.hand_off()
-            self._deferred = None
+        self.recording.defer(defer)
 
     def hand_off(self) -> None:
-        """Call the queued recorder hooks, in the order they happened."""
-        queued = self._deferred
-        if not queued:
-            return
-        self._deferred = []
-        on_frame = self.on_frame
-        for item in queued:
-            if item is _TRUTH:
-                self.on_truth(self.sim)   # type: ignore[misc]
-            else:
-                on_frame(*item)           # type: ignore[misc]
-
-    def _frame_hook(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
-        deferred = self._deferred
-        if deferred is None:
-            self.on_frame(direction, raw, msg, time_s)   # type: ignore[misc]
-        else:
-            deferred.append((direction, raw, msg, time_s))
+        self.recording.flush()
 
     def status(self, severity: int, text: str, *, key: str | None = None) -> None:
         self.statustext.send(severity, text, key=key)
 
     def cut_motors(self, silent_s: float, timeout_s: float) -> None:
         self.controls.cut_motors(silent_s, timeout_s)
-
-
-# ---------------------------------------------------------------------------- recording
-class TruthSink(Protocol):
-    """The part of a flight recorder (``tfl_mav.flightlog``) that takes ground truth."""
-
-    def truth(self, time_s: float, position_m: Sequence[float], velocity_mps: Sequence[float],
-              quaternion_wxyz: Sequence[float], body_rates_radps: Sequence[float],
-              rotor_thrust_n: Sequence[float], attack_rotor: int, attack_applied_n: float,
-              attack_requested_n: float, /) -> None: ...
-
-
-def truth_hook(recorder: TruthSink) -> Callable[[Simulator], None]:
-    """``Vehicle.on_truth`` → ``recorder.truth``: true state, rotor thrusts and attack."""
-
-    def on_truth(sim: Simulator) -> None:
-        # the float state vector, sliced (sim.state would build five arrays a tick only to
-        # turn them back into these very lists)
-        x = sim.state_vector
-        att = sim.attack
-        recorder.truth(sim.time_s, x[0:3], x[3:6], x[6:10], x[10:13],
-                       sim.rotor_thrusts_n, att.rotor, att.applied_n, att.raw_n)
-
-    return on_truth
