@@ -8,6 +8,15 @@ The control link sends to a local sink socket (real ``sendto``), frames come in 
 the link's own ``_ingest`` (no ``recvfrom``). The daemon's telemetry (4 NAMED_VALUE_FLOAT +
 DEBUG_FLOAT_ARRAY, one datagram at ≤ 50 Hz of sim time) is timed per datagram.
 
+Then the tick as the vehicle's own lockstep clock runs it (``LockstepClock.run``), with the
+controller's replies already queued on the socket (so no wait: what is left is the
+vehicle's CPU), a GCS port and the daemon's telemetry every 20 ticks, without and with a
+recorder's hand-off (``on_frame``/``on_truth`` appending to a queue, as
+``RecorderProcess`` does): per tick, the whole tick, and the **critical path**, from the
+``recv`` that brought the reply to the next state's ``send_many`` returning (the link's two
+methods timed from outside, so older revisions measure the same thing). Only the critical
+path delays the controller; the rest runs while it computes.
+
 Usage: ``python bench/bench_vehicle_tick.py [--calls N] [--blocks N] [--json FILE]`` from the
 repository root; it runs on any revision with the same public API (before/after tables).
 """
@@ -15,9 +24,13 @@ repository root; it runs on any revision with the same public API (before/after 
 from __future__ import annotations
 
 import argparse
+import collections
+import itertools
 import json
 import platform
 import socket
+import statistics
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -40,6 +53,92 @@ def _telemetry_datagram() -> bytes:
               for name in (b"mode", b"det_rotor", b"atk_est_n", b"path_m")),
             mav.MAVLink_debug_float_array_message(7000, b"tfl", 1, [0.1] * 58)]
     return b"".join(bytes(m.pack(packer)) for m in msgs)
+
+
+class _Recorder:
+    """What RecorderProcess's hooks do on the hot path: a tuple appended to a queue."""
+
+    def __init__(self) -> None:
+        self.queue: collections.deque[Any] = collections.deque(maxlen=100_000)
+
+    def on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
+        self.queue.append((0, time_s, direction, bytes(raw), msg is not None))
+
+    def truth(self, *args: Any) -> None:
+        self.queue.append((1, time.time(), args))
+
+
+def measure_clock(ticks: int, blocks: int, record: bool) -> dict[str, float]:
+    """µs per tick through ``LockstepClock.run`` with the replies pre-queued: the minimum
+    over ``blocks`` of the median tick (state sent to state sent) and of the median
+    critical path (reply received to state sent)."""
+    from harness.pilot import hover_fraction
+
+    sc = load_scenario("paper").replace(**{"attack.rotor": 0,
+                                           "initial.position_m": [0.0, 0.0, 5.0]})
+    rec = _Recorder()
+    sink = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sink.bind(("127.0.0.1", 0))
+    sink.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+    sink.setblocking(False)
+    vehicle = Vehicle(sc, listen=("127.0.0.1", 0), gcs=sink.getsockname(),
+                      peer=sink.getsockname(), resend_interval_s=1.0, lockstep_timeout_s=5.0,
+                      on_frame=rec.on_frame if record else None,
+                      on_truth=truth_hook(rec) if record else None)
+    vehicle._flying = vehicle._confirmed = vehicle._controller_seen = True
+    ctl = vehicle.control_link
+    ctl.peer_sysid = 1
+    packer = new_mavlink(1, 191)
+    fraction = hover_fraction(sc)
+    telemetry = _telemetry_datagram()
+    marks: list[tuple[int, float]] = []   # (0: recv returned, 1: state sent, time)
+    recv, send_many = ctl.recv, ctl.send_many
+    clock = time.perf_counter
+
+    def timed_recv(*args: Any, **kw: Any) -> Any:
+        out = recv(*args, **kw)
+        marks.append((0, clock()))
+        return out
+
+    def timed_send_many(msgs: Any) -> int:
+        n = send_many(msgs)
+        marks.append((1, clock()))
+        return n
+
+    # the block's replies wait on the socket: room for them (default buffers hold ~200)
+    ctl._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 22)
+    ctl.recv = timed_recv              # type: ignore[method-assign]
+    ctl.send_many = timed_send_many    # type: ignore[method-assign]
+    whole, critical = float("inf"), float("inf")
+    for _ in range(blocks):
+        k0 = vehicle.stats.ticks
+        for k in range(k0, k0 + ticks):   # the replies, queued before the clock runs
+            sink.sendto(bytes(mav.MAVLink_hil_actuator_controls_message(
+                k * 1000, [fraction] * 4 + [0.0] * 12, 128, 1).pack(packer)),
+                vehicle.listen_address)
+            if k % 20 == 0:
+                sink.sendto(telemetry, vehicle.listen_address)
+        marks.clear()
+        watchdog = threading.Timer(60.0, vehicle.stop)   # a lost reply would wait forever
+        watchdog.start()
+        status, reason = vehicle.clock.run(k0 + ticks)
+        watchdog.cancel()
+        if vehicle.stats.ticks != k0 + ticks:
+            raise RuntimeError(f"clock run ended early: {status} {reason}")
+        gaps = [b[1] - a[1] for a, b in itertools.pairwise(marks) if a[0] == 0 and b[0] == 1]
+        sent = [t for kind, t in marks if kind == 1]
+        # the median tick (a mean would charge other processes' time slices to it)
+        whole = min(whole, statistics.median(b - a for a, b in itertools.pairwise(sent)) * 1e6)
+        critical = min(critical, statistics.median(gaps) * 1e6)
+        rec.queue.clear()
+        try:
+            while True:
+                sink.recv(65535)
+        except BlockingIOError:
+            pass
+    sink.close()
+    vehicle.close()
+    return {"whole tick": whole, "critical path": critical}
 
 
 def measure(calls: int, blocks: int) -> dict[str, float]:
@@ -112,10 +211,15 @@ def main() -> int:
     if args.calls < 1 or args.blocks < 1:
         parser.error("--calls and --blocks: must be ≥ 1")
     result = measure(args.calls, args.blocks)
+    for record in (False, True):
+        label = "with a recorder's hand-off" if record else "no recorder"
+        clocked = measure_clock(100, max(args.blocks, args.calls // 100), record)
+        result[f"lockstep clock, {label}: whole tick"] = clocked["whole tick"]
+        result[f"lockstep clock, {label}: reply → next state sent"] = clocked["critical path"]
     print(f"bench_vehicle_tick (python {platform.python_version()}, min of {args.blocks} "
           f"blocks of {args.calls} calls)")
     for name, us in result.items():
-        print(f"  {name:<55}  {us:>8.2f} µs")
+        print(f"  {name:<68}  {us:>8.2f} µs")
     if args.json:
         Path(args.json).write_text(json.dumps({"python": platform.python_version(),
                                                "us": result}, indent=2))

@@ -20,7 +20,11 @@ longer first interval would buy nothing and cost every lost datagram more. No re
 limited, with the count suppressed); the tick is never skipped, so a lockstep run is
 deterministic and runs as fast as both processes allow. The control port's HEARTBEAT is
 paced by sim time (every 1 s of it), so the control port's traffic is a pure function of the
-scenario and the controller's replies.
+scenario and the controller's replies. The loop is serial, so only the work from the reply
+to the next state delays it: that stretch is apply, integrate, the power model and the crash
+check, then the state on the wire; the recorder's hooks are queued meanwhile and handed
+over, in order, with the GCS port's traffic, while the controller computes
+(bench/bench_vehicle_tick.py times both stretches).
 
 **Real time** (:class:`RealtimeClock`). Sim time starts only once commands flow: after the
 controller's HEARTBEAT the vehicle sends the t = 0 state every 10 ms (time not advancing,
@@ -120,6 +124,12 @@ class Paced(Protocol):
     def step(self) -> str | None:
         """Integrate one control period; the crash reason, if any."""
 
+    def defer_recording(self, defer: bool) -> None:
+        """Queue the recorder hooks (True) or hand them over and call them at once again."""
+
+    def hand_off(self) -> None:
+        """Call the queued recorder hooks, in order (the simulator is as it was queued)."""
+
     def status(self, severity: int, text: str, *, key: str | None = None) -> None:
         """STATUSTEXT to both peers (rate-limited per ``key``)."""
 
@@ -144,27 +154,46 @@ class LockstepClock:
         self._next_gcs_s = 0.0       # wall time the GCS port is next read
 
     def run(self, n_ticks: float) -> tuple[ExitStatus, str]:
+        """The tick, ordered for the critical path: the reply k → apply → integrate → the
+        HEARTBEAT if due and the state k+1 on the wire; then, while the controller
+        computes, what only reports on the tick (recorder hand-off, GCS). Same messages,
+        same order on each port as "state, GCS, wait, step" (the recorder's calls are
+        queued in between and handed over in order: :meth:`Paced.hand_off`)."""
         v = self.vehicle
         sim = v.sim
         stats = v.stats
         ticks_per_heartbeat = max(1, round(1.0 / sim.control_dt_s))
-        while stats.ticks < n_ticks:
+        if stats.ticks >= n_ticks:
+            return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
+        v.defer_recording(True)
+        try:
             if stats.ticks % ticks_per_heartbeat == 0:
                 v.send_heartbeat()
             v.publish_state()
-            v.gcs_periodic()
-            if not self._await_reply(sim.time_usec):
-                return ExitStatus.STOPPED, "stopped on request"
-            crash = v.step()
-            if crash is not None:
-                return ExitStatus.CRASHED, crash
-        return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
+            while True:
+                v.gcs_periodic()
+                if not self._await_reply(sim.time_usec):
+                    return ExitStatus.STOPPED, "stopped on request"
+                # --- critical path: reply consumed → next state sent
+                crash = v.step()
+                if crash is not None:
+                    return ExitStatus.CRASHED, crash
+                if stats.ticks >= n_ticks:
+                    return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
+                if stats.ticks % ticks_per_heartbeat == 0:
+                    v.send_heartbeat()
+                v.publish_state()
+                # --- the controller computes from here: report on the tick
+        finally:
+            v.defer_recording(False)
 
     def _await_reply(self, time_usec: int) -> bool:
         """Block until the reply for ``time_usec`` is consumed; False if stopped.
 
-        The wait is the control link's ``recvfrom`` itself (no select); the GCS port is
-        read every ``GCS_POLL_S`` of wall time, not on every tick (a GCS is a person)."""
+        The wait is the control link's ``recvfrom`` itself (no select). Before each wait:
+        the recorder hand-off, and the GCS port, read every ``GCS_POLL_S`` of wall time,
+        not on every tick (a GCS is a person): both while the controller computes, so
+        the consumed reply goes straight on to the next state."""
         v = self.vehicle
         ctl = v.control_link
         now = time.monotonic()
@@ -172,6 +201,10 @@ class LockstepClock:
         interval = self.resend_s
         resend_at = now + interval
         while True:
+            v.hand_off()      # the recorder's share of the tick
+            if now >= self._next_gcs_s:
+                self._next_gcs_s = now + GCS_POLL_S
+                v.serve_gcs()
             awaited = time_usec
             # One datagram a pass: the reply comes alone, and the loop reads what follows.
             for msg in ctl.recv(min(WAIT_SLICE_S, resend_at - now), drain=False):
@@ -179,12 +212,9 @@ class LockstepClock:
                 # is consumed, a duplicate for the same tick is stale (-1 matches nothing).
                 if v.dispatch(msg, awaited):
                     awaited = -1
-            now = time.monotonic()
-            if now >= self._next_gcs_s:
-                self._next_gcs_s = now + GCS_POLL_S
-                v.serve_gcs()
             if awaited == -1:
                 return True
+            now = time.monotonic()
             if v.stopped():
                 return False
             if now >= deadline:

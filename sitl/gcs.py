@@ -41,6 +41,7 @@ from sitl.simulator import Simulator
 from sitl.state_report import StateReport
 from tfl_mav.frames import odometry_from_paper
 from tfl_mav.geometry import rotation_rows
+from tfl_mav.link.codec import UNSENT, lite_class
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.transport import Link
 
@@ -62,6 +63,16 @@ PX4_MAIN_OFFBOARD = 6
 PX4_MAIN_MODE_NAMES = {1: "MANUAL", 2: "ALTCTL", 3: "POSCTL", 4: "AUTO", 5: "ACRO",
                        6: "OFFBOARD", 7: "STABILIZED", 8: "RATTITUDE"}
 EARTH_RADIUS_M = 6_378_137.0   # WGS-84 equatorial radius
+# The telemetry as the codec's wire tuples (tfl_mav.link.codec.lite_class): the bytes of
+# pymavlink's messages with the same fields, without their constructors.
+_new = tuple.__new__
+_Attitude = lite_class(mav.MAVLINK_MSG_ID_ATTITUDE)
+_LocalPosition = lite_class(mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
+_GlobalPosition = lite_class(mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT)
+_Applied = lite_class(mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS)
+_SysStatus = lite_class(mav.MAVLINK_MSG_ID_SYS_STATUS)
+_PAD28_UNSENT = (0.0,) * 28 + (UNSENT,)     # actuator[4..31], then the frame item
+_EXTENDED_UNSENT = (0, 0, 0, UNSENT)         # SYS_STATUS *_extended, then the frame item
 
 
 @dataclass(frozen=True)
@@ -258,7 +269,7 @@ class GcsTelemetry:
         ve, vn, vu = m.velocity_mps
         v_ned = (vn, ve, -vu)               # enu_to_ned, as floats
         fmax = sim.thrust_max_n
-        actuators = [c / fmax for c in sim.rotor_commands_n] + [0.0] * 28
+        c1, c2, c3, c4 = sim.rotor_commands_n
         p = self.power.sample
         st = self.stats
         links = [s for s in (st.control_link, st.gcs_link) if s is not None]
@@ -268,25 +279,28 @@ class GcsTelemetry:
                                       if self.held.motors_cut or self.flight.killed else 0)
         lat, lon, alt = self.origin.global_of(f.x, f.y, f.z)
         heading_cdeg = round(math.degrees(yaw) * 100.0) % 36000
-        msgs = [
-            mav.MAVLink_attitude_message(t_ms, roll, pitch, yaw, f.rollspeed, f.pitchspeed,
-                                         f.yawspeed),
-            mav.MAVLink_local_position_ned_message(t_ms, f.x, f.y, f.z, float(v_ned[0]),
-                                                   float(v_ned[1]), float(v_ned[2])),
-            mav.MAVLink_global_position_int_message(
+        # wire order (pymavlink's ordered_fieldnames), the frame item last
+        msgs: list[Any] = [
+            _new(_Attitude, (t_ms, roll, pitch, yaw, f.rollspeed, f.pitchspeed, f.yawspeed,
+                             UNSENT)),
+            _new(_LocalPosition, (t_ms, f.x, f.y, f.z, float(v_ned[0]), float(v_ned[1]),
+                                  float(v_ned[2]), UNSENT)),
+            _new(_GlobalPosition, (
                 t_ms, round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0),
                 round(-f.z * 1000.0), _cm(v_ned[0]), _cm(v_ned[1]), _cm(v_ned[2]),
-                heading_cdeg),
-            mav.MAVLink_actuator_output_status_message(sim.time_usec, 4, actuators),
-            mav.MAVLink_sys_status_message(
+                heading_cdeg, UNSENT)),
+            _new(_Applied, (sim.time_usec, 4, c1 / fmax, c2 / fmax, c3 / fmax, c4 / fmax,
+                            *_PAD28_UNSENT)),
+            _new(_SysStatus, (
                 _SENSORS, _SENSORS, sensors_health, 0,
                 min(65535, round(p.voltage_v * 1000.0)),
                 min(32767, round(p.total_current_a * 100.0)),
-                max(0, min(100, round(p.remaining_pct))),
-                min(10000, round(10000.0 * rejected / rx)) if rx else 0,
-                min(65535, rejected),
+                min(10000, round(10000.0 * rejected / rx)) if rx else 0,   # drop_rate_comm
+                min(65535, rejected),                                      # errors_comm
                 min(65535, st.rejected_controls), min(65535, st.lockstep_timeouts),
-                min(65535, st.command_timeouts), min(65535, st.stale_controls)),
+                min(65535, st.command_timeouts), min(65535, st.stale_controls),
+                max(0, min(100, round(p.remaining_pct))),                  # battery_remaining
+                *_EXTENDED_UNSENT)),
         ]
         esc = self.report.esc
         if esc is not None:

@@ -85,19 +85,24 @@ class StateReport:
             m.position_m, m.velocity_mps, m.quaternion_wxyz, m.body_rates_radps)
         odometry = _new(_Odometry, (sim.time_usec, x, y, z, *q, vx, vy, vz, p, qq, r,
                                     *self._odometry_tail))
-        pw = self.power.sample
+        volts, (i1, i2, i3, i4), (q1, q2, q3, q4), (t1, t2, t3, t4), _ = self.power.sample
+        r1, r2, r3, r4 = sim.measured_rpm_floats
         self._esc_count = n = (self._esc_count + 1) & 0xFFFF
-        cv = min(65535, round(pw.voltage_v * 100.0))
-        i1, i2, i3, i4 = pw.currents_a
-        # current (cA), totalcurrent (mAh), rpm: rounded, ≥ 0 here, clamped to uint16
-        u16 = list(map(round, (i1 * 100.0, i2 * 100.0, i3 * 100.0, i4 * 100.0,
-                               *pw.consumed_mah, *sim.measured_rpm_floats)))
+        # Written out, one round() a field (a list through map() and the range scans cost
+        # as much again): voltage (cV), current (cA), consumed (mAh), rpm are ≥ 0 here and
+        # clamped to uint16, temperature (°C) to uint8, only when out of range.
+        cv = round(volts * 100.0)
+        if cv > 65535:
+            cv = 65535
+        u16 = (round(i1 * 100.0), round(i2 * 100.0), round(i3 * 100.0), round(i4 * 100.0),
+               round(q1), round(q2), round(q3), round(q4),
+               round(r1), round(r2), round(r3), round(r4))
         if max(u16) > 65535:
-            u16 = [65535 if v > 65535 else v for v in u16]
-        u8 = list(map(round, pw.temperatures_c))    # temperature (°C): clamped to uint8
-        if min(u8) < 0 or max(u8) > 255:
-            u8 = [0 if v < 0 else 255 if v > 255 else v for v in u8]
-        esc = _new(_Esc, (cv, cv, cv, cv, *u16, n, n, n, n, *u8, UNSENT))
+            u16 = tuple([65535 if v > 65535 else v for v in u16])
+        d1, d2, d3, d4 = round(t1), round(t2), round(t3), round(t4)
+        if not (0 <= d1 <= 255 and 0 <= d2 <= 255 and 0 <= d3 <= 255 and 0 <= d4 <= 255):
+            d1, d2, d3, d4 = [0 if v < 0 else 255 if v > 255 else v for v in (d1, d2, d3, d4)]
+        esc = _new(_Esc, (cv, cv, cv, cv, *u16, n, n, n, n, d1, d2, d3, d4, UNSENT))
         fmax = sim.thrust_max_n
         f1, f2, f3, f4 = sim.rotor_commands_n
         applied = _new(_Applied, (applied_usec, _ACTIVE, f1 / fmax, f2 / fmax, f3 / fmax,

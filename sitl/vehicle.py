@@ -48,7 +48,8 @@ a key mismatch is visible at once.
 **Recorder hooks.** ``on_frame(direction, raw, msg, time_s)`` is given to both links (every
 frame, both directions, exact bytes); ``on_truth(sim)`` is called with the simulator at every
 control tick's state: once for the initial state and once after each step.
-:func:`truth_hook` makes one from a flight recorder.
+:func:`truth_hook` makes one from a flight recorder. In lockstep the hooks run off the
+critical path (:mod:`sitl.recording`): the same calls in the same order, only later.
 
 Single-threaded: :meth:`Vehicle.run` must be called from one thread; :meth:`Vehicle.stop` is
 safe from any thread or a signal handler.
@@ -60,14 +61,15 @@ import math
 import select
 import threading
 import time
-from collections.abc import Callable, Sequence
-from typing import Any, Protocol
+from collections.abc import Callable
+from typing import Any
 
 from sitl.clock import WAIT_SLICE_S, Clock, HeldCommand, LockstepClock, RealtimeClock
 from sitl.commands import CONTROL_TOLERANCE, ActuatorControls, CommandHandler, Outcome
 from sitl.gcs import FlightStatus, GcsTelemetry, Origin, StatusText
 from sitl.ground import GroundCommands
 from sitl.power import PowerModel
+from sitl.recording import HandOff, TruthSink, truth_hook
 from sitl.results import ExitStatus, VehicleResult, VehicleStats
 from sitl.simulator import Simulator
 from sitl.state_report import StateReport
@@ -79,6 +81,7 @@ from tfl_mav.scenario import Scenario
 __all__ = [
     "CONTROL_TOLERANCE",
     "ExitStatus",
+    "TruthSink",
     "Vehicle",
     "VehicleResult",
     "VehicleStats",
@@ -129,7 +132,8 @@ class Vehicle:
             raise ValueError(f"gcs_rate_hz: must be in (0, 50] Hz, got {gcs_rate_hz}")
         self.scenario = scenario
         self.sim = Simulator(scenario)
-        self.on_truth = on_truth
+        self.recording = HandOff(self.sim, on_frame, on_truth)
+        hook = self.recording.frame if on_frame is not None else None
         # The links.
         self.signing = Signing(key) if key is not None else None
         self.announce = announce
@@ -139,14 +143,14 @@ class Vehicle:
         self._flight_wall0 = 0.0
         self.lockstep_timeout_s = lockstep_timeout_s
         self.control_link = Link.listen(listen, src_system=sysid, src_component=compid,
-                                        peer=peer, on_frame=on_frame, signing=self.signing,
+                                        peer=peer, on_frame=hook, signing=self.signing,
                                         link_id=_CONTROL_LINK_ID, admit=self._admit,
                                         skim_ids=_IGNORED_IDS)
         self.gcs_link: Link | None = None
         if gcs is not None:
             try:
                 self.gcs_link = Link.connect(gcs, src_system=sysid, src_component=compid,
-                                             on_frame=on_frame, signing=self.signing,
+                                             on_frame=hook, signing=self.signing,
                                              link_id=_GCS_LINK_ID)
             except Exception:
                 self.control_link.close()
@@ -188,6 +192,14 @@ class Vehicle:
         self._refused_reported = 0   # signing refusals already announced before the flight
 
     # ------------------------------------------------------------------ lifecycle
+    @property
+    def on_truth(self) -> Callable[[Simulator], None] | None:
+        return self.recording.on_truth
+
+    @on_truth.setter
+    def on_truth(self, hook: Callable[[Simulator], None] | None) -> None:
+        self.recording.on_truth = hook
+
     @property
     def listen_address(self) -> Address:
         """The control port actually bound (resolves an ephemeral port 0)."""
@@ -405,37 +417,18 @@ class Vehicle:
         sim = self.sim
         sim.step_control_period()
         self.stats.ticks += 1
-        self.power.step(sim.motors.omega_radps, sim.control_dt_s)
-        if self.on_truth is not None:
-            self.on_truth(sim)
+        self.power.step(sim.motors.omega_radps, sim.control_dt_s)   # the next ESC report
+        self.recording.truth()
         return sim.crash_reason()
+
+    def defer_recording(self, defer: bool) -> None:
+        self.recording.defer(defer)
+
+    def hand_off(self) -> None:
+        self.recording.flush()
 
     def status(self, severity: int, text: str, *, key: str | None = None) -> None:
         self.statustext.send(severity, text, key=key)
 
     def cut_motors(self, silent_s: float, timeout_s: float) -> None:
         self.controls.cut_motors(silent_s, timeout_s)
-
-
-# ---------------------------------------------------------------------------- recording
-class TruthSink(Protocol):
-    """The part of a flight recorder (``tfl_mav.flightlog``) that takes ground truth."""
-
-    def truth(self, time_s: float, position_m: Sequence[float], velocity_mps: Sequence[float],
-              quaternion_wxyz: Sequence[float], body_rates_radps: Sequence[float],
-              rotor_thrust_n: Sequence[float], attack_rotor: int, attack_applied_n: float,
-              attack_requested_n: float, /) -> None: ...
-
-
-def truth_hook(recorder: TruthSink) -> Callable[[Simulator], None]:
-    """``Vehicle.on_truth`` → ``recorder.truth``: true state, rotor thrusts and attack."""
-
-    def on_truth(sim: Simulator) -> None:
-        # the float state vector, sliced (sim.state would build five arrays a tick only to
-        # turn them back into these very lists)
-        x = sim.state_vector
-        att = sim.attack
-        recorder.truth(sim.time_s, x[0:3], x[3:6], x[6:10], x[10:13],
-                       sim.rotor_thrusts_n, att.rotor, att.applied_n, att.raw_n)
-
-    return on_truth
