@@ -68,13 +68,15 @@ class Simulator:
         self.tick = 0
         self.rejected_commands = 0
         self.attack = self.attacker.sample(0.0, tuple(ini.position_m), hover_n)
-        self._rng = np.random.default_rng(scenario.run.seed)
         sens = scenario.sensors
         stds = ((v.rpm_noise_std, 4), (sens.position_noise_std_m, 3),
                 (sens.velocity_noise_std_mps, 3), (sens.attitude_noise_std_rad, 3),
                 (sens.rate_noise_std_radps, 3))
         self._noisy = [std > 0 for std, _ in stds]
         self._noise_scales = [std for std, n in stds if std > 0 for _ in range(n)]
+        # Seeded only when a sensor is noisy: a noise-free flight never draws, and skipping
+        # numpy.random's import saves ~13 ms of every offline start-up.
+        self._rng = np.random.default_rng(scenario.run.seed) if self._noise_scales else None
         self._mean_thrust_n = self.motors.thrust_n
         self._gyro_range_radps = scenario.sensors.gyro_range_radps
         self._measure()
@@ -181,7 +183,7 @@ class Simulator:
         x = self._x
         w_rotor = self.motors.omega_radps
         if scales:
-            z = self._rng.standard_normal(len(scales)).tolist()
+            z = self._rng.standard_normal(len(scales)).tolist()  # type: ignore[union-attr]
             it = iter([0.0 + sc * zi for sc, zi in zip(scales, z, strict=True)])
             rpm = [w * RADPS_TO_RPM for w in w_rotor]
             if noisy[0]:
