@@ -19,7 +19,7 @@ Same-run before/after: ``--tree DIR`` replays with the ``tfl_mav`` of another ch
 used), so both trees chew the very same batches; ``--before DIR`` runs that tree in a
 subprocess and prints both side by side, alternating runs.
 
-Usage: ``python bench/recorder_replay.py [--ticks N] [--repeats R] [--capture DIR]
+Usage: ``python bench/recorder_replay.py [--ticks N] [--scenario S] [--repeats R] [--capture DIR]
 [--replay DIR] [--profile] [--compression zstd|lz4|none] [--before DIR] [--json FILE]``.
 """
 
@@ -281,6 +281,8 @@ def main() -> int:
         return 0
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--ticks", type=int, default=4000)
+    ap.add_argument("--scenario", default="paper", help="the captured flight's scenario "
+                    "(nominal: no attack, the tick record's estimate is NaN every tick)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--capture", metavar="DIR", help="capture into DIR (kept) and replay")
     ap.add_argument("--replay", metavar="DIR", help="replay an earlier capture, no flight")
@@ -297,7 +299,7 @@ def main() -> int:
     src = Path(args.replay or args.capture or tmp.name)
     if not args.replay:
         src.mkdir(parents=True, exist_ok=True)
-        capture(args.ticks, src)
+        capture(args.ticks, src, args.scenario)
     if args.tree:                       # a child run for --before: print JSON only
         print(json.dumps(measure(src, args.repeats, args.profile, args.compression,
                                  Path(tmp.name))))

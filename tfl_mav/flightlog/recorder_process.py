@@ -11,6 +11,11 @@ the record's fields, encodes JSON and protobuf, writes the file and feeds the li
 Foxglove server (``live=``). The messages are the ones an in-process recording writes
 (only the periodic copies of ``/scene/path`` follow the child's flush timing).
 
+Batch entry: :meth:`RecorderProcess.on_frames` (direction, raws, msgs, time_s) takes a
+whole datagram's frames (or any frames of one direction and one receipt time) as one
+queue item, for a link that hands them over once per datagram; :meth:`on_frame` (the
+link's per-frame hook) works as before, and both write the same messages.
+
 Crash safety is better than in-process: if the flight process dies (even SIGKILL) the
 child reads end-of-file and *finishes* the file. Queued calls reach the child within
 ``batch_s`` (a background thread sends a batch that went stale). The child ignores SIGINT

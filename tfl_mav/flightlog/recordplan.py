@@ -8,8 +8,10 @@ one sample record, a small function that checks the shape (lengths, types), prin
 numbers with one msgspec call (:func:`~tfl_mav.flightlog.jsonenc._numbers_json`, the same
 text as ``repr``/``json``), the strings with ``json``'s own ``encode_basestring_ascii``,
 and fills one ``%`` template: the bytes ``JsonEncoder.dumps({**record, "t_s": t})`` writes.
-Any record it cannot print exactly (another shape, NaN/inf, None, numpy values) returns
-None: the caller takes the careful path (which leaves NaN out and lists it).
+NaN/inf/None values (a nominal flight's attack estimate is NaN every tick) are left out
+and listed under ``_nonfinite`` by a template per pattern of such keys, as the dict path
+does. Any record it cannot print exactly (another shape, numpy values, a NaN time)
+returns None: the caller takes the careful path.
 """
 
 from __future__ import annotations
