@@ -19,7 +19,7 @@ Same-run before/after: ``--tree DIR`` replays with the ``tfl_mav`` of another ch
 used), so both trees chew the very same batches; ``--before DIR`` runs that tree in a
 subprocess and prints both side by side, alternating runs.
 
-Usage: ``python bench/recorder_replay.py [--ticks N] [--repeats R] [--capture DIR]
+Usage: ``python bench/recorder_replay.py [--ticks N] [--scenario S] [--repeats R] [--capture DIR]
 [--replay DIR] [--profile] [--compression zstd|lz4|none] [--before DIR] [--json FILE]``.
 """
 
@@ -191,6 +191,55 @@ def unpickle_us(batches_file: Path, ticks: int) -> float:
     return (time.process_time() - t0) / max(1, ticks) * 1e6
 
 
+def _calls(batches_file: Path) -> list[tuple[Any, ...]]:
+    """The captured hand-off items, in order (older trees' item layout: see handle_batch)."""
+    return [it for b in pickle.loads(batches_file.read_bytes()) for it in pickle.loads(b)]
+
+
+def handoff_us(batches_file: Path, out: Path, kwargs: dict[str, Any], ticks: int,
+               grouped: bool = False) -> dict[str, float]:
+    """The flight process's side of the hand-off: the captured calls made on a
+    ``RecorderProcess`` with a live child (real time: never waits; room for the whole
+    replay, none dropped). ``flight_us``: CPU µs per tick of the calling thread;
+    ``process_us``: the whole process's (with the sender thread's pickling and pipe
+    writes), until the child has it all; ``grouped``: frames of one direction and time
+    stamp (one datagram) as one ``on_frames`` call."""
+    from tfl_mav.flightlog import recorder_process as rp
+
+    items = [it for it in _calls(batches_file) if it[0] in (rp._FRAME, rp._TRUTH,
+                                                             rp._CONTROLLER)]
+    calls: list[tuple[Any, ...]] = []
+    for it in items:
+        if it[0] != rp._FRAME:
+            calls.append(it)
+        elif grouped and calls and calls[-1][0] == "grouped" and calls[-1][1] == it[1] \
+                and calls[-1][2] == it[2]:
+            calls[-1][3].append(it[3])
+        else:
+            calls.append(("grouped", it[1], it[2], [it[3]]) if grouped else it)
+    msg = object()
+    rec = rp.RecorderProcess(out, realtime=True, batch_max=1 << 14, **kwargs)
+    p0, t0 = time.process_time(), time.thread_time()
+    on_frame, on_frames, truth, controller = (rec.on_frame, getattr(rec, "on_frames", None),
+                                              rec.truth, rec.controller)
+    for c in calls:
+        op = c[0]
+        if op == rp._FRAME:
+            on_frame(c[2], c[3], msg if c[4] else None, c[1])
+        elif op == rp._TRUTH:
+            truth(*c[2])
+        elif op == rp._CONTROLLER:
+            controller(c[2], c[3])
+        else:
+            on_frames(c[2], c[3], None, c[1])
+    flight = time.thread_time() - t0
+    rec.close()
+    proc = time.process_time() - p0
+    assert rec.stats.dropped == 0 and rec.error is None, (rec.stats, rec.error)
+    return {"flight_us": flight / ticks * 1e6, "process_us": proc / ticks * 1e6,
+            "calls_per_s": len(calls) / max(flight, 1e-9)}
+
+
 def measure(src: Path, repeats: int, profile: bool, compression: str | None,
             tmp: Path) -> dict[str, Any]:
     """Both sides' CPU µs per tick (min of ``repeats``) and, if ``profile``, by piece."""
@@ -205,6 +254,15 @@ def measure(src: Path, repeats: int, profile: bool, compression: str | None,
                                "cpu_us_per_tick": min(r["cpu_us_per_tick"] for r in runs),
                                "mib_per_min": runs[0]["bytes"] / 2**20 * 60000
                                / max(1, runs[0]["ticks"])}
+        hand = [handoff_us(src / f"{side}.mcap.batches", tmp / f"{side}-h.mcap", kw,
+                           res["ticks"]) for _ in range(repeats)]
+        res["handoff"] = {k: min(h[k] for h in hand) if k != "calls_per_s"
+                          else max(h[k] for h in hand) for k in hand[0]}
+        from tfl_mav.flightlog import recorder_process as rp
+        if hasattr(rp.RecorderProcess, "on_frames"):    # one on_frames call per datagram
+            res["handoff_grouped"] = min(
+                handoff_us(src / f"{side}.mcap.batches", tmp / f"{side}-h.mcap", kw,
+                           res["ticks"], grouped=True)["flight_us"] for _ in range(repeats))
         if profile:
             src_file = src / f"{side}.mcap.batches"
             res["pieces_us"] = {"hand-off: unpickle": unpickle_us(src_file, res["ticks"])}
@@ -223,6 +281,8 @@ def main() -> int:
         return 0
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--ticks", type=int, default=4000)
+    ap.add_argument("--scenario", default="paper", help="the captured flight's scenario "
+                    "(nominal: no attack, the tick record's estimate is NaN every tick)")
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--capture", metavar="DIR", help="capture into DIR (kept) and replay")
     ap.add_argument("--replay", metavar="DIR", help="replay an earlier capture, no flight")
@@ -239,7 +299,7 @@ def main() -> int:
     src = Path(args.replay or args.capture or tmp.name)
     if not args.replay:
         src.mkdir(parents=True, exist_ok=True)
-        capture(args.ticks, src)
+        capture(args.ticks, src, args.scenario)
     if args.tree:                       # a child run for --before: print JSON only
         print(json.dumps(measure(src, args.repeats, args.profile, args.compression,
                                  Path(tmp.name))))
@@ -276,6 +336,21 @@ def main() -> int:
         print(f"  {'file MiB per flight-minute':44s}"
               + (f"{before[0][side]['mib_per_min']:9.1f}" if before else "")
               + f"{now[0][side]['mib_per_min']:9.1f}")
+        print("  flight process's hand-off (RecorderProcess calls, live child; least of "
+              "the rounds)")
+        for k, label in (("flight_us", "calling thread, CPU µs per tick"),
+                         ("process_us", "whole process (+ pickling, pipe), µs/tick"),
+                         ("calls_per_s", "calls per CPU second (k)")):
+            scale = 1e-3 if k == "calls_per_s" else 1.0
+            pick = max if k == "calls_per_s" else min
+            b = pick(r[side]["handoff"][k] for r in before) * scale if before else None
+            v = pick(r[side]["handoff"][k] for r in now) * scale
+            print(f"    {label:42s}" + (f"{b:9.1f}" if b is not None else "")
+                  + f"{v:9.1f}" + (f"{v / b:7.2f}" if b else ""))
+        if "handoff_grouped" in now[0][side]:
+            v = min(r[side]["handoff_grouped"] for r in now)
+            print(f"    {'calling thread, frames by on_frames':42s}"
+                  + (" " * 9 if before else "") + f"{v:9.1f}")
         if args.profile:              # each piece: the least of its rounds
             print("  by piece (replays keeping one kind of call; least of the rounds)")
             for k in now[0][side]["pieces_us"]:

@@ -4,8 +4,10 @@
   byte for byte (chunks, message indexes, statistics, summary), across chunk boundaries,
   flushes and a channel registered mid-file.
 * :class:`~tfl_mav.flightlog.jsonenc.MavJson` vs ``JsonEncoder.dumps(PayloadDecoder
-  .fields(...))`` on random hot messages (NaN/inf/-0.0 included: those must fall back).
+  .fields(...))`` on random hot messages (NaN/inf/-0.0 included: left out and listed).
 * the truth channels' precompiled formats vs ``JsonEncoder.dumps`` of the dict.
+* a record plan (``/controller/state``) vs ``JsonEncoder.dumps`` with NaN/inf/None values.
+* ``RecorderProcess.on_frames`` (one call per datagram) writes what ``on_frame`` does.
 """
 
 from __future__ import annotations
@@ -23,6 +25,8 @@ from mcap.writer import CompressionType, IndexType, Writer
 from tfl_mav.flightlog.jsonenc import JsonEncoder, MavJson
 from tfl_mav.flightlog.mcapfast import FastWriter
 from tfl_mav.flightlog.recorder import _TRUTH_ATTACK, _TRUTH_STATE, _TRUTH_THRUSTS
+from tfl_mav.flightlog.recorder_process import RecorderProcess
+from tfl_mav.flightlog.recordplan import record_plan
 from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.link.payload import PayloadDecoder
 
@@ -105,10 +109,8 @@ def test_mav_json_is_byte_identical_to_the_dict_encoder(v: list[float], usec: in
         mid = msg.get_msgId()
         fields = dec.fields(raw, mid)
         got = fast.encode(raw, mid)
-        finite = all(math.isfinite(x) for x in _numbers(fields) if not isinstance(x, str))
-        if not finite:
-            assert got is None
-            continue
+        # NaN/inf fields (a real PX4's unknown covariances): left out and listed under
+        # _nonfinite, the same bytes as the dict path (JSON has no NaN)
         assert got is not None
         assert got[0] == enc.dumps(fields)
         assert got[1] == fields.get("time_usec")
@@ -139,3 +141,69 @@ def test_truth_formats_match_the_dict_encoder(v: list[float], rotor: int) -> Non
     for got, ref in cases:
         finite = all(math.isfinite(x) for x in _numbers(ref) if not isinstance(x, bool))
         assert (got == enc.dumps(ref)) if finite else got is None
+
+
+_FIELDS = ("mode", "estimate", "distance", "flag", "thrust", "xi", "eta", "mass", "cusum")
+_maybe = st.one_of(_doubles, st.sampled_from([math.nan, math.inf, -math.inf, None, 7, -0.0]))
+
+
+@settings(max_examples=300, deadline=None)
+@given(st.lists(_maybe, min_size=20, max_size=20), st.floats(0, 1e4))
+def test_record_plans_with_nonfinite_values_match_the_dict_encoder(v: list[Any],
+                                                                   t: float) -> None:
+    """NaN/inf/None (a nominal flight's unknown attack estimate): the plan leaves the key
+    out and lists it under _nonfinite, as the dict path does; never other bytes."""
+    enc = JsonEncoder()
+    sample = ("nominal", 0.5, 1.0, False, [1.0] * 4, ((0.1, 0.2), (0.3, 0.4)), (0.0, 1.0),
+              1.1, (0.0, 0.0, 0.0, 0.0))
+    plan = record_plan(_FIELDS, sample)
+    assert plan is not None
+    record = ("attack", v[0], v[1], True, v[2:6], ((v[6], v[7]), (v[8], v[9])),
+              (v[10], v[11]), v[12], tuple(v[13:17]))
+    got = plan(record, t)
+    assert got is None or got == enc.dumps({**dict(zip(_FIELDS, record, strict=True)),
+                                            "t_s": t})
+    assert got is not None          # plain numbers, NaN, inf and None are all printed
+
+
+def _frames() -> list[tuple[str, list[bytes], list[Any]]]:
+    """Datagrams of a few ticks: accepted frames, a rejected one, NaN covariances."""
+    mv = new_mavlink(1, 1)
+    out = []
+    for k in range(50):
+        odo = mav.MAVLink_odometry_message(
+            1000 * k, 1, 12, 0.1 * k, 2.0, 3.0, [1.0, 0.0, 0.0, 0.0], 0.1, 0.2, 0.3, 0.01,
+            0.02, 0.03, [math.nan] + [0.0] * 20, [0.5] * 21, 0, 6, 100)
+        hil = mav.MAVLink_hil_actuator_controls_message(1000 * k, [0.5] * 16, 128, 1)
+        raws = [bytes(odo.pack(mv)), bytes(hil.pack(mv))]
+        msgs: list[Any] = [odo, hil]
+        if k % 7 == 3:
+            raws.append(raws[0][:-3] + b"xyz")       # a bad CRC: rejected
+            msgs.append(None)
+        out.append(("rx" if k % 2 else "tx", raws, msgs))
+    return out
+
+
+def test_on_frames_writes_what_on_frame_does(tmp_path: Any) -> None:
+    """The batch entry (one call per datagram) and the frame hook give the same file."""
+    files = []
+    for batch in (False, True):
+        path = tmp_path / f"{batch}.mcap"
+        with RecorderProcess(path) as rec:
+            for k, (direction, raws, msgs) in enumerate(_frames()):
+                t = 100.0 + 0.001 * k
+                if batch:
+                    rec.on_frames(direction, raws, None if None not in msgs else msgs, t)
+                else:
+                    for raw, msg in zip(raws, msgs, strict=True):
+                        rec.on_frame(direction, raw, msg, t)
+        # rx frames with no message are rejected; tx ones are raw sends (k = 3, 17, 31, 45)
+        assert rec.error is None and rec.stats.frames_rejected == 4
+        files.append(path)
+    got = []
+    for path in files:
+        with open(path, "rb") as fh:
+            got.append([(ch.topic, m.log_time, m.publish_time, m.data)
+                        for _s, ch, m in make_reader(fh).iter_messages()])
+    assert got[0] == got[1] and len(got[0]) == 50 * 4 + 7     # 2 a frame, 1 if no message
+    assert sum(b'"_nonfinite":["pose_covariance"]' in m[3] for m in got[0]) == 50

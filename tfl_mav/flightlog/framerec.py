@@ -9,9 +9,10 @@ Why a module of its own (issue #13): frames are most of what a recorder child do
 (direction, sysid, compid, msgid) seen before whose fields print by the precompiled
 :class:`~tfl_mav.flightlog.jsonenc.MavPlan`, a frame costs one unpack, one msgspec call,
 two ``%`` formats and one two-message append to the chunk (:meth:`FastWriter.add_pair`),
-under one lock for the batch. Everything else (first sight of a channel, rejected frames,
-NaN/inf, STATUSTEXT, a failed file) takes :meth:`FrameRecorder._on_frame`, the careful
-path, which writes the same bytes.
+under one lock for the batch; NaN/inf fields (a real PX4's unknown covariances) by the
+plan's template for that pattern (:class:`~tfl_mav.flightlog.jsonenc.NullMasks`).
+Everything else (first sight of a channel, rejected frames, STATUSTEXT, a failed file)
+takes :meth:`FrameRecorder._on_frame`, the careful path, which writes the same bytes.
 """
 
 from __future__ import annotations
@@ -147,7 +148,7 @@ class FrameRecorder(McapOutput):
                 self._failed(exc)
 
     def _on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
-        """:meth:`on_frame`, every case (first sight of a channel, rejected frames, NaN)."""
+        """:meth:`on_frame`, every case (first sight of a channel, rejected frames)."""
         try:
             log_ns = min(max(int(time_s * 1e9), 0), MAX_NS)
         except (TypeError, ValueError, OverflowError):

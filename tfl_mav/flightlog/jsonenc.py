@@ -146,6 +146,89 @@ def _numbers_json(values: tuple[Any, ...]) -> list[bytes] | None:
     return parts
 
 
+def _numbers_json_nulls(values: tuple[Any, ...]) -> list[bytes] | None:
+    """:func:`_numbers_json`, but NaN/inf/None print as ``b"null"`` (for the caller to
+    leave out, as :func:`drop_nonfinite` does); None if a value is not a plain number."""
+    try:
+        b = _encode_numbers(values)
+    except (TypeError, ValueError, OverflowError):
+        return None
+    body = b[1:-1]
+    parts = body.split(b",")
+    if (b'"' in b or b"t" in b or b"a" in b or b"[" in body or b"{" in b
+            or len(parts) != len(values)):
+        return None                      # text, bools, nested lists
+    if b"e" in b or b"0.0000" in b:
+        for m in _ODD(body):
+            i = body.count(b",", 0, m.start())
+            parts[i] = repr(values[i]).encode()
+    return parts
+
+
+_NULL = b"null"
+
+
+class NullMasks:
+    """One JSON object's templates with the keys holding a NaN/inf/None left out and
+    listed under ``_nonfinite``, as :func:`drop_nonfinite` writes them: one template per
+    pattern of such keys, built on first sight. Why: a real PX4's ODOMETRY has NaN
+    covariances ("unknown"), a nominal flight's tick record a NaN attack estimate, every
+    tick; the dict path costs ~20 µs a message.
+
+    ``keys``: per key in output order, (its JSON text, its value's ``%s`` template, the
+    indices of its values in the argument list); ``owner[i]``: the key of number part
+    ``i`` (number parts come first in the argument list)."""
+
+    _MAX = 64                            # patterns kept (then None: the careful path)
+
+    def __init__(self, keys: list[tuple[str, bytes, list[int]]], owner: list[int]) -> None:
+        self.keys = keys
+        self.owner = owner
+        last = {k: max((j for j in refs if j < len(owner)), default=0)
+                for k, (_, _, refs) in enumerate(keys)}
+        self._end = [last[k] + 1 for k in owner]   # past the last number of i's key
+        self._masks: dict[tuple[int, ...], tuple[bytes, Any]] = {}
+
+    def mask(self, parts: list[bytes]) -> tuple[int, ...]:
+        """The keys (indices) whose number parts hold a ``null``: one scan (C) per such
+        key, skipping the rest of its values."""
+        owner, end = self.owner, self._end
+        out: list[int] = []
+        i = 0
+        try:
+            while True:
+                i = parts.index(_NULL, i)
+                out.append(owner[i])
+                i = end[i]
+        except (ValueError, IndexError):
+            return tuple(out)
+
+    def encode(self, mask: tuple[int, ...], args: Any) -> bytes | None:
+        """The object without the keys of ``mask``; ``args``: every value's text."""
+        entry = self._masks.get(mask)
+        if entry is None:
+            if len(self._masks) >= self._MAX:
+                return None
+            entry = self._masks[mask] = self._build(mask)
+        fmt, get = entry
+        return fmt % get(args)
+
+    def _build(self, mask: tuple[int, ...]) -> tuple[bytes, Any]:
+        pieces: list[bytes] = []
+        order: list[int] = []
+        for k, (key, value, refs) in enumerate(self.keys):
+            if k not in mask:
+                pieces.append(encode_basestring_ascii(key).replace("%", "%%").encode()
+                              + b":" + value)
+                order += refs
+        listed = json.dumps([self.keys[k][0] for k in mask], separators=(",", ":"))
+        pieces.append(json.dumps(NONFINITE_KEY).encode() + b":"
+                      + listed.replace("%", "%%").encode())
+        get = itemgetter(*order) if len(order) > 1 else (
+            (lambda a: (a[order[0]],)) if order else (lambda a: ()))
+        return b"{" + b",".join(pieces) + b"}", get
+
+
 class RecordFormat:
     """A JSON object of fixed keys whose values are numbers (scalars or fixed-length lists)
     or fixed literals. ``items``: (key, n) with n = 0 for a number, n ≥ 1 for a list of n
@@ -200,13 +283,19 @@ class MavPlan:
         n_num = len(numeric)
         order: list[int] = []
         parts = []
+        keys: list[tuple[str, bytes, list[int]]] = []
+        owner = [0] * n_num
         for name, refs in slots:
             refs = [n_num - r - 1 if r < 0 else r for r in refs]   # chars after numbers
             order += refs
-            if len(refs) == 1:       # as PayloadDecoder: a list only for count > 1
-                parts.append(f'"{name}":%s')
-            else:
-                parts.append(f'"{name}":[' + ",".join(["%s"] * len(refs)) + "]")
+            # as PayloadDecoder: a list only for count > 1
+            value = "%s" if len(refs) == 1 else "[" + ",".join(["%s"] * len(refs)) + "]"
+            parts.append(f'"{name}":{value}')
+            for r in refs:
+                if r < n_num:
+                    owner[r] = len(keys)
+            keys.append((name, value.encode(), refs))
+        self._masks = NullMasks(keys, owner)
         self.numbers = itemgetter(*numeric) if n_num > 1 else (
             (lambda t: (t[numeric[0]],)) if numeric else (lambda t: ()))
         self.order = itemgetter(*order) if len(order) > 1 else lambda p: (p[0],)
@@ -230,10 +319,17 @@ class MavPlan:
         return out
 
     def json(self, t: tuple[Any, ...]) -> bytes | None:
-        """The message's JSON from its wire tuple ``t``; None if a value is NaN/inf."""
+        """The message's JSON from its wire tuple ``t`` (NaN/inf fields left out and listed
+        under ``_nonfinite``, as the dict path writes them)."""
         parts = _numbers_json(self.numbers(t))
-        if parts is None:            # NaN/inf
-            return None
+        if parts is None:            # NaN/inf: left out, listed (NullMasks)
+            parts = _numbers_json_nulls(self.numbers(t))
+            mask = self._masks.mask(parts) if parts is not None else ()
+            if not mask:
+                return None
+            if self.char_index:
+                parts += self._char_texts(t)
+            return self._masks.encode(mask, parts)
         if self.char_index:
             parts += self._char_texts(t)
         return self.bfmt % self.order(parts)
@@ -242,9 +338,9 @@ class MavPlan:
 class MavJson:
     """JSON of a MAVLink 2 frame's fields from its wire bytes, byte-identical to
     ``JsonEncoder.dumps(PayloadDecoder.fields(raw, msgid))`` (fields in ``fieldnames``
-    order, arrays as lists, char fields as text), without building the dict. Messages with
-    NaN/inf values or a payload that does not unpack are not encoded here (None): the
-    caller takes the careful path."""
+    order, arrays as lists, char fields as text), without building the dict; NaN/inf
+    fields left out and listed as :func:`drop_nonfinite` does. A payload that does not
+    unpack is not encoded here (None): the caller takes the careful path."""
 
     def __init__(self) -> None:
         self._plans: dict[int, MavPlan | None] = {}

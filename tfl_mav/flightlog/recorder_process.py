@@ -11,6 +11,11 @@ the record's fields, encodes JSON and protobuf, writes the file and feeds the li
 Foxglove server (``live=``). The messages are the ones an in-process recording writes
 (only the periodic copies of ``/scene/path`` follow the child's flush timing).
 
+Batch entry: :meth:`RecorderProcess.on_frames` (direction, raws, msgs, time_s) takes a
+whole datagram's frames (or any frames of one direction and one receipt time) as one
+queue item, for a link that hands them over once per datagram; :meth:`on_frame` (the
+link's per-frame hook) works as before, and both write the same messages.
+
 Crash safety is better than in-process: if the flight process dies (even SIGKILL) the
 child reads end-of-file and *finishes* the file. Queued calls reach the child within
 ``batch_s`` (a background thread sends a batch that went stale). The child ignores SIGINT
@@ -48,7 +53,7 @@ from tfl_mav.flightlog.recorder import Recorder, RecorderError, RecorderStats
 
 __all__ = ["NICE_INCREMENT", "RecorderProcess"]
 
-_FRAME, _TRUTH, _PATH, _LOG, _CONTROLLER, _SIM_TIME, _METADATA, _CLOSE = range(8)
+_FRAME, _TRUTH, _PATH, _LOG, _CONTROLLER, _SIM_TIME, _METADATA, _CLOSE, _FRAMES = range(9)
 _START_TIMEOUT_S = 30.0
 NICE_INCREMENT = 10
 """The child runs this much nicer than the flight process. Why: on 2 cores a flight is 4
@@ -129,6 +134,10 @@ def handle_batch(rec: Recorder, data: bytes, now: list[float]) -> bool:
             now[0] = items[j - 1][1]
             rec.on_frames(items[i - 1:j])
             i = j
+        elif op == _FRAMES:           # one datagram's frames: (_FRAMES, t, dir, raws, ok)
+            ok = item[4]
+            rec.on_frames([(None, now[0], item[2], raw, True if ok is None else ok[k])
+                           for k, raw in enumerate(item[3])])
         elif op == _TRUTH:
             rec.truth(*item[2])
         elif op == _CONTROLLER:
@@ -168,6 +177,7 @@ class RecorderProcess:
         # Real time (#12): the flight thread never waits for the child; past this many
         # queued calls (seconds of a 1 kHz flight) new ones are dropped and counted.
         self._realtime_max = 64 * batch_max if realtime else 0
+        self._room = self._realtime_max or self._backlog_max   # 0: closed or child gone
         self._queue: collections.deque[tuple[Any, ...]] = collections.deque()
         self._send_lock = threading.Lock()
         self._alive = True
@@ -227,6 +237,7 @@ class RecorderProcess:
         if self._closed:
             return
         self._closed = True
+        self._room = 0
         atexit.unregister(self.close)
         self._stop.set()
         self._sender.join()
@@ -243,17 +254,54 @@ class RecorderProcess:
         self._results.close()
 
     # ------------------------------------------------------------------ the Recorder API
+    # The hot calls (on_frame, on_frames, truth, controller) are one Python call each: a
+    # tuple of plain values (bytes, floats, lists, the caller's record) appended when the
+    # queue has room (``_room``: 0 once closed or the child is gone); ``_put`` is only the
+    # full/dropped case.
     def on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
-        self._put((_FRAME, time_s, direction, bytes(raw), msg is not None))
+        """The link's frame hook: one frame (``msg`` None: rejected, or a raw send)."""
+        item = (_FRAME, time_s, direction, bytes(raw), msg is not None)
+        q = self._queue
+        if len(q) < self._room:
+            q.append(item)
+        else:
+            self._put(item)
+
+    def on_frames(self, direction: str, raws: Sequence[bytes], msgs: Sequence[Any] | None,
+                  time_s: float) -> None:
+        """Many frames of one direction at one receipt time ``time_s`` (e.g. one datagram's):
+        as many :meth:`on_frame` calls, in one queue item. ``msgs``: each frame's decoded
+        message or None (rejected), as :meth:`on_frame`'s ``msg``; None: all accepted."""
+        ok = None
+        if msgs is not None:
+            for m in msgs:
+                if m is None:
+                    ok = tuple([m is not None for m in msgs])
+                    break
+        item = (_FRAMES, time_s, direction, tuple(map(bytes, raws)), ok)
+        q = self._queue
+        if len(q) < self._room:
+            q.append(item)
+        else:
+            self._put(item)
 
     def truth(self, time_s: float, position_m: Sequence[float], velocity_mps: Sequence[float],
               quaternion_wxyz: Sequence[float], body_rates_radps: Sequence[float],
               rotor_thrust_n: Sequence[float], attack_rotor: int, attack_applied_n: float,
               attack_requested_n: float) -> None:
-        self._put((_TRUTH, self.clock(), (
-            time_s, _plain(position_m), _plain(velocity_mps), _plain(quaternion_wxyz),
-            _plain(body_rates_radps), _plain(rotor_thrust_n), _plain(attack_rotor),
-            _plain(attack_applied_n), _plain(attack_requested_n))))
+        args = (time_s, position_m, velocity_mps, quaternion_wxyz, body_rates_radps,
+                rotor_thrust_n, attack_rotor, attack_applied_n, attack_requested_n)
+        if not (type(position_m) is list and type(velocity_mps) is list
+                and type(quaternion_wxyz) is list and type(body_rates_radps) is list
+                and type(rotor_thrust_n) is list and type(attack_rotor) is int
+                and type(attack_applied_n) is float and type(attack_requested_n) is float):
+            args = tuple(map(_plain, args))     # numpy arrays and scalars: plain values
+        item = (_TRUTH, self.clock(), args)
+        q = self._queue
+        if len(q) < self._room:
+            q.append(item)
+        else:
+            self._put(item)
 
     def path(self, points_m: Any) -> None:
         from tfl_mav.flightlog.polyline import Polyline
@@ -268,7 +316,12 @@ class RecorderProcess:
     def controller(self, time_s: float, state: Mapping[str, Any] | Sequence[Any]) -> None:
         """Queue the caller's record as it is (a compact tuple of plain values is cheapest
         to pickle); the child names its fields (``controller_fields``) and encodes it."""
-        self._put((_CONTROLLER, self.clock(), time_s, state))
+        item = (_CONTROLLER, self.clock(), time_s, state)
+        q = self._queue
+        if len(q) < self._room:
+            q.append(item)
+        else:
+            self._put(item)
 
     def set_sim_time(self, time_s: float) -> None:
         self._put((_SIM_TIME, self.clock(), time_s))
@@ -282,14 +335,12 @@ class RecorderProcess:
             self.stats.dropped += 1
             return
         q = self._queue
-        if self._realtime_max:
-            if len(q) >= self._realtime_max:
-                self.stats.dropped += 1
-            else:
-                q.append(item)
-            return
-        q.append(item)
-        if len(q) >= self._backlog_max:       # the sender thread is starved: send here
+        if len(q) < self._room:
+            q.append(item)
+        elif self._realtime_max:        # real time: never wait, drop and count
+            self.stats.dropped += 1
+        else:                           # the sender thread is starved: send here
+            q.append(item)
             self._send()
 
     def _send(self) -> None:
@@ -332,9 +383,11 @@ class RecorderProcess:
             self.stats = RecorderStats(**stats)
             self.stats.dropped += dropped
             self._alive = False
+            self._room = 0
         return True
 
     def _set_error(self, text: str) -> None:
         self._alive = False
+        self._room = 0
         if self._error is None:
             self._error = text

@@ -8,8 +8,10 @@ one sample record, a small function that checks the shape (lengths, types), prin
 numbers with one msgspec call (:func:`~tfl_mav.flightlog.jsonenc._numbers_json`, the same
 text as ``repr``/``json``), the strings with ``json``'s own ``encode_basestring_ascii``,
 and fills one ``%`` template: the bytes ``JsonEncoder.dumps({**record, "t_s": t})`` writes.
-Any record it cannot print exactly (another shape, NaN/inf, None, numpy values) returns
-None: the caller takes the careful path (which leaves NaN out and lists it).
+NaN/inf/None values (a nominal flight's attack estimate is NaN every tick) are left out
+and listed under ``_nonfinite`` by a template per pattern of such keys, as the dict path
+does. Any record it cannot print exactly (another shape, numpy values, a NaN time)
+returns None: the caller takes the careful path.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ from collections.abc import Callable, Sequence
 from json.encoder import encode_basestring_ascii
 from typing import Any
 
-from tfl_mav.flightlog.jsonenc import _numbers_json
+from tfl_mav.flightlog.jsonenc import JsonEncoder, NullMasks, _numbers_json, _numbers_json_nulls
 
 __all__ = ["record_plan"]
 
@@ -40,7 +42,9 @@ def _flag(v: Any) -> bytes | None:
 def record_plan(fields: Sequence[str], sample: Sequence[Any]) -> RecordEncoder | None:
     """``encode(record, t_s) -> bytes | None`` for records shaped like ``sample`` (values
     named by ``fields``), or None if the sample holds something it does not print (None,
-    numpy values, dicts, deeper nesting)."""
+    numpy values, dicts, deeper nesting). NaN/inf/None values: the record without their
+    keys, listed under ``_nonfinite`` (:class:`~tfl_mav.flightlog.jsonenc.NullMasks`, one
+    template per pattern, each checked against the dict encoder on first use)."""
     if len(sample) != len(fields):
         return None
     checks = [f"len(r) == {len(sample)}"]
@@ -49,49 +53,97 @@ def record_plan(fields: Sequence[str], sample: Sequence[Any]) -> RecordEncoder |
     args: list[str] = []           # the template's arguments, in output order
     pieces: list[str] = []
     texts: list[str] = []          # statements computing text/flag arguments
+    text_args: list[str] = []
+    keys: list[tuple[str, bytes, list[int]]] = []   # NullMasks: key, value, arg indices
+    owner: list[int] = []
 
     def numbers(expr: str, n: int) -> str:
         nonlocal count
         exprs.append(expr)
         args.extend(f"p[{count + j}]" for j in range(n))
+        owner.extend([len(keys)] * n)
+        keys.append(("", b"", list(range(count, count + n))))   # completed below
         count += n
         return ",".join(["%s"] * n)
 
     for i, (name, v) in enumerate(zip(fields, sample, strict=True)):
         key = encode_basestring_ascii(name).replace("%", "%%")
         if _is_number(v):
-            pieces.append(f"{key}:{numbers(f'r[{i}]', 1)}")
+            val = numbers(f"r[{i}]", 1)
         elif type(v) in (bool, str):
             fn = "_flag" if type(v) is bool else "_text"
             texts.append(f"a{i} = {fn}(r[{i}])\n    if a{i} is None:\n        return None")
             args.append(f"a{i}")
-            pieces.append(f"{key}:%s")
+            text_args.append(f"a{i}")
+            keys.append(("", b"", [-len(text_args)]))
+            val = "%s"
         elif type(v) in (list, tuple) and all(map(_is_number, v)):
             checks.append(f"len(r[{i}]) == {len(v)}")
-            pieces.append(f"{key}:[{numbers(f'*r[{i}]', len(v))}]")
+            val = f"[{numbers(f'*r[{i}]', len(v))}]"
         elif (type(v) in (list, tuple) and all(type(u) in (list, tuple) for u in v)
               and all(_is_number(x) for u in v for x in u)):
             checks.append(f"len(r[{i}]) == {len(v)}")
             rows = []
+            first = len(keys)
             for k, u in enumerate(v):
                 checks.append(f"len(r[{i}][{k}]) == {len(u)}")
                 rows.append(f"[{numbers(f'*r[{i}][{k}]', len(u))}]")
-            pieces.append(f"{key}:[" + ",".join(rows) + "]")
+            refs = [j for _, _, rr in keys[first:] for j in rr]
+            del keys[first:]
+            owner[len(owner) - len(refs):] = [first] * len(refs)
+            keys.append(("", b"", refs))
+            val = "[" + ",".join(rows) + "]"
         else:
             return None
-    pieces.append(f'"t_s":{numbers("t", 1)}')
+        pieces.append(f"{key}:{val}")
+        keys[-1] = (name, val.encode(), keys[-1][2])
+    val = numbers("t", 1)
+    pieces.append(f'"t_s":{val}')
+    keys[-1] = ("t_s", val.encode(), keys[-1][2])
+    # text arguments come after the numbers in the masked argument list
+    keys = [(k, v, [count - j - 1 if j < 0 else j for j in refs]) for k, v, refs in keys]
     template = ("{" + ",".join(pieces) + "}").encode()
     src = (f"def encode(r, t):\n"
            f"    if not ({' and '.join(checks)}):\n        return None\n"
            + "".join(f"    {s}\n" for s in texts)
-           + f"    p = _numbers_json(({', '.join(exprs)},))\n"
-           f"    if p is None or len(p) != {count}:\n        return None\n"
+           + f"    v = ({', '.join(exprs)},)\n"
+           f"    p = _numbers_json(v)\n"
+           f"    if p is None or len(p) != {count}:\n"
+           f"        return _masked(r, t, v, ({''.join(a + ', ' for a in text_args)}))\n"
            f"    return _T % ({', '.join(args)},)\n")
     env: dict[str, Any] = {"_numbers_json": _numbers_json, "_text": _text, "_flag": _flag,
-                           "_T": template}
+                           "_T": template,
+                           "_masked": _masked_encoder(fields, NullMasks(keys, owner), count)}
     try:
         exec(compile(src, "<record_plan>", "exec"), env)   # our own generated code
     except (SyntaxError, ValueError):
         return None
     encode: RecordEncoder = env["encode"]
     return encode
+
+
+def _masked_encoder(fields: Sequence[str], masks: NullMasks, count: int) -> Callable[
+        [Sequence[Any], float, tuple[Any, ...], tuple[bytes, ...]], bytes | None]:
+    """The NaN/inf/None case of a plan: its record without those keys (``_nonfinite``)."""
+    checked: dict[tuple[int, ...], bool] = {}
+    t_key = len(masks.keys) - 1
+    dumps = JsonEncoder().dumps
+
+    def masked(r: Sequence[Any], t: float, v: tuple[Any, ...],
+               texts: tuple[bytes, ...]) -> bytes | None:
+        q = _numbers_json_nulls(v)
+        if q is None or len(q) != count:
+            return None
+        mask = masks.mask(q)
+        if not mask or t_key in mask:     # a NaN time: the careful path says so
+            return None
+        ok = checked.get(mask)
+        if ok is False:
+            return None
+        data = masks.encode(mask, (*q, *texts))
+        if ok is None:                    # first use of this pattern: checked once
+            ok = checked[mask] = data == dumps({**dict(zip(fields, r, strict=True)),
+                                                "t_s": t})
+        return data if ok else None
+
+    return masked
