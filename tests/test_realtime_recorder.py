@@ -107,8 +107,9 @@ def test_realtime_recorder_never_waits_for_a_frozen_child(tmp_path):
             rec.controller(k * 0.001, {"k": k})
             worst = max(worst, time.perf_counter() - t0)
         # Appending to a deque: microseconds. A call that waited for the pipe would wait
-        # until SIGCONT — forever. 50 ms allows for this thread being preempted.
-        assert worst < 0.05
+        # until SIGCONT — forever. 0.5 s allows for this thread being preempted on a loaded
+        # 2-core machine (113 ms was seen beside other test runs; 50 ms was too tight).
+        assert worst < 0.5
         assert rec.stats.dropped > 0
     finally:
         os.kill(rec._proc.pid, signal.SIGCONT)
