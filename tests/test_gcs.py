@@ -19,7 +19,7 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")   # our links speak MAVLink 2 only
 from pymavlink import mavutil
 
-from harness.pilot import Pilot, hover_fraction
+from harness.pilot import NoStateError, Pilot, hover_fraction
 from harness.ports import LOOPBACK
 from sitl.gcs import EARTH_RADIUS_M, Origin
 from sitl.ground import scenario_parameters
@@ -63,7 +63,13 @@ class GcsFlight:
 
         def fly() -> None:
             while not self._fly.is_set():
-                pilot.fly(1, lambda _o, _e: [u] * 4, timeout_s=TIMEOUT_S)
+                try:
+                    pilot.fly(1, lambda _o, _e: [u] * 4, timeout_s=TIMEOUT_S)
+                except NoStateError:
+                    # The vehicle ended the run (close() stopped it, or a disarmed vehicle
+                    # reached the ground): nothing left to answer; the test's assertions
+                    # run on the main thread.
+                    return
 
         self._flyer = threading.Thread(target=fly, daemon=True)
         self._flyer.start()
