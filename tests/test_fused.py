@@ -128,7 +128,8 @@ def test_fused_source_holds_no_scenario_text():
         _log _sqrt _atan _tanh _pow _abs e
         or True tau_p tau_q tau_r xi eta frame lag_inverter attack_estimate_n a_n d _d
         _alloc_att _alloc_nom _yaw_tau_r k_yaw _inv_perm i0 i1 i2 i3 raw f mode _ATTACKED
-        _NOMINAL _saturate _last_out sat saturation_count _perm p0 p1 p2 p3 applied_uf d0 d1 d2
+        _NOMINAL g sat0 sat1 sat2 sat3 l0 l1 l2 l3 _last_out saturation_count _perm p0 p1
+        p2 p3 applied_uf d0 d1 d2
         d3 pp pq _pred dt _use_switch fine _hypot settle_alpha settle_time_s settled
         _settled_s _set_gains _mu2 iz_ arm_ den _new _ControlOutput _use_mass me mass_est lo_
         thrust _v_lp update _phi_lp nlx nly nlz npx npy npz num _inf m_inst _clamp blend

@@ -67,7 +67,6 @@ from tfl_mav.control.law_math import (
     output_rows,
     rate_prediction,
     rotation,
-    saturate,
     torques,
     yaw_tau_r,
 )
@@ -274,7 +273,7 @@ def build_fused(model: ModelParams, kernels: PathKernels, *, dt_s: float | None 
     fn = compile_source("fused_tick", source, {
         "_isfinite": math.isfinite, "_arc": _arc, "_atan2": math.atan2, "_hypot": math.hypot,
         "_ndarray": np.ndarray, "_alloc_nom": allocate_nominal,
-        "_yaw_tau_r": yaw_tau_r, "_saturate": saturate, "_new": tuple.__new__,
+        "_yaw_tau_r": yaw_tau_r, "_new": tuple.__new__,
         "_ControlOutput": ControlOutput, "_inf": math.inf,
         "_NOMINAL": Mode.NOMINAL, "_ATTACKED": Mode.ATTACKED})
     return FusedTick(fn, source, n_ops, time.perf_counter() - t0)
@@ -344,6 +343,20 @@ def _estimators(block: Callable[..., list[str]], dt: float, me: MassEstimator,
     ]
 
 
+def _saturated(fmax: float) -> list[str]:
+    """:func:`law_math.saturate` on the thrusts f0…f3 and the unbounded r0…r3 as selects
+    (f_max + 1e-9 folded: the same addition), leaving the command in ``f`` and the flags
+    in sat0…sat3."""
+    hi = fmax + 1e-9
+    return [
+        *(f"    sat{i} = not -1e-9 <= r{i} <= {hi!r}" for i in range(4)),
+        "    l0, l1, l2, l3 = ctl._last_out",
+        "    f = [" + ", ".join(
+            f"(0.0 if f{i} < 0.0 else ({fmax!r} if {fmax!r} < f{i} else f{i}))"
+            f" if f{i} - f{i} == 0.0 else l{i}" for i in range(4)) + "]",
+    ]
+
+
 def _tail(model: ModelParams, block: Callable[..., list[str]]) -> list[str]:
     """The tick after the torques, as :meth:`law.TFLController.update` runs it on a tick
     without fallback: allocation ((4), (6) and the yaw loop), saturation and the ṗ, q̇
@@ -373,25 +386,25 @@ def _tail(model: ModelParams, block: Callable[..., list[str]]) -> list[str]:
         "    if frame is not None:",
         "        a_n = ctl.attack_estimate_n",
         *att,
-        "        raw = [r0, r1, r2, r3]",
-        "        f = [f0, f1, f2, f3]",
         "        i0, i1, i2, i3 = ctl._inv_perm",
         "        if i0:",
-        "            f = [f[i0], f[i1], f[i2], f[i3]]",
-        "            raw = [raw[i0], raw[i1], raw[i2], raw[i3]]",
+        "            g = (f0, f1, f2, f3)",
+        "            f0, f1, f2, f3 = g[i0], g[i1], g[i2], g[i3]",
+        "            g = (r0, r1, r2, r3)",
+        "            r0, r1, r2, r3 = g[i0], g[i1], g[i2], g[i3]",
         "        mode = _ATTACKED",
         "    else:",
         "        tau_r = _yaw_tau_r((r20, r21, r22), psi, ctl.psi_ref, pc, qc, rc, qdot, ctl.k_yaw,"
         f" (ix, iy, iz), {kr!r})",
-        f"        raw = _alloc_nom(uf, tau_p, tau_q, tau_r, {arm!r}, d)",
-        f"        f = _alloc_nom(uf, tau_p, tau_q, tau_r, {arm!r}, d, {fmax!r}, None)",
+        f"        r0, r1, r2, r3 = _alloc_nom(uf, tau_p, tau_q, tau_r, {arm!r}, d)",
+        f"        f0, f1, f2, f3 = _alloc_nom(uf, tau_p, tau_q, tau_r, {arm!r}, d, {fmax!r}, None)",
         "        mode = _NOMINAL",
-        "    # law.TFLController._saturate_and_apply",
-        f"    f, sat = _saturate(f, raw, ctl._last_out, {fmax!r})",
+        "    # law.TFLController._saturate_and_apply (law_math.saturate written out)",
+        *_saturated(fmax),
         "    p0, p1, p2, p3 = ctl._perm",
         "    if frame is not None:",
         "        f[p1] = a_n",
-        "    if sat[0] or sat[1] or sat[2] or sat[3]:",
+        "    if sat0 or sat1 or sat2 or sat3:",
         "        ctl.saturation_count += 1",
         "    applied_uf = f[0] + f[1] + f[2] + f[3]",
         "    d0, d1, d2, d3 = f[p0], f[p1], f[p2], f[p3]",
@@ -415,7 +428,7 @@ def _tail(model: ModelParams, block: Callable[..., list[str]]) -> list[str]:
         "            ctl._set_gains(fine=True)",
         "    iz_, arm_, den = ctl._mu2",
         "    dob = ctl.dob",
-        "    return _new(_ControlOutput, (f, mode, sat, xi, eta,"
+        "    return _new(_ControlOutput, (f, mode, [sat0, sat1, sat2, sat3], xi, eta,"
         " (psi, -rates[0] / iz_ - arm_ * rates[2] / den), distance, lam, cond, uf, mass,"
         " (dob.d_p, dob.d_q), ctl.fine, ''))",
     ]

@@ -203,7 +203,7 @@ class TFLController:
         # step-by-step tick after the prelude for every fallback and failure.
         k = None
         if trk is self._fused_for and trk.lam is not None:
-            k = self._fused_tick(trk, s)
+            k = self._fused(self, trk, s)  # type: ignore[misc]
             if type(k) is ControlOutput:    # the whole tick, fused
                 return k
         reason = ""
@@ -238,12 +238,6 @@ class TFLController:
             distance, lam, cond, uf, mass, (self.dob.d_p, self.dob.d_q), self.fine, reason))
 
     # ------------------------------------------------------------------ the steps
-    def _fused_tick(self, trk: PathTracker, s: State) -> tuple[Any, ...]:
-        """Prelude and middle of the tick as the flight's one generated function
-        (:mod:`fused`): the numbers of :meth:`_prelude` + :meth:`_stepwise_core`, or
-        (None, the prelude's results) where the step-by-step middle must run."""
-        return self._fused(self, trk, s)  # type: ignore[misc]
-
     def _prelude(self, s: State) -> tuple[Any, ...]:
         """State as floats, attitude, canonical axes and rates, estimators: (y, v, ψ, R's
         last row, rates, b1, b2, b3, p, q, r, mass)."""
