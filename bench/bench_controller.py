@@ -2,7 +2,7 @@
 offline loop against a plain numpy RK4 physics-only loop — all in the same run.
 
     python bench/bench_controller.py [--scenario paper] [--ticks 4000] [--offline-s 20]
-                                     [--numpy-s 5] [--offline-only [--fc-parts]]
+                                     [--numpy-s 5] [--repeats 3] [--offline-only [--fc-parts]]
                                      [--json FILE]
 
 1. ``TFLController.update`` alone, median and p90 µs over a closed-loop flight (so the
@@ -33,6 +33,8 @@ start-up (interpreter, imports, path code generation) once per flight as a sweep
 shorter run would mostly time imports and the costly first seconds, a longer one would hide
 them. ``fly_offline`` flies the same flight in-process, so the two rows differ by start-up
 alone. The numpy loop (``--numpy-s``, default 5 s) is a per-step rate, the same at any length.
+Each round pairs the two rows with numpy runs right around them, and the table gives the
+median ratio over ``--repeats`` rounds (this VM's speed drifts between runs).
 
 Times are this thread's CPU time (``time.thread_time``), so being preempted on a shared
 machine does not count; the loop ratios use CPU time as well (the CLI's from the child's
@@ -322,6 +324,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="simulated s of the offline flights (default 20: paper length)")
     ap.add_argument("--numpy-s", type=float, default=5.0,
                     help="simulated s of the numpy RK4 baseline (default 5)")
+    ap.add_argument("--repeats", type=int, default=3,
+                    help="rounds of the offline rows, each paired with its own numpy RK4 "
+                         "runs (default 3; the median ratio is reported)")
     ap.add_argument("--no-offline", action="store_true", help="skip the offline-loop table")
     ap.add_argument("--offline-only", action="store_true",
                     help="only the offline-loop table (skip the controller tables)")
@@ -427,23 +432,44 @@ def _write(path: str | None, result: dict[str, Any]) -> None:
 
 def _offline_table(sc0: Scenario, args: argparse.Namespace, result: dict[str, Any]) -> int:
     """Issue #13's row 2 (same-run ratios to a plain numpy RK4 loop) and the loop's pieces."""
-    rk4 = numpy_rk4_rtf(sc0, args.numpy_s)
-    off = offline_rtf(sc0, args.offline_s)
-    cli = cli_rtf(args.scenario, args.offline_s)
-    rk4_after = numpy_rk4_rtf(sc0, args.numpy_s)   # before and after: the load drifts
-    rk4 = 0.5 * (rk4 + rk4_after)
+    # Each measurement is paired with a numpy RK4 run right before and after it (this VM's
+    # speed drifts up to ~2x between runs, less within a few seconds); the figure is the
+    # median over --repeats rounds of the ratio to its own pair's mean.
+    loop_ratios, cli_ratios, rk4s, offs, clis = [], [], [], [], []
+    rk4_prev = numpy_rk4_rtf(sc0, args.numpy_s)
+    for _ in range(args.repeats):
+        off = offline_rtf(sc0, args.offline_s)
+        rk4_mid = numpy_rk4_rtf(sc0, args.numpy_s)
+        cli = cli_rtf(args.scenario, args.offline_s)
+        rk4_next = numpy_rk4_rtf(sc0, args.numpy_s)
+        loop_ratios.append(off / (0.5 * (rk4_prev + rk4_mid)))
+        cli_ratios.append(cli / (0.5 * (rk4_mid + rk4_next)))
+        rk4s += [rk4_prev, rk4_mid]
+        offs.append(off)
+        clis.append(cli)
+        rk4_prev = rk4_next
+    rk4s.append(rk4_prev)
+    rk4, off, cli = (statistics.median(x) for x in (rk4s, offs, clis))
+    loop_vs, cli_vs = statistics.median(loop_ratios), statistics.median(cli_ratios)
     pieces = offline_breakdown(sc0, args.offline_s)
     result["offline"] = {"numpy_rk4_rtf": rk4, "offline_loop_rtf": off,
-                         "cli_process_rtf": cli, "loop_vs_numpy": off / rk4,
-                         "cli_vs_numpy": cli / rk4, "offline_s": args.offline_s,
-                         "numpy_s": args.numpy_s, "breakdown_us": pieces}
-    print(f"\n{'loop (simulated s per CPU s)':52s} {'RTF':>6s} {'vs numpy RK4':>12s}")
-    print(f"{'plain numpy RK4, physics only (mean before/after)':52s} {rk4:6.2f} "
+                         "cli_process_rtf": cli, "loop_vs_numpy": loop_vs,
+                         "cli_vs_numpy": cli_vs, "loop_vs_numpy_rounds": loop_ratios,
+                         "cli_vs_numpy_rounds": cli_ratios, "repeats": args.repeats,
+                         "offline_s": args.offline_s, "numpy_s": args.numpy_s,
+                         "breakdown_us": pieces}
+
+    def spread(r: list[float]) -> str:
+        return f"{min(r):.2f}-{max(r):.2f}x" if len(r) > 1 else ""
+
+    print(f"\n{'loop (simulated s per CPU s; medians of ' + str(args.repeats) + ' rounds)':52s} "
+          f"{'RTF':>6s} {'vs numpy RK4':>12s} {'rounds':>11s}")
+    print(f"{'plain numpy RK4, physics only (paired with each)':52s} {rk4:6.2f} "
           f"{1.0:11.2f}x")
     print(f"{f'fly_offline: physics + detector + law, {args.offline_s:g} s':52s} "
-          f"{off:6.2f} {off / rk4:11.2f}x")
+          f"{off:6.2f} {loop_vs:11.2f}x {spread(loop_ratios):>11s}")
     print(f"{f'tfl-mav offline, whole process, {args.offline_s:g} s flight':52s} {cli:6.2f} "
-          f"{cli / rk4:11.2f}x")
+          f"{cli_vs:11.2f}x {spread(cli_ratios):>11s}")
     print("\nfly_offline per tick (CPU µs; the timers apart)")
     for label, us in pieces.items():
         print(f"  {label:50s} {us:7.1f}")
