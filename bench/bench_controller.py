@@ -338,6 +338,8 @@ def main(argv: list[str] | None = None) -> int:
                     help="skip the flight-computer-step table")
     ap.add_argument("--json", metavar="FILE")
     args = ap.parse_args(argv)
+    if args.repeats < 1:
+        ap.error(f"--repeats must be at least 1, got {args.repeats}")
     sc0 = load_scenario(args.scenario)
     result: dict[str, Any] = {"scenario": args.scenario, "ticks": args.ticks}
     if args.offline_only:

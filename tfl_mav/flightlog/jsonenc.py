@@ -140,10 +140,15 @@ def _numbers_json(values: tuple[Any, ...]) -> list[bytes] | None:
     if b"e" in b or b"l" in b or b"0.0000" in b or b'"' in b:
         if b"l" in b or b'"' in b or b"t" in b or len(parts) != len(values):
             return None                  # NaN/inf (null), text, bools, nested lists
-        for m in _ODD(body):             # the few values to print with repr
-            i = body.count(b",", 0, m.start())
-            parts[i] = repr(values[i]).encode()
+        _reprint_odd(body, parts, values)
     return parts
+
+
+def _reprint_odd(body: bytes, parts: list[bytes], values: tuple[Any, ...]) -> None:
+    """Re-print with ``repr`` the few values msgspec writes in another notation (above)."""
+    for m in _ODD(body):
+        i = body.count(b",", 0, m.start())
+        parts[i] = repr(values[i]).encode()
 
 
 def _numbers_json_nulls(values: tuple[Any, ...]) -> list[bytes] | None:
@@ -159,9 +164,7 @@ def _numbers_json_nulls(values: tuple[Any, ...]) -> list[bytes] | None:
             or len(parts) != len(values)):
         return None                      # text, bools, nested lists
     if b"e" in b or b"0.0000" in b:
-        for m in _ODD(body):
-            i = body.count(b",", 0, m.start())
-            parts[i] = repr(values[i]).encode()
+        _reprint_odd(body, parts, values)
     return parts
 
 

@@ -286,14 +286,18 @@ class McapOutput:
                     add(cid, log_ns, data, pub_ns)
                 self._pending += len(items)
                 self.stats.messages += len(items)
-            if self._live is not None:
-                for cid, data in items:
-                    if cid in self._live_channels:
-                        self._live_channels[cid].log(data, log_time=log_ns)
-            if time.monotonic() >= self._next_flush:
-                self._flush()
+            self._after_write(items, log_ns)
         except Exception as exc:
             self._failed(exc)
+
+    def _after_write(self, items: tuple[tuple[int, bytes], ...], log_ns: int) -> None:
+        """What follows every write of several messages: the live view, the periodic flush."""
+        if self._live is not None:
+            for cid, data in items:
+                if cid in self._live_channels:
+                    self._live_channels[cid].log(data, log_time=log_ns)
+        if time.monotonic() >= self._next_flush:
+            self._flush()
 
     def _write_pair(self, cid_a: int, data_a: bytes, cid_b: int, data_b: bytes, log_ns: int,
                     pub_ns: int) -> None:
@@ -306,12 +310,7 @@ class McapOutput:
                 self._writer.add_pair(cid_a, data_a, cid_b, data_b, log_ns, pub_ns)
                 self._pending += 2
                 self.stats.messages += 2
-            if self._live is not None:
-                for cid, data in ((cid_a, data_a), (cid_b, data_b)):
-                    if cid in self._live_channels:
-                        self._live_channels[cid].log(data, log_time=log_ns)
-            if time.monotonic() >= self._next_flush:
-                self._flush()
+            self._after_write(((cid_a, data_a), (cid_b, data_b)), log_ns)
         except Exception as exc:
             self._failed(exc)
 
