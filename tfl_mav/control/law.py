@@ -49,7 +49,7 @@ from tfl_mav.control.allocation import (
 )
 from tfl_mav.control.compiled import CompiledPathTracker, make_tracker
 from tfl_mav.control.estimators import MassEstimator, RateDisturbanceObserver
-from tfl_mav.control.fused import build_fused
+from tfl_mav.control.fused import attach_native, build_fused
 from tfl_mav.control.jetcode import TraceError
 from tfl_mav.control.law_math import (
     attacked_tau_r,
@@ -125,9 +125,11 @@ class TFLController:
         self._fused: Callable[..., tuple[Any, ...]] | None = None
         if type(self.tracker) is CompiledPathTracker:
             try:
-                self._fused = build_fused(model, self.tracker.kernels, dt_s=dt_s,
-                                          mass_est=self.mass_est, dob=self.dob).fn
+                fused = build_fused(model, self.tracker.kernels, dt_s=dt_s,
+                                    mass_est=self.mass_est, dob=self.dob)
+                self._fused = fused.fn
                 self._fused_for = self.tracker
+                attach_native(self, fused)      # the compiled core, when there is one
             except (TraceError, ArithmeticError, ValueError):
                 pass
 
