@@ -173,6 +173,15 @@ class TFLController:
         m = self.model
         self._mu2 = (m.inertia_kgm2[2], m.arm_m, 2 * m.inertia_kgm2[0] * self._d)
 
+    @property
+    def core(self) -> str:
+        """What flies the law's arithmetic: ``compiled`` (:mod:`native`), ``python`` (the
+        generated tick, :mod:`fused`) or ``step-by-step`` (a path that cannot be fused)."""
+        if self._fused is None:
+            return "step-by-step"
+        namespace = getattr(self._fused, "__globals__", {})
+        return "compiled" if namespace.get("_core") is not None else "python"
+
     def set_attack(self, rotor: int, estimate_n: float) -> None:
         """Declare rotor (1-4) attacked with the given thrust estimate (N); 0 = none.
 
