@@ -46,6 +46,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import os
 import resource
 import statistics
 import subprocess
@@ -73,16 +74,32 @@ from tfl_mav.state import State
 _cpu = time.thread_time
 
 
-def _controller(sc: Scenario, compiled_path: bool) -> TFLController:
-    ctrl = build_controller(sc)
+def _controller(sc: Scenario, compiled_path: bool, core: str | None = None) -> TFLController:
+    """The scenario's law: on the reference jets (``compiled_path=False``), else on the
+    generated tick with its core in Python (``core="python"``) or compiled (``"compiled"``;
+    None: whatever ``--core`` chose)."""
+    saved = os.environ.get("TFL_MAV_NATIVE")
+    if core is not None:
+        os.environ["TFL_MAV_NATIVE"] = "sync" if core == "compiled" else "off"
+    try:
+        ctrl = build_controller(sc)
+    finally:
+        if saved is None:
+            os.environ.pop("TFL_MAV_NATIVE", None)
+        else:
+            os.environ["TFL_MAV_NATIVE"] = saved
     if not compiled_path:
         ctrl.tracker, ctrl.path_eval = compiled.make_tracker(ctrl.tracker.path, False)
+    elif core is not None and ctrl.core != core:
+        raise SystemExit(f"bench_controller: the law's {core} core is not available "
+                         f"(it flies {ctrl.core}); see the warning above")
     return ctrl
 
 
-def time_law(sc: Scenario, ticks: int, compiled_path: bool) -> list[float]:
+def time_law(sc: Scenario, ticks: int, compiled_path: bool, core: str | None = None
+             ) -> list[float]:
     """Seconds per ``update`` over a closed-loop flight of ``ticks`` control periods."""
-    sim, ctrl = Simulator(sc), _controller(sc, compiled_path)
+    sim, ctrl = Simulator(sc), _controller(sc, compiled_path, core)
     out_s = []
     for _ in range(ticks):
         m = sim.measured
@@ -336,8 +353,18 @@ def main(argv: list[str] | None = None) -> int:
                     help="simulated s of the flight-computer flight (default: the scenario's)")
     ap.add_argument("--no-flight", action="store_true",
                     help="skip the flight-computer-step table")
+    ap.add_argument("--core", choices=("compiled", "python"), default="compiled",
+                    help="the law's core for every table but the law's own (which shows "
+                         "both): compiled to C (TFL_MAV_NATIVE=sync, the default) or the "
+                         "generated Python (off)")
     ap.add_argument("--json", metavar="FILE")
     args = ap.parse_args(argv)
+    # Subprocesses (tfl-mav offline) inherit it; the kernels are built (and cached) by the
+    # first controller of each law, before anything is timed.
+    os.environ["TFL_MAV_NATIVE"] = "sync" if args.core == "compiled" else "off"
+    for law_name in ("robust", "paper"):
+        build_controller(load_scenario(args.scenario).replace(
+            **{"controller.law": law_name}))
     if args.repeats < 1:
         ap.error(f"--repeats must be at least 1, got {args.repeats}")
     sc0 = load_scenario(args.scenario)
@@ -362,20 +389,26 @@ def main(argv: list[str] | None = None) -> int:
     result["safe_law_gains"] = {"count": n_gains, "design_ms": 1e3 * (_cpu() - t0)}
 
     rows = []
-    print(f"{'law':8s} {'jets median µs':>14s} {'compiled µs':>11s} {'speed-up':>8s} "
-          f"{'jets p90':>8s} {'compiled p90':>12s}")
+    print("TFL law update, µs per tick: the reference jets, the generated tick with its core "
+          "in Python, and compiled to C\n"
+          f"{'law':8s} {'jets median':>11s} {'python median':>13s} {'C median':>9s} "
+          f"{'speed-up':>8s} {'jets p90':>8s} {'python p90':>10s} {'C p90':>7s}")
     for law_name in ("robust", "paper"):
         sc = sc0.replace(**{"controller.law": law_name})
         ref = sorted(time_law(sc, args.ticks, False))
-        fast = sorted(time_law(sc, args.ticks, True))
+        py = sorted(time_law(sc, args.ticks, True, "python"))
+        fast = sorted(time_law(sc, args.ticks, True, "compiled"))
         r = {"law": law_name, "jets_median_us": 1e6 * statistics.median(ref),
+             "python_median_us": 1e6 * statistics.median(py),
              "compiled_median_us": 1e6 * statistics.median(fast),
              "jets_p90_us": 1e6 * ref[int(0.9 * len(ref))],
+             "python_p90_us": 1e6 * py[int(0.9 * len(py))],
              "compiled_p90_us": 1e6 * fast[int(0.9 * len(fast))]}
         r["speedup"] = r["jets_median_us"] / r["compiled_median_us"]
         rows.append(r)
-        print(f"{law_name:8s} {r['jets_median_us']:14.1f} {r['compiled_median_us']:11.1f} "
-              f"{r['speedup']:7.2f}x {r['jets_p90_us']:8.1f} {r['compiled_p90_us']:12.1f}")
+        print(f"{law_name:8s} {r['jets_median_us']:11.1f} {r['python_median_us']:13.1f} "
+              f"{r['compiled_median_us']:9.1f} {r['speedup']:7.2f}x {r['jets_p90_us']:8.1f} "
+              f"{r['python_p90_us']:10.1f} {r['compiled_p90_us']:7.1f}")
     result["controller"] = rows
     print(f"(path code generation at start-up: {result['codegen_ms']['path']:.1f} ms, fused "
           f"tick {result['codegen_ms']['fused_tick']:.1f} ms; the safe "

@@ -7,6 +7,7 @@ outlives it. The library behind them is :mod:`harness` (also used by bench/).
 
 from __future__ import annotations
 
+import os
 from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
@@ -18,8 +19,22 @@ from harness.ports import free_udp_port
 from harness.processes import Proc, start_sim
 from tfl_mav.link.transport import Address
 
+# The suite flies the law's Python core (the compiled one gives the same bits, and building
+# one per distinct scenario would cost the suite minutes): tests/test_native.py turns it on
+# where it is under test; `TFL_MAV_NATIVE=sync python -m pytest` flies everything compiled.
+# Set at import, so that every `tfl-mav` subprocess inherits it.
+os.environ.setdefault("TFL_MAV_NATIVE", "off")
+
 SimFactory = Callable[..., tuple[Proc, int]]
 PilotFactory = Callable[..., Pilot]
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _kernel_cache(tmp_path_factory: pytest.TempPathFactory) -> None:
+    """The compiled cores built by this session go to its own directory (every subprocess
+    too), never into the user's cache."""
+    if "TFL_MAV_KERNEL_CACHE" not in os.environ:
+        os.environ["TFL_MAV_KERNEL_CACHE"] = str(tmp_path_factory.mktemp("kernels"))
 
 
 @pytest.fixture

@@ -134,9 +134,9 @@ def test_fused_source_holds_no_scenario_text():
         _settled_s _set_gains _mu2 iz_ arm_ den _new _ControlOutput _use_mass me mass_est lo_
         thrust _v_lp update _phi_lp nlx nly nlz npx npy npz num _inf m_inst _clamp blend
         mass_kg updates pred rprev _prev pp pq rp rq dp dq ndp ndq lx ly lz phx phy phz
-        r0 r1 r2 r3 f0 f1 f2 f3"""))
+        r0 r1 r2 r3 f0 f1 f2 f3 arc_m tube_min dsub_p dsub_q eta1 eta2 eta3"""))
     names = re.compile(r"[mgtqw]_\d+|q[wxyz]|r[012][012]|[xyz]\d|[xyz][xyz]|v[xyz]|b[123][xyz]"
-                       r"|k[xe]\d|cp\d+")
+                       r"|k[xe]\d|cp\d+|c\d+|xi[01]\d")
     code = re.sub(r"#.*", "", src)       # the template's comments
     for word in re.findall(r"[A-Za-z_][A-Za-z_0-9]*", code):
         assert word in template or names.fullmatch(word), word

@@ -155,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
         if not args.quiet:
             print(f"{prog}: controlling {vehicle[0]}:{vehicle[1]} from "
                   f"{daemon.link.local_address[1]}, scenario {scenario.name!r}"
-                  f"{', MAVLink 2 signing on' if key is not None else ''}",
+                  f"{', MAVLink 2 signing on' if key is not None else ''}"
+                  f", law core {daemon.computer.controller.core}",
                   file=sys.stderr, flush=True)
         result = daemon.run(duration)
     finally:

@@ -34,12 +34,14 @@ from __future__ import annotations
 
 import math
 import time
+import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
+from tfl_mav.control import native
 from tfl_mav.control.allocation import allocate_attacked, allocate_nominal
 from tfl_mav.control.compiled import (
     _NEWTON_ITERS,
@@ -73,7 +75,26 @@ from tfl_mav.control.law_math import (
 from tfl_mav.control.law_types import ControlOutput, ModelParams
 from tfl_mav.modes import Mode
 
-__all__ = ["FusedTick", "build_fused"]
+__all__ = ["FusedTick", "attach_native", "build_fused"]
+
+#: The generated tick's globals besides the math functions.
+GLOBALS: dict[str, Any] = {
+    "_isfinite": math.isfinite, "_arc": _arc, "_atan2": math.atan2, "_hypot": math.hypot,
+    "_ndarray": np.ndarray, "_alloc_nom": allocate_nominal,
+    "_yaw_tau_r": yaw_tau_r, "_new": tuple.__new__,
+    "_ControlOutput": ControlOutput, "_inf": math.inf,
+    "_NOMINAL": Mode.NOMINAL, "_ATTACKED": Mode.ATTACKED}
+
+#: The core's arguments: the state's floats, the tracker's and the controller's numbers.
+CORE_INPUTS = ("x0", "y0", "z0", "x1", "y1", "z1", "b1x", "b1y", "b1z", "b2x", "b2y", "b2z",
+               "b3x", "b3y", "b3z", "pc", "qc", "rc", "uf", "duf", "mass", "lam0", "lam",
+               *(f"cp{j}" for j in range(18)), "arc_m", "tube_min", "kx0", "kx1", "kx2", "kx3",
+               "ke0", "ke1", "ke2", "speed", "max_cond", "dsub_p", "dsub_q", "ix", "iy", "iz")
+#: The core's results: λ, σ's expansion at λ, the arc, the law's numbers.
+CORE_OUTPUTS = ("lam", *(f"c{j}" for j in range(18)), "arc", "distance", "cond", "udd", "pdot",
+                "qdot", "tau_p", "tau_q", *(f"xi{i}{j}" for i in range(2) for j in range(4)),
+                "eta1", "eta2", "eta3")
+
 
 @dataclass(frozen=True)
 class FusedTick:
@@ -86,6 +107,51 @@ class FusedTick:
     source: str
     n_ops: int
     build_s: float
+    #: ``fused_core(*CORE_INPUTS)`` → CORE_OUTPUTS or None: the arithmetic middle alone,
+    #: for :mod:`native` to compile.
+    core_source: str = ""
+    #: The tick with the core replaced by a call of ``_core`` (see :meth:`with_core`).
+    native_source: str = ""
+
+    def with_core(self, core: Callable[..., tuple[float, ...] | None] | None = None
+                  ) -> tuple[Callable[..., tuple[Any, ...] | None], dict[str, Any]]:
+        """The tick calling ``_core`` (a compiled ``fused_core``) for its middle, and the
+        globals it reads ``_core`` from (set it there when a build completes)."""
+        namespace = {**GLOBALS, "_core": core}
+        fn = compile_source("fused_tick", self.native_source, namespace)
+        return fn, fn.__globals__
+
+
+def attach_native(ctl: Any, fused: FusedTick) -> None:
+    """Fly ``ctl`` (a :class:`law.TFLController` flying ``fused.fn``) on the compiled core
+    (:mod:`native`): now if it is cached or ``TFL_MAV_NATIVE=sync``, else (``auto``) when a
+    background build completes. The compiled core gives the same bits, so when the switch
+    happens changes nothing but the speed. Everything that holds the GIL for long (the
+    translation, compiling the calling tick) happens here, before the flight."""
+    how = native.mode()
+    if how == "off":
+        return
+    try:
+        core = native.load_cached(fused.core_source)
+        if core is None and how == "sync":
+            core = native.build(fused.core_source)
+        tick, namespace = fused.with_core(core)
+        if core is not None:
+            ctl._fused = tick
+            return
+        c_text = native.c_source(fused.core_source)
+    except native.NativeError as exc:
+        native.warn_once(str(exc))
+        return
+    python_tick, ref = ctl._fused, weakref.ref(ctl)
+
+    def ready(core: Callable[..., Any]) -> None:
+        namespace["_core"] = core
+        target = ref()
+        if target is not None and target._fused is python_tick:
+            target._fused = tick        # one reference store: atomic under the GIL
+
+    native.compile_async(fused.core_source, c_text, ready)
 
 
 def _flat(rows: Any) -> list[Any]:
@@ -129,17 +195,15 @@ def _after_projection(model: ModelParams, trace_sigma: Callable[..., list[Any]],
         return tape.input(name)
 
     c = trace_sigma([lam], 5)
-    raw(f"c = ({', '.join(t(v) for v in c)},)",
-        f"{', '.join(f'cp{j}' for j in range(18))} = cp")
+    raw(*(f"c{j} = {t(v)}" for j, v in enumerate(c)))
     cp = [tape.input(f"cp{j}") for j in range(18)]
-    local("arc", tape.input("trk._arc_m")
-          + _arc(cp, c, lam - tape.input("lam0"), traced_sqrt))
+    local("arc", tape.input("arc_m") + _arc(cp, c, lam - tape.input("lam0"), traced_sqrt))
     # compiled.CompiledPathTracker.virtual_output: slope, tube margin, distance.
     c0x, c0y, c0z, c1x, c1y, c1z = c[0:6]
     e0x, e0y, e0z = x[0] - c0x, y[0] - c0y, z[0] - c0z
     s1sq = c1x ** 2 + c1y ** 2 + c1z ** 2
     slope = -s1sq + 2.0 * (e0x * c[6] + e0y * c[7] + e0z * c[8])
-    raw(f"if not ({t(s1sq)} > 0.0 and -{t(slope)} / {t(s1sq)} >= trk.min_tube_margin):",
+    raw(f"if not ({t(s1sq)} > 0.0 and -{t(slope)} / {t(s1sq)} >= tube_min):",
         "    return None")
     local("distance", traced_sqrt(e0x ** 2 + e0y ** 2 + e0z ** 2))
     p1, p2, p3, p4 = trace_pi(c, x, y, z, [slope])
@@ -147,10 +211,8 @@ def _after_projection(model: ModelParams, trace_sigma: Callable[..., list[Any]],
     k = traced_sqrt(s1sq) / -slope
     jac = (a[10:13], a[13:16], (k * c1x, k * c1y, k * c1z))
     # law.TFLController._decoupling_solve, law_math.
-    raw("kx0, kx1, kx2, kx3 = ctl.k_xi", "ke0, ke1, ke2 = ctl.k_eta")
     kx = [tape.input(f"kx{i}") for i in range(4)]
     ke = [tape.input(f"ke{i}") for i in range(3)]
-    raw("speed = cfg.speed_mps")
     speed = tape.input("speed")
     r = linear_rhs(a[0:5], a[5:10], (None, p1, p2, p3, p4), kx, ke, speed)
     co0, co1, co2, det, norms = cofactors(jac, traced_sqrt)
@@ -158,23 +220,21 @@ def _after_projection(model: ModelParams, trace_sigma: Callable[..., list[Any]],
         f"rel = abs({t(det)}) / {t(norms)}",
         "if not rel >= 1e-12:", "    return None",
         "cond = 1.0 / rel",
-        "if not cond <= cfg.max_cond:", "    return None")
+        "if not cond <= max_cond:", "    return None")
     inv = local("inv", 1.0 / det)
     udd, pdot, qdot = b0_inverse(cramer(jac, r, co0, co1, co2, inv), b1, b2, b3, mass, uf)
     udd, pdot, qdot = local("udd", udd), local("pdot", pdot), local("qdot", qdot)
+    # The DOB's estimate (0.0 without it: x − 0.0 = x for every x).
     raw("if not (_isfinite(udd) and _isfinite(pdot) and _isfinite(qdot)):",
         "    return None",
-        "if ctl._use_dob:",
-        "    dob = ctl.dob",
-        "    pdot -= dob.d_p",
-        "    qdot -= dob.d_q",
-        "ix, iy, iz = ctl._ixyz")
+        "pdot -= dsub_p",
+        "qdot -= dsub_q")
     ixyz = [tape.input(n) for n in ("ix", "iy", "iz")]
     tau_p, tau_q = torques(pdot, qdot, pc, qc, rc, *ixyz, model.k_r)
     raw(f"tau_p = {t(tau_p)}", f"tau_q = {t(tau_q)}",
-        f"xi = (({', '.join(t(v) for v in a[0:4])}), ({', '.join(t(v) for v in a[5:9])}))",
-        f"eta = (arc, {t(p1)}, {t(p2)}, {t(p3)})",
-        "trk._arc_m = arc", "trk._lam_prev = lam0", "trk.lam = lam", "trk._expansion = (lam, c)")
+        *(f"xi{i}{j} = {t(v)}" for i, row in enumerate((a[0:4], a[5:9]))
+          for j, v in enumerate(row)),
+        f"eta1 = {t(p1)}", f"eta2 = {t(p2)}", f"eta3 = {t(p3)}")
     return []
 
 
@@ -212,7 +272,9 @@ def build_fused(model: ModelParams, kernels: PathKernels, *, dt_s: float | None 
                 [f"r{i}{j}" for i in range(3) for j in range(3)])
     # As the tracker's isfinite(sum(tx) + sum(ty) + sum(tz)): the same additions.
     rows = " + ".join(f"({' + '.join(r)})" for r in Y_NAMES)
-    middle = [
+    # What the core reads of the controller and the tracker, read before it (plain reads:
+    # σ's expansion at λ₀, when not kept from the last tick, is a pure kernel call).
+    pre = [
         "uf = ctl.x13",
         "duf = ctl.x14",
         "cfg = ctl.cfg",
@@ -220,63 +282,93 @@ def build_fused(model: ModelParams, kernels: PathKernels, *, dt_s: float | None 
         "    return None",
         "x0, y0, z0 = y",
         "x1, y1, z1 = v",
-        *(ln[4:] for ln in model_rows),
-        f"if not _isfinite({rows}):",
-        "    return None",
         "# The projection (eq. (13)): compiled.CompiledPathTracker._project_compiled.",
         "lam0 = trk.lam",
         "prev = trk._expansion",
         "fresh = prev is not None and prev[0] == lam0",
         "lp = trk._lam_prev",
         "lam = 2.0 * lam0 - lp if fresh and lp is not None else lam0",
+        "cp = prev[1] if fresh else trk._sigma5((lam0,))",
+        f"{', '.join(f'cp{j}' for j in range(18))} = cp",
+        "arc_m = trk._arc_m",
+        "tube_min = trk.min_tube_margin",
+        "kx0, kx1, kx2, kx3 = ctl.k_xi",
+        "ke0, ke1, ke2 = ctl.k_eta",
+        "speed = cfg.speed_mps",
+        "max_cond = cfg.max_cond",
+        "if ctl._use_dob:",
+        "    dob = ctl.dob",
+        "    dsub_p, dsub_q = dob.d_p, dob.d_q",
+        "else:",
+        "    dsub_p = dsub_q = 0.0",
+        "ix, iy, iz = ctl._ixyz",
+    ]
+    # The core: floats in, floats out (or None: the step-by-step tick takes over); in
+    # Python it runs inline, compiled it is one call (:mod:`native`).
+    core = [
+        *(ln[4:] for ln in model_rows),
+        f"if not _isfinite({rows}):",
+        "    return None",
         f"for _ in range({_NEWTON_ITERS}):",
         *(ln[4:] for ln in sigma2),
         "else:",
         "    return None",
-        "cp = prev[1] if fresh else trk._sigma5((lam0,))",
         *(ln[4:] for ln in after),
     ]
+    post = [
+        f"c = ({', '.join(f'c{j}' for j in range(18))})",
+        "xi = ((xi00, xi01, xi02, xi03), (xi10, xi11, xi12, xi13))",
+        "eta = (arc, eta1, eta2, eta3)",
+        "trk._arc_m = arc",
+        "trk._lam_prev = lam0",
+        "trk.lam = lam",
+        "trk._expansion = (lam, c)",
+    ]
+    core_source = "\n".join([f"def fused_core({', '.join(CORE_INPUTS)}):",
+                             *(f"    {ln}" for ln in core),
+                             f"    return ({', '.join(CORE_OUTPUTS)},)"]) + "\n"
+    call = [f"_r = _core({', '.join(CORE_INPUTS)})",
+            "if _r is None:",
+            "    return None",
+            f"{', '.join(CORE_OUTPUTS)} = _r"]
     tail = _tail(model, block)
     bail = ("return (None, y, v, psi, (r20, r21, r22), rates, (b1x, b1y, b1z), (b2x, b2y, b2z), "
             "(b3x, b3y, b3z), pc, qc, rc, mass)")
-    source = "\n".join([
-        "def fused_tick(ctl, trk, s):",
-        "    # The prelude: law.TFLController._prelude.",
-        *(f"    {name} = s.{field}\n    if type({name}) is _ndarray:\n"
-          f"        {name} = {name}.tolist()"
-          for name, field in (("y", "position_m"), ("v", "velocity_mps"),
-                              ("quat", "quaternion_wxyz"), ("rates", "body_rates_radps"))),
-        "    qw, qx, qy, qz = quat",
-        *rot,
-        "    psi = _atan2(r10, r00)",
-        "    if ctl.psi_ref is None:",
-        "        ctl.psi_ref = psi",
-        "    (m1, s1), (m2, s2) = ctl._axes",
-        "    cols = ((r00, r10, r20), (r01, r11, r21))",
-        "    col = cols[m1]",
-        "    b1x, b1y, b1z = s1 * col[0], s1 * col[1], s1 * col[2]",
-        "    col = cols[m2]",
-        "    b2x, b2y, b2z = s2 * col[0], s2 * col[1], s2 * col[2]",
-        "    b3x, b3y, b3z = r02, r12, r22",
-        "    pc, qc, rc = s1 * rates[m1], s2 * rates[m2], rates[2]",
-        *(_estimators(block, dt_s, mass_est, dob) if dt_s is not None and mass_est is not None
-          and dob is not None else
-          ["    mass = ctl._update_estimators(v, (b3x, b3y, b3z), pc, qc)"]),
-        "    # The middle; on any bail the step-by-step tick takes over from here.",
-        "    try:",
-        *(f"        {ln.replace('return None', bail)}" for ln in middle),
-        "    except (ValueError, ZeroDivisionError, OverflowError):",
-        f"        {bail}",
-        *tail,
-    ]) + "\n"
-    source = reuse_slots(source)
-    fn = compile_source("fused_tick", source, {
-        "_isfinite": math.isfinite, "_arc": _arc, "_atan2": math.atan2, "_hypot": math.hypot,
-        "_ndarray": np.ndarray, "_alloc_nom": allocate_nominal,
-        "_yaw_tau_r": yaw_tau_r, "_new": tuple.__new__,
-        "_ControlOutput": ControlOutput, "_inf": math.inf,
-        "_NOMINAL": Mode.NOMINAL, "_ATTACKED": Mode.ATTACKED})
-    return FusedTick(fn, source, n_ops, time.perf_counter() - t0)
+    def assemble(middle: list[str]) -> str:
+            return reuse_slots("\n".join([
+            "def fused_tick(ctl, trk, s):",
+            "    # The prelude: law.TFLController._prelude.",
+            *(f"    {name} = s.{field}\n    if type({name}) is _ndarray:\n"
+              f"        {name} = {name}.tolist()"
+              for name, field in (("y", "position_m"), ("v", "velocity_mps"),
+                                  ("quat", "quaternion_wxyz"), ("rates", "body_rates_radps"))),
+            "    qw, qx, qy, qz = quat",
+            *rot,
+            "    psi = _atan2(r10, r00)",
+            "    if ctl.psi_ref is None:",
+            "        ctl.psi_ref = psi",
+            "    (m1, s1), (m2, s2) = ctl._axes",
+            "    cols = ((r00, r10, r20), (r01, r11, r21))",
+            "    col = cols[m1]",
+            "    b1x, b1y, b1z = s1 * col[0], s1 * col[1], s1 * col[2]",
+            "    col = cols[m2]",
+            "    b2x, b2y, b2z = s2 * col[0], s2 * col[1], s2 * col[2]",
+            "    b3x, b3y, b3z = r02, r12, r22",
+            "    pc, qc, rc = s1 * rates[m1], s2 * rates[m2], rates[2]",
+            *(_estimators(block, dt_s, mass_est, dob) if dt_s is not None and mass_est is not None
+              and dob is not None else
+              ["    mass = ctl._update_estimators(v, (b3x, b3y, b3z), pc, qc)"]),
+            "    # The middle; on any bail the step-by-step tick takes over from here.",
+            "    try:",
+            *(f"        {ln.replace('return None', bail)}" for ln in middle),
+            "    except (ValueError, ZeroDivisionError, OverflowError):",
+            f"        {bail}",
+            *tail,
+        ]) + "\n")
+    source = assemble(pre + core + post)
+    fn = compile_source("fused_tick", source, GLOBALS)
+    native_source = assemble(pre + call + post)
+    return FusedTick(fn, source, n_ops, time.perf_counter() - t0, core_source, native_source)
 
 
 def _clamped(indent: str, target: str, x: str, lo: float, hi: float) -> list[str]:

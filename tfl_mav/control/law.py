@@ -49,7 +49,7 @@ from tfl_mav.control.allocation import (
 )
 from tfl_mav.control.compiled import CompiledPathTracker, make_tracker
 from tfl_mav.control.estimators import MassEstimator, RateDisturbanceObserver
-from tfl_mav.control.fused import build_fused
+from tfl_mav.control.fused import attach_native, build_fused
 from tfl_mav.control.jetcode import TraceError
 from tfl_mav.control.law_math import (
     attacked_tau_r,
@@ -125,9 +125,11 @@ class TFLController:
         self._fused: Callable[..., tuple[Any, ...]] | None = None
         if type(self.tracker) is CompiledPathTracker:
             try:
-                self._fused = build_fused(model, self.tracker.kernels, dt_s=dt_s,
-                                          mass_est=self.mass_est, dob=self.dob).fn
+                fused = build_fused(model, self.tracker.kernels, dt_s=dt_s,
+                                    mass_est=self.mass_est, dob=self.dob)
+                self._fused = fused.fn
                 self._fused_for = self.tracker
+                attach_native(self, fused)      # the compiled core, when there is one
             except (TraceError, ArithmeticError, ValueError):
                 pass
 
@@ -170,6 +172,15 @@ class TFLController:
         """μ2 = −p/I_z − l r/(2 I_x d) (eq. (18)): its constants, once per frame."""
         m = self.model
         self._mu2 = (m.inertia_kgm2[2], m.arm_m, 2 * m.inertia_kgm2[0] * self._d)
+
+    @property
+    def core(self) -> str:
+        """What flies the law's arithmetic: ``compiled`` (:mod:`native`), ``python`` (the
+        generated tick, :mod:`fused`) or ``step-by-step`` (a path that cannot be fused)."""
+        if self._fused is None:
+            return "step-by-step"
+        namespace = getattr(self._fused, "__globals__", {})
+        return "compiled" if namespace.get("_core") is not None else "python"
 
     def set_attack(self, rotor: int, estimate_n: float) -> None:
         """Declare rotor (1-4) attacked with the given thrust estimate (N); 0 = none.

@@ -1,0 +1,244 @@
+"""The law's compiled core (#13, :mod:`tfl_mav.control.native`) is the Python core bit for bit.
+
+The C is translated from the Python core's own source; these tests hold the translation to
+CPython's semantics operation by operation (values *and* where Python raises, which the
+compiled core answers with ``None``), then whole controllers on random states for every
+path kind, then whole flights against the golden results. Builds go to the session's kernel
+cache (tests/conftest.py).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import random
+import struct
+import time
+
+import pytest
+
+from harness.golden import LOCKSTEP_CASES, OFFLINE_CASES, fly_lockstep, fly_offline_case
+from tests.test_compiled import PATHS
+from tests.test_fused import _random_state
+from tests.test_golden import _LOCKSTEP, _OFFLINE
+from tfl_mav.build import law_config, model_params
+from tfl_mav.control import native
+from tfl_mav.control.fused import CORE_INPUTS, CORE_OUTPUTS
+from tfl_mav.control.kernelgen import KERNEL_GLOBALS, compile_source
+from tfl_mav.control.law import TFLController
+from tfl_mav.control.paths import build_path
+from tfl_mav.scenario import load_scenario
+from tfl_mav.state import State
+
+pytestmark = pytest.mark.skipif(native._compiler() is None, reason="no C compiler")
+
+# One function holding every operation the translation knows, chosen by k: one build.
+_OPS = [
+    "a / b", "a ** 2", "a ** 3", "a ** -1", "a ** -2", "_sqrt(a)", "_sin(a)", "_cos(a)",
+    "_tan(a)", "_exp(a)", "_log(a)", "_atan(a)", "_tanh(a)", "_pow(a, b)", "abs(a)",
+    "a if a < b else b", "1.0 if a <= b <= 2.0 else 0.0", "(-a) * b + a - b",
+    "1.0 if not (a > b or a == 0.5) else 0.0", "1.0 if _isfinite(a) and a != b else 0.0",
+]
+_OPS_SOURCE = "def ops(k, a, b):\n    r = 0.0\n" + "".join(
+    f"    if k == {i}:\n        r = {op}\n" for i, op in enumerate(_OPS)) + "    return (r,)\n"
+_LOOP_SOURCE = """def loop(a, n):
+    s = 0.0
+    for _ in range(5):
+        s += a
+        if s >= n:
+            break
+    else:
+        return None
+    a += 1.0
+    return (s, a)
+"""
+_SPECIAL = [0.0, -0.0, 1.0, -1.0, 0.5, -2.5, 3.0, 2.0, 1e-320, -1e-320, 1e300, -1e300,
+            1e154, 710.0, -746.0, math.pi, math.inf, -math.inf, math.nan, 1e22, 7.0e-9]
+
+
+def _bits(x: float) -> bytes:
+    return struct.pack("<d", x)
+
+
+def _python(fn, *args):
+    try:
+        return fn(*args)
+    except (ValueError, ZeroDivisionError, OverflowError):
+        return None
+
+
+def _same_bits(a, b) -> bool:
+    return all(_bits(x) == _bits(y) or (math.isnan(x) and math.isnan(y))
+               for x, y in zip(a, b, strict=True))
+
+
+@pytest.fixture(scope="module")
+def ops():
+    py = compile_source("ops", _OPS_SOURCE, {"_isfinite": math.isfinite})
+    return py, native.build(_OPS_SOURCE)
+
+
+def test_every_operation_gives_pythons_bits_or_bails_where_python_raises(ops):
+    py, c = ops
+    for k, op in enumerate(_OPS):
+        for a in _SPECIAL:
+            for b in _SPECIAL:
+                want, got = _python(py, float(k), a, b), c(float(k), a, b)
+                if want is None:            # Python raises: the compiled core says None
+                    assert got is None, (op, a, b, got)
+                elif got is None:
+                    # Only math.pow with a non-finite operand is declined on purpose
+                    # (CPython special-cases those before calling libm's pow).
+                    assert op == "_pow(a, b)" and not (math.isfinite(a) and math.isfinite(b)), \
+                        (op, a, b, want)
+                else:
+                    assert _same_bits(want, got), (op, a, b, want, got)
+
+
+def test_random_operands_agree_bit_for_bit(ops):
+    py, c = ops
+    rng = random.Random(5)
+    for _ in range(4000):
+        k = rng.randrange(len(_OPS))
+        a, b = (rng.choice([rng.uniform(-10, 10), rng.gauss(0, 1e3), rng.uniform(0, 1e-3)])
+                for _ in range(2))
+        want, got = _python(py, float(k), a, b), c(float(k), a, b)
+        assert (want is None and got is None) or _same_bits(want, got), (_OPS[k], a, b)
+
+
+def test_loop_break_and_else_and_arguments_that_are_not_numbers():
+    py = compile_source("loop", _LOOP_SOURCE)
+    c = native.build(_LOOP_SOURCE)
+    for a, n in [(1.0, 3.0), (0.5, 10.0), (2.0, 2.0), (math.nan, 1.0), (-1.0, -0.5)]:
+        assert py(a, n) == c(a, n) or (py(a, n) is None and c(a, n) is None), (a, n)
+    assert c(1, 2) == py(1, 2)          # ints convert as Python's mixed arithmetic does
+    assert c("1.0", 2.0) is None        # not a number: declined, no exception
+    with pytest.raises(TypeError, match="takes 2 arguments"):
+        c(1.0)
+
+
+@pytest.mark.parametrize("src, match", [
+    ("def f(a):\n    b = a.x\n    return (b,)\n", "cannot translate"),
+    ("def f(a):\n    return (b,)\n", "never set"),
+    ("def f(a):\n    b = a ** a\n    return (b,)\n", "int literal"),
+    ("def f(a):\n    b = _hypot(a, a)\n    return (b,)\n", "call of '_hypot'"),
+    ("def f(a):\n    b = a + 'x'\n    return (b,)\n", "not a number"),
+])
+def test_what_cannot_be_translated_is_refused_by_name(src, match):
+    with pytest.raises(native.NativeError, match=match):
+        native.translate(src, "_m")
+
+
+def _controllers(path) -> TFLController:
+    sc = load_scenario("paper")
+    return TFLController(model_params(sc), path, law_config(sc), 0.001)
+
+
+def _pair(path, monkeypatch):
+    monkeypatch.setenv("TFL_MAV_NATIVE", "off")
+    py = _controllers(path)
+    monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
+    c = _controllers(path)
+    assert c._fused is not py._fused and c._fused.__globals__["_core"] is not None
+    return py, c
+
+
+def _paths_under_test():
+    fast = {"paper", "expr-all-functions"}
+    return [pytest.param(n, marks=() if n in fast else pytest.mark.slow) for n in sorted(PATHS)]
+
+
+@pytest.mark.parametrize("name", _paths_under_test())
+def test_compiled_core_flies_the_python_cores_bits_on_random_states(name, monkeypatch):
+    kind, params, y0 = PATHS[name]
+    path = build_path(kind, params)
+    rng = random.Random(23)
+    py, c = _pair(path, monkeypatch)
+    for trial in range(40):
+        rotor = (0, 0, 2, 3)[trial % 4]
+        for ctrl in (py, c):
+            ctrl.set_attack(rotor, 1.0 if rotor else 0.0)
+        st = _random_state(rng, y0)
+        for tick in range(3):
+            if tick:
+                st = State(tuple(p + 1e-3 * v for p, v in zip(st.position_m, st.velocity_mps,
+                                                              strict=True)),
+                           st.velocity_mps, st.quaternion_wxyz, st.body_rates_radps)
+            assert repr(py.update(st)) == repr(c.update(st))
+
+
+def test_core_signature_is_what_the_tick_passes():
+    """The compiled core's arguments and results are the names the tick reads and writes."""
+    sc = load_scenario("paper")
+    path = build_path("paper", {})
+    ctl = TFLController(model_params(sc), path, law_config(sc), 0.001)
+    fused_core = compile_source("fused_core", _core_source(ctl), KERNEL_GLOBALS)
+    assert fused_core.__code__.co_varnames[:len(CORE_INPUTS)] == CORE_INPUTS
+    assert len(CORE_OUTPUTS) == len(set(CORE_OUTPUTS))
+
+
+def _core_source(ctl: TFLController) -> str:
+    from tfl_mav.control.fused import build_fused
+    return build_fused(ctl.model, ctl.tracker.kernels, dt_s=ctl.dt, mass_est=ctl.mass_est,
+                       dob=ctl.dob).core_source
+
+
+@pytest.mark.parametrize("name", sorted(OFFLINE_CASES))
+def test_offline_golden_flights_are_bit_identical_compiled(name, monkeypatch):
+    monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
+    assert fly_offline_case(*OFFLINE_CASES[name]) == _OFFLINE[name]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["paper", "lag20ms"])
+def test_lockstep_golden_flights_are_bit_identical_compiled(name, tmp_path, monkeypatch):
+    monkeypatch.setenv("TFL_MAV_NATIVE", "sync")    # the daemon subprocess inherits it
+    assert fly_lockstep(*LOCKSTEP_CASES[name], out=tmp_path) == _LOCKSTEP[name]
+
+
+@pytest.mark.slow
+def test_auto_switches_to_the_compiled_core_mid_flight_without_changing_a_bit(
+        tmp_path, monkeypatch):
+    """A cold cache: the controller flies the Python core while the compiler runs in the
+    background, then switches; the outputs are those of a Python-only controller."""
+    monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path / "cold"))
+    path = build_path("paper", {})
+    monkeypatch.setenv("TFL_MAV_NATIVE", "off")
+    py = _controllers(path)
+    monkeypatch.setenv("TFL_MAV_NATIVE", "auto")
+    c = _controllers(path)
+    python_tick = c._fused
+    rng = random.Random(3)
+    st = _random_state(rng, PATHS["paper"][2])
+    deadline = time.monotonic() + 120.0     # a compile of ~1 s, on a loaded 2-core box
+    ticks_before = 0
+    while c._fused is python_tick and time.monotonic() < deadline:
+        assert repr(py.update(st)) == repr(c.update(st))
+        ticks_before += 1
+        time.sleep(0.001)
+    assert c._fused is not python_tick, "the background build never completed"
+    assert ticks_before > 0
+    for _ in range(50):
+        assert repr(py.update(st)) == repr(c.update(st))
+
+
+def test_no_compiler_leaves_the_python_core_flying_with_one_warning(monkeypatch, caplog,
+                                                                    tmp_path):
+    monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path / "empty"))
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
+    monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
+    monkeypatch.setattr(native, "_warned", set())
+    path = build_path("paper", {})
+    with caplog.at_level(logging.WARNING, logger="tfl_mav.control.native"):
+        a = _controllers(path)
+        b = _controllers(path)
+    assert "_core" not in a._fused.__globals__ and "_core" not in b._fused.__globals__
+    warnings = [r for r in caplog.records if "no C compiler" in r.getMessage()]
+    assert len(warnings) == 1
+
+
+def test_a_bad_mode_is_named_and_means_off(monkeypatch, caplog):
+    monkeypatch.setenv("TFL_MAV_NATIVE", "fast")
+    with caplog.at_level(logging.WARNING, logger="tfl_mav.control.native"):
+        assert native.mode() == "off"
+    assert "TFL_MAV_NATIVE='fast'" in caplog.text
