@@ -34,14 +34,13 @@ from __future__ import annotations
 
 import math
 import time
-import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from tfl_mav.control import fused_native, native
+from tfl_mav.control import fused_native
 from tfl_mav.control.allocation import allocate_attacked, allocate_nominal
 from tfl_mav.control.compiled import (
     _NEWTON_ITERS,
@@ -75,7 +74,7 @@ from tfl_mav.control.law_math import (
 from tfl_mav.control.law_types import ControlOutput, ModelParams
 from tfl_mav.modes import Mode
 
-__all__ = ["FusedTick", "attach_native", "build_fused"]
+__all__ = ["FusedTick", "build_fused"]
 
 #: The generated tick's globals besides the math functions.
 GLOBALS: dict[str, Any] = {
@@ -109,38 +108,6 @@ class FusedTick:
         namespace = {**GLOBALS, "_core": core, "_python_tick": self.fn}
         fn = compile_source("fused_tick", self.native_source, namespace)
         return fn, fn.__globals__
-
-
-def attach_native(ctl: Any, fused: FusedTick) -> None:
-    """Fly ``ctl`` (a :class:`law.TFLController` flying ``fused.fn``) on the compiled core
-    (:mod:`native`): now if it is cached or ``TFL_MAV_NATIVE=sync``, else (``auto``) when a
-    background build completes. The compiled core gives the same bits, so when the switch
-    happens changes nothing but the speed. Everything that holds the GIL for long (the
-    translation, compiling the calling tick) happens here, before the flight."""
-    how = native.mode()
-    if how == "off" or not fused.core_source:
-        return
-    try:
-        core = native.load_cached(fused.core_source)
-        if core is None and how == "sync":
-            core = native.build(fused.core_source)
-        tick, namespace = fused.with_core(core)
-        if core is not None:
-            ctl._fused = tick
-            return
-        c_text = native.c_source(fused.core_source)
-    except native.NativeError as exc:
-        native.warn_once(str(exc))
-        return
-    python_tick, ref = ctl._fused, weakref.ref(ctl)
-
-    def ready(core: Callable[..., Any]) -> None:
-        namespace["_core"] = core
-        target = ref()
-        if target is not None and target._fused is python_tick:
-            target._fused = tick        # one reference store: atomic under the GIL
-
-    native.compile_async(fused.core_source, c_text, ready)
 
 
 def _flat(rows: Any) -> list[Any]:

@@ -23,12 +23,17 @@ from the start (the core wrote nothing), deciding exactly as before.
 from __future__ import annotations
 
 import textwrap
-from collections.abc import Sequence
-from typing import Any
+import weakref
+from collections.abc import Callable, Sequence
+from typing import TYPE_CHECKING, Any
 
+from tfl_mav.control import native
 from tfl_mav.control.compiled import _NEWTON_ITERS
 
-__all__ = ["CORE_ARGS", "sources"]
+if TYPE_CHECKING:
+    from tfl_mav.control.fused import FusedTick
+
+__all__ = ["CORE_ARGS", "attach_native", "sources"]
 
 #: ``fused_core``'s parameters, in the order the calling tick passes them.
 CORE_ARGS = ("pos", "vel", "quat", "rates", "axes", "use_mass", "vlp", "phl", "me_mass",
@@ -196,3 +201,35 @@ def sources(*, rot: list[str], est: dict[str, Any], model_rows: list[str], rows:
     traced pieces; ``tail`` is the Python tick's tail without the attacked allocation."""
     return (_core(rot, est, model_rows, rows, sigma2, after, att),
             _TICK_HEAD + "\n".join(tail) + "\n")
+
+
+def attach_native(ctl: Any, fused: FusedTick) -> None:
+    """Fly ``ctl`` (a :class:`law.TFLController` flying ``fused.fn``) on the compiled core
+    (:mod:`native`): now if it is cached or ``TFL_MAV_NATIVE=sync``, else (``auto``) when a
+    background build completes. The compiled core gives the same bits, so when the switch
+    happens changes nothing but the speed. Everything that holds the GIL for long (the
+    translation, compiling the calling tick) happens here, before the flight."""
+    how = native.mode()
+    if how == "off" or not fused.core_source:
+        return
+    try:
+        core = native.load_cached(fused.core_source)
+        if core is None and how == "sync":
+            core = native.build(fused.core_source)
+        tick, namespace = fused.with_core(core)
+        if core is not None:
+            ctl._fused = tick
+            return
+        c_text = native.c_source(fused.core_source)
+    except native.NativeError as exc:
+        native.warn_once(str(exc))
+        return
+    python_tick, ref = ctl._fused, weakref.ref(ctl)
+
+    def ready(core: Callable[..., Any]) -> None:
+        namespace["_core"] = core
+        target = ref()
+        if target is not None and target._fused is python_tick:
+            target._fused = tick        # one reference store: atomic under the GIL
+
+    native.compile_async(fused.core_source, c_text, ready)
