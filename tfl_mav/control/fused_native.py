@@ -207,23 +207,11 @@ def attach_native(ctl: Any, fused: FusedTick) -> None:
     """Fly ``ctl`` (a :class:`law.TFLController` flying ``fused.fn``) on the compiled core
     (:mod:`native`): now if it is cached or ``TFL_MAV_NATIVE=sync``, else (``auto``) when a
     background build completes. The compiled core gives the same bits, so when the switch
-    happens changes nothing but the speed. Everything that holds the GIL for long (the
-    translation, compiling the calling tick) happens here, before the flight."""
-    how = native.mode()
-    if how == "off" or not fused.core_source:
+    happens changes nothing but the speed. What holds the GIL for long (the translation,
+    compiling the calling tick) happens here, before the flight."""
+    if native.mode() == "off" or not fused.core_source:
         return
-    try:
-        core = native.load_cached(fused.core_source)
-        if core is None and how == "sync":
-            core = native.build(fused.core_source)
-        tick, namespace = fused.with_core(core)
-        if core is not None:
-            ctl._fused = tick
-            return
-        c_text = native.c_source(fused.core_source)
-    except native.NativeError as exc:
-        native.warn_once(str(exc))
-        return
+    tick, namespace = fused.with_core(None)
     python_tick, ref = ctl._fused, weakref.ref(ctl)
 
     def ready(core: Callable[..., Any]) -> None:
@@ -232,4 +220,6 @@ def attach_native(ctl: Any, fused: FusedTick) -> None:
         if target is not None and target._fused is python_tick:
             target._fused = tick        # one reference store: atomic under the GIL
 
-    native.compile_async(fused.core_source, c_text, ready)
+    core = native.obtain(fused.core_source, ready)
+    if core is not None:
+        ready(core)

@@ -50,7 +50,7 @@ from tfl_mav.control import ctranslate
 from tfl_mav.control.ctranslate import NativeError, translate
 
 __all__ = ["NativeError", "build", "c_source", "cache_dir", "compile_async", "load_cached",
-           "mode", "translate", "warn_once"]
+           "mode", "obtain", "translate", "warn_once"]
 
 log = logging.getLogger(__name__)
 
@@ -198,6 +198,28 @@ def _work() -> None:
             warn_once(str(exc))
             continue
         done(core)
+
+
+def obtain(source: str, ready: Callable[[Core], None]) -> Core | None:
+    """The compiled function of ``source`` now — cached, or built here when
+    ``TFL_MAV_NATIVE=sync`` — else None, and with ``auto`` a background build calls
+    ``ready(core)`` when it is done. ``off``, no compiler, a failed build: None (one
+    warning). The translation (which holds the GIL) happens here, before any flight."""
+    how = mode()
+    if how == "off":
+        return None
+    try:
+        core = load_cached(source)
+        if core is None and how == "sync":
+            core = build(source)
+        if core is not None:
+            return core
+        c_text = c_source(source)
+    except NativeError as exc:
+        warn_once(str(exc))
+        return None
+    compile_async(source, c_text, ready)
+    return None
 
 
 def compile_async(source: str, c_text: str, done: Callable[[Core], None]) -> None:
