@@ -15,6 +15,7 @@ import random
 import struct
 import time
 
+import numpy as np
 import pytest
 
 from harness.golden import LOCKSTEP_CASES, OFFLINE_CASES, fly_lockstep, fly_offline_case
@@ -23,7 +24,8 @@ from tests.test_fused import _random_state
 from tests.test_golden import _LOCKSTEP, _OFFLINE
 from tfl_mav.build import law_config, model_params
 from tfl_mav.control import native
-from tfl_mav.control.fused import CORE_INPUTS, CORE_OUTPUTS
+from tfl_mav.control.fused import GLOBALS
+from tfl_mav.control.fused_native import CORE_ARGS
 from tfl_mav.control.kernelgen import KERNEL_GLOBALS, compile_source
 from tfl_mav.control.law import TFLController
 from tfl_mav.control.paths import build_path
@@ -38,6 +40,7 @@ _OPS = [
     "_tan(a)", "_exp(a)", "_log(a)", "_atan(a)", "_tanh(a)", "_pow(a, b)", "abs(a)",
     "a if a < b else b", "1.0 if a <= b <= 2.0 else 0.0", "(-a) * b + a - b",
     "1.0 if not (a > b or a == 0.5) else 0.0", "1.0 if _isfinite(a) and a != b else 0.0",
+    "_atan2(a, b)",
 ]
 _OPS_SOURCE = "def ops(k, a, b):\n    r = 0.0\n" + "".join(
     f"    if k == {i}:\n        r = {op}\n" for i, op in enumerate(_OPS)) + "    return (r,)\n"
@@ -74,7 +77,7 @@ def _same_bits(a, b) -> bool:
 
 @pytest.fixture(scope="module")
 def ops():
-    py = compile_source("ops", _OPS_SOURCE, {"_isfinite": math.isfinite})
+    py = compile_source("ops", _OPS_SOURCE, {"_isfinite": math.isfinite, "_atan2": math.atan2})
     return py, native.build(_OPS_SOURCE)
 
 
@@ -115,6 +118,35 @@ def test_loop_break_and_else_and_arguments_that_are_not_numbers():
     assert c("1.0", 2.0) is None        # not a number: declined, no exception
     with pytest.raises(TypeError, match="takes 2 arguments"):
         c(1.0)
+
+
+_SEQ_SOURCE = """def seqs(a, p, q):
+    x = 0.0
+    if p is not None:
+        (u, v), w = p
+        x = u * v - w
+    if q is None:
+        return None
+    i, j, k = q
+    return (x, (i, (j, k)), a)
+"""
+
+
+def test_sequences_nested_unpacking_none_and_nested_results():
+    py = compile_source("seqs", _SEQ_SOURCE)
+    c = native.build(_SEQ_SOURCE)
+    q3 = [(1.0, 2.0, 3.0), [1.0, 2.0, 3.0], np.array([1.0, 2.0, 3.0]), range(1, 4),
+          (1, True, 3.0)]
+    for p in [None, ((2.0, 3.0), 0.5), [[2.0, 3.0], 0.5], (np.array([2.0, 3.0]), 0.5)]:
+        for q in q3:
+            want = py(0.25, p, q)
+            assert c(0.25, p, q) == want, (p, q)
+        assert c(0.25, p, None) is None
+    # what the Python core would reject, the compiled one declines (None), never raises
+    for bad in [(1.0, 2.0), (1.0, 2.0, 3.0, 4.0), ("a", 2.0, 3.0), np.array([1.0, 2.0]),
+                np.array([1, 2, 3], dtype=np.float32), np.arange(6.0)[::2], 5.0]:
+        assert c(0.25, None, bad) is None, bad
+    assert c(0.25, ((1.0,), 2.0), (1.0, 2.0, 3.0)) is None
 
 
 @pytest.mark.parametrize("src, match", [
@@ -164,23 +196,42 @@ def test_compiled_core_flies_the_python_cores_bits_on_random_states(name, monkey
                 st = State(tuple(p + 1e-3 * v for p, v in zip(st.position_m, st.velocity_mps,
                                                               strict=True)),
                            st.velocity_mps, st.quaternion_wxyz, st.body_rates_radps)
+            if trial % 2:       # the daemon's and the simulator's states are numpy arrays
+                st = State(*(np.array(f, dtype=float) for f in (
+                    st.position_m, st.velocity_mps, st.quaternion_wxyz, st.body_rates_radps)))
             assert repr(py.update(st)) == repr(c.update(st))
 
 
-def test_core_signature_is_what_the_tick_passes():
-    """The compiled core's arguments and results are the names the tick reads and writes."""
+def test_the_pure_core_in_python_is_the_tick_it_replaces(monkeypatch):
+    """``fused_core`` run as Python (no C at all) and the calling tick fly the Python tick's
+    outputs: the layout of the core (reads in, one call, writes out) is itself exact."""
+    monkeypatch.setenv("TFL_MAV_NATIVE", "off")
     sc = load_scenario("paper")
     path = build_path("paper", {})
-    ctl = TFLController(model_params(sc), path, law_config(sc), 0.001)
-    fused_core = compile_source("fused_core", _core_source(ctl), KERNEL_GLOBALS)
-    assert fused_core.__code__.co_varnames[:len(CORE_INPUTS)] == CORE_INPUTS
-    assert len(CORE_OUTPUTS) == len(set(CORE_OUTPUTS))
+    py, layout = (TFLController(model_params(sc), path, law_config(sc), 0.001)
+                  for _ in range(2))
+    source = _core_source(layout)
+    core = compile_source("fused_core", source, {**KERNEL_GLOBALS, **GLOBALS})
+    assert core.__code__.co_varnames[:len(CORE_ARGS)] == CORE_ARGS
+    layout._fused = _fused(layout).with_core(core)[0]
+    rng = random.Random(11)
+    for trial in range(30):
+        rotor = (0, 0, 2, 3)[trial % 4]
+        for ctrl in (py, layout):
+            ctrl.set_attack(rotor, 1.0 if rotor else 0.0)
+        st = _random_state(rng, PATHS["paper"][2])
+        for _ in range(3):
+            assert repr(py.update(st)) == repr(layout.update(st))
+
+
+def _fused(ctl: TFLController):
+    from tfl_mav.control.fused import build_fused
+    return build_fused(ctl.model, ctl.tracker.kernels, dt_s=ctl.dt, mass_est=ctl.mass_est,
+                       dob=ctl.dob)
 
 
 def _core_source(ctl: TFLController) -> str:
-    from tfl_mav.control.fused import build_fused
-    return build_fused(ctl.model, ctl.tracker.kernels, dt_s=ctl.dt, mass_est=ctl.mass_est,
-                       dob=ctl.dob).core_source
+    return _fused(ctl).core_source
 
 
 @pytest.mark.parametrize("name", sorted(OFFLINE_CASES))
@@ -242,3 +293,39 @@ def test_a_bad_mode_is_named_and_means_off(monkeypatch, caplog):
     with caplog.at_level(logging.WARNING, logger="tfl_mav.control.native"):
         assert native.mode() == "off"
     assert "TFL_MAV_NATIVE='fast'" in caplog.text
+
+
+@pytest.mark.parametrize("tau_s", [0.0, 0.03])
+def test_detector_compiled_tick_gives_the_python_ticks_verdicts(tau_s, monkeypatch):
+    """The detector's four-rotor tick compiled (detector_native) against the Python tick:
+    the same outputs and state, bit for bit, through noise, an attack that starts and
+    moves, NaN and out-of-range rpm samples, non-finite commands and time glitches."""
+    from tfl_mav.control.detector import AttackDetector
+
+    def make(mode):
+        monkeypatch.setenv("TFL_MAV_NATIVE", mode)
+        return AttackDetector(1.2e-5, 8.0, tau_s, 0.001)
+
+    py, c = make("off"), make("sync")
+    assert c._rotors is not py._rotors and c._rotors.__globals__["_core"] is not None
+    rng = random.Random(7)
+    hover = 1.2 * 9.81 / 4.0
+    t = 0.0
+    for tick in range(3000):
+        t += 0.001 if tick % 97 else rng.choice([0.001, math.nan, -0.5, 0.0005])
+        cmd = [hover + rng.gauss(0, 0.3) for _ in range(4)]
+        if tick % 211 == 0:
+            cmd[rng.randrange(4)] = rng.choice([math.nan, math.inf, -1.0, 9.0])
+        rpm = [60.0 / (2 * math.pi) * math.sqrt(max(min(f, 8.0), 0.0) / 1.2e-5)
+               + rng.gauss(0, 20.0) if f == f and abs(f) != math.inf else 0.0 for f in cmd]
+        attacked = 1 + (tick // 1000) % 4
+        if tick > 500:
+            rpm[attacked - 1] *= 1.3
+        if tick % 173 == 0:
+            rpm[rng.randrange(4)] = rng.choice([math.nan, 2e6, -math.inf])
+        a, b = py.update(t, rpm, cmd), c.update(t, rpm, cmd)
+        assert repr(a) == repr(b), tick
+    assert py.detected_rotor and py.rejected_samples > 0
+    for attr in ("_band", "_var", "_s_hi", "_s_lo", "_z", "_rpm", "_resid",
+                 "rejected_samples", "moves", "estimate_n"):
+        assert repr(getattr(py, attr)) == repr(getattr(c, attr)), attr

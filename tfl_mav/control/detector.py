@@ -31,31 +31,30 @@ period). An attacker who forces a rotor's thrust makes that rotor's speed leave 
 
 from __future__ import annotations
 
-import linecache
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, NamedTuple
 
+from tfl_mav.control import detector_native
+from tfl_mav.control.detector_kernel import (
+    N_MODELS,
+    RADPS_TO_RPM,
+    RPM_TO_RADPS,
+    python_kernel,
+)
+
 __all__ = ["RPM_QUANTISATION_STD", "AttackDetector", "DetectorConfig", "DetectorOutput"]
 
-RPM_TO_RADPS = 2.0 * math.pi / 60.0
-RADPS_TO_RPM = 60.0 / (2.0 * math.pi)
 # ESC_TELEMETRY_1_TO_4 carries rpm as uint16: rounding adds uniform noise of std 1/√12 rpm.
 RPM_QUANTISATION_STD = 1.0 / math.sqrt(12.0)
 # A speed beyond any ESC's range is a corrupt sample, not a rotor state (rejected like NaN).
 RPM_VALID_LIMIT = 1.0e6
 _ALARM_TOL = 1e-9  # relative slack so min_ticks capped increments reach h despite rounding
-# The band of 5 models (τ spaced geometrically over [τ/(1+tol), τ(1+tol)]) is widened by this
-# fraction of its width on each side: ω(t; τ) is not monotone in τ under a varying command,
-# and on random sines, chirps and 0↔f_max square waves (τ = 5-80 ms, tol = 0.3) the response
-# for any τ in the range never left the band widened by 0.1 (0.25 keeps a margin).
-BAND_PAD = 0.25
 # Consecutive obeying samples that release a latched rotor: 50 ticks (50 ms at 1 kHz) of
 # |z| < k is a false-release probability of ~P(|N(0,1)| < 2)^50 ≈ 0.1 for a rotor whose
 # speed merely sits near the probe by chance, and none while it is held elsewhere.
 RELEASE_TICKS = 50
-N_MODELS = 5   # lag models of the band (τ spaced geometrically)
 
 
 def _param(default: float, unit: str = "", *, lo: float | None = None,
@@ -157,7 +156,7 @@ class AttackDetector:
         tol = 1.0 + cfg.time_constant_tolerance
         self._taus = tuple(self.tau_s * tol ** (j / 2) for j in range(-2, 3))
         self._sig2 = self.sigma_rpm ** 2
-        self._rotors = _kernel(self.tau_s > 0.0)   # the four rotors' tick (generated)
+        self._rotors = python_kernel(self.tau_s > 0.0)   # the four rotors' tick (generated)
         self._sd0 = math.sqrt(self._sig2 + 0.0)   # the residual's std without lag
         self._h_alarm = self.h * (1.0 - _ALARM_TOL)
         # The per-rotor state as float tuples, rotor-major (read and rewritten whole each
@@ -180,6 +179,7 @@ class AttackDetector:
         self.moves = 0
         self.releases = 0
         self._out = DetectorOutput(0, math.nan, _ZERO4, _ZERO4, math.nan, False)
+        detector_native.attach(self, self.tau_s > 0.0)    # compiled, where it can be
 
     # ------------------------------------------------------------------ model
     def _omega_target(self, thrust_n: float) -> float:
@@ -311,140 +311,3 @@ class AttackDetector:
     def output(self) -> DetectorOutput:
         """The latest verdict (what :meth:`update` last returned)."""
         return self._out
-
-
-# ---------------------------------------------------------------------- the rotors' tick
-# One rotor's tick; ``{i}`` is the rotor (0-3). Expanded for the four rotors into one function
-# on first use: straight-line float code on locals (no per-rotor loop, list or index on the hot
-# path), the constants as literals. min/max and the clamps are written as the comparisons
-# the builtins make (the same results).
-_PROPAGATE = """\
-    if lagged:      # the lag solution with the command held
-        c = c{i}
-        c = 0.0 if c < 0.0 else c
-        c = sqrt((fmax if fmax < c else c) / k_f)
-        w{i}_0 = c + (w{i}_0 - c) * e0
-        w{i}_1 = c + (w{i}_1 - c) * e1
-        w{i}_2 = c + (w{i}_2 - c) * e2
-        w{i}_3 = c + (w{i}_3 - c) * e3
-        w{i}_4 = c + (w{i}_4 - c) * e4
-        v{i} *= e44                     # the slowest model forgets slowest
-"""
-_NEAREST_IN_BAND = """\
-        lo = w{i}_0
-        lo = w{i}_1 if w{i}_1 < lo else lo
-        lo = w{i}_2 if w{i}_2 < lo else lo
-        lo = w{i}_3 if w{i}_3 < lo else lo
-        lo = w{i}_4 if w{i}_4 < lo else lo
-        hi = w{i}_0
-        hi = w{i}_1 if w{i}_1 > hi else hi
-        hi = w{i}_2 if w{i}_2 > hi else hi
-        hi = w{i}_3 if w{i}_3 > hi else hi
-        hi = w{i}_4 if w{i}_4 > hi else hi
-        pad = {BAND_PAD!r} * (hi - lo)
-        wm = r{i} * {RPM_TO_RADPS!r}
-        w = lo - pad
-        w = w if w > wm else wm
-        lim = hi + pad
-        w = lim if lim < w else w       # nearest speed in the band
-        z = (r{i} - w * {RADPS_TO_RPM!r}) / sqrt(sig2 + v{i})
-"""
-# Without lag the band is the command's speed alone (lo = hi, no pad: nearest is that speed)
-# and the start's variance stays 0: its std is sqrt(σ² + 0), once.
-_INSTANT = """\
-        c = c{i}
-        c = 0.0 if c < 0.0 else c
-        w = sqrt((fmax if fmax < c else c) / k_f)
-        wm = r{i} * {RPM_TO_RADPS!r}
-        z = (r{i} - w * {RADPS_TO_RPM!r}) / sd
-"""
-_CUSUM = """\
-        zc = ncap if ncap > z else z
-        zc = cap if cap < zc else zc
-        s = h{i} + zc - k
-        h{i} = s if s > 0.0 else 0.0
-        s = l{i} - zc - k
-        l{i} = s if s > 0.0 else 0.0
-        z{i} = z
-        m{i} = r{i}
-        q{i} = k_f * (wm * wm - w * w)
-"""
-_SKIP_NAN = """\
-    if r{i} != r{i}:                    # NaN: skipped (counted)
-        self.rejected_samples += 1
-    else:
-"""
-
-
-def _four(fmt: str, sep: str = ", ") -> str:
-    return sep.join(fmt.format(i=i) for i in range(4))
-
-
-_STATE = ("_s_hi", "h"), ("_s_lo", "l"), ("_z", "z"), ("_rpm", "m"), ("_resid", "q")
-_TOP = f"""\
-{_four("    x{i} = h{i} if h{i} > l{i} else l{i}", chr(10))}
-    d = self.detected_rotor
-    if d:
-{_four("        x{i} = 0.0 if d == {i} + 1 else x{i}", chr(10))}
-    top = x0
-{"".join(f"    top = x{i} if x{i} > top else top{chr(10)}" for i in range(1, 4))}\
-    return top
-"""
-
-
-def _rotors_source(lagged: bool) -> str:
-    """The source of ``_rotors_lagged(det, r0…r3, c0…c3, decay) -> top`` (``decay``: the
-    models' exp(−dt/τ_j), None on the first tick) or ``_rotors_instant(det, r0…r3, c0…c3)
-    -> top``: the four rotors' tick on ``det``'s state, returning the largest statistic
-    among the rotors that may alarm (the latched rotor left out as a 0: statistics are
-    ≥ 0)."""
-    consts = {"BAND_PAD": BAND_PAD, "RPM_TO_RADPS": RPM_TO_RADPS,
-              "RADPS_TO_RPM": RADPS_TO_RPM}
-    state = list(_STATE)
-    if lagged:
-        band = ", ".join(f"w{i}_{j}" for i in range(4) for j in range(N_MODELS))
-        state += [("_var", "v")]
-        head = f"""\
-def _rotors_lagged(self, r0, r1, r2, r3, c0, c1, c2, c3, decay):
-    {band} = self._band
-    sig2 = self._sig2
-    lagged = decay is not None
-    if lagged:
-        fmax = self.thrust_max_n
-        e0, e1, e2, e3, e4 = decay
-        e44 = e4 * e4
-"""
-        rotor = _PROPAGATE + _SKIP_NAN + _NEAREST_IN_BAND + _CUSUM
-        tail = f"    self._band = ({band})\n"
-    else:
-        head = """\
-def _rotors_instant(self, r0, r1, r2, r3, c0, c1, c2, c3):
-    fmax = self.thrust_max_n
-    sd = self._sd0
-"""
-        rotor = _SKIP_NAN + _INSTANT + _CUSUM
-        tail = ""
-    loads = "".join(f"    {_four(v + '{i}')} = self.{attr}\n" for attr, v in state)
-    stores = "".join(f"    self.{attr} = ({_four(v + '{i}')})\n" for attr, v in state)
-    return (head + loads + """\
-    k = self.k
-    cap = self.z_cap
-    ncap = -cap
-    k_f = self.k_f
-""" + "".join(rotor.format(i=i, **consts) for i in range(4)) + tail + stores + _TOP)
-
-
-_KERNELS: dict[bool, Callable[..., float]] = {}
-
-
-def _kernel(lagged: bool) -> Callable[..., float]:
-    """The compiled kernel, built on first use (a process flies one kind: ~2 ms each)."""
-    fn = _KERNELS.get(lagged)
-    if fn is None:
-        src = _rotors_source(lagged)
-        name = f"<tfl_mav.control.detector._rotors_{'lagged' if lagged else 'instant'}>"
-        linecache.cache[name] = (len(src), None, src.splitlines(True), name)  # tracebacks
-        scope: dict[str, Any] = {"sqrt": math.sqrt}
-        exec(compile(src, name, "exec"), scope)  # our own template
-        fn = _KERNELS[lagged] = scope[name[len("<tfl_mav.control.detector."):-1]]
-    return fn

@@ -34,14 +34,13 @@ from __future__ import annotations
 
 import math
 import time
-import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from tfl_mav.control import native
+from tfl_mav.control import fused_native
 from tfl_mav.control.allocation import allocate_attacked, allocate_nominal
 from tfl_mav.control.compiled import (
     _NEWTON_ITERS,
@@ -75,7 +74,7 @@ from tfl_mav.control.law_math import (
 from tfl_mav.control.law_types import ControlOutput, ModelParams
 from tfl_mav.modes import Mode
 
-__all__ = ["FusedTick", "attach_native", "build_fused"]
+__all__ = ["FusedTick", "build_fused"]
 
 #: The generated tick's globals besides the math functions.
 GLOBALS: dict[str, Any] = {
@@ -84,17 +83,6 @@ GLOBALS: dict[str, Any] = {
     "_yaw_tau_r": yaw_tau_r, "_new": tuple.__new__,
     "_ControlOutput": ControlOutput, "_inf": math.inf,
     "_NOMINAL": Mode.NOMINAL, "_ATTACKED": Mode.ATTACKED}
-
-#: The core's arguments: the state's floats, the tracker's and the controller's numbers.
-CORE_INPUTS = ("x0", "y0", "z0", "x1", "y1", "z1", "b1x", "b1y", "b1z", "b2x", "b2y", "b2z",
-               "b3x", "b3y", "b3z", "pc", "qc", "rc", "uf", "duf", "mass", "lam0", "lam",
-               *(f"cp{j}" for j in range(18)), "arc_m", "tube_min", "kx0", "kx1", "kx2", "kx3",
-               "ke0", "ke1", "ke2", "speed", "max_cond", "dsub_p", "dsub_q", "ix", "iy", "iz")
-#: The core's results: λ, σ's expansion at λ, the arc, the law's numbers.
-CORE_OUTPUTS = ("lam", *(f"c{j}" for j in range(18)), "arc", "distance", "cond", "udd", "pdot",
-                "qdot", "tau_p", "tau_q", *(f"xi{i}{j}" for i in range(2) for j in range(4)),
-                "eta1", "eta2", "eta3")
-
 
 @dataclass(frozen=True)
 class FusedTick:
@@ -107,51 +95,19 @@ class FusedTick:
     source: str
     n_ops: int
     build_s: float
-    #: ``fused_core(*CORE_INPUTS)`` → CORE_OUTPUTS or None: the arithmetic middle alone,
-    #: for :mod:`native` to compile.
+    #: The tick's arithmetic as one pure function, for :mod:`native` to compile
+    #: (:mod:`fused_native`; empty when the estimators are the law's own calls).
     core_source: str = ""
-    #: The tick with the core replaced by a call of ``_core`` (see :meth:`with_core`).
+    #: The tick calling that compiled core ``_core`` (see :meth:`with_core`).
     native_source: str = ""
 
     def with_core(self, core: Callable[..., tuple[float, ...] | None] | None = None
                   ) -> tuple[Callable[..., tuple[Any, ...] | None], dict[str, Any]]:
         """The tick calling ``_core`` (a compiled ``fused_core``) for its middle, and the
         globals it reads ``_core`` from (set it there when a build completes)."""
-        namespace = {**GLOBALS, "_core": core}
+        namespace = {**GLOBALS, "_core": core, "_python_tick": self.fn}
         fn = compile_source("fused_tick", self.native_source, namespace)
         return fn, fn.__globals__
-
-
-def attach_native(ctl: Any, fused: FusedTick) -> None:
-    """Fly ``ctl`` (a :class:`law.TFLController` flying ``fused.fn``) on the compiled core
-    (:mod:`native`): now if it is cached or ``TFL_MAV_NATIVE=sync``, else (``auto``) when a
-    background build completes. The compiled core gives the same bits, so when the switch
-    happens changes nothing but the speed. Everything that holds the GIL for long (the
-    translation, compiling the calling tick) happens here, before the flight."""
-    how = native.mode()
-    if how == "off":
-        return
-    try:
-        core = native.load_cached(fused.core_source)
-        if core is None and how == "sync":
-            core = native.build(fused.core_source)
-        tick, namespace = fused.with_core(core)
-        if core is not None:
-            ctl._fused = tick
-            return
-        c_text = native.c_source(fused.core_source)
-    except native.NativeError as exc:
-        native.warn_once(str(exc))
-        return
-    python_tick, ref = ctl._fused, weakref.ref(ctl)
-
-    def ready(core: Callable[..., Any]) -> None:
-        namespace["_core"] = core
-        target = ref()
-        if target is not None and target._fused is python_tick:
-            target._fused = tick        # one reference store: atomic under the GIL
-
-    native.compile_async(fused.core_source, c_text, ready)
 
 
 def _flat(rows: Any) -> list[Any]:
@@ -324,50 +280,48 @@ def build_fused(model: ModelParams, kernels: PathKernels, *, dt_s: float | None 
         "trk.lam = lam",
         "trk._expansion = (lam, c)",
     ]
-    core_source = "\n".join([f"def fused_core({', '.join(CORE_INPUTS)}):",
-                             *(f"    {ln}" for ln in core),
-                             f"    return ({', '.join(CORE_OUTPUTS)},)"]) + "\n"
-    call = [f"_r = _core({', '.join(CORE_INPUTS)})",
-            "if _r is None:",
-            "    return None",
-            f"{', '.join(CORE_OUTPUTS)} = _r"]
-    tail = _tail(model, block)
+    before, att, after_att = _tail(model, block)
     bail = ("return (None, y, v, psi, (r20, r21, r22), rates, (b1x, b1y, b1z), (b2x, b2y, b2z), "
             "(b3x, b3y, b3z), pc, qc, rc, mass)")
-    def assemble(middle: list[str]) -> str:
-            return reuse_slots("\n".join([
-            "def fused_tick(ctl, trk, s):",
-            "    # The prelude: law.TFLController._prelude.",
-            *(f"    {name} = s.{field}\n    if type({name}) is _ndarray:\n"
-              f"        {name} = {name}.tolist()"
-              for name, field in (("y", "position_m"), ("v", "velocity_mps"),
-                                  ("quat", "quaternion_wxyz"), ("rates", "body_rates_radps"))),
-            "    qw, qx, qy, qz = quat",
-            *rot,
-            "    psi = _atan2(r10, r00)",
-            "    if ctl.psi_ref is None:",
-            "        ctl.psi_ref = psi",
-            "    (m1, s1), (m2, s2) = ctl._axes",
-            "    cols = ((r00, r10, r20), (r01, r11, r21))",
-            "    col = cols[m1]",
-            "    b1x, b1y, b1z = s1 * col[0], s1 * col[1], s1 * col[2]",
-            "    col = cols[m2]",
-            "    b2x, b2y, b2z = s2 * col[0], s2 * col[1], s2 * col[2]",
-            "    b3x, b3y, b3z = r02, r12, r22",
-            "    pc, qc, rc = s1 * rates[m1], s2 * rates[m2], rates[2]",
-            *(_estimators(block, dt_s, mass_est, dob) if dt_s is not None and mass_est is not None
-              and dob is not None else
-              ["    mass = ctl._update_estimators(v, (b3x, b3y, b3z), pc, qc)"]),
-            "    # The middle; on any bail the step-by-step tick takes over from here.",
-            "    try:",
-            *(f"        {ln.replace('return None', bail)}" for ln in middle),
-            "    except (ValueError, ZeroDivisionError, OverflowError):",
-            f"        {bail}",
-            *tail,
-        ]) + "\n")
-    source = assemble(pre + core + post)
+    generated = dt_s is not None and mass_est is not None and dob is not None
+    if generated:
+        est, est_pieces = _estimators(block, dt_s, mass_est, dob)    # type: ignore[arg-type]
+    else:
+        est, est_pieces = ["    mass = ctl._update_estimators(v, (b3x, b3y, b3z), pc, qc)"], {}
+    source = reuse_slots("\n".join([
+        "def fused_tick(ctl, trk, s):",
+        "    # The prelude: law.TFLController._prelude.",
+        *(f"    {name} = s.{field}\n    if type({name}) is _ndarray:\n"
+          f"        {name} = {name}.tolist()"
+          for name, field in (("y", "position_m"), ("v", "velocity_mps"),
+                              ("quat", "quaternion_wxyz"), ("rates", "body_rates_radps"))),
+        "    qw, qx, qy, qz = quat",
+        *rot,
+        "    psi = _atan2(r10, r00)",
+        "    if ctl.psi_ref is None:",
+        "        ctl.psi_ref = psi",
+        "    (m1, s1), (m2, s2) = ctl._axes",
+        "    cols = ((r00, r10, r20), (r01, r11, r21))",
+        "    col = cols[m1]",
+        "    b1x, b1y, b1z = s1 * col[0], s1 * col[1], s1 * col[2]",
+        "    col = cols[m2]",
+        "    b2x, b2y, b2z = s2 * col[0], s2 * col[1], s2 * col[2]",
+        "    b3x, b3y, b3z = r02, r12, r22",
+        "    pc, qc, rc = s1 * rates[m1], s2 * rates[m2], rates[2]",
+        *est,
+        "    # The middle; on any bail the step-by-step tick takes over from here.",
+        "    try:",
+        *(f"        {ln.replace('return None', bail)}" for ln in pre + core + post),
+        "    except (ValueError, ZeroDivisionError, OverflowError):",
+        f"        {bail}",
+        *before, *att, *after_att,
+    ]) + "\n")
     fn = compile_source("fused_tick", source, GLOBALS)
-    native_source = assemble(pre + call + post)
+    core_source = native_source = ""
+    if generated:
+        core_source, native_source = fused_native.sources(
+            rot=rot, est=est_pieces, model_rows=model_rows, rows=rows, sigma2=sigma2,
+            after=after, att=att, tail=before + after_att)
     return FusedTick(fn, source, n_ops, time.perf_counter() - t0, core_source, native_source)
 
 
@@ -379,9 +333,10 @@ def _clamped(indent: str, target: str, x: str, lo: float, hi: float) -> list[str
 
 
 def _estimators(block: Callable[..., list[str]], dt: float, me: MassEstimator,
-                dob: RateDisturbanceObserver) -> list[str]:
+                dob: RateDisturbanceObserver) -> tuple[list[str], dict[str, Any]]:
     """law.TFLController._update_estimators with the estimators' arithmetic traced (their
-    constants folded) and their state read and written once."""
+    constants folded) and their state read and written once; and the traced pieces, for
+    the compiled core (:mod:`fused_native`)."""
     filters = block("e_", [["vx", "vy", "vz"], ["thrust"], ["b3x", "b3y", "b3z"],
                            ["lx", "ly", "lz"], ["phx", "phy", "phz"]],
                     lambda v, f, b3, vlp, phi: list(mass_filters(
@@ -394,6 +349,8 @@ def _estimators(block: Callable[..., list[str]], dt: float, me: MassEstimator,
                   lambda g: [dob_step(g[0], g[2], g[4], g[6], dt, a),
                              dob_step(g[1], g[3], g[5], g[7], dt, a)], ["ndp", "ndq"], " " * 16)
     lo, hi, lim = me.lo, me.hi, dob.limit
+    pieces = {"filters": filters, "blend": blend, "steps": steps, "dt": dt, "lo": lo, "hi": hi,
+              "lim": lim, "min_den": me._min_den}
     return [
         "    # law.TFLController._update_estimators (estimators.MassEstimator.update, "
         "RateDisturbanceObserver.update)",
@@ -432,7 +389,7 @@ def _estimators(block: Callable[..., list[str]], dt: float, me: MassEstimator,
         *steps,
         *_clamped("                ", "dob.d_p", "ndp", -lim, lim),
         *_clamped("                ", "dob.d_q", "ndq", -lim, lim),
-    ]
+    ], pieces
 
 
 def _saturated(fmax: float) -> list[str]:
@@ -449,11 +406,14 @@ def _saturated(fmax: float) -> list[str]:
     ]
 
 
-def _tail(model: ModelParams, block: Callable[..., list[str]]) -> list[str]:
+def _tail(model: ModelParams, block: Callable[..., list[str]]
+          ) -> tuple[list[str], list[str], list[str]]:
     """The tick after the torques, as :meth:`law.TFLController.update` runs it on a tick
     without fallback: allocation ((4), (6) and the yaw loop), saturation and the ṗ, q̇
     prediction, the extension (9), the gain switch, the output record. With motor lag the
-    function returns the middle's numbers and the law's own steps run the tail."""
+    function returns the middle's numbers and the law's own steps run the tail. Returned
+    in three parts: before the attacked allocation, the allocation (which the compiled
+    core computes itself), after it."""
     arm, kr, fmax = model.arm_m, model.k_r, model.thrust_max_n
     alloc = traceable(allocate_attacked)
 
@@ -477,7 +437,7 @@ def _tail(model: ModelParams, block: Callable[..., list[str]]) -> list[str]:
         "    d = ctl._d",
         "    if frame is not None:",
         "        a_n = ctl.attack_estimate_n",
-        *att,
+    ], att, [
         "        i0, i1, i2, i3 = ctl._inv_perm",
         "        if i0:",
         "            g = (f0, f1, f2, f3)",

@@ -49,7 +49,8 @@ from tfl_mav.control.allocation import (
 )
 from tfl_mav.control.compiled import CompiledPathTracker, make_tracker
 from tfl_mav.control.estimators import MassEstimator, RateDisturbanceObserver
-from tfl_mav.control.fused import attach_native, build_fused
+from tfl_mav.control.fused import build_fused
+from tfl_mav.control.fused_native import attach_native
 from tfl_mav.control.jetcode import TraceError
 from tfl_mav.control.law_math import (
     attacked_tau_r,

@@ -1,33 +1,34 @@
 """Generated float code compiled to machine code with the system C compiler (issue #13).
 
-The law's fused tick (:mod:`fused`) is Python: ~600 float operations a tick, each a
-bytecode dispatch and a float object. Its arithmetic core — floats in, floats out — is
-written here as C, *translated from that very Python source* (:func:`translate`), built with
-``cc`` into a CPython extension and cached, as CasADi and acados build their generated
-code. The translation keeps every operation, operand and order: IEEE-754 ``+ − × ÷`` and
-``sqrt`` are correctly rounded in both languages, the other math functions are the same
-libm's (CPython's ``math`` calls them too), and the build forbids what would change a bit
-(``-ffp-contract=off``: no fused multiply-add; ``-fno-builtin``: libm calls stay calls, no
-``pow(x, 2) → x·x``; no ``-ffast-math``). So the compiled core returns the Python core's
-floats bit for bit (tests/test_native.py checks it on random states and whole flights).
+The law's fused tick (:mod:`fused`) is Python: ~1 000 float operations a tick, each a
+bytecode dispatch and a float object. Its arithmetic as one pure function
+(:mod:`fused_native`) is *translated from that very Python source* into C
+(:mod:`ctranslate`), built here with ``cc`` into a CPython extension and cached, as CasADi
+and acados build their generated code. The translation keeps every operation, operand and
+order: IEEE-754 ``+ − × ÷`` and ``sqrt`` are correctly rounded in both languages, the other
+math functions are the same libm's (CPython's ``math`` calls them too), and the build
+forbids what would change a bit (``-ffp-contract=off``: no fused multiply-add;
+``-fno-builtin``: libm calls stay calls, no ``pow(x, 2) → x·x``; no ``-ffast-math``). So the
+compiled core returns the Python core's floats bit for bit (tests/test_native.py checks it
+on random states and whole flights).
 
 Where the Python core would raise (a division by zero, ``sqrt`` of a negative, an overflow
 of ``**``/``exp``, ``sin`` of ±∞, a ``log`` of a non-positive) — and on any argument that is
-not a number — the compiled core returns ``None`` instead, as the Python core returns on
-its own checks; the caller then runs the step-by-step law, which decides as before.
+not a number — the compiled core returns ``None`` instead, as the Python core returns on its
+own checks; the caller then runs the Python tick, which decides as before.
 
-Building is optional and never on the control path's clock: ``TFL_MAV_NATIVE`` =
-``auto`` (default: a cached build is loaded at once, else one is made in a background
-thread and the controller switches to it when it is ready — the results are the same bits,
-so the switch is invisible), ``sync`` (build before returning: benchmarks, tests) or
-``off``. No compiler, no headers, a failed build: the Python core keeps flying and one
-warning says why. Cache: ``TFL_MAV_KERNEL_CACHE``, else ``$XDG_CACHE_HOME/tfl-mav/kernels``
-(``~/.cache``), one file per source hash, written atomically.
+Building is optional and never on the control path's clock: ``TFL_MAV_NATIVE`` = ``auto``
+(default: a cached build is loaded at once, else one is made in a background thread and the
+controller switches to it when it is ready — the results are the same bits, so the switch is
+invisible), ``sync`` (build before returning: benchmarks, tests) or ``off``. No compiler, no
+headers, a failed build: the Python core keeps flying and one warning says why. Cache:
+``TFL_MAV_KERNEL_CACHE``, else ``$XDG_CACHE_HOME/tfl-mav/kernels`` (``~/.cache``), one file
+per source hash, written atomically.
 """
 
 from __future__ import annotations
 
-import ast
+import functools
 import hashlib
 import importlib.machinery
 import importlib.util
@@ -45,8 +46,11 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+from tfl_mav.control import ctranslate
+from tfl_mav.control.ctranslate import NativeError, translate
+
 __all__ = ["NativeError", "build", "c_source", "cache_dir", "compile_async", "load_cached",
-           "mode", "translate", "warn_once"]
+           "mode", "obtain", "translate", "warn_once"]
 
 log = logging.getLogger(__name__)
 
@@ -55,11 +59,6 @@ Core = Callable[..., "tuple[float, ...] | None"]
 #: Flags that keep the C arithmetic bit-identical to CPython's (see the module doc).
 CFLAGS = ("-O2", "-fPIC", "-shared", "-ffp-contract=off", "-fno-builtin", "-fno-fast-math",
           "-fno-strict-aliasing", "-fvisibility=hidden")
-_VERSION = "1"          # bump when the translation changes: the cache key includes it
-
-
-class NativeError(RuntimeError):
-    """The Python source cannot be translated, or the build failed."""
 
 
 def mode() -> str:
@@ -80,248 +79,6 @@ def cache_dir() -> Path:
     return Path(base) / "tfl-mav" / "kernels"
 
 
-# ----- translation --------------------------------------------------------------------------
-_BINOPS = {ast.Add: "+", ast.Sub: "-", ast.Mult: "*"}
-_CMPOPS = {ast.Lt: "<", ast.LtE: "<=", ast.Gt: ">", ast.GtE: ">=", ast.Eq: "==",
-           ast.NotEq: "!="}
-# name → (C call, the condition on the argument under which CPython's math raises).
-_UNARY = {
-    "_sqrt": ("__builtin_sqrt({0})", "{0} < 0.0"),
-    "_sin": ("sin({0})", "__builtin_isinf({0})"),
-    "_cos": ("cos({0})", "__builtin_isinf({0})"),
-    "_tan": ("tan({0})", "__builtin_isinf({0})"),
-    "_atan": ("atan({0})", "0"),
-    "_tanh": ("tanh({0})", "0"),
-    "_log": ("log({0})", "{0} <= 0.0"),
-    "abs": ("__builtin_fabs({0})", "0"),
-    "_abs": ("__builtin_fabs({0})", "0"),
-}
-
-
-class _C:
-    """One function's translation: expressions to C text, checks to ``goto bail``."""
-
-    def __init__(self) -> None:
-        self.names: set[str] = set()
-        self.tmp = 0
-
-    def fresh(self) -> str:
-        self.tmp += 1
-        return f"_v{self.tmp}"
-
-    def expr(self, e: ast.expr) -> str:
-        if isinstance(e, ast.Name):
-            if e.id == "_inf":
-                return "INFINITY"
-            if e.id not in self.names:
-                raise NativeError(f"name {e.id!r} is read before it is set")
-            return e.id
-        if isinstance(e, ast.Constant):
-            v = e.value
-            if type(v) is bool or not isinstance(v, (int, float)):
-                raise NativeError(f"constant {v!r} is not a number")
-            f = float(v)
-            if f != f or f in (float("inf"), float("-inf")):
-                raise NativeError(f"constant {v!r} is not finite")
-            return f"({float.hex(f)})"      # exact, whatever the C library's strtod
-        if isinstance(e, ast.UnaryOp):
-            x = self.expr(e.operand)
-            if isinstance(e.op, ast.USub):
-                return f"(-{x})"
-            if isinstance(e.op, ast.UAdd):
-                return x
-            if isinstance(e.op, ast.Not):
-                return f"(!{x})"
-        if isinstance(e, ast.BinOp):
-            a, b = self.expr(e.left), self.expr(e.right)
-            op = _BINOPS.get(type(e.op))
-            if op is not None:
-                return f"({a} {op} {b})"
-            if isinstance(e.op, ast.Div):     # ZeroDivisionError in Python
-                d = self.fresh()
-                return f"({{ double {d} = {b}; if ({d} == 0.0) goto bail; ({a}) / {d}; }})"
-            if isinstance(e.op, ast.Pow):
-                n, sign = e.right, 1
-                if isinstance(n, ast.UnaryOp) and isinstance(n.op, ast.USub):
-                    n, sign = n.operand, -1
-                if not (isinstance(n, ast.Constant) and type(n.value) is int):
-                    raise NativeError("only x ** <int literal> is translated")
-                return self._ipow(a, sign * n.value)
-        if isinstance(e, ast.Compare):
-            parts, left = [], self.expr(e.left)
-            for op, right in zip(e.ops, e.comparators, strict=True):
-                c = _CMPOPS.get(type(op))
-                if c is None:
-                    raise NativeError(f"comparison {type(op).__name__}")
-                r = self.expr(right)
-                parts.append(f"({left} {c} {r})")
-                left = r
-            return "(" + " && ".join(parts) + ")"
-        if isinstance(e, ast.BoolOp):
-            op = " && " if isinstance(e.op, ast.And) else " || "
-            return "(" + op.join(self.expr(v) for v in e.values) + ")"
-        if isinstance(e, ast.IfExp):
-            return f"({self.expr(e.test)} ? {self.expr(e.body)} : {self.expr(e.orelse)})"
-        if isinstance(e, ast.Call) and isinstance(e.func, ast.Name) and not e.keywords:
-            return self._call(e.func.id, [self.expr(a) for a in e.args])
-        raise NativeError(f"cannot translate {ast.unparse(e)!r}")
-
-    def _ipow(self, x: str, n: int) -> str:
-        """CPython's float ** int (floatobject.c float_pow): pow(|x|, n), negated for an odd
-        n and x < 0; x = ±0 handled apart; OverflowError (inf from finite) and 0 ** −n
-        raise."""
-        v, r = self.fresh(), self.fresh()
-        odd = n % 2 == 1
-        nd = f"{float(n)!r}"
-        if n < 0:
-            zero = f"({v} == 0.0 ? ({{ goto bail; 0.0; }}) : "
-        else:
-            zero = f"({v} == 0.0 ? {v if odd else '0.0'} : "
-        neg = f"({v} < 0.0 ? -{r} : {r})" if odd else r
-        return (f"({{ double {v} = {x}; double {r}; {r} = {zero}pow(__builtin_fabs({v}), {nd}));"
-                f" if (__builtin_isinf({r}) && __builtin_isfinite({v})) goto bail;"
-                f" {neg}; }})")
-
-    def _call(self, fn: str, args: list[str]) -> str:
-        if fn == "_isfinite" and len(args) == 1:
-            return f"__builtin_isfinite({args[0]})"
-        if fn in _UNARY and len(args) == 1:
-            call, raises = _UNARY[fn]
-            v = self.fresh()
-            check = raises.format(v)
-            guard = "" if check == "0" else f" if ({check}) goto bail;"
-            return f"({{ double {v} = {args[0]};{guard} {call.format(v)}; }})"
-        if fn == "_exp" and len(args) == 1:     # OverflowError: inf from a finite x
-            v, r = self.fresh(), self.fresh()
-            return (f"({{ double {v} = {args[0]}; double {r} = exp({v});"
-                    f" if (__builtin_isinf({r}) && __builtin_isfinite({v})) goto bail; {r}; }})")
-        if fn == "_pow" and len(args) == 2:     # math.pow: the finite, non-raising cases only
-            x, y, r = self.fresh(), self.fresh(), self.fresh()
-            return (f"({{ double {x} = {args[0]}; double {y} = {args[1]};"
-                    f" if (!__builtin_isfinite({x}) || !__builtin_isfinite({y})"
-                    f" || ({x} == 0.0 && {y} < 0.0)) goto bail; double {r} = pow({x}, {y});"
-                    f" if (!__builtin_isfinite({r})) goto bail; {r}; }})")
-        raise NativeError(f"call of {fn!r} with {len(args)} arguments")
-
-    def block(self, body: list[ast.stmt], ind: str, out: list[str]) -> None:
-        for st in body:
-            self.stmt(st, ind, out)
-
-    def stmt(self, st: ast.stmt, ind: str, out: list[str]) -> None:
-        if isinstance(st, ast.Assign) and len(st.targets) == 1 \
-                and isinstance(st.targets[0], ast.Name):
-            value = self.expr(st.value)
-            self.names.add(st.targets[0].id)
-            out.append(f"{ind}{st.targets[0].id} = {value};")
-        elif isinstance(st, ast.AugAssign) and isinstance(st.target, ast.Name) \
-                and type(st.op) in _BINOPS:
-            out.append(f"{ind}{st.target.id} = ({self.expr(st.target)} "
-                       f"{_BINOPS[type(st.op)]} {self.expr(st.value)});")
-        elif isinstance(st, ast.If):
-            out.append(f"{ind}if ({self.expr(st.test)}) {{")
-            self.block(st.body, ind + "    ", out)
-            if st.orelse:
-                out.append(f"{ind}}} else {{")
-                self.block(st.orelse, ind + "    ", out)
-            out.append(f"{ind}}}")
-        elif isinstance(st, ast.Return) and isinstance(st.value, ast.Constant) \
-                and st.value.value is None:
-            out.append(f"{ind}goto bail;")
-        elif isinstance(st, ast.Break):
-            out.append(f"{ind}break;")
-        elif isinstance(st, ast.For) and isinstance(st.iter, ast.Call) \
-                and isinstance(st.iter.func, ast.Name) and st.iter.func.id == "range" \
-                and len(st.iter.args) == 1 and isinstance(st.iter.args[0], ast.Constant):
-            n = int(st.iter.args[0].value)
-            k = self.fresh()
-            out.append(f"{ind}{{ int {k}; for ({k} = 0; {k} < {n}; {k}++) {{")
-            self.block(st.body, ind + "    ", out)
-            out.append(f"{ind}}}")
-            if st.orelse:       # for … else: runs when no break left the loop
-                out.append(f"{ind}if ({k} == {n}) {{")
-                self.block(st.orelse, ind + "    ", out)
-                out.append(f"{ind}}}")
-            out.append(f"{ind}}}")
-        elif isinstance(st, ast.Pass):
-            pass
-        else:
-            raise NativeError(f"cannot translate statement {ast.unparse(st)!r}")
-
-
-def translate(source: str, module: str) -> str:
-    """C source of a CPython extension ``module`` whose one function is the Python
-    function in ``source``: float arguments, straight-line float code with ``if``, ``for
-    _ in range(n)`` (with ``break``/``else``), conditional expressions, the math calls of
-    :mod:`jetcode`, ``return None`` (→ ``None``) and a final ``return (a, b, …)`` of names
-    (→ a tuple of floats)."""
-    tree = ast.parse(source)
-    if len(tree.body) != 1 or not isinstance(tree.body[0], ast.FunctionDef):
-        raise NativeError("the source must hold one function")
-    fn = tree.body[0]
-    args = [a.arg for a in fn.args.args]
-    *body, ret = fn.body
-    if not (isinstance(ret, ast.Return) and isinstance(ret.value, ast.Tuple)
-            and all(isinstance(e, ast.Name) for e in ret.value.elts)):
-        raise NativeError("the function must end with return (name, …)")
-    outs = [e.id for e in ret.value.elts]   # type: ignore[attr-defined]
-    c = _C()
-    c.names.update(args)
-    lines: list[str] = []
-    c.block(body, "    ", lines)
-    for o in outs:
-        if o not in c.names:
-            raise NativeError(f"result {o!r} is never set")
-    local = sorted(c.names - set(args))
-    name = fn.name
-    conv = "\n".join(f"    double {a} = PyFloat_AsDouble(args[{i}]);"
-                     for i, a in enumerate(args))
-    decl = "".join(f"    double {v};\n" for v in local)
-    pack = "\n".join(f"    PyTuple_SET_ITEM(t, {i}, PyFloat_FromDouble({o}));"
-                     for i, o in enumerate(outs))
-    return f"""/* Generated by tfl_mav.control.native from the Python source below; do not edit.
-{source.replace('*/', '* /')}*/
-#define PY_SSIZE_T_CLEAN
-#include <Python.h>
-#include <math.h>
-
-static PyObject *
-{name}(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
-{{
-    if (nargs != {len(args)}) {{
-        PyErr_Format(PyExc_TypeError, "{name}() takes {len(args)} arguments (%zd given)", nargs);
-        return NULL;
-    }}
-{conv}
-    if (PyErr_Occurred()) {{    /* an argument that is not a number: the caller decides */
-        PyErr_Clear();
-        Py_RETURN_NONE;
-    }}
-{decl}{chr(10).join(lines)}
-    {{
-    PyObject *t = PyTuple_New({len(outs)});
-    if (t == NULL) return NULL;
-{pack}
-    return t;
-    }}
-bail:
-    Py_RETURN_NONE;
-}}
-
-static PyMethodDef methods[] = {{
-    {{"{name}", (PyCFunction)(void (*)(void)){name}, METH_FASTCALL, NULL}},
-    {{NULL, NULL, 0, NULL}}
-}};
-
-static struct PyModuleDef moduledef = {{PyModuleDef_HEAD_INIT, "{module}", NULL, -1, methods}};
-
-PyMODINIT_FUNC __attribute__((visibility("default")))
-PyInit_{module}(void)
-{{
-    return PyModule_Create(&moduledef);
-}}
-"""
-
-
 # ----- build, cache, load -------------------------------------------------------------------
 def _compiler() -> list[str] | None:
     cc = os.environ.get("CC") or sysconfig.get_config_var("CC") or "cc"
@@ -331,8 +88,15 @@ def _compiler() -> list[str] | None:
     return argv
 
 
+@functools.cache
+def _translator() -> str:
+    """The translator's own source, hashed: a changed translation is a new cache entry."""
+    return hashlib.sha256(Path(ctranslate.__file__).read_bytes()).hexdigest()[:16]
+
+
 def _key(source: str) -> str:
-    tag = f"{_VERSION}|{sys.version}|{sysconfig.get_config_var('EXT_SUFFIX')}|{CFLAGS}"
+    tag = (f"{_translator()}|{sys.version}|{sysconfig.get_config_var('EXT_SUFFIX')}|"
+           f"{CFLAGS}|{os.environ.get('CC', '')}")
     return hashlib.sha256((tag + "\0" + source).encode()).hexdigest()[:20]
 
 
@@ -434,6 +198,28 @@ def _work() -> None:
             warn_once(str(exc))
             continue
         done(core)
+
+
+def obtain(source: str, ready: Callable[[Core], None]) -> Core | None:
+    """The compiled function of ``source`` now — cached, or built here when
+    ``TFL_MAV_NATIVE=sync`` — else None, and with ``auto`` a background build calls
+    ``ready(core)`` when it is done. ``off``, no compiler, a failed build: None (one
+    warning). The translation (which holds the GIL) happens here, before any flight."""
+    how = mode()
+    if how == "off":
+        return None
+    try:
+        core = load_cached(source)
+        if core is None and how == "sync":
+            core = build(source)
+        if core is not None:
+            return core
+        c_text = c_source(source)
+    except NativeError as exc:
+        warn_once(str(exc))
+        return None
+    compile_async(source, c_text, ready)
+    return None
 
 
 def compile_async(source: str, c_text: str, done: Callable[[Core], None]) -> None:
