@@ -46,8 +46,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from tfl_mav.control import ctranslate
-from tfl_mav.control.ctranslate import NativeError, translate
+from tfl_mav import ctranslate
+from tfl_mav.ctranslate import NativeError, translate
 
 __all__ = ["NativeError", "build", "c_source", "cache_dir", "compile_async", "load_cached",
            "mode", "obtain", "translate", "warn_once"]
