@@ -181,6 +181,18 @@ _lock = threading.Lock()
 _warned: set[str] = set()
 
 
+def _after_fork_in_child() -> None:
+    """A forked child (a campaign run) starts with no worker and fresh locks: the parent's
+    worker thread does not exist there, and a lock it held at the fork would stay held."""
+    global _jobs, _worker, _lock
+    _jobs = queue.Queue()
+    _worker = None
+    _lock = threading.Lock()
+
+
+os.register_at_fork(after_in_child=_after_fork_in_child)
+
+
 def warn_once(msg: str) -> None:
     """One warning per distinct reason the compiled core is not used."""
     if msg not in _warned:
