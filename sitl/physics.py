@@ -100,16 +100,17 @@ def rk4_step(p: RigidBodyParams, x: Sequence[float], wrench: Sequence[float],
              h: float) -> list[float]:
     """One classical RK4 step of length ``h`` s with the wrench held; renormalises q.
 
-    Convenience form of :func:`rk4_stepper` (which a hot loop builds once and keeps).
+    Convenience form of :func:`rk4_stepper` (which a hot loop builds once and keeps; this
+    one runs the Python step, as it builds a stepper per call).
     """
     uf, tp, tq, tr = wrench
-    return rk4_stepper(p)(x, uf, tp, tq, tr, h)
+    return rk4_stepper(p, compiled=False)(x, uf, tp, tq, tr, h)
 
 
 Rk4Step = Callable[[Sequence[float], float, float, float, float, float], list[float]]
 
 
-def rk4_stepper(p: RigidBodyParams) -> Rk4Step:
+def rk4_stepper(p: RigidBodyParams, compiled: bool = True) -> Rk4Step:
     """``step(x, u_f, τ_p, τ_q, τ_r, h)``: one classical RK4 step of the 13-float state ``x``
     with the body wrench held over ``h`` s, q renormalised; a new list.
 
@@ -118,7 +119,8 @@ def rk4_stepper(p: RigidBodyParams) -> Rk4Step:
     four stages inlined and the airframe constants bound once (the simulator's hot loop: a
     call per stage and a tuple per stage cost as much as the arithmetic). Each expression
     is :func:`derivative`'s, in the same order, and the stages combine as the vector form of
-    RK4 does, so the result is the same to the bit.
+    RK4 does, so the result is the same to the bit. ``compiled``: the same step compiled to C
+    where a compiler is (:mod:`physics_native`: the same bits again); False: this Python.
     """
     m = p.mass_kg
     ix, iy, iz = p.inertia_kgm2
@@ -225,4 +227,8 @@ def rk4_stepper(p: RigidBodyParams) -> Rk4Step:
         return [npx, npy, npz, nvx, nvy, nvz, nqw / n, nqx / n, nqy / n, nqz / n,
                 nwp, nwq, nwr]
 
-    return step
+    if not compiled:
+        return step
+    from sitl.physics_native import stepper  # the same step compiled (tfl_mav.native)
+
+    return stepper(step)

@@ -1,4 +1,4 @@
-"""The law's compiled core (#13, :mod:`tfl_mav.control.native`) is the Python core bit for bit.
+"""The law's compiled core (#13, :mod:`tfl_mav.native`) is the Python core bit for bit.
 
 The C is translated from the Python core's own source; these tests hold the translation to
 CPython's semantics operation by operation (values *and* where Python raises, which the
@@ -22,8 +22,8 @@ from harness.golden import LOCKSTEP_CASES, OFFLINE_CASES, fly_lockstep, fly_offl
 from tests.test_compiled import PATHS
 from tests.test_fused import _random_state
 from tests.test_golden import _LOCKSTEP, _OFFLINE
+from tfl_mav import native
 from tfl_mav.build import law_config, model_params
-from tfl_mav.control import native
 from tfl_mav.control.fused import GLOBALS
 from tfl_mav.control.fused_native import CORE_ARGS
 from tfl_mav.control.kernelgen import KERNEL_GLOBALS, compile_source
@@ -280,7 +280,7 @@ def test_no_compiler_leaves_the_python_core_flying_with_one_warning(monkeypatch,
     monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
     monkeypatch.setattr(native, "_warned", set())
     path = build_path("paper", {})
-    with caplog.at_level(logging.WARNING, logger="tfl_mav.control.native"):
+    with caplog.at_level(logging.WARNING, logger="tfl_mav.native"):
         a = _controllers(path)
         b = _controllers(path)
     assert "_core" not in a._fused.__globals__ and "_core" not in b._fused.__globals__
@@ -290,7 +290,7 @@ def test_no_compiler_leaves_the_python_core_flying_with_one_warning(monkeypatch,
 
 def test_a_bad_mode_is_named_and_means_off(monkeypatch, caplog):
     monkeypatch.setenv("TFL_MAV_NATIVE", "fast")
-    with caplog.at_level(logging.WARNING, logger="tfl_mav.control.native"):
+    with caplog.at_level(logging.WARNING, logger="tfl_mav.native"):
         assert native.mode() == "off"
     assert "TFL_MAV_NATIVE='fast'" in caplog.text
 
@@ -329,3 +329,31 @@ def test_detector_compiled_tick_gives_the_python_ticks_verdicts(tau_s, monkeypat
     for attr in ("_band", "_var", "_s_hi", "_s_lo", "_z", "_rpm", "_resid",
                  "rejected_samples", "moves", "estimate_n"):
         assert repr(getattr(py, attr)) == repr(getattr(c, attr)), attr
+
+
+def test_rk4_step_compiled_is_the_python_step_bit_for_bit(monkeypatch):
+    """sitl.physics_native: the simulator's RK4 step compiled, on random states and wrenches
+    (repr: -0.0 and 0.0 differ), and a diverging state still takes the Python path (which
+    raises for the simulator's numpy fallback)."""
+    from sitl.physics import RigidBodyParams, rk4_stepper
+
+    monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
+    p = RigidBodyParams(mass_kg=1.2, inertia_kgm2=(0.011, 0.013, 0.021), k_t=0.05,
+                        k_r=0.00275, gravity_mps2=9.81, arm_m=0.2656, drag_thrust_ratio_m=0.02)
+    py, c = rk4_stepper(p, compiled=False), rk4_stepper(p)
+    assert c.__globals__["_core"] is not None
+    rng = random.Random(4)
+    for _ in range(5000):
+        x = [rng.uniform(-5, 5) for _ in range(13)]
+        w = (rng.uniform(0, 30), rng.gauss(0, 1), rng.gauss(0, 1), rng.gauss(0, 0.1),
+             rng.choice([1e-3, 5e-4, 1e-2]))
+        a, b = py(x, *w), c(x, *w)
+        assert type(b) is list and repr(a) == repr(b)
+    huge = [0.0] * 6 + [1e160, 0.0, 0.0, 0.0] + [0.0] * 3     # |q|² overflows
+    with pytest.raises(OverflowError):
+        py(huge, 10.0, 0.0, 0.0, 0.0, 1e-3)
+    with pytest.raises(OverflowError):
+        c(huge, 10.0, 0.0, 0.0, 0.0, 1e-3)
+    scalars = [np.float64(v) for v in x]
+    with np.errstate(all="ignore"):
+        assert repr(py(scalars, *w)) == repr(c(scalars, *w))   # numpy scalars: Python's

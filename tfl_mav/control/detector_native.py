@@ -14,7 +14,7 @@ import weakref
 from collections.abc import Callable
 from typing import Any
 
-from tfl_mav.control import native
+from tfl_mav import native
 from tfl_mav.control.detector_kernel import STATE, python_kernel, rotors_source
 
 __all__ = ["attach"]

@@ -27,7 +27,7 @@ import weakref
 from collections.abc import Callable, Sequence
 from typing import TYPE_CHECKING, Any
 
-from tfl_mav.control import native
+from tfl_mav import native
 from tfl_mav.control.compiled import _NEWTON_ITERS
 
 if TYPE_CHECKING:

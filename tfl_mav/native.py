@@ -46,8 +46,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from tfl_mav.control import ctranslate
-from tfl_mav.control.ctranslate import NativeError, translate
+from tfl_mav import ctranslate
+from tfl_mav.ctranslate import NativeError, translate
 
 __all__ = ["NativeError", "build", "c_source", "cache_dir", "compile_async", "load_cached",
            "mode", "obtain", "translate", "warn_once"]
@@ -179,6 +179,18 @@ _jobs: queue.Queue[tuple[str, str, Callable[[Core], None]]] = queue.Queue()
 _worker: threading.Thread | None = None
 _lock = threading.Lock()
 _warned: set[str] = set()
+
+
+def _after_fork_in_child() -> None:
+    """A forked child (a campaign run) starts with no worker and fresh locks: the parent's
+    worker thread does not exist there, and a lock it held at the fork would stay held."""
+    global _jobs, _worker, _lock
+    _jobs = queue.Queue()
+    _worker = None
+    _lock = threading.Lock()
+
+
+os.register_at_fork(after_in_child=_after_fork_in_child)
 
 
 def warn_once(msg: str) -> None:
