@@ -55,7 +55,7 @@ _LOOP_SOURCE = """def loop(a, n):
     a += 1.0
     return (s, a)
 """
-_SPECIAL = [0.0, -0.0, 1.0, -1.0, 0.5, -2.5, 3.0, 2.0, 1e-320, -1e-320, 1e300, -1e300,
+_SPECIAL = [-math.nan, 0.0, -0.0, 1.0, -1.0, 0.5, -2.5, 3.0, 2.0, 1e-320, -1e-320, 1e300, -1e300,
             1e154, 710.0, -746.0, math.pi, math.inf, -math.inf, math.nan, 1e22, 7.0e-9]
 
 
@@ -71,6 +71,8 @@ def _python(fn, *args):
 
 
 def _same_bits(a, b) -> bool:
+    """Equal to the bit, or both NaN: IEEE 754 leaves a NaN result's sign and payload
+    unspecified, and a C compiler may swap the operands of a commutative operation."""
     return all(_bits(x) == _bits(y) or (math.isnan(x) and math.isnan(y))
                for x, y in zip(a, b, strict=True))
 

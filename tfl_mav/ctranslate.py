@@ -122,9 +122,9 @@ class _C:
         raise NativeError(f"cannot translate {ast.unparse(e)!r}")
 
     def _ipow(self, x: str, n: int) -> str:
-        """CPython's float ** int (floatobject.c float_pow): pow(|x|, n), negated for an odd
-        n and x < 0; x = ±0 handled apart; OverflowError (inf from finite) and 0 ** −n
-        raise."""
+        """CPython's float ** int (floatobject.c float_pow): a NaN returned as it is, x = ±0
+        handled apart, else pow(|x|, n), negated for an odd n and x < 0; OverflowError (inf
+        from finite) and 0 ** −n raise."""
         v, r = self.fresh(), self.fresh()
         odd = n % 2 == 1
         nd = f"{float(n)!r}"
@@ -133,7 +133,8 @@ class _C:
         else:
             zero = f"({v} == 0.0 ? {v if odd else '0.0'} : "
         neg = f"({v} < 0.0 ? -{r} : {r})" if odd else r
-        return (f"({{ double {v} = {x}; double {r}; {r} = {zero}pow(__builtin_fabs({v}), {nd}));"
+        return (f"({{ double {v} = {x}; double {r}; {r} = __builtin_isnan({v}) ? {v} : "
+                f"{zero}pow(__builtin_fabs({v}), {nd}));"
                 f" if (__builtin_isinf({r}) && __builtin_isfinite({v})) goto bail;"
                 f" {neg}; }})")
 

@@ -10,7 +10,9 @@ math functions are the same libm's (CPython's ``math`` calls them too), and the 
 forbids what would change a bit (``-ffp-contract=off``: no fused multiply-add;
 ``-fno-builtin``: libm calls stay calls, no ``pow(x, 2) → x·x``; no ``-ffast-math``). So the
 compiled core returns the Python core's floats bit for bit (tests/test_native.py checks it
-on random states and whole flights).
+on random states and whole flights) — every number, that is: a NaN's sign and payload, which
+IEEE 754 leaves unspecified, may differ (a compiler may swap a commutative operation's
+operands).
 
 Where the Python core would raise (a division by zero, ``sqrt`` of a negative, an overflow
 of ``**``/``exp``, ``sin`` of ±∞, a ``log`` of a non-positive) — and on any argument that is
