@@ -79,9 +79,9 @@ from tfl_mav.daemon_io import (
     waiting_text,
 )
 from tfl_mav.flight_computer import FlightComputer, TickResult
-from tfl_mav.frames import paper_from_odometry
+from tfl_mav.frames import paper_from_odometry, paper_from_odometry_fields
 from tfl_mav.geometry import euler_to_quaternion
-from tfl_mav.link.codec import lite_class
+from tfl_mav.link.codec import rx_lite_class
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.signing import Signing
 from tfl_mav.link.transport import Address, FrameHook, Link
@@ -103,6 +103,9 @@ _DEGRADE_REPORT_S = 1.0           # at most one "degraded" STATUSTEXT per second
 _ID_ODOMETRY = mav.MAVLINK_MSG_ID_ODOMETRY
 _ID_ACTUATOR_OUTPUT_STATUS = mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS
 _ID_ESC_TELEMETRY_1_TO_4 = mav.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4
+_RxOdometry = rx_lite_class(_ID_ODOMETRY)
+_ODOMETRY_FIELDS = 16     # time_usec, x, y, z, q[4], vx..vz, rates[3], frame_id, child_frame_id
+_from_fields = paper_from_odometry_fields
 
 
 class Daemon:
@@ -173,9 +176,9 @@ class Daemon:
         self._hil_flags = 0 if realtime else LOCKSTEP_FLAG
         self._gap_usec = _GAP_FACTOR * (scenario.run.control_dt_s * 1e6)
         self._handlers: dict[type, Callable[[Any], None]] = {   # the per-tick messages
-            lite_class(_ID_ODOMETRY): self._on_odometry,
-            lite_class(_ID_ACTUATOR_OUTPUT_STATUS): self._on_applied,
-            lite_class(_ID_ESC_TELEMETRY_1_TO_4): self._on_esc}
+            rx_lite_class(_ID_ODOMETRY): self._on_odometry,
+            rx_lite_class(_ID_ACTUATOR_OUTPUT_STATUS): self._on_applied,
+            rx_lite_class(_ID_ESC_TELEMETRY_1_TO_4): self._on_esc}
 
     def _new_computer(self) -> FlightComputer:
         """A flight computer for a new flight, warmed: one throw-away tick on a separate
@@ -310,7 +313,10 @@ class Daemon:
     def _on_odometry(self, msg: Any) -> None:
         self._pending_applied = None
         try:
-            self._pending_state = paper_from_odometry(msg)
+            if type(msg) is _RxOdometry:   # the link's tuple: fields in wire order
+                self._pending_state = _from_fields(*msg[:_ODOMETRY_FIELDS])
+            else:
+                self._pending_state = paper_from_odometry(msg)
         except ValueError as exc:
             self.stats.bad_states += 1
             self._event("warning", f"ODOMETRY rejected: {exc}", quiet=True)

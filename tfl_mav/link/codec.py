@@ -34,6 +34,7 @@ values and :data:`UNSENT` for the frame): :meth:`FastCodec.pack` packs it with o
 from __future__ import annotations
 
 import hashlib
+import re
 import struct
 from collections.abc import Callable
 from operator import itemgetter
@@ -42,8 +43,8 @@ from typing import Any
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.payload import frame_payload
 
-__all__ = ["HOT_MESSAGE_IDS", "PACK_ONLY_IDS", "UNSENT", "FastCodec", "LiteMessage",
-           "SkimmedMessage", "lite_class", "skim"]
+__all__ = ["HOT_MESSAGE_IDS", "LAZY_FIELDS", "PACK_ONLY_IDS", "UNSENT", "FastCodec",
+           "LiteMessage", "SkimmedMessage", "lite_class", "rx_lite_class", "skim"]
 
 HOT_MESSAGE_IDS = (
     mav.MAVLINK_MSG_ID_ODOMETRY,
@@ -66,6 +67,14 @@ PACK_ONLY_IDS = (
 """Messages compiled for sending only, from a :class:`LiteMessage` whose char field holds the
 raw ``bytes`` pymavlink packs (``_name_raw``); never decoded here (pymavlink decodes a char
 field to ``str``), so a receiver still gets pymavlink's message."""
+
+LAZY_FIELDS: dict[int, tuple[str, ...]] = {
+    # the daemon reads ODOMETRY's pose and twist every tick, never its 42 covariance floats
+    mav.MAVLINK_MSG_ID_ODOMETRY: ("pose_covariance", "velocity_covariance"),
+}
+"""Array fields a *received* LiteMessage (:func:`rx_lite_class`) does not unpack: skipped by
+the decode's ``struct`` (pad bytes), read from the frame bytes on first access, with the
+same values pymavlink gives (tests/test_codec.py)."""
 
 _HEADER = struct.Struct("<BBBBBBBHB")
 _SIGN_BLOCK = struct.Struct("<BQ")
@@ -173,6 +182,58 @@ def _lite_class(cls: Any, where: dict[str, int], lengths: dict[str, int]) -> typ
     return lite
 
 
+_RX_CLASSES: dict[type, type[LiteMessage]] = {}
+
+
+def _lazy_array(offset: int, code: str, n: int, size: int) -> property:
+    """A property reading an array field of ``n`` items of ``struct`` type ``code`` at byte
+    ``offset`` of the payload from the frame bytes (a trimmed payload zero-extended to
+    ``size``, as the decode does), as a fresh list."""
+    unpack_from = struct.Struct(f"<{n}{code}").unpack_from
+
+    def read(m: Any) -> list[Any]:
+        raw = m[-1]
+        end = len(raw) - 2 - (_SIGNATURE_LEN if raw[2] & _IFLAG_SIGNED else 0)
+        if end - 10 >= size:
+            return list(unpack_from(raw, 10 + offset))
+        return list(unpack_from(frame_payload(raw, size, end), offset))
+
+    return property(read)
+
+
+def _rx_lite_class(cls: Any, lazy: tuple[str, ...], where: dict[str, int],
+                   lengths: dict[str, int], codes: dict[str, str],
+                   offsets: dict[str, int]) -> type[LiteMessage]:
+    """The received LiteMessage of one message class whose ``lazy`` arrays are left out of
+    the tuple (see :data:`LAZY_FIELDS`); the other fields are read as :func:`_lite_class`
+    reads them, at their indexes in the shorter tuple (``where``)."""
+    rx = _RX_CLASSES.get(cls)
+    if rx is not None:
+        return rx
+    attrs: dict[str, Any] = {"__slots__": (), "_msgid": cls.id, "_name": cls.msgname,
+                             "_fieldnames": tuple(cls.fieldnames)}
+    size = cls.unpacker.size
+    for name in cls.fieldnames:
+        i, n = where.get(name, -1), lengths[name]
+        if name in lazy:
+            attrs[name] = _lazy_array(offsets[name], codes[name], n, size)
+        elif n:
+            attrs[name] = property(lambda m, i=i, j=i + n: list(m[i:j]))
+        else:
+            attrs[name] = property(itemgetter(i))
+    rx = _RX_CLASSES[cls] = type(f"LiteRx{cls.__name__}", (LiteMessage,), attrs)
+    return rx
+
+
+def rx_lite_class(msgid: int) -> type[LiteMessage]:
+    """The LiteMessage class the link hands out for a received hot message ``msgid``:
+    :func:`lite_class`'s, unless the message has :data:`LAZY_FIELDS` (then a class of its
+    own, whose tuple leaves them out: never build one by hand, only decode)."""
+    if msgid not in HOT_MESSAGE_IDS:
+        raise ValueError(f"rx_lite_class: message id {msgid} is not compiled")
+    return _Layout(mav.mavlink_map[msgid]).rx_lite
+
+
 def lite_class(msgid: int) -> type[LiteMessage]:
     """The LiteMessage class of hot message ``msgid``. A message to send is
     ``tuple.__new__(cls, (*wire_order_values, UNSENT))``, arrays flattened in place, every
@@ -224,6 +285,31 @@ class _Layout:
         self.pack: Callable[[Any], bytes] = scope["pack"]
         self.fields: Callable[[tuple[Any, ...]], dict[str, Any]] = scope["fields"]
         self.lite = _lite_class(cls, where, lengths)
+        # the receive side: LAZY_FIELDS as pad bytes in the unpack, read on first access
+        self.rx_lite = self.lite
+        self.rx_unpack = self.unpack
+        self.rx_unpack_from = cls.unpacker.unpack_from
+        lazy = LAZY_FIELDS.get(cls.id, ())
+        if lazy and not chars:
+            tokens = re.findall(r"(\d*)([a-zA-Z])", cls.unpacker.format)
+            codes = {name: code for name, (_, code) in
+                     zip(cls.ordered_fieldnames, tokens, strict=True)}
+            fmt, offsets, rx_where, byte, tip = "<", {}, {}, 0, 0
+            for name, (count, code) in zip(cls.ordered_fieldnames, tokens, strict=True):
+                width = struct.calcsize(f"<{count}{code}")
+                offsets[name] = byte
+                byte += width
+                if name in lazy:
+                    fmt += f"{width}x"
+                    continue
+                fmt += f"{count}{code}"
+                rx_where[name] = tip
+                tip += max(1, lengths[name])
+            rx_struct = struct.Struct(fmt)
+            assert rx_struct.size == self.size, cls.msgname
+            self.rx_unpack = rx_struct.unpack
+            self.rx_unpack_from = rx_struct.unpack_from
+            self.rx_lite = _rx_lite_class(cls, lazy, rx_where, lengths, codes, offsets)
 
 
 class FastCodec:
@@ -239,6 +325,8 @@ class FastCodec:
             self.by_class[layout.cls] = layout
             self.by_id[msgid] = layout
             self.by_lite[layout.lite] = layout
+            if layout.rx_lite is not layout.lite:   # packed field by field, as pymavlink's
+                self.by_class[layout.rx_lite] = layout
         for msgid in pack_only:          # LiteMessages only: pymavlink's still pack as before
             layout = _Layout(mav.mavlink_map[msgid], chars=True)
             self.by_lite[layout.lite] = layout
@@ -318,8 +406,8 @@ class FastCodec:
         if checked is None:
             return None
         layout, end, _crc = checked
-        return _new_tuple(layout.lite, (*layout.unpack(frame_payload(raw, layout.size, end)),
-                                        raw))
+        return _new_tuple(layout.rx_lite,
+                          (*layout.rx_unpack(frame_payload(raw, layout.size, end)), raw))
 
 
 class SkimmedMessage:
