@@ -23,7 +23,8 @@ properties that read the tuple (arrays as fresh lists, as pymavlink gives them),
 nobody reads costs nothing; the ``get_*`` methods, ``to_dict`` and ``str`` answer as
 pymavlink's message would (tests/test_codec.py checks every field and method). Building
 pymavlink's object (a dict of every field, the header object, two buffer copies) was most of
-a decode's cost.
+a decode's cost. The message classes, and the array fields a received message leaves
+in its frame bytes until read (ODOMETRY's covariances), are in :mod:`tfl_mav.link.lite`.
 
 A sender on the hot path can build the LiteMessage itself (:func:`lite_class`, its wire-order
 values and :data:`UNSENT` for the frame): :meth:`FastCodec.pack` packs it with one
@@ -37,10 +38,18 @@ import hashlib
 import re
 import struct
 from collections.abc import Callable
-from operator import itemgetter
 from typing import Any
 
 from tfl_mav.link.dialect import mav
+from tfl_mav.link.lite import (
+    _IFLAG_SIGNED,
+    _SIGNATURE_LEN,
+    LAZY_FIELDS,
+    UNSENT,
+    LiteMessage,
+    _lite_class,
+    _rx_lite_class,
+)
 from tfl_mav.link.payload import frame_payload
 
 __all__ = ["HOT_MESSAGE_IDS", "LAZY_FIELDS", "PACK_ONLY_IDS", "UNSENT", "FastCodec",
@@ -68,22 +77,9 @@ PACK_ONLY_IDS = (
 raw ``bytes`` pymavlink packs (``_name_raw``); never decoded here (pymavlink decodes a char
 field to ``str``), so a receiver still gets pymavlink's message."""
 
-LAZY_FIELDS: dict[int, tuple[str, ...]] = {
-    # the daemon reads ODOMETRY's pose and twist every tick, never its 42 covariance floats
-    mav.MAVLINK_MSG_ID_ODOMETRY: ("pose_covariance", "velocity_covariance"),
-}
-"""Array fields a *received* LiteMessage (:func:`rx_lite_class`) does not unpack: skipped by
-the decode's ``struct`` (pad bytes), read from the frame bytes on first access, with the
-same values pymavlink gives (tests/test_codec.py)."""
-
 _HEADER = struct.Struct("<BBBBBBBHB")
 _SIGN_BLOCK = struct.Struct("<BQ")
-_IFLAG_SIGNED = 0x01
-_SIGNATURE_LEN = 13
 _new_tuple = tuple.__new__
-UNSENT = bytes(10)
-"""The frame item of a LiteMessage built to be sent: a zero header, so ``get_srcSystem()``,
-``get_seq()``... answer 0, as an unsent pymavlink message's do."""
 
 _crc16: Callable[[bytes, int], int]
 if mav.mcrf4xx is not None:     # pymavlink's own choice: fastcrc's C implementation
@@ -94,135 +90,6 @@ else:                           # pragma: no cover - pymavlink without fastcrc
         acc.crc = crc
         acc.accumulate(data)
         return acc.crc
-
-
-class LiteMessage(tuple):  # type: ignore[type-arg]
-    """A decoded hot message: the wire-order values of its payload, then the frame bytes
-    (the last item). Read it like pymavlink's message: ``m.time_usec``, ``m.rpm`` (a new
-    list), ``m.get_msgId()``, ``m.get_srcSystem()``, ``m.to_dict()``. Immutable."""
-
-    __slots__ = ()
-    _msgid = -1
-    _name = ""
-    _fieldnames: tuple[str, ...] = ()
-
-    def get_msgId(self) -> int:
-        return self._msgid
-
-    def get_type(self) -> str:
-        return self._name
-
-    def get_fieldnames(self) -> list[str]:
-        return list(self._fieldnames)
-
-    def get_srcSystem(self) -> int:
-        return int(self[-1][5])
-
-    def get_srcComponent(self) -> int:
-        return int(self[-1][6])
-
-    def get_seq(self) -> int:
-        return int(self[-1][4])
-
-    def get_signed(self) -> bool:
-        return False    # as pymavlink's parser without a key says (the Link verifies)
-
-    def get_link_id(self) -> None:
-        return None
-
-    def get_msgbuf(self) -> bytearray:
-        return bytearray(self[-1])
-
-    def _end(self) -> int:
-        raw = self[-1]
-        return len(raw) - 2 - (_SIGNATURE_LEN if raw[2] & _IFLAG_SIGNED else 0)
-
-    def get_payload(self) -> bytearray:
-        return bytearray(self[-1][6:self._end()])   # sic: pymavlink slices from 6
-
-    def get_crc(self) -> int:
-        raw, end = self[-1], self._end()
-        return int(raw[end] | raw[end + 1] << 8)
-
-    def get_header(self) -> Any:
-        raw = self[-1]
-        return mav.MAVLink_header(self._msgid, raw[2], raw[3], raw[1], raw[4], raw[5], raw[6])
-
-    def to_dict(self) -> dict[str, Any]:
-        d: dict[str, Any] = {"mavpackettype": self._name}
-        for name in self._fieldnames:
-            d[name] = getattr(self, name)
-        return d
-
-    def __str__(self) -> str:
-        inner = ", ".join(f"{name} : {getattr(self, name)}" for name in self._fieldnames)
-        return f"{self._name} {{{inner}}}"
-
-    __repr__ = __str__
-
-
-_LITE_CLASSES: dict[type, type[LiteMessage]] = {}
-
-
-def _lite_class(cls: Any, where: dict[str, int], lengths: dict[str, int]) -> type[LiteMessage]:
-    """The LiteMessage subclass of one message class: a property per field. One per message
-    class in the process (every codec shares it, so any codec packs what another built)."""
-    lite = _LITE_CLASSES.get(cls)
-    if lite is not None:
-        return lite
-    attrs: dict[str, Any] = {"__slots__": (), "_msgid": cls.id, "_name": cls.msgname,
-                             "_fieldnames": tuple(cls.fieldnames)}
-    for name in cls.fieldnames:
-        i, n = where[name], lengths[name]
-        if n:
-            attrs[name] = property(lambda m, i=i, j=i + n: list(m[i:j]))
-        else:
-            attrs[name] = property(itemgetter(i))
-    lite = _LITE_CLASSES[cls] = type(f"Lite{cls.__name__}", (LiteMessage,), attrs)
-    return lite
-
-
-_RX_CLASSES: dict[type, type[LiteMessage]] = {}
-
-
-def _lazy_array(offset: int, code: str, n: int, size: int) -> property:
-    """A property reading an array field of ``n`` items of ``struct`` type ``code`` at byte
-    ``offset`` of the payload from the frame bytes (a trimmed payload zero-extended to
-    ``size``, as the decode does), as a fresh list."""
-    unpack_from = struct.Struct(f"<{n}{code}").unpack_from
-
-    def read(m: Any) -> list[Any]:
-        raw = m[-1]
-        end = len(raw) - 2 - (_SIGNATURE_LEN if raw[2] & _IFLAG_SIGNED else 0)
-        if end - 10 >= size:
-            return list(unpack_from(raw, 10 + offset))
-        return list(unpack_from(frame_payload(raw, size, end), offset))
-
-    return property(read)
-
-
-def _rx_lite_class(cls: Any, lazy: tuple[str, ...], where: dict[str, int],
-                   lengths: dict[str, int], codes: dict[str, str],
-                   offsets: dict[str, int]) -> type[LiteMessage]:
-    """The received LiteMessage of one message class whose ``lazy`` arrays are left out of
-    the tuple (see :data:`LAZY_FIELDS`); the other fields are read as :func:`_lite_class`
-    reads them, at their indexes in the shorter tuple (``where``)."""
-    rx = _RX_CLASSES.get(cls)
-    if rx is not None:
-        return rx
-    attrs: dict[str, Any] = {"__slots__": (), "_msgid": cls.id, "_name": cls.msgname,
-                             "_fieldnames": tuple(cls.fieldnames)}
-    size = cls.unpacker.size
-    for name in cls.fieldnames:
-        i, n = where.get(name, -1), lengths[name]
-        if name in lazy:
-            attrs[name] = _lazy_array(offsets[name], codes[name], n, size)
-        elif n:
-            attrs[name] = property(lambda m, i=i, j=i + n: list(m[i:j]))
-        else:
-            attrs[name] = property(itemgetter(i))
-    rx = _RX_CLASSES[cls] = type(f"LiteRx{cls.__name__}", (LiteMessage,), attrs)
-    return rx
 
 
 def rx_lite_class(msgid: int) -> type[LiteMessage]:
