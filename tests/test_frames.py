@@ -217,7 +217,7 @@ def test_the_daemons_tuple_path_is_the_attribute_path(pos, q, twist, frames):
     """What the daemon does with the link's ODOMETRY (its tuple's first 16 items to
     paper_from_odometry_fields) is what paper_from_odometry makes of pymavlink's message:
     the same State to the bit, or the same error."""
-    from tfl_mav.daemon import _ODOMETRY_FIELDS, _RxOdometry
+    from tfl_mav.daemon_intake import _ODOMETRY_FIELDS, _RxOdometry
     from tfl_mav.frames import paper_from_odometry_fields
     from tfl_mav.link.transport import Link
 
