@@ -88,6 +88,16 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
     from tfl_mav.link.transport import Link
     from tfl_mav.scenario import load_scenario
 
+    to_state: Any = paper_from_odometry
+    try:    # the daemon's path since #13: the received tuple's fields, no attribute reads
+        from tfl_mav.daemon_intake import _ODOMETRY_FIELDS
+        from tfl_mav.frames import paper_from_odometry_fields
+
+        def to_state(msg: Any) -> Any:
+            return paper_from_odometry_fields(*msg[:_ODOMETRY_FIELDS])
+    except ImportError:     # an older tree
+        pass
+
     sc = load_scenario("paper").replace(**{"attack.rotor": 0})
     vehicle = Vehicle(sc, listen=("127.0.0.1", 0))
     sim, report = vehicle.sim, vehicle.report
@@ -124,7 +134,7 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
         if len(out) != 3:
             raise RuntimeError(f"breakdown: parsed {len(out)} of the tick's 3 messages")
         odom_in, _aos_in, esc_in = out
-        state = paper_from_odometry(odom_in)
+        state = to_state(odom_in)
         t4 = cpu()
         rpm = [float(r) for r in esc_in.rpm]
         detector.update(sim.time_s, rpm, applied)

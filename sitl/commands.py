@@ -31,6 +31,7 @@ from sitl.clock import HeldCommand
 from sitl.gcs import FlightStatus, StatusText
 from sitl.results import VehicleStats
 from sitl.simulator import Simulator
+from tfl_mav.link.codec import rx_lite_class
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.transport import Link
 
@@ -41,6 +42,7 @@ CONTROL_TOLERANCE = 1e-4
 """Normalised controls within this of [0, 1] are clamped; beyond it they are rejected."""
 
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
+_RxControls = rx_lite_class(mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS)
 _LO, _HI = -CONTROL_TOLERANCE, 1.0 + CONTROL_TOLERANCE
 
 Handler = Callable[[Link, Any], None]
@@ -87,11 +89,11 @@ class ActuatorControls:
             # Older than (or a duplicate of) the held one, or for a tick not yet sent.
             stats.stale_controls += 1
             return Outcome.STALE
-        controls = msg.controls
-        c1, c2, c3, c4 = controls[:4]
+        # the link's tuple: time_usec, flags, controls[16], mode (no 16-item list built)
+        c1, c2, c3, c4 = msg[2:6] if type(msg) is _RxControls else msg.controls[:4]
         # In range → finite (comparisons with NaN are False): one chained test for the norm.
         problem = (None if _LO <= c1 <= _HI and _LO <= c2 <= _HI and _LO <= c3 <= _HI
-                   and _LO <= c4 <= _HI else check_controls(controls))
+                   and _LO <= c4 <= _HI else check_controls((c1, c2, c3, c4)))
         if problem is not None:
             stats.rejected_controls += 1
             self.status.send(mav.MAV_SEVERITY_ERROR,

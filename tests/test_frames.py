@@ -202,3 +202,42 @@ def test_body_to_inertial_is_numpys_product_bit_for_bit(q, v):
     ``@`` to the bit (BLAS fuses multiply-adds: a float sum of products is not)."""
     rows = rotation_rows(q)
     assert body_to_inertial(rows, v) == (np.array(rows) @ np.array(v)).tolist()
+
+
+_ODOMETRY_VALUES = st.one_of(st.floats(-1e3, 1e3), st.sampled_from([math.nan, math.inf, 0.0]))
+
+
+@settings(max_examples=300, deadline=None)
+@given(pos=st.lists(_ODOMETRY_VALUES, min_size=3, max_size=3),
+       q=st.lists(st.floats(-1.0, 1.0, allow_nan=False), min_size=4, max_size=4),
+       twist=st.lists(_ODOMETRY_VALUES, min_size=6, max_size=6),
+       frames=st.tuples(st.sampled_from([MAV_FRAME_LOCAL_NED, MAV_FRAME_BODY_FRD, 8]),
+                        st.sampled_from([MAV_FRAME_LOCAL_NED, MAV_FRAME_BODY_FRD, 8])))
+def test_the_daemons_tuple_path_is_the_attribute_path(pos, q, twist, frames):
+    """What the daemon does with the link's ODOMETRY (its tuple's first 16 items to
+    paper_from_odometry_fields) is what paper_from_odometry makes of pymavlink's message:
+    the same State to the bit, or the same error."""
+    from tfl_mav.daemon_intake import _ODOMETRY_FIELDS, _RxOdometry
+    from tfl_mav.frames import paper_from_odometry_fields
+    from tfl_mav.link.transport import Link
+
+    msg = mav.MAVLink_odometry_message(
+        99, frames[0], frames[1], *pos, q, *twist, [0.5] * 21, [0.25] * 21)
+    raw = bytes(msg.pack(new_mavlink(1, 1)))
+    full = new_mavlink(2, 1).decode(bytearray(raw))
+    with Link.listen(("127.0.0.1", 0), src_system=2, src_component=1,
+                     peer=("127.0.0.1", 9), peer_sysid=1) as link:
+        got: list = []
+        link._ingest(raw, ("127.0.0.1", 9), got)
+    (lite,) = got
+    assert type(lite) is _RxOdometry
+    assert lite.pose_covariance == [0.5] * 21 and lite.velocity_covariance == [0.25] * 21
+    try:
+        expected = paper_from_odometry(full)
+    except ValueError as exc:
+        with pytest.raises(ValueError) as caught:
+            paper_from_odometry_fields(*lite[:_ODOMETRY_FIELDS])
+        assert str(caught.value) == str(exc)
+        return
+    state = paper_from_odometry_fields(*lite[:_ODOMETRY_FIELDS])
+    assert repr(state) == repr(expected)

@@ -21,8 +21,9 @@ One :class:`Daemon` talks MAVLink 2 over one UDP socket to one vehicle (docs/des
   atk_est_n, path_m; ``DEBUG_FLOAT_ARRAY`` tfl = ξ1, ξ2, η chains).
 
 **Degrade, don't fall.** Each complete state is classified as it arrives
-(:mod:`tfl_mav.arrivals`: fresh, repeated, old, implausible, or a restart that rebuilds the
-flight computer, ``rebuilds``); repeated states get the same command again, old and
+(:mod:`tfl_mav.daemon_intake`, the message handlers; :mod:`tfl_mav.arrivals`: fresh,
+repeated, old, implausible, or a restart that rebuilds the flight computer, ``rebuilds``);
+repeated states get the same command again, old and
 implausible ones are counted (``repeated_states``, ``old_states``, ``implausible_states``).
 Each loop drains the socket and runs the law once, on the newest fresh state; the other
 fresh states of the batch are skipped (``skipped_states``). When states were skipped the law
@@ -65,7 +66,8 @@ from typing import Any
 import numpy as np
 
 from tfl_mav import arrivals
-from tfl_mav.arrivals import FRESH, OLD, REPEATED, RESTART, Arrivals
+from tfl_mav.arrivals import Arrivals
+from tfl_mav.daemon_intake import Intake
 from tfl_mav.daemon_io import (
     LOCKSTEP_FLAG,
     TICK_FIELDS,
@@ -79,9 +81,7 @@ from tfl_mav.daemon_io import (
     waiting_text,
 )
 from tfl_mav.flight_computer import FlightComputer, TickResult
-from tfl_mav.frames import paper_from_odometry
 from tfl_mav.geometry import euler_to_quaternion
-from tfl_mav.link.codec import lite_class
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.signing import Signing
 from tfl_mav.link.transport import Address, FrameHook, Link
@@ -100,12 +100,9 @@ _WAITING_REPORT_PERIOD_S = 2.0
 _HISTORY = 512                    # commands remembered by time_usec (0.5 s at 1 kHz)
 _GAP_FACTOR = 1.5                 # a gap over 1.5 control periods is integrated as such
 _DEGRADE_REPORT_S = 1.0           # at most one "degraded" STATUSTEXT per second of sim time
-_ID_ODOMETRY = mav.MAVLINK_MSG_ID_ODOMETRY
-_ID_ACTUATOR_OUTPUT_STATUS = mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS
-_ID_ESC_TELEMETRY_1_TO_4 = mav.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4
 
 
-class Daemon:
+class Daemon(Intake):
     """The offboard controller for one vehicle. See the module docstring."""
 
     def __init__(self, scenario: Scenario, *, vehicle: Address, bind: Address | None = None,
@@ -152,13 +149,9 @@ class Daemon:
         self.thrust_max_n = scenario.vehicle.thrust_max_n
         self.k_f = scenario.vehicle.k_f
         self._stop = threading.Event()
-        self._pending_state: Any = None
-        self._pending_applied: Any = None
-        self._complete: list[tuple[State, Any, list[float]]] = []   # this batch's states
         self._history: dict[int, list[float]] = {}                  # time_usec → thrust_n
         self._last_usec = -1          # time_usec of the last state controlled
         self._arrivals = Arrivals(realtime)   # the watermark and the restart rule
-        self._arrived = False         # a valid state arrived this loop (failsafe clock)
         self._next_degrade_report_s = 0.0
         self._hover = [scenario.vehicle.mass_kg * scenario.vehicle.gravity_mps2 / 4.0] * 4
         self._last_cmd = list(self._hover)
@@ -168,14 +161,10 @@ class Daemon:
         self._sim_time_s = 0.0
         self._est_n = 0
         self._distance = math.nan
-        self._vehicle_done = ""
         self._statustext_id = 0
         self._hil_flags = 0 if realtime else LOCKSTEP_FLAG
         self._gap_usec = _GAP_FACTOR * (scenario.run.control_dt_s * 1e6)
-        self._handlers: dict[type, Callable[[Any], None]] = {   # the per-tick messages
-            lite_class(_ID_ODOMETRY): self._on_odometry,
-            lite_class(_ID_ACTUATOR_OUTPUT_STATUS): self._on_applied,
-            lite_class(_ID_ESC_TELEMETRY_1_TO_4): self._on_esc}
+        self._init_intake()
 
     def _new_computer(self) -> FlightComputer:
         """A flight computer for a new flight, warmed: one throw-away tick on a separate
@@ -271,92 +260,6 @@ class Daemon:
         """Before the first tick: say (locally) what arrived and what to check."""
         self._event("warning", waiting_text(waited_s, self.link, self.signing is not None),
                     send=False)
-
-    # ------------------------------------------------------------------ messages
-    def _handle(self, msg: Any) -> None:
-        """Dispatch one accepted message; a complete state joins this batch's."""
-        handler = self._handlers.get(type(msg))      # the link's LiteMessage classes
-        if handler is not None:
-            handler(msg)
-            return
-        mid = msg.get_msgId()
-        if mid == _ID_ODOMETRY:
-            self._on_odometry(msg)
-            return
-        if mid == _ID_ACTUATOR_OUTPUT_STATUS:
-            self._pending_applied = msg
-            return
-        if mid == _ID_ESC_TELEMETRY_1_TO_4:
-            self._on_esc(msg)
-            return
-        if mid == mav.MAVLINK_MSG_ID_HEARTBEAT:
-            if msg.system_status in (mav.MAV_STATE_POWEROFF, mav.MAV_STATE_EMERGENCY) \
-                    and self.stats.ticks > 0:
-                self._vehicle_done = ("vehicle reported EMERGENCY (crashed)"
-                                      if msg.system_status == mav.MAV_STATE_EMERGENCY
-                                      else "vehicle powered off (run over)")
-            return
-        if mid == mav.MAVLINK_MSG_ID_STATUSTEXT:
-            text = msg.text
-            self._event("info", f"vehicle: {text}", send=False)
-            if self.stats.ticks > 0 and not self._vehicle_done:
-                if text.startswith("crashed:"):
-                    self._vehicle_done = "vehicle reported EMERGENCY (crashed)"
-                elif text.startswith("simulation ended"):
-                    self._vehicle_done = "vehicle powered off (run over)"
-            return
-        self.stats.ignored_messages += 1
-
-    def _on_odometry(self, msg: Any) -> None:
-        self._pending_applied = None
-        try:
-            self._pending_state = paper_from_odometry(msg)
-        except ValueError as exc:
-            self.stats.bad_states += 1
-            self._event("warning", f"ODOMETRY rejected: {exc}", quiet=True)
-            self._pending_state = None
-            return
-        self.stats.states += 1
-
-    def _on_applied(self, msg: Any) -> None:
-        self._pending_applied = msg
-
-    def _on_esc(self, msg: Any) -> None:
-        state = self._pending_state
-        rpm = list(map(float, msg.rpm))
-        self.stats.esc_reports += 1
-        if state is None:
-            return
-        self._pending_state = None
-        applied, self._pending_applied = self._pending_applied, None
-        self._arrive(state, applied, rpm)
-
-    def _arrive(self, state: State, applied_msg: Any, rpm: list[float]) -> None:
-        """Classify one complete state (:mod:`tfl_mav.arrivals`) and act on it."""
-        t_usec = state.time_usec
-        kind = self._arrivals.classify(t_usec)
-        if kind == FRESH:
-            self._arrived = True
-            self._complete.append((state, applied_msg, rpm))
-            return
-        stats = self.stats
-        if kind == REPEATED:
-            stats.repeated_states += 1
-            self._arrived = True
-            if not self._complete and self._last_usec == t_usec:
-                self._send_command(t_usec, self._last_cmd)
-            return
-        if kind == OLD:
-            self._arrived = True
-            stats.old_states += 1
-            return
-        if kind != RESTART:
-            stats.implausible_states += 1
-            return
-        self._rebuild(t_usec)
-        self._arrivals.accept(t_usec)
-        self._arrived = True
-        self._complete.append((state, applied_msg, rpm))
 
     def _control_newest(self) -> bool:
         """Run one control tick on the newest fresh state of this batch (the last one: fresh

@@ -32,7 +32,7 @@ import math
 import struct
 import threading
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -52,6 +52,7 @@ __all__ = [
     "ned_to_enu",
     "odometry_from_paper",
     "paper_from_odometry",
+    "paper_from_odometry_fields",
     "quaternion_enu_flu_to_ned_frd",
     "quaternion_ned_frd_to_enu_flu",
     "rotation_enu_flu_to_ned_frd",
@@ -195,22 +196,34 @@ def paper_from_odometry(msg: object) -> State:
     ValueError naming the field for any other frame, a non-finite value, or a quaternion
     that is not (close to) unit length; the caller counts and drops the message.
     """
-    m = msg
-    # Each field read once (a decoded message's fields may be properties). One sum tells
-    # whether all nine are finite (NaN/inf propagate); only a failure, or a finite sum that
-    # overflowed, walks the fields to name the culprit.
-    px, py, pz, vx, vy, vz = m.x, m.y, m.z, m.vx, m.vy, m.vz
-    p, q, r = m.rollspeed, m.pitchspeed, m.yawspeed
+    m: Any = msg
+    qw, qx, qy, qz = m.q
+    return paper_from_odometry_fields(
+        int(m.time_usec), float(m.x), float(m.y), float(m.z), float(qw), float(qx),
+        float(qy), float(qz), float(m.vx), float(m.vy), float(m.vz), float(m.rollspeed),
+        float(m.pitchspeed), float(m.yawspeed), m.frame_id, m.child_frame_id)
+
+
+def paper_from_odometry_fields(time_usec: int, px: float, py: float, pz: float, qw: float,
+                               qx: float, qy: float, qz: float, vx: float, vy: float,
+                               vz: float, p: float, q: float, r: float, frame_id: int,
+                               child: int) -> State:
+    """:func:`paper_from_odometry` from ODOMETRY's fields in wire order up to
+    ``child_frame_id`` (Python floats and ints, as a decode gives them): the daemon's hot
+    path passes the received tuple's items, with no attribute read. Same checks, errors and
+    result to the bit."""
+    # One sum tells whether all nine are finite (NaN/inf propagate); only a failure, or a
+    # finite sum that overflowed, walks the fields to name the culprit.
     if not math.isfinite(px + py + pz + vx + vy + vz + p + q + r):
-        for name in _ODOMETRY_FLOATS:
-            if not math.isfinite(getattr(m, name)):
-                raise ValueError(f"ODOMETRY.{name}: not finite ({getattr(m, name)})")
-    if m.frame_id != MAV_FRAME_LOCAL_NED:
-        raise ValueError(f"ODOMETRY.frame_id: expected MAV_FRAME_LOCAL_NED (1), got {m.frame_id}")
-    qw, qx, qy, qz = qn = [float(c) for c in m.q]
+        for name, value in zip(_ODOMETRY_FLOATS, (px, py, pz, vx, vy, vz, p, q, r),
+                               strict=True):
+            if not math.isfinite(value):
+                raise ValueError(f"ODOMETRY.{name}: not finite ({value})")
+    if frame_id != MAV_FRAME_LOCAL_NED:
+        raise ValueError(f"ODOMETRY.frame_id: expected MAV_FRAME_LOCAL_NED (1), got {frame_id}")
     if not (math.isfinite(qw) and math.isfinite(qx) and math.isfinite(qy)
             and math.isfinite(qz)):
-        raise ValueError(f"ODOMETRY.q: not finite ({qn})")
+        raise ValueError(f"ODOMETRY.q: not finite ({[qw, qx, qy, qz]})")
     norm = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)   # summed in this order
     if abs(norm - 1.0) > 1e-3:
         raise ValueError(f"ODOMETRY.q: not a unit quaternion (|q| = {norm:.6f})")
@@ -220,14 +233,12 @@ def paper_from_odometry(msg: object) -> State:
     # Floats, not 3-vectors (this runs every tick in the daemon), except the one product
     # numpy computes differently (BLAS, fused multiply-add) from a float sum: kept as it
     # was, so the state is the same to the bit.
-    child = m.child_frame_id
     if child == MAV_FRAME_BODY_FRD:
         velocity = body_to_inertial(rotation_rows(q_enu_flu),   # = rotation_from_quaternion
-                                    (float(vx), -float(vy), -float(vz)))
+                                    (vx, -vy, -vz))
     elif child == MAV_FRAME_LOCAL_NED:
-        velocity = [float(vy), float(vx), -float(vz)]
+        velocity = [vy, vx, -vz]
     else:
         raise ValueError("ODOMETRY.child_frame_id: expected MAV_FRAME_BODY_FRD (12) or "
                          f"MAV_FRAME_LOCAL_NED (1), got {child}")
-    return State((float(py), float(px), -float(pz)), velocity, q_enu_flu,
-                 (float(p), -float(q), -float(r)), int(m.time_usec))
+    return State((py, px, -pz), velocity, q_enu_flu, (p, -q, -r), time_usec)

@@ -23,7 +23,8 @@ properties that read the tuple (arrays as fresh lists, as pymavlink gives them),
 nobody reads costs nothing; the ``get_*`` methods, ``to_dict`` and ``str`` answer as
 pymavlink's message would (tests/test_codec.py checks every field and method). Building
 pymavlink's object (a dict of every field, the header object, two buffer copies) was most of
-a decode's cost.
+a decode's cost. The message classes, and the array fields a received message leaves
+in its frame bytes until read (ODOMETRY's covariances), are in :mod:`tfl_mav.link.lite`.
 
 A sender on the hot path can build the LiteMessage itself (:func:`lite_class`, its wire-order
 values and :data:`UNSENT` for the frame): :meth:`FastCodec.pack` packs it with one
@@ -34,16 +35,25 @@ values and :data:`UNSENT` for the frame): :meth:`FastCodec.pack` packs it with o
 from __future__ import annotations
 
 import hashlib
+import re
 import struct
 from collections.abc import Callable
-from operator import itemgetter
 from typing import Any
 
 from tfl_mav.link.dialect import mav
+from tfl_mav.link.lite import (
+    _IFLAG_SIGNED,
+    _SIGNATURE_LEN,
+    LAZY_FIELDS,
+    UNSENT,
+    LiteMessage,
+    _lite_class,
+    _rx_lite_class,
+)
 from tfl_mav.link.payload import frame_payload
 
-__all__ = ["HOT_MESSAGE_IDS", "PACK_ONLY_IDS", "UNSENT", "FastCodec", "LiteMessage",
-           "SkimmedMessage", "lite_class", "skim"]
+__all__ = ["HOT_MESSAGE_IDS", "LAZY_FIELDS", "PACK_ONLY_IDS", "UNSENT", "FastCodec",
+           "LiteMessage", "SkimmedMessage", "lite_class", "rx_lite_class", "skim"]
 
 HOT_MESSAGE_IDS = (
     mav.MAVLINK_MSG_ID_ODOMETRY,
@@ -69,12 +79,7 @@ field to ``str``), so a receiver still gets pymavlink's message."""
 
 _HEADER = struct.Struct("<BBBBBBBHB")
 _SIGN_BLOCK = struct.Struct("<BQ")
-_IFLAG_SIGNED = 0x01
-_SIGNATURE_LEN = 13
 _new_tuple = tuple.__new__
-UNSENT = bytes(10)
-"""The frame item of a LiteMessage built to be sent: a zero header, so ``get_srcSystem()``,
-``get_seq()``... answer 0, as an unsent pymavlink message's do."""
 
 _crc16: Callable[[bytes, int], int]
 if mav.mcrf4xx is not None:     # pymavlink's own choice: fastcrc's C implementation
@@ -87,90 +92,13 @@ else:                           # pragma: no cover - pymavlink without fastcrc
         return acc.crc
 
 
-class LiteMessage(tuple):  # type: ignore[type-arg]
-    """A decoded hot message: the wire-order values of its payload, then the frame bytes
-    (the last item). Read it like pymavlink's message: ``m.time_usec``, ``m.rpm`` (a new
-    list), ``m.get_msgId()``, ``m.get_srcSystem()``, ``m.to_dict()``. Immutable."""
-
-    __slots__ = ()
-    _msgid = -1
-    _name = ""
-    _fieldnames: tuple[str, ...] = ()
-
-    def get_msgId(self) -> int:
-        return self._msgid
-
-    def get_type(self) -> str:
-        return self._name
-
-    def get_fieldnames(self) -> list[str]:
-        return list(self._fieldnames)
-
-    def get_srcSystem(self) -> int:
-        return int(self[-1][5])
-
-    def get_srcComponent(self) -> int:
-        return int(self[-1][6])
-
-    def get_seq(self) -> int:
-        return int(self[-1][4])
-
-    def get_signed(self) -> bool:
-        return False    # as pymavlink's parser without a key says (the Link verifies)
-
-    def get_link_id(self) -> None:
-        return None
-
-    def get_msgbuf(self) -> bytearray:
-        return bytearray(self[-1])
-
-    def _end(self) -> int:
-        raw = self[-1]
-        return len(raw) - 2 - (_SIGNATURE_LEN if raw[2] & _IFLAG_SIGNED else 0)
-
-    def get_payload(self) -> bytearray:
-        return bytearray(self[-1][6:self._end()])   # sic: pymavlink slices from 6
-
-    def get_crc(self) -> int:
-        raw, end = self[-1], self._end()
-        return int(raw[end] | raw[end + 1] << 8)
-
-    def get_header(self) -> Any:
-        raw = self[-1]
-        return mav.MAVLink_header(self._msgid, raw[2], raw[3], raw[1], raw[4], raw[5], raw[6])
-
-    def to_dict(self) -> dict[str, Any]:
-        d: dict[str, Any] = {"mavpackettype": self._name}
-        for name in self._fieldnames:
-            d[name] = getattr(self, name)
-        return d
-
-    def __str__(self) -> str:
-        inner = ", ".join(f"{name} : {getattr(self, name)}" for name in self._fieldnames)
-        return f"{self._name} {{{inner}}}"
-
-    __repr__ = __str__
-
-
-_LITE_CLASSES: dict[type, type[LiteMessage]] = {}
-
-
-def _lite_class(cls: Any, where: dict[str, int], lengths: dict[str, int]) -> type[LiteMessage]:
-    """The LiteMessage subclass of one message class: a property per field. One per message
-    class in the process (every codec shares it, so any codec packs what another built)."""
-    lite = _LITE_CLASSES.get(cls)
-    if lite is not None:
-        return lite
-    attrs: dict[str, Any] = {"__slots__": (), "_msgid": cls.id, "_name": cls.msgname,
-                             "_fieldnames": tuple(cls.fieldnames)}
-    for name in cls.fieldnames:
-        i, n = where[name], lengths[name]
-        if n:
-            attrs[name] = property(lambda m, i=i, j=i + n: list(m[i:j]))
-        else:
-            attrs[name] = property(itemgetter(i))
-    lite = _LITE_CLASSES[cls] = type(f"Lite{cls.__name__}", (LiteMessage,), attrs)
-    return lite
+def rx_lite_class(msgid: int) -> type[LiteMessage]:
+    """The LiteMessage class the link hands out for a received hot message ``msgid``:
+    :func:`lite_class`'s, unless the message has :data:`LAZY_FIELDS` (then a class of its
+    own, whose tuple leaves them out: never build one by hand, only decode)."""
+    if msgid not in HOT_MESSAGE_IDS:
+        raise ValueError(f"rx_lite_class: message id {msgid} is not compiled")
+    return _Layout(mav.mavlink_map[msgid]).rx_lite
 
 
 def lite_class(msgid: int) -> type[LiteMessage]:
@@ -224,6 +152,31 @@ class _Layout:
         self.pack: Callable[[Any], bytes] = scope["pack"]
         self.fields: Callable[[tuple[Any, ...]], dict[str, Any]] = scope["fields"]
         self.lite = _lite_class(cls, where, lengths)
+        # the receive side: LAZY_FIELDS as pad bytes in the unpack, read on first access
+        self.rx_lite = self.lite
+        self.rx_unpack = self.unpack
+        self.rx_unpack_from = cls.unpacker.unpack_from
+        lazy = LAZY_FIELDS.get(cls.id, ())
+        if lazy and not chars:
+            tokens = re.findall(r"(\d*)([a-zA-Z])", cls.unpacker.format)
+            codes = {name: code for name, (_, code) in
+                     zip(cls.ordered_fieldnames, tokens, strict=True)}
+            fmt, offsets, rx_where, byte, tip = "<", {}, {}, 0, 0
+            for name, (count, code) in zip(cls.ordered_fieldnames, tokens, strict=True):
+                width = struct.calcsize(f"<{count}{code}")
+                offsets[name] = byte
+                byte += width
+                if name in lazy:
+                    fmt += f"{width}x"
+                    continue
+                fmt += f"{count}{code}"
+                rx_where[name] = tip
+                tip += max(1, lengths[name])
+            rx_struct = struct.Struct(fmt)
+            assert rx_struct.size == self.size, cls.msgname
+            self.rx_unpack = rx_struct.unpack
+            self.rx_unpack_from = rx_struct.unpack_from
+            self.rx_lite = _rx_lite_class(cls, lazy, rx_where, lengths, codes, offsets)
 
 
 class FastCodec:
@@ -239,6 +192,8 @@ class FastCodec:
             self.by_class[layout.cls] = layout
             self.by_id[msgid] = layout
             self.by_lite[layout.lite] = layout
+            if layout.rx_lite is not layout.lite:   # packed field by field, as pymavlink's
+                self.by_class[layout.rx_lite] = layout
         for msgid in pack_only:          # LiteMessages only: pymavlink's still pack as before
             layout = _Layout(mav.mavlink_map[msgid], chars=True)
             self.by_lite[layout.lite] = layout
@@ -318,8 +273,8 @@ class FastCodec:
         if checked is None:
             return None
         layout, end, _crc = checked
-        return _new_tuple(layout.lite, (*layout.unpack(frame_payload(raw, layout.size, end)),
-                                        raw))
+        return _new_tuple(layout.rx_lite,
+                          (*layout.rx_unpack(frame_payload(raw, layout.size, end)), raw))
 
 
 class SkimmedMessage:

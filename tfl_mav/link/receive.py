@@ -57,7 +57,7 @@ _new_tuple = tuple.__new__
 # msgid → (LiteMessage class, crc_extra as bytes, payload size, unpack, unpack_from): the
 # codec's compiled layouts, flattened so one dict lookup gives everything a frame needs.
 _HOT: dict[int, tuple[Any, bytes, int, Any, Any]] = {
-    msgid: (lay.lite, lay.crc_extra_byte, lay.size, lay.unpack, lay.cls.unpacker.unpack_from)
+    msgid: (lay.rx_lite, lay.crc_extra_byte, lay.size, lay.rx_unpack, lay.rx_unpack_from)
     for msgid, lay in FastCodec().by_id.items()}
 
 
