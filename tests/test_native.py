@@ -255,6 +255,7 @@ def test_auto_switches_to_the_compiled_core_mid_flight_without_changing_a_bit(
     """A cold cache: the controller flies the Python core while the compiler runs in the
     background, then switches; the outputs are those of a Python-only controller."""
     monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path / "cold"))
+    monkeypatch.setattr(native, "_loaded", {})      # as a new process: nothing loaded yet
     path = build_path("paper", {})
     monkeypatch.setenv("TFL_MAV_NATIVE", "off")
     py = _controllers(path)
@@ -278,6 +279,7 @@ def test_auto_switches_to_the_compiled_core_mid_flight_without_changing_a_bit(
 def test_no_compiler_leaves_the_python_core_flying_with_one_warning(monkeypatch, caplog,
                                                                     tmp_path):
     monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path / "empty"))
+    monkeypatch.setattr(native, "_loaded", {})
     monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
     monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
     monkeypatch.setattr(native, "_warned", set())
@@ -367,6 +369,7 @@ def test_one_build_per_source_and_a_cache_that_cannot_be_written(tmp_path, monke
     core; a cache directory that cannot be created is a warning, not an error."""
     monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path / "cold"))
     monkeypatch.setenv("TFL_MAV_NATIVE", "auto")
+    monkeypatch.setattr(native, "_loaded", {})
     got: list = []
     source = _LOOP_SOURCE.replace("loop", "loop_once")
     for _ in range(5):
