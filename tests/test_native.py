@@ -255,6 +255,7 @@ def test_auto_switches_to_the_compiled_core_mid_flight_without_changing_a_bit(
     """A cold cache: the controller flies the Python core while the compiler runs in the
     background, then switches; the outputs are those of a Python-only controller."""
     monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path / "cold"))
+    monkeypatch.setattr(native, "_loaded", {})      # as a new process: nothing loaded yet
     path = build_path("paper", {})
     monkeypatch.setenv("TFL_MAV_NATIVE", "off")
     py = _controllers(path)
@@ -278,6 +279,7 @@ def test_auto_switches_to_the_compiled_core_mid_flight_without_changing_a_bit(
 def test_no_compiler_leaves_the_python_core_flying_with_one_warning(monkeypatch, caplog,
                                                                     tmp_path):
     monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path / "empty"))
+    monkeypatch.setattr(native, "_loaded", {})
     monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
     monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
     monkeypatch.setattr(native, "_warned", set())
@@ -359,3 +361,29 @@ def test_rk4_step_compiled_is_the_python_step_bit_for_bit(monkeypatch):
     scalars = [np.float64(v) for v in x]
     with np.errstate(all="ignore"):
         assert repr(py(scalars, *w)) == repr(c(scalars, *w))   # numpy scalars: Python's
+
+
+@pytest.mark.slow
+def test_one_build_per_source_and_a_cache_that_cannot_be_written(tmp_path, monkeypatch, caplog):
+    """Many asks for one source in auto mode queue one build, and every asker gets the
+    core; a cache directory that cannot be created is a warning, not an error."""
+    monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path / "cold"))
+    monkeypatch.setenv("TFL_MAV_NATIVE", "auto")
+    monkeypatch.setattr(native, "_loaded", {})
+    got: list = []
+    source = _LOOP_SOURCE.replace("loop", "loop_once")
+    for _ in range(5):
+        assert native.obtain(source, got.append) is None
+    assert len(native._waiting[native._paths(source)[0]]) == 5
+    deadline = time.monotonic() + 120.0
+    while len(got) < 5 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert len(got) == 5 and len({id(c) for c in got}) == 1
+    assert native.obtain(source, got.append) is got[0]      # loaded: at once, no rebuild
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(blocker / "kernels"))
+    monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
+    with caplog.at_level(logging.WARNING, logger="tfl_mav.native"):
+        assert native.obtain(source.replace("loop_once", "loop_ro"), got.append) is None
+    assert "not available" in caplog.text

@@ -48,6 +48,11 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
+try:
+    import fcntl
+except ImportError:         # not POSIX: concurrent processes may build the same source twice
+    fcntl = None  # type: ignore[assignment]
+
 from tfl_mav import ctranslate
 from tfl_mav.ctranslate import NativeError, translate
 
@@ -122,12 +127,17 @@ def _fn_name(source: str) -> str:
 
 
 def load_cached(source: str) -> Core | None:
-    """The compiled function for ``source`` if it is in the cache (no build)."""
+    """The compiled function for ``source`` if this process has it or the cache holds it
+    (no build)."""
     module, path = _paths(source)
+    core = _loaded.get(module)
+    if core is not None:
+        return core
     if not path.exists():
         return None
     try:
-        return _import(module, path, _fn_name(source))
+        core = _loaded[module] = _import(module, path, _fn_name(source))
+        return core
     except (ImportError, OSError) as exc:
         log.warning("native kernel %s does not load (%s); rebuilding", path.name, exc)
         return None
@@ -147,13 +157,28 @@ def build(source: str, c_text: str | None = None) -> Core:
         return cached
     module, path = _paths(source)
     c_text = c_text if c_text is not None else translate(source, module)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    # One build per source across processes (a campaign's runs start together): the others
+    # wait for the lock and find the build in the cache.
+    with open(path.with_name(f".{path.name}.lock"), "a+") as lock:
+        if fcntl is not None:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+        cached = load_cached(source)
+        if cached is not None:
+            return cached
+        _compile(c_text, module, path)
+    core = _loaded[module] = _import(module, path, _fn_name(source))
+    return core
+
+
+def _compile(c_text: str, module: str, path: Path) -> None:
+    """``cc`` ``c_text`` into the extension ``path`` (atomically: a temporary, then rename)."""
     cc = _compiler()
     if cc is None:
         raise NativeError("no C compiler (set CC, or install gcc)")
     include = sysconfig.get_paths()["include"]
     if not os.path.exists(os.path.join(include, "Python.h")):
         raise NativeError(f"no Python.h under {include} (install the Python headers)")
-    path.parent.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="tflk-") as tmp:
         src = Path(tmp) / f"{module}.c"
         src.write_text(c_text)
@@ -169,7 +194,6 @@ def build(source: str, c_text: str | None = None) -> Core:
         tmp_dest = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         shutil.copyfile(out, tmp_dest)
         os.replace(tmp_dest, path)          # atomic: a concurrent build writes the same bytes
-    return _import(module, path, _fn_name(source))
 
 
 def _lowest_priority() -> None:
@@ -177,10 +201,15 @@ def _lowest_priority() -> None:
 
 
 # ----- background builds --------------------------------------------------------------------
-_jobs: queue.Queue[tuple[str, str, Callable[[Core], None]]] = queue.Queue()
+_jobs: queue.Queue[tuple[str, str]] = queue.Queue()
 _worker: threading.Thread | None = None
 _lock = threading.Lock()
 _warned: set[str] = set()
+# This process's builds, by source key: loaded, waiting (their callbacks), failed. A
+# campaign flies one source many times: it is translated, built and loaded once.
+_loaded: dict[str, Core] = {}
+_waiting: dict[str, list[Callable[[Core], None]]] = {}
+_failed: set[str] = set()
 
 
 def _after_fork_in_child() -> None:
@@ -190,6 +219,7 @@ def _after_fork_in_child() -> None:
     _jobs = queue.Queue()
     _worker = None
     _lock = threading.Lock()
+    _waiting.clear()
 
 
 os.register_at_fork(after_in_child=_after_fork_in_child)
@@ -205,23 +235,38 @@ def warn_once(msg: str) -> None:
 
 def _work() -> None:
     while True:
-        source, c_text, done = _jobs.get()
+        source, c_text = _jobs.get()
+        module = _paths(source)[0]
         try:
-            core = build(source, c_text)
+            core: Core | None = build(source, c_text)
         except (NativeError, OSError, ImportError) as exc:
             warn_once(str(exc))
-            continue
-        done(core)
+            core = None
+        with _lock:
+            callbacks = _waiting.pop(module, [])
+            if core is None:
+                _failed.add(module)
+        for done in callbacks if core is not None else ():
+            done(core)
 
 
 def obtain(source: str, ready: Callable[[Core], None]) -> Core | None:
-    """The compiled function of ``source`` now — cached, or built here when
+    """The compiled function of ``source`` now — loaded already, cached, or built here when
     ``TFL_MAV_NATIVE=sync`` — else None, and with ``auto`` a background build calls
-    ``ready(core)`` when it is done. ``off``, no compiler, a failed build: None (one
-    warning). The translation (which holds the GIL) happens here, before any flight."""
+    ``ready(core)`` when it is done (one build per source however many ask). ``off``, no
+    compiler, a failed build: None (one warning). The translation (which holds the GIL)
+    happens here, before any flight, once per source."""
     how = mode()
     if how == "off":
         return None
+    module = _paths(source)[0]
+    with _lock:
+        if module in _failed:
+            return None
+        waiting = _waiting.get(module)
+        if waiting is not None:         # a build of it is under way: wait with the others
+            waiting.append(ready)
+            return None
     try:
         core = load_cached(source)
         if core is None and how == "sync":
@@ -229,7 +274,9 @@ def obtain(source: str, ready: Callable[[Core], None]) -> Core | None:
         if core is not None:
             return core
         c_text = c_source(source)
-    except NativeError as exc:
+    except (NativeError, OSError, ImportError) as exc:     # no compiler, a cache not writable
+        with _lock:
+            _failed.add(module)
         warn_once(str(exc))
         return None
     compile_async(source, c_text, ready)
@@ -241,9 +288,14 @@ def compile_async(source: str, c_text: str, done: Callable[[Core], None]) -> Non
     subprocess, outside the GIL — and call ``done(core)`` there when it is ready; a failure
     is logged once and ``done`` is not called."""
     global _worker
+    module = _paths(source)[0]
     with _lock:
         if _worker is None or not _worker.is_alive():
             # A daemon thread: an interpreter that exits does not wait for a build.
             _worker = threading.Thread(target=_work, name="tfl-mav-native", daemon=True)
             _worker.start()
-    _jobs.put((source, c_text, done))
+        waiting = _waiting.setdefault(module, [])
+        waiting.append(done)
+        if len(waiting) > 1:
+            return
+    _jobs.put((source, c_text))
