@@ -414,6 +414,22 @@ def _print_in_process(physics: dict[str, float], breakdown: dict[str, float]) ->
     print(f"  {'total':<{_WIDTH}}  {sum(breakdown.values()):>11.1f} µs")
 
 
+def _cores(core: str) -> None:
+    """Every process of the bench (subprocesses inherit it) on one kind of core; compiled
+    ones are built (or found in the cache) now, for every case flown, so no timed process
+    waits for a compiler or flies Python until one is done."""
+    os.environ["TFL_MAV_NATIVE"] = "sync" if core == "compiled" else "off"
+    if core == "compiled":
+        from sitl.simulator import Simulator
+        from tfl_mav.flight_computer import FlightComputer
+        from tfl_mav.scenario import load_scenario
+
+        for sc in (load_scenario("paper"), load_scenario("paper").replace(
+                **{"attack.rotor": 0})):
+            FlightComputer(sc)
+            Simulator(sc)
+
+
 def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--ticks", type=int, default=20000,
@@ -428,6 +444,10 @@ def main() -> int:
     parser.add_argument("--profile-vehicle", metavar="FILE",
                         help="only: fly the lockstep sim (Pilot, no MCAP) under cProfile, "
                              "dump the stats to FILE and print the top functions")
+    parser.add_argument("--core", choices=("compiled", "python"), default="compiled",
+                        help="the law's, the detector's and the RK4's cores in every process: "
+                             "compiled to C (TFL_MAV_NATIVE=sync, built before anything is "
+                             "timed; the default) or the generated Python (off)")
     parser.add_argument("--role", help=argparse.SUPPRESS)
     parser.add_argument("--port-file", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -445,6 +465,7 @@ def main() -> int:
         pstats.Stats(args.profile_vehicle).sort_stats("tottime").print_stats(30)
         return 0
 
+    _cores(args.core)
     physics = bench_physics(20000)
     breakdown = {} if args.no_breakdown else bench_breakdown(3000)
     if args.breakdown_only:
