@@ -115,16 +115,27 @@ def _lite_class(cls: Any, where: dict[str, int], lengths: dict[str, int]) -> typ
     lite = _LITE_CLASSES.get(cls)
     if lite is not None:
         return lite
+    lite = _LITE_CLASSES[cls] = type(f"Lite{cls.__name__}", (LiteMessage,),
+                                     _field_attrs(cls, where, lengths, {}))
+    return lite
+
+
+def _field_attrs(cls: Any, where: dict[str, int], lengths: dict[str, int],
+                 special: dict[str, property]) -> dict[str, Any]:
+    """A LiteMessage subclass's namespace: a property per field, reading the tuple at the
+    field's index (``where``; an array of ``lengths[name]`` items as a fresh list), or the
+    ``special`` property given for it."""
     attrs: dict[str, Any] = {"__slots__": (), "_msgid": cls.id, "_name": cls.msgname,
                              "_fieldnames": tuple(cls.fieldnames)}
     for name in cls.fieldnames:
-        i, n = where[name], lengths[name]
-        if n:
+        i, n = where.get(name, -1), lengths[name]
+        if name in special:
+            attrs[name] = special[name]
+        elif n:
             attrs[name] = property(lambda m, i=i, j=i + n: list(m[i:j]))
         else:
             attrs[name] = property(itemgetter(i))
-    lite = _LITE_CLASSES[cls] = type(f"Lite{cls.__name__}", (LiteMessage,), attrs)
-    return lite
+    return attrs
 
 
 _RX_CLASSES: dict[type, type[LiteMessage]] = {}
@@ -155,18 +166,11 @@ def _rx_lite_class(cls: Any, lazy: tuple[str, ...], where: dict[str, int],
     rx = _RX_CLASSES.get(cls)
     if rx is not None:
         return rx
-    attrs: dict[str, Any] = {"__slots__": (), "_msgid": cls.id, "_name": cls.msgname,
-                             "_fieldnames": tuple(cls.fieldnames)}
     size = cls.unpacker.size
-    for name in cls.fieldnames:
-        i, n = where.get(name, -1), lengths[name]
-        if name in lazy:
-            attrs[name] = _lazy_array(offsets[name], codes[name], n, size)
-        elif n:
-            attrs[name] = property(lambda m, i=i, j=i + n: list(m[i:j]))
-        else:
-            attrs[name] = property(itemgetter(i))
-    rx = _RX_CLASSES[cls] = type(f"LiteRx{cls.__name__}", (LiteMessage,), attrs)
+    arrays = {name: _lazy_array(offsets[name], codes[name], lengths[name], size)
+              for name in lazy}
+    rx = _RX_CLASSES[cls] = type(f"LiteRx{cls.__name__}", (LiteMessage,),
+                                 _field_attrs(cls, where, lengths, arrays))
     return rx
 
 
