@@ -26,7 +26,8 @@ from typing import Any
 
 from tfl_mav.flightlog import foxglove as fg
 from tfl_mav.flightlog import schemas
-from tfl_mav.flightlog.jsonenc import JsonEncoder, MavJson, MavPlan, _encode_numbers
+from tfl_mav.flightlog.jsonenc import JsonEncoder, MavJson, MavPlan
+from tfl_mav.flightlog.jsonobj import encode as _encode_obj
 from tfl_mav.flightlog.mcapout import MAX_NS, McapOutput
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.payload import PayloadDecoder, frame_payload
@@ -84,7 +85,7 @@ class FrameRecorder(McapOutput):
                 self._on_frame(f[2], f[3], True if f[4] else None, f[1])
             return
         get = self._frame_fast.get
-        encode = _encode_numbers
+        encode_obj = _encode_obj
         add_pair = w.add_pair
         live = self._live_channels if self._live is not None else None
         n_rx = n_tx = 0
@@ -104,12 +105,15 @@ class FrameRecorder(McapOutput):
                         try:
                             t = plan.unpack(payload)
                             log_ns = int(time_s * 1e9)
-                            # MavPlan.json written out for an all-number message whose
-                            # numbers msgspec prints as repr does (the usual case)
-                            b = encode(plan.numbers(t)) if plan.simple else b"e"
-                            data = (plan.bfmt % plan.order(b[1:-1].split(b","))
-                                    if not (b"e" in b or b"l" in b or b"0.0000" in b)
-                                    else plan.json(t))
+                            obj = plan.obj
+                            if obj is not None:   # numbers only: one msgspec call (jsonobj)
+                                data = encode_obj(obj.build(t))
+                                if not (data.count(b"e") == obj.key_e
+                                        and b"0.0000" not in data and b"null" not in data):
+                                    data = (obj.reprint(data, plan.numbers(t))
+                                            or plan.json(t))   # NaN/inf: left out, listed
+                            else:
+                                data = plan.json(t)
                         except Exception:     # struct.error, a bad stamp: the careful path
                             data = None
                     if data is None or not 0 <= log_ns <= MAX_NS:

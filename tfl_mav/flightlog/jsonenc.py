@@ -8,13 +8,17 @@ holding one) is left out of the message and its dotted key listed under ``_nonfi
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import math
+import re
 from collections.abc import Iterable, Mapping
 from json.encoder import encode_basestring_ascii
 from operator import itemgetter
 from typing import Any
 
+from tfl_mav.flightlog.jsonobj import ObjectJson
+from tfl_mav.flightlog.jsonobj import encode as _encode_obj
 from tfl_mav.flightlog.schemas import NONFINITE_KEY
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.payload import frame_payload
@@ -319,6 +323,31 @@ class MavPlan:
         self.bfmt = ("{" + ",".join(parts) + "}").encode()
         self._chars: dict[bytes, bytes] = {}
         self.simple = not self.char_index   # numbers only
+        # numbers only: the whole object by one msgspec call (jsonobj), checked here once
+        self.obj: ObjectJson | None = None
+        if self.simple:
+            with contextlib.suppress(ValueError):
+                self.obj = ObjectJson(list(cls.fieldnames), [
+                    f"t[{tip}]" if n == 1 else f"t[{tip}:{tip + n}]"
+                    for tip, n in ((sum(lengths[:o]), lengths[o]) for o in cls.orders)])
+            if self.obj is not None and not self._obj_agrees(cls.unpacker.format):
+                self.obj = None
+
+    def _obj_agrees(self, fmt: str) -> bool:
+        """:attr:`obj` prints what :meth:`json` prints, on a made-up tuple of this layout:
+        plain values, then values msgspec prints in another notation."""
+        codes = [c for n, c in re.findall(r"(\d*)([a-zA-Z?])", fmt)
+                 for _ in range(1 if c == "s" else int(n or 1))]
+        for odd in (False, True):
+            t = tuple(0.25 * (k + 1) * (1e-7 if odd and k % 3 == 0 else
+                                       3e-5 if odd and k % 3 == 1 else 1.0)
+                      if c in "fd" else (k % 100) + 1 for k, c in enumerate(codes))
+            out = _encode_obj(self.obj.build(t))
+            if not self.obj.clean(out):
+                out = self.obj.reprint(out, self.numbers(t))
+            if out != self.json(t):
+                return False
+        return True
 
     def _char_texts(self, t: tuple[Any, ...]) -> list[bytes]:
         out = []
