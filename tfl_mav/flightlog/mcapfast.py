@@ -105,7 +105,7 @@ class _Chunk:
                                      else min(start, st.message_start_time))
             st.message_end_time = max(end, st.message_end_time)
             st.message_count += total
-        return bytes(self.buf)
+        return self.buf      # compressed and CRC'd as it is (a buffer); reset() starts anew
 
     def reset(self) -> None:
         self.buf = bytearray()
@@ -189,6 +189,29 @@ class FastWriter(Writer):
         buf += data
         if len(buf) > self._limit:
             self._finalize()
+
+    def add_same_time(self, items: Any, log_time: int, publish_time: int) -> None:
+        """(channel id, data) messages with the same times (e.g. the three truth records),
+        as as many :meth:`add_message` calls (a chunk may end between them)."""
+        if not self._fast:
+            for cid, data in items:
+                super().add_message(cid, log_time, data, publish_time, 0)
+            return
+        ch = self._chunk
+        index = ch.index
+        buf = ch.buf
+        for cid, data in items:
+            flat = index.get(cid)
+            if flat is None:
+                flat = index[cid] = []
+            flat += (log_time, len(buf))
+            buf += _MESSAGE_HEADER.pack(_MESSAGE_OPCODE, _MESSAGE_FIXED + len(data), cid, 0,
+                                        log_time, publish_time)
+            buf += data
+            if len(buf) > self._limit:
+                self._finalize()
+                index = ch.index
+                buf = ch.buf
 
     def add_pair(self, cid_a: int, data_a: bytes, cid_b: int, data_b: bytes, log_time: int,
                  publish_time: int) -> None:
