@@ -64,9 +64,7 @@ from typing import Any
 from tfl_mav.flightlog import foxglove as fg
 from tfl_mav.flightlog import schemas
 from tfl_mav.flightlog.framerec import FrameRecorder
-from tfl_mav.flightlog.jsonenc import RecordFormat
-from tfl_mav.flightlog.jsonobj import ObjectJson
-from tfl_mav.flightlog.jsonobj import encode as encode_obj
+from tfl_mav.flightlog.jsonenc import RecordFormat, _numbers_json
 from tfl_mav.flightlog.mcapout import MAX_NS, RecorderError, RecorderStats
 from tfl_mav.flightlog.polyline import Polyline
 from tfl_mav.flightlog.recordplan import record_plan
@@ -96,28 +94,6 @@ _TRUTH_ATTACK = {active: RecordFormat([("t_s", 0), ("rotor", 0), ("active", acti
                                         ("applied_n", 0), ("requested_n", 0)])
                  for active in ("true", "false")}
 _TRUTH_THRUSTS = RecordFormat([("t_s", 0), ("thrust_n", 4), ("attack_rotor", 0)])
-# the same three objects, each printed whole by one msgspec call (jsonobj), from
-# v = (t, position 3, velocity 3, quaternion 4, rates 3, applied, requested, thrust 4, rotor)
-_TRUTH_OBJ = (
-    ObjectJson(["t_s", "position_m", "velocity_mps", "quaternion_wxyz", "body_rates_radps"],
-               ["t[0]", "t[1:4]", "t[4:7]", "t[7:11]", "t[11:14]"]),
-    ObjectJson(["t_s", "rotor", "active", "applied_n", "requested_n"],
-               ["t[0]", "t[20]", "t[20] != 0", "t[14]", "t[15]"], literal_e=1),
-    ObjectJson(["t_s", "thrust_n", "attack_rotor"], ["t[0]", "t[16:20]", "t[20]"]))
-
-
-def _truth_json(v: tuple[Any, ...]) -> tuple[bytes, bytes, bytes] | None:
-    """The three truth objects of ``v`` (above) as JSON, byte-identical to the
-    :class:`RecordFormat` ones; None if a value is NaN/inf."""
-    s, a, th = _TRUTH_OBJ
-    ds, da, dt = encode_obj(s.build(v)), encode_obj(a.build(v)), encode_obj(th.build(v))
-    if not s.clean(ds):
-        ds = s.reprint(ds, v[:14])
-    if not a.clean(da):
-        da = a.reprint(da, (v[0], v[20], v[20] != 0, v[14], v[15]))
-    if not th.clean(dt):
-        dt = th.reprint(dt, (v[0], *v[16:20], v[20]))
-    return None if ds is None or da is None or dt is None else (ds, da, dt)
 _DEFAULT_RECORD = schemas.record_schema("tfl_mav.Record", "a caller's record", {}, [])
 
 
@@ -217,13 +193,17 @@ class Recorder(FrameRecorder):
                                          attack_requested_n, *rotor_thrust_n)))
         except (TypeError, ValueError):
             fast = False
-        texts = _truth_json((*vals, attack_rotor)) if fast else None
-        if texts is not None:
+        parts = _numbers_json((*vals, attack_rotor)) if fast else None
+        if parts is not None:
             self.set_sim_time(vals[0])
             log_ns = self._now_ns()
             state_cid, attack_cid, thrusts_cid = self._truth_cids
-            self._write_many(((state_cid, texts[0]), (attack_cid, texts[1]),
-                              (thrusts_cid, texts[2])), log_ns, self._sim_ns)
+            self._write_many((
+                (state_cid, _TRUTH_STATE.bfmt % tuple(parts[:14])),
+                (attack_cid, _TRUTH_ATTACK["true" if attack_rotor else "false"].bfmt
+                 % (parts[0], parts[20], parts[14], parts[15])),
+                (thrusts_cid, _TRUTH_THRUSTS.bfmt % (parts[0], *parts[16:20], parts[20]))),
+                log_ns, self._sim_ns)
             self._scene(vals[0], log_ns, vals[1:4], vals[7:11], vals[16:20], attack_rotor)
             return
         try:
