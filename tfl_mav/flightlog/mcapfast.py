@@ -105,7 +105,7 @@ class _Chunk:
                                      else min(start, st.message_start_time))
             st.message_end_time = max(end, st.message_end_time)
             st.message_count += total
-        return self.buf      # compressed and CRC'd as it is (a buffer); reset() starts anew
+        return bytes(self.buf)
 
     def reset(self) -> None:
         self.buf = bytearray()
