@@ -28,9 +28,10 @@ from tfl_mav.flightlog import foxglove as fg
 from tfl_mav.flightlog import schemas
 from tfl_mav.flightlog.jsonenc import JsonEncoder, MavJson, MavPlan
 from tfl_mav.flightlog.jsonobj import encode as _encode_obj
+from tfl_mav.flightlog.mcapfast import MESSAGE_FIXED, MESSAGE_HEADER, MESSAGE_OPCODE
 from tfl_mav.flightlog.mcapout import MAX_NS, McapOutput
 from tfl_mav.link.dialect import mav
-from tfl_mav.link.payload import PayloadDecoder, frame_payload
+from tfl_mav.link.payload import PayloadDecoder
 
 __all__ = ["FrameRecorder"]
 
@@ -86,7 +87,11 @@ class FrameRecorder(McapOutput):
             return
         get = self._frame_fast.get
         encode_obj = _encode_obj
-        add_pair = w.add_pair
+        # the chunk in progress, appended to here as FastWriter.add_pair does (one call a
+        # frame less); reloaded after a chunk ends
+        chunk, limit = w.chunk, w.chunk_limit
+        buf, index = chunk.buf, chunk.index
+        pack = MESSAGE_HEADER.pack
         live = self._live_channels if self._live is not None else None
         n_rx = n_tx = 0
         todo = iter(frames)
@@ -100,8 +105,9 @@ class FrameRecorder(McapOutput):
                         chan, plan, head, rx, raw_cid = fast
                         n = len(raw)
                         payload = raw[10:n - 15 if raw[2] & 1 else n - 2]
-                        if len(payload) != plan.size:
-                            payload = frame_payload(raw, plan.size)
+                        if len(payload) != plan.size:     # as frame_payload
+                            k = plan.size - len(payload)
+                            payload = payload + bytes(k) if k > 0 else payload[:plan.size]
                         try:
                             t = plan.unpack(payload)
                             log_ns = int(time_s * 1e9)
@@ -118,6 +124,7 @@ class FrameRecorder(McapOutput):
                             data = None
                     if data is None or not 0 <= log_ns <= MAX_NS:
                         self._on_frame(direction, raw, True if accepted else None, time_s)
+                        buf, index = chunk.buf, chunk.index   # it may have ended a chunk
                         continue
                     if chan.sim_time and t[plan.time_index] * 1000 <= MAX_NS:
                         self._sim_ns = t[plan.time_index] * 1000
@@ -126,7 +133,28 @@ class FrameRecorder(McapOutput):
                         chan.nonfinite = False
                     raw_json = b'%s%d,"len":%d,"data":"%s"}' % (
                         head, raw[4], n, b2a_base64(raw, newline=False))
-                    add_pair(raw_cid, raw_json, chan.channel_id, data, log_ns, self._sim_ns)
+                    pub_ns = self._sim_ns
+                    cid = chan.channel_id
+                    flat = index.get(raw_cid)
+                    if flat is None:
+                        flat = index[raw_cid] = []
+                    flat += (log_ns, len(buf))
+                    buf += pack(MESSAGE_OPCODE, MESSAGE_FIXED + len(raw_json), raw_cid, 0,
+                                log_ns, pub_ns)
+                    buf += raw_json
+                    if len(buf) > limit:
+                        w.end_chunk()
+                        buf, index = chunk.buf, chunk.index
+                    flat = index.get(cid)
+                    if flat is None:
+                        flat = index[cid] = []
+                    flat += (log_ns, len(buf))
+                    buf += pack(MESSAGE_OPCODE, MESSAGE_FIXED + len(data), cid, 0, log_ns,
+                                pub_ns)
+                    buf += data
+                    if len(buf) > limit:
+                        w.end_chunk()
+                        buf, index = chunk.buf, chunk.index
                     if rx:
                         n_rx += 1
                     else:

@@ -26,11 +26,11 @@ from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.writer import Writer
 
-__all__ = ["FastWriter"]
+__all__ = ["MESSAGE_FIXED", "MESSAGE_HEADER", "MESSAGE_OPCODE", "FastWriter"]
 
-_MESSAGE_OPCODE = 0x05
-_MESSAGE_HEADER = struct.Struct("<BQHIQQ")   # opcode, record length, channel, sequence,
-_MESSAGE_FIXED = 2 + 4 + 8 + 8               # log_time, publish_time; then the data
+MESSAGE_OPCODE = _MESSAGE_OPCODE = 0x05
+MESSAGE_HEADER = _MESSAGE_HEADER = struct.Struct("<BQHIQQ")  # opcode, record length,
+MESSAGE_FIXED = _MESSAGE_FIXED = 2 + 4 + 8 + 8  # channel, sequence, log_time, publish_time
 _INDEX_HEADER = struct.Struct("<BQHI")       # opcode, record length, channel, records length
 
 
@@ -154,6 +154,22 @@ class FastWriter(Writer):
             self._chunk = _Chunk(stats)
             self._Writer__chunk_builder = self._chunk
         self._library_finalize = finalize
+
+    @property
+    def chunk(self) -> _Chunk:
+        """The chunk in progress, for a caller that appends records itself as
+        :meth:`add_pair` does (``buf``, ``index``; only when ``_fast``): past
+        :attr:`chunk_limit` bytes it calls :meth:`end_chunk`, then re-reads ``buf`` and
+        ``index`` (a new chunk)."""
+        return self._chunk
+
+    @property
+    def chunk_limit(self) -> int:
+        return self._limit
+
+    def end_chunk(self) -> None:
+        """Finish the chunk in progress (compressed, indexed, written)."""
+        self._finalize()
 
     def _finalize(self) -> None:
         """Finish the chunk in progress (the library's code, at ``zstd_level``)."""
