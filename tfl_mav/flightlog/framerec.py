@@ -7,10 +7,13 @@ See :mod:`~tfl_mav.flightlog.recorder` for the channels and the time stamps.
 Why a module of its own (issue #13): frames are most of what a recorder child does (4-5 a
 1 ms tick per side). :meth:`FrameRecorder.on_frames` takes a whole hand-off batch: for a
 (direction, sysid, compid, msgid) seen before whose fields print by the precompiled
-:class:`~tfl_mav.flightlog.jsonenc.MavPlan`, a frame costs one unpack, one msgspec call,
-two ``%`` formats and one two-message append to the chunk (:meth:`FastWriter.add_pair`),
-under one lock for the batch; NaN/inf fields (a real PX4's unknown covariances) by the
-plan's template for that pattern (:class:`~tfl_mav.flightlog.jsonenc.NullMasks`).
+:class:`~tfl_mav.flightlog.jsonenc.MavPlan`, a frame costs one unpack, one msgspec call
+that prints the whole object (:mod:`~tfl_mav.flightlog.jsonobj`; the few values msgspec
+writes in another notation re-printed in place), one ``%`` format of the raw record and
+the two records appended to the chunk in progress right here (as
+:meth:`FastWriter.add_pair` would), under one lock for the batch; NaN/inf fields (a real
+PX4's unknown covariances) by the plan's template for that pattern
+(:class:`~tfl_mav.flightlog.jsonenc.NullMasks`).
 Everything else (first sight of a channel, rejected frames, STATUSTEXT, a failed file)
 takes :meth:`FrameRecorder._on_frame`, the careful path, which writes the same bytes.
 """
