@@ -7,10 +7,13 @@ See :mod:`~tfl_mav.flightlog.recorder` for the channels and the time stamps.
 Why a module of its own (issue #13): frames are most of what a recorder child does (4-5 a
 1 ms tick per side). :meth:`FrameRecorder.on_frames` takes a whole hand-off batch: for a
 (direction, sysid, compid, msgid) seen before whose fields print by the precompiled
-:class:`~tfl_mav.flightlog.jsonenc.MavPlan`, a frame costs one unpack, one msgspec call,
-two ``%`` formats and one two-message append to the chunk (:meth:`FastWriter.add_pair`),
-under one lock for the batch; NaN/inf fields (a real PX4's unknown covariances) by the
-plan's template for that pattern (:class:`~tfl_mav.flightlog.jsonenc.NullMasks`).
+:class:`~tfl_mav.flightlog.jsonenc.MavPlan`, a frame costs one unpack, one msgspec call
+that prints the whole object (:mod:`~tfl_mav.flightlog.jsonobj`; the few values msgspec
+writes in another notation re-printed in place), one ``%`` format of the raw record and
+the two records appended to the chunk in progress right here (as
+:meth:`FastWriter.add_pair` would), under one lock for the batch; NaN/inf fields (a real
+PX4's unknown covariances) by the plan's template for that pattern
+(:class:`~tfl_mav.flightlog.jsonenc.NullMasks`).
 Everything else (first sight of a channel, rejected frames, STATUSTEXT, a failed file)
 takes :meth:`FrameRecorder._on_frame`, the careful path, which writes the same bytes.
 """
@@ -26,10 +29,12 @@ from typing import Any
 
 from tfl_mav.flightlog import foxglove as fg
 from tfl_mav.flightlog import schemas
-from tfl_mav.flightlog.jsonenc import JsonEncoder, MavJson, MavPlan, _encode_numbers
+from tfl_mav.flightlog.jsonenc import JsonEncoder, MavJson, MavPlan
+from tfl_mav.flightlog.jsonobj import encode as _encode_obj
+from tfl_mav.flightlog.mcapfast import MESSAGE_FIXED, MESSAGE_HEADER, MESSAGE_OPCODE
 from tfl_mav.flightlog.mcapout import MAX_NS, McapOutput
 from tfl_mav.link.dialect import mav
-from tfl_mav.link.payload import PayloadDecoder, frame_payload
+from tfl_mav.link.payload import PayloadDecoder
 
 __all__ = ["FrameRecorder"]
 
@@ -84,8 +89,12 @@ class FrameRecorder(McapOutput):
                 self._on_frame(f[2], f[3], True if f[4] else None, f[1])
             return
         get = self._frame_fast.get
-        encode = _encode_numbers
-        add_pair = w.add_pair
+        encode_obj = _encode_obj
+        # the chunk in progress, appended to here as FastWriter.add_pair does (one call a
+        # frame less); reloaded after a chunk ends
+        chunk, limit = w.chunk, w.chunk_limit
+        buf, index = chunk.buf, chunk.index
+        pack = MESSAGE_HEADER.pack
         live = self._live_channels if self._live is not None else None
         n_rx = n_tx = 0
         todo = iter(frames)
@@ -99,21 +108,26 @@ class FrameRecorder(McapOutput):
                         chan, plan, head, rx, raw_cid = fast
                         n = len(raw)
                         payload = raw[10:n - 15 if raw[2] & 1 else n - 2]
-                        if len(payload) != plan.size:
-                            payload = frame_payload(raw, plan.size)
+                        if len(payload) != plan.size:     # as frame_payload
+                            k = plan.size - len(payload)
+                            payload = payload + bytes(k) if k > 0 else payload[:plan.size]
                         try:
                             t = plan.unpack(payload)
                             log_ns = int(time_s * 1e9)
-                            # MavPlan.json written out for an all-number message whose
-                            # numbers msgspec prints as repr does (the usual case)
-                            b = encode(plan.numbers(t)) if plan.simple else b"e"
-                            data = (plan.bfmt % plan.order(b[1:-1].split(b","))
-                                    if not (b"e" in b or b"l" in b or b"0.0000" in b)
-                                    else plan.json(t))
+                            obj = plan.obj
+                            if obj is not None:   # numbers only: one msgspec call (jsonobj)
+                                data = encode_obj(obj.build(t))
+                                if not (data.count(b"e") == obj.key_e
+                                        and b"0.0000" not in data and b"null" not in data):
+                                    data = (obj.reprint(data, plan.numbers(t))
+                                            or plan.json(t))   # NaN/inf: left out, listed
+                            else:
+                                data = plan.json(t)
                         except Exception:     # struct.error, a bad stamp: the careful path
                             data = None
                     if data is None or not 0 <= log_ns <= MAX_NS:
                         self._on_frame(direction, raw, True if accepted else None, time_s)
+                        buf, index = chunk.buf, chunk.index   # it may have ended a chunk
                         continue
                     if chan.sim_time and t[plan.time_index] * 1000 <= MAX_NS:
                         self._sim_ns = t[plan.time_index] * 1000
@@ -122,7 +136,28 @@ class FrameRecorder(McapOutput):
                         chan.nonfinite = False
                     raw_json = b'%s%d,"len":%d,"data":"%s"}' % (
                         head, raw[4], n, b2a_base64(raw, newline=False))
-                    add_pair(raw_cid, raw_json, chan.channel_id, data, log_ns, self._sim_ns)
+                    pub_ns = self._sim_ns
+                    cid = chan.channel_id
+                    flat = index.get(raw_cid)
+                    if flat is None:
+                        flat = index[raw_cid] = []
+                    flat += (log_ns, len(buf))
+                    buf += pack(MESSAGE_OPCODE, MESSAGE_FIXED + len(raw_json), raw_cid, 0,
+                                log_ns, pub_ns)
+                    buf += raw_json
+                    if len(buf) > limit:
+                        w.end_chunk()
+                        buf, index = chunk.buf, chunk.index
+                    flat = index.get(cid)
+                    if flat is None:
+                        flat = index[cid] = []
+                    flat += (log_ns, len(buf))
+                    buf += pack(MESSAGE_OPCODE, MESSAGE_FIXED + len(data), cid, 0, log_ns,
+                                pub_ns)
+                    buf += data
+                    if len(buf) > limit:
+                        w.end_chunk()
+                        buf, index = chunk.buf, chunk.index
                     if rx:
                         n_rx += 1
                     else:

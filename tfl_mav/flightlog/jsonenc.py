@@ -8,6 +8,7 @@ holding one) is left out of the message and its dotted key listed under ``_nonfi
 from __future__ import annotations
 
 import base64
+import contextlib
 import json
 import math
 import re
@@ -16,6 +17,8 @@ from json.encoder import encode_basestring_ascii
 from operator import itemgetter
 from typing import Any
 
+from tfl_mav.flightlog.jsonobj import ObjectJson
+from tfl_mav.flightlog.jsonobj import encode as _encode_obj
 from tfl_mav.flightlog.schemas import NONFINITE_KEY
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.payload import frame_payload
@@ -123,8 +126,6 @@ except ImportError:                      # pragma: no cover - msgspec is a depen
         return ("[" + ",".join(map(repr, values)) + "]").encode()
 
 
-# a number msgspec prints otherwise than repr: an exponent, or 0.0000x (positional < 1e-4)
-_ODD = re.compile(rb"[^,]*e[^,]*|(?<![^,])-?0\.0000[^,]*").finditer
 
 
 def _numbers_json(values: tuple[Any, ...]) -> list[bytes] | None:
@@ -145,10 +146,27 @@ def _numbers_json(values: tuple[Any, ...]) -> list[bytes] | None:
 
 
 def _reprint_odd(body: bytes, parts: list[bytes], values: tuple[Any, ...]) -> None:
-    """Re-print with ``repr`` the few values msgspec writes in another notation (above)."""
-    for m in _ODD(body):
-        i = body.count(b",", 0, m.start())
-        parts[i] = repr(values[i]).encode()
+    """Re-print with ``repr`` the few values msgspec writes in another notation (above):
+    those with an exponent, and those printed ``0.0000x`` (positional below 1e-4). Found
+    with ``bytes.find`` (C), one Python step per such value: a regular expression over the
+    whole text cost ~20 µs a message, more than the rest of its encoding (issue #13)."""
+    odd: set[int] = set()
+    find, count = body.find, body.count
+    i = find(b"e")
+    while i >= 0:                            # an exponent: its field, then the next field
+        odd.add(count(b",", 0, i))
+        i = find(b",", i)
+        if i < 0:
+            break
+        i = find(b"e", i)
+    i = find(b"0.0000")
+    while i >= 0:                            # only at a field's start, after an optional -
+        j = i - 1 if i and body[i - 1] == 45 else i   # 45: "-"
+        if j == 0 or body[j - 1] == 44:               # 44: ","
+            odd.add(count(b",", 0, i))
+        i = find(b"0.0000", i + 6)
+    for k in odd:
+        parts[k] = repr(values[k]).encode()
 
 
 def _numbers_json_nulls(values: tuple[Any, ...]) -> list[bytes] | None:
@@ -305,6 +323,31 @@ class MavPlan:
         self.bfmt = ("{" + ",".join(parts) + "}").encode()
         self._chars: dict[bytes, bytes] = {}
         self.simple = not self.char_index   # numbers only
+        # numbers only: the whole object by one msgspec call (jsonobj), checked here once
+        self.obj: ObjectJson | None = None
+        if self.simple:
+            with contextlib.suppress(ValueError):
+                self.obj = ObjectJson(list(cls.fieldnames), [
+                    f"t[{tip}]" if n == 1 else f"t[{tip}:{tip + n}]"
+                    for tip, n in ((sum(lengths[:o]), lengths[o]) for o in cls.orders)])
+            if self.obj is not None and not self._obj_agrees(cls.unpacker.format):
+                self.obj = None
+
+    def _obj_agrees(self, fmt: str) -> bool:
+        """:attr:`obj` prints what :meth:`json` prints, on a made-up tuple of this layout:
+        plain values, then values msgspec prints in another notation."""
+        codes = [c for n, c in re.findall(r"(\d*)([a-zA-Z?])", fmt)
+                 for _ in range(1 if c == "s" else int(n or 1))]
+        for odd in (False, True):
+            t = tuple(0.25 * (k + 1) * (1e-7 if odd and k % 3 == 0 else
+                                       3e-5 if odd and k % 3 == 1 else 1.0)
+                      if c in "fd" else (k % 100) + 1 for k, c in enumerate(codes))
+            out = _encode_obj(self.obj.build(t))
+            if not self.obj.clean(out):
+                out = self.obj.reprint(out, self.numbers(t))
+            if out != self.json(t):
+                return False
+        return True
 
     def _char_texts(self, t: tuple[Any, ...]) -> list[bytes]:
         out = []

@@ -26,11 +26,11 @@ from mcap.data_stream import RecordBuilder
 from mcap.opcode import Opcode
 from mcap.writer import Writer
 
-__all__ = ["FastWriter"]
+__all__ = ["MESSAGE_FIXED", "MESSAGE_HEADER", "MESSAGE_OPCODE", "FastWriter"]
 
-_MESSAGE_OPCODE = 0x05
-_MESSAGE_HEADER = struct.Struct("<BQHIQQ")   # opcode, record length, channel, sequence,
-_MESSAGE_FIXED = 2 + 4 + 8 + 8               # log_time, publish_time; then the data
+MESSAGE_OPCODE = _MESSAGE_OPCODE = 0x05
+MESSAGE_HEADER = _MESSAGE_HEADER = struct.Struct("<BQHIQQ")  # opcode, record length,
+MESSAGE_FIXED = _MESSAGE_FIXED = 2 + 4 + 8 + 8  # channel, sequence, log_time, publish_time
 _INDEX_HEADER = struct.Struct("<BQHI")       # opcode, record length, channel, records length
 
 
@@ -155,6 +155,22 @@ class FastWriter(Writer):
             self._Writer__chunk_builder = self._chunk
         self._library_finalize = finalize
 
+    @property
+    def chunk(self) -> _Chunk:
+        """The chunk in progress, for a caller that appends records itself as
+        :meth:`add_pair` does (``buf``, ``index``; only when ``_fast``): past
+        :attr:`chunk_limit` bytes it calls :meth:`end_chunk`, then re-reads ``buf`` and
+        ``index`` (a new chunk)."""
+        return self._chunk
+
+    @property
+    def chunk_limit(self) -> int:
+        return self._limit
+
+    def end_chunk(self) -> None:
+        """Finish the chunk in progress (compressed, indexed, written)."""
+        self._finalize()
+
     def _finalize(self) -> None:
         """Finish the chunk in progress (the library's code, at ``zstd_level``)."""
         if self._library_finalize is None:
@@ -189,6 +205,29 @@ class FastWriter(Writer):
         buf += data
         if len(buf) > self._limit:
             self._finalize()
+
+    def add_same_time(self, items: Any, log_time: int, publish_time: int) -> None:
+        """(channel id, data) messages with the same times (e.g. the three truth records),
+        as as many :meth:`add_message` calls (a chunk may end between them)."""
+        if not self._fast:
+            for cid, data in items:
+                super().add_message(cid, log_time, data, publish_time, 0)
+            return
+        ch = self._chunk
+        index = ch.index
+        buf = ch.buf
+        for cid, data in items:
+            flat = index.get(cid)
+            if flat is None:
+                flat = index[cid] = []
+            flat += (log_time, len(buf))
+            buf += _MESSAGE_HEADER.pack(_MESSAGE_OPCODE, _MESSAGE_FIXED + len(data), cid, 0,
+                                        log_time, publish_time)
+            buf += data
+            if len(buf) > self._limit:
+                self._finalize()
+                index = ch.index
+                buf = ch.buf
 
     def add_pair(self, cid_a: int, data_a: bytes, cid_b: int, data_b: bytes, log_time: int,
                  publish_time: int) -> None:

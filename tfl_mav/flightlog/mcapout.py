@@ -73,7 +73,7 @@ class _NoFile:
     def add_message(self, *_a: Any) -> None:
         pass
 
-    add_metadata = flush = finish = add_pair = add_message
+    add_metadata = flush = finish = add_pair = add_same_time = add_message
 
 
 
@@ -281,9 +281,7 @@ class McapOutput:
             return
         try:
             with self._lock:
-                add = self._writer.add_message
-                for cid, data in items:
-                    add(cid, log_ns, data, pub_ns)
+                self._writer.add_same_time(items, log_ns, pub_ns)
                 self._pending += len(items)
                 self.stats.messages += len(items)
             self._after_write(items, log_ns)
