@@ -447,10 +447,16 @@ def test_background_flush_makes_quiet_data_readable_while_open(tmp_path):
         for k in range(10):
             rec.truth(k * 1e-3, [0.0] * 3, [0.0] * 3, [1, 0, 0, 0], [0] * 3, [1] * 4, 0, 0.0,
                       0.0)
-        time.sleep(0.6)                  # no more writes: only the flusher thread can flush
+        # No more writes: only the flusher thread can flush. It does so every 0.2 s when
+        # idle; wait for that event (a fixed 0.6 s sleep failed when a loaded machine held
+        # the thread off longer), up to 10 s = 50 intervals: a flusher that does not run
+        # still fails here.
+        deadline = time.monotonic() + 10.0
+        while rec.stats.flushes < 1 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert rec.stats.flushes >= 1
         seen = [m for m in LogReader(path).messages() if m.topic == "/sim/truth/state"]
         assert len(seen) == 10
-        assert rec.stats.flushes >= 1
     assert rec.error is None
     rec.truth(1.0, [0.0] * 3, [0.0] * 3, [1, 0, 0, 0], [0] * 3, [1] * 4, 0, 0.0, 0.0)
     assert rec.stats.dropped == 5        # after close: state, attack, thrusts, tf, scene
