@@ -26,6 +26,7 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf.descriptor_pb2 import FileDescriptorSet
 from mcap.reader import make_reader
+from websockets.exceptions import ConnectionClosed
 
 from tfl_mav.flightlog.recorder import Recorder
 
@@ -157,6 +158,8 @@ def _subscribe_and_collect(ws, channels: dict, topics: dict[int, str], until, fe
             msg = ws.recv(timeout=0.1)
         except TimeoutError:
             continue
+        except ConnectionClosed:
+            pytest.fail(f"server gone (flight over?): {({t: len(v) for t, v in got.items()})}")
         if isinstance(msg, str):               # new channels may be advertised meanwhile
             assert json.loads(msg)["op"] != "status", msg      # e.g. refused
             continue
@@ -314,6 +317,14 @@ def test_live_websocket_serves_the_scene_while_it_flies(tmp_path):
     assert len(got["/scene/path"][0][1].entities[0].lines[0].points) >= 2
 
 
+def _moved_m(tfs: list[tuple[int, bytes]]) -> float:
+    """Distance (m) between the first and the last ``/tf`` translation received."""
+    if len(tfs) < 2:
+        return 0.0
+    a, b = (FrameTransform.FromString(tfs[i][1]).translation for i in (0, -1))
+    return math.dist((a.x, a.y, a.z), (b.x, b.y, b.z))
+
+
 @pytest.mark.slow
 def test_fly_foxglove_shows_the_vehicle_moving_from_the_controllers_estimate(tmp_path):
     """``tfl-mav fly --foxglove`` on a lockstep flight (no viewer on the simulator): a real
@@ -351,7 +362,7 @@ def test_fly_foxglove_shows_the_vehicle_moving_from_the_controllers_estimate(tmp
                     channels.update((ch["topic"], ch) for ch in op["channels"])
             got = _subscribe_and_collect(
                 ws, channels, {1: "/tf", 2: "/scene/vehicle"},
-                lambda g: len(g["/tf"]) >= 50 and g["/scene/vehicle"], lambda: None,
+                lambda g: _moved_m(g["/tf"]) > 0.05 and g["/scene/vehicle"], lambda: None,
                 timeout_s=60.0)
     finally:
         for p in (fly, sim):
@@ -366,8 +377,7 @@ def test_fly_foxglove_shows_the_vehicle_moving_from_the_controllers_estimate(tmp
                      for tf in tfs])
     assert np.isfinite(pos).all()
     assert np.abs(np.linalg.norm(quat, axis=1) - 1.0).max() < 1e-6   # float32 ODOMETRY q
-    # it moves: 50 drawings ≥ 20 ms of wall time apart span ≥ 1 s of wall clock, and a
-    # lockstep flight runs at least near real time, along a path flown at ~m/s
+    # it moved (waited for above: a lockstep flight's pace in wall time is the machine's)
     assert np.linalg.norm(pos[-1] - pos[0]) > 0.05, pos[[0, -1]]
     ent = SceneUpdate.FromString(got["/scene/vehicle"][-1][1]).entities[0]
     assert ent.frame_id == "base_link" and len(ent.cylinders) == 4
