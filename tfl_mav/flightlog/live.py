@@ -104,7 +104,9 @@ class LiveServer:
     def channel(self, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes,
                 message_encoding: str) -> Any:
         """A channel advertised to every viewer; ``.log(data, log_time=ns)`` publishes. The
-        same topic with the same schema is the same channel (the scene's, made at start)."""
+        same topic with the same schema is the same channel (the scene's, made at start).
+        On a controller's server (``estimate``) the ODOMETRY and ``/controller/state``
+        channels also feed its drawing of the vehicle."""
         key = (schema_name, schema_encoding, bytes(schema_data), message_encoding)
         known = self._channels.get(topic)
         if known is not None and known[0] == key:
