@@ -218,6 +218,13 @@ class Relay:
         return host, port
 
     @property
+    def listen_buffer_bytes(self) -> int:
+        """The kernel's receive budget of the daemon-side socket (what ``SO_RCVBUF`` reads
+        back: the request doubled, capped by ``net.core.rmem_max``). Datagrams arriving
+        while it is full are dropped by the kernel, unseen by :class:`RelayStats`."""
+        return self._front.getsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF)
+
+    @property
     def native_thread_id(self) -> int | None:
         """The OS id of the thread :meth:`start` runs the relay on (None before), e.g. to
         raise its scheduling priority."""

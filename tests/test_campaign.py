@@ -128,6 +128,7 @@ def test_random_points_are_seeded_and_in_range() -> None:
     assert [r.seed for r in runs[:4]] == [0, 1, 0, 1]
 
 
+@pytest.mark.slow   # two worker processes, ten flights, a PNG: ~2.8 s CPU, 5-6 s loaded
 def test_local_campaign_resume_and_report(tmp_path: Path) -> None:
     spec = load_spec(_spec(tmp_path, SMALL))
     out = tmp_path / "c"

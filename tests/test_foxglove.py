@@ -9,6 +9,7 @@ classes (``foxglove-schemas-protobuf``), independent of the SDK that wrote it.
 from __future__ import annotations
 
 import base64
+import itertools
 import json
 import math
 import socket
@@ -25,6 +26,7 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from google.protobuf.descriptor_pb2 import FileDescriptorSet
 from mcap.reader import make_reader
+from websockets.exceptions import ConnectionClosed
 
 from tfl_mav.flightlog.recorder import Recorder
 
@@ -141,6 +143,93 @@ def test_the_scene_is_advertised_on_connect_and_is_the_channel_the_recorder_gets
         server.close()
 
 
+def _subscribe_and_collect(ws, channels: dict, topics: dict[int, str], until, feed,
+                           timeout_s: float = 10.0) -> dict[str, list[tuple[int, bytes]]]:
+    """Subscribe to ``topics`` (id → topic); call ``feed()`` until ``until(got)`` holds (the
+    subscription lands asynchronously). A status message (an error) fails."""
+    ws.send(json.dumps({"op": "subscribe", "subscriptions": [
+        {"id": i, "channelId": channels[t]["id"]} for i, t in topics.items()]}))
+    got: dict[str, list[tuple[int, bytes]]] = {t: [] for t in topics.values()}
+    deadline = time.monotonic() + timeout_s
+    while not until(got):
+        assert time.monotonic() < deadline, {t: len(v) for t, v in got.items()}
+        feed()
+        try:
+            msg = ws.recv(timeout=0.1)
+        except TimeoutError:
+            continue
+        except ConnectionClosed:
+            pytest.fail(f"server gone (flight over?): {({t: len(v) for t, v in got.items()})}")
+        if isinstance(msg, str):               # new channels may be advertised meanwhile
+            assert json.loads(msg)["op"] != "status", msg      # e.g. refused
+            continue
+        op, sub_id, ts_ns = struct.unpack_from("<BIQ", msg)
+        assert op == 1
+        got[topics[sub_id]].append((ts_ns, msg[13:]))
+    return got
+
+
+def test_the_controllers_live_view_draws_its_estimate():
+    """``tfl-mav fly --foxglove`` has no truth: its server draws ``/tf`` from the ODOMETRY
+    the controller receives (its state estimate) and ``/scene/vehicle`` from its record
+    (commanded thrusts, detected rotor). The pose round-trips exactly: an ENU/FLU pose
+    sent as NED/FRD ODOMETRY comes back on ``/tf`` as that pose (float rounding); a message
+    it cannot use is counted, never raised, and the next one draws."""
+    from websockets.sync.client import connect
+
+    from tfl_mav.flightlog import foxglove as fg
+    from tfl_mav.flightlog.live import EstimateScene, LiveServer
+    from tfl_mav.frames import odometry_from_paper
+
+    scene = EstimateScene(ROTORS, 8.0)
+    server = LiveServer("127.0.0.1", 0, scene)
+    odo_ch = server.channel("/mavlink/1/1/ODOMETRY", "ODOMETRY", "jsonschema", b"{}", "json")
+    ctl_ch = server.channel("/controller/state", "ctl", "jsonschema", b"{}", "json")
+    pos, quat = [1.5, -2.0, 3.25], [math.cos(0.3), 0.0, 0.0, math.sin(0.3)]   # 0.6 rad yaw
+    odo = odometry_from_paper(pos, [0.0] * 3, quat, [0.0] * 3)
+    odo_json = json.dumps({"time_usec": 1000, "frame_id": 1, "child_frame_id": 12,
+                           **{k: v for k, v in odo._asdict().items()}}).encode()
+    log_ns = [1_000_000_000]
+
+    def feed() -> None:                 # 100 Hz of log time: every other one is drawn
+        log_ns[0] += 10_000_000
+        odo_ch.log(odo_json, log_time=log_ns[0])
+
+    try:
+        with connect(f"ws://127.0.0.1:{server.port}", open_timeout=10,
+                     subprotocols=["foxglove.websocket.v1", "foxglove.sdk.v1"]) as ws:
+            ops = [json.loads(ws.recv(timeout=10)) for _ in range(2)]
+            channels = {ch["topic"]: ch for ch in ops[1]["channels"]}
+            # a frame it cannot use (q left out: non-finite) is counted, not drawn
+            odo_ch.log(odo_json.replace(b'"q"', b'"q_"'), log_time=log_ns[0])
+            assert server.estimate.errors == 1 and server.estimate.drawn == 0
+            ctl_ch.log(json.dumps({"detected_rotor": 2, "rotor_thrust_cmd_n":
+                                   [2.0, 0.0, 4.0, 1.0]}).encode(), log_time=log_ns[0])
+            got = _subscribe_and_collect(
+                ws, channels, {1: "/tf", 2: "/scene/vehicle"},
+                lambda g: len(g["/tf"]) >= 3 and len(g["/scene/vehicle"]) >= 3, feed)
+    finally:
+        server.close()
+    assert server.estimate.errors == 1
+    for ts_ns, data in got["/tf"]:
+        tf = FrameTransform.FromString(data)
+        assert tf.timestamp.ToNanoseconds() == ts_ns
+        assert (tf.parent_frame_id, tf.child_frame_id) == (fg.WORLD, fg.BODY)
+        t, r = tf.translation, tf.rotation
+        assert [t.x, t.y, t.z] == pytest.approx(pos, abs=1e-12)
+        assert [r.w, r.x, r.y, r.z] == pytest.approx(quat, abs=1e-12)
+    # at most one drawing per 20 ms of log time, though ODOMETRY came every 10 ms
+    stamps = [ts for ts, _ in got["/tf"]]
+    assert all(b - a >= 20_000_000 for a, b in itertools.pairwise(stamps))
+    ent = SceneUpdate.FromString(got["/scene/vehicle"][-1][1]).entities[0]
+    assert ent.frame_id == fg.BODY and len(ent.cylinders) == 4
+    assert [tx.text for tx in ent.texts] == ["detected: rotor 2"] and len(ent.spheres) == 1
+    # arrows ∝ commanded thrust (rotor 2 commands 0 N: no arrow); shaft = 0.75 of length
+    lengths = [a.shaft_length / 0.75 for a in ent.arrows]
+    arm = 0.25
+    assert lengths == pytest.approx([f / 8.0 * 2 * arm for f in (2.0, 4.0, 1.0)])
+
+
 @pytest.mark.slow
 def test_live_websocket_serves_the_scene_while_it_flies(tmp_path):
     """A real Foxglove WebSocket client on a running flight (``tfl-mav sim --foxglove``
@@ -226,3 +315,73 @@ def test_live_websocket_serves_the_scene_while_it_flies(tmp_path):
     ent = got["/scene/vehicle"][0][1].entities[0]
     assert ent.frame_id == "base_link" and len(ent.arrows) + len(ent.spheres) >= 3
     assert len(got["/scene/path"][0][1].entities[0].lines[0].points) >= 2
+
+
+def _moved_m(tfs: list[tuple[int, bytes]]) -> float:
+    """Distance (m) between the first and the last ``/tf`` translation received."""
+    if len(tfs) < 2:
+        return 0.0
+    a, b = (FrameTransform.FromString(tfs[i][1]).translation for i in (0, -1))
+    return math.dist((a.x, a.y, a.z), (b.x, b.y, b.z))
+
+
+@pytest.mark.slow
+def test_fly_foxglove_shows_the_vehicle_moving_from_the_controllers_estimate(tmp_path):
+    """``tfl-mav fly --foxglove`` on a lockstep flight (no viewer on the simulator): a real
+    client subscribed to the controller's ``/tf`` and ``/scene/vehicle`` sees the vehicle
+    move (the estimate from ODOMETRY) with its four commanded thrusts, and no status."""
+    from websockets.exceptions import InvalidHandshake
+    from websockets.sync.client import connect
+
+    ws_port, seconds = _free_port(), 60.0      # ended by SIGTERM once the client has seen it
+    sim = _cli("sim", "--listen", "127.0.0.1:0", "--duration", f"{seconds:g}",
+               stdout=subprocess.PIPE, stderr=subprocess.DEVNULL)
+    fly = None
+    try:
+        assert sim.stdout is not None
+        line = sim.stdout.readline()
+        assert "listening on" in line, line
+        udp_port = int(line.split("listening on ")[1].split()[0].rsplit(":", 1)[1])
+        fly = _cli("fly", "--vehicle", f"127.0.0.1:{udp_port}", "--duration", f"{seconds:g}",
+                   "--quiet", "--foxglove", f"127.0.0.1:{ws_port}",
+                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 60.0     # the server is up once fly's recorder child is
+        while True:
+            try:
+                ws = connect(f"ws://127.0.0.1:{ws_port}", open_timeout=10,
+                             subprotocols=["foxglove.websocket.v1", "foxglove.sdk.v1"])
+                break
+            except (OSError, InvalidHandshake):
+                assert time.monotonic() < deadline and fly.poll() is None, "no live view"
+                time.sleep(0.1)
+        with ws:
+            channels: dict[str, dict] = {}
+            while not {"/tf", "/scene/vehicle"} <= channels.keys():
+                op = json.loads(ws.recv(timeout=20))
+                if op["op"] == "advertise":
+                    channels.update((ch["topic"], ch) for ch in op["channels"])
+            got = _subscribe_and_collect(
+                ws, channels, {1: "/tf", 2: "/scene/vehicle"},
+                lambda g: _moved_m(g["/tf"]) > 0.05 and g["/scene/vehicle"], lambda: None,
+                timeout_s=60.0)
+    finally:
+        for p in (fly, sim):
+            if p is not None and p.poll() is None:
+                p.terminate()                   # a clean stop (SIGTERM): exit 143
+                p.wait(timeout=60)
+    tfs = [FrameTransform.FromString(d) for _ts, d in got["/tf"]]
+    stamps = [ts for ts, _ in got["/tf"]]
+    assert stamps == sorted(stamps)
+    pos = np.array([[tf.translation.x, tf.translation.y, tf.translation.z] for tf in tfs])
+    quat = np.array([[tf.rotation.w, tf.rotation.x, tf.rotation.y, tf.rotation.z]
+                     for tf in tfs])
+    assert np.isfinite(pos).all()
+    assert np.abs(np.linalg.norm(quat, axis=1) - 1.0).max() < 1e-6   # float32 ODOMETRY q
+    # it moved (waited for above: a lockstep flight's pace in wall time is the machine's)
+    assert np.linalg.norm(pos[-1] - pos[0]) > 0.05, pos[[0, -1]]
+    ent = SceneUpdate.FromString(got["/scene/vehicle"][-1][1]).entities[0]
+    assert ent.frame_id == "base_link" and len(ent.cylinders) == 4
+    # flying: thrust from at least two rotors (after the attack is isolated the law may
+    # command one rotor to 0 N: no arrow); the detector's rotor is labelled, not "attack"
+    assert 2 <= len(ent.arrows) <= 4
+    assert all(tx.text.startswith("detected: rotor ") for tx in ent.texts)

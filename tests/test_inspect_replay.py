@@ -157,8 +157,11 @@ class _Sink:
                 continue
             self.got.append(data)   # self.got read after recv: take() may swap it
 
-    def take(self, n: int, timeout_s: float = 1.0) -> list[bytes]:
-        """Wait for ``n`` datagrams (or the timeout) and return all received so far."""
+    def take(self, n: int, timeout_s: float = 10.0) -> list[bytes]:
+        """Wait for ``n`` datagrams (or the timeout) and return all received so far. They
+        were sent before this is called and sit in the socket's 4 MiB queue; only our
+        reader thread's turn is awaited, which a loaded machine can delay by far more than
+        the 1 s this allowed before; a lost datagram still fails (after the timeout)."""
         deadline = time.monotonic() + timeout_s
         while len(self.got) < n and time.monotonic() < deadline:
             time.sleep(0.01)

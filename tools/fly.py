@@ -195,14 +195,21 @@ def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None,
     """The controller's recorder: a :class:`~tfl_mav.flightlog.recorder_process.
     RecorderProcess` (a child process: the daemon hands it raw datagrams and compact tick
     tuples, the child decodes and encodes), told what to draw: the airframe's rotors, the
-    path, the names and schema of :func:`~tfl_mav.daemon.tick_state`. Raises OSError (a
-    RecorderError) if the file or the live port is unusable, PathError for a bad path."""
+    path, the names and schema of :func:`~tfl_mav.daemon.tick_state`. The live view draws
+    the vehicle from the controller's state estimate (it has no truth; see
+    :mod:`~tfl_mav.flightlog.live`). Raises OSError (a RecorderError) if the file or the
+    live port is unusable, PathError for a bad path."""
     from tfl_mav.airframe import rotor_xy_m
     from tfl_mav.build import scenario_path
+    from tfl_mav.flightlog.live import EstimateScene, LiveAddress
     from tfl_mav.flightlog.recorder_process import RecorderProcess
 
     path = scenario_path(scenario).sample(800)
-    rec = RecorderProcess(mcap, rotor_xy_m=rotor_xy_m(scenario.vehicle),
+    rotors = rotor_xy_m(scenario.vehicle)
+    if live is not None:
+        live = LiveAddress(live[0], live[1],
+                           EstimateScene(rotors, scenario.vehicle.thrust_max_n))
+    rec = RecorderProcess(mcap, rotor_xy_m=rotors,
                           thrust_max_n=scenario.vehicle.thrust_max_n,
                           controller_fields=TICK_FIELDS, controller_schema=TICK_SCHEMA,
                           live=live, clock=clock, realtime=realtime)

@@ -91,10 +91,11 @@ def _thrust_rgb(fraction: float) -> tuple[float, float, float]:
 
 def vehicle_scene(ns: int, rotor_xy_m: Sequence[Sequence[float]],
                   rotor_thrust_n: Sequence[float], thrust_max_n: float,
-                  attack_rotor: int) -> bytes:
+                  attack_rotor: int, label: str = "attack") -> bytes:
     """The vehicle in ``base_link``: a body, an arm, disc and thrust arrow per rotor
     (arrow length ∝ thrust, colour by thrust fraction of ``thrust_max_n``), and the
-    attacked rotor (1-based, 0 = none) drawn red with a red marker sphere and label."""
+    attacked rotor (1-based, 0 = none) drawn red with a red marker sphere and the text
+    "``label``: rotor N" (the controller's view says "detected": it knows no truth)."""
     arm = max(math.hypot(*xy) for xy in rotor_xy_m)
     arm_w, disc_d = 0.02, 0.7 * arm
     cubes = [fm.CubePrimitive(pose=_pose(0.0, 0.0, 0.0), size=_vec(0.12, 0.12, 0.05),
@@ -123,7 +124,7 @@ def vehicle_scene(ns: int, rotor_xy_m: Sequence[Sequence[float]],
                                               size=_vec(0.08, 0.08, 0.08), color=_RED))
             texts.append(fm.TextPrimitive(pose=_pose(x, y, 0.25 * arm + 0.08), billboard=True,
                                           font_size=14.0, scale_invariant=True, color=_RED,
-                                          text=f"attack: rotor {attack_rotor}"))
+                                          text=f"{label}: rotor {attack_rotor}"))
     entity = fm.SceneEntity(timestamp=stamp(ns), frame_id=BODY, id="vehicle",
                             lifetime=_ZERO_DURATION, frame_locked=True, cubes=cubes,
                             cylinders=cylinders, arrows=arrows, spheres=spheres, texts=texts)
