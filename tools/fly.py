@@ -271,12 +271,16 @@ class StartingRecorder:
                         self._go_direct()
                     return
                 part = [buf.popleft() for _ in range(min(self._SLICE, len(buf)))]
+                # Pause only while a backlog is left: calls keep coming (several a tick at
+                # 1 kHz), so a pause after every slice would always find one more buffered
+                # and the hand-over would never end.
+                backlog = len(buf) >= self._SLICE
             if rec is not None:
                 for stamp, name, args in part:
                     self._stamp = stamp
                     getattr(rec, name)(*args)
                 self._stamp = None
-            if pause_s:
+            if pause_s and backlog:
                 time.sleep(pause_s)
 
     def _go_direct(self) -> None:

@@ -23,8 +23,10 @@ What to draw is the caller's: ``rotor_xy_m`` (where the rotors sit in the body f
 field names and schema of the controller's per-tick record (``controller_fields``,
 ``controller_schema``). The recorder knows no control law.
 
-Live view: ``live=(host, port)`` also serves every channel on a Foxglove WebSocket
-(:mod:`~tfl_mav.flightlog.live`); ``path=None`` serves without a file.
+Live view: ``live=(host, port)`` (or a :class:`~tfl_mav.flightlog.live.LiveAddress`, whose
+``estimate`` draws the vehicle from the controller's own state on the controller side) also
+serves every channel on a Foxglove WebSocket (:mod:`~tfl_mav.flightlog.live`); ``path=None``
+serves without a file.
 
 Time: ``log_time`` is the receipt time on the recorder's ``clock`` (ns; frames use the
 ``time_s`` the link hook passes, so give the link the same clock: :meth:`Recorder.attach`
