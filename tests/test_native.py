@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
+import os
 import random
 import struct
 import time
@@ -387,3 +388,21 @@ def test_one_build_per_source_and_a_cache_that_cannot_be_written(tmp_path, monke
     with caplog.at_level(logging.WARNING, logger="tfl_mav.native"):
         assert native.obtain(source.replace("loop_once", "loop_ro"), got.append) is None
     assert "not available" in caplog.text
+
+
+def test_a_build_left_behind_by_an_exited_process_is_swept(tmp_path, monkeypatch):
+    """Builds run in the cache directory; one older than an hour (its process exited
+    mid-build) is removed by the next build, a fresh one (a build under way) is not."""
+    cache = tmp_path / "kernels"
+    cache.mkdir()
+    monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(cache))
+    monkeypatch.setattr(native, "_loaded", {})
+    old, fresh = cache / ".build-old", cache / ".build-fresh"
+    for d in (old, fresh):
+        d.mkdir()
+        (d / "k.c").write_text("int x;")
+    two_hours_ago = time.time() - 7200
+    os.utime(old, (two_hours_ago, two_hours_ago))
+    native.build(_LOOP_SOURCE.replace("loop", "loop_swept"))
+    assert not old.exists() and fresh.exists()
+    assert not [p for p in cache.iterdir() if p.name.startswith(".build-") and p != fresh]

@@ -179,7 +179,10 @@ def _compile(c_text: str, module: str, path: Path) -> None:
     include = sysconfig.get_paths()["include"]
     if not os.path.exists(os.path.join(include, "Python.h")):
         raise NativeError(f"no Python.h under {include} (install the Python headers)")
-    with tempfile.TemporaryDirectory(prefix="tflk-") as tmp:
+    _sweep(path.parent)
+    # In the cache directory, so that a build an exiting process left behind (its builder
+    # is a daemon thread) is found and removed by the next build.
+    with tempfile.TemporaryDirectory(prefix=_BUILD_PREFIX, dir=path.parent) as tmp:
         src = Path(tmp) / f"{module}.c"
         src.write_text(c_text)
         out = Path(tmp) / path.name
@@ -194,6 +197,22 @@ def _compile(c_text: str, module: str, path: Path) -> None:
         tmp_dest = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         shutil.copyfile(out, tmp_dest)
         os.replace(tmp_dest, path)          # atomic: a concurrent build writes the same bytes
+
+
+_BUILD_PREFIX = ".build-"
+_STALE_BUILD_S = 3600.0         # far longer than any compile of a generated kernel
+
+
+def _sweep(cache: Path) -> None:
+    """Remove build directories older than an hour: left by processes that exited while
+    their background build ran (the daemon thread dies with them; the compiler did not)."""
+    now = time.time()
+    for stale in cache.glob(f"{_BUILD_PREFIX}*"):
+        try:
+            if now - stale.stat().st_mtime > _STALE_BUILD_S:
+                shutil.rmtree(stale, ignore_errors=True)
+        except OSError:
+            pass
 
 
 def _lowest_priority() -> None:
