@@ -41,7 +41,7 @@ _OPS = [
     "_tan(a)", "_exp(a)", "_log(a)", "_atan(a)", "_tanh(a)", "_pow(a, b)", "abs(a)",
     "a if a < b else b", "1.0 if a <= b <= 2.0 else 0.0", "(-a) * b + a - b",
     "1.0 if not (a > b or a == 0.5) else 0.0", "1.0 if _isfinite(a) and a != b else 0.0",
-    "_atan2(a, b)",
+    "_atan2(a, b)", "_copysign(a, b)", "_acos(a)", "_hypot(a, b)",
 ]
 _OPS_SOURCE = "def ops(k, a, b):\n    r = 0.0\n" + "".join(
     f"    if k == {i}:\n        r = {op}\n" for i, op in enumerate(_OPS)) + "    return (r,)\n"
@@ -80,7 +80,9 @@ def _same_bits(a, b) -> bool:
 
 @pytest.fixture(scope="module")
 def ops():
-    py = compile_source("ops", _OPS_SOURCE, {"_isfinite": math.isfinite, "_atan2": math.atan2})
+    py = compile_source("ops", _OPS_SOURCE, {"_isfinite": math.isfinite, "_atan2": math.atan2,
+                                             "_copysign": math.copysign, "_acos": math.acos,
+                                             "_hypot": math.hypot})
     return py, native.build(_OPS_SOURCE)
 
 
@@ -156,7 +158,7 @@ def test_sequences_nested_unpacking_none_and_nested_results():
     ("def f(a):\n    b = a.x\n    return (b,)\n", "cannot translate"),
     ("def f(a):\n    return (b,)\n", "never set"),
     ("def f(a):\n    b = a ** a\n    return (b,)\n", "int literal"),
-    ("def f(a):\n    b = _hypot(a, a)\n    return (b,)\n", "call of '_hypot'"),
+    ("def f(a):\n    b = _erf(a)\n    return (b,)\n", "call of '_erf'"),
     ("def f(a):\n    b = a + 'x'\n    return (b,)\n", "not a number"),
 ])
 def test_what_cannot_be_translated_is_refused_by_name(src, match):
@@ -406,3 +408,46 @@ def test_a_build_left_behind_by_an_exited_process_is_swept(tmp_path, monkeypatch
     native.build(_LOOP_SOURCE.replace("loop", "loop_swept"))
     assert not old.exists() and fresh.exists()
     assert not [p for p in cache.iterdir() if p.name.startswith(".build-") and p != fresh]
+
+
+@pytest.mark.parametrize("name", ["paper", "helix", "expr-all-functions"])
+def test_safe_law_lost_rotor_tick_compiled_is_the_python_tick(name, monkeypatch):
+    """recovery_native: the safe law's lost-rotor tick compiled, against RecoveryLaw.update
+    itself on random states near the path — every rotor lost, tuples and numpy arrays, a
+    held point and four healthy rotors (the Python tick's, through the same entry)."""
+    from tfl_mav.control.compiled import compile_path
+    from tfl_mav.control.recovery import RecoveryLaw
+    from tfl_mav.control.recovery_native import attach
+
+    kind, params, y0 = PATHS[name]
+    path = build_path(kind, params)
+    kernels = compile_path(path)
+    sc = load_scenario("paper")
+    mp = model_params(sc)
+
+    def law():
+        return RecoveryLaw(mp.mass_kg, mp.inertia_kgm2, mp.arm_m, mp.drag_thrust_ratio_m,
+                           mp.k_t, mp.k_r, mp.thrust_max_n, mp.gravity_mps2, 0.001, path,
+                           1.0, kernels=kernels)
+
+    monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
+    py, c = law(), law()
+    attach(c, kernels.trace_sigma)
+    assert c.update.__closure__ is not None     # the compiled tick's entry
+    rng = random.Random(9)
+    for trial in range(120):
+        st = _random_state(rng, y0)
+        if trial % 3 == 0:
+            st = State(*(np.array(f, dtype=float) for f in (
+                st.position_m, st.velocity_mps, st.quaternion_wxyz, st.body_rates_radps)))
+        rotor = (1, 2, 3, 4, 0)[trial % 5]
+        if trial % 17 == 0:
+            for law_ in (py, c):
+                law_.hold(st.position_m)
+        elif trial % 17 == 1:
+            for law_ in (py, c):
+                law_.follow_path()
+        a_n = rng.choice([0.0, 0.5, 2.0, -1.0, 9.0])
+        for _ in range(3):
+            assert repr(py.update(st, rotor, a_n)) == repr(c.update(st, rotor, a_n))
+            assert py.projector.lam == c.projector.lam

@@ -33,6 +33,7 @@ _UNARY = {
     "_cos": ("cos({0})", "__builtin_isinf({0})"),
     "_tan": ("tan({0})", "__builtin_isinf({0})"),
     "_atan": ("atan({0})", "0"),
+    "_acos": ("acos({0})", "{0} < -1.0 || {0} > 1.0"),
     "_tanh": ("tanh({0})", "0"),
     "_log": ("log({0})", "{0} <= 0.0"),
     "abs": ("__builtin_fabs({0})", "0"),
@@ -141,6 +142,12 @@ class _C:
     def _call(self, fn: str, args: list[str]) -> str:
         if fn == "_atan2" and len(args) == 2:
             return f"tfl_atan2({args[0]}, {args[1]})"
+        if fn == "_copysign" and len(args) == 2:
+            return f"copysign({args[0]}, {args[1]})"
+        if fn == "_hypot" and len(args) == 2:       # CPython's own (not libm's): called
+            r = self.fresh()
+            return (f"({{ double {r}; if (tfl_hypot({args[0]}, {args[1]}, &{r})) goto bail;"
+                    f" {r}; }})")
         if fn == "_isfinite" and len(args) == 1:
             return f"__builtin_isfinite({args[0]})"
         if fn in _UNARY and len(args) == 1:
@@ -295,6 +302,27 @@ def _pack(e: ast.expr, names: set[str], ind: str, out: list[str], fresh: Callabl
 
 
 _PRELUDE = r"""
+/* math.hypot is CPython's own algorithm (vector_norm), not libm's hypot: call it. */
+static PyObject *tfl_py_hypot = NULL;
+
+static int
+tfl_hypot(double a, double b, double *out)
+{
+    PyObject *args[2] = {PyFloat_FromDouble(a), PyFloat_FromDouble(b)};
+    PyObject *r = NULL;
+    if (args[0] != NULL && args[1] != NULL)
+        r = PyObject_Vectorcall(tfl_py_hypot, args, 2, NULL);
+    Py_XDECREF(args[0]);
+    Py_XDECREF(args[1]);
+    if (r == NULL) {
+        PyErr_Clear();
+        return -1;
+    }
+    *out = PyFloat_AsDouble(r);
+    Py_DECREF(r);
+    return 0;
+}
+
 /* n floats from a tuple or list, a 1-D float64 buffer (a numpy array) or any sequence of
    numbers; nonzero (no exception set) when it is none of those or holds another count. */
 static int
@@ -438,6 +466,13 @@ static struct PyModuleDef moduledef = {{PyModuleDef_HEAD_INIT, "{module}", NULL,
 PyMODINIT_FUNC __attribute__((visibility("default")))
 PyInit_{module}(void)
 {{
+    PyObject *math = PyImport_ImportModule("math");
+    if (math == NULL)
+        return NULL;
+    tfl_py_hypot = PyObject_GetAttrString(math, "hypot");
+    Py_DECREF(math);
+    if (tfl_py_hypot == NULL)
+        return NULL;
     return PyModule_Create(&moduledef);
 }}
 """

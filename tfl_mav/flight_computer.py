@@ -69,6 +69,7 @@ from tfl_mav.build import (
     model_params,
     scenario_path,
 )
+from tfl_mav.control import recovery_native
 from tfl_mav.control.detector import AttackDetector, DetectorOutput
 from tfl_mav.control.feasibility import attack_limit_n, feasible_speed_mps, path_demand
 from tfl_mav.control.law import ControlOutput, TFLController
@@ -154,6 +155,10 @@ class FlightComputer:
                                     kernels=getattr(self.controller.tracker, "kernels", None),
                                     compiled_path=self.controller.path_eval == "compiled",
                                     design_gains=design_gains)
+        kernels = getattr(self.controller.tracker, "kernels", None)
+        proj = self.recovery.projector
+        if kernels is not None and proj is not None and proj.evaluation == "compiled":
+            recovery_native.attach(self.recovery, kernels.trace_sigma)  # the same σ, in C
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
         self._probe_high_n = min(self._hover_share_n + 1.5, self.thrust_max_n)
         if self.controller.lag_inverter is not None:   # ESC noise: filter ω (actuators)
