@@ -265,6 +265,9 @@ class RecoveryLaw:
             else _PARTIAL.setdefault(self._model_key, {}))
         self._frames: dict[int, RotorFrame] = {}
         self._inverse_perm: dict[int, tuple[int, int, int, int]] = {}
+        # The lost-rotor tick compiled (control/recovery_native.attach): None where it
+        # declines, and update runs the Python below.
+        self.native: Callable[..., RecoveryOutput | None] | None = None
 
     # ------------------------------------------------------------------ targets
     def hold(self, position_m: Sequence[float]) -> None:
@@ -342,6 +345,11 @@ class RecoveryLaw:
         Runs on every safe-law tick, so it is written out on floats (#13): R(q) as the nine
         entries :func:`~tfl_mav.geometry.rotation_rows` computes, min/max as comparisons
         (the same results, NaN included)."""
+        native = self.native
+        if native is not None and attacked_rotor:
+            out = native(s, attacked_rotor, attack_n)
+            if out is not None:
+                return out
         # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
         qw, qx, qy, qz = _floats(s.quaternion_wxyz)
         nq = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)

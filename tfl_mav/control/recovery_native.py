@@ -121,15 +121,16 @@ def core_source(trace_sigma: Callable[..., list[Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def _native_update(rec: RecoveryLaw, python: Callable[..., RecoveryOutput],
-                   namespace: dict[str, Any]) -> Callable[..., RecoveryOutput]:
-    def update(s: Any, attacked_rotor: int = 0, attack_n: float = 0.0) -> RecoveryOutput:
+def _native_update(rec: RecoveryLaw, namespace: dict[str, Any]
+                   ) -> Callable[..., RecoveryOutput | None]:
+    """``RecoveryLaw.update``'s compiled form, or None where the Python one must run."""
+    def update(s: Any, attacked_rotor: int, attack_n: float) -> RecoveryOutput | None:
         core = namespace["_core"]
         proj = rec.projector
         fr = rec._frames.get(attacked_rotor)
         if (core is None or fr is None or rec.hold_m is not None or proj is None
                 or proj.lam is None):
-            return python(s, attacked_rotor, attack_n)
+            return None
         p, q, r = _floats(s.body_rates_radps)
         (_, _, _), (_, _, _), (r20, r21, r22) = fr.rot
         ix, iy, iz = rec.inertia
@@ -139,7 +140,7 @@ def _native_update(rec: RecoveryLaw, python: Callable[..., RecoveryOutput],
                    rec.speed, rec.g, rec.mass_kg, rec.k_t, ix, iy, iz, rec.arm_m, rec.fmax,
                    fr.rot, gains, attack_n)
         if res is None:
-            return python(s, attacked_rotor, attack_n)
+            return None
         lam, tilt, dist, uf, req, f = res
         proj.lam = lam
         j0, j1, j2, j3 = rec._inverse_perm[attacked_rotor]
@@ -154,7 +155,7 @@ def attach(rec: RecoveryLaw, trace_sigma: Callable[..., list[Any]] | None) -> No
     if trace_sigma is None or rec.projector is None or native.mode() == "off":
         return
     namespace: dict[str, Any] = {"_core": None}
-    rec.update = _native_update(rec, rec.update, namespace)  # type: ignore[method-assign]
+    rec.native = _native_update(rec, namespace)
     ref = weakref.ref(rec)
 
     def ready(core: Callable[..., Any]) -> None:
