@@ -57,7 +57,7 @@ from tfl_mav import ctranslate
 from tfl_mav.ctranslate import NativeError, translate
 
 __all__ = ["NativeError", "build", "c_source", "cache_dir", "compile_async", "load_cached",
-           "mode", "obtain", "translate", "warn_once"]
+           "mode", "obtain", "obtain_c", "translate", "warn_once"]
 
 log = logging.getLogger(__name__)
 
@@ -122,8 +122,22 @@ def _import(module: str, path: Path, fn: str) -> Core:
     return getattr(mod, fn)  # type: ignore[no-any-return]
 
 
+_C_EXPORT = "/* tfl-mav export: "
+
+
 def _fn_name(source: str) -> str:
+    if source.startswith(_C_EXPORT):           # hand-written C (obtain_c)
+        return source[len(_C_EXPORT):].split(" ", 1)[0]
     return source.split("def ", 1)[1].split("(", 1)[0].strip()
+
+
+def _c_text(source: str, module: str) -> str:
+    """The C of ``source``: hand-written C (obtain_c) with its module's name defined, or
+    the translation of Python."""
+    if source.startswith(_C_EXPORT):
+        return (f'#define MODULE_NAME "{module}"\n#define MODULE_INIT PyInit_{module}\n'
+                + source)
+    return translate(source, module)
 
 
 def load_cached(source: str) -> Core | None:
@@ -145,7 +159,7 @@ def load_cached(source: str) -> Core | None:
 
 def c_source(source: str) -> str:
     """The C translation of ``source`` as :func:`build` compiles it."""
-    return translate(source, _paths(source)[0])
+    return _c_text(source, _paths(source)[0])
 
 
 def build(source: str, c_text: str | None = None) -> Core:
@@ -156,7 +170,7 @@ def build(source: str, c_text: str | None = None) -> Core:
     if cached is not None:
         return cached
     module, path = _paths(source)
-    c_text = c_text if c_text is not None else translate(source, module)
+    c_text = c_text if c_text is not None else _c_text(source, module)
     path.parent.mkdir(parents=True, exist_ok=True)
     # One build per source across processes (a campaign's runs start together): the others
     # wait for the lock and find the build in the cache.
@@ -300,6 +314,13 @@ def obtain(source: str, ready: Callable[[Core], None]) -> Core | None:
         return None
     compile_async(source, c_text, ready)
     return None
+
+
+def obtain_c(c_text: str, fn: str, ready: Callable[[Core], None]) -> Core | None:
+    """:func:`obtain` for hand-written C: a CPython extension's source whose module
+    definition uses the macros ``MODULE_NAME`` and ``MODULE_INIT`` (defined here) and
+    which exports the function ``fn``. Same cache, modes and background build."""
+    return obtain(f"{_C_EXPORT}{fn} */\n{c_text}", ready)
 
 
 def compile_async(source: str, c_text: str, done: Callable[[Core], None]) -> None:

@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from tfl_mav.flightlog import foxglove as fg
-from tfl_mav.flightlog import schemas
+from tfl_mav.flightlog import frames_c, schemas
 from tfl_mav.flightlog.jsonenc import JsonEncoder, MavJson, MavPlan
 from tfl_mav.flightlog.jsonobj import encode as _encode_obj
 from tfl_mav.flightlog.mcapfast import MESSAGE_FIXED, MESSAGE_HEADER, MESSAGE_OPCODE
@@ -67,6 +67,9 @@ class FrameRecorder(McapOutput):
         self._mav = MavJson()
         self._mav_channels: dict[tuple[int, int, int], _MavChannel] = {}
         self._frame_fast: dict[tuple[str, bytes], _Fast] = {}
+        # the same channels for the C hot path (frames_c): frame key → what it needs
+        self._frame_fast_c: dict[int, tuple[bytes, bytes, bool, int, int, int, int]] = {}
+        self._frames_c: Any = frames_c.obtain(self._c_ready)
         self._sim_ns = 0
         self._sim_known = False
 
@@ -80,9 +83,60 @@ class FrameRecorder(McapOutput):
         else:
             self.on_frames(((None, time_s, direction, raw, True),))
 
+    def _c_ready(self, fn: Any) -> None:
+        self._frames_c = fn          # a background build is done (frames_c.obtain)
+
     def on_frames(self, frames: Iterable[tuple[Any, float, str, bytes, bool]]) -> None:
         """Record many frames: (anything, ``time_s``, direction, raw, accepted) each, as
         :meth:`on_frame` would one by one (a hand-off batch's frame items)."""
+        c = self._frames_c
+        w = self._writer
+        if c is None or self._live is not None or not (self._open and getattr(w, "_fast",
+                                                                              False)):
+            self._frames_py(frames)
+        else:
+            self._frames_native(c, frames if type(frames) in (list, tuple) else list(frames))
+        if time.monotonic() >= self._next_flush:
+            try:
+                self._flush()
+            except Exception as exc:
+                self._failed(exc)
+
+    def _frames_native(self, c: Any, items: Any) -> None:
+        """:meth:`on_frames` by the C hot path (:mod:`frames_c`); the frames it leaves
+        (first sight, NaN/inf values, rejected) one by one by :meth:`_frames_py`."""
+        w = self._writer
+        i, n = 0, len(items)
+        while i < n:
+            state = [self._sim_ns, self._sim_known, 0, 0, n]
+            failed: Exception | None = None
+            with self._lock:
+                if not self._open:
+                    break
+                try:
+                    i = c(items, i, self._frame_fast_c, w.chunk, w.end_chunk, w.chunk_limit,
+                          state, _encode_obj)
+                except Exception as exc:      # a write failed: the file stops here
+                    failed = exc
+                finally:
+                    self._sim_ns, self._sim_known = state[0], state[1]
+                    st = self.stats
+                    st.frames_rx += state[2]
+                    st.frames_tx += state[3]
+                    st.messages += 2 * (state[2] + state[3])
+                    self._pending += 2 * (state[2] + state[3])
+            if failed is not None:
+                self._failed(failed)
+                i = state[4] + 1
+                break
+            if i < n:
+                self._frames_py(items[i:i + 1])
+                i += 1
+        for f in items[i:]:                    # after a failure: counted as dropped
+            self._on_frame(f[2], f[3], True if f[4] else None, f[1])
+
+    def _frames_py(self, frames: Iterable[tuple[Any, float, str, bytes, bool]]) -> None:
+        """:meth:`on_frames` in Python, every frame."""
         w = self._writer
         if not (self._open and getattr(w, "_fast", False)):
             for f in frames:
@@ -176,11 +230,6 @@ class FrameRecorder(McapOutput):
                 self._pending += 2 * (n_rx + n_tx)
         for f in todo:                        # after a failure: counted as dropped
             self._on_frame(f[2], f[3], True if f[4] else None, f[1])
-        if time.monotonic() >= self._next_flush:
-            try:
-                self._flush()
-            except Exception as exc:
-                self._failed(exc)
 
     def _on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
         """:meth:`on_frame`, every case (first sight of a channel, rejected frames)."""
@@ -240,6 +289,11 @@ class FrameRecorder(McapOutput):
             if plan is not None and (plan.time_index is not None or not chan.sim_time):
                 self._frame_fast[(direction, raw[5:10])] = (
                     chan, plan, head.encode(), direction == "rx", self._raw_channel())
+                lay = frames_c.layout(mav.mavlink_map[msgid]) if plan.simple else None
+                if lay is not None and (lay[1] is not None or not chan.sim_time):
+                    self._frame_fast_c[frames_c.frame_key(direction == "rx", raw[5:10])] = (
+                        lay[0], head.encode(), direction == "rx", self._raw_channel(),
+                        chan.channel_id, lay[1] if chan.sim_time else -1, plan.size)
             return
         if fields is None:
             self._bad(f"frame: {name} (#{msgid}) did not decode from its wire bytes")
