@@ -306,6 +306,7 @@ class StartingRecorder:
         self.controller = rec.controller        # type: ignore[method-assign]
         for link in self._links:
             link.on_frame = rec.on_frame
+            link.on_frames = getattr(rec, "on_frames", None)   # one hand-off a datagram
 
     def attach(self, link: Any) -> None:
         """Record ``link``'s frames (its ``on_frame`` hook; once the child is up, the
@@ -313,6 +314,8 @@ class StartingRecorder:
         with self._lock:
             self._links.append(link)
             link.on_frame = self.on_frame
+            if self._direct:                    # up already (lockstep: before the daemon)
+                link.on_frames = getattr(self._rec, "on_frames", None)
 
     @property
     def starting(self) -> bool:

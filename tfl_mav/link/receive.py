@@ -81,6 +81,11 @@ class Receiver:
     parser: Any
 
     def _init_receiver(self) -> None:
+        # on_frames(direction, raws, msgs, time_s): when set (beside on_frame), the frames
+        # of a datagram the settled fast path accepts go to it in one call (msgs None: all
+        # accepted), e.g. a RecorderProcess's on_frames: one hand-off a datagram, not one
+        # a frame; every other frame still goes to on_frame, in order
+        self.on_frames: Any = None
         self._timeout_ms = 0          # SO_RCVTIMEO now set (0: none yet)
         self._poll = select.poll()    # "is anything queued?" without an exception
         self._poll.register(self._sock.fileno(), _POLLIN)
@@ -168,6 +173,9 @@ class Receiver:
             # failed check included) leaves this loop at the frame's start, untouched, and
             # the general loop decides and counts it.
             on_frame = self.on_frame
+            batch: list[bytes] | None = None
+            if on_frame is not None and self.on_frames is not None:
+                batch, on_frame = [], None
             hot = _HOT.get
             crc16 = _crc16
             while i < n:
@@ -198,7 +206,12 @@ class Receiver:
                     if now is None:
                         now = self.clock()
                     on_frame("rx", raw, msg, now)
+                elif batch is not None:
+                    batch.append(raw)
                 out.append(msg)
+            if batch:
+                now = self.clock()
+                self.on_frames("rx", batch, None, now)
             if i == n:
                 return
         self._ingest_general(data, i, n, addr, out, now)
