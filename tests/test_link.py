@@ -205,6 +205,28 @@ def test_recorder_hook_sees_exact_bytes_both_ways(raw):
         link.close()
 
 
+def test_on_frames_takes_a_datagrams_settled_frames_in_one_call_in_order(vehicle_side, raw):
+    """With ``on_frames`` set beside ``on_frame``, the per-tick frames the settled link
+    accepts reach it in one call per datagram (exact bytes, msgs None: all accepted); a
+    frame after them that is not one (a STATUSTEXT) or is rejected still goes to on_frame,
+    after them."""
+    frames_calls, frame_calls = [], []
+    raw.send(frame(heartbeat()), vehicle_side.local_address)       # pins peer and sysid
+    drain(vehicle_side, 1)
+    vehicle_side.on_frame = lambda d, b, m, t: frame_calls.append((d, bytes(b), m is not None))
+    vehicle_side.on_frames = lambda d, bs, ms, t: frames_calls.append((d, list(bs), ms))
+    c1, c2 = frame(controls(time_usec=1)), frame(controls(time_usec=2))
+    hb = frame(mav.MAVLink_statustext_message(mav.MAV_SEVERITY_INFO, b"hi", 0, 0))
+    bad = bytearray(frame(controls(time_usec=3)))
+    bad[-1] ^= 0xFF                                                  # a bad CRC
+    raw.send(c1 + c2 + hb + bytes(bad), vehicle_side.local_address)
+    msgs = drain(vehicle_side, 2)
+    assert [getattr(m, "time_usec", None) for m in msgs] == [1, 2, None]
+    assert frames_calls == [("rx", [c1, c2], None)]
+    assert frame_calls == [("rx", hb, True), ("rx", bytes(bad), False)]
+    assert (vehicle_side.stats.rx_frames, vehicle_side.stats.bad_crc) == (4, 1)
+
+
 def test_send_many_packs_frames_into_one_datagram_in_order(raw):
     seen = []
     link = Link.connect(raw.sock.getsockname(), src_system=1, src_component=1,

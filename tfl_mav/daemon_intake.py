@@ -35,7 +35,7 @@ _ID_ESC_TELEMETRY_1_TO_4 = mav.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4
 _RxOdometry = rx_lite_class(_ID_ODOMETRY)
 _RxEsc = rx_lite_class(_ID_ESC_TELEMETRY_1_TO_4)
 _ODOMETRY_FIELDS = 16     # time_usec, x, y, z, q[4], vx..vz, rates[3], frame_id, child_frame_id
-_ESC_RPM = slice(12, 16)  # after voltage[4], current[4], totalcurrent[4] (all uint16)
+_ESC_RPM = slice(0, 4)    # rpm[4]: the received tuple's only values (link.lite.LAZY_FIELDS)
 _from_fields = paper_from_odometry_fields
 
 

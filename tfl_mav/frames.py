@@ -36,7 +36,6 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from tfl_mav.geometry import rotation_rows
 from tfl_mav.state import State
 
 __all__ = [
@@ -169,11 +168,13 @@ class _Scratch(threading.local):
 
     def __init__(self) -> None:
         buf = np.empty(12)
-        self.arrays = (memoryview(buf).cast("B"), buf[:9].reshape(3, 3), buf[9:], np.empty(3))
+        matrix = buf[:9].reshape(3, 3)
+        # matrix.dot(vec, out): np.dot's own C function, bound once (no dispatch per call)
+        self.arrays = (memoryview(buf).cast("B"), matrix, buf[9:], np.empty(3), matrix.dot)
 
 
 _SCRATCH = _Scratch()
-_dot = np.dot
+_sqrt = math.sqrt
 _pack_12_doubles = struct.Struct("=12d").pack_into   # numpy's float64: native
 
 
@@ -181,10 +182,10 @@ def body_to_inertial(rows: Sequence[Sequence[float]], v: Sequence[float]) -> lis
     """R v for R given by its ``rows`` (:func:`~tfl_mav.geometry.rotation_rows`), computed
     as numpy computes ``np.array(rows) @ np.array(v)`` (BLAS: fused multiply-adds, so not
     the float sum of products), on per-thread preallocated arrays."""
-    buf, matrix, vec, out = _SCRATCH.arrays
+    buf, _, vec, out, dot = _SCRATCH.arrays
     r0, r1, r2 = rows
     _pack_12_doubles(buf, 0, *r0, *r1, *r2, *v)
-    _dot(matrix, vec, out)
+    dot(vec, out)
     return out.tolist()
 
 
@@ -234,8 +235,20 @@ def paper_from_odometry_fields(time_usec: int, px: float, py: float, pz: float, 
     # numpy computes differently (BLAS, fused multiply-add) from a float sum: kept as it
     # was, so the state is the same to the bit.
     if child == MAV_FRAME_BODY_FRD:
-        velocity = body_to_inertial(rotation_rows(q_enu_flu),   # = rotation_from_quaternion
-                                    (vx, -vy, -vz))
+        # body_to_inertial(rotation_rows(q_enu_flu), (vx, -vy, -vz)), written out (every
+        # tick): R(q) = rotation_from_quaternion, the quaternion normalised again, as there
+        a, b, c, d = q_enu_flu
+        n = _sqrt(a * a + b * b + c * c + d * d)
+        a, b, c, d = a / n, b / n, c / n, d / n
+        buf, _, vec, out, dot = _SCRATCH.arrays
+        _pack_12_doubles(
+            buf, 0,
+            1 - 2 * (c * c + d * d), 2 * (b * c - a * d), 2 * (b * d + a * c),
+            2 * (b * c + a * d), 1 - 2 * (b * b + d * d), 2 * (c * d - a * b),
+            2 * (b * d - a * c), 2 * (c * d + a * b), 1 - 2 * (b * b + c * c),
+            vx, -vy, -vz)
+        dot(vec, out)
+        velocity = out.tolist()
     elif child == MAV_FRAME_LOCAL_NED:
         velocity = [vy, vx, -vz]
     else:

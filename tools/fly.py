@@ -130,7 +130,8 @@ def run(args: argparse.Namespace) -> int:
         daemon = Daemon(scenario, vehicle=vehicle, bind=bind, realtime=args.realtime,
                         state_timeout_s=args.state_timeout, key=key,
                         silence_end_s=_SILENCE_END_S if args.realtime else None,
-                        on_tick=on_tick, on_event=on_event,
+                        on_tick=_tick_hook(recorder, args.progress, on_tick),
+                        on_event=on_event,
                         hold_start=hold_start if recorder is not None else None)
     except (LinkError, ValueError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
@@ -188,6 +189,18 @@ def run(args: argparse.Namespace) -> int:
 
 
 _DISTANCE = TICK_FIELDS.index("path_distance_m")
+
+
+def _tick_hook(recorder: Any, progress: bool,
+               on_tick: Callable[[float, tuple[Any, ...]], None]) -> Any:
+    """The daemon's ``on_tick``: none when nothing reads the tick record (no recorder, no
+    progress: the daemon then builds none), the recorder's own ``controller`` once it is up
+    (lockstep: started before the daemon), else ``on_tick``."""
+    if recorder is None and not progress:
+        return None
+    if recorder is not None and not progress and not recorder.starting:
+        return recorder.controller
+    return on_tick
 
 
 def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None,
@@ -293,6 +306,7 @@ class StartingRecorder:
         self.controller = rec.controller        # type: ignore[method-assign]
         for link in self._links:
             link.on_frame = rec.on_frame
+            link.on_frames = getattr(rec, "on_frames", None)   # one hand-off a datagram
 
     def attach(self, link: Any) -> None:
         """Record ``link``'s frames (its ``on_frame`` hook; once the child is up, the
@@ -300,6 +314,8 @@ class StartingRecorder:
         with self._lock:
             self._links.append(link)
             link.on_frame = self.on_frame
+            if self._direct:                    # up already (lockstep: before the daemon)
+                link.on_frames = getattr(self._rec, "on_frames", None)
 
     @property
     def starting(self) -> bool:

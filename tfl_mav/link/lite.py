@@ -37,6 +37,12 @@ UNSENT = bytes(10)
 LAZY_FIELDS: dict[int, tuple[str, ...]] = {
     # the daemon reads ODOMETRY's pose and twist every tick, never its 42 covariance floats
     mav.MAVLINK_MSG_ID_ODOMETRY: ("pose_covariance", "velocity_covariance"),
+    # ... of ACTUATOR_OUTPUT_STATUS its time_usec (actuator[0..3] only when the command it
+    # names is not in its history: 32 floats unpacked for nothing otherwise) ...
+    mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS: ("actuator",),
+    # ... and of ESC_TELEMETRY_1_TO_4 the four rpm (the tuple: rpm[0..3], then the frame)
+    mav.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4: ("voltage", "current", "totalcurrent", "count",
+                                              "temperature"),
 }
 """Array fields a *received* LiteMessage does not unpack (module docstring)."""
 

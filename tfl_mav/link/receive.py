@@ -81,6 +81,11 @@ class Receiver:
     parser: Any
 
     def _init_receiver(self) -> None:
+        # on_frames(direction, raws, msgs, time_s): when set (beside on_frame), the frames
+        # of a datagram the settled fast path accepts go to it in one call (msgs None: all
+        # accepted), e.g. a RecorderProcess's on_frames: one hand-off a datagram, not one
+        # a frame; every other frame still goes to on_frame, in order
+        self.on_frames: Any = None
         self._timeout_ms = 0          # SO_RCVTIMEO now set (0: none yet)
         self._poll = select.poll()    # "is anything queued?" without an exception
         self._poll.register(self._sock.fileno(), _POLLIN)
@@ -159,12 +164,66 @@ class Receiver:
             return
         if type(data) is not bytes:
             data = bytes(data)
+        i = 0
+        now = None                   # the hook's receipt time: one clock read a datagram
+        peer_sysid = self.peer_sysid
+        if peer_sysid is not None and self.signing is None and self.peer is not None:
+            # The settled link's per-tick frames (unsigned, hot, from the peer's sysid): the
+            # checks below in the general loop's order, fewer of them. Anything else (a
+            # failed check included) leaves this loop at the frame's start, untouched, and
+            # the general loop decides and counts it.
+            on_frame = self.on_frame
+            batch: list[bytes] | None = None
+            if on_frame is not None and self.on_frames is not None:
+                batch, on_frame = [], None
+            hot = _HOT.get
+            crc16 = _crc16
+            while i < n:
+                end = n - i
+                if end < _MIN_FRAME_V2 or data[i] != MAGIC_V2 or data[i + 2]:
+                    break
+                end = i + _MIN_FRAME_V2 + data[i + 1]
+                if end > n:
+                    break
+                layout = hot(data[i + 7] | data[i + 8] << 8 | data[i + 9] << 16)
+                if layout is None or data[i + 5] != peer_sysid:
+                    break
+                lite, crc_extra, size, unpack, unpack_from = layout
+                pend = end - _CRC_LEN
+                if crc16(crc_extra, crc16(data[i + 1:pend], 0xFFFF)) \
+                        != data[pend] | data[pend + 1] << 8:
+                    break
+                raw = data if end == n and not i else data[i:end]
+                if pend - i - _HEADER_LEN_V2 >= size:    # whole (or longer: extensions cut)
+                    msg: Any = _new_tuple(lite, (*unpack_from(data, i + _HEADER_LEN_V2), raw))
+                else:                                    # MAVLink 2 trimmed trailing zeros
+                    msg = _new_tuple(lite, (*unpack(
+                        data[i + _HEADER_LEN_V2:pend] + _ZEROS[:size + _HEADER_LEN_V2 + i - pend]),
+                        raw))
+                i = end
+                st.rx_frames += 1
+                if on_frame is not None:
+                    if now is None:
+                        now = self.clock()
+                    on_frame("rx", raw, msg, now)
+                elif batch is not None:
+                    batch.append(raw)
+                out.append(msg)
+            if batch:
+                now = self.clock()
+                self.on_frames("rx", batch, None, now)
+            if i == n:
+                return
+        self._ingest_general(data, i, n, addr, out, now)
+
+    def _ingest_general(self, data: bytes, i: int, n: int, addr: Any, out: list[Any],
+                        now: float | None) -> None:
+        """:meth:`_ingest` from byte ``i`` of ``data``: every frame, every check."""
+        st = self.stats
         on_frame = self.on_frame
         signing = self.signing
         hot = _HOT.get
         crc16 = _crc16
-        now = None                   # the hook's receipt time: one clock read a datagram
-        i = 0
         while i < n:
             magic = data[i]
             if magic != MAGIC_V2:
