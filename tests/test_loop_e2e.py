@@ -44,6 +44,14 @@ def test_demo_paper_converges_and_detects_rotor_2(tmp_path):
             summary = make_reader(fh).get_summary()
         assert summary is not None and summary.statistics.message_count > 1000
     assert m["messages_logged"] >= m["messages_sent"] > 12_000
+    # The daemon stops at the last chunk of the vehicle's "simulation ended ..." text (50
+    # characters: a full chunk, then an empty one ends it), so its log holds all of it.
+    with open(tmp_path / "ctl.mcap", "rb") as fh:
+        texts = [json.loads(msg.data) for _s, ch, msg in make_reader(fh).iter_messages()
+                 if ch.topic.endswith("/STATUSTEXT")]
+    end = next(t for t in texts if t["text"].startswith("simulation ended"))
+    assert any(t["id"] == end["id"] and len(t["text"]) < 50
+               for t in texts[texts.index(end):])
 
 
 @pytest.mark.slow

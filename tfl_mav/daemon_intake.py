@@ -52,6 +52,7 @@ class Intake:
     _last_usec: int
     _last_cmd: list[float]
     _vehicle_done: str
+    _ending: tuple[int, str] | None
     _handlers: dict[type, Any]
 
     def _init_intake(self) -> None:
@@ -60,6 +61,7 @@ class Intake:
         self._complete = []           # this batch's complete states
         self._arrived = False         # a valid state arrived this loop (failsafe clock)
         self._vehicle_done = ""
+        self._ending = None           # (STATUSTEXT id, reason) of an end told in chunks
         self._handlers = {            # the per-tick messages, by the link's classes
             _RxOdometry: self._on_odometry,
             rx_lite_class(_ID_ACTUATOR_OUTPUT_STATUS): self._on_applied,
@@ -97,9 +99,14 @@ class Intake:
             self._event("info", f"vehicle: {text}", send=False)
             if self.stats.ticks > 0 and not self._vehicle_done:
                 if text.startswith("crashed:"):
-                    self._vehicle_done = "vehicle reported EMERGENCY (crashed)"
+                    self._ending = (msg.id, "vehicle reported EMERGENCY (crashed)")
                 elif text.startswith("simulation ended"):
-                    self._vehicle_done = "vehicle powered off (run over)"
+                    self._ending = (msg.id, "vehicle powered off (run over)")
+                # done at the text's last chunk (MAVLink 2 STATUSTEXT: chunks share an id;
+                # one shorter than 50 characters ends it), so the log holds all of it
+                if self._ending is not None and msg.id == self._ending[0] \
+                        and (msg.id == 0 or len(text) < 50):
+                    self._vehicle_done = self._ending[1]
             return
         self.stats.ignored_messages += 1
 
