@@ -180,3 +180,27 @@ def test_c_path_a_failed_file_counts_as_python(tmp_path: Path, frames_fn: Any) -
         assert rec.error is not None
         stats.append(rec.stats.as_dict())
     assert stats[0] == stats[1] and stats[0]["dropped"] > 0
+
+
+def test_truth_records_by_c_match_python(tmp_path: Path, frames_fn: Any) -> None:
+    """The simulator's truth records (three a tick) by the C ``records`` function: the same
+    file as the Python path, NaN/inf ticks included (those take the Python path)."""
+    rnd = random.Random(4)
+    rows = []
+    for k in range(400):
+        v = [_value(rnd, True) for _ in range(19)]
+        rows.append((0.001 * k, v[0:3], v[3:6], v[6:10], v[10:13], v[13:17],
+                     rnd.choice([0, 0, 2, 4]), v[17], v[18]))
+    files = []
+    for fn in (frames_fn, None):
+        path = tmp_path / f"{fn is None}.mcap"
+        rec = Recorder(path, clock=lambda: 0.0, chunk_size_bytes=3000,
+                       rotor_xy_m=((0.2, 0.2), (-0.2, 0.2), (-0.2, -0.2), (0.2, -0.2)),
+                       thrust_max_n=8.0)
+        rec._frames_c = fn
+        for row in rows:
+            rec.truth(*row)
+        assert (rec._truth_c is not None) == (fn is not None)
+        rec.close()
+        files.append(path.read_bytes())
+    assert files[0] == files[1]

@@ -455,8 +455,113 @@ static PyObject *frames(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     return PyLong_FromSsize_t(i);
 }
 
+/* records(chunk, end_chunk, limit, log_ns, pub_ns, values, layouts, enc) -> records
+   written, or None (a value is NaN/inf or not a plain number: nothing written, the
+   caller's careful path). values: the numbers (floats and ints, no bools), printed by one
+   msgspec call (``enc``) in repr's notation; layouts: per record (channel id, pieces,
+   indices): its JSON is pieces[0] + value[indices[0]] + pieces[1] + ... + pieces[-1].
+   The records as FastWriter.add_same_time writes them (a chunk may end between them). */
+static PyObject *records(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
+    if (nargs != 8) { PyErr_SetString(PyExc_TypeError, "records: 8 arguments"); return NULL; }
+    PyObject *chunk = args[0], *end_chunk = args[1], *values = args[5], *layouts = args[6];
+    PyObject *enc = args[7];
+    Py_ssize_t limit = PyLong_AsSsize_t(args[2]);
+    long long log_ns = PyLong_AsLongLong(args[3]), pub_ns = PyLong_AsLongLong(args[4]);
+    if (PyErr_Occurred()) return NULL;
+    if (!PyTuple_Check(values) || !PyTuple_Check(layouts)) {
+        PyErr_SetString(PyExc_TypeError, "records: values, layouts"); return NULL;
+    }
+    Py_ssize_t n = PyTuple_GET_SIZE(values);
+    for (Py_ssize_t k = 0; k < n; k++) {
+        PyObject *v = PyTuple_GET_ITEM(values, k);
+        if (PyFloat_CheckExact(v)) {
+            if (!isfinite(PyFloat_AS_DOUBLE(v))) Py_RETURN_NONE;
+        } else if (!PyLong_CheckExact(v)) {
+            Py_RETURN_NONE;                      /* bools, numpy values: the careful path */
+        }
+    }
+    PyObject *out = PyObject_CallOneArg(enc, values);
+    if (!out) return NULL;
+    if (!PyBytes_Check(out)) { Py_DECREF(out); Py_RETURN_NONE; }
+    /* each value's text: [start, end) in out, or a repr re-print */
+    const char *s = PyBytes_AS_STRING(out), *e = s + PyBytes_GET_SIZE(out);
+    Py_ssize_t *span = PyMem_Malloc(sizeof(Py_ssize_t) * 2 * (n ? n : 1));
+    char **fixed = PyMem_Calloc(n ? n : 1, sizeof(char *));
+    PyObject *result = NULL;
+    PyObject *buf = NULL, *index = NULL;
+    if (!span || !fixed) { PyErr_NoMemory(); goto done; }
+    const char *p = s < e && *s == '[' ? s + 1 : s;
+    for (Py_ssize_t k = 0; k < n; k++) {
+        const char *q = p;
+        while (q < e && *q != ',' && *q != ']') q++;
+        if (q == p || q == e) { result = Py_NewRef(Py_None); goto done; }
+        span[2 * k] = p - s;
+        span[2 * k + 1] = q - s;
+        PyObject *v = PyTuple_GET_ITEM(values, k);
+        if (PyFloat_CheckExact(v) && odd_text(p, q - p)) {
+            fixed[k] = PyOS_double_to_string(PyFloat_AS_DOUBLE(v), 'r', 0,
+                                             Py_DTSF_ADD_DOT_0, NULL);
+            if (!fixed[k]) goto done;
+        }
+        p = q + 1;
+    }
+    buf = PyObject_GetAttrString(chunk, "buf");
+    index = buf ? PyObject_GetAttrString(chunk, "index") : NULL;
+    if (!index || !PyByteArray_Check(buf) || !PyDict_Check(index)) {
+        if (!PyErr_Occurred()) PyErr_SetString(PyExc_TypeError, "records: chunk");
+        goto done;
+    }
+    Py_ssize_t written = 0;
+    for (Py_ssize_t r = 0; r < PyTuple_GET_SIZE(layouts); r++) {
+        PyObject *lay = PyTuple_GET_ITEM(layouts, r);
+        if (!PyTuple_Check(lay) || PyTuple_GET_SIZE(lay) != 3) {
+            PyErr_SetString(PyExc_TypeError, "records: layout"); goto done;
+        }
+        long cid = PyLong_AsLong(PyTuple_GET_ITEM(lay, 0));
+        PyObject *pieces = PyTuple_GET_ITEM(lay, 1), *idx = PyTuple_GET_ITEM(lay, 2);
+        if (PyErr_Occurred()) goto done;
+        if (!PyTuple_Check(pieces) || !PyTuple_Check(idx)
+            || PyTuple_GET_SIZE(pieces) != PyTuple_GET_SIZE(idx) + 1) {
+            PyErr_SetString(PyExc_TypeError, "records: pieces, indices"); goto done;
+        }
+        out_json.n = 0;
+        for (Py_ssize_t j = 0; j <= PyTuple_GET_SIZE(idx); j++) {
+            PyObject *piece = PyTuple_GET_ITEM(pieces, j);
+            if (!PyBytes_Check(piece)) {
+                PyErr_SetString(PyExc_TypeError, "records: piece"); goto done;
+            }
+            if (text_put(&out_json, PyBytes_AS_STRING(piece), PyBytes_GET_SIZE(piece)) < 0)
+                goto done;
+            if (j == PyTuple_GET_SIZE(idx)) break;
+            Py_ssize_t k = PyLong_AsSsize_t(PyTuple_GET_ITEM(idx, j));
+            if (k < 0 || k >= n) {
+                if (!PyErr_Occurred()) PyErr_SetString(PyExc_IndexError, "records: index");
+                goto done;
+            }
+            int rc = fixed[k] ? text_put(&out_json, fixed[k], (Py_ssize_t)strlen(fixed[k]))
+                              : text_put(&out_json, s + span[2 * k],
+                                         span[2 * k + 1] - span[2 * k]);
+            if (rc < 0) goto done;
+        }
+        if (add_record(buf, index, cid, log_ns, pub_ns, &out_json) < 0
+            || chunk_check(&buf, &index, chunk, end_chunk, limit) < 0) goto done;
+        written++;
+    }
+    result = PyLong_FromSsize_t(written);
+done:
+    if (fixed) for (Py_ssize_t k = 0; k < n; k++) if (fixed[k]) PyMem_Free(fixed[k]);
+    PyMem_Free(fixed);
+    PyMem_Free(span);
+    Py_XDECREF(buf);
+    Py_XDECREF(index);
+    Py_DECREF(out);
+    return result;
+}
+
 static PyMethodDef methods[] = {
     {"frames", (PyCFunction)(void (*)(void))frames, METH_FASTCALL, "the frame hot path"},
+    {"records", (PyCFunction)(void (*)(void))records, METH_FASTCALL,
+     "records of numbers with the same times"},
     {NULL, NULL, 0, NULL}
 };
 

@@ -266,6 +266,12 @@ class RecordFormat:
                 parts.append(f'"{key}":[{",".join(["%s"] * n)}]')
         self.bfmt = ("{" + ",".join(parts) + "}").encode()
 
+    @property
+    def pieces(self) -> tuple[bytes, ...]:
+        """The text between the values (one more than the values): the C path's form of
+        :attr:`bfmt` (:func:`~tfl_mav.flightlog.frames_c` ``records``)."""
+        return tuple(p.replace(b"%%", b"%") for p in self.bfmt.split(b"%s"))
+
     def encode(self, values: tuple[Any, ...]) -> bytes | None:
         """The JSON of ``values`` (numbers, in format order), or None if one is NaN/inf."""
         parts = _numbers_json(values)

@@ -67,6 +67,7 @@ from tfl_mav.flightlog import foxglove as fg
 from tfl_mav.flightlog import schemas
 from tfl_mav.flightlog.framerec import FrameRecorder
 from tfl_mav.flightlog.jsonenc import RecordFormat, _numbers_json
+from tfl_mav.flightlog.jsonobj import encode as _encode_obj
 from tfl_mav.flightlog.mcapout import MAX_NS, RecorderError, RecorderStats
 from tfl_mav.flightlog.polyline import Polyline
 from tfl_mav.flightlog.recordplan import record_plan
@@ -140,6 +141,8 @@ class Recorder(FrameRecorder):
         self._dumps = self._json.dumps
         self._last_scene_t = -math.inf
         self._truth_cids: tuple[int, int, int] | None = None
+        self._truth_c: Any = None          # frames_c ``records`` (when built)
+        self._truth_layouts: dict[bool, Any] = {}
         # record plans of the shapes seen (recordplan), [plan, checked]; by shape
         self._ctl_plans: list[list[Any]] = []
         self._ctl_shapes: dict[tuple[Any, ...], Any] = {}
@@ -195,6 +198,13 @@ class Recorder(FrameRecorder):
                                          attack_requested_n, *rotor_thrust_n)))
         except (TypeError, ValueError):
             fast = False
+        if fast and self._truth_c is not None and self._live is None and self._open:
+            self.set_sim_time(vals[0])     # the C path: three records in one call
+            log_ns = self._now_ns()
+            if self._truth_records(log_ns, (*vals, attack_rotor), attack_rotor != 0):
+                self._scene(vals[0], log_ns, vals[1:4], vals[7:11], vals[16:20],
+                            attack_rotor)
+                return
         parts = _numbers_json((*vals, attack_rotor)) if fast else None
         if parts is not None:
             self.set_sim_time(vals[0])
@@ -245,7 +255,47 @@ class Recorder(FrameRecorder):
         self._truth_cids = (self._channel_ids.get("/sim/truth/state", 0),
                             self._channel_ids.get("/sim/truth/attack", 0),
                             self._channel_ids.get("/sim/truth/thrusts", 0))
+        self._setup_truth_c()
         self._scene(t, log_ns, pos, quat, thrust, rotor)
+
+    def _c_ready(self, fn: Any) -> None:
+        super()._c_ready(fn)
+        self._setup_truth_c()
+
+    def _setup_truth_c(self) -> None:
+        """The truth records' C path, once the channels and the compiled module exist."""
+        records = getattr(getattr(self._frames_c, "__self__", None), "records", None)
+        if (records is not None and getattr(self, "_truth_cids", None) is not None
+                and getattr(self._writer, "_fast", False)):
+            # the hot path's values: t, position, velocity, quaternion, rates, applied,
+            # requested, thrusts 1-4, rotor (indices 0, 1-3, 4-6, 7-10, 11-13, 14, 15,
+            # 16-19, 20)
+            state_cid, attack_cid, thrusts_cid = self._truth_cids
+            self._truth_layouts = {active: (
+                (state_cid, _TRUTH_STATE.pieces, tuple(range(14))),
+                (attack_cid, _TRUTH_ATTACK["true" if active else "false"].pieces,
+                 (0, 20, 14, 15)),
+                (thrusts_cid, _TRUTH_THRUSTS.pieces, (0, 16, 17, 18, 19, 20)))
+                for active in (False, True)}
+            self._truth_c = records
+
+    def _truth_records(self, log_ns: int, values: tuple[Any, ...], active: bool) -> bool:
+        """The three truth records by the C path; False (nothing written) for values it
+        does not print (NaN/inf: the Python path leaves them out)."""
+        w = self._writer
+        try:
+            with self._lock:
+                n = self._truth_c(w.chunk, w.end_chunk, w.chunk_limit, log_ns, self._sim_ns,
+                                  values, self._truth_layouts[active], _encode_obj)
+                if n is None:
+                    return False
+                self._pending += n
+                self.stats.messages += n
+            if time.monotonic() >= self._next_flush:
+                self._flush()
+        except Exception as exc:
+            self._failed(exc)
+        return True
 
     def _scene(self, t: float, log_ns: int, pos: Sequence[float], quat: Sequence[float],
                thrust: Sequence[float], rotor: int) -> None:
