@@ -198,7 +198,9 @@ class Recorder(FrameRecorder):
                                          attack_requested_n, *rotor_thrust_n)))
         except (TypeError, ValueError):
             fast = False
-        if fast and self._truth_c is not None and self._live is None and self._open:
+        log_ns = None
+        if (fast and self._truth_c is not None and self._live is None and self._open
+                and math.isfinite(sum(vals))):     # NaN/inf: left out by the Python path
             self.set_sim_time(vals[0])     # the C path: three records in one call
             log_ns = self._now_ns()
             if self._truth_records(log_ns, (*vals, attack_rotor), attack_rotor != 0):
@@ -208,7 +210,7 @@ class Recorder(FrameRecorder):
         parts = _numbers_json((*vals, attack_rotor)) if fast else None
         if parts is not None:
             self.set_sim_time(vals[0])
-            log_ns = self._now_ns()
+            log_ns = self._now_ns() if log_ns is None else log_ns
             state_cid, attack_cid, thrusts_cid = self._truth_cids
             self._write_many((
                 (state_cid, _TRUTH_STATE.bfmt % tuple(parts[:14])),
@@ -234,7 +236,7 @@ class Recorder(FrameRecorder):
             self._bad(f"truth: {exc}")
             return
         self.set_sim_time(time_s)
-        log_ns, pub_ns = self._now_ns(), self._sim_ns
+        log_ns, pub_ns = self._now_ns() if log_ns is None else log_ns, self._sim_ns
         t = float(time_s)
         # precompiled JSON (byte-identical); the dict encoder for NaN/inf (left out)
         self._write(self._channel("/sim/truth/state", schemas.TRUTH_STATE),
