@@ -122,8 +122,6 @@ def handle_batch(rec: Recorder, data: bytes, now: list[float]) -> bool:
     """Apply one pickled batch of calls to ``rec`` (``now[0]``: the stamp of the call at
     hand, the recorder's clock). False when the batch ends with close."""
     items = pickle.loads(data)
-    if os.environ.get("TFL_X_NULL"):
-        return items[-1][0] != _CLOSE
     i, n = 0, len(items)
     while i < n:
         item = items[i]
@@ -195,10 +193,6 @@ class RecorderProcess:
         with contextlib.suppress(OSError):   # from here, so its imports are nicer too
             os.setpriority(os.PRIO_PROCESS, self._proc.pid,
                            min(19, os.getpriority(os.PRIO_PROCESS, 0) + NICE_INCREMENT))
-        if os.environ.get("TFL_X_IDLE"):
-            os.sched_setscheduler(self._proc.pid, os.SCHED_IDLE, os.sched_param(0))
-        if os.environ.get("TFL_X_CPU"):
-            os.sched_setaffinity(self._proc.pid, {int(os.environ["TFL_X_CPU"])})
         child_conn.close()
         child_results.close()
         try:
