@@ -89,6 +89,43 @@ def _thrust_rgb(fraction: float) -> tuple[float, float, float]:
     return u, 0.4 + 0.5 * u, 1.0 - u
 
 
+class _Airframe:
+    """The parts of :func:`vehicle_scene` fixed by the rotor layout (poses, sizes, the
+    body), built once per layout: the SDK's objects cost ~1-2 µs each, and a scene is
+    drawn 50 times a second (issue #13). Values are the ones the scene always drew."""
+
+    def __init__(self, rotor_xy_m: tuple[tuple[float, float], ...]) -> None:
+        arm = max(math.hypot(*xy) for xy in rotor_xy_m)
+        arm_w, disc_d = 0.02, 0.7 * arm
+        self.arm = arm
+        self.body = fm.CubePrimitive(pose=_pose(0.0, 0.0, 0.0), size=_vec(0.12, 0.12, 0.05),
+                                     color=_BODY_COLOR)
+        self.rotors = []
+        for x, y in rotor_xy_m:
+            yaw = math.atan2(y, x)
+            self.rotors.append((
+                _pose(0.5 * x, 0.5 * y, 0.0, fm.Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2),
+                                                           w=math.cos(yaw / 2))),
+                _vec(math.hypot(x, y), arm_w, 0.015),           # the arm
+                _pose(x, y, 0.02), _vec(disc_d, disc_d, 0.01),  # the disc
+                _pose(x, y, 0.03, _UP),                         # the thrust arrow
+                _pose(x, y, 0.25 * arm), _vec(0.08, 0.08, 0.08),   # the attack marker
+                _pose(x, y, 0.25 * arm + 0.08)))                # its label
+
+
+_AIRFRAMES: dict[tuple[tuple[float, float], ...], _Airframe] = {}
+
+
+def _airframe(rotor_xy_m: Sequence[Sequence[float]]) -> _Airframe:
+    key = tuple((float(x), float(y)) for x, y in rotor_xy_m)
+    frame = _AIRFRAMES.get(key)
+    if frame is None:
+        if len(_AIRFRAMES) >= 16:
+            _AIRFRAMES.clear()
+        frame = _AIRFRAMES[key] = _Airframe(key)
+    return frame
+
+
 def vehicle_scene(ns: int, rotor_xy_m: Sequence[Sequence[float]],
                   rotor_thrust_n: Sequence[float], thrust_max_n: float,
                   attack_rotor: int, label: str = "attack") -> bytes:
@@ -96,34 +133,29 @@ def vehicle_scene(ns: int, rotor_xy_m: Sequence[Sequence[float]],
     (arrow length ∝ thrust, colour by thrust fraction of ``thrust_max_n``), and the
     attacked rotor (1-based, 0 = none) drawn red with a red marker sphere and the text
     "``label``: rotor N" (the controller's view says "detected": it knows no truth)."""
-    arm = max(math.hypot(*xy) for xy in rotor_xy_m)
-    arm_w, disc_d = 0.02, 0.7 * arm
-    cubes = [fm.CubePrimitive(pose=_pose(0.0, 0.0, 0.0), size=_vec(0.12, 0.12, 0.05),
-                              color=_BODY_COLOR)]
+    frame = _airframe(rotor_xy_m)
+    arm = frame.arm
+    cubes = [frame.body]
     cylinders, arrows, spheres, texts = [], [], [], []
-    for i, (x, y) in enumerate(rotor_xy_m):
+    for i, (arm_pose, arm_size, disc_pose, disc_size, arrow_pose, mark_pose, mark_size,
+            text_pose) in enumerate(frame.rotors):
         frac = rotor_thrust_n[i] / thrust_max_n
         attacked = attack_rotor == i + 1
         r, g, b = _RED_RGB if attacked else _thrust_rgb(frac)
         color = fm.Color(r=r, g=g, b=b, a=1.0)
-        yaw = math.atan2(y, x)
-        cubes.append(fm.CubePrimitive(
-            pose=_pose(0.5 * x, 0.5 * y, 0.0, fm.Quaternion(x=0.0, y=0.0, z=math.sin(yaw / 2),
-                                                            w=math.cos(yaw / 2))),
-            size=_vec(math.hypot(x, y), arm_w, 0.015), color=color))
+        cubes.append(fm.CubePrimitive(pose=arm_pose, size=arm_size, color=color))
         cylinders.append(fm.CylinderPrimitive(
-            pose=_pose(x, y, 0.02), size=_vec(disc_d, disc_d, 0.01), bottom_scale=1.0,
-            top_scale=1.0, color=fm.Color(r=r, g=g, b=b, a=0.6)))
+            pose=disc_pose, size=disc_size, bottom_scale=1.0, top_scale=1.0,
+            color=fm.Color(r=r, g=g, b=b, a=0.6)))
         length = max(min(frac, 1.5), 0.0) * 2.0 * arm
         if length > 0.0:
             arrows.append(fm.ArrowPrimitive(
-                pose=_pose(x, y, 0.03, _UP), shaft_length=0.75 * length, shaft_diameter=0.015,
+                pose=arrow_pose, shaft_length=0.75 * length, shaft_diameter=0.015,
                 head_length=0.25 * length, head_diameter=0.04, color=color))
         if attacked:
-            spheres.append(fm.SpherePrimitive(pose=_pose(x, y, 0.25 * arm),
-                                              size=_vec(0.08, 0.08, 0.08), color=_RED))
-            texts.append(fm.TextPrimitive(pose=_pose(x, y, 0.25 * arm + 0.08), billboard=True,
-                                          font_size=14.0, scale_invariant=True, color=_RED,
+            spheres.append(fm.SpherePrimitive(pose=mark_pose, size=mark_size, color=_RED))
+            texts.append(fm.TextPrimitive(pose=text_pose, billboard=True, font_size=14.0,
+                                          scale_invariant=True, color=_RED,
                                           text=f"{label}: rotor {attack_rotor}"))
     entity = fm.SceneEntity(timestamp=stamp(ns), frame_id=BODY, id="vehicle",
                             lifetime=_ZERO_DURATION, frame_locked=True, cubes=cubes,
