@@ -37,7 +37,7 @@ from __future__ import annotations
 import hashlib
 import re
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from tfl_mav.link.dialect import mav
@@ -296,6 +296,38 @@ class FastCodec:
             buf += h.digest()[:6]
             signing.timestamp += 1
         return buf
+
+    def pack_many(self, msgs: Iterable[Any], packer: Any) -> list[bytes]:
+        """The frames of ``msgs`` on consecutive sequence numbers (``packer.seq`` advanced
+        past them), as :meth:`pack` (or pymavlink, for a message that is not hot) makes each
+        one. Unsigned, a :class:`Prepacked` message is framed here with the packer's fields
+        read once for the batch (the vehicle's per-tick datagram)."""
+        frames: list[bytes] = []
+        append = frames.append
+        if packer.signing.sign_outgoing:
+            for msg in msgs:
+                append(self.pack(msg, packer) or msg.pack(packer))
+                packer.seq = (packer.seq + 1) & 0xFF
+            return frames
+        prepacked = self.by_prepacked.get
+        head = _HEADER.pack
+        crc16 = _crc16
+        seq, src_system, src_component = packer.seq, packer.srcSystem, packer.srcComponent
+        for msg in msgs:
+            layout = prepacked(type(msg))
+            if layout is None:
+                packer.seq = seq
+                append(self.pack(msg, packer) or msg.pack(packer))
+            else:   # frame() unsigned, on the parts (a CRC carries over its input's pieces)
+                payload = msg[0]
+                msgid = layout.msgid
+                header = head(0xFD, len(payload), 0, 0, seq, src_system, src_component,
+                              msgid & 0xFFFF, msgid >> 16)
+                crc = crc16(layout.crc_extra_byte, crc16(payload, crc16(header[1:], 0xFFFF)))
+                append(header + payload + crc.to_bytes(2, "little"))
+            seq = (seq + 1) & 0xFF
+        packer.seq = seq
+        return frames
 
     def _checked(self, raw: bytes, parser: Any) -> tuple[Any, int, int] | None:
         """(layout, payload end, CRC) of a hot message's frame whose CRC checks (counting a
