@@ -32,6 +32,7 @@ class AttackSample(NamedTuple):
 
 
 NO_ATTACK = AttackSample(0, 0.0, 0.0, False)
+_new = tuple.__new__
 
 
 class Attacker:
@@ -90,7 +91,8 @@ class Attacker:
         if not math.isfinite(raw):
             return AttackSample(self.rotor, math.nan, 0.0, True)
         applied = min(max(raw, 0.0), self.thrust_max_n)
-        return AttackSample(self.rotor, raw, applied, applied != raw)
+        # tuple.__new__: the NamedTuple's generated __new__ is a Python call (every step)
+        return _new(AttackSample, (self.rotor, raw, applied, applied != raw))
 
     def _raw(self, t: float, pos: tuple[float, float, float], last_command_n: float) -> float:
         c = self.cfg

@@ -226,6 +226,8 @@ class GcsTelemetry:
         self._period_usec = max(1, round(period_s * 1e6))   # lockstep: sim µs
         self._next_usec = 0
         self._next_heartbeat_usec = 0
+        if sim_time:   # called every lockstep tick: the sim-time pacing without a call more
+            self.periodic = self._periodic_sim   # type: ignore[method-assign]
 
     def periodic(self) -> None:
         """Send what is due now, if anything."""

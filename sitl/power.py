@@ -38,6 +38,9 @@ class PowerSample(NamedTuple):
         return sum(self.currents_a)
 
 
+_new = tuple.__new__
+
+
 class PowerModel:
     """Battery + four ESCs. Call :meth:`step` once per control period with true ω."""
 
@@ -102,6 +105,7 @@ class PowerModel:
         soc = max(0.0, 1.0 - (q1 + q2 + q3 + q4) / self.capacity_mah)
         v_oc = self.empty_v + (self.full_v - self.empty_v) * soc
         self._voltage_v = max(0.0, v_oc - self.r_int_ohm * total_a)
-        self.sample = PowerSample(self._voltage_v, (i1, i2, i3, i4), consumed, temps,
-                                  100.0 * soc)
-        return self.sample
+        # tuple.__new__: the NamedTuple's generated __new__ is a Python call (every tick)
+        self.sample = sample = _new(PowerSample, (self._voltage_v, (i1, i2, i3, i4), consumed,
+                                                  temps, 100.0 * soc))
+        return sample
