@@ -218,7 +218,8 @@ class Simulator:
         g = self._gyro_range_radps
         if g > 0 and not -g <= min(w) <= max(w) <= g:   # a real gyro saturates at its range
             w = [min(max(c, -g), g) for c in w]
-        self._measured_floats = State(tuple(pos), tuple(vel), q, tuple(w), self._time_usec)
+        self._parts = (tuple(pos), tuple(vel), tuple(q), tuple(w))
+        self._measured_floats: State | None = None    # built from _parts on first read
         self._measured: State | None = None
 
     # ------------------------------------------------------------------ outputs
@@ -239,7 +240,7 @@ class Simulator:
         (built on first read in a tick; :attr:`measured_floats` is the same numbers)."""
         m = self._measured
         if m is None:
-            f = self._measured_floats
+            f = self.measured_floats
             m = self._measured = State(np.array(f.position_m), np.array(f.velocity_mps),
                                        np.array(f.quaternion_wxyz),
                                        np.array(f.body_rates_radps), f.time_usec)
@@ -248,7 +249,17 @@ class Simulator:
     @property
     def measured_floats(self) -> State:
         """:attr:`measured` with float tuples for fields: what hot loops read (no arrays)."""
-        return self._measured_floats
+        m = self._measured_floats
+        if m is None:
+            m = self._measured_floats = State(*self._parts, self._time_usec)
+        return m
+
+    @property
+    def measured_parts(self) -> tuple[tuple[float, ...], tuple[float, ...],
+                                      tuple[float, ...], tuple[float, ...]]:
+        """:attr:`measured_floats`' (position, velocity, quaternion, body rates) without the
+        State (the vehicle's per-tick report reads only these)."""
+        return self._parts  # type: ignore[return-value]
 
     def measured_rpm(self) -> np.ndarray:
         """ESC-reported rotor speeds (rpm, with the scenario's seeded noise); a new array."""

@@ -99,13 +99,10 @@ class StateReport:
         ``struct.pack`` of the values that change (the constant tails packed once), the
         link only frames it; its fields read as the LiteMessage's would."""
         sim = self.sim
-        m = sim.measured_floats       # float tuples: no arrays to build and convert back
+        # float tuples: no arrays to build and convert back, no State either
+        (px, py, pz), (vx, vy, vz), (w, x, y, z), (p, q, r) = sim.measured_parts
         # tfl_mav.frames.odometry_from_paper written out (the same operations in the same
         # order): paper ENU/FLU → NED pose, body-FRD twist
-        px, py, pz = m.position_m
-        vx, vy, vz = m.velocity_mps
-        w, x, y, z = m.quaternion_wxyz
-        p, q, r = m.body_rates_radps
         vb1 = (1 - 2 * (y * y + z * z)) * vx + 2 * (x * y + w * z) * vy + 2 * (x * z - w * y) * vz
         vb2 = 2 * (x * y - w * z) * vx + (1 - 2 * (x * x + z * z)) * vy + 2 * (y * z + w * x) * vz
         vb3 = 2 * (x * z + w * y) * vx + 2 * (y * z - w * x) * vy + (1 - 2 * (x * x + y * y)) * vz
