@@ -44,6 +44,9 @@ CONTROL_TOLERANCE = 1e-4
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
 _RxControls = rx_lite_class(mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS)
 _LO, _HI = -CONTROL_TOLERANCE, 1.0 + CONTROL_TOLERANCE
+# on_controls reads the link's tuple by index: time_usec at 0, mode at 18
+assert (_RxControls.time_usec.fget(tuple(range(20))), _RxControls.mode.fget(tuple(range(20)))) \
+    == (0, 18)
 
 Handler = Callable[[Link, Any], None]
 """Handles one received message (or one COMMAND_LONG/INT) from the given port."""
@@ -78,7 +81,8 @@ class ActuatorControls:
         time_usec is stale), never the future; one applied after its own tick is late."""
         stats = self.stats
         held = self.held
-        t = msg.time_usec
+        rx = type(msg) is _RxControls   # the link's tuple: time_usec, flags, controls[16], mode
+        t = msg[0] if rx else msg.time_usec
         if awaited_usec is not None:
             if t != awaited_usec:
                 if t == held.time_usec:    # the answer to a resent state, already applied
@@ -93,8 +97,7 @@ class ActuatorControls:
             # Older than (or a duplicate of) the held one, or for a tick not yet sent.
             stats.stale_controls += 1
             return _STALE
-        # the link's tuple: time_usec, flags, controls[16], mode (no 16-item list built)
-        c1, c2, c3, c4 = msg[2:6] if type(msg) is _RxControls else msg.controls[:4]
+        c1, c2, c3, c4 = msg[2:6] if rx else msg.controls[:4]   # no 16-item list built
         # In range → finite (comparisons with NaN are False): one chained test for the norm.
         problem = (None if _LO <= c1 <= _HI and _LO <= c2 <= _HI and _LO <= c3 <= _HI
                    and _LO <= c4 <= _HI else check_controls((c1, c2, c3, c4)))
@@ -110,7 +113,7 @@ class ActuatorControls:
         if age_usec > 0:
             stats.late_controls += 1
         flight = self.flight
-        armed = bool(msg.mode & _ARMED)
+        armed = bool((msg[18] if rx else msg.mode) & _ARMED)
         held.armed = armed
         if armed != flight.armed:
             flight.armed = armed

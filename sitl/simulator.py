@@ -35,6 +35,9 @@ def _step_numpy_scalars(step: Rk4Step, x: list[float], uf: float, tp: float, tq:
 # Beyond these the run is over: the messages say why in words a user can act on.
 MAX_BODY_RATE_RADPS = 300.0
 MAX_SPEED_MPS = 100.0
+_MAX_BODY_RATE2 = MAX_BODY_RATE_RADPS * MAX_BODY_RATE_RADPS   # exact: 90000, 10000
+_MAX_SPEED2 = MAX_SPEED_MPS * MAX_SPEED_MPS
+assert math.sqrt(_MAX_BODY_RATE2) == MAX_BODY_RATE_RADPS and math.sqrt(_MAX_SPEED2) == MAX_SPEED_MPS
 
 
 class Simulator:
@@ -296,12 +299,19 @@ class Simulator:
         if b3z < 0.0:
             return (f"flipped: thrust axis points down (tilt {math.degrees(math.acos(b3z)):.0f}°)"
                     f" at t = {self.time_s:.3f} s")
-        rate = math.sqrt(wp ** 2 + wq ** 2 + wr ** 2)
-        if rate > MAX_BODY_RATE_RADPS:
-            return (f"spinning at {rate:.0f} rad/s (> {MAX_BODY_RATE_RADPS:.0f} rad/s, beyond "
-                    f"what a real airframe and its gyros survive) at t = {self.time_s:.3f} s")
-        speed = math.sqrt(vx ** 2 + vy ** 2 + vz ** 2)
-        if speed > MAX_SPEED_MPS:
-            return f"speed {speed:.0f} m/s exceeds {MAX_SPEED_MPS:.0f} m/s: runaway"
+        # sqrt only past the limit's square: sqrt is monotonic and sqrt(limit²) = limit
+        # exactly, so a sum not above the square can never have a root above the limit
+        rate2 = wp ** 2 + wq ** 2 + wr ** 2
+        if rate2 > _MAX_BODY_RATE2:
+            rate = math.sqrt(rate2)
+            if rate > MAX_BODY_RATE_RADPS:
+                return (f"spinning at {rate:.0f} rad/s (> {MAX_BODY_RATE_RADPS:.0f} rad/s, "
+                        f"beyond what a real airframe and its gyros survive) at t = "
+                        f"{self.time_s:.3f} s")
+        speed2 = vx ** 2 + vy ** 2 + vz ** 2
+        if speed2 > _MAX_SPEED2:
+            speed = math.sqrt(speed2)
+            if speed > MAX_SPEED_MPS:
+                return f"speed {speed:.0f} m/s exceeds {MAX_SPEED_MPS:.0f} m/s: runaway"
         return None
 
