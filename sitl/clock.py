@@ -176,7 +176,7 @@ class LockstepClock:
             publish_state()
             while True:
                 gcs_periodic()
-                if not await_reply(sim.time_usec):
+                if not await_reply(sim._time_usec):   # time_usec without the property call
                     return ExitStatus.STOPPED, "stopped on request"
                 # --- critical path: reply consumed → next state sent
                 crash = step()

@@ -108,7 +108,8 @@ class ActuatorControls:
                              key="rejected_controls")
             return _REJECTED
         held.time_usec = t
-        age_usec = self.sim.time_usec - t   # > 0: its own tick was already integrated
+        sim = self.sim
+        age_usec = sim._time_usec - t   # > 0: its own tick was already integrated
         stats.command_age.add(age_usec)
         if age_usec > 0:
             stats.late_controls += 1
@@ -120,11 +121,11 @@ class ActuatorControls:
             self.status.send(mav.MAV_SEVERITY_NOTICE,
                              "armed by the controller" if armed else
                              "disarmed by the controller (mode bit 128 clear): motors stopped")
-        fmax = self.sim.thrust_max_n
+        fmax = sim.thrust_max_n
         if armed and not flight.killed:   # a GCS disarm (kill switch) outranks the controller
-            self.sim.set_command([c1 * fmax, c2 * fmax, c3 * fmax, c4 * fmax])
+            sim.set_command([c1 * fmax, c2 * fmax, c3 * fmax, c4 * fmax])
         else:
-            self.sim.set_command([0.0, 0.0, 0.0, 0.0])
+            sim.set_command([0.0, 0.0, 0.0, 0.0])
         stats.controls_applied += 1
         if held.motors_cut:
             held.motors_cut = False
