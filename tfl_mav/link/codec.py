@@ -79,6 +79,7 @@ raw ``bytes`` pymavlink packs (``_name_raw``); never decoded here (pymavlink dec
 field to ``str``), so a receiver still gets pymavlink's message."""
 
 _HEADER = struct.Struct("<BBBBBBBHB")
+_MAX_HEADERS = 4096       # unsigned headers kept per message (bounds a fuzzer's lengths)
 _SIGN_BLOCK = struct.Struct("<BQ")
 _new_tuple = tuple.__new__
 
@@ -180,6 +181,7 @@ class _Layout:
         self.cls = cls
         self.msgid = cls.id
         self.crc_extra_byte = bytes([cls.crc_extra])
+        self.headers: dict[int, tuple[bytes, int]] = {}   # FastCodec.pack_many's, unsigned
         self.size = cls.unpacker.size
         self.unpack = cls.unpacker.unpack
         self.pack_wire: Callable[..., bytes] = cls.unpacker.pack   # the wire-order values
@@ -313,6 +315,7 @@ class FastCodec:
         head = _HEADER.pack
         crc16 = _crc16
         seq, src_system, src_component = packer.seq, packer.srcSystem, packer.srcComponent
+        ids = src_system << 8 | src_component
         for msg in msgs:
             layout = prepacked(type(msg))
             if layout is None:
@@ -320,10 +323,19 @@ class FastCodec:
                 append(self.pack(msg, packer) or msg.pack(packer))
             else:   # frame() unsigned, on the parts (a CRC carries over its input's pieces)
                 payload = msg[0]
-                msgid = layout.msgid
-                header = head(0xFD, len(payload), 0, 0, seq, src_system, src_component,
-                              msgid & 0xFFFF, msgid >> 16)
-                crc = crc16(layout.crc_extra_byte, crc16(payload, crc16(header[1:], 0xFFFF)))
+                # the header and the CRC over it, kept per (length, seq, ids): a sender's
+                # few lengths × 256 sequence numbers
+                key = len(payload) << 24 | seq << 16 | ids
+                known = layout.headers.get(key)
+                if known is None:
+                    msgid = layout.msgid
+                    header = head(0xFD, len(payload), 0, 0, seq, src_system, src_component,
+                                  msgid & 0xFFFF, msgid >> 16)
+                    known = (header, crc16(header[1:], 0xFFFF))
+                    if len(layout.headers) < _MAX_HEADERS:
+                        layout.headers[key] = known
+                header, crc = known
+                crc = crc16(layout.crc_extra_byte, crc16(payload, crc))
                 append(header + payload + crc.to_bytes(2, "little"))
             seq = (seq + 1) & 0xFF
         packer.seq = seq
