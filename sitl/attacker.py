@@ -90,7 +90,8 @@ class Attacker:
         raw = self._raw(t_s, position_m, last_command_n)
         if not math.isfinite(raw):
             return AttackSample(self.rotor, math.nan, 0.0, True)
-        applied = min(max(raw, 0.0), self.thrust_max_n)
+        fmax = self.thrust_max_n    # min(max(raw, 0), f_max) for a finite raw, without calls
+        applied = raw if 0.0 <= raw <= fmax else (0.0 if raw < 0.0 else fmax)
         # tuple.__new__: the NamedTuple's generated __new__ is a Python call (every step)
         return _new(AttackSample, (self.rotor, raw, applied, applied != raw))
 

@@ -123,7 +123,7 @@ class ActuatorControls:
                              "disarmed by the controller (mode bit 128 clear): motors stopped")
         fmax = sim.thrust_max_n
         if armed and not flight.killed:   # a GCS disarm (kill switch) outranks the controller
-            sim.set_command([c1 * fmax, c2 * fmax, c3 * fmax, c4 * fmax])
+            sim.set_command_floats(c1 * fmax, c2 * fmax, c3 * fmax, c4 * fmax)
         else:
             sim.set_command([0.0, 0.0, 0.0, 0.0])
         stats.controls_applied += 1

@@ -32,6 +32,8 @@ def _step_numpy_scalars(step: Rk4Step, x: list[float], uf: float, tp: float, tq:
         return step([np.float64(c) for c in x], uf, tp, tq, tr, h)
 
 
+_round = float.__round__     # round() without its per-call lookup of __round__
+
 # Beyond these the run is over: the messages say why in words a user can act on.
 MAX_BODY_RATE_RADPS = 300.0
 MAX_SPEED_MPS = 100.0
@@ -117,6 +119,15 @@ class Simulator:
                 raise ValueError(f"thrust command[{i}] (rotor {i + 1}): not finite ({f})")
         self.rotor_commands_n = [min(max(f, 0.0), fmax) for f in values]
 
+    def set_command_floats(self, f1: float, f2: float, f3: float, f4: float) -> None:
+        """:meth:`set_command` of four floats (the vehicle's every tick: no list to build
+        and convert); the same checks, the same errors."""
+        fmax = self.thrust_max_n
+        if 0.0 <= f1 <= fmax and 0.0 <= f2 <= fmax and 0.0 <= f3 <= fmax and 0.0 <= f4 <= fmax:
+            self.rotor_commands_n = [f1, f2, f3, f4]
+            return
+        self.set_command([f1, f2, f3, f4])
+
     def inject_failure(self, rotor: int, failure_type: int) -> None:
         """Start an attack on ``rotor`` now (MAV_CMD_INJECT_FAILURE); ValueError if invalid."""
         self.attacker.inject(rotor, failure_type, self.time_s)
@@ -167,7 +178,7 @@ class Simulator:
         self._mean_thrust_n = mean
         self.physics_steps = n
         self._x = x
-        self._time_usec = round(n * 1_000_000 / self._physics_hz)
+        self._time_usec = _round(n * 1_000_000 / self._physics_hz)   # round() on a float
         self.tick += 1
         self._measure()
 

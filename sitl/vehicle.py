@@ -134,6 +134,7 @@ class Vehicle:
         self.scenario = scenario
         self.sim = Simulator(scenario)
         self.recording = HandOff(self.sim, on_frame, on_truth)
+        self.hand_off = self.recording.flush   # type: ignore[method-assign]  # every tick
         hook = self.recording.frame if on_frame is not None else None
         # The links.
         self.signing = Signing(key) if key is not None else None
