@@ -35,7 +35,11 @@ class MotorBank:
 
     def omega_for_thrust(self, thrust_n: float) -> float:
         """Steady rotor speed (rad/s) for a thrust, clamped to [0, f_max]."""
-        return math.sqrt(min(max(thrust_n, 0.0), self.thrust_max_n) / self.k_f)
+        # min(max(f, 0.0), f_max) as conditionals (what the builtins return, NaN included;
+        # this runs every physics step for an attacked rotor)
+        f = 0.0 if thrust_n < 0.0 else thrust_n
+        fmax = self.thrust_max_n
+        return math.sqrt((fmax if fmax < f else f) / self.k_f)
 
     def omegas_for_thrusts(self, thrust_n: Sequence[float]) -> list[float]:
         """:meth:`omega_for_thrust` of each thrust (a control period's held targets)."""

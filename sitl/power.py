@@ -74,7 +74,11 @@ class PowerModel:
         The ESC currents use the previous step's terminal voltage (one step of lag keeps the
         update explicit; at 1 kHz the difference is far below the telemetry resolution).
         """
-        v_prev = max(self._voltage_v, 1.0)
+        # max()/min() of two floats written as conditionals (what they return, NaN included:
+        # max(a, b) is a unless b > a): the builtins cost ~1k instructions a call here
+        v_prev = self._voltage_v
+        if v_prev < 1.0:
+            v_prev = 1.0                      # max(self._voltage_v, 1.0)
         kq_per_w = self.torque_coeff / (self.efficiency * v_prev)   # A per (rad/s)^3
         idle = self.idle_current_a
         if dt_s != self._dt_s:       # constants of the step: dt is the same every tick
@@ -102,9 +106,11 @@ class PowerModel:
         self._consumed_mah = consumed
         self._temps_c = temps
         total_a = i1 + i2 + i3 + i4
-        soc = max(0.0, 1.0 - (q1 + q2 + q3 + q4) / self.capacity_mah)
+        soc = 1.0 - (q1 + q2 + q3 + q4) / self.capacity_mah
+        soc = soc if soc > 0.0 else 0.0          # max(0.0, soc)
         v_oc = self.empty_v + (self.full_v - self.empty_v) * soc
-        self._voltage_v = max(0.0, v_oc - self.r_int_ohm * total_a)
+        volts = v_oc - self.r_int_ohm * total_a
+        self._voltage_v = volts if volts > 0.0 else 0.0   # max(0.0, volts)
         # tuple.__new__: the NamedTuple's generated __new__ is a Python call (every tick)
         self.sample = sample = _new(PowerSample, (self._voltage_v, (i1, i2, i3, i4), consumed,
                                                   temps, 100.0 * soc))
