@@ -32,6 +32,7 @@ class AttackSample(NamedTuple):
 
 
 NO_ATTACK = AttackSample(0, 0.0, 0.0, False)
+_new = tuple.__new__
 
 
 class Attacker:
@@ -89,8 +90,10 @@ class Attacker:
         raw = self._raw(t_s, position_m, last_command_n)
         if not math.isfinite(raw):
             return AttackSample(self.rotor, math.nan, 0.0, True)
-        applied = min(max(raw, 0.0), self.thrust_max_n)
-        return AttackSample(self.rotor, raw, applied, applied != raw)
+        fmax = self.thrust_max_n    # min(max(raw, 0), f_max) for a finite raw, without calls
+        applied = raw if 0.0 <= raw <= fmax else (0.0 if raw < 0.0 else fmax)
+        # tuple.__new__: the NamedTuple's generated __new__ is a Python call (every step)
+        return _new(AttackSample, (self.rotor, raw, applied, applied != raw))
 
     def _raw(self, t: float, pos: tuple[float, float, float], last_command_n: float) -> float:
         c = self.cfg

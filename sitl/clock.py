@@ -64,6 +64,7 @@ _OVERRUN_S = 0.1      # real time: re-anchor the clock when this far behind
 START_RESEND_S = 0.01  # real time: the t = 0 state is resent this often until commands flow
 RESEND_SPAN = 4       # lockstep: later resends of one tick back off to 4 × the first interval
 GCS_POLL_S = 0.01     # lockstep: the GCS port is read this often (wall), not every tick
+_monotonic = time.monotonic
 
 
 @dataclass
@@ -166,23 +167,27 @@ class LockstepClock:
         if stats.ticks >= n_ticks:
             return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
         v.defer_recording(True)
+        # bound once: every tick calls each of them
+        gcs_periodic, await_reply = v.gcs_periodic, self._await_reply
+        step, publish_state = v.step, v.publish_state
         try:
             if stats.ticks % ticks_per_heartbeat == 0:
                 v.send_heartbeat()
-            v.publish_state()
+            publish_state()
             while True:
-                v.gcs_periodic()
-                if not self._await_reply(sim.time_usec):
+                gcs_periodic()
+                if not await_reply(sim._time_usec):   # time_usec without the property call
                     return ExitStatus.STOPPED, "stopped on request"
                 # --- critical path: reply consumed → next state sent
-                crash = v.step()
+                crash = step()
                 if crash is not None:
                     return ExitStatus.CRASHED, crash
-                if stats.ticks >= n_ticks:
+                ticks = stats.ticks
+                if ticks >= n_ticks:
                     return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
-                if stats.ticks % ticks_per_heartbeat == 0:
+                if ticks % ticks_per_heartbeat == 0:
                     v.send_heartbeat()
-                v.publish_state()
+                publish_state()
                 # --- the controller computes from here: report on the tick
         finally:
             v.defer_recording(False)
@@ -196,7 +201,8 @@ class LockstepClock:
         the consumed reply goes straight on to the next state."""
         v = self.vehicle
         ctl = v.control_link
-        now = time.monotonic()
+        dispatch = v.dispatch
+        now = _monotonic()
         deadline = now + self.timeout_s
         interval = self.resend_s
         resend_at = now + interval
@@ -207,14 +213,16 @@ class LockstepClock:
                 v.serve_gcs()
             awaited = time_usec
             # One datagram a pass: the reply comes alone, and the loop reads what follows.
-            for msg in ctl.recv(min(WAIT_SLICE_S, resend_at - now), drain=False):
+            wait_s = resend_at - now
+            for msg in ctl.recv(wait_s if wait_s < WAIT_SLICE_S else WAIT_SLICE_S,
+                                drain=False):
                 # Handle the whole batch (a command may follow the reply); once the reply
                 # is consumed, a duplicate for the same tick is stale (-1 matches nothing).
-                if v.dispatch(msg, awaited):
+                if dispatch(msg, awaited):
                     awaited = -1
             if awaited == -1:
                 return True
-            now = time.monotonic()
+            now = _monotonic()
             if v.stopped():
                 return False
             if now >= deadline:

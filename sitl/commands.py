@@ -44,6 +44,9 @@ CONTROL_TOLERANCE = 1e-4
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
 _RxControls = rx_lite_class(mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS)
 _LO, _HI = -CONTROL_TOLERANCE, 1.0 + CONTROL_TOLERANCE
+# on_controls reads the link's tuple by index: time_usec at 0, mode at 18
+assert (_RxControls.time_usec.fget(tuple(range(20))), _RxControls.mode.fget(tuple(range(20)))) \
+    == (0, 18)
 
 Handler = Callable[[Link, Any], None]
 """Handles one received message (or one COMMAND_LONG/INT) from the given port."""
@@ -55,6 +58,10 @@ class Outcome(Enum):
     APPLIED = 0
     REJECTED = 1   # bad values: previous command held (in lockstep the tick still completes)
     STALE = 2      # not the awaited time_usec (lockstep) / older than the held one (real time)
+
+
+# Enum members read through the class cost ~10× a global in CPython 3.11 (every tick)
+_APPLIED, _REJECTED, _STALE = Outcome.APPLIED, Outcome.REJECTED, Outcome.STALE
 
 
 class ActuatorControls:
@@ -74,23 +81,23 @@ class ActuatorControls:
         time_usec is stale), never the future; one applied after its own tick is late."""
         stats = self.stats
         held = self.held
-        t = msg.time_usec
+        rx = type(msg) is _RxControls   # the link's tuple: time_usec, flags, controls[16], mode
+        t = msg[0] if rx else msg.time_usec
         if awaited_usec is not None:
             if t != awaited_usec:
                 if t == held.time_usec:    # the answer to a resent state, already applied
                     stats.duplicate_controls += 1
-                    return Outcome.STALE
+                    return _STALE
                 stats.stale_controls += 1
                 self.status.send(mav.MAV_SEVERITY_WARNING,
                                  f"HIL_ACTUATOR_CONTROLS.time_usec: {t} is not the awaited "
                                  f"{awaited_usec}; ignored", key="stale")
-                return Outcome.STALE
+                return _STALE
         elif t <= held.time_usec or t > self.sim.time_usec:
             # Older than (or a duplicate of) the held one, or for a tick not yet sent.
             stats.stale_controls += 1
-            return Outcome.STALE
-        # the link's tuple: time_usec, flags, controls[16], mode (no 16-item list built)
-        c1, c2, c3, c4 = msg[2:6] if type(msg) is _RxControls else msg.controls[:4]
+            return _STALE
+        c1, c2, c3, c4 = msg[2:6] if rx else msg.controls[:4]   # no 16-item list built
         # In range → finite (comparisons with NaN are False): one chained test for the norm.
         problem = (None if _LO <= c1 <= _HI and _LO <= c2 <= _HI and _LO <= c3 <= _HI
                    and _LO <= c4 <= _HI else check_controls((c1, c2, c3, c4)))
@@ -99,32 +106,33 @@ class ActuatorControls:
             self.status.send(mav.MAV_SEVERITY_ERROR,
                              f"HIL_ACTUATOR_CONTROLS.{problem}; rejected, previous command held",
                              key="rejected_controls")
-            return Outcome.REJECTED
+            return _REJECTED
         held.time_usec = t
-        age_usec = self.sim.time_usec - t   # > 0: its own tick was already integrated
+        sim = self.sim
+        age_usec = sim._time_usec - t   # > 0: its own tick was already integrated
         stats.command_age.add(age_usec)
         if age_usec > 0:
             stats.late_controls += 1
         flight = self.flight
-        armed = bool(msg.mode & _ARMED)
+        armed = bool((msg[18] if rx else msg.mode) & _ARMED)
         held.armed = armed
         if armed != flight.armed:
             flight.armed = armed
             self.status.send(mav.MAV_SEVERITY_NOTICE,
                              "armed by the controller" if armed else
                              "disarmed by the controller (mode bit 128 clear): motors stopped")
-        fmax = self.sim.thrust_max_n
+        fmax = sim.thrust_max_n
         if armed and not flight.killed:   # a GCS disarm (kill switch) outranks the controller
-            self.sim.set_command([c1 * fmax, c2 * fmax, c3 * fmax, c4 * fmax])
+            sim.set_command_floats(c1 * fmax, c2 * fmax, c3 * fmax, c4 * fmax)
         else:
-            self.sim.set_command([0.0, 0.0, 0.0, 0.0])
+            sim.set_command([0.0, 0.0, 0.0, 0.0])
         stats.controls_applied += 1
         if held.motors_cut:
             held.motors_cut = False
             flight.system_status = mav.MAV_STATE_ACTIVE
             self.status.send(mav.MAV_SEVERITY_NOTICE, "commands resumed: motors restored")
         held.since_s = time.monotonic()
-        return Outcome.APPLIED
+        return _APPLIED
 
     def cut_motors(self, silent_s: float, timeout_s: float) -> None:
         """Real time link loss: zero thrust, like an ESC whose signal stopped."""

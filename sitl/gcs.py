@@ -226,6 +226,8 @@ class GcsTelemetry:
         self._period_usec = max(1, round(period_s * 1e6))   # lockstep: sim µs
         self._next_usec = 0
         self._next_heartbeat_usec = 0
+        if sim_time:   # called every lockstep tick: the sim-time pacing without a call more
+            self.periodic = self._periodic_sim   # type: ignore[method-assign]
 
     def periodic(self) -> None:
         """Send what is due now, if anything."""
@@ -244,7 +246,7 @@ class GcsTelemetry:
 
     def _periodic_sim(self) -> None:
         # whole microseconds of sim time: a float sum of periods would drift off the ticks
-        t = self.sim.time_usec
+        t = self.sim._time_usec      # time_usec, without the property's call (every tick)
         if t < self._next_usec:
             if time.monotonic() - self._heartbeat_wall_s >= 1.0:   # stalled: keep alive
                 self._heartbeat_wall_s = time.monotonic()

@@ -12,6 +12,7 @@ from collections.abc import Sequence
 __all__ = ["RADPS_TO_RPM", "MotorBank"]
 
 RADPS_TO_RPM = 60.0 / (2.0 * math.pi)
+_sqrt = math.sqrt
 
 
 class MotorBank:
@@ -34,17 +35,20 @@ class MotorBank:
 
     def omega_for_thrust(self, thrust_n: float) -> float:
         """Steady rotor speed (rad/s) for a thrust, clamped to [0, f_max]."""
-        return math.sqrt(min(max(thrust_n, 0.0), self.thrust_max_n) / self.k_f)
+        # min(max(f, 0.0), f_max) as conditionals (what the builtins return, NaN included;
+        # this runs every physics step for an attacked rotor)
+        f = 0.0 if thrust_n < 0.0 else thrust_n
+        fmax = self.thrust_max_n
+        return math.sqrt((fmax if fmax < f else f) / self.k_f)
 
     def omegas_for_thrusts(self, thrust_n: Sequence[float]) -> list[float]:
         """:meth:`omega_for_thrust` of each thrust (a control period's held targets)."""
         fmax = self.thrust_max_n
-        kf = self.k_f
-        sqrt = math.sqrt
-        for f in thrust_n:
-            if not 0.0 <= f <= fmax:      # out of range or NaN: clamp each (rare)
-                return [self.omega_for_thrust(f) for f in thrust_n]
-        return [sqrt(f / kf) for f in thrust_n]   # in range: the clamp returns f itself
+        f1, f2, f3, f4 = thrust_n
+        if 0.0 <= f1 <= fmax and 0.0 <= f2 <= fmax and 0.0 <= f3 <= fmax and 0.0 <= f4 <= fmax:
+            kf = self.k_f               # in range: the clamp returns f itself
+            return [_sqrt(f1 / kf), _sqrt(f2 / kf), _sqrt(f3 / kf), _sqrt(f4 / kf)]
+        return [self.omega_for_thrust(f) for f in thrust_n]   # out of range or NaN (rare)
 
     @property
     def thrust_n(self) -> list[float]:
@@ -61,8 +65,8 @@ class MotorBank:
         tau = self.time_constant_s
         kf = self.k_f
         if tau <= 0.0:
-            self.omega_radps = list(omega_target_radps)
-            return [kf * w * w for w in self.omega_radps]
+            w1, w2, w3, w4 = self.omega_radps = list(omega_target_radps)
+            return [kf * w1 * w1, kf * w2 * w2, kf * w3 * w3, kf * w4 * w4]
         h0, e1, m1, m2 = self._lag
         if h != h0:
             e1 = math.exp(-h / tau)

@@ -16,9 +16,12 @@ hover for the paper's 1.1 kg vehicle.
 
 from __future__ import annotations
 
+import ast
+import inspect
 import math
+import textwrap
 from collections.abc import Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 __all__ = ["PowerModel", "PowerSample"]
 
@@ -36,6 +39,9 @@ class PowerSample(NamedTuple):
     @property
     def total_current_a(self) -> float:
         return sum(self.currents_a)
+
+
+_new = tuple.__new__
 
 
 class PowerModel:
@@ -70,38 +76,88 @@ class PowerModel:
 
         The ESC currents use the previous step's terminal voltage (one step of lag keeps the
         update explicit; at 1 kHz the difference is far below the telemetry resolution).
+        The arithmetic is :func:`power_step`, compiled to C when it can be
+        (:mod:`tfl_mav.native`: the same operations in the same order, the same bits).
         """
-        v_prev = max(self._voltage_v, 1.0)
-        kq_per_w = self.torque_coeff / (self.efficiency * v_prev)   # A per (rad/s)^3
-        idle = self.idle_current_a
         if dt_s != self._dt_s:       # constants of the step: dt is the same every tick
             self._dt_s = dt_s
             self._mah_per_a = 1000.0 * dt_s / 3600.0
             self._decay = math.exp(-dt_s / self.thermal_tau_s)
-        mah_per_a = self._mah_per_a
-        e = self._decay
-        amb, k = self.ambient_c, self.heating_c_per_a
-        w1, w2, w3, w4 = omega_radps      # written out per ESC: this runs every tick
-        i1 = kq_per_w * w1 * w1 * abs(w1) + (idle if w1 > 0.0 else 0.0)
-        i2 = kq_per_w * w2 * w2 * abs(w2) + (idle if w2 > 0.0 else 0.0)
-        i3 = kq_per_w * w3 * w3 * abs(w3) + (idle if w3 > 0.0 else 0.0)
-        i4 = kq_per_w * w4 * w4 * abs(w4) + (idle if w4 > 0.0 else 0.0)
-        q1, q2, q3, q4 = self._consumed_mah
-        q1 += i1 * mah_per_a
-        q2 += i2 * mah_per_a
-        q3 += i3 * mah_per_a
-        q4 += i4 * mah_per_a
-        t1, t2, t3, t4 = self._temps_c
-        s1, s2, s3, s4 = amb + k * i1, amb + k * i2, amb + k * i3, amb + k * i4
-        temps = (s1 + (t1 - s1) * e, s2 + (t2 - s2) * e, s3 + (t3 - s3) * e,
-                 s4 + (t4 - s4) * e)
-        consumed = (q1, q2, q3, q4)
-        self._consumed_mah = consumed
-        self._temps_c = temps
-        total_a = i1 + i2 + i3 + i4
-        soc = max(0.0, 1.0 - (q1 + q2 + q3 + q4) / self.capacity_mah)
-        v_oc = self.empty_v + (self.full_v - self.empty_v) * soc
-        self._voltage_v = max(0.0, v_oc - self.r_int_ohm * total_a)
-        self.sample = PowerSample(self._voltage_v, (i1, i2, i3, i4), consumed, temps,
-                                  100.0 * soc)
-        return self.sample
+        args = (omega_radps, self._consumed_mah, self._temps_c, self._voltage_v,
+                self.torque_coeff, self.efficiency, self.idle_current_a, self._mah_per_a,
+                self._decay, self.ambient_c, self.heating_c_per_a, self.capacity_mah,
+                self.empty_v, self.full_v, self.r_int_ohm)
+        core = _native["core"]
+        r = core(*args) if core is not None else None
+        if r is None:                 # not compiled, or an operation Python raises for
+            r = power_step(*args)
+        self._voltage_v, _, self._consumed_mah, self._temps_c, _ = r
+        # tuple.__new__: the NamedTuple's generated __new__ is a Python call (every tick)
+        self.sample = sample = _new(PowerSample, r)
+        return sample
+
+
+def power_step(omega_radps, consumed_mah, temps_c, voltage_v, torque_coeff,  # type: ignore[no-untyped-def]
+               efficiency, idle_a, mah_per_a, decay, ambient_c, heating_c_per_a,
+               capacity_mah, empty_v, full_v, r_int_ohm):
+    """One :meth:`PowerModel.step` on numbers: → (terminal voltage V, currents A,
+    consumed mAh, temperatures °C, remaining %). Written in the form
+    :mod:`tfl_mav.ctranslate` compiles (numbers and unpacked sequences in, float code,
+    nested tuples out); max() of two floats as the conditional it is (NaN included)."""
+    w1, w2, w3, w4 = omega_radps
+    q1, q2, q3, q4 = consumed_mah
+    t1, t2, t3, t4 = temps_c
+    v_prev = voltage_v
+    if v_prev < 1.0:
+        v_prev = 1.0                                   # max(voltage_v, 1.0)
+    kq_per_w = torque_coeff / (efficiency * v_prev)     # A per (rad/s)^3
+    i1 = kq_per_w * w1 * w1 * abs(w1) + (idle_a if w1 > 0.0 else 0.0)
+    i2 = kq_per_w * w2 * w2 * abs(w2) + (idle_a if w2 > 0.0 else 0.0)
+    i3 = kq_per_w * w3 * w3 * abs(w3) + (idle_a if w3 > 0.0 else 0.0)
+    i4 = kq_per_w * w4 * w4 * abs(w4) + (idle_a if w4 > 0.0 else 0.0)
+    q1 += i1 * mah_per_a
+    q2 += i2 * mah_per_a
+    q3 += i3 * mah_per_a
+    q4 += i4 * mah_per_a
+    s1 = ambient_c + heating_c_per_a * i1
+    s2 = ambient_c + heating_c_per_a * i2
+    s3 = ambient_c + heating_c_per_a * i3
+    s4 = ambient_c + heating_c_per_a * i4
+    u1 = s1 + (t1 - s1) * decay
+    u2 = s2 + (t2 - s2) * decay
+    u3 = s3 + (t3 - s3) * decay
+    u4 = s4 + (t4 - s4) * decay
+    total_a = i1 + i2 + i3 + i4
+    soc = 1.0 - (q1 + q2 + q3 + q4) / capacity_mah
+    soc = soc if soc > 0.0 else 0.0                     # max(0.0, soc)
+    v_oc = empty_v + (full_v - empty_v) * soc
+    volts = v_oc - r_int_ohm * total_a
+    volts = volts if volts > 0.0 else 0.0               # max(0.0, volts)
+    return (volts, (i1, i2, i3, i4), (q1, q2, q3, q4), (u1, u2, u3, u4), 100.0 * soc)
+
+
+_native: dict[str, Any] = {"core": None}
+
+
+def power_step_source() -> str:
+    """:func:`power_step`'s source as :mod:`tfl_mav.native` compiles it (no docstring)."""
+    fn = ast.parse(textwrap.dedent(inspect.getsource(power_step))).body[0]
+    assert isinstance(fn, ast.FunctionDef)
+    fn.body = fn.body[1:]                     # the docstring (not float code)
+    return ast.unparse(fn) + "\n"
+
+
+def _load_native() -> None:
+    """The compiled :func:`power_step`, now if built (or ``TFL_MAV_NATIVE=sync``), else when
+    a background build completes; ``off``: never."""
+    from tfl_mav import native
+
+    def ready(core: Any) -> None:
+        _native["core"] = core
+
+    core = native.obtain(power_step_source(), ready)
+    if core is not None:
+        ready(core)
+
+
+_load_native()

@@ -32,9 +32,14 @@ def _step_numpy_scalars(step: Rk4Step, x: list[float], uf: float, tp: float, tq:
         return step([np.float64(c) for c in x], uf, tp, tq, tr, h)
 
 
+_round = float.__round__     # round() without its per-call lookup of __round__
+
 # Beyond these the run is over: the messages say why in words a user can act on.
 MAX_BODY_RATE_RADPS = 300.0
 MAX_SPEED_MPS = 100.0
+_MAX_BODY_RATE2 = MAX_BODY_RATE_RADPS * MAX_BODY_RATE_RADPS   # exact: 90000, 10000
+_MAX_SPEED2 = MAX_SPEED_MPS * MAX_SPEED_MPS
+assert math.sqrt(_MAX_BODY_RATE2) == MAX_BODY_RATE_RADPS and math.sqrt(_MAX_SPEED2) == MAX_SPEED_MPS
 
 
 class Simulator:
@@ -114,6 +119,15 @@ class Simulator:
                 raise ValueError(f"thrust command[{i}] (rotor {i + 1}): not finite ({f})")
         self.rotor_commands_n = [min(max(f, 0.0), fmax) for f in values]
 
+    def set_command_floats(self, f1: float, f2: float, f3: float, f4: float) -> None:
+        """:meth:`set_command` of four floats (the vehicle's every tick: no list to build
+        and convert); the same checks, the same errors."""
+        fmax = self.thrust_max_n
+        if 0.0 <= f1 <= fmax and 0.0 <= f2 <= fmax and 0.0 <= f3 <= fmax and 0.0 <= f4 <= fmax:
+            self.rotor_commands_n = [f1, f2, f3, f4]
+            return
+        self.set_command([f1, f2, f3, f4])
+
     def inject_failure(self, rotor: int, failure_type: int) -> None:
         """Start an attack on ``rotor`` now (MAV_CMD_INJECT_FAILURE); ValueError if invalid."""
         self.attacker.inject(rotor, failure_type, self.time_s)
@@ -164,7 +178,7 @@ class Simulator:
         self._mean_thrust_n = mean
         self.physics_steps = n
         self._x = x
-        self._time_usec = round(n * 1_000_000 / self._physics_hz)
+        self._time_usec = _round(n * 1_000_000 / self._physics_hz)   # round() on a float
         self.tick += 1
         self._measure()
 
@@ -218,7 +232,8 @@ class Simulator:
         g = self._gyro_range_radps
         if g > 0 and not -g <= min(w) <= max(w) <= g:   # a real gyro saturates at its range
             w = [min(max(c, -g), g) for c in w]
-        self._measured_floats = State(tuple(pos), tuple(vel), q, tuple(w), self._time_usec)
+        self._parts = (tuple(pos), tuple(vel), tuple(q), tuple(w))
+        self._measured_floats: State | None = None    # built from _parts on first read
         self._measured: State | None = None
 
     # ------------------------------------------------------------------ outputs
@@ -239,7 +254,7 @@ class Simulator:
         (built on first read in a tick; :attr:`measured_floats` is the same numbers)."""
         m = self._measured
         if m is None:
-            f = self._measured_floats
+            f = self.measured_floats
             m = self._measured = State(np.array(f.position_m), np.array(f.velocity_mps),
                                        np.array(f.quaternion_wxyz),
                                        np.array(f.body_rates_radps), f.time_usec)
@@ -248,7 +263,17 @@ class Simulator:
     @property
     def measured_floats(self) -> State:
         """:attr:`measured` with float tuples for fields: what hot loops read (no arrays)."""
-        return self._measured_floats
+        m = self._measured_floats
+        if m is None:
+            m = self._measured_floats = State(*self._parts, self._time_usec)
+        return m
+
+    @property
+    def measured_parts(self) -> tuple[tuple[float, ...], tuple[float, ...],
+                                      tuple[float, ...], tuple[float, ...]]:
+        """:attr:`measured_floats`' (position, velocity, quaternion, body rates) without the
+        State (the vehicle's per-tick report reads only these)."""
+        return self._parts  # type: ignore[return-value]
 
     def measured_rpm(self) -> np.ndarray:
         """ESC-reported rotor speeds (rpm, with the scenario's seeded noise); a new array."""
@@ -285,12 +310,19 @@ class Simulator:
         if b3z < 0.0:
             return (f"flipped: thrust axis points down (tilt {math.degrees(math.acos(b3z)):.0f}°)"
                     f" at t = {self.time_s:.3f} s")
-        rate = math.sqrt(wp ** 2 + wq ** 2 + wr ** 2)
-        if rate > MAX_BODY_RATE_RADPS:
-            return (f"spinning at {rate:.0f} rad/s (> {MAX_BODY_RATE_RADPS:.0f} rad/s, beyond "
-                    f"what a real airframe and its gyros survive) at t = {self.time_s:.3f} s")
-        speed = math.sqrt(vx ** 2 + vy ** 2 + vz ** 2)
-        if speed > MAX_SPEED_MPS:
-            return f"speed {speed:.0f} m/s exceeds {MAX_SPEED_MPS:.0f} m/s: runaway"
+        # sqrt only past the limit's square: sqrt is monotonic and sqrt(limit²) = limit
+        # exactly, so a sum not above the square can never have a root above the limit
+        rate2 = wp ** 2 + wq ** 2 + wr ** 2
+        if rate2 > _MAX_BODY_RATE2:
+            rate = math.sqrt(rate2)
+            if rate > MAX_BODY_RATE_RADPS:
+                return (f"spinning at {rate:.0f} rad/s (> {MAX_BODY_RATE_RADPS:.0f} rad/s, "
+                        f"beyond what a real airframe and its gyros survive) at t = "
+                        f"{self.time_s:.3f} s")
+        speed2 = vx ** 2 + vy ** 2 + vz ** 2
+        if speed2 > _MAX_SPEED2:
+            speed = math.sqrt(speed2)
+            if speed > MAX_SPEED_MPS:
+                return f"speed {speed:.0f} m/s exceeds {MAX_SPEED_MPS:.0f} m/s: runaway"
         return None
 

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from sitl.power import PowerModel
+from sitl.power import PowerModel, power_step, power_step_source
 
 D_M, K_F = 0.016, 8.0e-6       # paper scenario: drag/thrust ratio, thrust coefficient
 HOVER_N = 1.1 * 9.81 / 4
@@ -49,3 +49,30 @@ def test_charge_and_temperature_integrate_on_sim_time():
     # After three thermal time constants the ESC is within 5 % of its settling temperature.
     settle = 25.0 + 3.0 * currents[-1]
     assert s.temperatures_c[0] == pytest.approx(settle, abs=0.05 * (settle - 25.0) + 0.05)
+
+
+def test_power_step_compiled_is_the_python_step_bit_for_bit():
+    """sitl.power's per-tick arithmetic compiled (tfl_mav.native) gives the Python step's
+    numbers to the bit (repr: -0.0 and NaN too), on random and non-finite inputs; a
+    division by zero declines (None), so the Python step raises as before."""
+    import random
+
+    from tfl_mav import native
+
+    core = native.build(power_step_source())
+    rng = random.Random(7)
+    special = [0.0, -0.0, 1e-300, -1.0, math.nan, math.inf, 1e308]
+
+    def v(lo: float, hi: float) -> float:
+        return rng.choice(special) if rng.random() < 0.05 else rng.uniform(lo, hi)
+
+    for _ in range(20000):
+        args = ([v(-100.0, 3000.0) for _ in range(4)], tuple(v(0.0, 6000.0) for _ in range(4)),
+                tuple(v(-20.0, 200.0) for _ in range(4)), v(-1.0, 17.0), D_M * K_F, 0.7, 0.2,
+                1.0 / 3600.0, math.exp(-1e-3 / 20.0), 25.0, 3.0, 5000.0, 14.0, 16.8, 0.02)
+        assert repr(core(*args)) == repr(power_step(*args))
+    zero = ([1.0] * 4, (0.0,) * 4, (25.0,) * 4, 16.8, D_M * K_F, 0.0, 0.2, 1.0 / 3600.0,
+            1.0, 25.0, 3.0, 5000.0, 14.0, 16.8, 0.02)
+    assert core(*zero) is None
+    with pytest.raises(ZeroDivisionError):
+        power_step(*zero)

@@ -37,7 +37,7 @@ from __future__ import annotations
 import hashlib
 import re
 import struct
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 from tfl_mav.link.dialect import mav
@@ -53,7 +53,8 @@ from tfl_mav.link.lite import (
 from tfl_mav.link.payload import frame_payload
 
 __all__ = ["HOT_MESSAGE_IDS", "LAZY_FIELDS", "PACK_ONLY_IDS", "UNSENT", "FastCodec",
-           "LiteMessage", "SkimmedMessage", "lite_class", "rx_lite_class", "skim"]
+           "LiteMessage", "Prepacked", "SkimmedMessage", "lite_class", "prepacked_class",
+           "rx_lite_class", "skim", "trim"]
 
 HOT_MESSAGE_IDS = (
     mav.MAVLINK_MSG_ID_ODOMETRY,
@@ -78,6 +79,7 @@ raw ``bytes`` pymavlink packs (``_name_raw``); never decoded here (pymavlink dec
 field to ``str``), so a receiver still gets pymavlink's message."""
 
 _HEADER = struct.Struct("<BBBBBBBHB")
+_MAX_HEADERS = 4096       # unsigned headers kept per message (bounds a fuzzer's lengths)
 _SIGN_BLOCK = struct.Struct("<BQ")
 _new_tuple = tuple.__new__
 
@@ -112,6 +114,63 @@ def lite_class(msgid: int) -> type[LiteMessage]:
     raise ValueError(f"lite_class: message id {msgid} is not compiled")
 
 
+class Prepacked(tuple):  # type: ignore[type-arg]
+    """A hot message to send that its sender packed itself: ``(payload, head, tail)``.
+
+    ``payload`` is the trimmed payload (MAVLink 2: trailing zeros cut, ≥ 1 byte) of the
+    wire-order values ``head + tail`` (a sender's constant tail kept as one tuple), exactly
+    what :meth:`FastCodec.pack` makes of the :func:`lite_class` message of those values.
+    Why: the vehicle's per-tick state is framed without rebuilding and re-packing ~100
+    values, half of them constants (ODOMETRY's covariances, the unused actuator outputs).
+    Fields and methods answer as that LiteMessage, built on first read; a recorder hook
+    that only asks whether there is a message never builds it. Make the class with
+    :func:`prepacked_class`, an instance with ``tuple.__new__(cls, (payload, head, tail))``.
+    """
+
+    __slots__ = ()
+    _lite: type[LiteMessage] = LiteMessage
+
+    def lite(self) -> LiteMessage:
+        """The LiteMessage of ``head + tail`` (a new one each call)."""
+        return _new_tuple(self._lite, (*self[1], *self[2], UNSENT))
+
+    def get_msgId(self) -> int:
+        return self._lite._msgid
+
+    def get_type(self) -> str:
+        return self._lite._name
+
+    def __getattr__(self, name: str) -> Any:
+        if name.startswith("__"):
+            raise AttributeError(name)
+        return getattr(self.lite(), name)
+
+    def __str__(self) -> str:
+        return str(self.lite())
+
+    __repr__ = __str__
+
+
+_PREPACKED: dict[int, type[Prepacked]] = {}
+
+
+def prepacked_class(msgid: int) -> type[Prepacked]:
+    """The :class:`Prepacked` class of hot message ``msgid`` (one per process)."""
+    cls = _PREPACKED.get(msgid)
+    if cls is None:
+        lite = lite_class(msgid)
+        attrs: dict[str, Any] = {"__slots__": (), "_lite": lite}
+        for name in lite._fieldnames:   # fields named like tuple methods (count) too
+            attrs[name] = property(lambda m, name=name: getattr(m.lite(), name))
+        cls = _PREPACKED[msgid] = type(f"Prepacked{lite.__name__[4:]}", (Prepacked,), attrs)
+    return cls
+
+
+def trim(payload: bytes) -> bytes:
+    """A MAVLink 2 payload without its trailing zeros (at least one byte kept)."""
+    return payload.rstrip(b"\x00") or payload[:1]
+
+
 class _Layout:
     """One message class compiled: ``pack(msg) -> payload`` and ``fields(tuple) -> dict``.
     ``chars``: allow char fields (packing a LiteMessage only, see :data:`PACK_ONLY_IDS`)."""
@@ -122,6 +181,7 @@ class _Layout:
         self.cls = cls
         self.msgid = cls.id
         self.crc_extra_byte = bytes([cls.crc_extra])
+        self.headers: dict[int, tuple[bytes, int]] = {}   # FastCodec.pack_many's, unsigned
         self.size = cls.unpacker.size
         self.unpack = cls.unpacker.unpack
         self.pack_wire: Callable[..., bytes] = cls.unpacker.pack   # the wire-order values
@@ -197,12 +257,15 @@ class FastCodec:
         for msgid in pack_only:          # LiteMessages only: pymavlink's still pack as before
             layout = _Layout(mav.mavlink_map[msgid], chars=True)
             self.by_lite[layout.lite] = layout
+        self.by_prepacked: dict[type, _Layout] = {
+            prepacked_class(msgid): self.by_id[msgid] for msgid in ids}
 
     def pack(self, msg: Any, packer: Any) -> bytes | None:
         """The frame ``msg.pack(packer)`` would return (same bytes, same signing timestamp
         step), or None if ``msg`` is not a hot message (the caller uses pymavlink).
         Unlike pymavlink, ``msg`` is not modified (no ``_msgbuf``/``_header`` cached on it).
-        A :class:`LiteMessage` (:func:`lite_class`) is packed from its tuple.
+        A :class:`LiteMessage` (:func:`lite_class`) is packed from its tuple, a
+        :class:`Prepacked` is framed from its payload.
         """
         layout = self.by_class.get(type(msg))
         if layout is not None:
@@ -210,9 +273,16 @@ class FastCodec:
         else:
             layout = self.by_lite.get(type(msg))
             if layout is None:
-                return None
+                layout = self.by_prepacked.get(type(msg))
+                if layout is None:
+                    return None
+                return self.frame(layout, msg[0], packer)
             payload = layout.pack_wire(*msg[:-1])
-        trimmed = payload.rstrip(b"\x00") or payload[:1]   # MAVLink 2: ≥ 1 payload byte
+        return self.frame(layout, payload.rstrip(b"\x00") or payload[:1], packer)
+
+    def frame(self, layout: _Layout, trimmed: bytes, packer: Any) -> bytes:
+        """The frame of one payload, already trimmed (MAVLink 2: its trailing zeros cut,
+        ≥ 1 byte), with ``packer``'s sequence number, ids and signing."""
         signing = packer.signing
         signed = signing.sign_outgoing
         msgid = layout.msgid
@@ -228,6 +298,48 @@ class FastCodec:
             buf += h.digest()[:6]
             signing.timestamp += 1
         return buf
+
+    def pack_many(self, msgs: Iterable[Any], packer: Any) -> list[bytes]:
+        """The frames of ``msgs`` on consecutive sequence numbers (``packer.seq`` advanced
+        past them), as :meth:`pack` (or pymavlink, for a message that is not hot) makes each
+        one. Unsigned, a :class:`Prepacked` message is framed here with the packer's fields
+        read once for the batch (the vehicle's per-tick datagram)."""
+        frames: list[bytes] = []
+        append = frames.append
+        if packer.signing.sign_outgoing:
+            for msg in msgs:
+                append(self.pack(msg, packer) or msg.pack(packer))
+                packer.seq = (packer.seq + 1) & 0xFF
+            return frames
+        prepacked = self.by_prepacked.get
+        head = _HEADER.pack
+        crc16 = _crc16
+        seq, src_system, src_component = packer.seq, packer.srcSystem, packer.srcComponent
+        ids = src_system << 8 | src_component
+        for msg in msgs:
+            layout = prepacked(type(msg))
+            if layout is None:
+                packer.seq = seq
+                append(self.pack(msg, packer) or msg.pack(packer))
+            else:   # frame() unsigned, on the parts (a CRC carries over its input's pieces)
+                payload = msg[0]
+                # the header and the CRC over it, kept per (length, seq, ids): a sender's
+                # few lengths × 256 sequence numbers
+                key = len(payload) << 24 | seq << 16 | ids
+                known = layout.headers.get(key)
+                if known is None:
+                    msgid = layout.msgid
+                    header = head(0xFD, len(payload), 0, 0, seq, src_system, src_component,
+                                  msgid & 0xFFFF, msgid >> 16)
+                    known = (header, crc16(header[1:], 0xFFFF))
+                    if len(layout.headers) < _MAX_HEADERS:
+                        layout.headers[key] = known
+                header, crc = known
+                crc = crc16(layout.crc_extra_byte, crc16(payload, crc))
+                append(header + payload + crc.to_bytes(2, "little"))
+            seq = (seq + 1) & 0xFF
+        packer.seq = seq
+        return frames
 
     def _checked(self, raw: bytes, parser: Any) -> tuple[Any, int, int] | None:
         """(layout, payload end, CRC) of a hot message's frame whose CRC checks (counting a

@@ -288,11 +288,7 @@ class Link(Receiver):
         packer = self.packer
         if self.signing is not None:
             self.signing.stamp(packer)
-        frames = []
-        fast = self._codec.pack
-        for msg in msgs:
-            frames.append(fast(msg, packer) or msg.pack(packer))
-            packer.seq = (packer.seq + 1) & 0xFF
+        frames = self._codec.pack_many(msgs, packer)
         st = self.stats
         if self.peer is None:
             st.unsent_no_peer += len(frames)
