@@ -135,16 +135,18 @@ class Intake:
             return
         self._pending_state = None
         applied, self._pending_applied = self._pending_applied, None
-        self._arrive(state, applied, rpm)
-
-    def _arrive(self, state: State, applied_msg: Any, rpm: list[float]) -> None:
-        """Classify one complete state (:mod:`tfl_mav.arrivals`) and act on it."""
-        t_usec = state.time_usec
-        kind = self._arrivals.classify(t_usec)
+        # classified (:mod:`tfl_mav.arrivals`); a fresh state, the usual one, joins the batch
+        # here (one call less a tick, #13)
+        kind = self._arrivals.classify(state.time_usec)
         if kind == FRESH:
             self._arrived = True
-            self._complete.append((state, applied_msg, rpm))
+            self._complete.append((state, applied, rpm))
             return
+        self._arrive(kind, state, applied, rpm)
+
+    def _arrive(self, kind: int, state: State, applied_msg: Any, rpm: list[float]) -> None:
+        """Act on a complete state that is not fresh, classified as ``kind``."""
+        t_usec = state.time_usec
         stats = self.stats
         if kind == REPEATED:
             stats.repeated_states += 1
