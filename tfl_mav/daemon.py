@@ -105,6 +105,7 @@ _HISTORY = 512                    # commands remembered by time_usec (0.5 s at 1
 _GAP_FACTOR = 1.5                 # a gap over 1.5 control periods is integrated as such
 _DEGRADE_REPORT_S = 1.0           # at most one "degraded" STATUSTEXT per second of sim time
 _FALLBACK = Mode.FALLBACK
+_isfinite = math.isfinite
 
 
 class Daemon(Intake):
@@ -348,7 +349,7 @@ class Daemon(Intake):
             stats.fallback_ticks += 1
         if True in out.saturated:
             stats.saturated_ticks += 1
-        if rotor and estimate_n == estimate_n and estimate_n - estimate_n == 0.0:  # finite
+        if rotor and _isfinite(estimate_n):
             self._est_n += 1
         if self.on_tick is not None:
             self.on_tick(t, tick_state(res))

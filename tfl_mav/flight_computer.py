@@ -79,7 +79,6 @@ from tfl_mav.control.takeover import (
     HANDBACK_TILT_RAD,
     TAKEOVER_RATE_RADPS,
     TAKEOVER_TILT_RAD,
-    floats,
     not_benign,
 )
 from tfl_mav.modes import Mode
@@ -130,10 +129,11 @@ _FALLBACK, _LOST_ROTOR, _RECOVERY = Mode.FALLBACK, Mode.LOST_ROTOR, Mode.RECOVER
 _TILT_TEXT = {m: tuple(f"{_MODE_TEXT[m]}: tilt error {d} deg" for d in range(181))
               for m in (_LOST_ROTOR, _RECOVERY)}
 _RAD_TO_DEG = 180.0 / math.pi     # math.degrees multiplies by this very constant
-_INF, _NAN = math.inf, math.nan
+_NAN = math.nan
 _ZERO2, _ZERO4 = (0.0, 0.0), (0.0, 0.0, 0.0, 0.0)
 _ZERO_XI = (_ZERO4, _ZERO4)
-_sqrt, _acos, _hypot = math.sqrt, math.acos, math.hypot
+_sqrt, _acos, _hypot, _isfinite = math.sqrt, math.acos, math.hypot, math.isfinite
+_ndarray = np.ndarray
 
 
 class FlightComputer:
@@ -382,7 +382,7 @@ class FlightComputer:
                 and not not_benign(state, rotor, self.speed_mps) and rec.projector is not None:
             rec.projector.lam = None          # a fresh global search: we may be far away
             rec.follow_path()
-        finite = -_INF < estimate < _INF       # math.isfinite, as a comparison
+        finite = _isfinite(estimate)
         a_n = estimate if rotor and finite else 0.0
         lost = self.law_name == "lost_rotor"
         law_rotor = rotor if lost else 0
@@ -391,14 +391,19 @@ class FlightComputer:
         if out is None:
             out = rec.update(state, law_rotor, a_n)
         requested, thrust, tilt_err, dist, uf = out
-        ok = rec.hold_m is None and -_INF < dist < HANDBACK_DIST_M
+        ok = rec.hold_m is None and _isfinite(dist) and dist < HANDBACK_DIST_M
         if ok:      # not calm_fail(state, rotor), written out
-            qw, qx, qy, qz = floats(state.quaternion_wxyz)
+            quat, rates = state.quaternion_wxyz, state.body_rates_radps
+            if type(quat) is _ndarray:      # floats(): a numpy array's as Python floats
+                quat = quat.tolist()
+            if type(rates) is _ndarray:
+                rates = rates.tolist()
+            qw, qx, qy, qz = quat
             n = _sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
             qx, qy = qx / n, qy / n
             c = 1 - 2 * (qx * qx + qy * qy)
             c = c if c < 1.0 else 1.0              # max(-1.0, min(1.0, c)), NaN → 1.0
-            p, q, r = floats(state.body_rates_radps)
+            p, q, r = rates
             ok = not (_acos(c if c > -1.0 else -1.0) > HANDBACK_TILT_RAD
                       or _hypot(p, q) > TAKEOVER_RATE_RADPS
                       or (not rotor and abs(r) > TAKEOVER_RATE_RADPS)) \
@@ -462,14 +467,14 @@ class FlightComputer:
             if requested is None:
                 requested = thrust
         r1, r2, r3, r4 = requested
-        if math.isfinite(r1 + r2 + r3 + r4):        # a finite sum: all four finite
+        if _isfinite(r1 + r2 + r3 + r4):        # a finite sum: all four finite
             req = [r1, r2, r3, r4]
         else:
             req = [r if math.isfinite(r) else 0.0 for r in requested]
         if rotor and self.detector is not None:
             # The attacked rotor's command is not ours to use: send it a probe away from its
             # estimate, so that a rotor the attacker lets go shows it by following (detector).
-            est = estimate if math.isfinite(estimate) else 0.0
+            est = estimate if _isfinite(estimate) else 0.0
             hover = self._hover_share_n
             applied[rotor - 1] = hover if abs(hover - est) > 1.0 else self._probe_high_n
         return TickResult(applied, out, detection, rotor, estimate, new, req, tuple(events))

@@ -126,6 +126,7 @@ class DetectorOutput(NamedTuple):
 
 
 _ZERO4 = (0.0, 0.0, 0.0, 0.0)
+_isfinite = math.isfinite
 
 
 class AttackDetector:
@@ -224,7 +225,7 @@ class AttackDetector:
             raise ValueError(f"thrust_cmd_n: expected 4 values, got {len(thrust_cmd_n)}")
         t = float(time_s)
         last = self._last_time
-        if not math.isfinite(t):
+        if not _isfinite(t):
             self.rejected_samples += 1
             t = last + self.dt_s if last is not None else 0.0
         elif last is not None and t <= last:
@@ -236,7 +237,7 @@ class AttackDetector:
                 and -lim <= r3 <= lim):                 # NaN fails too
             r0, r1, r2, r3 = (r if -lim <= r <= lim else math.nan for r in (r0, r1, r2, r3))
         c0, c1, c2, c3 = map(float, thrust_cmd_n)
-        if math.isfinite(c0 + c1 + c2 + c3):        # a finite sum: all four finite
+        if _isfinite(c0 + c1 + c2 + c3):        # a finite sum: all four finite
             self._cmd = (c0, c1, c2, c3)
         else:
             cmd = list(self._cmd)           # the last valid command per rotor
