@@ -123,8 +123,8 @@ class Intake:
         try:
             if type(msg) is _RxOdometry:   # the link's tuple: fields in wire order
                 core = self._odometry_core      # compiled (frames_native), or its None
-                res = core(msg) if core is not None else None
-                self._pending_state = (State(*res) if res is not None
+                state = core(msg, State) if core is not None else None
+                self._pending_state = (state if state is not None
                                        else _from_fields(*msg[:_ODOMETRY_FIELDS]))
             else:
                 self._pending_state = paper_from_odometry(msg)

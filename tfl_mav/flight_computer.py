@@ -276,7 +276,11 @@ class FlightComputer:
                         new = True
                         self.detected_rotor = rotor
                         self.detection_time_s = detection.detection_time_s
-                    ctrl.set_attack(rotor, estimate)
+                    if rotor == ctrl.attacked_rotor and 0.0 <= estimate <= ctrl.model.thrust_max_n \
+                            and ctrl.cfg.aware_of_attack:
+                        ctrl.attack_estimate_n = estimate   # set_attack's every-tick case
+                    else:
+                        ctrl.set_attack(rotor, estimate)
             elif self._told_rotor:
                 rotor = self._told_rotor
                 w = rpm[rotor - 1] * RPM_TO_RADPS

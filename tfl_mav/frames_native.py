@@ -3,8 +3,9 @@
 :func:`~tfl_mav.frames.paper_from_odometry_fields` runs on every state the daemon receives:
 ~300 bytecodes and a numpy matrix product (a few µs in all). Here the same operations, in
 the same order, are one C function of the link's ODOMETRY tuple (:func:`~tfl_mav.link.codec
-.rx_lite_class`: its fields in wire order), returning the :class:`~tfl_mav.state.State`'s
-values ``(position_m, velocity_mps, quaternion_wxyz, body_rates_radps, time_usec)``.
+.rx_lite_class`: its fields in wire order) and the :class:`~tfl_mav.state.State` class,
+returning the State itself: its slots set as its ``__init__`` sets them (the same values;
+no Python runs).
 
 The one product that is not a float expression — the body-FRD velocity rotated by R(q) —
 is numpy's BLAS ``dgemv``, which fuses multiply-adds: OpenBLAS's kernel for a 3×3 matrix
@@ -31,6 +32,7 @@ from typing import Any
 
 from tfl_mav import native
 from tfl_mav.frames import MAV_FRAME_BODY_FRD, MAV_FRAME_LOCAL_NED, paper_from_odometry_fields
+from tfl_mav.state import State
 
 __all__ = ["C_SOURCE", "attach", "verified"]
 
@@ -41,7 +43,39 @@ _SQRT1_2 = math.sqrt(0.5)       # frames._SQRT1_2, the same double
 C_SOURCE = r"""
 #define PY_SSIZE_T_CLEAN
 #include <Python.h>
+#include <structmember.h>
 #include <math.h>
+
+/* The State class and where its five slots live (its member descriptors' offsets), found
+   on the first call with it: a State is then made as State.__init__ makes it (each slot
+   set once), without running Python. */
+static PyTypeObject *state_type = NULL;
+static Py_ssize_t state_offset[5];
+static const char *state_fields[5] = {
+    "position_m", "velocity_mps", "quaternion_wxyz", "body_rates_radps", "time_usec"};
+
+static int find_slots(PyObject *type) {
+    if (!PyType_Check(type))
+        return -1;
+    for (int k = 0; k < 5; k++) {
+        PyObject *d = PyObject_GetAttrString(type, state_fields[k]);
+        if (d == NULL) {
+            PyErr_Clear();
+            return -1;
+        }
+        int ok = Py_IS_TYPE(d, &PyMemberDescr_Type)
+                 && ((PyMemberDescrObject *)d)->d_member->type == T_OBJECT_EX;
+        if (ok)
+            state_offset[k] = ((PyMemberDescrObject *)d)->d_member->offset;
+        Py_DECREF(d);
+        if (!ok)
+            return -1;
+    }
+    Py_XDECREF(state_type);
+    Py_INCREF(type);
+    state_type = (PyTypeObject *)type;
+    return 0;
+}
 
 /* numpy's m.dot(v) for one row (OpenBLAS dgemv_t, 3 columns): see frames_native.py. */
 static double row(double r0, double r1, double r2, double x0, double x1, double x2) {
@@ -51,11 +85,13 @@ static double row(double r0, double r1, double r2, double x0, double x1, double 
 static PyObject *
 odometry(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {
-    if (nargs != 1) {
-        PyErr_SetString(PyExc_TypeError, "odometry() takes the ODOMETRY tuple");
+    if (nargs != 2) {
+        PyErr_SetString(PyExc_TypeError, "odometry() takes the ODOMETRY tuple and State");
         return NULL;
     }
     PyObject *m = args[0];
+    if ((PyObject *)state_type != args[1] && find_slots(args[1]) != 0)
+        Py_RETURN_NONE;
     if (!PyTuple_Check(m) || PyTuple_GET_SIZE(m) < 16)
         Py_RETURN_NONE;
     double v[13];
@@ -95,9 +131,21 @@ odometry(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     double v2 = row(2.0 * (b * d - a * c), 2.0 * (c * d + a * b), 1.0 - 2.0 * (b * b + c * c),
                     x0, x1, x2);
     PyObject *time_usec = PyTuple_GET_ITEM(m, 0);
+    PyObject *vals[5] = {Py_BuildValue("(ddd)", py, px, -pz), Py_BuildValue("[ddd]", v0, v1, v2),
+                         Py_BuildValue("(dddd)", q0, q1, q2, q3),
+                         Py_BuildValue("(ddd)", p, -q, -r), time_usec};
     Py_INCREF(time_usec);
-    return Py_BuildValue("((ddd)[ddd](dddd)(ddd)N)", py, px, -pz, v0, v1, v2, q0, q1, q2, q3,
-                         p, -q, -r, time_usec);
+    PyObject *state = NULL;
+    if (vals[0] && vals[1] && vals[2] && vals[3])
+        state = state_type->tp_alloc(state_type, 0);
+    if (state == NULL) {
+        for (int k = 0; k < 5; k++)
+            Py_XDECREF(vals[k]);
+        return NULL;
+    }
+    for (int k = 0; k < 5; k++)         /* the references move into the slots */
+        *(PyObject **)((char *)state + state_offset[k]) = vals[k];
+    return state;
 }
 
 static PyMethodDef methods[] = {
@@ -142,12 +190,13 @@ def verified(core: Callable[[Any], Any]) -> bool:
     """Whether ``core`` gives :func:`paper_from_odometry_fields`'s values, bit for bit, on
     :data:`_CHECKS`."""
     for msg in _CHECKS:
-        res = core(msg)
-        if res is None:
+        res = core(msg, State)
+        if type(res) is not State:
             return False
         ref = paper_from_odometry_fields(*msg)
-        pos, vel, quat, rates, t_usec = res
-        if (t_usec != ref.time_usec or type(vel) is not list
+        pos, vel, quat, rates, t_usec = (res.position_m, res.velocity_mps, res.quaternion_wxyz,
+                                         res.body_rates_radps, res.time_usec)
+        if (t_usec != ref.time_usec or type(vel) is not list or type(pos) is not tuple
                 or any(_bits(a) != _bits(b) for a, b in (
                     (pos, ref.position_m), (vel, ref.velocity_mps),
                     (quat, ref.quaternion_wxyz), (rates, ref.body_rates_radps)))):
