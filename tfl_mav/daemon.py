@@ -298,8 +298,8 @@ class Daemon(Intake):
             dt_s = (t_usec - last_usec) * 1e-6
             stats.gap_ticks += 1
             self._report_degraded(t_usec * 1e-6)
-        # the applied command (_applied): our own copy of the command it names, else the
-        # wire's (applied_thrusts)
+        # the applied command: our own copy of the command it names, else the wire's
+        # (applied_thrusts decides every other case)
         history = self._history
         if applied_msg is None:
             stats.applied_unknown += 1
@@ -314,7 +314,7 @@ class Daemon(Intake):
             else:
                 stats.applied_from_history += 1
         self._last_usec = t_usec
-        # the tick (was _tick)
+        # the tick
         t = t_usec * 1e-6
         self._sim_time_s = t
         stats.ticks += 1
@@ -337,7 +337,7 @@ class Daemon(Intake):
         history[t_usec] = thrust
         if len(keys) > _HISTORY:
             del history[keys.popleft()]        # the oldest
-        # _send_command, inline: command_message's HIL_ACTUATOR_CONTROLS
+        # command_message's HIL_ACTUATOR_CONTROLS, written out
         f1, f2, f3, f4 = thrust
         fmax = self.thrust_max_n
         self.link.send(_new(_Hil, (t_usec, self._hil_flags, f1 / fmax, f2 / fmax, f3 / fmax,

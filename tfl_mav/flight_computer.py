@@ -416,7 +416,7 @@ class FlightComputer:
         self._good_s = self._good_s + dt if ok else 0.0
         if self._good_s >= HANDBACK_S:
             self._hand_back(state, out, events)
-        # the output (was _as_output): the mode after a hand-back is recovery, as it was
+        # the output; after a hand-back this tick is still the safe law's, in mode recovery
         mode = _LOST_ROTOR if self.law_name == "lost_rotor" else _RECOVERY
         hi = self.thrust_max_n + 1e-9
         r0, r1, r2, r3 = requested
