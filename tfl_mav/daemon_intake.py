@@ -20,6 +20,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from tfl_mav import frames_native
 from tfl_mav.arrivals import FRESH, OLD, REPEATED, RESTART, Arrivals
 from tfl_mav.daemon_io import DaemonStats
 from tfl_mav.frames import paper_from_odometry, paper_from_odometry_fields
@@ -66,6 +67,13 @@ class Intake:
             _RxOdometry: self._on_odometry,
             rx_lite_class(_ID_ACTUATOR_OUTPUT_STATUS): self._on_applied,
             _RxEsc: self._on_esc}
+        self._odometry_core: Callable[[Any], Any] | None = None
+        frames_native.attach(self._use_odometry_core)
+
+    def _use_odometry_core(self, core: Callable[[Any], Any]) -> None:
+        """The compiled ODOMETRY conversion is built and checked (maybe mid-flight, from
+        the build's thread: the same values, so the switch is invisible)."""
+        self._odometry_core = core
 
     _event: Callable[..., None]             # the Daemon's methods, called back
     _send_command: Callable[[int, Any], None]
@@ -114,7 +122,10 @@ class Intake:
         self._pending_applied = None
         try:
             if type(msg) is _RxOdometry:   # the link's tuple: fields in wire order
-                self._pending_state = _from_fields(*msg[:_ODOMETRY_FIELDS])
+                core = self._odometry_core      # compiled (frames_native), or its None
+                state = core(msg, State) if core is not None else None
+                self._pending_state = (state if state is not None
+                                       else _from_fields(*msg[:_ODOMETRY_FIELDS]))
             else:
                 self._pending_state = paper_from_odometry(msg)
         except ValueError as exc:
@@ -135,16 +146,18 @@ class Intake:
             return
         self._pending_state = None
         applied, self._pending_applied = self._pending_applied, None
-        self._arrive(state, applied, rpm)
-
-    def _arrive(self, state: State, applied_msg: Any, rpm: list[float]) -> None:
-        """Classify one complete state (:mod:`tfl_mav.arrivals`) and act on it."""
-        t_usec = state.time_usec
-        kind = self._arrivals.classify(t_usec)
+        # classified (:mod:`tfl_mav.arrivals`); a fresh state, the usual one, joins the batch
+        # here (one call less a tick, #13)
+        kind = self._arrivals.classify(state.time_usec)
         if kind == FRESH:
             self._arrived = True
-            self._complete.append((state, applied_msg, rpm))
+            self._complete.append((state, applied, rpm))
             return
+        self._arrive(kind, state, applied, rpm)
+
+    def _arrive(self, kind: int, state: State, applied_msg: Any, rpm: list[float]) -> None:
+        """Act on a complete state that is not fresh, classified as ``kind``."""
+        t_usec = state.time_usec
         stats = self.stats
         if kind == REPEATED:
             stats.repeated_states += 1

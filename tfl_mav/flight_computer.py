@@ -75,7 +75,12 @@ from tfl_mav.control.feasibility import attack_limit_n, feasible_speed_mps, path
 from tfl_mav.control.law import ControlOutput, TFLController
 from tfl_mav.control.recovery import RecoveryLaw, RecoveryOutput
 from tfl_mav.control.state_filter import StateFilter, YawRateModel
-from tfl_mav.control.takeover import TAKEOVER_TILT_RAD, calm_fail, not_benign
+from tfl_mav.control.takeover import (
+    HANDBACK_TILT_RAD,
+    TAKEOVER_RATE_RADPS,
+    TAKEOVER_TILT_RAD,
+    not_benign,
+)
 from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario
 from tfl_mav.state import State
@@ -119,6 +124,16 @@ class TickResult(NamedTuple):
 
 _MODE_TEXT = {m: str(m) for m in Mode}    # formatting an enum costs µs: once, here
 _FALLBACK, _LOST_ROTOR, _RECOVERY = Mode.FALLBACK, Mode.LOST_ROTOR, Mode.RECOVERY
+# The safe law's reason, by mode and whole degrees of tilt error (acos: 0-180°): a float
+# formatted every tick costs more than the rest of the output.
+_TILT_TEXT = {m: tuple(f"{_MODE_TEXT[m]}: tilt error {d} deg" for d in range(181))
+              for m in (_LOST_ROTOR, _RECOVERY)}
+_RAD_TO_DEG = 180.0 / math.pi     # math.degrees multiplies by this very constant
+_NAN = math.nan
+_ZERO2, _ZERO4 = (0.0, 0.0), (0.0, 0.0, 0.0, 0.0)
+_ZERO_XI = (_ZERO4, _ZERO4)
+_sqrt, _acos, _hypot, _isfinite = math.sqrt, math.acos, math.hypot, math.isfinite
+_ndarray = np.ndarray
 
 
 class FlightComputer:
@@ -237,109 +252,110 @@ class FlightComputer:
         why — the daemon's loop must not die.
         """
         try:
-            return self._step(t_s, state, rpm, applied_n, dt_s)
-        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
-            self.internal_errors += 1
-            fmax = self.thrust_max_n
-            hold = [min(max(f, 0.0), fmax) if math.isfinite(f) else 0.0 for f in applied_n]
-            zero4 = (0.0, 0.0, 0.0, 0.0)
-            why = f"internal error ({type(exc).__name__}: {exc}); last command held"
-            out = ControlOutput(
-                rotor_thrust_n=hold, mode=Mode.FALLBACK, saturated=[False] * 4,
-                xi=(zero4, zero4), eta=zero4, mu=(0.0, 0.0), path_distance_m=math.nan,
-                lam=math.nan, cond_d=math.nan, thrust_n=sum(hold),
-                mass_estimate_kg=self.controller.mass_kg, disturbance_radps2=(0.0, 0.0),
-                fine_gains=False, reason=why)
-            return TickResult(hold, out, None, 0, math.nan, False, list(hold), (why,))
-
-    def _step(self, t_s: float, state: State, rpm: Sequence[float],
-              applied_n: Sequence[float], dt_s: float | None) -> TickResult:
-        # Runs every tick (#13): attribute look-ups hoisted, the NaN/range tests written as
-        # comparisons (False for NaN), the decisions and their order exactly as in words.
-        ctrl = self.controller
-        if type(rpm) is np.ndarray:          # the simulator's: floats are 3-5× cheaper
-            rpm = rpm.tolist()
-        events: list[str] = []
-        detection = None
-        new = False
-        estimate = math.nan
-        rotor = 0
-        detector = self.detector
-        if detector is not None:
-            detection = detector.update(t_s, rpm, applied_n)
-            if detection.released:
-                ctrl.set_attack(0, 0.0)
-                self.detected_rotor = 0
-                events.append("rotor obeys its commands again: attack over, four-rotor law")
-            rotor = detection.detected_rotor
-            if rotor:
-                estimate = detection.estimate_n
-                if detection.alarm:
-                    new = True
-                    self.detected_rotor = rotor
-                    self.detection_time_s = detection.detection_time_s
+            # Runs every tick (#13): attribute look-ups hoisted, the NaN/range tests written as
+            # comparisons (False for NaN), the decisions and their order exactly as in words.
+            ctrl = self.controller
+            if type(rpm) is np.ndarray:          # the simulator's: floats are 3-5× cheaper
+                rpm = rpm.tolist()
+            events: list[str] = []
+            detection = None
+            new = False
+            estimate = math.nan
+            rotor = 0
+            detector = self.detector
+            if detector is not None:
+                detection = detector.update(t_s, rpm, applied_n)
+                if detection.released:
+                    ctrl.set_attack(0, 0.0)
+                    self.detected_rotor = 0
+                    events.append("rotor obeys its commands again: attack over, four-rotor law")
+                rotor = detection.detected_rotor
+                if rotor:
+                    estimate = detection.estimate_n
+                    if detection.alarm:
+                        new = True
+                        self.detected_rotor = rotor
+                        self.detection_time_s = detection.detection_time_s
+                    if rotor == ctrl.attacked_rotor and 0.0 <= estimate <= ctrl.model.thrust_max_n \
+                            and ctrl.cfg.aware_of_attack:
+                        ctrl.attack_estimate_n = estimate   # set_attack's every-tick case
+                    else:
+                        ctrl.set_attack(rotor, estimate)
+            elif self._told_rotor:
+                rotor = self._told_rotor
+                w = rpm[rotor - 1] * RPM_TO_RADPS
+                estimate = self.k_f * w * w
                 ctrl.set_attack(rotor, estimate)
-        elif self._told_rotor:
-            rotor = self._told_rotor
-            w = rpm[rotor - 1] * RPM_TO_RADPS
-            estimate = self.k_f * w * w
-            ctrl.set_attack(rotor, estimate)
-        # ω (rad/s) for the state filter, the yaw-rate model and the law's lag inverse; the
-        # law reads it only with motor lag (TFLController.update), so nothing else needs it.
-        omega = [r * RPM_TO_RADPS for r in rpm] if self._needs_omega else None
-        last = self._last_t
-        if last is None:
-            dt = ctrl.dt
-        else:                      # max(t − last, 0) or the period (a NaN stays NaN)
-            dt = t_s - last
-            if not (dt > 0.0 or dt != dt):
+            # ω (rad/s) for the state filter, the yaw-rate model and the law's lag inverse; the
+            # law reads it only with motor lag (TFLController.update), so nothing else needs it.
+            omega = [r * RPM_TO_RADPS for r in rpm] if self._needs_omega else None
+            last = self._last_t
+            if last is None:
                 dt = ctrl.dt
-        self._last_t = t_s
-        if self.state_filter is not None:
-            # The thrusts that acted over the last period: what the ESCs report (f = k_f ω²),
-            # the attacked rotor's included.
-            k_f = self.k_f
-            state = self.state_filter.update(state, [k_f * w * w for w in omega], dt)
-        if self.yaw_model is not None:
-            state = self.yaw_model.update(state, omega, dt, events)
-        if self._ticks == 0:
-            events[:0] = self._pending_events
-            why = not_benign(state, rotor, self.speed_mps)
-            if why:
-                self._enter("recovery", state, f"take-over: {why}", events, hold=True)
-        self._ticks += 1
-        law_name = self.law_name
-        if rotor and law_name != "lost_rotor":
-            # The estimate is finite in both tests (NaN fails a comparison; ±inf is refused).
-            if estimate < A_ENTER_N and math.isfinite(estimate):
-                self._enter("lost_rotor", state, f"rotor {rotor} at {estimate:.2f} N < "
-                            f"{A_ENTER_N} N: no roll authority, reduced-attitude law",
-                            events, hold=law_name == "recovery")
-            elif estimate > self.attack_limit_n and math.isfinite(estimate):
-                self._enter("lost_rotor", state, f"rotor {rotor} at {estimate:.2f} N: beyond "
-                            "what the path allows; keeping attitude, cannot follow the path",
-                            events, hold=law_name == "recovery")
+            else:                      # max(t − last, 0) or the period (a NaN stays NaN)
+                dt = t_s - last
+                if not (dt > 0.0 or dt != dt):
+                    dt = ctrl.dt
+            self._last_t = t_s
+            if self.state_filter is not None:
+                # The thrusts that acted over the last period: what the ESCs report (f = k_f ω²),
+                # the attacked rotor's included.
+                k_f = self.k_f
+                state = self.state_filter.update(state, [k_f * w * w for w in omega], dt)
+            if self.yaw_model is not None:
+                state = self.yaw_model.update(state, omega, dt, events)
+            if self._ticks == 0:
+                events[:0] = self._pending_events
+                why = not_benign(state, rotor, self.speed_mps)
+                if why:
+                    self._enter("recovery", state, f"take-over: {why}", events, hold=True)
+            self._ticks += 1
             law_name = self.law_name
-        if law_name == "tfl":
-            if dt_s is None:
-                out = ctrl.update(state, omega)
-            else:   # states were skipped: integrate the law's states over the real gap
-                period = ctrl.dt
-                ctrl.dt = dt_s
-                try:
+            if rotor and law_name != "lost_rotor":
+                # The estimate is finite in both tests (NaN fails a comparison; ±inf is refused).
+                if estimate < A_ENTER_N and math.isfinite(estimate):
+                    self._enter("lost_rotor", state, f"rotor {rotor} at {estimate:.2f} N < "
+                                f"{A_ENTER_N} N: no roll authority, reduced-attitude law",
+                                events, hold=law_name == "recovery")
+                elif estimate > self.attack_limit_n and math.isfinite(estimate):
+                    self._enter("lost_rotor", state, f"rotor {rotor} at {estimate:.2f} N: beyond "
+                                "what the path allows; keeping attitude, cannot follow the path",
+                                events, hold=law_name == "recovery")
+                law_name = self.law_name
+            if law_name == "tfl":
+                if dt_s is None:
                     out = ctrl.update(state, omega)
-                finally:
-                    ctrl.dt = period
-            self._last_tfl = out
-            if out.mode is not _FALLBACK:
-                return self._result(out.rotor_thrust_n, None, out, detection, rotor,
-                                    estimate, new, events)
-            self._enter("recovery", state, f"TFL: {out.reason}; level, hold altitude",
-                        events, hold=True)
-        rec = self._fly_safe(t_s, dt, state, rotor, estimate, events)
-        out = self._as_output(rec, ctrl)
-        return self._result(rec.thrust_n, rec.requested_n, out, detection, rotor, estimate,
-                            new, events)
+                else:   # states were skipped: integrate the law's states over the real gap
+                    period = ctrl.dt
+                    ctrl.dt = dt_s
+                    try:
+                        out = ctrl.update(state, omega)
+                    finally:
+                        ctrl.dt = period
+                self._last_tfl = out
+                if out.mode is not _FALLBACK:
+                    return self._result(out.rotor_thrust_n, None, out, detection, rotor,
+                                        estimate, new, events)
+                self._enter("recovery", state, f"TFL: {out.reason}; level, hold altitude",
+                            events, hold=True)
+            return self._fly_safe(dt, state, rotor, estimate, events, detection, new)
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+            return self._failed(exc, applied_n)
+
+    def _failed(self, exc: BaseException, applied_n: Sequence[float]) -> TickResult:
+        """A law raised: hold the applied command, in mode FALLBACK, and say why."""
+        self.internal_errors += 1
+        fmax = self.thrust_max_n
+        hold = [min(max(f, 0.0), fmax) if math.isfinite(f) else 0.0 for f in applied_n]
+        zero4 = (0.0, 0.0, 0.0, 0.0)
+        why = f"internal error ({type(exc).__name__}: {exc}); last command held"
+        out = ControlOutput(
+            rotor_thrust_n=hold, mode=Mode.FALLBACK, saturated=[False] * 4,
+            xi=(zero4, zero4), eta=zero4, mu=(0.0, 0.0), path_distance_m=math.nan,
+            lam=math.nan, cond_d=math.nan, thrust_n=sum(hold),
+            mass_estimate_kg=self.controller.mass_kg, disturbance_radps2=(0.0, 0.0),
+            fine_gains=False, reason=why)
+        return TickResult(hold, out, None, 0, math.nan, False, list(hold), (why,))
 
     # ------------------------------------------------------------------ switching
     def _enter(self, law: str, state: State, why: str, events: list[str], *,
@@ -356,24 +372,66 @@ class FlightComputer:
         else:
             rec.follow_path()
 
-    def _fly_safe(self, t_s: float, dt: float, state: State, rotor: int, estimate: float,
-                  events: list[str]) -> RecoveryOutput:
+    def _fly_safe(self, dt: float, state: State, rotor: int, estimate: float,
+                  events: list[str], detection: DetectorOutput | None,
+                  new: bool) -> TickResult:
+        """A tick of the safe law (recovery or lost_rotor), its hand-back test and its
+        output. Runs every safe-law tick (#13), so the compiled lost-rotor tick is called
+        directly (:mod:`~tfl_mav.control.recovery_native`; its None: the Python law),
+        :func:`~tfl_mav.control.takeover.calm_fail` is written out (the same operations)
+        and the reason's text is looked up by the tilt error's whole degrees."""
         rec = self.recovery
         self._since_s += dt
         if rec.hold_m is not None and self._since_s >= HOLD_BEFORE_PATH_S \
                 and not not_benign(state, rotor, self.speed_mps) and rec.projector is not None:
             rec.projector.lam = None          # a fresh global search: we may be far away
             rec.follow_path()
-        a_n = estimate if rotor and math.isfinite(estimate) else 0.0
-        out = rec.update(state, rotor if self.law_name == "lost_rotor" else 0, a_n)
-        ok = (rec.hold_m is None and math.isfinite(out.path_distance_m)
-              and out.path_distance_m < HANDBACK_DIST_M and not calm_fail(state, rotor)
-              and (not rotor or (math.isfinite(estimate) and A_EXIT_N < estimate
-                                 < self.attack_limit_n - A_LIMIT_BAND_N)))
+        finite = _isfinite(estimate)
+        a_n = estimate if rotor and finite else 0.0
+        lost = self.law_name == "lost_rotor"
+        law_rotor = rotor if lost else 0
+        native = rec.native
+        out = native(state, law_rotor, a_n) if native is not None and law_rotor else None
+        if out is None:
+            out = rec.update(state, law_rotor, a_n)
+        requested, thrust, tilt_err, dist, uf = out
+        ok = rec.hold_m is None and _isfinite(dist) and dist < HANDBACK_DIST_M
+        if ok:      # not calm_fail(state, rotor), written out
+            quat, rates = state.quaternion_wxyz, state.body_rates_radps
+            if type(quat) is _ndarray:      # floats(): a numpy array's as Python floats
+                quat = quat.tolist()
+            if type(rates) is _ndarray:
+                rates = rates.tolist()
+            qw, qx, qy, qz = quat
+            n = _sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+            qx, qy = qx / n, qy / n
+            c = 1 - 2 * (qx * qx + qy * qy)
+            c = c if c < 1.0 else 1.0              # max(-1.0, min(1.0, c)), NaN → 1.0
+            p, q, r = rates
+            ok = not (_acos(c if c > -1.0 else -1.0) > HANDBACK_TILT_RAD
+                      or _hypot(p, q) > TAKEOVER_RATE_RADPS
+                      or (not rotor and abs(r) > TAKEOVER_RATE_RADPS)) \
+                and (not rotor or (finite and A_EXIT_N < estimate
+                                   < self.attack_limit_n - A_LIMIT_BAND_N))
         self._good_s = self._good_s + dt if ok else 0.0
         if self._good_s >= HANDBACK_S:
             self._hand_back(state, out, events)
-        return out
+        # the output; after a hand-back this tick is still the safe law's, in mode recovery
+        mode = _LOST_ROTOR if self.law_name == "lost_rotor" else _RECOVERY
+        hi = self.thrust_max_n + 1e-9
+        r0, r1, r2, r3 = requested
+        deg = tilt_err * _RAD_TO_DEG                    # math.degrees, the same product
+        if 0.0 <= deg <= 180.0:     # f"{deg:.0f}" is round(deg): both round half to even
+            reason = _TILT_TEXT[mode][round(deg)]
+        else:
+            reason = f"{_MODE_TEXT[mode]}: tilt error {deg:.0f} deg"
+        law = ControlOutput(   # positional: the fields in order (rotor_thrust_n … reason)
+            list(thrust), mode,
+            [not (-1e-9 <= r0 <= hi), not (-1e-9 <= r1 <= hi), not (-1e-9 <= r2 <= hi),
+             not (-1e-9 <= r3 <= hi)],
+            _ZERO_XI, _ZERO4, _ZERO2, dist, _NAN, _NAN, uf, self.controller.mass_kg, _ZERO2,
+            False, reason)
+        return self._result(thrust, requested, law, detection, rotor, estimate, new, events)
 
     def _hand_back(self, state: State, out: RecoveryOutput, events: list[str]) -> None:
         """Back to TFL, bumpless: its dynamic extension starts at the thrust now applied."""
@@ -394,16 +452,6 @@ class FlightComputer:
                 and self.recovery.projector.lam is not None:
             tracker.lam = self.recovery.projector.lam
 
-    def _as_output(self, rec: RecoveryOutput, ctrl: TFLController) -> ControlOutput:
-        mode = _LOST_ROTOR if self.law_name == "lost_rotor" else _RECOVERY
-        hi = self.thrust_max_n + 1e-9
-        zero4 = (0.0, 0.0, 0.0, 0.0)
-        return ControlOutput(   # positional: the fields in order (rotor_thrust_n … reason)
-            list(rec.thrust_n), mode, [not (-1e-9 <= f <= hi) for f in rec.requested_n],
-            (zero4, zero4), zero4, (0.0, 0.0), rec.path_distance_m, math.nan, math.nan,
-            rec.uf_n, ctrl.mass_kg, (0.0, 0.0), False,
-            f"{_MODE_TEXT[mode]}: tilt error {math.degrees(rec.tilt_error_rad):.0f} deg")
-
     def _result(self, thrust: Sequence[float], requested: Sequence[float] | None,
                 out: ControlOutput, detection: DetectorOutput | None, rotor: int,
                 estimate: float, new: bool, events: list[str]) -> TickResult:
@@ -423,14 +471,14 @@ class FlightComputer:
             if requested is None:
                 requested = thrust
         r1, r2, r3, r4 = requested
-        if math.isfinite(r1 + r2 + r3 + r4):        # a finite sum: all four finite
+        if _isfinite(r1 + r2 + r3 + r4):        # a finite sum: all four finite
             req = [r1, r2, r3, r4]
         else:
             req = [r if math.isfinite(r) else 0.0 for r in requested]
         if rotor and self.detector is not None:
             # The attacked rotor's command is not ours to use: send it a probe away from its
             # estimate, so that a rotor the attacker lets go shows it by following (detector).
-            est = estimate if math.isfinite(estimate) else 0.0
+            est = estimate if _isfinite(estimate) else 0.0
             hover = self._hover_share_n
             applied[rotor - 1] = hover if abs(hover - est) > 1.0 else self._probe_high_n
         return TickResult(applied, out, detection, rotor, estimate, new, req, tuple(events))

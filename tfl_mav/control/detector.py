@@ -126,6 +126,7 @@ class DetectorOutput(NamedTuple):
 
 
 _ZERO4 = (0.0, 0.0, 0.0, 0.0)
+_isfinite = math.isfinite
 
 
 class AttackDetector:
@@ -224,21 +225,19 @@ class AttackDetector:
             raise ValueError(f"thrust_cmd_n: expected 4 values, got {len(thrust_cmd_n)}")
         t = float(time_s)
         last = self._last_time
-        if not math.isfinite(t):
+        if not _isfinite(t):
             self.rejected_samples += 1
             t = last + self.dt_s if last is not None else 0.0
         elif last is not None and t <= last:
             self.rejected_samples += 1
             return self._reissue(alarm=False)
         lim = RPM_VALID_LIMIT
-        r0, r1, r2, r3 = rpm_measured
-        r0, r1, r2, r3 = float(r0), float(r1), float(r2), float(r3)
+        r0, r1, r2, r3 = map(float, rpm_measured)      # float() each, in C
         if not (-lim <= r0 <= lim and -lim <= r1 <= lim and -lim <= r2 <= lim
                 and -lim <= r3 <= lim):                 # NaN fails too
             r0, r1, r2, r3 = (r if -lim <= r <= lim else math.nan for r in (r0, r1, r2, r3))
-        c0, c1, c2, c3 = thrust_cmd_n
-        c0, c1, c2, c3 = float(c0), float(c1), float(c2), float(c3)
-        if math.isfinite(c0 + c1 + c2 + c3):        # a finite sum: all four finite
+        c0, c1, c2, c3 = map(float, thrust_cmd_n)
+        if _isfinite(c0 + c1 + c2 + c3):        # a finite sum: all four finite
             self._cmd = (c0, c1, c2, c3)
         else:
             cmd = list(self._cmd)           # the last valid command per rotor
@@ -286,10 +285,22 @@ class AttackDetector:
                     self.estimate_n = math.nan
                     self._s_hi = self._s_lo = _ZERO4
                     released = True
-        if self.detected_rotor:
-            w = max(self._rpm[self.detected_rotor - 1], 0.0) * RPM_TO_RADPS
-            self.estimate_n = min(self.k_f * w * w, self.thrust_max_n)
-        return self._reissue(alarm, released)
+        d = self.detected_rotor
+        if d:
+            w = self._rpm[d - 1]
+            w = (0.0 if w < 0.0 else w) * RPM_TO_RADPS     # max(w, 0.0), NaN and -0.0 alike
+            f = self.k_f * w * w
+            fmax = self.thrust_max_n
+            self.estimate_n = fmax if fmax < f else f      # min(f, fmax), alike
+        # _reissue, written out (every tick)
+        h0, h1, h2, h3 = self._s_hi
+        l0, l1, l2, l3 = self._s_lo
+        self._out = out = DetectorOutput(
+            d, self.estimate_n, self._resid,
+            (h0 if h0 >= l0 else -l0, h1 if h1 >= l1 else -l1, h2 if h2 >= l2 else -l2,
+             h3 if h3 >= l3 else -l3), self.detection_time_s, alarm, self.rejected_samples,
+            released)
+        return out
 
     def _latch(self, rotor: int, t: float) -> None:
         self.detected_rotor = rotor

@@ -17,16 +17,18 @@ import weakref
 from collections.abc import Callable
 from typing import Any
 
+import numpy as np
+
 from tfl_mav import native
 from tfl_mav.control.kernelgen import trace_block
 from tfl_mav.control.recovery import (
     _KD,
     _KP,
     _TAN_MAX_TILT,
+    LQR_MAX_SPIN_RADPS,
     MAX_VERTICAL_G,
     RecoveryLaw,
     RecoveryOutput,
-    _floats,
 )
 
 __all__ = ["attach", "core_source"]
@@ -123,27 +125,50 @@ def core_source(trace_sigma: Callable[..., list[Any]]) -> str:
 
 def _native_update(rec: RecoveryLaw, namespace: dict[str, Any]
                    ) -> Callable[..., RecoveryOutput | None]:
-    """``RecoveryLaw.update``'s compiled form, or None where the Python one must run."""
+    """``RecoveryLaw.update``'s compiled form, or None where the Python one must run.
+
+    Runs every lost-rotor tick (#13): what depends on the attacked rotor only (its frame's
+    rotation, the swapped inertias, the inverse permutation) is looked up once per rotor,
+    and :meth:`RecoveryLaw._lqr`'s cache hit is written out (a rate within
+    ±``LQR_MAX_SPIN_RADPS`` is its own clamp; anything else goes through ``_lqr``)."""
+    per_rotor: dict[int, tuple[Any, ...]] = {}
+    gains_cache = rec._gains
+    lqr = rec._lqr
+    spin_max = LQR_MAX_SPIN_RADPS
+    ndarray = np.ndarray
+
     def update(s: Any, attacked_rotor: int, attack_n: float) -> RecoveryOutput | None:
         core = namespace["_core"]
         proj = rec.projector
-        fr = rec._frames.get(attacked_rotor)
-        if (core is None or fr is None or rec.hold_m is not None or proj is None
-                or proj.lam is None):
+        consts = per_rotor.get(attacked_rotor)
+        if consts is None:
+            fr = rec._frames.get(attacked_rotor)
+            if core is None or fr is None:
+                return None
+            ix, iy, _ = rec.inertia
+            ixc, iyc = (iy, ix) if fr.swap_xy else (ix, iy)
+            consts = per_rotor[attacked_rotor] = (fr.rot, *fr.rot[2], ixc, iyc, ixc > iyc,
+                                                  *rec._inverse_perm[attacked_rotor])
+        if core is None or rec.hold_m is not None or proj is None or proj.lam is None:
             return None
-        p, q, r = _floats(s.body_rates_radps)
-        (_, _, _), (_, _, _), (r20, r21, r22) = fr.rot
+        rot, r20, r21, r22, ixc, iyc, swapped, j0, j1, j2, j3 = consts
+        rates = s.body_rates_radps
+        if type(rates) is ndarray:
+            rates = rates.tolist()
+        p, q, r = rates
+        w = 0 + r20 * p + r21 * q + r22 * r
+        gains = gains_cache.get((round(w * 2.0), swapped)) if -spin_max <= w <= spin_max \
+            else None
+        if gains is None:
+            gains = lqr(w, ixc, iyc)
         ix, iy, iz = rec.inertia
-        ixc, iyc = (iy, ix) if fr.swap_xy else (ix, iy)
-        gains = rec._lqr(0 + r20 * p + r21 * q + r22 * r, ixc, iyc)
         res = core(s.position_m, s.velocity_mps, s.quaternion_wxyz, (p, q, r), proj.lam,
                    rec.speed, rec.g, rec.mass_kg, rec.k_t, ix, iy, iz, rec.arm_m, rec.fmax,
-                   fr.rot, gains, attack_n)
+                   rot, gains, attack_n)
         if res is None:
             return None
         lam, tilt, dist, uf, req, f = res
         proj.lam = lam
-        j0, j1, j2, j3 = rec._inverse_perm[attacked_rotor]
         return RecoveryOutput([req[j0], req[j1], req[j2], req[j3]],
                               [f[j0], f[j1], f[j2], f[j3]], tilt, dist, uf)
     return update
