@@ -21,16 +21,19 @@ from tfl_mav.link.transport import FrameHook
 __all__ = ["HandOff", "TruthSink", "truth_hook"]
 
 _TRUTH: tuple[Any, ...] = ("truth",)        # queued marker: call on_truth with the sim
+_BATCH = object()                           # queued marker: a datagram's frames (on_frames)
 
 
 class HandOff:
     """The recorder hooks of one vehicle: called at once, or queued until :meth:`flush`."""
 
     def __init__(self, sim: Simulator, on_frame: FrameHook | None,
-                 on_truth: Callable[[Simulator], None] | None) -> None:
+                 on_truth: Callable[[Simulator], None] | None,
+                 on_frames: Callable[..., None] | None = None) -> None:
         self.sim = sim
         self.on_frame = on_frame
         self.on_truth = on_truth
+        self.on_frames = on_frames     # (direction, raws, msgs, time_s): a datagram at once
         self._queue: list[tuple[Any, ...]] | None = None   # None: call at once
 
     def defer(self, defer: bool) -> None:
@@ -51,6 +54,8 @@ class HandOff:
         for item in queued:
             if item is _TRUTH:
                 self.on_truth(self.sim)   # type: ignore[misc]
+            elif item[0] is _BATCH:
+                self.on_frames(*item[1:])  # type: ignore[misc]
             else:
                 self.on_frame(*item)      # type: ignore[misc]
 
@@ -61,6 +66,14 @@ class HandOff:
             self.on_frame(direction, raw, msg, time_s)   # type: ignore[misc]
         else:
             queue.append((direction, raw, msg, time_s))
+
+    def frames(self, direction: str, raws: Any, msgs: Any, time_s: float) -> None:
+        """The links' ``on_frames`` (one datagram's frames; given only with a hook)."""
+        queue = self._queue
+        if queue is None:
+            self.on_frames(direction, raws, msgs, time_s)   # type: ignore[misc]
+        else:
+            queue.append((_BATCH, direction, raws, msgs, time_s))
 
     def truth(self) -> None:
         """The simulator's state of this tick, to ``on_truth`` (if any)."""

@@ -111,7 +111,8 @@ class Vehicle:
                  allow_failure_injection: bool = True, sysid: int = 1, compid: int = 1,
                  key: bytes | None = None, on_frame: FrameHook | None = None,
                  on_truth: Callable[[Simulator], None] | None = None,
-                 on_status: Callable[[int, str], None] | None = None) -> None:
+                 on_status: Callable[[int, str], None] | None = None,
+                 on_frames: Callable[..., None] | None = None) -> None:
         """Bind the sockets (raises :class:`~tfl_mav.link.transport.LinkError`) and build the sim.
 
         ``listen``: control port to bind (port 0 = ephemeral, see :attr:`listen_address`).
@@ -123,6 +124,9 @@ class Vehicle:
         ``gcs_rate_hz``: GCS telemetry rate, at most
         50 Hz. ``key``: 32-byte MAVLink 2 signing secret for both ports, or None (unsigned).
         ``on_status(severity, text)`` sees every STATUSTEXT the vehicle sends.
+        ``on_frames(direction, raws, msgs, time_s)``: beside ``on_frame``, a datagram's
+        per-tick frames in one call (e.g. ``RecorderProcess.on_frames``: one hand-off item
+        a datagram, not one a frame).
         """
         for name, value in (("lockstep_timeout_s", lockstep_timeout_s),
                             ("command_timeout_s", command_timeout_s),
@@ -133,7 +137,8 @@ class Vehicle:
             raise ValueError(f"gcs_rate_hz: must be in (0, 50] Hz, got {gcs_rate_hz}")
         self.scenario = scenario
         self.sim = Simulator(scenario)
-        self.recording = HandOff(self.sim, on_frame, on_truth)
+        self.recording = HandOff(self.sim, on_frame, on_truth,
+                                 on_frames if on_frame is not None else None)
         self.hand_off = self.recording.flush   # type: ignore[method-assign]  # every tick
         hook = self.recording.frame if on_frame is not None else None
         # The links.
@@ -158,6 +163,10 @@ class Vehicle:
                 self.control_link.close()
                 raise
         self._fds = [link.fileno() for link in (self.control_link, self.gcs_link) if link]
+        if self.recording.on_frames is not None:
+            for link in (self.control_link, self.gcs_link):
+                if link is not None:
+                    link.on_frames = self.recording.frames
         self.stats = VehicleStats(control_link=self.control_link.stats,
                                   gcs_link=self.gcs_link.stats if self.gcs_link else None)
         v = scenario.vehicle

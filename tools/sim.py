@@ -232,7 +232,8 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
             gcs_rate_hz=args.gcs_rate, allow_failure_injection=not args.no_failure_injection,
             key=key, on_frame=recorder.on_frame if recorder is not None else None,
             on_truth=truth_hook(recorder) if recorder is not None else None,
-            on_status=on_status)
+            on_status=on_status,
+            on_frames=recorder.on_frames if recorder is not None else None)
     except LinkError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return EXIT_LINK

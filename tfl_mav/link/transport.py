@@ -281,7 +281,8 @@ class Link(Receiver):
         packing (10-25 µs here); a lockstep tick's ODOMETRY + ESC_TELEMETRY in one datagram
         saves one per tick on each side. Receivers that read a datagram as a byte stream
         (this class, pymavlink, MAVProxy, QGroundControl; ArduPilot batches the same way)
-        see the frames one by one. ``on_frame`` still sees each frame on its own. Keep the
+        see the frames one by one. ``on_frame`` still sees each frame on its own (``on_frames``,
+        when set beside it, sees the datagram's frames in one call). Keep the
         total under the UDP limit (65 507 bytes; a MAVLink 2 frame is at most 280).
         Returns the bytes sent; 0 (counted per frame) if no peer is known or the OS refused.
         """
@@ -302,8 +303,11 @@ class Link(Receiver):
         st.tx_bytes += n
         if self.on_frame is not None:
             now = self.clock()
-            for raw, msg in zip(frames, msgs, strict=True):
-                self.on_frame("tx", raw, msg, now)
+            if self.on_frames is not None:      # the datagram's frames in one call
+                self.on_frames("tx", frames, msgs, now)
+            else:
+                for raw, msg in zip(frames, msgs, strict=True):
+                    self.on_frame("tx", raw, msg, now)
         return n
 
     def send_to(self, address: Address, msg: Any) -> int:
