@@ -376,8 +376,7 @@ class FlightComputer:
                   events: list[str], detection: DetectorOutput | None,
                   new: bool) -> TickResult:
         """A tick of the safe law (recovery or lost_rotor), its hand-back test and its
-        output. Runs every safe-law tick (#13), so the compiled lost-rotor tick is called
-        directly (:mod:`~tfl_mav.control.recovery_native`; its None: the Python law),
+        output. Runs every safe-law tick (#13), so
         :func:`~tfl_mav.control.takeover.calm_fail` is written out (the same operations)
         and the reason's text is looked up by the tilt error's whole degrees."""
         rec = self.recovery
@@ -390,10 +389,7 @@ class FlightComputer:
         a_n = estimate if rotor and finite else 0.0
         lost = self.law_name == "lost_rotor"
         law_rotor = rotor if lost else 0
-        native = rec.native
-        out = native(state, law_rotor, a_n) if native is not None and law_rotor else None
-        if out is None:
-            out = rec.update(state, law_rotor, a_n)
+        out = rec.update(state, law_rotor, a_n)     # its compiled tick first (recovery_native)
         requested, thrust, tilt_err, dist, uf = out
         ok = rec.hold_m is None and _isfinite(dist) and dist < HANDBACK_DIST_M
         if ok:      # not calm_fail(state, rotor), written out
