@@ -71,6 +71,7 @@ from tfl_mav.arrivals import Arrivals
 from tfl_mav.daemon_intake import Intake
 from tfl_mav.daemon_io import (
     _HIL_TAIL,
+    _MODE_NAMES,
     LOCKSTEP_FLAG,
     TICK_FIELDS,
     TICK_SCHEMA,
@@ -323,7 +324,7 @@ class Daemon(Intake):
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
             self._law_failed(t_usec, exc)
             return True
-        thrust, out, _, rotor, estimate_n, new, _, events = res
+        thrust, out, det, rotor, estimate_n, new, _, events = res
         if new:
             self._event("warning", f"ATTACK on rotor {rotor} detected at "
                                    f"t={t:.3f} s; attacked law engaged")
@@ -347,12 +348,21 @@ class Daemon(Intake):
         self._distance = out.path_distance_m
         if mode is _FALLBACK:
             stats.fallback_ticks += 1
-        if True in out.saturated:
+        saturated = True in out.saturated       # any(): the list holds bools
+        if saturated:
             stats.saturated_ticks += 1
         if rotor and _isfinite(estimate_n):
             self._est_n += 1
-        if self.on_tick is not None:
-            self.on_tick(t, tick_state(res))
+        on_tick = self.on_tick
+        if on_tick is not None:     # tick_state(res), written out: the same plain tuple
+            if det is None:
+                on_tick(t, (_MODE_NAMES[mode], rotor, estimate_n, out.path_distance_m,
+                            saturated, thrust, out.xi, out.eta, out.mass_estimate_kg,
+                            out.fine_gains, out.reason, ()))
+            else:
+                on_tick(t, (_MODE_NAMES[mode], rotor, det.estimate_n, out.path_distance_m,
+                            saturated, thrust, out.xi, out.eta, out.mass_estimate_kg,
+                            out.fine_gains, out.reason, det.cusum))
         if t >= self._next_telemetry_s:
             self._next_telemetry_s = t + _TELEMETRY_PERIOD_S
             self._telemetry(t_usec, res)

@@ -17,10 +17,11 @@ Bad input is counted in :class:`~tfl_mav.daemon_io.DaemonStats` and never raises
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from typing import Any
 
-from tfl_mav import frames_native
+from tfl_mav import arrivals, frames_native
 from tfl_mav.arrivals import FRESH, OLD, REPEATED, RESTART, Arrivals
 from tfl_mav.daemon_io import DaemonStats
 from tfl_mav.frames import paper_from_odometry, paper_from_odometry_fields
@@ -38,6 +39,7 @@ _RxEsc = rx_lite_class(_ID_ESC_TELEMETRY_1_TO_4)
 _ODOMETRY_FIELDS = 16     # time_usec, x, y, z, q[4], vx..vz, rates[3], frame_id, child_frame_id
 _ESC_RPM = slice(0, 4)    # rpm[4]: the received tuple's only values (link.lite.LAZY_FIELDS)
 _from_fields = paper_from_odometry_fields
+_AHEAD_USEC = arrivals._AHEAD_S * 1e6     # Arrivals.classify's plausible step (float, as there)
 
 
 class Intake:
@@ -55,10 +57,14 @@ class Intake:
     _vehicle_done: str
     _ending: tuple[int, str] | None
     _handlers: dict[type, Any]
+    _fresh_ahead_usec: float
 
     def _init_intake(self) -> None:
         self._pending_state = None
         self._pending_applied = None
+        # _on_esc's fast path: lockstep only (real time's plausible step grows with the wall
+        # clock, so classify decides there; -inf fails every test)
+        self._fresh_ahead_usec = -math.inf if self._arrivals.realtime else _AHEAD_USEC
         self._complete = []           # this batch's complete states
         self._arrived = False         # a valid state arrived this loop (failsafe clock)
         self._vehicle_done = ""
@@ -147,8 +153,19 @@ class Intake:
         self._pending_state = None
         applied, self._pending_applied = self._pending_applied, None
         # classified (:mod:`tfl_mav.arrivals`); a fresh state, the usual one, joins the batch
-        # here (one call less a tick, #13)
-        kind = self._arrivals.classify(state.time_usec)
+        # here (one call less a tick, #13). Lockstep's usual case, written out: newer than
+        # the watermark by at most the plausible step is FRESH (classify's last branch; its
+        # wall times stay 0.0 in lockstep), no call at all.
+        arr = self._arrivals
+        t_usec = state.time_usec
+        w = arr.newest_usec
+        if w < t_usec <= w + self._fresh_ahead_usec:
+            arr.jumps_in_row = arr.old_in_row = 0
+            arr.newest_usec = t_usec
+            self._arrived = True
+            self._complete.append((state, applied, rpm))
+            return
+        kind = arr.classify(t_usec)
         if kind == FRESH:
             self._arrived = True
             self._complete.append((state, applied, rpm))

@@ -158,6 +158,9 @@ class AttackDetector:
         self._taus = tuple(self.tau_s * tol ** (j / 2) for j in range(-2, 3))
         self._sig2 = self.sigma_rpm ** 2
         self._rotors = python_kernel(self.tau_s > 0.0)   # the four rotors' tick (generated)
+        # the compiled lagged tick itself (detector_native.attach sets it): update calls it
+        # directly, state in and out (what detector_native's caller does, written out)
+        self._core: Any = None
         self._sd0 = math.sqrt(self._sig2 + 0.0)   # the residual's std without lag
         self._h_alarm = self.h * (1.0 - _ALARM_TOL)
         # The per-rotor state as float tuples, rotor-major (read and rewritten whole each
@@ -263,7 +266,19 @@ class AttackDetector:
                         self._decays.clear()
                     decay = self._decays[dt] = tuple(math.exp(-dt / tau_j)
                                                      for tau_j in self._taus)
-            top = self._rotors(self, r0, r1, r2, r3, c0, c1, c2, c3, decay)
+            core = self._core
+            if core is None:        # no compiled tick: the Python one
+                top = self._rotors(self, r0, r1, r2, r3, c0, c1, c2, c3, decay)
+            elif (r := core(self._band, self._sig2, self.thrust_max_n, self._s_hi, self._s_lo,
+                            self._z, self._rpm, self._resid, self._var, self.k, self.z_cap,
+                            self.k_f, self.detected_rotor, r0, r1, r2, r3, c0, c1, c2, c3,
+                            decay)) is None:    # it declined: the Python tick, same state
+                top = python_kernel(True)(self, r0, r1, r2, r3, c0, c1, c2, c3, decay)
+            else:
+                (top, nrej, self._band, self._s_hi, self._s_lo, self._z, self._rpm,
+                 self._resid, self._var) = r
+                if nrej:
+                    self.rejected_samples += int(nrej)
 
         alarm = False
         released = False

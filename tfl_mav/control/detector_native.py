@@ -3,8 +3,9 @@
 :func:`detector_kernel.rotors_source` writes the tick twice from one template: as Python on
 the detector's attributes, and as a pure function of their numbers. The pure one is
 compiled; the detector then calls a small Python function that reads its state, makes the
-one call and writes the new state back — the same floats, so the same verdicts. When the
-compiled tick declines (an operation that would raise in Python, a state that is not
+one call and writes the new state back — the same floats, so the same verdicts (the lagged
+detector's update makes that call itself, through ``_core``: one Python call less a tick,
+#13). When the compiled tick declines (an operation that would raise in Python, a state that is not
 numbers) the Python tick runs instead, from the same state.
 """
 
@@ -60,6 +61,8 @@ def attach(detector: Any, lagged: bool) -> None:
     python, ref = detector._rotors, weakref.ref(detector)
     if namespace["_core"] is not None:
         detector._rotors = caller
+        if lagged:
+            detector._core = namespace["_core"]
         return
 
     def ready(core: Callable[..., Any]) -> None:
@@ -67,6 +70,8 @@ def attach(detector: Any, lagged: bool) -> None:
         target = ref()
         if target is not None and target._rotors is python:
             target._rotors = caller
+            if lagged:
+                target._core = core
 
     core = native.obtain(rotors_source(lagged, pure=True), ready)
     if core is not None:
