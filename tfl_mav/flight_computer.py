@@ -122,6 +122,7 @@ class TickResult(NamedTuple):
         return self.law.mode
 
 
+_new = tuple.__new__
 _MODE_TEXT = {m: str(m) for m in Mode}    # formatting an enum costs µs: once, here
 _FALLBACK, _LOST_ROTOR, _RECOVERY = Mode.FALLBACK, Mode.LOST_ROTOR, Mode.RECOVERY
 # The safe law's reason, by mode and whole degrees of tilt error (acos: 0-180°): a float
@@ -477,4 +478,6 @@ class FlightComputer:
             est = estimate if _isfinite(estimate) else 0.0
             hover = self._hover_share_n
             applied[rotor - 1] = hover if abs(hover - est) > 1.0 else self._probe_high_n
-        return TickResult(applied, out, detection, rotor, estimate, new, req, tuple(events))
+        # TickResult(...) without its generated Python __new__ (every tick, #13): all fields
+        return _new(TickResult, (applied, out, detection, rotor, estimate, new, req,
+                                 tuple(events)))

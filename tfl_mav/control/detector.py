@@ -127,6 +127,7 @@ class DetectorOutput(NamedTuple):
 
 _ZERO4 = (0.0, 0.0, 0.0, 0.0)
 _isfinite = math.isfinite
+_new = tuple.__new__
 
 
 class AttackDetector:
@@ -310,11 +311,12 @@ class AttackDetector:
         # _reissue, written out (every tick)
         h0, h1, h2, h3 = self._s_hi
         l0, l1, l2, l3 = self._s_lo
-        self._out = out = DetectorOutput(
+        # DetectorOutput(...) without its generated Python __new__: all eight fields
+        self._out = out = _new(DetectorOutput, (
             d, self.estimate_n, self._resid,
             (h0 if h0 >= l0 else -l0, h1 if h1 >= l1 else -l1, h2 if h2 >= l2 else -l2,
              h3 if h3 >= l3 else -l3), self.detection_time_s, alarm, self.rejected_samples,
-            released)
+            released))
         return out
 
     def _latch(self, rotor: int, t: float) -> None:
