@@ -9,6 +9,7 @@ import socket
 import subprocess
 import sys
 import time
+from typing import Any
 
 import pytest
 from mcap.reader import make_reader
@@ -169,3 +170,37 @@ def test_report_from_the_log_alone(tmp_path):
     assert len(rep["plots"]) >= 6
     # The same flight summarised from the log agrees with the demo's own summary.
     assert rep["final_path_distance_m"] == pytest.approx(m["final_path_distance_m"], rel=1e-9)
+
+
+def test_daemon_tick_record_is_tick_state(sim_factory):
+    """The daemon writes its per-tick record out in ``_control_newest`` (#13); it must stay
+    the tuple ``tick_state`` builds from the same tick's result. A real lockstep flight (the
+    paper's attack: detection, then the attacked and safe laws), every tick compared."""
+    from tfl_mav.daemon import Daemon
+    from tfl_mav.daemon_io import tick_state
+    from tfl_mav.flight_computer import FlightComputer
+    from tfl_mav.scenario import load_scenario
+
+    _proc, port = sim_factory(["--duration", "0.4"])
+    results: list[Any] = []
+    records: list[tuple[float, tuple[Any, ...]]] = []
+    step = FlightComputer.step
+
+    def observed(self: Any, *a: Any, **k: Any) -> Any:
+        res = step(self, *a, **k)
+        results.append(res)
+        return res
+
+    FlightComputer.step = observed  # type: ignore[method-assign]
+    try:
+        daemon = Daemon(load_scenario("paper"), vehicle=("127.0.0.1", port),
+                        on_tick=lambda t, rec: records.append((t, rec)))
+        daemon.run(duration_s=0.4)
+    finally:
+        FlightComputer.step = step  # type: ignore[method-assign]
+    assert len(results) >= len(records) > 300     # (the daemon's start-up warms the law)
+    modes = set()
+    for (_t, rec), res in zip(records, results[-len(records):], strict=True):
+        assert rec == tick_state(res)
+        modes.add(rec[0])
+    assert len(modes) >= 2          # more than one law flew: both branches of the record
