@@ -20,14 +20,15 @@ Crash safety is better than in-process: if the flight process dies (even SIGKILL
 child reads end-of-file and *finishes* the file. Queued calls reach the child within
 ``batch_s`` (a background thread sends a batch that went stale). The child ignores SIGINT
 and SIGTERM so a Ctrl-C or ``kill`` of the process group still lets the parent close it.
-It runs at a lower priority than the flight (:data:`NICE_INCREMENT`).
+It runs at a lower priority than the flight (:mod:`~tfl_mav.flightlog.child_priority`).
 
 Backpressure: if the queue grows past ``batch_max`` × 8 calls (the sender thread starved),
 the flight thread sends inline; if the child falls behind, the pipe fills and the flight
 process waits. Not in real time (``realtime=True``): there the flight thread only ever
 appends, and past ``batch_max`` × 64 queued calls drops them (counted in ``dropped``) — a
 real-time loop that waits for its recorder misses its deadlines (#12). The child runs
-:data:`NICE_INCREMENT` nicer than its parent.
+:data:`NICE_INCREMENT` nicer than its parent and, in lockstep where the system lets it
+be promoted back, at ``SCHED_IDLE`` until it first falls behind (:attr:`priority`).
 Errors never raise into the loop: :attr:`error` reports the child's write error, or that
 the child died (later calls are counted in ``dropped``); :attr:`stats` is the child's
 final :class:`~tfl_mav.flightlog.recorder.RecorderStats`, filled in by :meth:`close`.
@@ -41,7 +42,9 @@ import contextlib
 import multiprocessing
 import os
 import pickle
+import select
 import signal
+import struct
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -49,21 +52,19 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import Any
 
+from tfl_mav.flightlog.child_priority import NICE_INCREMENT, Priority
 from tfl_mav.flightlog.recorder import Recorder, RecorderError, RecorderStats
 
 __all__ = ["NICE_INCREMENT", "RecorderProcess"]
 
 _FRAME, _TRUTH, _PATH, _LOG, _CONTROLLER, _SIM_TIME, _METADATA, _CLOSE, _FRAMES = range(9)
 _START_TIMEOUT_S = 30.0
-NICE_INCREMENT = 10
-"""The child runs this much nicer than the flight process. Why: on 2 cores a flight is 4
-processes (sim, daemon, two recorder children) and the loop is the serial sim ↔ daemon
-chain; the children only need to keep up on average (the pipe buffers a backlog), so when
-the CPU is contended the chain should win it. At equal priority a child's batch work
-(decode, JSON, protobuf, writing: milliseconds per 10 ms batch) delayed a real-time loop's
-wake-up on a busy machine and crashed the paper flight (#12); in lockstep a child that falls
-behind fills the pipe and the flight waits ("Backpressure"), so it cannot be starved."""
 _CLOSE_TIMEOUT_S = 60.0
+_BEHIND_S = 0.25
+_POLL_MS = 50
+"""A batch's send that has waited this long for room in the pipe: the child is behind (a
+lockstep flight's backpressure makes it wait ~10 ms; a child starved by other programs
+waits seconds), and an idle child is promoted (:mod:`~tfl_mav.flightlog.child_priority`)."""
 
 
 def _plain(x: Any) -> Any:
@@ -158,6 +159,29 @@ def handle_batch(rec: Recorder, data: bytes, now: list[float]) -> bool:
     return True
 
 
+def _write_message(fd: int, data: bytes, waited: Callable[[float], None]) -> None:
+    """``Connection.send_bytes``'s framing (a 4-byte big-endian length, then the bytes) on
+    the non-blocking pipe ``fd``; while the pipe is full, wait in ``poll`` and tell
+    ``waited`` how long so far (every ``_POLL_MS``). Raises ``OSError`` if the child is
+    gone (``BrokenPipeError``)."""
+    view = memoryview(struct.pack("!i", len(data)) + data) if len(data) < 0x7FFFFFFF \
+        else memoryview(struct.pack("!iQ", -1, len(data)) + data)
+    poller = None
+    t0 = 0.0
+    while view:
+        try:
+            view = view[os.write(fd, view):]
+            continue
+        except BlockingIOError:
+            pass
+        if poller is None:
+            poller = select.poll()
+            poller.register(fd, select.POLLOUT)
+            t0 = time.monotonic()
+        poller.poll(_POLL_MS)
+        waited(time.monotonic() - t0)
+
+
 class RecorderProcess:
     """Same methods as :class:`~tfl_mav.flightlog.recorder.Recorder`; the recording runs in
     a child process (see the module docstring). ``batch_s``: longest a call waits in the
@@ -185,14 +209,13 @@ class RecorderProcess:
         self._closed = False
         ctx = multiprocessing.get_context("spawn")   # no inherited sockets or threads
         child_conn, self._conn = ctx.Pipe(duplex=False)
+        os.set_blocking(self._conn.fileno(), False)     # _write_message waits in poll
         self._results, child_results = ctx.Pipe(duplex=False)
         self._proc = ctx.Process(target=_child_main, name="tfl-mav-recorder",
                                  args=(child_conn, child_results,
                                        str(path) if path is not None else None, recorder_kw))
         self._proc.start()
-        with contextlib.suppress(OSError):   # from here, so its imports are nicer too
-            os.setpriority(os.PRIO_PROCESS, self._proc.pid,
-                           min(19, os.getpriority(os.PRIO_PROCESS, 0) + NICE_INCREMENT))
+        self.priority = Priority(self._proc.pid)   # from here: its imports are nicer too
         child_conn.close()
         child_results.close()
         try:
@@ -207,6 +230,8 @@ class RecorderProcess:
         if reply[0] == "fail":
             self._proc.join()
             raise (RecorderError if reply[1] else ValueError)(reply[2])
+        if not realtime:                # idle only where backpressure can wait for it
+            self.priority.go_idle()
         self._stop = threading.Event()
         self._sender = threading.Thread(target=self._send_stale, name="mcap-batch",
                                         daemon=True)
@@ -242,6 +267,7 @@ class RecorderProcess:
         atexit.unregister(self.close)
         self._stop.set()
         self._sender.join()
+        self.priority.promote()      # from now on the user waits for the child
         self._queue.append((_CLOSE, self.clock()))
         self._send()
         deadline = time.monotonic() + _CLOSE_TIMEOUT_S
@@ -357,11 +383,18 @@ class RecorderProcess:
                 self.stats.dropped += len(items)
                 return
             try:
-                self._conn.send_bytes(pickle.dumps(items, protocol=pickle.HIGHEST_PROTOCOL))
+                _write_message(self._conn.fileno(),
+                               pickle.dumps(items, protocol=pickle.HIGHEST_PROTOCOL),
+                               self._behind)
             except (OSError, ValueError, pickle.PicklingError) as exc:
                 self.stats.dropped += len(items)
                 self._set_error(f"recorder process for {self.file_path} is gone ({exc}); "
                                 "the flight goes on unrecorded")
+
+    def _behind(self, waited_s: float) -> None:
+        """A send has waited ``waited_s`` for room in the pipe (the child is behind)."""
+        if waited_s >= _BEHIND_S:
+            self.priority.promote()
 
     def _send_stale(self) -> None:
         """Background: send what is queued every ``batch_s`` (the batch hand-off)."""
