@@ -264,7 +264,9 @@ class Vehicle:
         # Everything built so far lives for the whole flight: out of the collector's sight,
         # so a full collection in flight walks only what the flight allocates (one took
         # ~20 ms, 100+ lockstep ticks or 20 real-time ones, in a 1.5 s paper flight).
-        gc.collect()
+        # freeze() alone costs nothing (no collection first: in a big host process, e.g.
+        # a test run flying vehicles in threads, that took ~0.2 s and the real-time clock
+        # would start that late); what it keeps of today's garbage is freed after the flight.
         gc.freeze()
         try:
             wall0 = self._flight_wall0 = time.monotonic()
