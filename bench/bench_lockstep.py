@@ -14,10 +14,13 @@ Measures, on this machine:
    daemon: law, detector, both MCAP recorders), ticks per wall second of the flight as the
    simulator reports it;
 4. ceiling: a bare two-process pymavlink UDP ping-pong (ODOMETRY out, HIL_ACTUATOR_CONTROLS
-   back, nothing else), and issue #13's same-run ratios of (2) and (3) to it.
+   back, nothing else), and issue #13's same-run ratios of (2) and (3) to it;
+5. A/B: the full loop again with the recorder children niced only
+   (``TFL_MAV_RECORDER_IDLE=0``) and idle (the lockstep default,
+   :mod:`tfl_mav.flightlog.child_priority`), alternating, ``--ab-rounds`` each.
 
 Usage: ``python bench/bench_lockstep.py [--ticks N] [--json FILE] [--breakdown-only |
---no-breakdown] [--no-profile]`` from the repository root; ``--profile-vehicle FILE`` only
+--no-breakdown] [--no-profile] [--ab-rounds N]`` from the repository root; ``--profile-vehicle FILE`` only
 profiles the sim process of (2) (cProfile, CPU timer) and prints where its time goes.
 """
 
@@ -30,6 +33,7 @@ import os
 import platform
 import re
 import socket
+import statistics
 import subprocess
 import sys
 import tempfile
@@ -299,7 +303,8 @@ _PROFILER = str(Path(__file__).with_name("profiling.py"))
 
 
 def bench_full_loop(n_ticks: int, out_dir: Path, scenario: str = "paper",
-                    profile_dir: Path | None = None) -> dict[str, Any]:
+                    profile_dir: Path | None = None,
+                    env_extra: dict[str, str] | None = None) -> dict[str, Any]:
     """``tfl-mav sim --mcap`` + ``tfl-mav fly --mcap`` (the daemon), as ``tfl-mav demo``
     runs them; ticks per wall second from the simulator's own count (the clock starts when
     the controller connects, so start-up is not counted).
@@ -312,10 +317,10 @@ def bench_full_loop(n_ticks: int, out_dir: Path, scenario: str = "paper",
     from profiling import ProcessCPU  # bench/profiling.py, next to this file
 
     duration = f"{n_ticks / 1000.0:g}"
-    env = None
+    env = dict(os.environ, **env_extra) if env_extra else None
     prefix: dict[str, list[str]] = {"sim": [], "fly": []}
     if profile_dir is not None:
-        env = dict(os.environ, TFL_MAV_PROFILE=str(profile_dir))
+        env = dict(env or os.environ, TFL_MAV_PROFILE=str(profile_dir))
         prefix = {role: [_PROFILER, str(profile_dir / f"{role}.prof"), "tools.cli"]
                   for role in ("sim", "fly")}
     sim_cmd = [sys.executable, *(prefix["sim"] or ["-m", "tools.cli"]), "sim", scenario,
@@ -336,12 +341,15 @@ def bench_full_loop(n_ticks: int, out_dir: Path, scenario: str = "paper",
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
         cpu = ProcessCPU({proc.pid: "sim", fly.pid: "daemon"})
         marks: list[tuple[float, dict[str, float]]] = []
+        policies: dict[str, str] = {}
         fly_err: list[str] = []
         assert fly.stderr is not None
         for line in fly.stderr:
             m = _PROGRESS_RE.match(line)
             if m:
                 marks.append((float(m.group(1)), cpu.snapshot()))
+                if len(marks) == 1:
+                    policies = cpu.child_policies()
             else:
                 fly_err.append(line)
         fly.wait(timeout=600)
@@ -364,7 +372,24 @@ def bench_full_loop(n_ticks: int, out_dir: Path, scenario: str = "paper",
             name = f"{role} recorder child" if " child " in label else role
             cpu_us[name] = 1e6 * (b[label] - a.get(label, 0.0)) / max(1, window_ticks)
     return {"ticks": ticks, "seconds": wall, "ticks_per_s": ticks / wall,
-            "real_time_factor": ticks / wall / 1000.0, "cpu_us_per_tick": cpu_us}
+            "real_time_factor": ticks / wall / 1000.0, "cpu_us_per_tick": cpu_us,
+            "recorder_policy": policies}
+
+
+def bench_ab(n_ticks: int, rounds: int, first: dict[str, Any]) -> dict[str, Any]:
+    """The full loop with the recorder children niced only and idle, alternating
+    (``rounds`` each, plus ``first``: the run with the default); medians of each and of
+    the paired ratios idle / niced."""
+    niced: list[float] = []
+    idle: list[float] = [first["ticks_per_s"]]
+    for _ in range(rounds):
+        for env, out in (({"TFL_MAV_RECORDER_IDLE": "0"}, niced), ({}, idle)):
+            with tempfile.TemporaryDirectory() as tmp:
+                out.append(bench_full_loop(n_ticks, Path(tmp), env_extra=env)["ticks_per_s"])
+    pairs = [i / n for n, i in zip(niced, idle[1:], strict=True)]
+    return {"niced_ticks_per_s": niced, "idle_ticks_per_s": idle,
+            "niced_median": statistics.median(niced), "idle_median": statistics.median(idle),
+            "paired_gain_median": statistics.median(pairs)}
 
 
 def profile_breakdown(n_ticks: int, cpu_us: dict[str, float]) -> dict[str, dict[str, float]]:
@@ -451,6 +476,11 @@ def main() -> int:
                         help="the law's, the detector's and the RK4's cores in every process: "
                              "compiled to C (TFL_MAV_NATIVE=sync, built before anything is "
                              "timed; the default) or the generated Python (off)")
+    parser.add_argument("--ab-rounds", type=int, default=2, metavar="N",
+                        help="also fly the full loop N more times each with the recorder "
+                             "children niced only (TFL_MAV_RECORDER_IDLE=0) and idle (the "
+                             "lockstep default), alternating: the idle children's gain in "
+                             "the same run (default 2; 0: skip)")
     parser.add_argument("--role", help=argparse.SUPPRESS)
     parser.add_argument("--port-file", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -485,6 +515,7 @@ def main() -> int:
         recorded["mcap_bytes"] = (Path(tmp) / "run.mcap").stat().st_size
     with tempfile.TemporaryDirectory() as tmp:
         full = bench_full_loop(args.ticks, Path(tmp))
+    ab = bench_ab(args.ticks, args.ab_rounds, full) if args.ab_rounds > 0 else {}
     pingpong_after = bench_pingpong(args.ticks)     # before and after: the load drifts
     per_process = ({} if args.no_profile
                    else profile_breakdown(min(args.ticks, 4000), full["cpu_us_per_tick"]))
@@ -508,6 +539,18 @@ def main() -> int:
     print("\nlockstep over UDP")
     for name, value in rows:
         print(f"  {name:<{_WIDTH}}  {value:>14}")
+    if full.get("recorder_policy"):
+        print("  recorder children's policy: " + ", ".join(
+            f"{k.split(' ')[0]} {v}" for k, v in sorted(full["recorder_policy"].items())))
+    if ab:
+        print(f"\nfull loop, recorder children niced only vs idle ({len(ab['niced_ticks_per_s'])}"
+              f" + {len(ab['idle_ticks_per_s'])} runs, alternating; ticks/s, median)")
+        print(f"  {'niced only (TFL_MAV_RECORDER_IDLE=0)':<{_WIDTH}}  "
+              f"{ab['niced_median']:>8.0f} ticks/s  ({ab['niced_median'] / ceiling:.2f})")
+        print(f"  {'idle (lockstep default)':<{_WIDTH}}  "
+              f"{ab['idle_median']:>8.0f} ticks/s  ({ab['idle_median'] / ceiling:.2f})")
+        print(f"  {'paired gain, idle / niced (median)':<{_WIDTH}}  "
+              f"{ab['paired_gain_median']:>8.2f}x")
     print("\nfull loop: CPU per tick of each process (µs, /proc utime+stime, steady state; "
           "split by a CPU-timer cProfile run's shares)")
     for proc_name, us in full["cpu_us_per_tick"].items():
@@ -525,7 +568,7 @@ def main() -> int:
             "ticks": args.ticks, "python": platform.python_version(), "cpus": os.cpu_count(),
             "physics": physics, "lockstep": vehicle, "lockstep_mcap": recorded,
             "breakdown_us": breakdown, "full_loop": full, "per_process_us": per_process,
-            "pingpong": pingpong, "pingpong_after": pingpong_after,
+            "pingpong": pingpong, "pingpong_after": pingpong_after, "recorder_idle_ab": ab,
             "ratio_lockstep_to_pingpong": ratio,
             "ratio_full_loop_to_pingpong": ratio_full}, indent=2))
     return 0

@@ -134,6 +134,27 @@ class ProcessCPU:
                     out[f"{label} child {child}"] = cpu
         return out
 
+    def child_policies(self) -> dict[str, str]:
+        """``"<root> recorder child"`` → its scheduling policy now (``SCHED_IDLE`` in
+        lockstep where it can be promoted back: ``tfl_mav.flightlog.child_priority``).
+        Only the recorder (``multiprocessing.spawn``) children, not the resource tracker."""
+        names = {getattr(os, n): n for n in ("SCHED_OTHER", "SCHED_IDLE", "SCHED_BATCH")
+                 if hasattr(os, n)}
+        out: dict[str, str] = {}
+        for label in self.snapshot():
+            if " child " not in label:
+                continue
+            pid = int(label.rsplit(" ", 1)[1])
+            try:
+                cmd = Path(f"/proc/{pid}/cmdline").read_bytes()
+                if b"multiprocessing.spawn" not in cmd:
+                    continue
+                policy = os.sched_getscheduler(pid)
+            except OSError:
+                continue
+            out[f"{label.split(' child ')[0]} recorder child"] = names.get(policy, str(policy))
+        return out
+
 
 def _run(out: str, module: str, args: Sequence[str]) -> int:
     sys.argv = [module, *args]

@@ -93,3 +93,21 @@ def test_a_child_that_gets_no_cpu_is_promoted_and_loses_nothing(tmp_path: Path) 
                 for _, ch, msg in make_reader(f).iter_messages() if ch.topic == "/mavlink/raw"]
     # every frame, in order, though the child was stopped while they were sent
     assert raws == [i.to_bytes(2, "big") * 500 for i in range(n)]
+
+
+def test_env_switch_keeps_a_lockstep_child_niced_only(tmp_path: Path,
+                                                      monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("TFL_MAV_RECORDER_IDLE", "0")
+    with RecorderProcess(tmp_path / "a.mcap") as rec:
+        assert not rec.priority.idle
+        assert _policies(rec._proc.pid) == {os.SCHED_OTHER}
+
+
+def test_env_switch_bad_value_warns_and_keeps_the_default(
+        tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+        capsys: pytest.CaptureFixture[str]) -> None:
+    monkeypatch.setenv("TFL_MAV_RECORDER_IDLE", "maybe")
+    with RecorderProcess(tmp_path / "a.mcap") as rec:
+        assert rec.priority.idle == can_promote(_expected_nice())
+    err = capsys.readouterr().err
+    assert "TFL_MAV_RECORDER_IDLE='maybe': expected 0 or 1" in err

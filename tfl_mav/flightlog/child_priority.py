@@ -24,8 +24,14 @@ from __future__ import annotations
 import contextlib
 import os
 import resource
+import sys
 
-__all__ = ["NICE_INCREMENT", "Priority", "can_promote"]
+__all__ = ["IDLE_ENV", "NICE_INCREMENT", "Priority", "can_promote", "idle_enabled"]
+
+IDLE_ENV = "TFL_MAV_RECORDER_IDLE"
+"""``0``: never make a recorder child idle (niced only, as in real time): for A/B runs
+(``bench/bench_lockstep.py``) or a machine where an idle child is not wanted. ``1`` or
+unset: idle in lockstep where it can be promoted back."""
 
 NICE_INCREMENT = 10
 """The child runs this much nicer than the flight process. Why: on 2 cores a flight is 4
@@ -48,6 +54,16 @@ def _has_cap_sys_nice() -> bool:
     except (OSError, ValueError):
         pass
     return False
+
+
+def idle_enabled() -> bool:
+    """:data:`IDLE_ENV` read: True unless it is ``0``; any value but ``0``/``1`` gets a
+    one-line warning on stderr and the default."""
+    value = os.environ.get(IDLE_ENV, "1").strip()
+    if value not in ("0", "1"):
+        print(f"tfl-mav: warning: {IDLE_ENV}={value!r}: expected 0 or 1; using 1 "
+              "(recorder children idle in lockstep)", file=sys.stderr)
+    return value != "0"
 
 
 def can_promote(nice: int) -> bool:
@@ -79,9 +95,10 @@ class Priority:
 
     def go_idle(self) -> bool:
         """``SCHED_IDLE`` from now until :meth:`promote`, if the system lets it be
-        promoted back. Call it once the child has started: an idle child's imports would
-        wait for a busy machine to go quiet. True if the child is idle."""
-        if not self.idle and not self.promoted:
+        promoted back and :data:`IDLE_ENV` allows it. Call it once the child has started:
+        an idle child's imports would wait for a busy machine to go quiet. True if the
+        child is idle."""
+        if not self.idle and not self.promoted and idle_enabled():
             with contextlib.suppress(OSError):
                 if can_promote(os.getpriority(os.PRIO_PROCESS, self.pid)):
                     self.idle = _set_policy(self.pid, os.SCHED_IDLE) > 0
