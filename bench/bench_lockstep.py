@@ -20,8 +20,9 @@ Measures, on this machine:
    :mod:`tfl_mav.flightlog.child_priority`), alternating, ``--ab-rounds`` each.
 
 Usage: ``python bench/bench_lockstep.py [--ticks N] [--json FILE] [--breakdown-only |
---no-breakdown] [--no-profile] [--ab-rounds N]`` from the repository root; ``--profile-vehicle FILE`` only
-profiles the sim process of (2) (cProfile, CPU timer) and prints where its time goes.
+--no-breakdown] [--no-profile] [--ab-rounds N]`` from the repository root;
+``--profile-vehicle FILE`` only profiles the sim process of (2) (cProfile, CPU timer) and
+prints where its time goes.
 """
 
 from __future__ import annotations

@@ -207,3 +207,35 @@ def test_on_frames_writes_what_on_frame_does(tmp_path: Any) -> None:
                         for _s, ch, m in make_reader(fh).iter_messages()])
     assert got[0] == got[1] and len(got[0]) == 50 * 4 + 7     # 2 a frame, 1 if no message
     assert sum(b'"_nonfinite":["pose_covariance"]' in m[3] for m in got[0]) == 50
+
+
+class _Syscalls(io.RawIOBase):
+    """A raw file that keeps what each write (one system call on a real file) got."""
+
+    def __init__(self) -> None:
+        self.sizes: list[int] = []
+        self.data = bytearray()
+
+    def writable(self) -> bool:
+        return True
+
+    def write(self, b: Any) -> int:
+        self.sizes.append(len(b))
+        self.data += bytes(b)
+        return len(b)
+
+
+def test_mcap_file_writes_reach_the_kernel_in_bounded_pieces() -> None:
+    # a finished chunk is ~0.3 MB; the kernel must see it in pieces (mcapout's docstring)
+    from tfl_mav.flightlog.mcapout import WRITE_PIECE_BYTES, _PiecewiseWrites
+
+    raw = _Syscalls()
+    f = _PiecewiseWrites(io.BufferedWriter(raw, buffer_size=8192))
+    rng = random.Random(7)
+    parts = [rng.randbytes(n) for n in (5, 300_000, WRITE_PIECE_BYTES, 1, 70_001, 0, 9000)]
+    parts.append(memoryview(bytearray(rng.randbytes(4 * 20_000))).cast("I"))   # non-byte view
+    for p in parts:
+        assert f.write(p) == memoryview(p).nbytes
+    f.flush()
+    assert bytes(raw.data) == b"".join(bytes(memoryview(p).cast("B")) for p in parts)
+    assert max(raw.sizes) <= WRITE_PIECE_BYTES
