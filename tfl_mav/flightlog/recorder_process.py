@@ -61,10 +61,10 @@ _FRAME, _TRUTH, _PATH, _LOG, _CONTROLLER, _SIM_TIME, _METADATA, _CLOSE, _FRAMES 
 _START_TIMEOUT_S = 30.0
 _CLOSE_TIMEOUT_S = 60.0
 _BEHIND_S = 0.25
-_POLL_MS = 50
 """A batch's send that has waited this long for room in the pipe: the child is behind (a
 lockstep flight's backpressure makes it wait ~10 ms; a child starved by other programs
 waits seconds), and an idle child is promoted (:mod:`~tfl_mav.flightlog.child_priority`)."""
+_POLL_MS = 50                   # how often a waiting send reports how long it has waited
 
 
 def _plain(x: Any) -> Any:
@@ -164,22 +164,24 @@ def _write_message(fd: int, data: bytes, waited: Callable[[float], None]) -> Non
     the non-blocking pipe ``fd``; while the pipe is full, wait in ``poll`` and tell
     ``waited`` how long so far (every ``_POLL_MS``). Raises ``OSError`` if the child is
     gone (``BrokenPipeError``)."""
-    view = memoryview(struct.pack("!i", len(data)) + data) if len(data) < 0x7FFFFFFF \
-        else memoryview(struct.pack("!iQ", -1, len(data)) + data)
+    n = len(data)
+    header = struct.pack("!i", n) if n < 0x7FFFFFFF else struct.pack("!iQ", -1, n)
     poller = None
     t0 = 0.0
-    while view:
-        try:
-            view = view[os.write(fd, view):]
-            continue
-        except BlockingIOError:
-            pass
-        if poller is None:
-            poller = select.poll()
-            poller.register(fd, select.POLLOUT)
-            t0 = time.monotonic()
-        poller.poll(_POLL_MS)
-        waited(time.monotonic() - t0)
+    for piece in (header, data):            # the payload is not copied to prepend the header
+        view = memoryview(piece)
+        while view:
+            try:
+                view = view[os.write(fd, view):]
+                continue
+            except BlockingIOError:
+                pass
+            if poller is None:
+                poller = select.poll()
+                poller.register(fd, select.POLLOUT)
+                t0 = time.monotonic()
+            poller.poll(_POLL_MS)
+            waited(time.monotonic() - t0)
 
 
 class RecorderProcess:
