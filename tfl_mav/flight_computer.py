@@ -14,35 +14,32 @@ How the computer learns of the attack (``attack_info``):
   (:meth:`FlightComputer.tell_attack`), and its thrust is read from its measured speed,
   f = k_f ω² (§VI).
 
-Which law flies (issue #14; :mod:`tfl_mav.control.recovery` says why a second law exists):
+Which law flies (:mod:`tfl_mav.control.recovery` says why a second law exists):
 
-* **TFL** (``nominal``/``attacked``) whenever it has authority: four healthy rotors, or an
-  attacked rotor whose thrust A is at least ``A_EXIT_N`` (then the opposite rotor can make
-  τ_p of both signs around f4 = A);
-* **lost_rotor** (reduced attitude on three rotors, spinning) when the attacked rotor's
-  estimated thrust falls below ``A_ENTER_N`` — the dead-rotor region — and until it has
-  been above ``A_EXIT_N`` for ``HANDBACK_S`` *and* the vehicle is back near the path
-  (``HANDBACK_DIST_M``) and calm: so the TFL law takes over a state it was designed for and
-  the hand-back leaves no transient off the path. The band [0.3, 0.6] N is hysteresis: the
-  paper's signal wanders across it with ESC noise on the estimate;
+* **TFL** (``nominal``/``attacked``) wherever it has the authority it asks for. With an
+  attacked rotor that is decided in the moment, from the law's own command
+  (:mod:`tfl_mav.control.authority`): while the rotor opposite the attacked one is pinned at
+  0 or f_max on more than half of the last 0.2 s, the τ_p the law counts on is not made,
+  and the vehicle goes to
+* **lost_rotor** (reduced attitude on three rotors, spinning), which never asks for τ_p. It
+  hands back once the attacked rotor's thrust leaves TFL a two-sided τ_p again
+  (``A_HANDBACK_N`` < A < m g/2 − ``A_HANDBACK_N``) for ``HANDBACK_S``, the attitude is calm
+  and the vehicle is within TFL's region of attraction (``ROA_DIST_M`` of the path: in the
+  paper scenario TFL converges from 3.85 m at t = 0). The TFL law then takes over bumpless
+  (its dynamic extension starts at the thrust applied).
 * **recovery** (reduced attitude on four rotors) on the first tick when the state is not
   benign (:mod:`~tfl_mav.control.takeover`; a controller restarted mid-flight: tilt > 30°,
-  |v| > max(0.5, 2 × speed) m/s, |(p, q)| > 2 rad/s, or |r| > 2 rad/s with no attack
-  known), and whenever the TFL law has no valid answer (left the projection tube, D(x)
-  singular). It levels the vehicle and holds
-  the altitude where it took over (never the old frozen 1.9 g), then flies back to the path
-  and hands back under the same conditions. The limits are those the TFL law is started
-  from in every scenario (hover, still) with a margin, and the recovery law's own tilt
-  limit (30°): anything outside is a state nobody has shown the TFL law converges from.
-  Speed especially: every flight starts the TFL law still, one path speed from its
-  reference velocity. A vehicle whose motors were cut for 0.18 s (a restarted daemon)
-  falls level at 1.65 m/s; taken over by TFL at the paper path's lowest bend (curvature
-  radius 0.24 m) it flips 0.8 s later — the same state flown from t = 0 by a fresh
-  flight computer flips identically, so it is the law's region of attraction, not a
-  leftover of the old flight. Measured there: |v| = 1.0 m/s peaks at 4° of tilt,
-  1.27 m/s at 26°, 1.65 m/s flips; hence 2 × speed (1 m/s on the paper path).
+  |v| > max(0.5, 2 × speed) m/s or |(p, q)| > 2 rad/s; a yaw spin alone is TFL's internal
+  dynamics and is flown), and whenever the TFL law has no valid answer (left the projection
+  tube, D(x) singular). It levels the vehicle and holds the altitude where it took over,
+  then flies back to the path and hands back under the same conditions. The limits are
+  those the TFL law is started from in every scenario (hover, still) with a margin. Speed
+  especially: a vehicle whose motors were cut for 0.18 s (a restarted daemon) falls level
+  at 1.65 m/s; taken over by TFL at the paper path's lowest bend it flips 0.8 s later — the
+  same state flown from t = 0 by a fresh flight computer flips identically, so it is the
+  law's region of attraction, not a leftover of the old flight.
 
-Before the law (issue #14): with sensor noise in the scenario the state is filtered with the
+Before the law: with sensor noise in the scenario the state is filtered with the
 model (:mod:`tfl_mav.control.state_filter`; noise-free flights skip it); a yaw rate at the
 gyro's range (``sensors.gyro_range_radps``) is replaced by the model's; a path speed the
 vehicle cannot fly is lowered once to the highest feasible one
@@ -69,18 +66,13 @@ from tfl_mav.build import (
     model_params,
     scenario_path,
 )
-from tfl_mav.control import recovery_native
+from tfl_mav.control.authority import AuthorityMonitor
 from tfl_mav.control.detector import AttackDetector, DetectorOutput
-from tfl_mav.control.feasibility import attack_limit_n, feasible_speed_mps, path_demand
+from tfl_mav.control.feasibility import feasible_speed_mps, path_demand
 from tfl_mav.control.law import ControlOutput, TFLController
 from tfl_mav.control.recovery import RecoveryLaw, RecoveryOutput
 from tfl_mav.control.state_filter import StateFilter, YawRateModel
-from tfl_mav.control.takeover import (
-    HANDBACK_TILT_RAD,
-    TAKEOVER_RATE_RADPS,
-    TAKEOVER_TILT_RAD,
-    not_benign,
-)
+from tfl_mav.control.takeover import TAKEOVER_TILT_RAD, calm_fail, not_benign
 from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario
 from tfl_mav.state import State
@@ -90,12 +82,11 @@ __all__ = ["ATTACK_INFO", "TAKEOVER_TILT_RAD", "FlightComputer", "TickResult"]
 ATTACK_INFO = ("detector", "oracle")
 RPM_TO_RADPS = 2.0 * math.pi / 60.0   # ESC rpm → rotor speed ω (rad/s)
 
-A_ENTER_N = 0.3        # attacked rotor below this: the TFL law has no τ_p authority
-A_EXIT_N = 0.6         # … above this (for HANDBACK_S) it has it again
-A_LIMIT_MARGIN_N = 0.15  # enter the safe law this far below the feasibility limit …
-A_LIMIT_BAND_N = 0.3     # … and hand back this far below that
+# Hand back when TFL can make τ_p ∈ [−lA, l(f_max − A)] of both signs with this margin on
+# A (N): −0.16 N m at A = 0.6 N, a roll acceleration of 80 rad/s² on the paper vehicle.
+A_HANDBACK_N = 0.6
 HANDBACK_S = 0.5       # conditions for handing back must hold this long
-HANDBACK_DIST_M = 0.15  # … including being this close to the path
+ROA_DIST_M = 4.0       # TFL's region of attraction: it converges from this far off the path
 HOLD_BEFORE_PATH_S = 1.0  # take-over / lost path: level and hold this long, then fly back
 
 
@@ -171,20 +162,13 @@ class FlightComputer:
                                     kernels=getattr(self.controller.tracker, "kernels", None),
                                     compiled_path=self.controller.path_eval == "compiled",
                                     design_gains=design_gains)
-        kernels = getattr(self.controller.tracker, "kernels", None)
-        proj = self.recovery.projector
-        if kernels is not None and proj is not None and proj.evaluation == "compiled":
-            recovery_native.attach(self.recovery, kernels.trace_sigma)  # the same σ, in C
+        self.authority = AuthorityMonitor(mp.thrust_max_n)
+        # Above this attack the three others cannot balance it at hover (f₄ = A, f₁ + f₃ ≥ 0).
+        self._a_high_n = mp.mass_kg * mp.gravity_mps2 / 2.0 - A_HANDBACK_N
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
         self._probe_high_n = min(self._hover_share_n + 1.5, self.thrust_max_n)
         if self.controller.lag_inverter is not None:   # ESC noise: filter ω (actuators)
             self.controller.lag_inverter.set_rpm_noise(detector_config(scenario).rpm_noise_std)
-        # Beyond this attack thrust the path cannot be flown at all (feasibility module):
-        # the TFL law would flip trying; the reduced-attitude law keeps the attitude.
-        try:
-            self.attack_limit_n = attack_limit_n(scenario) - A_LIMIT_MARGIN_N
-        except Exception:  # an unusable path is reported by the law's own checks
-            self.attack_limit_n = mp.mass_kg * mp.gravity_mps2 / 2.0 - A_LIMIT_MARGIN_N
         sens = scenario.sensors
         trans = sens.position_noise_std_m > 0.0 or sens.velocity_noise_std_mps > 0.0
         rot = sens.rate_noise_std_radps > 0.0
@@ -311,19 +295,7 @@ class FlightComputer:
                 if why:
                     self._enter("recovery", state, f"take-over: {why}", events, hold=True)
             self._ticks += 1
-            law_name = self.law_name
-            if rotor and law_name != "lost_rotor":
-                # The estimate is finite in both tests (NaN fails a comparison; ±inf is refused).
-                if estimate < A_ENTER_N and math.isfinite(estimate):
-                    self._enter("lost_rotor", state, f"rotor {rotor} at {estimate:.2f} N < "
-                                f"{A_ENTER_N} N: no roll authority, reduced-attitude law",
-                                events, hold=law_name == "recovery")
-                elif estimate > self.attack_limit_n and math.isfinite(estimate):
-                    self._enter("lost_rotor", state, f"rotor {rotor} at {estimate:.2f} N: beyond "
-                                "what the path allows; keeping attitude, cannot follow the path",
-                                events, hold=law_name == "recovery")
-                law_name = self.law_name
-            if law_name == "tfl":
+            if self.law_name == "tfl":
                 if dt_s is None:
                     out = ctrl.update(state, omega)
                 else:   # states were skipped: integrate the law's states over the real gap
@@ -334,12 +306,14 @@ class FlightComputer:
                     finally:
                         ctrl.dt = period
                 self._last_tfl = out
-                if out.mode is not _FALLBACK:
+                if out.mode is _FALLBACK:
+                    self._enter("recovery", state, f"TFL: {out.reason}; level, hold altitude",
+                                events, hold=True)
+                elif not ctrl.attacked_rotor or not self._authority_lost(out, dt, estimate,
+                                                                         state, events):
                     return self._result(out.rotor_thrust_n, None, out, detection, rotor,
                                         estimate, new, events)
-                self._enter("recovery", state, f"TFL: {out.reason}; level, hold altitude",
-                            events, hold=True)
-            return self._fly_safe(dt, state, rotor, estimate, events, detection, new)
+            return self._fly_safe(dt, state, rotor, estimate, omega, events, detection, new)
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
             return self._failed(exc, applied_n)
 
@@ -359,6 +333,25 @@ class FlightComputer:
         return TickResult(hold, out, None, 0, math.nan, False, list(hold), (why,))
 
     # ------------------------------------------------------------------ switching
+    def _authority_lost(self, out: ControlOutput, dt: float, estimate: float, state: State,
+                        events: list[str]) -> bool:
+        """Feed the attacked law's command to the authority monitor; on a loss, switch to
+        the lost-rotor law (this tick is already its) and say why. True when switched."""
+        rotor = self.controller.attacked_rotor
+        opposite = (rotor + 1) % 4         # physical index of the rotor opposite ``rotor``
+        mon = self.authority
+        if not mon.update(out.rotor_thrust_n[opposite], dt):
+            return False
+        a_text = f"{estimate:.2f} N" if math.isfinite(estimate) else "unknown thrust"
+        if mon.bound == "ceiling":
+            why = (f"rotor {rotor} at {a_text}: rotor {opposite + 1} pinned at f_max, more "
+                   "than three rotors can balance; keeping attitude, cannot hold the path")
+        else:
+            why = (f"rotor {rotor} at {a_text}: rotor {opposite + 1} pinned at 0 N, no roll "
+                   "authority; reduced-attitude law")
+        self._enter("lost_rotor", state, why, events, hold=False)
+        return True
+
     def _enter(self, law: str, state: State, why: str, events: list[str], *,
                hold: bool) -> None:
         if self.law_name != law:
@@ -372,14 +365,15 @@ class FlightComputer:
             rec.hold(state.position_m)
         else:
             rec.follow_path()
+        lag = self.controller.lag_inverter
+        if lag is not None:
+            lag.reset()            # the old law's demand is not a trend of this one's
 
     def _fly_safe(self, dt: float, state: State, rotor: int, estimate: float,
-                  events: list[str], detection: DetectorOutput | None,
-                  new: bool) -> TickResult:
+                  omega: list[float] | None, events: list[str],
+                  detection: DetectorOutput | None, new: bool) -> TickResult:
         """A tick of the safe law (recovery or lost_rotor), its hand-back test and its
-        output. Runs every safe-law tick (#13), so
-        :func:`~tfl_mav.control.takeover.calm_fail` is written out (the same operations)
-        and the reason's text is looked up by the tilt error's whole degrees."""
+        output."""
         rec = self.recovery
         self._since_s += dt
         if rec.hold_m is not None and self._since_s >= HOLD_BEFORE_PATH_S \
@@ -389,46 +383,32 @@ class FlightComputer:
         finite = _isfinite(estimate)
         a_n = estimate if rotor and finite else 0.0
         lost = self.law_name == "lost_rotor"
-        law_rotor = rotor if lost else 0
-        out = rec.update(state, law_rotor, a_n)     # its compiled tick first (recovery_native)
-        requested, thrust, tilt_err, dist, uf = out
-        ok = rec.hold_m is None and _isfinite(dist) and dist < HANDBACK_DIST_M
-        if ok:      # not calm_fail(state, rotor), written out
-            quat, rates = state.quaternion_wxyz, state.body_rates_radps
-            if type(quat) is _ndarray:      # floats(): a numpy array's as Python floats
-                quat = quat.tolist()
-            if type(rates) is _ndarray:
-                rates = rates.tolist()
-            qw, qx, qy, qz = quat
-            n = _sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-            qx, qy = qx / n, qy / n
-            c = 1 - 2 * (qx * qx + qy * qy)
-            c = c if c < 1.0 else 1.0              # max(-1.0, min(1.0, c)), NaN → 1.0
-            p, q, r = rates
-            ok = not (_acos(c if c > -1.0 else -1.0) > HANDBACK_TILT_RAD
-                      or _hypot(p, q) > TAKEOVER_RATE_RADPS
-                      or (not rotor and abs(r) > TAKEOVER_RATE_RADPS)) \
-                and (not rotor or (finite and A_EXIT_N < estimate
-                                   < self.attack_limit_n - A_LIMIT_BAND_N))
+        out = rec.update(state, rotor if lost else 0, a_n)
+        dist = out.path_distance_m
+        ok = (rec.hold_m is None and _isfinite(dist) and dist < ROA_DIST_M
+              and not calm_fail(state) and not not_benign(state, rotor, self.speed_mps)
+              and (not rotor or (finite and A_HANDBACK_N < estimate < self._a_high_n)))
         self._good_s = self._good_s + dt if ok else 0.0
         if self._good_s >= HANDBACK_S:
             self._hand_back(state, out, events)
+        thrust = out.thrust_n
+        lag = self.controller.lag_inverter
+        if lag is not None:     # the motor-lag inverse, as the TFL law flies it
+            lag.reachable(omega)
+            command = lag.invert(thrust).command_n
+            if lost:
+                command[rotor - 1] = thrust[rotor - 1]   # not ours to command
+            thrust = command
         # the output; after a hand-back this tick is still the safe law's, in mode recovery
-        mode = _LOST_ROTOR if self.law_name == "lost_rotor" else _RECOVERY
-        hi = self.thrust_max_n + 1e-9
-        r0, r1, r2, r3 = requested
-        deg = tilt_err * _RAD_TO_DEG                    # math.degrees, the same product
-        if 0.0 <= deg <= 180.0:     # f"{deg:.0f}" is round(deg): both round half to even
-            reason = _TILT_TEXT[mode][round(deg)]
-        else:
-            reason = f"{_MODE_TEXT[mode]}: tilt error {deg:.0f} deg"
+        mode = _LOST_ROTOR if lost else _RECOVERY
+        deg = out.tilt_error_rad * _RAD_TO_DEG
+        reason = (_TILT_TEXT[mode][round(deg)] if 0.0 <= deg <= 180.0
+                  else f"{_MODE_TEXT[mode]}: tilt error {deg:.0f} deg")
         law = ControlOutput(   # positional: the fields in order (rotor_thrust_n … reason)
-            list(thrust), mode,
-            [not (-1e-9 <= r0 <= hi), not (-1e-9 <= r1 <= hi), not (-1e-9 <= r2 <= hi),
-             not (-1e-9 <= r3 <= hi)],
-            _ZERO_XI, _ZERO4, _ZERO2, dist, _NAN, _NAN, uf, self.controller.mass_kg, _ZERO2,
-            False, reason)
-        return self._result(thrust, requested, law, detection, rotor, estimate, new, events)
+            list(thrust), mode, list(out.clamped), _ZERO_XI, _ZERO4, _ZERO2, dist, _NAN, _NAN,
+            out.uf_n, self.controller.mass_kg, _ZERO2, False, reason)
+        return self._result(thrust, out.requested_n, law, detection, rotor, estimate, new,
+                            events)
 
     def _hand_back(self, state: State, out: RecoveryOutput, events: list[str]) -> None:
         """Back to TFL, bumpless: its dynamic extension starts at the thrust now applied."""
@@ -437,6 +417,7 @@ class FlightComputer:
                       f"({out.path_distance_m * 1000:.0f} mm from the path)")
         self.law_name = "tfl"
         self.switches += 1
+        self.authority.reset()
         ctrl.x13 = sum(out.thrust_n)
         ctrl.x14 = 0.0
         ctrl.dob.reset()

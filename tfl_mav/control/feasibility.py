@@ -9,9 +9,9 @@ u_f = 2A + f1 + f3 with f1, f3 ∈ [0, f_max]. Hence
 * along a path flown at speed s the thrust must supply m (s² κ N + g e3) + k_t v, so its
   smallest component along b3 — at the top of a bend curving down — must be ≥ 2A: the
   attack must stay below u_min / 2, and u_min > 0 for any vehicle (a rotor cannot push);
-* the TFL attacked law needs τ_p of both signs around f4 = A, i.e. A above a margin
-  (:data:`tfl_mav.flight_computer.A_ENTER_N`); below it the reduced-attitude law flies
-  (:mod:`tfl_mav.control.recovery`).
+* the TFL attacked law makes τ_p ∈ [−lA, l(f_max − A)]: near A = 0 of one sign only. Where
+  it keeps asking for the other (:mod:`tfl_mav.control.authority`), the reduced-attitude
+  law flies (:mod:`tfl_mav.control.recovery`).
 
 :func:`path_demand` computes the path's required acceleration from σ(λ) at the scenario's
 speed (κN from σ' and σ''), :func:`check_scenario` turns all of it into one-line warnings.
@@ -141,7 +141,7 @@ def _attack_range(sc: Scenario) -> tuple[float, float] | None:
 
 def check_scenario(sc: Scenario) -> list[str]:
     """One-line warnings for what the scenario asks beyond the physics (empty: feasible)."""
-    from tfl_mav.flight_computer import A_ENTER_N
+    from tfl_mav.flight_computer import A_HANDBACK_N
 
     out: list[str] = []
     v = sc.vehicle
@@ -169,10 +169,9 @@ def check_scenario(sc: Scenario) -> list[str]:
                        f"{limit:.2f} N (half the least thrust the path needs, "
                        f"mg/2 = {mg / 2:.2f} N): the vehicle cannot follow the path; "
                        "the safe law keeps its attitude and climbs where it must")
-        if a_lo < A_ENTER_N:
+        if a_lo < A_HANDBACK_N:
             spin = v.drag_thrust_ratio_m * (mg - 4.0 * a_lo) / v.k_r
-            out.append(f"attack on rotor {sc.attack.rotor} down to {a_lo:.2f} N < "
-                       f"{A_ENTER_N} N: the TFL law has no roll authority there; the "
-                       f"reduced-attitude law flies (spinning at ~{spin:.0f} rad/s, reduced "
-                       "tracking bandwidth)")
+            out.append(f"attack on rotor {sc.attack.rotor} down to {a_lo:.2f} N: near 0 N the "
+                       "TFL law can roll one way only; where it needs the other way for "
+                       f"long, the reduced-attitude law flies (spinning at ~{spin:.0f} rad/s)")
     return out

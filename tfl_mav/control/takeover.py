@@ -45,8 +45,9 @@ def tilt_rad(q: Sequence[float]) -> float:
 
 def not_benign(state: State, rotor: int, speed_mps: float) -> str:
     """Why ``state`` is not one the TFL law may be started from ('' if it is); ``rotor``:
-    the attacked rotor (0: none; an attacked vehicle spins, so its yaw rate is allowed),
-    ``speed_mps``: the path speed flown."""
+    the attacked rotor (0: none), ``speed_mps``: the path speed flown. The yaw rate is not
+    tested: yaw is the TFL law's internal dynamics (eq. (25)), and it flies a start spinning
+    at 10 rad/s as it flies one at rest."""
     tilt = tilt_rad(state.quaternion_wxyz)
     p, q, r = floats(state.body_rates_radps)
     speed = math.sqrt(sum(c * c for c in floats(state.velocity_mps)))
@@ -57,15 +58,14 @@ def not_benign(state: State, rotor: int, speed_mps: float) -> str:
         return f"tilted {math.degrees(tilt):.0f} deg"
     if speed > vmax:
         return f"moving at {speed:.1f} m/s (TFL takes over below {vmax:.1f} m/s)"
-    if math.hypot(p, q) > TAKEOVER_RATE_RADPS or (not rotor
-                                                  and abs(r) > TAKEOVER_RATE_RADPS):
-        return f"rotating at {math.sqrt(p * p + q * q + r * r):.1f} rad/s"
+    if math.hypot(p, q) > TAKEOVER_RATE_RADPS:
+        return f"rolling/pitching at {math.hypot(p, q):.1f} rad/s"
     return ""
 
 
-def calm_fail(state: State, rotor: int) -> bool:
-    """True while the attitude is not calm enough to hand back to the TFL law."""
+def calm_fail(state: State) -> bool:
+    """True while the attitude is not calm enough to hand back to the TFL law (tilt and
+    roll/pitch rate; a yaw spin is its internal dynamics)."""
     tilt = tilt_rad(state.quaternion_wxyz)
-    p, q, r = floats(state.body_rates_radps)
-    return (tilt > HANDBACK_TILT_RAD or math.hypot(p, q) > TAKEOVER_RATE_RADPS
-            or (not rotor and abs(r) > TAKEOVER_RATE_RADPS))
+    p, q, _ = floats(state.body_rates_radps)
+    return tilt > HANDBACK_TILT_RAD or math.hypot(p, q) > TAKEOVER_RATE_RADPS
