@@ -26,7 +26,6 @@ from tfl_mav.control.compiled import compile_path
 from tfl_mav.control.paths import Path, build_path
 from tfl_mav.control.recovery import (
     POS_OMEGA,
-    POS_ZETA,
     PathProjector,
     RecoveryLaw,
     projector_sigma2,
@@ -188,11 +187,11 @@ def _restart(t_off: float) -> tuple[list[Mode], list[float], list[float], State,
 
 
 def _peak_excursion_per_mps() -> float:
-    """Peak of x'' + 2ζω x' + ω² x = 0 from x = 0, x' = 1 m/s: the recovery law's altitude
-    hold (POS_OMEGA, POS_ZETA) arresting a fall (s; × the fall speed gives metres)."""
-    wd = POS_OMEGA * math.sqrt(1.0 - POS_ZETA ** 2)
-    t_peak = math.atan2(wd, POS_ZETA * POS_OMEGA) / wd
-    return math.exp(-POS_ZETA * POS_OMEGA * t_peak) * math.sin(wd * t_peak) / wd
+    """Peak of x under the recovery law's altitude hold, the PID (s + ω_p)³ (POS_OMEGA),
+    from x = 0, x' = 1 m/s, ∫x = 0: X(s) = s/(s + ω)³, x(t) = t e^{−ωt} (1 − ωt/2), whose
+    largest value is at ωt = 2 − √2 (s; × the fall speed gives metres)."""
+    wt = 2.0 - math.sqrt(2.0)
+    return wt * math.exp(-wt) * (1.0 - wt / 2.0) / POS_OMEGA
 
 
 @pytest.mark.parametrize(("t_off", "mode"), [(0.10, Mode.NOMINAL), (0.18, Mode.RECOVERY)])

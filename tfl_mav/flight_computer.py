@@ -339,13 +339,14 @@ class FlightComputer:
         the lost-rotor law (this tick is already its) and say why. True when switched."""
         rotor = self.controller.attacked_rotor
         opposite = (rotor + 1) % 4         # physical index of the rotor opposite ``rotor``
+        f = out.rotor_thrust_n
         mon = self.authority
-        if not mon.update(out.rotor_thrust_n[opposite], dt):
+        if not mon.update(f[opposite], (f[rotor % 4], f[(rotor + 2) % 4]), dt):
             return False
         a_text = f"{estimate:.2f} N" if math.isfinite(estimate) else "unknown thrust"
         if mon.bound == "ceiling":
-            why = (f"rotor {rotor} at {a_text}: rotor {opposite + 1} pinned at f_max, more "
-                   "than three rotors can balance; keeping attitude, cannot hold the path")
+            why = (f"rotor {rotor} at {a_text}: more than the three others can balance "
+                   "(pinned at their limits); keeping attitude, cannot hold the path")
         else:
             why = (f"rotor {rotor} at {a_text}: rotor {opposite + 1} pinned at 0 N, no roll "
                    "authority; reduced-attitude law")

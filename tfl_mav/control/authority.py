@@ -3,15 +3,16 @@
 With rotor 2 at f₂ = A the attacked law flies u_f, τ_q and τ_r, and τ_p follows from eq. (6):
 τ_p = (u_f − τ_r/d) l/2 − 2lA. The rotor opposite the attacked one carries it: in the
 canonical frame (:mod:`tfl_mav.control.allocation`) f₄ = A + τ_p/l, so the law can make
-τ_p ∈ [−lA, l(f_max − A)] and no more. When what it asks for lies outside, the allocation
-pins f₄ at 0 or at f_max and the τ_p the law counted on is not made.
+τ_p ∈ [−lA, l(f_max − A)] and no more; the side rotors carry the rest, f₁ + f₃ =
+u_f − 2A − τ_p/l, and τ_q = l(f₃ − f₁). When what the law asks for lies outside, the
+allocation pins a rotor at 0 or at f_max and the torque the law counted on is not made.
 
 One such tick costs nothing: the ξ/η chains absorb a short shortfall, and the paper's own
 signal, A = 0.1t + sin z, asks the law to fly through seconds of A = 0 with f₄ pinned about
 half the time. A shortfall that *persists* is different: the roll-rate error grows with the
 integral of the missing τ_p, and a dead rotor (A = 0 for good) flips the vehicle within
-2.5 s. So the monitor measures the *share of recent ticks* on which f₄ was pinned at a
-bound: a first-order average of the indicator over ``WINDOW_S`` (0.2 s, a few times the
+2.5 s. So the monitor measures the *share of recent ticks* on which a healthy rotor was pinned at
+a bound: a first-order average of the indicator over ``WINDOW_S`` (0.2 s, a few times the
 ξ chain's slowest time constant, so a single transient does not count), and calls the
 authority lost when more than ``LOST_SHARE`` of that window was pinned. The flight computer
 then hands the vehicle to the reduced-attitude law (:mod:`tfl_mav.control.recovery`), which
@@ -64,16 +65,21 @@ class AuthorityMonitor:
     def bound(self) -> str:
         return "ceiling" if self.ceiling_share > 0.5 * self.share else "floor"
 
-    def update(self, f_opposite_n: float, dt_s: float) -> bool:
-        """One tick of the attacked law: its command to the opposite rotor (N) over the
+    def update(self, f_opposite_n: float, f_side_n: tuple[float, float], dt_s: float) -> bool:
+        """One tick of the attacked law: its commands (N) to the opposite rotor and to the
+        two side rotors (canonical 1 and 3, which make τ_q and the rest of u_f) over the
         period ``dt_s`` (s). Returns :attr:`lost`."""
         k = dt_s / self.window_s
         if not k > 0.0:          # a NaN or non-positive period: no update
             k = 0.0
         elif k > 1.0:
             k = 1.0
-        ceiling = f_opposite_n >= self.thrust_max_n - _EPS_N
-        pinned = ceiling or f_opposite_n <= _EPS_N
+        top = self.thrust_max_n - _EPS_N
+        s1, s3 = f_side_n
+        # f₄ at f_max, or a side rotor at 0 (f₁ + f₃ = u_f − 2A − τ_p/l: A too large) …
+        ceiling = f_opposite_n >= top or s1 <= _EPS_N or s3 <= _EPS_N
+        # … or f₄ at 0 (A too small), or a side rotor at f_max
+        pinned = ceiling or f_opposite_n <= _EPS_N or s1 >= top or s3 >= top
         self.share += k * ((1.0 if pinned else 0.0) - self.share)
         self.ceiling_share += k * ((1.0 if ceiling else 0.0) - self.ceiling_share)
         return self.share > self.lost_share

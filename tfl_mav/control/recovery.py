@@ -31,10 +31,10 @@ flown with a PD on (−h2, h1) through both torques and a yaw-rate damper.
 
 The outer loop is a PID on position towards a target: the closest point of the path with
 its velocity (speed × tangent) and centripetal acceleration, or a held point (altitude hold,
-velocity zero). Its poles are a triple one at −ω_p (ω_p = 1 rad/s): k_p = 3ω_p², k_d = 3ω_p,
+velocity zero). Its poles are a triple one at −ω_p (ω_p = 1.25 rad/s): k_p = 3ω_p², k_d = 3ω_p,
 k_i = ω_p³. The integral is what makes the law precise: the steady forces it does not model
 (the model's mass error Δm g, drag, the spinning attitude loop's bias) are a constant
-acceleration demand, which a PD alone leaves as an offset Δm g/k_p (0.16 m at 5 % mass
+acceleration demand, which a PD alone leaves as an offset Δm g/k_p (0.10 m at 5 % mass
 error) and the integral removes. It is bounded (±``MAX_INTEGRAL_G`` g) and frozen while the
 demand is limited (anti-windup). The wanted acceleration is limited to a 30° tilt and
 ±0.5 g vertically: a safe law does not chase the path hard.
@@ -65,7 +65,7 @@ __all__ = ["PathProjector", "RecoveryLaw", "RecoveryOutput", "gain_schedule",
 
 MAX_TILT_RAD = math.radians(30.0)   # outer loop: horizontal acceleration ≤ g tan 30°
 MAX_VERTICAL_G = 0.5                # outer loop: |vertical acceleration| ≤ 0.5 g
-POS_OMEGA = 1.0                     # outer-loop triple pole (rad/s)
+POS_OMEGA = 1.25  # outer-loop triple pole (rad/s)
 MAX_INTEGRAL_G = 0.2                # |integral action| ≤ 0.2 g per axis (a 20 % model error)
 ATT_KP = 100.0                      # healthy reduced attitude: (10 rad/s)²
 ATT_KD = 20.0                       # … critically damped
