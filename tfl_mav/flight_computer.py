@@ -164,7 +164,9 @@ class FlightComputer:
                                     design_gains=design_gains)
         self.authority = AuthorityMonitor(mp.thrust_max_n)
         # Above this attack the three others cannot balance it at hover (f₄ = A, f₁ + f₃ ≥ 0).
-        self._a_high_n = mp.mass_kg * mp.gravity_mps2 / 2.0 - A_HANDBACK_N
+        self._weight_n = mp.mass_kg * mp.gravity_mps2
+        self._a_high_n = self._weight_n / 2.0 - A_HANDBACK_N
+        self._climbing = False         # said: the attack is more than the weight allows
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
         self._probe_high_n = min(self._hover_share_n + 1.5, self.thrust_max_n)
         if self.controller.lag_inverter is not None:   # ESC noise: filter ω (actuators)
@@ -384,6 +386,8 @@ class FlightComputer:
         finite = _isfinite(estimate)
         a_n = estimate if rotor and finite else 0.0
         lost = self.law_name == "lost_rotor"
+        if lost and finite:
+            self._say_if_climbing(rotor, estimate, events)
         out = rec.update(state, rotor if lost else 0, a_n)
         dist = out.path_distance_m
         ok = (rec.hold_m is None and _isfinite(dist) and dist < ROA_DIST_M
@@ -410,6 +414,21 @@ class FlightComputer:
             out.uf_n, self.controller.mass_kg, _ZERO2, False, reason)
         return self._result(thrust, out.requested_n, law, detection, rotor, estimate, new,
                             events)
+
+    def _say_if_climbing(self, rotor: int, estimate: float, events: list[str]) -> None:
+        """Say it when the attack makes the vehicle climb whatever the others do (and when
+        that ends): keeping the attitude needs the opposite rotor at A, so u_f ≥ 2A, more
+        than the weight once A > m g/2. No law can hold the path or the altitude there."""
+        w = self._weight_n
+        if not self._climbing and 2.0 * estimate > w:
+            self._climbing = True
+            events.append(f"lost_rotor: rotor {rotor} at {estimate:.2f} N: keeping the attitude "
+                          f"takes {2.0 * estimate:.1f} N of thrust, more than the weight "
+                          f"({w:.1f} N); the vehicle climbs away from the path")
+        elif self._climbing and 2.0 * estimate < w - 2.0 * A_HANDBACK_N:
+            self._climbing = False
+            events.append(f"lost_rotor: rotor {rotor} at {estimate:.2f} N: the vehicle can "
+                          "hold its altitude again")
 
     def _hand_back(self, state: State, out: RecoveryOutput, events: list[str]) -> None:
         """Back to TFL, bumpless: its dynamic extension starts at the thrust now applied."""

@@ -75,6 +75,10 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(metrics, indent=2))
     else:
+        # What the flight computer said during the flight (law switches, detections), in
+        # sim-time order: the daemon sends the same words as STATUSTEXT.
+        for t_s, text in sorted(e for e in log.events if not e[1].startswith("fallbacks:")):
+            print(f"  t = {t_s:6.2f} s  {text}")
         _print_summary(sc, metrics)
     return 1 if log.crashed else 0
 

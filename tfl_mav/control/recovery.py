@@ -71,14 +71,17 @@ ATT_KP = 100.0                      # healthy reduced attitude: (10 rad/s)²
 ATT_KD = 20.0                       # … critically damped
 YAW_DAMP = 2.0                      # healthy: r decays at 2 /s
 # LQR weights on (h1, h2, p, q) and (τ_p, τ_q): Bryson's rule with 0.1 of h (≈ 6°),
-# 10 rad/s of p, q and 0.2 N m of τ_q; τ_p costs 100× (one-sided, only for a slow spin).
+# 10 rad/s of p, q and 0.063 N m of τ_q; τ_p costs 100× (one-sided, only for a slow spin).
+# τ_q rotates with the ~60 rad/s spin, so the rotors must swing it at ~10 Hz: a motor lag of
+# τ_m cuts that swing by √(1 + (2π 10 τ_m)²), 3.3× at 50 ms. A larger τ_q (0.2 N m) asks
+# for swings a lagging rotor cannot make and the vehicle falls; this one flies 0-50 ms.
 _TAN_MAX_TILT = math.tan(MAX_TILT_RAD)
 _KP = 3.0 * POS_OMEGA * POS_OMEGA      # outer-loop PID gains: (s + ω_p)³
 _KD = 3.0 * POS_OMEGA
 _KI = POS_OMEGA * POS_OMEGA * POS_OMEGA
 LQR_MAX_SPIN_RADPS = 150.0   # gain schedule range (see RecoveryLaw._lqr)
 LQR_Q = (100.0, 100.0, 0.01, 0.01)
-LQR_R = (2500.0, 25.0)
+LQR_R = (25000.0, 250.0)
 
 
 Sigma2 = Callable[[tuple[float]], Sequence[float]]
