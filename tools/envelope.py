@@ -144,25 +144,23 @@ def run(args: argparse.Namespace) -> int:
 
 def _rewrite(spec: EnvelopeSpec, cases: list, now: dict, baseline: ResultsFile,
              path: Path) -> int:
-    errors = [n for n, r in now.items() if r.outcome == ERROR]
-    if errors:
-        for n in errors:
-            print(f"tfl-mav envelope: {n}: {now[n].reason}", file=sys.stderr)
-        print("tfl-mav envelope: flights failed to run; the baseline is left as it was",
-              file=sys.stderr)
-        return EXIT_REGRESSION
+    errors = {n: r for n, r in now.items() if r.outcome == ERROR}
+    flown = {n: r for n, r in now.items() if n not in errors}
     names = {c.name for c in spec.cases}
     merged = {n: r for n, r in baseline.results.items() if n in names}
-    merged.update(now)
+    merged.update(flown)
     rf = ResultsFile(tree=_tree_name(REPO), about=(
         "tfl-mav envelope --rewrite-baseline: each case of cases.toml flown offline, the "
         "attack found from ESC rpm (tfl-mav offline BASE --set ... --attack-info detector); "
         "distances in m over the last 10 s"), results=merged)
     write_results_file(path, rf, [c.name for c in spec.cases])
-    print(diff_table(cases, baseline, now))
-    print(f"\nwrote {_rel(path)} ({len(now)} cases flown at {rf.tree}; command: tfl-mav "
+    print(diff_table(cases, baseline, flown))
+    print(f"\nwrote {_rel(path)} ({len(flown)} cases flown at {rf.tree}; command: tfl-mav "
           f"envelope --rewrite-baseline)")
-    return 0
+    for n, r in errors.items():
+        print(f"tfl-mav envelope: {n}: the flight failed to run ({r.reason}); its baseline "
+              f"entry is left as it was", file=sys.stderr)
+    return EXIT_REGRESSION if errors else 0
 
 
 def _fly_reference(args: argparse.Namespace, spec: EnvelopeSpec, cases: list,
