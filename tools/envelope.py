@@ -82,12 +82,14 @@ def _rel(path: Path) -> str:
 
 
 def _tree_name(path: Path) -> str:
-    """The short commit of the checkout at ``path`` (+dirty), for the files' ``tree``."""
+    """The short commit of the checkout at ``path``, ``+dirty`` when its code differs from
+    it (docs and the envelope's own result files do not count), for the files' ``tree``."""
     def git(*args: str) -> str:
         return subprocess.run(["git", "-C", str(path), *args], capture_output=True,
                               text=True, check=False).stdout.strip()
     commit = git("rev-parse", "--short", "HEAD") or "unknown"
-    dirty = git("status", "--porcelain", "--untracked-files=no")
+    dirty = git("status", "--porcelain", "--untracked-files=no", "--", "*.py", "*.toml",
+                "*.c", ":(exclude)harness/envelope/*")
     return commit + ("+dirty" if dirty else "")
 
 
