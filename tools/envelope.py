@@ -15,7 +15,13 @@ import sys
 from pathlib import Path
 
 from harness.envelope.regression import judge
-from harness.envelope.report import diff_table, markdown, replace_readme_block, run_table
+from harness.envelope.report import (
+    columns_table,
+    diff_table,
+    markdown,
+    replace_readme_block,
+    run_table,
+)
 from harness.envelope.results import (
     ERROR,
     ResultsFile,
@@ -56,6 +62,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--rewrite-baseline", action="store_true",
                    help="fly, then rewrite the baseline with what was flown (with --only: "
                         "those cases only) and print the before/after table")
+    p.add_argument("--compare", action="store_true",
+                   help="print the committed reference column(s) beside the baseline, case "
+                        "by case (no flights)")
     p.add_argument("--markdown", action="store_true",
                    help="print the README envelope table from the baseline (no flights)")
     p.add_argument("--write-readme", action="store_true",
@@ -114,6 +123,10 @@ def run(args: argparse.Namespace) -> int:
     if not cases:
         print(f"tfl-mav envelope: no case matches {args.only!r}", file=sys.stderr)
         return EXIT_USAGE
+    if args.compare:
+        baseline.tree = f"baseline ({baseline.tree or '?'})"
+        print(columns_table(cases, [*references, baseline]))
+        return 0
     if args.fly_reference:
         return _fly_reference(args, spec, cases, baseline_path)
     print(f"flying {len(cases)} cases, {args.jobs or default_jobs()} at a time",

@@ -14,7 +14,8 @@ from harness.envelope.regression import Verdict
 from harness.envelope.results import NOT_AVAILABLE, CaseResult, ResultsFile
 from harness.envelope.spec import Case, EnvelopeSpec
 
-__all__ = ["README_BEGIN", "README_END", "detection_text", "diff_table", "fmt_mm",
+__all__ = ["README_BEGIN", "README_END", "columns_table", "detection_text", "diff_table",
+           "fmt_distance", "fmt_mm",
            "markdown", "replace_readme_block", "result_text", "run_table"]
 
 README_BEGIN = "<!-- envelope:begin -->"
@@ -35,6 +36,12 @@ def fmt_mm(distance_m: float | None) -> str:
     return f"{distance_m:.0f} m"
 
 
+def fmt_distance(distance_m: float | None) -> str:
+    """:func:`fmt_mm` with its unit: ``0.088 mm``, ``3020 m``, ``∞``."""
+    text = fmt_mm(distance_m)
+    return text if text.endswith(" m") or text == "∞" else f"{text} mm"
+
+
 def result_text(r: CaseResult | None) -> str:
     """``0.088 mm converged`` / ``crashed at 2.3 s`` / ``n/a``."""
     if r is None:
@@ -46,7 +53,7 @@ def result_text(r: CaseResult | None) -> str:
         return f"crashed{at}"
     if r.outcome == "error":
         return "error"
-    return f"{fmt_mm(r.max_distance_m)} mm {r.outcome}"
+    return f"{fmt_distance(r.max_distance_m)} {r.outcome}"
 
 
 def detection_text(r: CaseResult | None) -> str:
@@ -93,6 +100,17 @@ def run_table(cases: Sequence[Case], now: dict[str, CaseResult],
         rows.append([c.name, result_text(r), detection_text(r),
                      *(result_text(rf.get(c.name)) for rf in references),
                      _verdict_text(verdicts.get(c.name))])
+    return _table(header, rows)
+
+
+def columns_table(cases: Sequence[Case], columns: Sequence[ResultsFile]) -> str:
+    """case, then each file's result (oldest tree first, as given): no flights. With the
+    reference and the baseline it is the table of targets: what used to fly, what flies."""
+    header = ["case", *(f"{rf.tree or '?'}" for rf in columns), "note"]
+    rows = []
+    for c in cases:
+        note = c.note + (f" (target ≤ {fmt_mm(c.bound_m)} mm)" if c.bound_m else "")
+        rows.append([c.name, *(result_text(rf.get(c.name)) for rf in columns), note])
     return _table(header, rows)
 
 
