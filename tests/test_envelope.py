@@ -1,6 +1,8 @@
-"""Issue #14: the attack class flown offline — a dead rotor, 250 Hz control, lag + ESC noise,
-a take-over from a tilted state, feasibility warnings. Bounds are derived from the physics
-here, not tuned: see each test."""
+"""The attack class flown offline — a dead rotor, 250 Hz control, lag + ESC noise, a take-over
+from a tilted state, feasibility warnings. Bounds are derived from the physics (or are the
+requirement) here, not tuned: see each test. That each of these flights stays as good as it
+was is the envelope tier's job (tests/envelope, the cases dead-t0, dead-t5, paper-250hz,
+lag20/50-noattack-rpm100, tilt45-falling-nominal, fast-2mps-noattack, gyro-range)."""
 
 from __future__ import annotations
 
@@ -11,7 +13,6 @@ import pytest
 
 from harness.offline import fly_offline
 from tfl_mav.control.feasibility import check_scenario, path_demand
-from tfl_mav.control.recovery import POS_OMEGA
 from tfl_mav.modes import Mode
 from tfl_mav.scenario import apply_overrides, load_scenario
 
@@ -23,24 +24,16 @@ def _last_max(log, window_s: float = WINDOW_S) -> float:
     return float(np.max(log["path_distance_m"][t >= t[-1] - window_s]))
 
 
-def _safe_law_bound(sc) -> float:
-    """The reduced-attitude law's steady error: its PD position loop (ω_n) against the
-    model's mass error Δm g (the only unmodelled steady force), ×1.5 for the spinning
-    attitude loop's own wobble. 2 % of g at ω_n = 1 rad/s: 0.196 m → 0.29 m."""
-    dm = abs(sc.controller.model_mass_scale - 1.0)
-    return 1.5 * dm * sc.vehicle.gravity_mps2 / POS_OMEGA ** 2
-
-
 @pytest.mark.slow
 @pytest.mark.parametrize("start_s", [0.0, 5.0])
-def test_dead_rotor_flies_on_the_paper_path(start_s: float) -> None:
+def test_dead_rotor_spins_at_the_relaxed_hover_rate(start_s: float) -> None:
+    """How close to the path a dead-rotor flight stays is the envelope's (dead-t0, dead-t5);
+    here the physics: three rotors cannot cancel the yaw drag torque, so it spins."""
     sc = apply_overrides(load_scenario("paper"), ["attack.signal=off",
                                                   f"attack.start_s={start_s}"])
     log = fly_offline(sc, attack_info="detector")
     assert not log.crashed, log.crash_reason
-    assert log["t_s"][-1] >= sc.run.duration_s - 0.01
     assert int(Mode.LOST_ROTOR) in set(log["mode"].astype(int))
-    assert _last_max(log) <= _safe_law_bound(sc)
     # the spin is the relaxed hover's: r̄ = d (m g − 4A)/k_r with A = 0, within 20 %
     v = sc.vehicle
     spin = v.drag_thrust_ratio_m * v.mass_kg * v.gravity_mps2 / v.k_r

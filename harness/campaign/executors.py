@@ -13,7 +13,7 @@ from collections.abc import Callable, Sequence
 from multiprocessing.connection import wait
 from typing import Any
 
-from harness.campaign.run import Child, Run, failed_row, run_isolated
+from harness.campaign.run import Child, Run, Target, failed_row, run_isolated
 
 __all__ = ["EXECUTORS", "ExecutorError", "run_local", "run_ray"]
 
@@ -25,14 +25,16 @@ class ExecutorError(RuntimeError):
     """The executor could not start (Ray missing, cluster unreachable)."""
 
 
-def run_local(runs: Sequence[Run], workers: int, on_row: OnRow) -> None:
-    """At most ``workers`` runs at a time, each in its own forked process."""
+def run_local(runs: Sequence[Run], workers: int, on_row: OnRow,
+              target: Target | None = None) -> None:
+    """At most ``workers`` runs at a time, each in its own forked process (``target``: what
+    the process computes, :func:`harness.campaign.run.execute` by default)."""
     pending = deque(runs)
     live: list[Child] = []
     try:
         while pending or live:
             while pending and len(live) < workers:
-                live.append(Child(pending.popleft()))
+                live.append(Child(pending.popleft(), target))
             wait([c.conn for c in live], timeout=0.25)
             for child in list(live):
                 row = child.result()

@@ -18,14 +18,19 @@ import os
 import shutil
 import signal
 import time
+from collections.abc import Callable
 from multiprocessing.connection import Connection
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from harness.campaign.spec import SUCCESS_MAX_DISTANCE_M, Run
 from tfl_mav.scenario import Scenario, apply_overrides, load_scenario
 
-__all__ = ["RESULT_COLUMNS", "Child", "execute", "failed_row", "run_isolated", "run_outcome"]
+if TYPE_CHECKING:
+    from tfl_mav.flightlog.flight import FlightLog
+
+__all__ = ["RESULT_COLUMNS", "Child", "Target", "execute", "failed_row", "offline_metrics",
+           "run_isolated", "run_outcome"]
 
 # The measured columns of results.csv, after run_id, the swept keys and seed.
 RESULT_COLUMNS = ("success", "crashed", "max_path_distance_last_10s_m",
@@ -84,18 +89,24 @@ def execute(run: Run) -> dict[str, Any]:
     return row
 
 
-def _fly_offline(sc: Scenario, run: Run) -> dict[str, Any]:
+def offline_metrics(sc: Scenario, attack_info: str) -> tuple[dict[str, Any], FlightLog]:
+    """Fly ``sc`` offline: the ``tfl-mav offline --json`` metrics (detection by the MAVLink
+    demo's definition when detected from rpm) and the log they came from."""
     from harness.offline import detections, fly_offline
     from tfl_mav.flightlog.flight import summarize
     from tfl_mav.flightlog.metrics import detection_from_alarms
 
-    log = fly_offline(sc, attack_info=run.attack_info)
+    log = fly_offline(sc, attack_info=attack_info)
     metrics = summarize(log)
-    if run.attack_info == "detector":
+    if attack_info == "detector":
         # The same definition as the MAVLink demo's (first alarm at or after the attack).
         metrics.update(detection_from_alarms(detections(log), sc.attack.rotor,
                                              sc.attack.start_s))
-    return metrics
+    return metrics, log
+
+
+def _fly_offline(sc: Scenario, run: Run) -> dict[str, Any]:
+    return offline_metrics(sc, run.attack_info)[0]
 
 
 def _fly_mavlink(sc: Scenario, run: Run) -> dict[str, Any]:
@@ -116,11 +127,15 @@ def failed_row(reason: str, wall_time_s: float | None = None) -> dict[str, Any]:
     return row
 
 
-def _child_main(run: Run, conn: Connection) -> None:
+# What a child computes from its run: :func:`execute` (a results-table row) unless told.
+Target = Callable[[Run], dict[str, Any]]
+
+
+def _child_main(run: Run, conn: Connection, target: Target) -> None:
     os.setsid()          # its own process group: a timeout kills the run and its children
     t0 = time.perf_counter()
     try:
-        row = execute(run)
+        row = target(run)
     except BaseException as exc:
         text = str(exc).strip().splitlines()
         row = failed_row(f"{type(exc).__name__}: {text[0] if text else 'no message'}",
@@ -130,13 +145,15 @@ def _child_main(run: Run, conn: Connection) -> None:
 
 
 class Child:
-    """One run in a forked process; :meth:`result` is None until it is over."""
+    """One run in a forked process; :meth:`result` is None until it is over. ``target``
+    computes the row (default :func:`execute`; the envelope measures more per flight)."""
 
-    def __init__(self, run: Run) -> None:
+    def __init__(self, run: Run, target: Target | None = None) -> None:
         ctx = mp.get_context("fork")
         self.run = run
         self.conn, writer = ctx.Pipe(duplex=False)
-        self.proc = ctx.Process(target=_child_main, args=(run, writer), daemon=True,
+        self.proc = ctx.Process(target=_child_main, args=(run, writer, target or execute),
+                                daemon=True,
                                 name=f"campaign-run-{run.run_id}")
         self.t0 = time.monotonic()
         self.proc.start()
