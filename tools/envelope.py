@@ -180,13 +180,13 @@ def _rewrite(spec: EnvelopeSpec, cases: list, now: dict, baseline: ResultsFile,
 
 def _fly_reference(args: argparse.Namespace, spec: EnvelopeSpec, cases: list,
                    baseline_path: Path) -> int:
-    from harness.envelope.reference import _progress, fly_reference
+    from harness.envelope.reference import fly_reference
 
     tree = Path(args.fly_reference).resolve()
     label = args.label or _tree_name(tree)
     try:
         results = fly_reference(tree, cases, jobs=args.jobs or default_jobs(),
-                                on_result=_progress)
+                                on_result=print_progress)
     except FileNotFoundError as exc:
         print(f"tfl-mav envelope: {exc}", file=sys.stderr)
         return EXIT_USAGE
