@@ -9,6 +9,7 @@ baseline changes, and it prints the before/after table that goes with the change
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import subprocess
 import sys
@@ -124,8 +125,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"tfl-mav envelope: no case matches {args.only!r}", file=sys.stderr)
         return EXIT_USAGE
     if args.compare:
-        baseline.tree = f"baseline ({baseline.tree or '?'})"
-        print(columns_table(cases, [*references, baseline]))
+        shown = dataclasses.replace(baseline, tree=f"baseline ({baseline.tree or '?'})")
+        print(columns_table(cases, [*references, shown]))
         return 0
     if args.fly_reference:
         return _fly_reference(args, spec, cases, baseline_path)
