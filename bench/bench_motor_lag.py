@@ -84,10 +84,11 @@ def sweep_row(name: str, r) -> dict:
 
 
 def envelope_table(jobs: int) -> int:
-    """The envelope's lag cases, flown now, beside the committed baseline."""
+    """The envelope's lag cases, flown now, beside the committed baseline (and the
+    reference trees' flights of the same cases)."""
     from harness.envelope.regression import judge
     from harness.envelope.report import run_table
-    from harness.envelope.results import default_baseline_path, read_results_file
+    from harness.envelope.results import default_baseline_path, read_results_file, reference_files
     from harness.envelope.run import fly_cases, print_progress
     from harness.envelope.spec import load_envelope
 
@@ -95,7 +96,8 @@ def envelope_table(jobs: int) -> int:
     now = fly_cases(cases, jobs=jobs, on_result=print_progress)
     baseline = read_results_file(default_baseline_path())
     verdicts = {c.name: judge(now[c.name], baseline.get(c.name)) for c in cases}
-    print(run_table(cases, now, verdicts))
+    refs = [read_results_file(p) for p in reference_files()]
+    print(run_table(cases, now, verdicts, refs))
     return 1 if any(v.failed for v in verdicts.values()) else 0
 
 

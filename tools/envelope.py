@@ -9,6 +9,7 @@ baseline changes, and it prints the before/after table that goes with the change
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import subprocess
 import sys
@@ -124,8 +125,8 @@ def run(args: argparse.Namespace) -> int:
         print(f"tfl-mav envelope: no case matches {args.only!r}", file=sys.stderr)
         return EXIT_USAGE
     if args.compare:
-        baseline.tree = f"baseline ({baseline.tree or '?'})"
-        print(columns_table(cases, [*references, baseline]))
+        shown = dataclasses.replace(baseline, tree=f"baseline ({baseline.tree or '?'})")
+        print(columns_table(cases, [*references, shown]))
         return 0
     if args.fly_reference:
         return _fly_reference(args, spec, cases, baseline_path)
@@ -180,13 +181,13 @@ def _rewrite(spec: EnvelopeSpec, cases: list, now: dict, baseline: ResultsFile,
 
 def _fly_reference(args: argparse.Namespace, spec: EnvelopeSpec, cases: list,
                    baseline_path: Path) -> int:
-    from harness.envelope.reference import _progress, fly_reference
+    from harness.envelope.reference import fly_reference
 
     tree = Path(args.fly_reference).resolve()
     label = args.label or _tree_name(tree)
     try:
         results = fly_reference(tree, cases, jobs=args.jobs or default_jobs(),
-                                on_result=_progress)
+                                on_result=print_progress)
     except FileNotFoundError as exc:
         print(f"tfl-mav envelope: {exc}", file=sys.stderr)
         return EXIT_USAGE

@@ -13,7 +13,6 @@ from __future__ import annotations
 import json
 import os
 import subprocess
-import sys
 import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import ThreadPoolExecutor, as_completed
@@ -92,9 +91,3 @@ def fly_reference(tree: Path, cases: Sequence[Case], *, jobs: int = 2,
                 on_result(i, len(order), r)
     return out
 
-
-def _progress(i: int, n: int, r: CaseResult) -> None:
-    mm = r.max_distance_mm
-    text = f"{mm:.3f} mm" if mm is not None else r.reason[:60]
-    print(f"[{i}/{n}] {r.name} {r.outcome} {text} ... {r.wall_time_s or 0:.1f} s",
-          file=sys.stderr, flush=True)

@@ -10,8 +10,10 @@ A case FAILS when
   without hiding a real loss); a non-finite distance where the baseline had one fails.
 
 Improvements (a crash that no longer happens, a right detection, a distance below
-``b − max(0.10 b, 0.05 mm)``) are reported, never fail. When both crashed the distance is
-not compared (it is the distance before the crash, not a tracking figure).
+``b − max(0.10 b, 0.05 mm)``) are reported, never fail. When either flight crashed the
+distance is not compared: a crashed flight's is the distance before the crash, not a
+tracking figure (a new crash fails by itself; a crash that became a flight off the path is
+an improvement, whose distance the rewritten baseline then guards).
 """
 
 from __future__ import annotations
@@ -77,7 +79,7 @@ def judge(now: CaseResult, baseline: CaseResult | None) -> Verdict:
         else:
             worse.append(f"detected rotor {now.detected_rotor}, baseline "
                          f"{baseline.detected_rotor} (attacked: {now.attack_rotor})")
-    if not (now_down and base_down) and _finite(baseline.max_distance_m):
+    if not (now_down or base_down) and _finite(baseline.max_distance_m):
         b = float(baseline.max_distance_m)  # type: ignore[arg-type]
         d = now.max_distance_m
         if not _finite(d):
@@ -87,8 +89,8 @@ def judge(now: CaseResult, baseline: CaseResult | None) -> Verdict:
                          f"(baseline {_mm(b)})")
         elif d < b - max(REL_SLACK * b, ABS_SLACK_M):   # type: ignore[operator]
             better.append(f"max distance {_mm(d)}, baseline {_mm(b)}")
-    elif not _finite(baseline.max_distance_m) and _finite(now.max_distance_m) \
-            and not now_down:
+    elif not (now_down or base_down) and not _finite(baseline.max_distance_m) \
+            and _finite(now.max_distance_m):
         better.append(f"max distance {_mm(now.max_distance_m)}, baseline not finite")
     if worse:
         return Verdict("regressed", tuple(worse + better))

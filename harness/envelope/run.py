@@ -19,11 +19,12 @@ import numpy as np
 
 from harness.campaign.executors import run_local
 from harness.campaign.run import Run, offline_metrics
-from harness.envelope.results import ERROR, CaseResult, outcome_of
+from harness.envelope.results import ERROR, NOT_AVAILABLE, CaseResult, outcome_of
 from harness.envelope.spec import Case, case_scenario
 from tfl_mav.modes import Mode
 
-__all__ = ["case_run", "default_jobs", "fly_case", "fly_cases", "mode_fractions"]
+__all__ = ["case_run", "default_jobs", "fly_case", "fly_cases", "mode_fractions",
+           "print_progress"]
 
 OnResult = Callable[[int, int, CaseResult], None]
 TIMEOUT_S = 900.0       # a 120 s flight takes ~10 s on an idle core
@@ -106,8 +107,11 @@ def fly_cases(cases: Sequence[Case], *, jobs: int | None = None,
 
 
 def print_progress(i: int, n: int, r: CaseResult) -> None:
-    """``[37/130] paper-lag20-pp converged 0.94 mm ... 1.2 s`` on stderr."""
-    mm = r.max_distance_mm
-    what = f"{mm:.3f} mm" if mm is not None else r.reason[:60]
-    print(f"[{i}/{n}] {r.name} {r.outcome} {what} ... {r.wall_time_s or 0:.1f} s",
-          file=sys.stderr, flush=True)
+    """``[37/130] paper-lag20-pp 0.940 mm converged ... 1.2 s`` on stderr."""
+    from harness.envelope.report import result_text
+
+    what = result_text(r)
+    if r.outcome in (ERROR, NOT_AVAILABLE):
+        what += f": {r.reason[:80]}"
+    print(f"[{i}/{n}] {r.name} {what} ... {r.wall_time_s or 0:.1f} s", file=sys.stderr,
+          flush=True)

@@ -51,6 +51,9 @@ def test_a_flight_error_fails() -> None:
 def test_a_crash_that_no_longer_happens_is_an_improvement() -> None:
     v = judge(result("off-path", mm=75.0), result("crashed", mm=3000.0))
     assert v.status == "improved" and not v.failed
+    # however far off it flies: the crashed flight's distance is not a tracking figure
+    v = judge(result("off-path", mm=500.0), result("crashed", mm=2.0))
+    assert v.status == "improved" and v.reasons == ("no longer crashed: off-path",)
 
 
 def test_off_path_getting_further_off_fails() -> None:
