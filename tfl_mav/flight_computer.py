@@ -161,7 +161,8 @@ class FlightComputer:
                                     scenario_path(scenario), self.speed_mps,
                                     kernels=getattr(self.controller.tracker, "kernels", None),
                                     compiled_path=self.controller.path_eval == "compiled",
-                                    design_gains=design_gains)
+                                    design_gains=design_gains,
+                                    motor_time_constant_s=mp.motor_time_constant_s)
         self.authority = AuthorityMonitor(mp.thrust_max_n)
         # Above this attack the three others cannot balance it at hover (f₄ = A, f₁ + f₃ ≥ 0).
         self._weight_n = mp.mass_kg * mp.gravity_mps2
@@ -343,10 +344,14 @@ class FlightComputer:
         opposite = (rotor + 1) % 4         # physical index of the rotor opposite ``rotor``
         f = out.rotor_thrust_n
         mon = self.authority
-        if not mon.update(f[opposite], (f[rotor % 4], f[(rotor + 2) % 4]), dt):
+        # Over any horizon: f₄ = A and f₁ + f₃ ≥ 0 make u_f ≥ 2A, more than the weight once
+        # A > m g/2, and the vehicle flips within 0.1 s at A = f_max. Lost now, not on average.
+        hopeless = 2.0 * estimate > self._weight_n
+        if not mon.update(f[opposite], (f[rotor % 4], f[(rotor + 2) % 4]), dt) \
+                and not hopeless:
             return False
         a_text = f"{estimate:.2f} N" if math.isfinite(estimate) else "unknown thrust"
-        if mon.bound == "ceiling":
+        if hopeless or mon.bound == "ceiling":
             why = (f"rotor {rotor} at {a_text}: more than the three others can balance "
                    "(pinned at their limits); keeping attitude, cannot hold the path")
         else:
@@ -386,9 +391,11 @@ class FlightComputer:
         finite = _isfinite(estimate)
         a_n = estimate if rotor and finite else 0.0
         lost = self.law_name == "lost_rotor"
-        if lost and finite:
+        if rotor and finite:
             self._say_if_climbing(rotor, estimate, events)
-        out = rec.update(state, rotor if lost else 0, a_n)
+        # An attacked rotor is never ours to command: with one known, the safe law flies the
+        # other three whichever way it was entered (a take-over of an attacked vehicle too).
+        out = rec.update(state, rotor, a_n)
         dist = out.path_distance_m
         ok = (rec.hold_m is None and _isfinite(dist) and dist < ROA_DIST_M
               and not calm_fail(state) and not not_benign(state, rotor, self.speed_mps)
@@ -401,7 +408,7 @@ class FlightComputer:
         if lag is not None:     # the motor-lag inverse, as the TFL law flies it
             lag.reachable(omega)
             command = lag.invert(thrust).command_n
-            if lost:
+            if rotor:
                 command[rotor - 1] = thrust[rotor - 1]   # not ours to command
             thrust = command
         # the output; after a hand-back this tick is still the safe law's, in mode recovery

@@ -36,7 +36,8 @@ k_i = ω_p³. The integral is what makes the law precise: the steady forces it d
 (the model's mass error Δm g, drag, the spinning attitude loop's bias) are a constant
 acceleration demand, which a PD alone leaves as an offset Δm g/k_p (0.10 m at 5 % mass
 error) and the integral removes. It is bounded (±``MAX_INTEGRAL_G`` g) and frozen while the
-demand is limited (anti-windup). The wanted acceleration is limited to a 30° tilt and
+demand is limited or the allocation cannot make it (anti-windup, :meth:`_integrate`). The
+wanted acceleration is limited to a 30° tilt and
 ±0.5 g vertically: a safe law does not chase the path hard.
 
 Thrust requests are feasible by construction: the three-rotor allocation gives up τ_p (the
@@ -71,17 +72,29 @@ ATT_KP = 100.0                      # healthy reduced attitude: (10 rad/s)²
 ATT_KD = 20.0                       # … critically damped
 YAW_DAMP = 2.0                      # healthy: r decays at 2 /s
 # LQR weights on (h1, h2, p, q) and (τ_p, τ_q): Bryson's rule with 0.1 of h (≈ 6°),
-# 10 rad/s of p, q and 0.063 N m of τ_q; τ_p costs 100× (one-sided, only for a slow spin).
-# τ_q rotates with the ~60 rad/s spin, so the rotors must swing it at ~10 Hz: a motor lag of
-# τ_m cuts that swing by √(1 + (2π 10 τ_m)²), 3.3× at 50 ms. A larger τ_q (0.2 N m) asks
-# for swings a lagging rotor cannot make and the vehicle falls; this one flies 0-50 ms.
+# 10 rad/s of p, q and 0.2 N m of τ_q; τ_p costs 100× (one-sided, only for a slow spin).
+# With motor lag the τ_q weight grows (:func:`lqr_r`).
 _TAN_MAX_TILT = math.tan(MAX_TILT_RAD)
 _KP = 3.0 * POS_OMEGA * POS_OMEGA      # outer-loop PID gains: (s + ω_p)³
 _KD = 3.0 * POS_OMEGA
 _KI = POS_OMEGA * POS_OMEGA * POS_OMEGA
 LQR_MAX_SPIN_RADPS = 150.0   # gain schedule range (see RecoveryLaw._lqr)
 LQR_Q = (100.0, 100.0, 0.01, 0.01)
-LQR_R = (25000.0, 250.0)
+LQR_R = (2500.0, 25.0)
+SPIN_SWING_HZ = 10.0         # the rate τ_q must swing at: the ~60 rad/s spin of a dead rotor
+
+
+def lqr_r(motor_time_constant_s: float) -> tuple[float, float]:
+    """The input weights for rotors of time constant τ_m (s): LQR_R × (1 + (2π f τ_m)²).
+
+    τ_q is fixed in the body, which spins at ~60 rad/s, so the rotors must swing it at
+    f ≈ 10 Hz; a first-order lag cuts that swing by √(1 + (2π f τ_m)²) (3.3× at 50 ms). The
+    weight grows by the square, so the law asks for no more swing than a lagging rotor
+    makes: with the weight of ideal rotors it asks for what a 30 ms rotor cannot do and the
+    vehicle falls; with this one it flies 0-50 ms."""
+    tau = motor_time_constant_s if motor_time_constant_s > 0.0 else 0.0
+    scale = 1.0 + (2.0 * math.pi * SPIN_SWING_HZ * tau) ** 2
+    return LQR_R[0] * scale, LQR_R[1] * scale
 
 
 Sigma2 = Callable[[tuple[float]], Sequence[float]]
@@ -103,29 +116,31 @@ def _spin_model(rr: float, ix: float, iy: float, iz: float,
     return a, b
 
 
-def gain_schedule(inertia_kgm2: Sequence[float], k_r: float, dt_s: float
-                  ) -> dict[GainKey, Gains]:
+def gain_schedule(inertia_kgm2: Sequence[float], k_r: float, dt_s: float,
+                  motor_time_constant_s: float = 0.0) -> dict[GainKey, Gains]:
     """Every gain :meth:`RecoveryLaw._lqr` can ask for (|r| ≤ LQR_MAX_SPIN_RADPS, either
     canonical inertia order), designed at once by :func:`lqr.dlqr_zoh_many` — the same
     gains bit for bit as one at a time, ~0.1 ms apiece instead of ~1 ms, so a flight never
     designs one mid-air (an overrun at 1 kHz). Cached by model within a process (the daemon
     builds a warm-up flight computer and then the real one; a sweep builds thousands)."""
     ix, iy, iz = (float(x) for x in inertia_kgm2)
-    cache_key = (ix, iy, iz, float(k_r), float(dt_s))
+    r_w = lqr_r(motor_time_constant_s)
+    cache_key = (ix, iy, iz, float(k_r), float(dt_s), *r_w)
     sched = _SCHEDULES.get(cache_key)
     if sched is not None:
         return sched
     top = round(LQR_MAX_SPIN_RADPS * 2.0)
     sched = {}
     for ixc, iyc in dict.fromkeys(((ix, iy), (iy, ix))):
-        sched.update(_design_steps(ixc, iyc, iz, float(k_r), float(dt_s), -top, top + 1))
+        sched.update(_design_steps(ixc, iyc, iz, float(k_r), float(dt_s), -top, top + 1,
+                                   r_w))
     _SCHEDULES[cache_key] = sched
     _PARTIAL[cache_key] = dict(sched)
     return sched
 
 
 def _design_steps(ixc: float, iyc: float, iz: float, k_r: float, dt_s: float, lo: int,
-                  hi: int) -> dict[GainKey, Gains]:
+                  hi: int, r_weights: tuple[float, float] = LQR_R) -> dict[GainKey, Gains]:
     """The gains of spin-rate steps lo … hi−1 (0.5 rad/s each) in one inertia order, by
     stacked calls (:func:`lqr.dlqr_zoh_many`: item by item the same operations, so the same
     gains bit for bit whatever else is in the stack); a step whose design fails is left out
@@ -139,7 +154,7 @@ def _design_steps(ixc: float, iyc: float, iz: float, k_r: float, dt_s: float, lo
     a[:, 2, 2], a[:, 2, 3] = -k_r / ixc, -(iz - iyc) * rr / ixc
     a[:, 3, 2], a[:, 3, 3] = -(ixc - iz) * rr / iyc, -k_r / iyc
     b = np.repeat(_spin_model(0.0, ixc, iyc, iz, k_r)[1][None], len(steps), 0)
-    gains = dlqr_zoh_many(a, b, np.diag(LQR_Q), np.diag(LQR_R), dt_s)
+    gains = dlqr_zoh_many(a, b, np.diag(LQR_Q), np.diag(r_weights), dt_s)
     order = ixc > iyc
     return {(k, order): (tuple(g[0].tolist()), tuple(g[1].tolist()))
             for k, g in zip(steps.tolist(), gains, strict=True) if g is not None}
@@ -253,7 +268,8 @@ class RecoveryLaw:
                  drag_thrust_ratio_m: float, k_t: float, k_r: float, thrust_max_n: float,
                  gravity_mps2: float, dt_s: float, path: Path | None,
                  speed_mps: float, *, kernels: PathKernels | None = None,
-                 compiled_path: bool = True, design_gains: bool = True) -> None:
+                 compiled_path: bool = True, design_gains: bool = True,
+                 motor_time_constant_s: float = 0.0) -> None:
         self.mass_kg = mass_kg
         self.inertia = tuple(inertia_kgm2)
         self.arm_m = arm_m
@@ -273,9 +289,10 @@ class RecoveryLaw:
         # it is first met (offline: a flight meets a few blocks, ~3 ms each, not the 38 of
         # the schedule); the same gains either way, shared by every law of this model.
         ix, iy, iz = (float(x) for x in inertia_kgm2)
-        self._model_key = (ix, iy, iz, float(k_r), float(dt_s))
+        self._r_weights = lqr_r(motor_time_constant_s)
+        self._model_key = (ix, iy, iz, float(k_r), float(dt_s), *self._r_weights)
         self._gains: dict[GainKey, Gains] = (
-            dict(gain_schedule(inertia_kgm2, k_r, dt_s)) if design_gains
+            dict(gain_schedule(inertia_kgm2, k_r, dt_s, motor_time_constant_s)) if design_gains
             else _PARTIAL.setdefault(self._model_key, {}))
         self._frames: dict[int, RotorFrame] = {}
         self._inverse_perm: dict[int, tuple[int, int, int, int]] = {}
@@ -283,6 +300,7 @@ class RecoveryLaw:
         # between take-overs of one flight: the steady force it has learnt (the model's mass
         # error) is the same force the next time.
         self.integral_ms = [0.0, 0.0, 0.0]
+        self._pending_error_m: tuple[float, float, float] | None = None  # this tick's e
 
     # ------------------------------------------------------------------ targets
     def hold(self, position_m: Sequence[float]) -> None:
@@ -331,14 +349,25 @@ class RecoveryLaw:
             a0 *= amax / ah
             a1 *= amax / ah
             limited = True
-        if not limited and all(math.isfinite(c) for c in e):
-            # Anti-windup: integrate only while the demand is flown as asked, and never
-            # past MAX_INTEGRAL_G (so a wrong integral costs at most that much acceleration).
-            top = MAX_INTEGRAL_G * self.g / _KI
-            dt = self.dt
-            for i in range(3):
-                integ[i] = min(max(integ[i] + e[i] * dt, -top), top)
+        self._pending_error_m = None if limited else e
         return a0, a1, az, dist
+
+    def _integrate(self) -> None:
+        """Anti-windup: the position error enters the integral only on a tick whose demand
+        was flown as asked — neither limited by the tilt/vertical caps nor clipped by the
+        allocation (a rotor at a bound: the wanted thrust or τ_q was not made) — and never
+        past MAX_INTEGRAL_G, so a wrong integral costs at most that much acceleration. An
+        attack near m g/2 leaves the side rotors almost nothing (f₁ + f₃ = u_f − 2A): an
+        integral fed through that saturation winds up into a limit cycle metres wide."""
+        e = self._pending_error_m
+        self._pending_error_m = None
+        if e is None or not all(math.isfinite(c) for c in e):
+            return
+        integ = self.integral_ms
+        top = MAX_INTEGRAL_G * self.g / _KI
+        dt = self.dt
+        for i in range(3):
+            integ[i] = min(max(integ[i] + e[i] * dt, -top), top)
 
     # ------------------------------------------------------------------ gains
     def _lqr(self, r: float, ix: float, iy: float) -> Gains:
@@ -354,13 +383,14 @@ class RecoveryLaw:
         top = round(LQR_MAX_SPIN_RADPS * 2.0)
         lo = key[0] // GAIN_BLOCK * GAIN_BLOCK
         self._gains.update(_design_steps(ix, iy, self.inertia[2], self.k_r, self.dt,
-                                         max(lo, -top), min(lo + GAIN_BLOCK, top + 1)))
+                                         max(lo, -top), min(lo + GAIN_BLOCK, top + 1),
+                                         self._r_weights))
         k = self._gains.get(key)
         if k is not None:
             return k
         a, b = _spin_model(key[0] / 2.0, ix, iy, self.inertia[2], self.k_r)
         ad, bd = zoh(a, b, self.dt)
-        k = dlqr(ad, bd, np.diag(LQR_Q), np.diag(LQR_R))
+        k = dlqr(ad, bd, np.diag(LQR_Q), np.diag(self._r_weights))
         gains = self._gains[key] = (tuple(k[0].tolist()), tuple(k[1].tolist()))
         return gains
 
@@ -403,6 +433,8 @@ class RecoveryLaw:
             req = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m)
             f = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m, fmax)
             clamped = tuple(not -1e-9 <= x <= fmax + 1e-9 for x in req)
+            if not any(clamped):
+                self._integrate()
             return RecoveryOutput(f, f, tilt_err, dist, uf, clamped)  # type: ignore[arg-type]
         fr = self._frames.get(attacked_rotor)
         if fr is None:
@@ -427,8 +459,8 @@ class RecoveryLaw:
         half = 0.5 * tau_q / ell
         f4c = 0.0 if f4 < 0.0 else f4
         f4c = fmax if fmax < f4c else f4c
-        s13c = uf - an - f4c
-        s13c = 0.0 if s13c < 0.0 else s13c
+        s13_free = uf - an - f4c
+        s13c = 0.0 if s13_free < 0.0 else s13_free
         s13c = 2.0 * fmax if 2.0 * fmax < s13c else s13c
         mid = 0.5 * s13c
         bound = mid if mid <= 0.5 * fmax else fmax - mid   # max(−b, min(b, half))
@@ -440,4 +472,8 @@ class RecoveryLaw:
         j0, j1, j2, j3 = self._inverse_perm[attacked_rotor]
         f = [canon[j0], canon[j1], canon[j2], canon[j3]]
         clamped = tuple(not -1e-9 <= canon_req[j] <= hi for j in (j0, j1, j2, j3))
+        # The opposite rotor's τ_p is given up by design (f₄ pinned at 0 with A = 0 is the
+        # normal case); the side rotors carry u_f and τ_q, what the outer loop asked for.
+        if s13c == s13_free and halfc == half:
+            self._integrate()
         return RecoveryOutput(f, list(f), tilt_err, dist, uf, clamped)  # type: ignore[arg-type]
