@@ -81,6 +81,7 @@ from tfl_mav.daemon_io import (
     _new,
     applied_thrusts,
     command_message,
+    motors_off,
     telemetry_messages,
     tick_state,
     waiting_text,
@@ -174,6 +175,7 @@ class Daemon(Intake):
         self._statustext_id = 0
         self._hil_flags = 0 if realtime else LOCKSTEP_FLAG
         self._gap_usec = _GAP_FACTOR * (scenario.run.control_dt_s * 1e6)
+        self._motors_off = False      # the vehicle's last word: no command drives the motors
         self._init_intake()
 
     def _new_computer(self) -> FlightComputer:
@@ -314,6 +316,10 @@ class Daemon(Intake):
                                           self.thrust_max_n, stats)
             else:
                 stats.applied_from_history += 1
+            if motors_off(applied_msg) is not self._motors_off:
+                self._motors_switched(not self._motors_off, t_usec)
+        if self._motors_off:
+            stats.motors_off_ticks += 1
         self._last_usec = t_usec
         # the tick
         t = t_usec * 1e-6
@@ -368,6 +374,23 @@ class Daemon(Intake):
             self._telemetry(t_usec, res)
         return True
 
+    def _motors_switched(self, off: bool, t_usec: int) -> None:
+        """The vehicle's motors stopped being driven (a GCS disarm, a cut) or are driven
+        again: the detector is told, so that stopped rotors raise no alarm and the verdict
+        it had stands (:meth:`AttackDetector.set_motors_off`)."""
+        self._motors_off = off
+        det = self.computer.detector
+        if det is not None:
+            det.set_motors_off(off)
+        t = t_usec * 1e-6
+        if off:
+            self.stats.motors_off_periods += 1
+            self._event("warning", f"motors not driven at t={t:.3f} s (vehicle disarmed or "
+                                   "cut): attack detection paused, verdict kept")
+        else:
+            self._event("info", f"motors driven again at t={t:.3f} s: attack detection "
+                                "resumed")
+
     def _law_failed(self, t_usec: int, exc: BaseException) -> None:
         """A state the laws cannot digest (e.g. a fuzzed one with huge values): the last
         command again (what the vehicle holds anyway; a lockstep vehicle waits for an
@@ -388,6 +411,8 @@ class Daemon(Intake):
         self.stats.skipped_states += len(self._complete)
         self._complete = []
         self.computer = self._new_computer()
+        if self._motors_off and self.computer.detector is not None:
+            self.computer.detector.set_motors_off(True)    # still so, on the new time line
         self._history.clear()
         self._history_keys.clear()
         self._last_usec = -1

@@ -30,8 +30,8 @@ from tfl_mav.link.dialect import mav
 from tfl_mav.modes import Mode
 
 __all__ = ["LOCKSTEP_FLAG", "TICK_FIELDS", "TICK_SCHEMA", "DaemonResult", "DaemonStats",
-           "applied_thrusts", "command_message", "telemetry_messages", "tick_state",
-           "waiting_text"]
+           "applied_thrusts", "command_message", "motors_off", "telemetry_messages",
+           "tick_state", "waiting_text"]
 
 LOCKSTEP_FLAG = 1                 # HIL_ACTUATOR_CONTROLS.flags bit 0
 _new = tuple.__new__
@@ -67,6 +67,8 @@ class DaemonStats:
     applied_unknown: int = 0     # no ACTUATOR_OUTPUT_STATUS: last command sent assumed
     rebuilds: int = 0            # vehicle time went backwards: flight computer rebuilt
     law_errors: int = 0          # a tick the laws raised on: no command sent that tick
+    motors_off_ticks: int = 0    # ticks the vehicle said no command drove its motors
+    motors_off_periods: int = 0  # times that began (a GCS disarm, a cut, ...)
     link: dict[str, int] = field(default_factory=dict)
 
 
@@ -191,6 +193,15 @@ def applied_thrusts(msg: Any, history: dict[int, list[float]], hover: list[float
         return ref
     stats.applied_from_wire += 1
     return wire
+
+
+_ACTIVE_ROTORS = 0b1111
+
+
+def motors_off(msg: Any) -> bool:
+    """ACTUATOR_OUTPUT_STATUS ``msg`` says no command drives the four motors (``active``
+    clear: disarmed by a GCS or the controller, or cut; docs/design.md, "The wire")."""
+    return not msg.active & _ACTIVE_ROTORS
 
 
 def waiting_text(waited_s: float, link: Any, signed: bool) -> str:
