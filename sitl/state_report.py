@@ -146,10 +146,10 @@ class StateReport:
         self.latest = (odometry, applied, esc)
         return self.latest
 
-    def update(self, applied_usec: int = 0) -> tuple[Any, Any, Any]:
+    def update(self, applied_usec: int = 0, driven: bool = True) -> tuple[Any, Any, Any]:
         """:meth:`build`, answered as pymavlink's message objects (mutable, e.g. for a
         test that restamps ``time_usec``); :attr:`latest` keeps the Prepacked messages."""
-        return tuple(_pymavlink(msg) for msg in self.build(applied_usec))  # type: ignore
+        return tuple(_pymavlink(msg) for msg in self.build(applied_usec, driven))  # type: ignore
 
 
 def _pymavlink(msg: Prepacked) -> Any:

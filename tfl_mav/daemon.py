@@ -176,6 +176,8 @@ class Daemon(Intake):
         self._hil_flags = 0 if realtime else LOCKSTEP_FLAG
         self._gap_usec = _GAP_FACTOR * (scenario.run.control_dt_s * 1e6)
         self._motors_off = False      # the vehicle's last word: no command drives the motors
+        self._next_motors_report_s = 0.0
+        self._motors_said = False     # the current pause was said
         self._init_intake()
 
     def _new_computer(self) -> FlightComputer:
@@ -385,11 +387,17 @@ class Daemon(Intake):
         t = t_usec * 1e-6
         if off:
             self.stats.motors_off_periods += 1
+        # A pause is said with its end; at most one pause a second of sim time is said (a
+        # vehicle flipping the bit every tick must not flood the link); all are counted.
+        if off and t >= self._next_motors_report_s:
+            self._motors_said = True
             self._event("warning", f"motors not driven at t={t:.3f} s (vehicle disarmed or "
                                    "cut): attack detection paused, verdict kept")
-        else:
+        elif not off and self._motors_said:
+            self._motors_said = False
+            self._next_motors_report_s = t + 1.0
             self._event("info", f"motors driven again at t={t:.3f} s: attack detection "
-                                "resumed")
+                                f"resumed ({self.stats.motors_off_periods} pauses so far)")
 
     def _law_failed(self, t_usec: int, exc: BaseException) -> None:
         """A state the laws cannot digest (e.g. a fuzzed one with huge values): the last
