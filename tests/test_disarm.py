@@ -18,6 +18,7 @@ from pathlib import Path
 import pytest
 
 os.environ.setdefault("MAVLINK20", "1")   # our links speak MAVLink 2 only
+from foxglove_schemas_protobuf.Log_pb2 import Log
 from mcap.reader import make_reader
 from pymavlink import mavutil
 
@@ -90,6 +91,9 @@ def test_disarm_from_a_gcs_raises_no_alarm_and_keeps_the_detection(tmp_path):
     assert rotor == 2 and t_alarm < 0.1
     assert "attack detection paused" in text and "attack detection resumed" in text
     assert "attack over" not in text
+    # the vehicle's STATUSTEXT, sent in chunks, printed whole on one line
+    assert re.search(r"vehicle: disarmed by the GCS at t = [\d.]+ s: motors off until a GCS "
+                     r"arms again$", text, re.M), text
     summary = json.loads(fly_json.read_text())
     assert summary["detected_rotor"] == 2
     assert summary["detection_time_s"] == pytest.approx(t_alarm, abs=1e-9)
@@ -109,6 +113,11 @@ def test_disarm_from_a_gcs_raises_no_alarm_and_keeps_the_detection(tmp_path):
     assert len(stopped) >= 50
     assert all(r == [0, 0, 0, 0] for r in stopped), stopped[:5]
 
-    # The controller's side: the verdict never moved.
+    # The controller's side: the verdict never moved; its /log has the text whole.
     states = _messages(ctl_mcap, "/controller/state")
     assert states and all(m["detected_rotor"] == 2 for t, m in states if t >= t_alarm)
+    with open(ctl_mcap, "rb") as f:
+        logs = [Log.FromString(m.data).message
+                for _s, _c, m in make_reader(f).iter_messages(topics=["/log"])]
+    assert any(re.search(r"disarmed by the GCS at t = [\d.]+ s: motors off until a GCS arms "
+                         r"again$", entry) for entry in logs), logs

@@ -90,6 +90,7 @@ from tfl_mav.flight_computer import FlightComputer, TickResult
 from tfl_mav.geometry import euler_to_quaternion
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.signing import Signing
+from tfl_mav.link.statustext import split as split_statustext
 from tfl_mav.link.transport import Address, FrameHook, Link
 from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario
@@ -455,5 +456,6 @@ class Daemon(Intake):
         severity = {"info": mav.MAV_SEVERITY_INFO, "warning": mav.MAV_SEVERITY_WARNING,
                     "critical": mav.MAV_SEVERITY_CRITICAL}.get(level, mav.MAV_SEVERITY_INFO)
         self._statustext_id = (self._statustext_id % 0xFFFF) + 1
-        self.link.send(mav.MAVLink_statustext_message(severity, text[:50].encode(),
-                                                      self._statustext_id, 0))
+        for seq, chunk in enumerate(split_statustext(text)):   # whole, in MAVLink 2 chunks
+            self.link.send(mav.MAVLink_statustext_message(severity, chunk,
+                                                          self._statustext_id, seq))

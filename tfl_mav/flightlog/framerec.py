@@ -35,6 +35,7 @@ from tfl_mav.flightlog.mcapfast import MESSAGE_FIXED, MESSAGE_HEADER, MESSAGE_OP
 from tfl_mav.flightlog.mcapout import MAX_NS, McapOutput
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.payload import PayloadDecoder
+from tfl_mav.link.statustext import Reassembler
 
 __all__ = ["FrameRecorder"]
 
@@ -66,6 +67,7 @@ class FrameRecorder(McapOutput):
         self._decoder = PayloadDecoder()
         self._mav = MavJson()
         self._mav_channels: dict[tuple[int, int, int], _MavChannel] = {}
+        self._texts = Reassembler()      # STATUSTEXT chunks → whole /log entries
         self._frame_fast: dict[tuple[str, bytes], _Fast] = {}
         # the same channels for the C hot path (frames_c): frame key → what it needs
         self._frame_fast_c: dict[int, tuple[bytes, bytes, bool, int, int, int, int]] = {}
@@ -300,11 +302,14 @@ class FrameRecorder(McapOutput):
             return
         data, chan.nonfinite = self._json.dumps_sticky(fields, chan.nonfinite)
         self._write(chan.channel_id, data, log_ns, pub_ns)
-        if chan.statustext:
-            self._write(self._fg_channel("/log", "foxglove.Log"),
-                        fg.log_entry(log_ns, fg.mav_severity_to_level(fields["severity"]),
-                                     self._with_time(fields["text"]),
-                                     f"mavlink/{sysid}/{compid} {direction}"), log_ns, pub_ns)
+        if chan.statustext:     # /log gets the whole text once its last chunk is here
+            for text in self._texts.add((sysid, compid, direction), fields["text"],
+                                        fields.get("id", 0), fields.get("chunk_seq", 0)):
+                self._write(self._fg_channel("/log", "foxglove.Log"),
+                            fg.log_entry(log_ns, fg.mav_severity_to_level(fields["severity"]),
+                                         self._with_time(text),
+                                         f"mavlink/{sysid}/{compid} {direction}"),
+                            log_ns, pub_ns)
 
     def _with_time(self, text: str) -> str:
         return f"[t={self._sim_ns * 1e-9:.3f}s] {text}" if self._sim_known else text
