@@ -319,3 +319,40 @@ def test_motors_not_driven_pause_the_detector_and_are_said_once_a_second():
         thread.join(5.0)
         daemon.close()
         vehicle.link.close()
+
+
+def test_degraded_real_time_is_said_when_it_starts_and_ends_not_every_gap():
+    """Gaps (states skipped) for 0.2 s, then 1.1 s on time: one warning at the first gap,
+    one line when it recovered (with the episode's counts), and the counts in the stats."""
+    sc = load_scenario("nominal")
+    vehicle = ScriptedVehicle(sc)
+    events: list[str] = []
+    daemon = Daemon(sc, vehicle=vehicle.link.local_address, realtime=True,
+                    state_timeout_s=30.0, on_event=lambda _lvl, text, _t: events.append(text))
+    thread = threading.Thread(target=daemon.run, kwargs={"duration_s": 1e9}, daemon=True)
+    thread.start()
+    try:
+        vehicle.await_controller()
+        t = 0
+        vehicle.send(t)
+        assert vehicle.collect(1) == [0]
+        for _ in range(50):                     # 4 ms steps, two states a batch: 50 gaps
+            t += 4000
+            vehicle.send(t - 2000, t)
+            assert vehicle.collect(1) == [t]
+        for _ in range(1100):                   # on time again, 1 ms a state
+            t += 1000
+            vehicle.send(t)
+            assert vehicle.collect(1) == [t]
+        st = daemon.stats
+        assert (st.gap_ticks, st.skipped_states, st.degraded_episodes) == (50, 50, 1)
+        said = [e for e in events if "degraded" in e or "recovered" in e]
+        assert len(said) == 2, said
+        assert said[0].startswith("degraded real time at t=0.004 s")
+        assert "real time recovered" in said[1] and "50 gaps integrated, 50 states skipped" \
+            in said[1], said
+    finally:
+        daemon.stop()
+        thread.join(5.0)
+        daemon.close()
+        vehicle.link.close()

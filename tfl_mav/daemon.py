@@ -27,7 +27,9 @@ repeated states get the same command again, old and
 implausible ones are counted (``repeated_states``, ``old_states``, ``implausible_states``).
 Each loop drains the socket and runs the law once, on the newest fresh state; the other
 fresh states of the batch are skipped (``skipped_states``). When states were skipped the law
-integrates over the real gap (``gap_ticks``); a rate-limited STATUSTEXT says so. After a
+integrates over the real gap (``gap_ticks``); a STATUSTEXT says when such an episode starts
+and one when it is over (a second of sim time without a gap: ``degraded_episodes``), not
+every gap, and ``tfl-mav fly``'s summary line gives the totals. After a
 restart (a restarted simulator, a vehicle that went on while we were away) the recovery law
 takes over when the state is not benign.
 
@@ -106,7 +108,7 @@ _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
 _WAITING_REPORT_PERIOD_S = 2.0
 _HISTORY = 512                    # commands remembered by time_usec (0.5 s at 1 kHz)
 _GAP_FACTOR = 1.5                 # a gap over 1.5 control periods is integrated as such
-_DEGRADE_REPORT_S = 1.0           # at most one "degraded" STATUSTEXT per second of sim time
+_DEGRADE_REPORT_S = 1.0           # sim seconds without a gap that end a degraded episode
 _FALLBACK = Mode.FALLBACK
 _isfinite = math.isfinite
 
@@ -164,7 +166,9 @@ class Daemon(Intake):
         self._history_keys: deque[int] = deque()
         self._last_usec = -1          # time_usec of the last state controlled
         self._arrivals = Arrivals(realtime)   # the watermark and the restart rule
-        self._next_degrade_report_s = 0.0
+        self._episode_start_s: float | None = None   # sim time a degraded episode began
+        self._episode_base = (0, 0)                   # gap_ticks, skipped_states before it
+        self._last_gap_s = 0.0
         self._hover = [scenario.vehicle.mass_kg * scenario.vehicle.gravity_mps2 / 4.0] * 4
         self._last_cmd = list(self._hover)
         self._mode = Mode.NOMINAL
@@ -303,7 +307,7 @@ class Daemon(Intake):
         if last_usec >= 0 and t_usec - last_usec > self._gap_usec:
             dt_s = (t_usec - last_usec) * 1e-6
             stats.gap_ticks += 1
-            self._report_degraded(t_usec * 1e-6)
+            self._report_degraded(t_usec * 1e-6, len(batch) - 1)
         # the applied command: our own copy of the command it names, else the wire's
         # (applied_thrusts decides every other case)
         history = self._history
@@ -375,6 +379,8 @@ class Daemon(Intake):
         if t >= self._next_telemetry_s:
             self._next_telemetry_s = t + _TELEMETRY_PERIOD_S
             self._telemetry(t_usec, res)
+            if self._episode_start_s is not None and t - self._last_gap_s >= _DEGRADE_REPORT_S:
+                self._degraded_over(t)
         return True
 
     def _motors_switched(self, off: bool, t_usec: int) -> None:
@@ -428,15 +434,32 @@ class Daemon(Intake):
         self._arrivals.reset()
         self._last_cmd = list(self._hover)
         self._next_telemetry_s = 0.0
-        self._next_degrade_report_s = 0.0
+        self._episode_start_s = None      # a new time line: the old episode's clock is gone
 
-    def _report_degraded(self, t: float) -> None:
-        if t < self._next_degrade_report_s:
+    def _report_degraded(self, t: float, skipped_now: int) -> None:
+        """A gap was integrated at sim time ``t``. Said when it starts an episode (the first
+        gap, or the first after _DEGRADE_REPORT_S of sim time without one), not for every
+        gap of a machine that keeps falling behind; :meth:`_degraded_over` says its end."""
+        self._last_gap_s = t
+        if self._episode_start_s is not None:
             return
-        self._next_degrade_report_s = t + _DEGRADE_REPORT_S
         st = self.stats
-        self._event("warning", f"degraded: {st.skipped_states} states skipped, "
-                               f"{st.gap_ticks} gaps integrated")
+        self._episode_start_s = t
+        self._episode_base = (st.gap_ticks - 1, st.skipped_states - skipped_now)
+        st.degraded_episodes += 1
+        self._event("warning", f"degraded real time at t={t:.3f} s: the loop fell behind "
+                               "(states skipped, the law integrates the gap); said again "
+                               "when it recovers")
+
+    def _degraded_over(self, t: float) -> None:
+        """No gap for _DEGRADE_REPORT_S of sim time since the last: the episode is over."""
+        st = self.stats
+        gaps0, skipped0 = self._episode_base
+        start = self._episode_start_s
+        self._episode_start_s = None
+        self._event("info", f"real time recovered at t={t:.3f} s: {st.gap_ticks - gaps0} "
+                            f"gaps integrated, {st.skipped_states - skipped0} states skipped "
+                            f"over {self._last_gap_s - (start or 0.0):.1f} s")
 
     def _send_command(self, time_usec: int, thrust: Sequence[float]) -> None:
         """HIL_ACTUATOR_CONTROLS: controls[0..3] = thrust / f_max, 12 zeros, armed."""

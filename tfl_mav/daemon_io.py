@@ -62,6 +62,7 @@ class DaemonStats:
     repeated_states: int = 0     # the last state again (lockstep resend): same command resent
     implausible_states: int = 0  # time too far ahead/behind the watermark: not controlled
     gap_ticks: int = 0           # ticks whose law integrated over more than one period
+    degraded_episodes: int = 0   # runs of gaps, each ended by 1 s of sim time without one
     applied_from_history: int = 0  # applied command = our own copy (ACTUATOR_OUTPUT_STATUS)
     applied_from_wire: int = 0   # applied command = ACTUATOR_OUTPUT_STATUS.actuator × f_max
     applied_unknown: int = 0     # no ACTUATOR_OUTPUT_STATUS: last command sent assumed
