@@ -234,7 +234,8 @@ def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None,
     rec = RecorderProcess(mcap, rotor_xy_m=rotors,
                           thrust_max_n=scenario.vehicle.thrust_max_n,
                           controller_fields=TICK_FIELDS, controller_schema=TICK_SCHEMA,
-                          live=live, clock=clock, realtime=realtime)
+                          live=live, clock=clock, realtime=realtime,
+                          timeline="wall" if realtime else "sim")
     rec.metadata("scenario", {"name": scenario.name, "role": "controller",
                               "toml": json.dumps(scenario.to_dict())})
     rec.path(path)

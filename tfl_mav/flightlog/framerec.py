@@ -110,7 +110,9 @@ class FrameRecorder(McapOutput):
         w = self._writer
         i, n = 0, len(items)
         while i < n:
-            state = [self._sim_ns, self._sim_known, 0, 0, n]
+            epoch = self._epoch_ns
+            state = [self._sim_ns, self._sim_known, 0, 0, n,
+                     -1 if epoch is None else epoch, 1 if self._timeline_sim else 0]
             failed: Exception | None = None
             with self._lock:
                 if not self._open:
@@ -122,6 +124,8 @@ class FrameRecorder(McapOutput):
                     failed = exc
                 finally:
                     self._sim_ns, self._sim_known = state[0], state[1]
+                    if state[5] >= 0:
+                        self._epoch_ns = state[5]
                     st = self.stats
                     st.frames_rx += state[2]
                     st.frames_tx += state[3]
@@ -188,6 +192,8 @@ class FrameRecorder(McapOutput):
                     if chan.sim_time and t[plan.time_index] * 1000 <= MAX_NS:
                         self._sim_ns = t[plan.time_index] * 1000
                         self._sim_known = True
+                    if self._timeline_sim:
+                        log_ns = self._on_timeline(log_ns)
                     if chan.nonfinite:
                         chan.nonfinite = False
                     raw_json = b'%s%d,"len":%d,"data":"%s"}' % (
@@ -249,6 +255,7 @@ class FrameRecorder(McapOutput):
             return
         data = base64.b64encode(raw).decode("ascii")
         if msg is None:
+            log_ns = self._on_timeline(log_ns)
             if direction == "rx":
                 st.frames_rejected += 1
             accepted = "false" if direction == "rx" else "true"
@@ -278,6 +285,7 @@ class FrameRecorder(McapOutput):
                     self._sim_ns = usec * 1000
                     self._sim_known = True
         pub_ns = self._sim_ns
+        log_ns = self._on_timeline(log_ns)
         name = chan.name if chan is not None else f"#{msgid}"
         head = (f'{{"direction":"{direction}","accepted":true,"name":"{name}",'
                 f'"msgid":{msgid},"sysid":{sysid},"compid":{compid},"seq":')
