@@ -8,6 +8,7 @@ then rebuilds the flight from the logs and returns the summary dict.
 from __future__ import annotations
 
 import json
+import math
 import re
 import signal
 import subprocess
@@ -133,9 +134,14 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
         sim_out, sim_err = sim.communicate(timeout=60)
     interrupted = bool(children.signals)
     wall = time.perf_counter() - t0
+    say = _Say(progress)
+    say.line(f"  flight: {duration:g} s of sim time in {wall:.1f} s wall")
     if not fly_json.exists() and not interrupted:
         raise RuntimeError(f"the controller did not finish (exit {fly_code}):\n{fly_err}")
     fly_summary = json.loads(fly_json.read_text()) if fly_json.exists() else {}
+    t1 = time.perf_counter()
+    size_mib = sum(f.stat().st_size for f in (run_mcap, ctl_mcap) if f.exists()) / 2**20
+    say.start(f"  report: reading run.mcap and ctl.mcap ({size_mib:.0f} MiB) ...")
     log = flight_log_from_mcap(run_mcap, scenario, ctl_mcap)
     log.crashed = sim.returncode == 1
     log.crash_reason = _crash_reason(sim_out + sim_err) if log.crashed else ""
@@ -150,12 +156,39 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
     m.update(_traffic_metrics(run_mcap, ctl_mcap, fly_summary))
     m["real_time_factor"] = round(m["sim_time_s"] / wall, 2) if wall else None
     m["out_dir"] = str(out)
+    phases = {"flight": round(wall, 3), "report": round(time.perf_counter() - t1, 3)}
+    say.end(f" {phases['report']:.1f} s")
     if plots:
+        t2 = time.perf_counter()
+        say.start("  plots: drawing the six PNGs ...")
         from tfl_mav.flightlog.plots import write_report
 
         m["plots"] = [str(p) for p in write_report(log, out, title=scenario.name)]
+        phases["plots"] = round(time.perf_counter() - t2, 3)
+        say.end(f" {phases['plots']:.1f} s")
+    m["phase_wall_s"] = phases         # what the user waited for, phase by phase
+    m["total_wall_s"] = round(time.perf_counter() - t0, 3)
     (out / "summary.json").write_text(json.dumps(m, indent=2))
     return m
+
+
+class _Say:
+    """The demo's phase lines on stderr as the user waits for them (nothing when quiet):
+    a phase is announced when it starts and timed when it ends."""
+
+    def __init__(self, on: bool) -> None:
+        self.on = on
+
+    def line(self, text: str) -> None:
+        if self.on:
+            print(text, file=sys.stderr, flush=True)
+
+    def start(self, text: str) -> None:
+        if self.on:
+            print(text, end="", file=sys.stderr, flush=True)
+
+    def end(self, text: str) -> None:
+        self.line(text)
 
 
 def _await_port(sim: subprocess.Popen[str]) -> int:
@@ -177,18 +210,33 @@ def _follow(fly: subprocess.Popen[str], duration: float, show: bool) -> str:
     """Render the controller's progress lines; return its other stderr text."""
     assert fly.stderr is not None
     other = []
+    tty = sys.stderr.isatty()    # a terminal: one bar redrawn; a file or pipe: a line each 5 s
+    drawn = False
     for line in fly.stderr:
         if match := _PROGRESS_RE.match(line):
-            if show:
-                t, total, dist = float(match.group(1)), float(match.group(2)), match.group(3)
+            t, total, dist = float(match.group(1)), float(match.group(2)), float(match.group(3))
+            if show and (tty or round(t) % 5 == 0):
                 n = int(30 * min(1.0, t / total)) if total else 30
-                print(f"\r  [{'#' * n}{'.' * (30 - n)}] {t:5.1f}/{total:.0f} s sim, "
-                      f"path distance {dist} m ", end="", file=sys.stderr, flush=True)
+                print(f"{chr(13) if tty else ''}  [{'#' * n}{'.' * (30 - n)}] {t:5.1f}/"
+                      f"{total:.0f} s sim, path distance {_length(dist)} ",
+                      end="" if tty else "\n", file=sys.stderr, flush=True)
+                drawn = tty
         else:
             other.append(line)
-    if show:
+    if drawn:
         print(file=sys.stderr)
     return "".join(other)
+
+
+def _length(x_m: float) -> str:
+    """A distance in the unit that shows it: mm below a metre, µm below a millimetre."""
+    if not math.isfinite(x_m):
+        return "-"
+    if abs(x_m) >= 1.0:
+        return f"{x_m:.2f} m"
+    if abs(x_m) >= 1e-3:
+        return f"{x_m * 1e3:.1f} mm"
+    return f"{x_m * 1e6:.1f} µm"
 
 
 def _crash_reason(text: str) -> str:

@@ -80,13 +80,22 @@ class HeldCommand:
     since_s: float = 0.0      # wall time (time.monotonic) it was applied
     motors_cut: bool = False  # real time: cut to zero thrust after command_timeout_s silence
     armed: bool = True        # False after a disarming command (zero thrust)
+    # A GCS disarm overrode the command to zero thrust: set at the disarm and whenever a
+    # command is applied while disarmed, cleared only by a command applied after the GCS
+    # armed again (until then the motors still hold the zero, whatever time_usec says).
+    killed: bool = False
+
+    @property
+    def driven(self) -> bool:
+        """The motors are driven by a command (or, before the first, by the initial hover);
+        False when cut, disarmed by the controller or killed by a GCS."""
+        return not (self.motors_cut or self.killed or not self.armed)
 
     @property
     def applied_usec(self) -> int:
         """What ACTUATOR_OUTPUT_STATUS.time_usec says the motors held: this command's
-        time_usec, or 0 when none drives them (none yet, cut, disarmed)."""
-        return 0 if self.time_usec < 0 or self.motors_cut or not self.armed \
-            else self.time_usec
+        time_usec, or 0 when none drives them (none yet, cut, disarmed, killed)."""
+        return 0 if self.time_usec < 0 or not self.driven else self.time_usec
 
 
 class Paced(Protocol):

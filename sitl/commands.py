@@ -122,6 +122,7 @@ class ActuatorControls:
                              "armed by the controller" if armed else
                              "disarmed by the controller (mode bit 128 clear): motors stopped")
         fmax = sim.thrust_max_n
+        held.killed = flight.killed
         if armed and not flight.killed:   # a GCS disarm (kill switch) outranks the controller
             sim.set_command_floats(c1 * fmax, c2 * fmax, c3 * fmax, c4 * fmax)
         else:

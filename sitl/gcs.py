@@ -13,7 +13,8 @@ in real time): ``ATTITUDE``,
 ``LOCAL_POSITION_NED`` (both NED/FRD from the same measured state as ODOMETRY),
 ``GLOBAL_POSITION_INT`` (the same position about the configurable :class:`Origin`, flat-earth
 approximation: metres-scale flights, error ≪ 1 mm per km),
-``ACTUATOR_OUTPUT_STATUS`` (``actuator[0..3]`` = commanded thrust / f_max), ``SYS_STATUS``
+``ACTUATOR_OUTPUT_STATUS`` (``actuator[0..3]`` = commanded thrust / f_max, ``active`` 0b1111, 0
+while no command drives the motors), ``SYS_STATUS``
 (battery from :mod:`sitl.power`; ``errors_count1..4`` = rejected controls, lockstep timeouts,
 command timeouts, stale controls; present/enabled/health bits only for what the simulator
 models: rate gyro, attitude (AHRS), external position (motion capture), motor outputs and
@@ -71,6 +72,7 @@ _LocalPosition = lite_class(mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED)
 _GlobalPosition = lite_class(mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT)
 _Applied = lite_class(mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS)
 _SysStatus = lite_class(mav.MAVLINK_MSG_ID_SYS_STATUS)
+_ACTIVE = 0b1111      # ACTUATOR_OUTPUT_STATUS.active: outputs 1-4 driven (0 when none is)
 _PAD28_UNSENT = (0.0,) * 28 + (UNSENT,)     # actuator[4..31], then the frame item
 _EXTENDED_UNSENT = (0, 0, 0, UNSENT)         # SYS_STATUS *_extended, then the frame item
 
@@ -291,8 +293,8 @@ class GcsTelemetry:
                 t_ms, round(lat * 1e7), round(lon * 1e7), round(alt * 1000.0),
                 round(-f.z * 1000.0), _cm(v_ned[0]), _cm(v_ned[1]), _cm(v_ned[2]),
                 heading_cdeg, UNSENT)),
-            _new(_Applied, (sim.time_usec, 4, c1 / fmax, c2 / fmax, c3 / fmax, c4 / fmax,
-                            *_PAD28_UNSENT)),
+            _new(_Applied, (sim.time_usec, _ACTIVE if self.held.driven else 0, c1 / fmax,
+                            c2 / fmax, c3 / fmax, c4 / fmax, *_PAD28_UNSENT)),
             _new(_SysStatus, (
                 _SENSORS, _SENSORS, sensors_health, 0,
                 min(65535, round(p.voltage_v * 1000.0)),

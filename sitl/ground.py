@@ -34,6 +34,7 @@ import dataclasses
 import math
 from typing import Any
 
+from sitl.clock import HeldCommand
 from sitl.gcs import (
     PX4_MAIN_MODE_NAMES,
     PX4_MAIN_OFFBOARD,
@@ -81,9 +82,10 @@ class GroundCommands:
 
     def __init__(self, scenario: Scenario, sim: Simulator, *, flight: FlightStatus,
                  stats: VehicleStats, status: StatusText, origin: Origin,
-                 sysid: int, compid: int) -> None:
+                 sysid: int, compid: int, held: HeldCommand) -> None:
         self.sim = sim
         self.flight = flight
+        self.held = held
         self.stats = stats
         self.status = status
         self.origin = origin
@@ -121,6 +123,7 @@ class GroundCommands:
         flight = self.flight
         if msg.param1 == 0.0:
             flight.killed = True
+            self.held.killed = True      # what the motors hold from now: zero
             self.sim.set_command([0.0, 0.0, 0.0, 0.0])
             self.stats.commands_accepted += 1
             self._ack(link, msg, mav.MAV_RESULT_ACCEPTED)

@@ -201,7 +201,13 @@ class Simulator:
             it = iter([0.0 + sc * zi for sc, zi in zip(scales, z, strict=True)])
             rpm = [w * RADPS_TO_RPM for w in w_rotor]
             if noisy[0]:
-                rpm = [r + next(it) for r in rpm]
+                # A rotor that does not turn reads 0, as an ESC does (it measures speed from
+                # commutation: no turning, nothing to add noise to); its draw is still taken,
+                # so the other sensors' noise is the same. Only ω = 0 exactly is stopped (a
+                # motor without lag whose command is 0: cut, disarmed): a lagged rotor spinning
+                # down keeps reading its speed plus noise.
+                rpm = [r + n if r > 0.0 else 0.0
+                       for r, n in zip(rpm, [next(it) for _ in range(4)], strict=True)]
             if not (min(rpm) >= 0.0 and max(rpm) <= 65535.0):   # clamp only if needed
                 rpm = [min(max(r, 0.0), 65535.0) for r in rpm]
             self._rpm = tuple(rpm)

@@ -13,9 +13,11 @@ wrapping at 2¹⁶). Every field is clamped to its wire type.
 ``ACTUATOR_OUTPUT_STATUS`` says which command the rpm answer to (issue #12): ``time_usec`` =
 the ``time_usec`` of the HIL_ACTUATOR_CONTROLS held over the period that just ended (0 =
 none: before the first command, motors cut, disarmed), ``actuator[0..3]`` = the thrust
-fractions actually driven (0 when cut), ``active`` = 0b1111 (PX4 streams the same message
-for its outputs). A late, lost or reordered command is then never mistaken for a rotor that
-disobeys.
+fractions actually driven (0 when cut), ``active`` = 0b1111 while a command (or the initial
+hover) drives the motors, 0 while none does: cut, disarmed by the controller or by a GCS
+(PX4 streams the same message for its outputs). A late, lost or reordered command is then
+never mistaken for a rotor that disobeys, and ``active`` = 0 tells the controller that no
+rotor obeys or disobeys anything (its detector pauses rather than judge stopped motors).
 
 The triple is built once per tick (:meth:`StateReport.build`) and kept, so a lockstep resend
 sends the same messages again and the GCS telemetry can forward the tick's ESC message.
@@ -92,10 +94,12 @@ class StateReport:
         """The last tick's ESC_TELEMETRY_1_TO_4, or None before the first tick."""
         return self.latest[-1] if self.latest is not None else None
 
-    def build(self, applied_usec: int = 0) -> tuple[Prepacked, Prepacked, Prepacked]:
+    def build(self, applied_usec: int = 0, driven: bool = True
+              ) -> tuple[Prepacked, Prepacked, Prepacked]:
         """Build (and keep as :attr:`latest`) the current tick's messages from the simulator
         and the power model; ``applied_usec``: time_usec of the command held over the period
-        just ended (0: none). Immutable, and already packed: each is a
+        just ended (0: none); ``driven``: False while no command drives the motors (cut,
+        disarmed: ACTUATOR_OUTPUT_STATUS.active 0). Immutable, and already packed: each is a
         :class:`~tfl_mav.link.codec.Prepacked`, its payload packed here with one
         ``struct.pack`` of the values that change (the constant tails packed once), the
         link only frames it; its fields read as the LiteMessage's would."""
@@ -136,16 +140,16 @@ class StateReport:
         esc = _new(_Esc, (_trim(_esc_pack(*values)), values, ()))
         fmax = sim.thrust_max_n
         f1, f2, f3, f4 = sim.rotor_commands_n
-        head = (applied_usec, _ACTIVE, f1 / fmax, f2 / fmax, f3 / fmax, f4 / fmax)
+        head = (applied_usec, _ACTIVE if driven else 0, f1 / fmax, f2 / fmax, f3 / fmax, f4 / fmax)
         # actuator[4..31] are zeros: the trimmed payload is the trimmed head's
         applied = _new(_Applied, (_trim(_applied_head(*head)), head, _PAD28))
         self.latest = (odometry, applied, esc)
         return self.latest
 
-    def update(self, applied_usec: int = 0) -> tuple[Any, Any, Any]:
+    def update(self, applied_usec: int = 0, driven: bool = True) -> tuple[Any, Any, Any]:
         """:meth:`build`, answered as pymavlink's message objects (mutable, e.g. for a
         test that restamps ``time_usec``); :attr:`latest` keeps the Prepacked messages."""
-        return tuple(_pymavlink(msg) for msg in self.build(applied_usec))  # type: ignore
+        return tuple(_pymavlink(msg) for msg in self.build(applied_usec, driven))  # type: ignore
 
 
 def _pymavlink(msg: Prepacked) -> Any:

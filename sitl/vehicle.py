@@ -186,7 +186,7 @@ class Vehicle:
         self.origin = origin or Origin()
         self.ground = GroundCommands(scenario, self.sim, flight=self.flight, stats=self.stats,
                                      status=self.statustext, origin=self.origin, sysid=sysid,
-                                     compid=compid)
+                                     compid=compid, held=self.held)
         self.ground.register(self.commands)
         self.gcs = (GcsTelemetry(self.gcs_link, 1.0 / gcs_rate_hz, sim=self.sim,
                                  power=self.power, stats=self.stats, held=self.held,
@@ -386,7 +386,8 @@ class Vehicle:
     def publish_state(self) -> None:
         """ODOMETRY, ACTUATOR_OUTPUT_STATUS, ESC_TELEMETRY_1_TO_4 of the current tick to the
         controller (:mod:`sitl.state_report`)."""
-        latest = self.report.build(self.held.applied_usec)
+        held = self.held
+        latest = self.report.build(held.applied_usec, held.driven)
         if not self._confirmed:      # resend_state's body: one call less every tick
             self._release_silent_candidate()
         self.control_link.send_many(latest)

@@ -9,7 +9,9 @@ converged (the paper case needs ~10 s), which is not what these tests are about.
 from __future__ import annotations
 
 import csv
+import json
 import os
+import signal
 import subprocess
 import sys
 import time
@@ -247,3 +249,38 @@ def test_cli_help_lists_builtin_specs() -> None:
     out = subprocess.run([sys.executable, "-m", "tools.cli", "campaign", "--help"],
                          capture_output=True, text=True, check=True).stdout
     assert "paper-envelope" in out and "attacks" in out
+
+
+def test_unwritable_out_is_one_line_exit_3(tmp_path: Path,
+                                           capsys: pytest.CaptureFixture[str]) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("not a directory")
+    assert main(["campaign", str(_spec(tmp_path, SMALL)), "--out", str(blocker / "c")]) == 3
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--out" in err and "Errno" not in err, err
+
+
+@pytest.mark.slow   # a campaign subprocess flying one run at a time until it is stopped
+def test_an_interrupted_campaign_writes_the_report_of_what_finished(tmp_path: Path) -> None:
+    spec = _spec(tmp_path, SMALL.replace("seeds = 2", "seeds = 4"))     # 16 runs
+    out = tmp_path / "c"
+    proc = subprocess.Popen([sys.executable, "-m", "tools.cli", "campaign", str(spec),
+                             "--out", str(out), "--workers", "1", "--quiet"],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + 120
+        while len(read_results(out / "results.csv")[1]) < 2:
+            assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+            time.sleep(0.1)
+        proc.send_signal(signal.SIGTERM)
+        stdout, stderr = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, stderr
+    assert "INTERRUPTED" in stdout and "the same command resumes" in stdout
+    summary = json.loads((out / "summary.json").read_text())
+    rows = read_results(out / "results.csv")[1]
+    assert summary["interrupted"] is True and summary["runs"] == len(rows) >= 2
+    assert summary["not_flown"] == 16 - len(rows) > 0
+    assert f"{len(rows)} of 16 runs flown" in (out / "report.md").read_text()

@@ -247,6 +247,39 @@ def test_detection_is_released_once_the_rotor_obeys_again():
     assert released == 1 and out.detected_rotor == 0 and math.isnan(out.estimate_n)
 
 
+def test_motors_not_driven_judge_nothing_and_keep_the_verdict():
+    """A disarmed vehicle (all four commands 0, rotor 3 held off by the attacker, ESC noise):
+    told, the detector neither releases rotor 3 (it "obeys" the zero) nor raises anything
+    on the others whatever they read; armed again, a real deviation alarms as before."""
+    sc = scenario(rotor=3, signal="off", sigma=20.0, tau=0.02)
+    sim = Simulator(sc)
+    det = build_detector(sc)
+    applied = list(sim.rotor_commands_n)
+    for _ in range(400):                       # detected while flying
+        out = det.update(sim.time_s, sim.measured_rpm(), applied)
+        sim.step_control_period()
+    assert out.detected_rotor == 3 and not out.alarm
+    t_detect = out.detection_time_s
+    det.set_motors_off(True)
+    t = sim.time_s
+    for i in range(500):                       # disarmed: rpm says anything at all
+        t += 0.001
+        out = det.update(t, [0.0, 0.0, 0.0, 0.0] if i % 2 else [9000.0, 0.0, 50.0, 3.0],
+                         [0.0] * 4)
+        assert not out.alarm and not out.released
+        assert out.detected_rotor == 3 and out.detection_time_s == t_detect
+        assert out.cusum == (0.0, 0.0, 0.0, 0.0)
+    assert det.paused_ticks == 500
+    det.set_motors_off(False)
+    # driven again, rotor 1 commanded hover but stopped: the others were never released
+    alarms = []
+    for _ in range(50):
+        t += 0.001
+        out = det.update(t, [0.0, 0.0, 0.0, 0.0], [HOVER_N] * 4)
+        alarms += [out.detected_rotor] if out.alarm else []
+    assert alarms and alarms[0] in (1, 2, 4)
+
+
 def test_disabled_detector_never_declares():
     sc = scenario(rotor=1, signal="off").replace(**{"detector.enabled": False})
     for _sim, out in fly(sc, 400):

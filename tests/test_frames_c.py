@@ -96,8 +96,10 @@ def _datagrams(seed: int, n: int = 120, nonfinite: bool = True,
     return out
 
 
-def _record(path: Path, fn: Any, datagrams: Any, chunk_size_bytes: int = 4096) -> Recorder:
-    rec = Recorder(path, clock=lambda: 0.0, chunk_size_bytes=chunk_size_bytes)
+def _record(path: Path, fn: Any, datagrams: Any, chunk_size_bytes: int = 4096,
+            timeline: str = "wall") -> Recorder:
+    rec = Recorder(path, clock=lambda: 0.0, chunk_size_bytes=chunk_size_bytes,
+                   timeline=timeline)
     rec._frames_c = fn
     for t, direction, raws, ok in datagrams:
         rec.on_frames([(None, t, direction, raw, a) for raw, a in zip(raws, ok, strict=True)])
@@ -122,6 +124,20 @@ def test_c_path_writes_the_python_paths_bytes(tmp_path: Path, frames_fn: Any,
         topics = [ch.topic for _s, ch, _m in make_reader(fh).iter_messages()]
     assert rec.stats.frames_rejected > 0 and "/mavlink/1/1/ODOMETRY" in topics
     assert len(data) > 10_000
+
+
+def test_c_path_on_the_sim_timeline(tmp_path: Path, frames_fn: Any) -> None:
+    """timeline "sim": the C path stamps log_time as the Python one does (flight start +
+    sim time once a frame carried sim time), and every such log_time is that sum."""
+    _both(tmp_path, frames_fn, _datagrams(5), timeline="sim")
+    with open(tmp_path / "c.mcap", "rb") as fh:
+        reader = make_reader(fh)
+        msgs = [m for _s, _c, m in reader.iter_messages(log_time_order=False)]
+        facts = reader.get_summary().metadata_indexes
+    # (the frames' odd stamps near 2^63 ns are clamped there: left out here)
+    timed = [m for m in msgs if 0 < m.publish_time < 10**15]
+    assert timed and len({m.log_time - m.publish_time for m in timed}) == 1
+    assert any(md.name == "timeline" for md in facts)
 
 
 def test_c_path_signed_frames_and_no_nan(tmp_path: Path, frames_fn: Any) -> None:

@@ -320,3 +320,21 @@ def test_signed_frames_are_accepted_unchecked_on_an_unsigned_link(vehicle_side, 
     raw.send(bytes(heartbeat().pack(packer)), vehicle_side.local_address)
     assert [m.get_type() for m in drain(vehicle_side, 1)] == ["HEARTBEAT"]
     assert vehicle_side.stats.rejected == 0
+
+
+def test_statustext_chunks_are_joined_whole_per_sender():
+    from tfl_mav.link.statustext import TEXT_LEN, Reassembler, split
+
+    text = "crashed: flipped: thrust axis points down (tilt 90 deg) at t = 1.865 s"
+    chunks = split(text)
+    assert [len(c) for c in chunks] == [TEXT_LEN, len(text) - TEXT_LEN]
+    assert split("x" * TEXT_LEN * 2)[-1] == b""          # a full last chunk: a terminator
+    r = Reassembler()
+    got = [r.add("a", c.decode(), 7, i) for i, c in enumerate(chunks)]
+    assert got == [[], [text]]
+    assert r.add("a", "short", 0, 0) == ["short"]       # id 0: a text on its own
+    # interleaved senders, and a text whose end was lost (its id replaced by another)
+    assert r.add("a", chunks[0].decode(), 8, 0) == []
+    assert r.add("b", "hello", 3, 0) == ["hello"]
+    assert r.add("a", "next", 9, 0) == [chunks[0].decode() + "…", "next"]
+    assert r.flush() == []

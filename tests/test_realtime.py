@@ -115,17 +115,19 @@ class ScriptedVehicle:
             assert time.monotonic() < deadline, "the daemon never sent its HEARTBEAT"
             self.link.recv(0.05)
 
-    def states(self, *times_usec: int, applied_usec: int = 0) -> list[Any]:
+    def states(self, *times_usec: int, applied_usec: int = 0, driven: bool = True
+               ) -> list[Any]:
         msgs: list[Any] = []
         for t in times_usec:
-            odom, applied, esc = self.report.update(applied_usec)
+            odom, applied, esc = self.report.update(applied_usec, driven)
             odom.time_usec = t
             msgs += [odom, applied, esc]
         return msgs
 
-    def send(self, *times_usec: int) -> None:
-        """All these states in one datagram (one batch for the daemon)."""
-        self.link.send_many(self.states(*times_usec))
+    def send(self, *times_usec: int, driven: bool = True) -> None:
+        """All these states in one datagram (one batch for the daemon); ``driven`` False:
+        ACTUATOR_OUTPUT_STATUS says no command drives the motors."""
+        self.link.send_many(self.states(*times_usec, driven=driven))
 
     def collect(self, n: int, timeout_s: float = 10.0) -> list[int]:
         """time_usec of the next ``n`` HIL_ACTUATOR_CONTROLS (AssertionError if fewer)."""
@@ -278,6 +280,77 @@ def test_only_a_vehicle_waiting_at_t0_waits_for_hold_start(first_usec):
             vehicle.send(0)                          # ... answered once the hold ends
         assert vehicle.collect(1) == [first_usec]
         assert daemon.stats.ticks == 1
+    finally:
+        daemon.stop()
+        thread.join(5.0)
+        daemon.close()
+        vehicle.link.close()
+
+
+def test_motors_not_driven_pause_the_detector_and_are_said_once_a_second():
+    """ACTUATOR_OUTPUT_STATUS active 0 (disarmed, cut): the detector is told; a vehicle
+    flipping the bit every state is counted every time but said at most once a second."""
+    sc = load_scenario("nominal")
+    vehicle = ScriptedVehicle(sc)
+    events: list[str] = []
+    daemon = Daemon(sc, vehicle=vehicle.link.local_address, realtime=True,
+                    state_timeout_s=30.0, on_event=lambda _lvl, text, _t: events.append(text))
+    thread = threading.Thread(target=daemon.run, kwargs={"duration_s": 1e9}, daemon=True)
+    thread.start()
+    try:
+        vehicle.await_controller()
+        vehicle.send(0)
+        assert vehicle.collect(1) == [0]
+        for k in range(1, 41):                 # 40 ms: off, on, off, on, ...
+            vehicle.send(k * 1000, driven=k % 2 == 0)
+            assert vehicle.collect(1) == [k * 1000]
+            assert daemon.computer.detector.motors_off is (k % 2 == 1)
+        st = daemon.stats
+        assert (st.motors_off_periods, st.motors_off_ticks) == (20, 20)
+        said = [e for e in events if "motors" in e]
+        assert len(said) == 2 and "paused" in said[0] and "resumed" in said[1], said
+        vehicle.send(600_000)
+        assert vehicle.collect(1) == [600_000]
+        vehicle.send(1_100_000, driven=False)   # a second later: said again
+        assert vehicle.collect(1) == [1_100_000]
+        assert "paused" in [e for e in events if "motors" in e][-1]
+    finally:
+        daemon.stop()
+        thread.join(5.0)
+        daemon.close()
+        vehicle.link.close()
+
+
+def test_degraded_real_time_is_said_when_it_starts_and_ends_not_every_gap():
+    """Gaps (states skipped) for 0.2 s, then 1.1 s on time: one warning at the first gap,
+    one line when it recovered (with the episode's counts), and the counts in the stats."""
+    sc = load_scenario("nominal")
+    vehicle = ScriptedVehicle(sc)
+    events: list[str] = []
+    daemon = Daemon(sc, vehicle=vehicle.link.local_address, realtime=True,
+                    state_timeout_s=30.0, on_event=lambda _lvl, text, _t: events.append(text))
+    thread = threading.Thread(target=daemon.run, kwargs={"duration_s": 1e9}, daemon=True)
+    thread.start()
+    try:
+        vehicle.await_controller()
+        t = 0
+        vehicle.send(t)
+        assert vehicle.collect(1) == [0]
+        for _ in range(50):                     # 4 ms steps, two states a batch: 50 gaps
+            t += 4000
+            vehicle.send(t - 2000, t)
+            assert vehicle.collect(1) == [t]
+        for _ in range(1100):                   # on time again, 1 ms a state
+            t += 1000
+            vehicle.send(t)
+            assert vehicle.collect(1) == [t]
+        st = daemon.stats
+        assert (st.gap_ticks, st.skipped_states, st.degraded_episodes) == (50, 50, 1)
+        said = [e for e in events if "degraded" in e or "recovered" in e]
+        assert len(said) == 2, said
+        assert said[0].startswith("degraded real time at t=0.004 s")
+        assert "real time recovered" in said[1] and "50 gaps integrated, 50 states skipped" \
+            in said[1], said
     finally:
         daemon.stop()
         thread.join(5.0)

@@ -27,7 +27,9 @@ repeated states get the same command again, old and
 implausible ones are counted (``repeated_states``, ``old_states``, ``implausible_states``).
 Each loop drains the socket and runs the law once, on the newest fresh state; the other
 fresh states of the batch are skipped (``skipped_states``). When states were skipped the law
-integrates over the real gap (``gap_ticks``); a rate-limited STATUSTEXT says so. After a
+integrates over the real gap (``gap_ticks``); a STATUSTEXT says when such an episode starts
+and one when it is over (a second of sim time without a gap: ``degraded_episodes``), not
+every gap, and ``tfl-mav fly``'s summary line gives the totals. After a
 restart (a restarted simulator, a vehicle that went on while we were away) the recovery law
 takes over when the state is not benign.
 
@@ -81,6 +83,7 @@ from tfl_mav.daemon_io import (
     _new,
     applied_thrusts,
     command_message,
+    motors_off,
     telemetry_messages,
     tick_state,
     waiting_text,
@@ -89,6 +92,7 @@ from tfl_mav.flight_computer import FlightComputer, TickResult
 from tfl_mav.geometry import euler_to_quaternion
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.signing import Signing
+from tfl_mav.link.statustext import split as split_statustext
 from tfl_mav.link.transport import Address, FrameHook, Link
 from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario
@@ -104,7 +108,7 @@ _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
 _WAITING_REPORT_PERIOD_S = 2.0
 _HISTORY = 512                    # commands remembered by time_usec (0.5 s at 1 kHz)
 _GAP_FACTOR = 1.5                 # a gap over 1.5 control periods is integrated as such
-_DEGRADE_REPORT_S = 1.0           # at most one "degraded" STATUSTEXT per second of sim time
+_DEGRADE_REPORT_S = 1.0           # sim seconds without a gap that end a degraded episode
 _FALLBACK = Mode.FALLBACK
 _isfinite = math.isfinite
 
@@ -162,7 +166,9 @@ class Daemon(Intake):
         self._history_keys: deque[int] = deque()
         self._last_usec = -1          # time_usec of the last state controlled
         self._arrivals = Arrivals(realtime)   # the watermark and the restart rule
-        self._next_degrade_report_s = 0.0
+        self._episode_start_s: float | None = None   # sim time a degraded episode began
+        self._episode_base = (0, 0)                   # gap_ticks, skipped_states before it
+        self._last_gap_s = 0.0
         self._hover = [scenario.vehicle.mass_kg * scenario.vehicle.gravity_mps2 / 4.0] * 4
         self._last_cmd = list(self._hover)
         self._mode = Mode.NOMINAL
@@ -174,6 +180,9 @@ class Daemon(Intake):
         self._statustext_id = 0
         self._hil_flags = 0 if realtime else LOCKSTEP_FLAG
         self._gap_usec = _GAP_FACTOR * (scenario.run.control_dt_s * 1e6)
+        self._motors_off = False      # the vehicle's last word: no command drives the motors
+        self._next_motors_report_s = 0.0
+        self._motors_said = False     # the current pause was said
         self._init_intake()
 
     def _new_computer(self) -> FlightComputer:
@@ -298,7 +307,7 @@ class Daemon(Intake):
         if last_usec >= 0 and t_usec - last_usec > self._gap_usec:
             dt_s = (t_usec - last_usec) * 1e-6
             stats.gap_ticks += 1
-            self._report_degraded(t_usec * 1e-6)
+            self._report_degraded(t_usec * 1e-6, len(batch) - 1)
         # the applied command: our own copy of the command it names, else the wire's
         # (applied_thrusts decides every other case)
         history = self._history
@@ -314,6 +323,10 @@ class Daemon(Intake):
                                           self.thrust_max_n, stats)
             else:
                 stats.applied_from_history += 1
+            if motors_off(applied_msg) is not self._motors_off:
+                self._motors_switched(not self._motors_off, t_usec)
+        if self._motors_off:
+            stats.motors_off_ticks += 1
         self._last_usec = t_usec
         # the tick
         t = t_usec * 1e-6
@@ -366,7 +379,32 @@ class Daemon(Intake):
         if t >= self._next_telemetry_s:
             self._next_telemetry_s = t + _TELEMETRY_PERIOD_S
             self._telemetry(t_usec, res)
+            if self._episode_start_s is not None and t - self._last_gap_s >= _DEGRADE_REPORT_S:
+                self._degraded_over(t)
         return True
+
+    def _motors_switched(self, off: bool, t_usec: int) -> None:
+        """The vehicle's motors stopped being driven (a GCS disarm, a cut) or are driven
+        again: the detector is told, so that stopped rotors raise no alarm and the verdict
+        it had stands (:meth:`AttackDetector.set_motors_off`)."""
+        self._motors_off = off
+        det = self.computer.detector
+        if det is not None:
+            det.set_motors_off(off)
+        t = t_usec * 1e-6
+        if off:
+            self.stats.motors_off_periods += 1
+        # A pause is said with its end; at most one pause a second of sim time is said (a
+        # vehicle flipping the bit every tick must not flood the link); all are counted.
+        if off and t >= self._next_motors_report_s:
+            self._motors_said = True
+            self._event("warning", f"motors not driven at t={t:.3f} s (vehicle disarmed or "
+                                   "cut): attack detection paused, verdict kept")
+        elif not off and self._motors_said:
+            self._motors_said = False
+            self._next_motors_report_s = t + 1.0
+            self._event("info", f"motors driven again at t={t:.3f} s: attack detection "
+                                f"resumed ({self.stats.motors_off_periods} pauses so far)")
 
     def _law_failed(self, t_usec: int, exc: BaseException) -> None:
         """A state the laws cannot digest (e.g. a fuzzed one with huge values): the last
@@ -388,21 +426,40 @@ class Daemon(Intake):
         self.stats.skipped_states += len(self._complete)
         self._complete = []
         self.computer = self._new_computer()
+        if self._motors_off and self.computer.detector is not None:
+            self.computer.detector.set_motors_off(True)    # still so, on the new time line
         self._history.clear()
         self._history_keys.clear()
         self._last_usec = -1
         self._arrivals.reset()
         self._last_cmd = list(self._hover)
         self._next_telemetry_s = 0.0
-        self._next_degrade_report_s = 0.0
+        self._episode_start_s = None      # a new time line: the old episode's clock is gone
 
-    def _report_degraded(self, t: float) -> None:
-        if t < self._next_degrade_report_s:
+    def _report_degraded(self, t: float, skipped_now: int) -> None:
+        """A gap was integrated at sim time ``t``. Said when it starts an episode (the first
+        gap, or the first after _DEGRADE_REPORT_S of sim time without one), not for every
+        gap of a machine that keeps falling behind; :meth:`_degraded_over` says its end."""
+        self._last_gap_s = t
+        if self._episode_start_s is not None:
             return
-        self._next_degrade_report_s = t + _DEGRADE_REPORT_S
         st = self.stats
-        self._event("warning", f"degraded: {st.skipped_states} states skipped, "
-                               f"{st.gap_ticks} gaps integrated")
+        self._episode_start_s = t
+        self._episode_base = (st.gap_ticks - 1, st.skipped_states - skipped_now)
+        st.degraded_episodes += 1
+        self._event("warning", f"degraded real time at t={t:.3f} s: the loop fell behind "
+                               "(states skipped, the law integrates the gap); said again "
+                               "when it recovers")
+
+    def _degraded_over(self, t: float) -> None:
+        """No gap for _DEGRADE_REPORT_S of sim time since the last: the episode is over."""
+        st = self.stats
+        gaps0, skipped0 = self._episode_base
+        start = self._episode_start_s
+        self._episode_start_s = None
+        self._event("info", f"real time recovered at t={t:.3f} s: {st.gap_ticks - gaps0} "
+                            f"gaps integrated, {st.skipped_states - skipped0} states skipped "
+                            f"over {self._last_gap_s - (start or 0.0):.1f} s")
 
     def _send_command(self, time_usec: int, thrust: Sequence[float]) -> None:
         """HIL_ACTUATOR_CONTROLS: controls[0..3] = thrust / f_max, 12 zeros, armed."""
@@ -422,5 +479,6 @@ class Daemon(Intake):
         severity = {"info": mav.MAV_SEVERITY_INFO, "warning": mav.MAV_SEVERITY_WARNING,
                     "critical": mav.MAV_SEVERITY_CRITICAL}.get(level, mav.MAV_SEVERITY_INFO)
         self._statustext_id = (self._statustext_id % 0xFFFF) + 1
-        self.link.send(mav.MAVLink_statustext_message(severity, text[:50].encode(),
-                                                      self._statustext_id, 0))
+        for seq, chunk in enumerate(split_statustext(text)):   # whole, in MAVLink 2 chunks
+            self.link.send(mav.MAVLink_statustext_message(severity, chunk,
+                                                          self._statustext_id, seq))

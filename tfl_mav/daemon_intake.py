@@ -27,6 +27,7 @@ from tfl_mav.daemon_io import DaemonStats
 from tfl_mav.frames import paper_from_odometry, paper_from_odometry_fields
 from tfl_mav.link.codec import rx_lite_class
 from tfl_mav.link.dialect import mav
+from tfl_mav.link.statustext import Reassembler
 from tfl_mav.state import State
 
 __all__ = ["Intake"]
@@ -55,7 +56,7 @@ class Intake:
     _last_usec: int
     _last_cmd: list[float]
     _vehicle_done: str
-    _ending: tuple[int, str] | None
+    _texts: Reassembler
     _handlers: dict[type, Any]
     _fresh_ahead_usec: float
 
@@ -68,7 +69,7 @@ class Intake:
         self._complete = []           # this batch's complete states
         self._arrived = False         # a valid state arrived this loop (failsafe clock)
         self._vehicle_done = ""
-        self._ending = None           # (STATUSTEXT id, reason) of an end told in chunks
+        self._texts = Reassembler()   # the vehicle's STATUSTEXT chunks → whole texts
         self._handlers = {            # the per-tick messages, by the link's classes
             _RxOdometry: self._on_odometry,
             rx_lite_class(_ID_ACTUATOR_OUTPUT_STATUS): self._on_applied,
@@ -109,18 +110,17 @@ class Intake:
                                       else "vehicle powered off (run over)")
             return
         if mid == mav.MAVLINK_MSG_ID_STATUSTEXT:
-            text = msg.text
-            self._event("info", f"vehicle: {text}", send=False)
-            if self.stats.ticks > 0 and not self._vehicle_done:
-                if text.startswith("crashed:"):
-                    self._ending = (msg.id, "vehicle reported EMERGENCY (crashed)")
-                elif text.startswith("simulation ended"):
-                    self._ending = (msg.id, "vehicle powered off (run over)")
-                # done at the text's last chunk (MAVLink 2 STATUSTEXT: chunks share an id;
-                # one shorter than 50 characters ends it), so the log holds all of it
-                if self._ending is not None and msg.id == self._ending[0] \
-                        and (msg.id == 0 or len(text) < 50):
-                    self._vehicle_done = self._ending[1]
+            # whole texts, not chunks (MAVLink 2: chunks share an id; one shorter than 50
+            # characters ends it): printed once, and the end of a flight is read from all
+            # of it, so the log holds all of it too
+            for text in self._texts.add(msg.get_srcComponent(), msg.text,
+                                        getattr(msg, "id", 0), getattr(msg, "chunk_seq", 0)):
+                self._event("info", f"vehicle: {text}", send=False)
+                if self.stats.ticks > 0 and not self._vehicle_done:
+                    if text.startswith("crashed:"):
+                        self._vehicle_done = "vehicle reported EMERGENCY (crashed)"
+                    elif text.startswith("simulation ended"):
+                        self._vehicle_done = "vehicle powered off (run over)"
             return
         self.stats.ignored_messages += 1
 

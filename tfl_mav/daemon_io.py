@@ -30,8 +30,8 @@ from tfl_mav.link.dialect import mav
 from tfl_mav.modes import Mode
 
 __all__ = ["LOCKSTEP_FLAG", "TICK_FIELDS", "TICK_SCHEMA", "DaemonResult", "DaemonStats",
-           "applied_thrusts", "command_message", "telemetry_messages", "tick_state",
-           "waiting_text"]
+           "applied_thrusts", "command_message", "motors_off", "telemetry_messages",
+           "tick_state", "waiting_text"]
 
 LOCKSTEP_FLAG = 1                 # HIL_ACTUATOR_CONTROLS.flags bit 0
 _new = tuple.__new__
@@ -62,11 +62,14 @@ class DaemonStats:
     repeated_states: int = 0     # the last state again (lockstep resend): same command resent
     implausible_states: int = 0  # time too far ahead/behind the watermark: not controlled
     gap_ticks: int = 0           # ticks whose law integrated over more than one period
+    degraded_episodes: int = 0   # runs of gaps, each ended by 1 s of sim time without one
     applied_from_history: int = 0  # applied command = our own copy (ACTUATOR_OUTPUT_STATUS)
     applied_from_wire: int = 0   # applied command = ACTUATOR_OUTPUT_STATUS.actuator × f_max
     applied_unknown: int = 0     # no ACTUATOR_OUTPUT_STATUS: last command sent assumed
     rebuilds: int = 0            # vehicle time went backwards: flight computer rebuilt
     law_errors: int = 0          # a tick the laws raised on: no command sent that tick
+    motors_off_ticks: int = 0    # ticks the vehicle said no command drove its motors
+    motors_off_periods: int = 0  # times that began (a GCS disarm, a cut, ...)
     link: dict[str, int] = field(default_factory=dict)
 
 
@@ -191,6 +194,15 @@ def applied_thrusts(msg: Any, history: dict[int, list[float]], hover: list[float
         return ref
     stats.applied_from_wire += 1
     return wire
+
+
+_ACTIVE_ROTORS = 0b1111
+
+
+def motors_off(msg: Any) -> bool:
+    """ACTUATOR_OUTPUT_STATUS ``msg`` says no command drives the four motors (``active``
+    clear: disarmed by a GCS or the controller, or cut; docs/design.md, "The wire")."""
+    return not msg.active & _ACTIVE_ROTORS
 
 
 def waiting_text(waited_s: float, link: Any, signed: bool) -> str:

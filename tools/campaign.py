@@ -10,8 +10,12 @@ redraws the report from DIR/results.csv alone.
 from __future__ import annotations
 
 import argparse
+import signal
 import sys
 from pathlib import Path
+from typing import Any
+
+from tools.outputs import EXIT_IO, dir_problem
 
 __all__ = ["add_parser", "run"]
 
@@ -65,6 +69,17 @@ def run(args: argparse.Namespace) -> int:
     except SpecError as exc:
         _err(f"spec error: {exc}")
         return 2
+    problem = dir_problem(args.out, "--out")
+    if problem:
+        _err(problem)
+        return EXIT_IO
+    signals: list[int] = []
+
+    def on_term(signum: int, _frame: Any) -> None:   # SIGTERM: stop as Ctrl-C does
+        signals.append(signum)
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGTERM, on_term)
     try:
         summary = run_campaign(spec, Path(args.out), executor=args.executor,
                                workers=args.workers, ray_address=args.ray_address,
@@ -73,13 +88,22 @@ def run(args: argparse.Namespace) -> int:
         _err(str(exc))
         return 2
     except (ExecutorError, OSError) as exc:
-        _err(str(exc))
+        _err(f"{exc.strerror or exc}: {exc.filename}" if isinstance(exc, OSError)
+             and exc.filename else str(exc))
         return 3
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    out = str(args.out).rstrip("/") or "/"
     if not args.quiet:
-        print((Path(args.out) / "report.md").read_text(encoding="utf-8"))
+        print((Path(out) / "report.md").read_text(encoding="utf-8"))
+    how = (f"INTERRUPTED after {summary['flown_now']} runs this session "
+           f"({summary['not_flown']} not flown; the same command resumes)"
+           if summary["interrupted"] else f"flew {summary['flown_now']} now")
     print(f"{summary['name']}: {summary['runs']} runs, {summary['succeeded']} succeeded, "
-          f"{summary['failed']} failed; flew {summary['flown_now']} now in "
-          f"{summary['wall_time_s']:.1f} s ({summary['executor']}); files in {args.out}/")
+          f"{summary['failed']} failed; {how} in {summary['wall_time_s']:.1f} s "
+          f"({summary['executor']}); files in {out}/")
+    if summary["interrupted"]:
+        return 128 + (signals[0] if signals else signal.SIGINT)
     return 0
 
 

@@ -114,8 +114,10 @@ def _print_summary(m: dict[str, Any]) -> None:
     def mm(x: float | None) -> str:
         return f"{1000 * x:.3f} mm" if x is not None else "-"
     status = "CRASHED: " + m["crash_reason"] if m["crashed"] else m["convergence"]
-    print(f"tfl-mav demo: {status}; {m['sim_time_s']:.1f} s sim in {m['wall_time_s']:.1f} s "
-          f"wall ({m['real_time_factor']}x real time)")
+    phases = ", ".join(f"{k} {v:.1f} s" for k, v in m.get("phase_wall_s", {}).items())
+    print(f"tfl-mav demo: {status}; {m['sim_time_s']:.1f} s sim flown in "
+          f"{m['wall_time_s']:.1f} s wall ({m['real_time_factor']}x real time); "
+          f"{m.get('total_wall_s', m['wall_time_s']):.1f} s in all ({phases})")
     print(f"  path distance: final {mm(m['final_path_distance_m'])}, last 10 s max "
           f"{mm(m['max_path_distance_last_10s_m'])}, rms {mm(m['rms_path_distance_last_10s_m'])}")
     if m["detected_rotor"]:

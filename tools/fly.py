@@ -179,13 +179,22 @@ def run(args: argparse.Namespace) -> int:
         print(f"{prog}: {result.reason} at t={result.sim_time_s:.3f} s; {det}; final path "
               f"distance {dist:.2e} m; {result.stats.ticks} ticks, "
               f"{result.stats.failsafes} failsafes, rejected "
-              f"{sum(v for k, v in result.stats.link.items() if k not in _OK_COUNTERS)}",
-              file=sys.stderr)
+              f"{sum(v for k, v in result.stats.link.items() if k not in _OK_COUNTERS)}"
+              + _degraded(result.stats), file=sys.stderr)
     if "signal" in got:
         return 128 + got["signal"]
     if "silent" in result.reason:
         return 3   # the vehicle vanished without its goodbye: a link failure
     return 1 if "crashed" in result.reason else 0
+
+
+def _degraded(st: Any) -> str:
+    """The summary's word on real time: only when the loop fell behind."""
+    if not st.gap_ticks:
+        return ""
+    return (f"; degraded real time: {st.gap_ticks} gaps integrated, {st.skipped_states} "
+            f"states skipped in {st.degraded_episodes} episode"
+            f"{'s' if st.degraded_episodes != 1 else ''}")
 
 
 _DISTANCE = TICK_FIELDS.index("path_distance_m")
@@ -225,7 +234,8 @@ def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None,
     rec = RecorderProcess(mcap, rotor_xy_m=rotors,
                           thrust_max_n=scenario.vehicle.thrust_max_n,
                           controller_fields=TICK_FIELDS, controller_schema=TICK_SCHEMA,
-                          live=live, clock=clock, realtime=realtime)
+                          live=live, clock=clock, realtime=realtime,
+                          timeline="wall" if realtime else "sim")
     rec.metadata("scenario", {"name": scenario.name, "role": "controller",
                               "toml": json.dumps(scenario.to_dict())})
     rec.path(path)

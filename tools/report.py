@@ -2,7 +2,12 @@
 
 The scenario comes from the log's ``scenario`` metadata (written by ``tfl-mav sim --mcap``)
 unless ``--scenario`` overrides it; ``ctl.mcap`` next to the log (or ``--ctl``) adds the
-controller's commands, mode and attack estimate.
+controller's commands, mode and attack estimate. DIR gets the six PNGs and
+``summary.json`` (the flight summary ``--json`` prints).
+
+Exit codes: 0 the report was written (whatever the flight did: ``inspect`` and the
+summary say how it went); 2 the input is not a vehicle log (a controller log, no scenario);
+3 the log cannot be read or DIR cannot be written.
 """
 
 from __future__ import annotations
@@ -22,7 +27,8 @@ __all__ = ["add_parser", "run"]
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser("report", help="write the report PNGs of a recorded flight",
-                       description=__doc__.split("\n\n")[0].split(": ", 1)[1])
+                       description=__doc__.split("\n\n")[0].split(": ", 1)[1],
+                       epilog=__doc__.split("\n\n")[2].replace("\n", " "))
     p.add_argument("log", metavar="RUN.mcap", help="the vehicle's log (tfl-mav sim --mcap)")
     p.add_argument("--out", required=True, metavar="DIR", help="where to write the PNGs")
     p.add_argument("--ctl", metavar="CTL.mcap",
@@ -48,15 +54,24 @@ def run(args: argparse.Namespace) -> int:
         return 2
     from tfl_mav.flightlog.plots import write_report  # matplotlib: ~1 s, only here
 
-    log, sc = load_flight(log_path, sc, args.ctl)
+    try:
+        log, sc = load_flight(log_path, sc, args.ctl)
+    except OSError as exc:
+        print(f"tfl-mav report: {exc}", file=sys.stderr)
+        return EXIT_IO
     if len(log["t_s"]) == 0:
-        print(f"tfl-mav report: {log_path} has no /sim/truth data to plot", file=sys.stderr)
-        return 1
-    files = write_report(log, Path(args.out), title=sc.name)
-    m = summarize(log)
+        print(f"tfl-mav report: {log_path} has no vehicle truth (/sim/truth/*) to plot: "
+              "report needs the vehicle's log (tfl-mav sim --mcap, run.mcap); "
+              f"`tfl-mav inspect {log_path}` summarises a controller log", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    files = write_report(log, out, title=sc.name)
+    m = {**summarize(log), "plots": [str(f) for f in files]}
+    summary = out / "summary.json"
+    summary.write_text(json.dumps(m, indent=2) + "\n", encoding="utf-8")
     if args.json:
-        print(json.dumps({**m, "plots": [str(f) for f in files]}, indent=2))
+        print(json.dumps(m, indent=2))
     else:
-        print(f"tfl-mav report: {len(files)} figures in {args.out}/ "
+        print(f"tfl-mav report: {len(files)} figures and {summary.name} in {out}/ "
               f"({m['sim_time_s']:.1f} s of flight; {m['convergence']})")
     return 0

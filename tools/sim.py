@@ -329,7 +329,8 @@ def _open_recorder(path: str | None, scenario: Scenario, prog: str,
     v = scenario.vehicle
     try:
         recorder = RecorderProcess(path, rotor_xy_m=rotor_xy_m(v), thrust_max_n=v.thrust_max_n,
-                                   live=live, realtime=realtime)
+                                   live=live, realtime=realtime,
+                                   timeline="wall" if realtime else "sim")
     except RecorderError as exc:
         print(f"{prog}: {'--mcap: ' if path and 'foxglove' not in str(exc) else ''}{exc}",
               file=sys.stderr)

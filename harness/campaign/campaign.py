@@ -81,7 +81,9 @@ def _hms(s: float) -> str:
 def run_campaign(spec: CampaignSpec, out: Path, *, executor: str = "local",
                  workers: int | None = None, ray_address: str | None = None,
                  progress: bool = True, report: bool = True) -> dict[str, Any]:
-    """Fly what ``out`` is missing of ``spec``; returns the summary (also summary.json)."""
+    """Fly what ``out`` is missing of ``spec``; returns the summary (also summary.json).
+    Interrupted (KeyboardInterrupt), it returns the summary and report of the runs that
+    finished, with ``interrupted`` True (the next call resumes)."""
     out.mkdir(parents=True, exist_ok=True)
     meta_path = out / "campaign.json"
     meta = {"name": spec.name, "fingerprint": spec.fingerprint, "source": spec.source,
@@ -118,6 +120,7 @@ def run_campaign(spec: CampaignSpec, out: Path, *, executor: str = "local",
 
     t0 = time.perf_counter()
     extra: dict[str, Any] = {}
+    interrupted = False
     try:
         if executor == "local":
             run_local(todo, workers, on_row)
@@ -125,21 +128,28 @@ def run_campaign(spec: CampaignSpec, out: Path, *, executor: str = "local",
             extra = run_ray(todo, workers, on_row, ray_address)
         else:
             raise SpecError(f"executor: must be local or ray, got {executor!r}")
+    except KeyboardInterrupt:
+        # Ctrl-C (or SIGTERM, turned into this by the CLI): the runs that finished are in
+        # results.csv; the summary and the report below are of them, so an hour of flights
+        # is not left without its table.
+        interrupted = True
     finally:
         writer.close()
         if bar:
             bar.close()
     wall = time.perf_counter() - t0
     _, rows = read_results(out / "results.csv")
+    flown = len(rows) - (len(runs) - len(todo))
     summary = {"name": spec.name, **summarize_rows(rows), "executor": executor,
-               "workers": workers, **extra, "flown_now": len(todo),
+               "workers": workers, **extra, "flown_now": flown,
                "resumed_from": len(runs) - len(todo), "wall_time_s": round(wall, 3),
-               "flights_per_hour": round(3600 * len(todo) / wall, 1) if todo and wall else None,
+               "flights_per_hour": round(3600 * flown / wall, 1) if flown and wall else None,
                "success_max_distance_m": spec.success_max_distance_m, "mode": spec.mode,
-               "attack_info": spec.attack_info}
+               "attack_info": spec.attack_info, "interrupted": interrupted,
+               "not_flown": len(runs) - len(rows)}
     write_json(out / "summary.json", summary)
     if report:
         from harness.campaign.report import write_report
 
-        summary["report"] = [str(p) for p in write_report(out)]
+        summary["report"] = [str(p) for p in write_report(out, summary["not_flown"])]
     return summary

@@ -82,8 +82,10 @@ def _reason_kind(reason: Any) -> str:
     return text.split(" at t = ")[0]
 
 
-def write_report(out: Path) -> list[Path]:
-    """Write ``report.md`` and the envelope maps into ``out``; returns the files."""
+def write_report(out: Path, not_flown: int = 0) -> list[Path]:
+    """Write ``report.md`` and the envelope maps into ``out``; returns the files.
+    ``not_flown``: runs of the campaign not in the table (an interrupted campaign: the
+    report says it covers only what finished)."""
     header, rows = read_results(out / "results.csv")
     keys = swept_columns(header)
     meta_path = out / "campaign.json"
@@ -93,7 +95,10 @@ def write_report(out: Path) -> list[Path]:
     maps = maps or default_maps(keys, rows)
     files = []
     md = out / "report.md"
-    md.write_text(f"# Campaign {name}\n\n"
+    partial = (f"**Incomplete:** {len(rows)} of {len(rows) + not_flown} runs flown (the "
+               "campaign was interrupted; the same command resumes it).\n\n"
+               if not_flown else "")
+    md.write_text(f"# Campaign {name}\n\n" + partial
                   + success_table(keys, rows, meta.get("success_max_distance_m")) + "\n",
                   encoding="utf-8")
     files.append(md)

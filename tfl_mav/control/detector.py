@@ -27,6 +27,12 @@ period). An attacker who forces a rotor's thrust makes that rotor's speed leave 
   a coincidence (an attacker holding the probe value) the next deviation alarms again.
 * **Estimation**: the attacked rotor's thrust from its own rpm, ``k_f ω²`` clamped to
   [0, f_max]; a non-finite sample holds the last estimate, so no NaN leaves after detection.
+* **Motors not driven** (:meth:`AttackDetector.set_motors_off`: the vehicle says no command
+  drives them — disarmed, cut): a rotor that is not being driven neither obeys nor disobeys,
+  so there is no evidence either way. The motor model still follows the applied command
+  (zero), so it is right when the motors are driven again, but the statistics stay at 0: no
+  alarm, no move, no release, and the verdict of before (latched rotor, its detection time)
+  stands. The estimate still comes from the latched rotor's rpm.
 """
 
 from __future__ import annotations
@@ -183,6 +189,8 @@ class AttackDetector:
         self._obey = 0
         self.moves = 0
         self.releases = 0
+        self.motors_off = False         # the vehicle says no command drives the motors
+        self.paused_ticks = 0           # ticks judged nothing because of that
         self._out = DetectorOutput(0, math.nan, _ZERO4, _ZERO4, math.nan, False)
         detector_native.attach(self, self.tau_s > 0.0)    # compiled, where it can be
 
@@ -284,7 +292,11 @@ class AttackDetector:
         alarm = False
         released = False
         d = self.detected_rotor
-        if self.config.enabled:
+        if self.motors_off:     # no evidence either way: the statistics stay at zero
+            self.paused_ticks += 1
+            self._s_hi = self._s_lo = _ZERO4
+            self._obey = 0
+        elif self.config.enabled:
             if top >= self._h_alarm:
                 if d:
                     self.moves += 1             # the attacker moved
@@ -318,6 +330,14 @@ class AttackDetector:
              h3 if h3 >= l3 else -l3), self.detection_time_s, alarm, self.rejected_samples,
             released))
         return out
+
+    def set_motors_off(self, off: bool) -> None:
+        """The vehicle says whether a command drives its motors (ACTUATOR_OUTPUT_STATUS
+        ``active``): while ``off``, :meth:`update` judges nothing (module docstring). Every
+        statistic starts from zero when they are driven again."""
+        self.motors_off = bool(off)
+        self._s_hi = self._s_lo = _ZERO4
+        self._obey = 0
 
     def _latch(self, rotor: int, t: float) -> None:
         self.detected_rotor = rotor

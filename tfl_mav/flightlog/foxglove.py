@@ -60,9 +60,14 @@ def schema(name: str) -> tuple[str, str, bytes]:
     return s.name, s.encoding, bytes(s.data)
 
 
+_MAX_SEC = 2**32 - 1
+
+
 def stamp(ns: int) -> fm.Timestamp:
     """Nanoseconds → Foxglove ``Timestamp`` (never negative)."""
     sec, nsec = divmod(max(ns, 0), 1_000_000_000)
+    if sec > _MAX_SEC:              # a time beyond the type's range (uint32 s): its end
+        sec, nsec = _MAX_SEC, 999_999_999
     return fm.Timestamp(sec=sec, nsec=nsec)
 
 

@@ -35,6 +35,7 @@ from tfl_mav.flightlog.mcapfast import MESSAGE_FIXED, MESSAGE_HEADER, MESSAGE_OP
 from tfl_mav.flightlog.mcapout import MAX_NS, McapOutput
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.payload import PayloadDecoder
+from tfl_mav.link.statustext import Reassembler
 
 __all__ = ["FrameRecorder"]
 
@@ -66,6 +67,7 @@ class FrameRecorder(McapOutput):
         self._decoder = PayloadDecoder()
         self._mav = MavJson()
         self._mav_channels: dict[tuple[int, int, int], _MavChannel] = {}
+        self._texts = Reassembler()      # STATUSTEXT chunks → whole /log entries
         self._frame_fast: dict[tuple[str, bytes], _Fast] = {}
         # the same channels for the C hot path (frames_c): frame key → what it needs
         self._frame_fast_c: dict[int, tuple[bytes, bytes, bool, int, int, int, int]] = {}
@@ -108,7 +110,9 @@ class FrameRecorder(McapOutput):
         w = self._writer
         i, n = 0, len(items)
         while i < n:
-            state = [self._sim_ns, self._sim_known, 0, 0, n]
+            epoch = self._epoch_ns
+            state = [self._sim_ns, self._sim_known, 0, 0, n,
+                     -1 if epoch is None else epoch, 1 if self._timeline_sim else 0]
             failed: Exception | None = None
             with self._lock:
                 if not self._open:
@@ -120,6 +124,8 @@ class FrameRecorder(McapOutput):
                     failed = exc
                 finally:
                     self._sim_ns, self._sim_known = state[0], state[1]
+                    if state[5] >= 0:
+                        self._epoch_ns = state[5]
                     st = self.stats
                     st.frames_rx += state[2]
                     st.frames_tx += state[3]
@@ -186,6 +192,8 @@ class FrameRecorder(McapOutput):
                     if chan.sim_time and t[plan.time_index] * 1000 <= MAX_NS:
                         self._sim_ns = t[plan.time_index] * 1000
                         self._sim_known = True
+                    if self._timeline_sim:
+                        log_ns = self._on_timeline(log_ns)
                     if chan.nonfinite:
                         chan.nonfinite = False
                     raw_json = b'%s%d,"len":%d,"data":"%s"}' % (
@@ -247,6 +255,7 @@ class FrameRecorder(McapOutput):
             return
         data = base64.b64encode(raw).decode("ascii")
         if msg is None:
+            log_ns = self._on_timeline(log_ns)
             if direction == "rx":
                 st.frames_rejected += 1
             accepted = "false" if direction == "rx" else "true"
@@ -276,6 +285,7 @@ class FrameRecorder(McapOutput):
                     self._sim_ns = usec * 1000
                     self._sim_known = True
         pub_ns = self._sim_ns
+        log_ns = self._on_timeline(log_ns)
         name = chan.name if chan is not None else f"#{msgid}"
         head = (f'{{"direction":"{direction}","accepted":true,"name":"{name}",'
                 f'"msgid":{msgid},"sysid":{sysid},"compid":{compid},"seq":')
@@ -300,11 +310,14 @@ class FrameRecorder(McapOutput):
             return
         data, chan.nonfinite = self._json.dumps_sticky(fields, chan.nonfinite)
         self._write(chan.channel_id, data, log_ns, pub_ns)
-        if chan.statustext:
-            self._write(self._fg_channel("/log", "foxglove.Log"),
-                        fg.log_entry(log_ns, fg.mav_severity_to_level(fields["severity"]),
-                                     self._with_time(fields["text"]),
-                                     f"mavlink/{sysid}/{compid} {direction}"), log_ns, pub_ns)
+        if chan.statustext:     # /log gets the whole text once its last chunk is here
+            for text in self._texts.add((sysid, compid, direction), fields["text"],
+                                        fields.get("id", 0), fields.get("chunk_seq", 0)):
+                self._write(self._fg_channel("/log", "foxglove.Log"),
+                            fg.log_entry(log_ns, fg.mav_severity_to_level(fields["severity"]),
+                                         self._with_time(text),
+                                         f"mavlink/{sysid}/{compid} {direction}"),
+                            log_ns, pub_ns)
 
     def _with_time(self, text: str) -> str:
         return f"[t={self._sim_ns * 1e-9:.3f}s] {text}" if self._sim_known else text

@@ -251,8 +251,10 @@ static int chunk_check(PyObject **buf, PyObject **index, PyObject *chunk,
 /* frames(items, start, fast, chunk, end_chunk, limit, state, enc) -> index of the first item
    not written (len(items) when all were). items: (any, time_s, direction, raw, accepted);
    fast: frame key -> (layout, head, rx, raw_cid, cid, time_off, size); state: [sim_ns,
-   sim_known, n_rx, n_tx, i], updated after every frame written; when an error is raised
-   state[4] is the frame it was raised on (the caller's counts stay right). */
+   sim_known, n_rx, n_tx, i, epoch_ns, sim_timeline], updated after every frame written;
+   when an error is raised state[4] is the frame it was raised on (the caller's counts stay
+   right). sim_timeline 1: once sim time is known, log_time = epoch_ns + sim time, epoch_ns
+   (-1: not yet) set from the first such frame's receipt time (McapOutput._on_timeline). */
 static PyObject *frames(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
     if (nargs != 8) { PyErr_SetString(PyExc_TypeError, "frames: 8 arguments"); return NULL; }
     PyObject *items = args[0], *fast = args[2], *chunk = args[3], *end_chunk = args[4];
@@ -262,11 +264,15 @@ static PyObject *frames(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     if (!PyList_Check(items) && !PyTuple_Check(items)) {
         PyErr_SetString(PyExc_TypeError, "frames: items"); return NULL;
     }
-    if (!PyDict_Check(fast) || !PyList_Check(state) || PyList_GET_SIZE(state) != 5) {
+    if (!PyDict_Check(fast) || !PyList_Check(state) || PyList_GET_SIZE(state) != 7) {
         PyErr_SetString(PyExc_TypeError, "frames: fast or state"); return NULL;
     }
     long long sim_ns = PyLong_AsLongLong(PyList_GET_ITEM(state, 0));
     if (sim_ns == -1 && PyErr_Occurred()) return NULL;
+    long long epoch_ns = PyLong_AsLongLong(PyList_GET_ITEM(state, 5));
+    if (epoch_ns == -1 && PyErr_Occurred()) return NULL;
+    long sim_timeline = PyLong_AsLong(PyList_GET_ITEM(state, 6));
+    if (sim_timeline == -1 && PyErr_Occurred()) return NULL;
     PyObject *buf = PyObject_GetAttrString(chunk, "buf");
     PyObject *index = buf ? PyObject_GetAttrString(chunk, "index") : NULL;
     if (!index || !PyByteArray_Check(buf) || !PyDict_Check(index)) {
@@ -339,6 +345,16 @@ static PyObject *frames(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
                 Py_INCREF(Py_True);
                 PyList_SetItem(state, 1, Py_True);
             }
+        }
+        if (sim_timeline && PyList_GET_ITEM(state, 1) == Py_True) {
+            if (epoch_ns < 0) {
+                epoch_ns = log_ns - sim_ns;
+                PyObject *ep = PyLong_FromLongLong(epoch_ns);
+                if (!ep) { failed = 1; break; }
+                PyList_SetItem(state, 5, ep);
+            }
+            __int128 t = (__int128)epoch_ns + sim_ns;     /* as Python: no overflow */
+            log_ns = t < 0 ? 0 : t > MAX_NS ? MAX_NS : (long long)t;
         }
         out_raw.n = 0;
         char num[64];

@@ -27,7 +27,12 @@ from tfl_mav.flightlog import foxglove as fg
 from tfl_mav.flightlog import schemas
 from tfl_mav.flightlog.mcapfast import FastWriter
 
-__all__ = ["McapOutput", "RecorderError", "RecorderStats"]
+__all__ = ["TIMELINES", "McapOutput", "RecorderError", "RecorderStats"]
+
+TIMELINES = ("wall", "sim")
+_SIM_LOG_TIME = ("sim timeline: before the flight the receipt time on the recorder clock; "
+                 "from sim time 0 on, the wall clock at sim time 0 + sim time (publish_time), "
+                 "ns (Unix epoch); wall time in the 'timeline' metadata")
 
 _COMPRESSION = {"zstd": CompressionType.ZSTD, "lz4": CompressionType.LZ4,
                 "none": CompressionType.NONE}
@@ -115,9 +120,19 @@ class McapOutput:
     def __init__(self, path: str | Path | None, *, clock: Callable[[], float] = time.time,
                  flush_interval_s: float = 1.0, profile: str = "tfl-mav",
                  compression: str = "zstd", chunk_size_bytes: int = 1 << 20,
-                 live: tuple[str, int] | None = None) -> None:
+                 live: tuple[str, int] | None = None, timeline: str = "wall") -> None:
         if not (math.isfinite(flush_interval_s) and flush_interval_s > 0.0):
             raise ValueError(f"flush_interval_s: must be > 0, got {flush_interval_s}")
+        if timeline not in TIMELINES:
+            raise ValueError(f"timeline: must be one of {', '.join(TIMELINES)}, "
+                             f"got {timeline!r}")
+        # "sim" (lockstep): once sim time is known, log_time = the wall clock at which sim
+        # time started + sim time (publish_time), so a viewer's timeline is the flight's,
+        # whatever speed the machine ran at, and files still sort by when they were flown
+        self._timeline_sim = timeline == "sim"
+        self._epoch_ns: int | None = None     # wall ns at sim time 0 (sim timeline only)
+        self._sim_ns = 0
+        self._sim_known = False
         if compression not in _COMPRESSION:
             raise ValueError(f"compression: must be one of {sorted(_COMPRESSION)}, "
                              f"got {compression!r}")
@@ -162,7 +177,8 @@ class McapOutput:
                                       | IndexType.METADATA)
             self._writer.start(profile, library=f"tfl-mav {__version__}; {LIBRARY_IDENTIFIER}")
             self._writer.add_metadata("tfl-mav", {
-                "log_time": "receipt time on the recorder clock, ns (Unix epoch by default)",
+                "log_time": (_SIM_LOG_TIME if self._timeline_sim else
+                             "receipt time on the recorder clock, ns (Unix epoch by default)"),
                 "publish_time": "sim time, ns; 0 = not known yet",
                 "world_frame": "ENU, z up (Foxglove world); body = base_link",
                 "mavlink": "MAVLink 2, pymavlink ardupilotmega dialect",
@@ -205,6 +221,8 @@ class McapOutput:
             was_open, self._open = self._open, False
             if was_open:
                 try:
+                    if self._timeline_sim:
+                        self._writer.add_metadata("timeline", self._timeline_facts())
                     self._writer.finish()
                 except Exception as exc:
                     self._failed(exc)
@@ -238,10 +256,37 @@ class McapOutput:
         return 0
 
     def _now_ns(self) -> int:
+        """log_time of a message written now: the clock's, or on the sim timeline."""
         try:
-            return min(max(int(self.clock() * 1e9), 0), MAX_NS)
+            wall = min(max(int(self.clock() * 1e9), 0), MAX_NS)
         except (TypeError, ValueError, OverflowError):
-            return 0
+            wall = 0
+        return self._on_timeline(wall) if self._timeline_sim else wall
+
+    def _on_timeline(self, wall_ns: int) -> int:
+        """``wall_ns`` (a receipt time) as log_time: itself while sim time is unknown (before
+        the flight) or on a wall timeline, else flight start + sim time."""
+        if not (self._timeline_sim and self._sim_known):
+            return wall_ns
+        if self._epoch_ns is None:
+            self._epoch_ns = wall_ns - self._sim_ns
+        return min(max(self._epoch_ns + self._sim_ns, 0), MAX_NS)
+
+    def _timeline_facts(self) -> dict[str, str]:
+        """The ``timeline`` metadata written at close: where the wall clock went."""
+        try:
+            wall_end = float(self.clock())    # the recorder's clock: the close's own stamp
+        except (TypeError, ValueError):
+            wall_end = math.nan
+        sim_s = self._sim_ns * 1e-9
+        out = {"log_time": "sim", "sim_time_s": f"{sim_s:.6f}",
+               "wall_end_unix_s": f"{wall_end:.6f}"}
+        if self._epoch_ns is not None:
+            wall_s = wall_end - self._epoch_ns * 1e-9
+            out.update({"flight_start_unix_s": f"{self._epoch_ns * 1e-9:.6f}",
+                        "wall_time_s": f"{wall_s:.3f}",
+                        "real_time_factor": f"{sim_s / wall_s:.3f}" if wall_s > 0 else "-"})
+        return out
 
     def _bad(self, what: str) -> None:
         self.stats.bad_input += 1

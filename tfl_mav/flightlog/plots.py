@@ -84,26 +84,33 @@ def write_report(log: FlightLog, out_dir: Path, title: str = "") -> list[Path]:
     ax.legend()
     save(fig, "attack.png")
 
-    # 4. Rotor thrusts with their limits.
-    fig, ax = plt.subplots(figsize=(7, 4))
+    # 4. Rotor thrusts with their limits: one panel a rotor (shared axes), so a rotor that
+    # flies the same thrust as its opposite (f1 = f3 and f2 = f4 in a symmetric flight) is
+    # still seen; the attacked rotor in red, with the attacker's thrust over it.
+    fig, axes = plt.subplots(2, 2, figsize=(8, 5), sharex=True, sharey=True)
     ft = log["thrust_true_n"]
     attacked = log.attack_rotor
-    # The attacked rotor is drawn last and thicker, so the others never hide it.
-    order = [i for i in range(4) if i + 1 != attacked] + ([attacked - 1] if attacked else [])
-    for i in order:
+    for i, ax in enumerate(axes.flat):
+        hit = i + 1 == attacked
         if len(ft):
-            hit = i + 1 == attacked
-            ax.plot(t, ft[:, i], lw=2.2 if hit else 0.9, zorder=3 if hit else 2,
-                    color="tab:red" if hit else None,
-                    label=f"f{i + 1} (attacked)" if hit else f"f{i + 1}")
-    ax.axhline(0.0, color="gray", ls=":", lw=1, label="limits 0 and f_max")
-    ax.axhline(log.thrust_max_n, color="gray", ls=":", lw=1)
-    _mark_attack(ax, log)
-    ax.set_xlabel("t (s)")
-    ax.set_ylabel("true rotor thrust f_i (N)")
-    ax.set_title("Rotor thrusts f1-f4" + (f", rotor {attacked} attacked" if attacked else "")
-                 + suffix)
-    ax.legend(ncol=3, fontsize=8)
+            ax.plot(t, ft[:, i], lw=1.2, color="tab:red" if hit else "tab:blue",
+                    label=f"f{i + 1} true")
+        if hit and len(log["attack_true_n"]):
+            ax.plot(t, log["attack_true_n"], "k--", lw=0.8, label="attacker's A(t, x_q)")
+        ax.axhline(0.0, color="gray", ls=":", lw=1)
+        ax.axhline(log.thrust_max_n, color="gray", ls=":", lw=1)
+        _mark_attack(ax, log)
+        ax.set_title(f"rotor {i + 1}" + (" (attacked)" if hit else ""), fontsize=9,
+                     color="tab:red" if hit else "black")
+        ax.grid(True, alpha=0.3)
+        if hit:
+            ax.legend(fontsize=7, loc="upper right")
+    for ax in axes[1]:
+        ax.set_xlabel("t (s)")
+    for ax in axes[:, 0]:
+        ax.set_ylabel("thrust f_i (N)")
+    fig.suptitle("Rotor thrusts f1-f4 (limits 0 and f_max dotted)"
+                 + (f", rotor {attacked} attacked" if attacked else "") + suffix, fontsize=10)
     save(fig, "rotor_thrusts.png")
 
     # 5. Total thrust and torques.

@@ -30,7 +30,11 @@ serves without a file.
 
 Time: ``log_time`` is the receipt time on the recorder's ``clock`` (ns; frames use the
 ``time_s`` the link hook passes, so give the link the same clock: :meth:`Recorder.attach`
-does). ``publish_time`` is **sim time** (ns): the latest of :meth:`set_sim_time`, the
+does); with ``timeline="sim"`` (lockstep), from the first message whose sim time is known
+on, it is the receipt time of that message (the flight's wall-clock start) + sim time, so
+a viewer shows the flight at its own pace, not the machine's; the ``timeline`` metadata
+(written at close) keeps the wall clock: flight start, wall time, real-time factor.
+``publish_time`` is **sim time** (ns): the latest of :meth:`set_sim_time`, the
 ``time_s`` given to ``truth``/``controller``/``log``, and ``time_usec`` of the messages in
 ``sim_time_messages`` (ODOMETRY and HIL_ACTUATOR_CONTROLS carry sim time), taken
 when they pass, so a received state is stamped with its own time even before the caller
@@ -110,7 +114,7 @@ class Recorder(FrameRecorder):
                  thrust_max_n: float = 1.0, controller_fields: Sequence[str] = (),
                  controller_schema: Mapping[str, Any] | None = None,
                  sim_time_messages: Iterable[str] = ("ODOMETRY", "HIL_ACTUATOR_CONTROLS"),
-                 live: tuple[str, int] | None = None) -> None:
+                 live: tuple[str, int] | None = None, timeline: str = "wall") -> None:
         """Open ``path`` for writing (None: no file) and start the file.
 
         ``clock``: seconds, the receipt clock of ``log_time``. ``scene_hz``: max rate (sim
@@ -120,7 +124,9 @@ class Recorder(FrameRecorder):
         rotors: no ``/scene/vehicle``). ``controller_fields``: the names of the values of
         a sequence given to :meth:`controller`; ``controller_schema``: the JSON Schema of
         that record (:func:`~tfl_mav.flightlog.schemas.record_schema`). ``live``: also
-        serve everything on a Foxglove WebSocket at (host, port).
+        serve everything on a Foxglove WebSocket at (host, port). ``timeline``: "wall"
+        (log_time = receipt time) or "sim" (lockstep: from sim time 0 on, log_time = the
+        wall clock at sim time 0 + sim time; see the module docstring).
         Raises ValueError for a bad setting, :class:`RecorderError` if the file cannot be
         written or the live port cannot be bound.
         """
@@ -149,7 +155,8 @@ class Recorder(FrameRecorder):
         self._ctl_cid = 0
         self._polyline: Polyline | None = None
         super().__init__(path, clock=clock, flush_interval_s=flush_interval_s, profile=profile,
-                         compression=compression, chunk_size_bytes=chunk_size_bytes, live=live)
+                         compression=compression, chunk_size_bytes=chunk_size_bytes, live=live,
+                         timeline=timeline)
 
     def attach(self, link: Any) -> None:
         """Hook this recorder into a :class:`~tfl_mav.link.transport.Link` and give the link

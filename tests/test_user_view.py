@@ -1,0 +1,92 @@
+"""What a user sees of a recorded flight: ``report`` and ``inspect`` output, exit codes, and
+the logs' timeline (sim time in lockstep).
+
+One real lockstep flight (``tfl-mav demo``: ``sim`` and ``fly`` subprocesses over loopback
+UDP, both recording MCAP) is shared by the module; every check runs the real command on
+its files.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+from typing import Any
+
+import pytest
+from mcap.reader import make_reader
+
+from harness.processes import CLI
+
+pytestmark = pytest.mark.slow
+DURATION_S = 1.0
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("flight")
+    done = subprocess.run([*CLI, "demo", "paper", "--duration", str(DURATION_S), "--out",
+                           str(out), "--no-plots", "--json"], capture_output=True, text=True,
+                          timeout=300)
+    assert done.returncode == 1, done.stderr      # 1 s is too short to converge
+    return out
+
+
+def _cli(*args: str) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([*CLI, *args], capture_output=True, text=True, timeout=120)
+
+
+def test_report_writes_its_summary_and_names_the_directory_once(flight: Path,
+                                                                tmp_path: Path) -> None:
+    rep = tmp_path / "rep"
+    done = _cli("report", str(flight / "run.mcap"), "--out", f"{rep}/")
+    assert done.returncode == 0, done.stderr
+    assert f"in {rep}/ " in done.stdout and "//" not in done.stdout, done.stdout
+    summary = json.loads((rep / "summary.json").read_text())
+    assert summary["sim_time_s"] == pytest.approx(DURATION_S, abs=0.002)
+    assert sorted(Path(p).name for p in summary["plots"]) == sorted(
+        p.name for p in rep.glob("*.png")) and len(summary["plots"]) == 6
+
+
+def test_report_of_a_controller_log_is_a_usage_error_not_a_failed_flight(
+        flight: Path, tmp_path: Path) -> None:
+    done = _cli("report", str(flight / "ctl.mcap"), "--out", str(tmp_path / "rep"))
+    assert done.returncode == 2, done.stderr
+    lines = done.stderr.strip().splitlines()
+    assert len(lines) == 1 and "vehicle's log" in lines[0], lines
+
+
+def _timeline(path: Path) -> tuple[Any, dict[str, str], list[Any]]:
+    """(statistics, the 'timeline' metadata, messages) of ``path``: the mcap library's
+    own reader on its summary and indexes."""
+    with open(path, "rb") as f:
+        reader = make_reader(f)
+        stats = reader.get_summary().statistics
+        meta = {m.name: dict(m.metadata) for m in reader.iter_metadata()}
+        msgs = [m for _s, _c, m in reader.iter_messages(log_time_order=False)]
+    return stats, meta["timeline"], msgs
+
+
+def test_a_lockstep_flight_is_on_the_timeline_at_sim_time(flight: Path) -> None:
+    """However fast the machine flew it, a viewer's timeline shows the flight's 1 s: from
+    sim time 0 on, log_time = the flight's wall-clock start + sim time (publish_time), in
+    both files, and the two files start the flight at the same instant."""
+    starts = []
+    for name in ("run.mcap", "ctl.mcap"):
+        stats, tl, msgs = _timeline(flight / name)
+        start_ns = round(float(tl["flight_start_unix_s"]) * 1e9)
+        sim_s = float(tl["sim_time_s"])
+        assert tl["log_time"] == "sim" and sim_s == pytest.approx(DURATION_S, abs=0.0011)
+        # the flight's span on the timeline is its sim duration, not its wall time
+        assert (stats.message_end_time - start_ns) * 1e-9 == pytest.approx(sim_s, abs=1e-6)
+        assert float(tl["wall_time_s"]) > 0 and float(tl["real_time_factor"]) > 0
+        flown = [m for m in msgs if m.publish_time > 0]
+        offsets = {m.log_time - m.publish_time for m in flown}
+        assert len(offsets) == 1 and abs(offsets.pop() - start_ns) < 1000   # µs rounding
+        # before sim time starts (the vehicle waits for its controller) the wall clock,
+        # so the file's messages stay in order: none of them after the flight started
+        early = [m for m in msgs if m.publish_time == 0 and m.log_time > start_ns]
+        assert all(m.log_time - start_ns < 2_000_000 for m in early), len(early)
+        assert stats.message_start_time <= start_ns
+        starts.append(start_ns)
+    assert abs(starts[0] - starts[1]) < 50_000_000      # one flight, two files: aligned
