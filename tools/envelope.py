@@ -47,7 +47,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         description="Fly every case of the envelope spec (harness/envelope/cases.toml) "
                     "offline, the attack found from ESC rpm, and compare each with the "
                     "committed baseline: a case regresses when it crashes and the baseline "
-                    "did not, detects another rotor, or ends more than max(10 %%, 0.05 mm) "
+                    "did not, detects another rotor, or ends more than max(10 %, 0.05 mm) "
                     "further from the path over the last 10 s. Progress goes to stderr, the "
                     "table to stdout.",
         epilog="Exit codes: 0 no regression, 1 a regression (or a flight error), 2 usage or "
