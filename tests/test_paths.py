@@ -163,3 +163,16 @@ def test_jet_elementary_functions_against_finite_differences():
         assert d[0] == pytest.approx(ff(x0), rel=1e-14)
         assert d[1] == pytest.approx((v[3] - v[1]) / (2 * h), rel=1e-6)
         assert d[2] == pytest.approx((v[3] - 2 * v[2] + v[1]) / h**2, rel=1e-5, abs=1e-6)
+
+
+def test_expr_path_with_a_constant_component_evaluates_as_jets_and_arrays():
+    """A level path's height written as a plain number ("3.0") is a constant of λ: its jet
+    has zero derivatives and an array of λ gives an array, so the tracker can fly it."""
+    path = build_path("expr", {"s": ["y - sin(x)", "z - 3.0"],
+                               "sigma": ["t", "sin(t)", "3.0"]})
+    _, _, z = path.sigma(Jet.variable(0.4, order=3))
+    assert z.c == (3.0, 0.0, 0.0, 0.0)
+    zs = path.sigma(np.linspace(0.0, 1.0, 5))[2]
+    assert zs.shape == (5,) and np.all(zs == 3.0)
+    lam, converged = PathTracker(path)._newton((0.4, 0.5, 3.1), 0.3)
+    assert converged and abs(path.sigma(lam)[1] - 0.5) < 0.1

@@ -207,16 +207,29 @@ def _expr(params: Mapping[str, Any]) -> Path:
 
     def s(x: Any, y: Any, z: Any) -> tuple[Any, Any]:
         env = {"x": x, "y": y, "z": z}
-        return s_exprs[0](env, JET_LIB), s_exprs[1](env, JET_LIB)
+        return (_like(s_exprs[0](env, JET_LIB), x), _like(s_exprs[1](env, JET_LIB), x))
 
     def sigma(lam: Any) -> tuple[Any, Any, Any]:
         env = {"t": lam}
-        return sig_exprs[0](env, JET_LIB), sig_exprs[1](env, JET_LIB), sig_exprs[2](env, JET_LIB)
+        return (_like(sig_exprs[0](env, JET_LIB), lam), _like(sig_exprs[1](env, JET_LIB), lam),
+                _like(sig_exprs[2](env, JET_LIB), lam))
 
     path = Path("expr", s, sigma, (float(t_range[0]), float(t_range[1])), period,
                 (tuple(s_exprs), tuple(sig_exprs)))
     _check_path(path)
     return path
+
+
+def _like(value: Any, arg: Any) -> Any:
+    """An expression's value in the form of its argument: a component that does not depend
+    on the variable (``"3.0"``, a level path's height) evaluates to a plain number, which a
+    jet or an array of λ must see as a constant jet or a constant array."""
+    if isinstance(value, (int, float)):
+        if isinstance(arg, Jet):
+            return Jet.constant(float(value), order=len(arg.c) - 1)
+        if isinstance(arg, np.ndarray):
+            return np.full(arg.shape, float(value))
+    return value
 
 
 def _check_path(path: Path, n: int = 64) -> None:
