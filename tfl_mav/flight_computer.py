@@ -73,6 +73,7 @@ from tfl_mav.control.law import ControlOutput, TFLController
 from tfl_mav.control.recovery import RecoveryLaw, RecoveryOutput
 from tfl_mav.control.state_filter import StateFilter, YawRateModel
 from tfl_mav.control.takeover import TAKEOVER_TILT_RAD, calm_fail, not_benign
+from tfl_mav.control.takeover import floats as _floats
 from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario
 from tfl_mav.state import State
@@ -294,7 +295,7 @@ class FlightComputer:
                 state = self.yaw_model.update(state, omega, dt, events)
             if self._ticks == 0:
                 events[:0] = self._pending_events
-                why = not_benign(state, rotor, self.speed_mps)
+                why = not_benign(state, rotor, self.speed_mps) or self._beyond_roa(state)
                 if why:
                     self._enter("recovery", state, f"take-over: {why}", events, hold=True)
             self._ticks += 1
@@ -421,6 +422,19 @@ class FlightComputer:
             out.uf_n, self.controller.mass_kg, _ZERO2, False, reason)
         return self._result(thrust, out.requested_n, law, detection, rotor, estimate, new,
                             events)
+
+    def _beyond_roa(self, state: State) -> str:
+        """Why ``state`` is too far from the path for the TFL law ('' if it is not): farther
+        than ``ROA_DIST_M``, where it is not known to converge (from 4.6 m off the paper
+        path at hover it flips within 1.2 s, attack or none)."""
+        proj = self.recovery.projector
+        if proj is None:
+            return ""
+        found = proj.project(_floats(state.position_m))
+        proj.lam = None          # the safe law, if it flies, searches afresh
+        if found is None or not found[3] > ROA_DIST_M:
+            return ""
+        return f"{found[3]:.1f} m from the path (TFL converges from {ROA_DIST_M:g} m)"
 
     def _say_if_climbing(self, rotor: int, estimate: float, events: list[str]) -> None:
         """Say it when the attack makes the vehicle climb whatever the others do (and when
