@@ -170,7 +170,7 @@ def _rewrite(spec: EnvelopeSpec, cases: list, now: dict, baseline: ResultsFile,
         "attack found from ESC rpm (tfl-mav offline BASE --set ... --attack-info detector); "
         "distances in m over the last 10 s"), results=merged)
     write_results_file(path, rf, [c.name for c in spec.cases])
-    print(diff_table(cases, baseline, flown))
+    print(diff_table(cases, baseline, flown, names))
     print(f"\nwrote {_rel(path)} ({len(flown)} cases flown at {rf.tree}; command: tfl-mav "
           f"envelope --rewrite-baseline)")
     for n, r in errors.items():

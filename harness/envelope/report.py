@@ -125,8 +125,11 @@ def _outcome_change(old: CaseResult | None, new: CaseResult) -> str:
     return ", ".join(parts)
 
 
-def diff_table(cases: Sequence[Case], old: ResultsFile, new: dict[str, CaseResult]) -> str:
-    """The before/after of a baseline rewrite, every case (for a note or commit message)."""
+def diff_table(cases: Sequence[Case], old: ResultsFile, new: dict[str, CaseResult],
+               spec_names: set[str] | None = None) -> str:
+    """The before/after of a baseline rewrite, every case flown (for a note or commit
+    message); ``spec_names``: every case of the spec (default: ``cases``), so that a
+    baseline entry is called removed only when the spec no longer has it."""
     header = ["case", "old mm → new mm", "outcome"]
     rows = []
     changed = 0
@@ -140,7 +143,8 @@ def diff_table(cases: Sequence[Case], old: ResultsFile, new: dict[str, CaseResul
         rows.append([c.name, f"{old_mm} → {fmt_mm(n.max_distance_m)}",
                      change or n.outcome])
         changed += bool(change) or o is None or o.max_distance_m != n.max_distance_m
-    gone = sorted(set(old.results) - {c.name for c in cases})
+    names = spec_names if spec_names is not None else {c.name for c in cases}
+    gone = sorted(set(old.results) - names)
     text = _table(header, rows)
     if gone:
         text += f"\nremoved from the spec: {', '.join(gone)}"
