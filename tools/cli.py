@@ -27,6 +27,7 @@ SUBCOMMANDS = {
     "scenarios": "tools.scenarios_cmd",
     "relay": "tools.relay",
     "campaign": "tools.campaign",
+    "compare": "tools.compare",
 }
 
 
