@@ -54,11 +54,11 @@ from tfl_mav.software import (
 )
 from tfl_mav.state import State
 
-__all__ = ["Attack", "Controller", "ControllerSoftware", "Detection", "Detector",
+__all__ = ["Attack", "AttackSignal", "Controller", "ControllerSoftware", "Detection", "Detector",
            "Environment", "FlightArrays", "FlightSoftware", "FlightSoftwareError",
            "GuardedSoftware", "Mode", "Scenario", "ScenarioError", "State", "TickResult",
            "apply_overrides", "load_flight_software", "load_object", "load_scenario",
-           "path_distance_m", "tick_result"]
+           "path_distance_m", "tick_result", "with_attack"]
 
 
 @runtime_checkable
@@ -188,7 +188,23 @@ def path_distance_m(scenario: Scenario, position_m: np.ndarray) -> np.ndarray:
     return out
 
 
-class _AttackSignal:
+def with_attack(sc: Scenario, attack: Any) -> Scenario:
+    """``sc`` with the rotor and start time of ``attack`` (an :class:`Attack`; its own
+    ``rotor``/``start_s``, else the scenario's); ``sc`` itself for None. TypeError or
+    ScenarioError (one line) for an attack that cannot be flown."""
+    if attack is None:
+        return sc
+    if not callable(getattr(attack, "thrust_n", None)):
+        raise TypeError(f"attack: {software_name(attack)} has no thrust_n(t_s, state)")
+    rotor = int(getattr(attack, "rotor", sc.attack.rotor))
+    start = float(getattr(attack, "start_s", sc.attack.start_s))
+    if not 1 <= rotor <= 4:
+        raise ScenarioError("attack.rotor", f"the attack needs a rotor 1-4, got {rotor}"
+                            " (give the attack a rotor attribute or set attack.rotor)")
+    return sc.replace(**{"attack.rotor": rotor, "attack.start_s": start})
+
+
+class AttackSignal:
     """An :class:`Attack` as the simulator's signal ``(t_s, x13) -> N``, guarded like flight
     software: its first exception or non-finite value is its ``failure_reason``."""
 
@@ -231,16 +247,7 @@ class Environment:
                  attack: Any = None, *, attack_info: str = "detector",
                  settings: Sequence[str] = (), name: str | None = None) -> None:
         sc = load_scenario(scenario) if isinstance(scenario, str) else scenario
-        sc = apply_overrides(sc, list(settings))
-        if attack is not None:
-            if not callable(getattr(attack, "thrust_n", None)):
-                raise TypeError(f"attack: {software_name(attack)} has no thrust_n(t_s, state)")
-            rotor = int(getattr(attack, "rotor", sc.attack.rotor))
-            start = float(getattr(attack, "start_s", sc.attack.start_s))
-            if not 1 <= rotor <= 4:
-                raise ScenarioError("attack.rotor", f"the attack needs a rotor 1-4, got {rotor}"
-                                    " (give the attack a rotor attribute or set attack.rotor)")
-            sc = sc.replace(**{"attack.rotor": rotor, "attack.start_s": start})
+        sc = with_attack(apply_overrides(sc, list(settings)), attack)
         if attack_info not in ("detector", "oracle"):
             raise ValueError(f"attack_info: must be 'detector' or 'oracle', got {attack_info!r}")
         self.scenario = sc
@@ -276,8 +283,8 @@ class Environment:
         software = self._software()
         guard = None if software is None else GuardedSoftware(
             software, name=self.name, thrust_max_n=sc.vehicle.thrust_max_n)
-        signal = None if self.attack is None else _AttackSignal(self.attack,
-                                                                software_name(self.attack))
+        signal = None if self.attack is None else AttackSignal(self.attack,
+                                                               software_name(self.attack))
 
         def stop() -> bool:
             return (guard is not None and guard.failure_reason is not None) or \
