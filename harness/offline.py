@@ -19,7 +19,9 @@ from typing import Any
 
 import numpy as np
 
+from sitl.attacker import AttackSignal
 from sitl.simulator import Simulator
+from tfl_mav.build import scenario_path
 from tfl_mav.flight_computer import FlightComputer
 from tfl_mav.flightlog.flight import FlightLog
 from tfl_mav.scenario import Scenario
@@ -43,24 +45,40 @@ def detections(log: FlightLog) -> list[tuple[float, int]]:
 def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
                 progress: Callable[[float, float], None] | None = None,
                 duration_s: float | None = None,
-                hook: Callable[[Simulator], None] | None = None) -> FlightLog:
+                hook: Callable[[Simulator], None] | None = None,
+                flight_software: Any = None,
+                attack_signal: AttackSignal | None = None,
+                stop: Callable[[], bool] | None = None) -> FlightLog:
     """Fly ``sc`` and return its :class:`FlightLog` (finished, arrays).
 
     ``hook(sim)`` is called before every control tick (benches use it to inject failures
     mid-flight, as MAV_CMD_INJECT_FAILURE does on the link).
+
+    ``flight_software``: fly this instead of a new :class:`FlightComputer` (anything with
+    its ``step`` returning a :class:`~tfl_mav.flight_computer.TickResult` and its
+    ``detected_rotor``/``detection_time_s``; told the attack with an oracle only if it has
+    ``tell_attack``). ``attack_signal(t_s, x)``: the attacked rotor's thrust instead of the
+    scenario's signal (:meth:`~sitl.attacker.Attacker.use_signal`). ``stop()``: asked after
+    every control decision; True ends the flight before that command reaches the motors
+    (``log.interrupted``). Without them the flight is exactly the scenario's.
     """
-    # No deadline here: the safe law designs its gains when first met (the same gains).
-    fc = FlightComputer(sc, attack_info=attack_info, design_gains=False)
-    sim = Simulator(sc)
-    ctrl = fc.controller
+    ctrl: Any = None
+    if flight_software is None:
+        # No deadline here: the safe law designs its gains when first met (the same gains).
+        fc = FlightComputer(sc, attack_info=attack_info, design_gains=False)
+        ctrl = fc.controller
+    else:
+        fc = flight_software
+    sim = Simulator(sc, attack_signal=attack_signal)
     v = sc.vehicle
     log = FlightLog(thrust_max_n=v.thrust_max_n, attack_rotor=sc.attack.rotor,
                     attack_start_s=sc.attack.start_s if sc.attack.rotor else math.nan)
-    log.path_points_m = ctrl.tracker.path.sample(400)
+    log.path_points_m = (ctrl.tracker.path if ctrl is not None
+                         else scenario_path(sc)).sample(400)
     duration = sc.run.duration_s if duration_s is None else duration_s
     n_ticks = round(duration / sim.control_dt_s)
     applied = sim.rotor_commands_n    # replaced (never changed in place) by set_command
-    oracle = attack_info == "oracle"
+    oracle = attack_info == "oracle" and hasattr(fc, "tell_attack")
     rows: list[tuple[Any, ...]] = []     # one per tick; the series are built at the end (_fill)
     events = log.events
     append = rows.append
@@ -84,6 +102,9 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
             t_s = sim.time_s
             thrust, out, _, _, estimate, new, req, tick_events = fc_step(
                 t_s, sim.measured_floats, sim.measured_rpm_floats, applied)
+            if stop is not None and stop():
+                log.interrupted = True
+                break
             if new:
                 events.append((fc.detection_time_s,
                                DETECTION_EVENT.format(rotor=fc.detected_rotor)))
@@ -109,8 +130,9 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
             gc.enable()
     log.wall_time_s = time.perf_counter() - t0
     log.duration_s = duration
-    log.events.append((0.0, f"fallbacks: {ctrl.fallback_count}, "
-                            f"saturated ticks: {ctrl.saturation_count}"))
+    if ctrl is not None:
+        log.events.append((0.0, f"fallbacks: {ctrl.fallback_count}, "
+                                f"saturated ticks: {ctrl.saturation_count}"))
     return log.finish()
 
 
@@ -146,7 +168,7 @@ def _fill(log: FlightLog, rows: list[tuple[Any, ...]], sim: Simulator, *,
     data = log.data
     for key, value in (
             ("t_s", np.fromiter(cols[0], float, n)), ("position_m", x[:, 0:3]),
-            ("velocity_mps", x[:, 3:6]),
+            ("velocity_mps", x[:, 3:6]), ("quaternion_wxyz", x[:, 6:10]),
             ("body_rates_radps", x[:, 10:13]), ("yaw_rad", yaw_rad),
             ("path_distance_m", np.fromiter(cols[7], float, n)),
             ("thrust_cmd_n", _matrix(cols[2], 4)), ("thrust_req_n", _matrix(cols[3], 4)),

@@ -10,6 +10,7 @@ reported so a log shows when the attacker asked for more than the rotor can give
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 from tfl_mav.expr import Expr, compile_expr
@@ -34,6 +35,14 @@ class AttackSample(NamedTuple):
 NO_ATTACK = AttackSample(0, 0.0, 0.0, False)
 _new = tuple.__new__
 
+# A signal given as a function (:meth:`Attacker.use_signal`): a name no scenario can hold, so
+# every built-in test in ``_raw`` fails and the function is reached last, at no cost to the
+# built-in signals.
+CUSTOM_SIGNAL = "<function>"
+AttackSignal = Callable[[float, Sequence[float]], float]
+"""``signal(t_s, x)`` -> thrust (N): ``x`` is the true state, 13 floats in the paper frame
+(position m, velocity m/s, quaternion wxyz, body rates rad/s)."""
+
 
 class Attacker:
     """Evaluates the scenario's attack; :meth:`inject` starts one now (GCS command)."""
@@ -46,9 +55,17 @@ class Attacker:
         self.signal = cfg.signal
         self._stuck_n: float | None = None
         self._expr: Expr | None = None
+        self._custom: AttackSignal | None = None
         if self.signal not in ("paper", "constant", "step", "ramp", "sine", "stuck", "off"):
             self._expr = compile_expr(self.signal, ("t", "tau", "x", "y", "z"),
                                       field="attack.signal")
+
+    def use_signal(self, signal: AttackSignal | None) -> None:
+        """Drive the seized rotor with ``signal(t_s, x)`` instead of the scenario's signal
+        (None: back to the scenario's). The rotor and start time stay the scenario's; the
+        value is clamped and a non-finite one recorded exactly as for a built-in signal."""
+        self._custom = signal
+        self.signal = CUSTOM_SIGNAL if signal is not None else self.cfg.signal
 
     def active(self, t_s: float) -> bool:
         return self.rotor != 0 and t_s >= self.start_s
@@ -82,9 +99,12 @@ class Attacker:
         else:
             self.signal = self.cfg.signal if self.cfg.signal != "off" else "paper"
 
-    def sample(self, t_s: float, position_m: tuple[float, float, float],
+    def sample(self, t_s: float, position_m: Sequence[float],
                last_command_n: float) -> AttackSample:
-        """The attacked rotor's thrust at ``t_s``; ``last_command_n`` feeds STUCK."""
+        """The attacked rotor's thrust at ``t_s``; ``last_command_n`` feeds STUCK.
+
+        ``position_m``: the true position (m, paper frame) in its first three entries; the
+        simulator passes its whole true state (13 floats), which a function signal reads."""
         if self.rotor == 0 or t_s < self.start_s:     # not active (inlined: every step)
             return NO_ATTACK
         raw = self._raw(t_s, position_m, last_command_n)
@@ -95,7 +115,7 @@ class Attacker:
         # tuple.__new__: the NamedTuple's generated __new__ is a Python call (every step)
         return _new(AttackSample, (self.rotor, raw, applied, applied != raw))
 
-    def _raw(self, t: float, pos: tuple[float, float, float], last_command_n: float) -> float:
+    def _raw(self, t: float, pos: Sequence[float], last_command_n: float) -> float:
         c = self.cfg
         tau = t - self.start_s
         s = self.signal
@@ -115,6 +135,8 @@ class Attacker:
             return self._stuck_n
         if s == "off":
             return 0.0
+        if self._custom is not None:
+            return self._custom(t, tuple(pos))    # a copy: the signal cannot change the state
         assert self._expr is not None
         try:
             return float(self._expr({"t": t, "tau": tau, "x": pos[0], "y": pos[1], "z": pos[2]}))

@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from sitl.attacker import NO_ATTACK, Attacker, AttackSample
+from sitl.attacker import NO_ATTACK, Attacker, AttackSample, AttackSignal
 from sitl.motors import RADPS_TO_RPM, MotorBank
 from sitl.physics import RigidBodyParams, RigidBodyState, Rk4Step, rk4_stepper
 from tfl_mav.geometry import euler_to_quaternion, quaternion_multiply
@@ -45,7 +45,10 @@ assert math.sqrt(_MAX_BODY_RATE2) == MAX_BODY_RATE_RADPS and math.sqrt(_MAX_SPEE
 class Simulator:
     """Fixed-step physics at ``run.physics_hz``; the control period is a whole multiple."""
 
-    def __init__(self, scenario: Scenario) -> None:
+    def __init__(self, scenario: Scenario, *, attack_signal: AttackSignal | None = None
+                 ) -> None:
+        """``attack_signal(t_s, x)``: drive the scenario's attacked rotor with this function
+        instead of its ``attack.signal`` (:meth:`~sitl.attacker.Attacker.use_signal`)."""
         self.scenario = scenario
         v = scenario.vehicle
         self.params = RigidBodyParams(v.mass_kg, v.inertia_kgm2, v.arm_m,
@@ -67,12 +70,14 @@ class Simulator:
         hover_n = v.mass_kg * v.gravity_mps2 / 4.0
         self.motors = MotorBank(v.k_f, v.thrust_max_n, v.motor_time_constant_s, [hover_n] * 4)
         self.attacker = Attacker(scenario.attack, v.thrust_max_n)
+        if attack_signal is not None:
+            self.attacker.use_signal(attack_signal)
         self.rotor_commands_n = [hover_n] * 4
         self.physics_steps = 0
         self._time_usec = 0          # time_usec of physics_steps (set where it advances)
         self.tick = 0
         self.rejected_commands = 0
-        self.attack = self.attacker.sample(0.0, tuple(ini.position_m), hover_n)
+        self.attack = self.attacker.sample(0.0, self._x, hover_n)   # reads its position
         sens = scenario.sensors
         stds = ((v.rpm_noise_std, 4), (sens.position_noise_std_m, 3),
                 (sens.velocity_noise_std_mps, 3), (sens.attitude_noise_std_rad, 3),
@@ -159,7 +164,7 @@ class Simulator:
             t = n * h
             targets = held
             if rotor and t >= attacker.start_s:    # Attacker.sample's own test, inlined
-                att = attacker.sample(t, (x[0], x[1], x[2]), commands[rotor - 1])
+                att = attacker.sample(t, x, commands[rotor - 1])   # the true state
                 if att.rotor:
                     targets = held.copy()
                     targets[att.rotor - 1] = omega_for_thrust(att.applied_n)

@@ -124,7 +124,8 @@ class Daemon(Intake):
                  on_frame: FrameHook | None = None,
                  on_tick: Callable[[float, tuple[Any, ...]], None] | None = None,
                  on_event: Callable[[str, str, float], None] | None = None,
-                 hold_start: Callable[[], bool] | None = None) -> None:
+                 hold_start: Callable[[], bool] | None = None,
+                 flight_software: Callable[[Scenario], Any] | None = None) -> None:
         """Open the socket towards ``vehicle`` (raises LinkError).
 
         ``key``: 32-byte MAVLink 2 signing secret (the vehicle's), or None (unsigned).
@@ -137,6 +138,9 @@ class Daemon(Intake):
         event also sent as STATUSTEXT. ``hold_start()``: while it returns True, a vehicle
         waiting at t = 0 (its clock starts with our first command, so waiting is free) gets
         no command yet — e.g. a recorder still starting; a take-over mid-flight never waits.
+        ``flight_software(scenario)``: makes the flight software to fly (one per flight,
+        :class:`~tfl_mav.api.FlightSoftware`, returning TickResults) instead of the
+        :class:`FlightComputer`.
         """
         if not (math.isfinite(state_timeout_s) and state_timeout_s > 0):
             raise ValueError(f"state_timeout_s: must be > 0 s, got {state_timeout_s}")
@@ -148,6 +152,7 @@ class Daemon(Intake):
             raise ValueError(f"silence_end_s: must be > state_timeout_s "
                              f"({state_timeout_s} s), got {silence_end_s}")
         self.silence_end_s = silence_end_s
+        self._software_factory = flight_software
         self.computer = self._new_computer()
         self.signing = Signing(key) if key is not None else None
         self.link = Link.connect(vehicle, src_system=sysid, src_component=compid, bind=bind,
@@ -190,6 +195,8 @@ class Daemon(Intake):
         instance runs every code path of the first tick (imports, caches) before the
         vehicle starts its clock."""
         sc = self.scenario
+        if self._software_factory is not None:
+            return self._software_factory(sc)
         warm = FlightComputer(sc)
         ini = sc.initial
         state = State(tuple(ini.position_m), tuple(ini.velocity_mps),

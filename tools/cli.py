@@ -28,6 +28,7 @@ SUBCOMMANDS = {
     "relay": "tools.relay",
     "campaign": "tools.campaign",
     "envelope": "tools.envelope",
+    "compare": "tools.compare",
 }
 
 

@@ -62,6 +62,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="sim seconds to fly (default: the scenario's run.duration_s)")
     p.add_argument("--state-timeout", type=float, default=0.5, metavar="S",
                    help="wall seconds without vehicle state before FAILSAFE (default 0.5)")
+    p.add_argument("--controller", metavar="MODULE:NAME",
+                   help="fly this flight software instead of the TFL law: tfl, se3, cascade, "
+                        "MODULE:NAME or FILE.py:NAME (a Controller or FlightSoftware of "
+                        "tfl_mav.api, docs/api.md); one that raises or returns NaN ends the "
+                        "run (exit 1)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="settings",
                    help="override a scenario key (TOML value), repeatable")
     p.add_argument("--summary-json", metavar="FILE", help="write the run summary as JSON")
@@ -85,6 +90,9 @@ def run(args: argparse.Namespace) -> int:
             from tfl_mav.flightlog.live import parse_live_address
 
             live = parse_live_address(args.foxglove)
+        failures: list[str] = []
+        software = (_software(args.controller, scenario, failures, lambda: daemon.stop())
+                    if args.controller else None)
     except (ScenarioError, ValueError, LinkError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return 2
@@ -132,7 +140,8 @@ def run(args: argparse.Namespace) -> int:
                         silence_end_s=_SILENCE_END_S if args.realtime else None,
                         on_tick=_tick_hook(recorder, args.progress, on_tick),
                         on_event=on_event,
-                        hold_start=hold_start if recorder is not None else None)
+                        hold_start=hold_start if recorder is not None else None,
+                        flight_software=software)
     except (LinkError, ValueError) as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         if recorder is not None:
@@ -157,7 +166,8 @@ def run(args: argparse.Namespace) -> int:
             print(f"{prog}: controlling {vehicle[0]}:{vehicle[1]} from "
                   f"{daemon.link.local_address[1]}, scenario {scenario.name!r}"
                   f"{', MAVLink 2 signing on' if key is not None else ''}"
-                  f", law core {daemon.computer.controller.core}",
+                  + (f", law core {daemon.computer.controller.core}" if software is None
+                     else f", controller {args.controller}"),
                   file=sys.stderr, flush=True)
         result = daemon.run(duration)
     finally:
@@ -181,6 +191,9 @@ def run(args: argparse.Namespace) -> int:
               f"{result.stats.failsafes} failsafes, rejected "
               f"{sum(v for k, v in result.stats.link.items() if k not in _OK_COUNTERS)}"
               + _degraded(result.stats), file=sys.stderr)
+    if failures:
+        print(f"{prog}: {failures[0]}", file=sys.stderr)
+        return 1
     if "signal" in got:
         return 128 + got["signal"]
     if "silent" in result.reason:
@@ -198,6 +211,32 @@ def _degraded(st: Any) -> str:
 
 
 _DISTANCE = TICK_FIELDS.index("path_distance_m")
+
+
+def _software(spec: str, scenario: Any, failures: list[str],
+              stop: Callable[[], None]) -> Callable[[Any], Any]:
+    """The daemon's flight software factory for ``--controller SPEC``: the user's software
+    behind the guard, which ends the run on its first failure (one line in ``failures``).
+    ValueError (one line) if SPEC cannot be loaded or made."""
+    from tfl_mav.software import FlightSoftwareError, GuardedSoftware, load_flight_software
+
+    name, factory = load_flight_software(spec)
+
+    def failed(reason: str) -> None:
+        failures.append(reason)
+        stop()
+
+    def make(sc: Any) -> Any:
+        return GuardedSoftware(factory(sc), name=name, thrust_max_n=sc.vehicle.thrust_max_n,
+                               on_failure=failed)
+    try:
+        make(scenario)          # made once before the vehicle waits: errors say so now
+    except FlightSoftwareError:
+        raise
+    except Exception as exc:
+        raise ValueError(f"--controller {spec}: making it raised {type(exc).__name__}: "
+                         f"{' '.join(str(exc).split())[:200]}") from None
+    return make
 
 
 def _tick_hook(recorder: Any, progress: bool,
