@@ -7,7 +7,7 @@ offline loop against a plain numpy RK4 physics-only loop — all in the same run
 
 1. ``TFLController.update`` alone, median and p90 µs over a closed-loop flight (so the
    projection is warm-started as in real use), with the path evaluated by the reference jets
-   (``compiled_path=False``, the law before #13) and by the compiled tracker (the default:
+   (``compiled_path=False``, the jets evaluated generically) and by the compiled tracker (the default:
    the fused tick: without motor lag the whole tick as one generated call, ``fused``).
 2. Where an update's time goes, per step of :meth:`TFLController.update` (exclusive µs per
    tick, by wrapping each step with a timer: absolute numbers include the wrapper's cost,
@@ -19,7 +19,7 @@ offline loop against a plain numpy RK4 physics-only loop — all in the same run
    reduced-attitude law, ``LOST_ROTOR``); and the same step split into the detector, the
    TFL law, the safe law and the flight computer's own work, by replaying the flight's
    inputs (:func:`flight_computer_parts`).
-4. Issue #13's table row 2: the offline loop (physics + law + detector at 1 kHz,
+4. The offline loop table: the offline loop (physics + law + detector at 1 kHz,
    ``harness.offline.fly_offline``, and the whole ``tfl-mav offline`` process) against a
    plain numpy RK4 loop of the same rigid body with the physics only, as the ratio of
    simulated seconds per CPU second (> 1: the full loop is faster), and where a tick of
@@ -132,8 +132,8 @@ STEPS: list[tuple[str, Any, str]] = [
     ("torques (3)", law.TFLController, "_torques"),
     ("allocation (4), (6) + yaw (2)", law.TFLController, "_allocate_attacked"),
     ("allocation (4), (6) + yaw (2)", law.TFLController, "_allocate_nominal"),
-    ("lag inverse (#6)", actuators.MotorLagInverter, "reachable"),
-    ("lag inverse (#6)", actuators.MotorLagInverter, "invert"),
+    ("lag inverse", actuators.MotorLagInverter, "reachable"),
+    ("lag inverse", actuators.MotorLagInverter, "invert"),
     ("saturation, applied, ṗ/q̇ prediction", law.TFLController, "_saturate_and_apply"),
     ("extension (9) + settling", law.TFLController, "_advance_extension"),
     ("extension (9) + settling", law.TFLController, "_settle"),
@@ -465,7 +465,7 @@ def _write(path: str | None, result: dict[str, Any]) -> None:
 
 
 def _offline_table(sc0: Scenario, args: argparse.Namespace, result: dict[str, Any]) -> int:
-    """Issue #13's row 2 (same-run ratios to a plain numpy RK4 loop) and the loop's pieces."""
+    """The offline loop (same-run ratios to a plain numpy RK4 loop) and the loop's pieces."""
     # Each measurement is paired with a numpy RK4 run right before and after it (this VM's
     # speed drifts up to ~2x between runs, less within a few seconds); the figure is the
     # median over --repeats rounds of the ratio to its own pair's mean.

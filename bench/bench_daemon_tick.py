@@ -1,4 +1,4 @@
-"""The controller daemon's lockstep tick outside the flight computer, in-process (issue #13).
+"""The controller daemon's lockstep tick outside the flight computer, in-process.
 
 A real :class:`~tfl_mav.daemon.Daemon` (paper scenario, rotor 2 attacked) is fed a real
 simulator's states, packed by our Link into the datagram the vehicle sends (ODOMETRY +

@@ -1,4 +1,4 @@
-"""Attack-detector table (issue #4 "Attack detection", issue #6 "with the lag").
+"""Attack-detector table .
 
 On the paper scenario with ESC rpm noise, at 1 kHz physics and control, for τ_m = 0 and
 20 ms:
@@ -13,7 +13,7 @@ Two loops: **open** drives the simulator with a scripted command (busy sines and
 saturation for the nominal runs, hover for the attacks — the vehicle tumbles, the motors
 do not care); **closed** flies the TFL controller, which is told of the attack only by the
 detector (as ``tfl-mav offline --attack-info detector`` does). Closed-loop rows say if the
-flight crashed: the law under motor lag is issue #6.
+flight crashed: the law under motor lag is the lag inverse's (actuators).
 
     python bench/bench_detector.py [--sigma 20] [--runs 10] [--duration 30] [--loops open,closed]
                                    [--model-tau-scale 1.0] [--jobs 2] [--json out.json]

@@ -1,4 +1,4 @@
-"""The attack-class envelope (issue #14): each failure family flown offline, with its bound.
+"""The attack-class envelope: each failure family flown offline, with its bound.
 
 Every case is the paper scenario (or the circle) with ``--set`` overrides, flown in-process by
 :func:`harness.offline.fly_offline` with the attack found from ESC rpm (``detector``), as

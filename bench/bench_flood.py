@@ -1,4 +1,4 @@
-"""Lockstep speed of ``tfl-mav sim`` while its control port is flooded (issue #5, "Load").
+"""Lockstep speed of ``tfl-mav sim`` while its control port is flooded.
 
 Three runs of ``tfl-mav sim`` (subprocess, lockstep, 1 kHz) flown by a minimal controller
 (raw socket + pymavlink, hover commands, as in ``bench_lockstep.py``):

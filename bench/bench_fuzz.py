@@ -1,4 +1,4 @@
-"""Fuzz both UDP endpoints (issue #5): ≥ 100 000 hostile datagrams each, over loopback.
+"""Fuzz both UDP endpoints: ≥ 100 000 hostile datagrams each, over loopback.
 
 The vehicle (``sitl.vehicle.Vehicle``, lockstep) and the daemon (``tfl_mav.daemon.Daemon``)
 each run in a thread on a real UDP socket; the fuzzer is their pinned peer and flies them in

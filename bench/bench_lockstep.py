@@ -14,7 +14,7 @@ Measures, on this machine:
    daemon: law, detector, both MCAP recorders), ticks per wall second of the flight as the
    simulator reports it;
 4. ceiling: a bare two-process pymavlink UDP ping-pong (ODOMETRY out, HIL_ACTUATOR_CONTROLS
-   back, nothing else), and issue #13's same-run ratios of (2) and (3) to it;
+   back, nothing else), and the same-run ratios of (2) and (3) to it;
 5. A/B: the full loop again with the recorder children niced only
    (``TFL_MAV_RECORDER_IDLE=0``) and idle (the lockstep default,
    :mod:`tfl_mav.flightlog.child_priority`), alternating, ``--ab-rounds`` each.
@@ -94,7 +94,7 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
     from tfl_mav.scenario import load_scenario
 
     to_state: Any = paper_from_odometry
-    try:    # the daemon's path since #13: the received tuple's fields, no attribute reads
+    try:    # the daemon's path: the received tuple's fields, no attribute reads
         from tfl_mav.daemon_intake import _ODOMETRY_FIELDS
         from tfl_mav.frames import paper_from_odometry_fields
 
@@ -561,7 +561,7 @@ def main() -> int:
     print(f"  {'all four processes':<{_WIDTH}}  "
           f"{sum(full['cpu_us_per_tick'].values()):>11.1f} µs "
           f"(wall per tick {1e6 / full['ticks_per_s']:.0f} µs on {os.cpu_count()} cpus)")
-    print("\nissue #13 (same-run ratios to the bare ping-pong)        now    goal")
+    print("\nsame-run ratios to the bare ping-pong                    now    goal")
     print(f"  full lockstep loop (sim + daemon + both MCAP recorders)  {ratio_full:5.2f}  ≥ 0.5")
     print(f"  lockstep sim + bare client, no MCAP                      {ratio:5.2f}  ≥ 0.7")
     if args.json:

@@ -1,4 +1,4 @@
-"""Lockstep over a lossy link: what a lost datagram costs (issue #15, "Lockstep resend").
+"""Lockstep over a lossy link: what a lost datagram costs.
 
 A ``tfl-mav sim`` subprocess (hover, no attack) is flown by the test pilot
 (:class:`harness.pilot.Pilot`) through the fault relay (:class:`harness.relay.Relay`), first

@@ -1,4 +1,4 @@
-"""Offline flight table for the TFL controller (issue #3's "done means").
+"""Offline flight table for the TFL controller.
 
 Flies, in-process on the sitl physics at 1 kHz with the controller sampled at 1 kHz:
 the paper scenario with an exact model (plain and robust law), the four ±2 % mass × ±10 %

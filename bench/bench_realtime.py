@@ -1,4 +1,4 @@
-"""Real time, for real (issue #12): the flight held on a busy machine.
+"""Real time, for real: the flight held on a busy machine.
 
 Real processes (``tfl-mav sim --realtime`` and ``tfl-mav fly --realtime``, both with
 ``--mcap`` on, real UDP on loopback), 1 kHz control, beside a CPU hog (a busy-loop

@@ -99,7 +99,7 @@ def _fly_recorder(scenario: Any, path: Path) -> tuple[dict[str, Any], Any]:
     """The recorder hooks of ``tfl-mav fly --mcap`` (whatever this tree's fly uses)."""
     try:
         from tools.fly import open_recorder
-    except ImportError:       # before #13/#17: an in-process Recorder, built as fly.py did
+    except ImportError:       # an older tree: an in-process Recorder, built as fly.py did
         from tfl_mav.build import scenario_path
         from tfl_mav.flightlog.recorder import Recorder
 

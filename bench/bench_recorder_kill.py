@@ -1,4 +1,4 @@
-"""What a SIGKILL mid-run costs the MCAP log of ``tfl-mav sim --mcap`` (issue #5, "Faults").
+"""What a SIGKILL mid-run costs the MCAP log of ``tfl-mav sim --mcap``.
 
 ``tfl-mav sim --mcap`` records in a child process (``RecorderProcess``,
 ``tfl_mav/flightlog/recorder_process.py``). A bare lockstep client (raw socket + pymavlink,

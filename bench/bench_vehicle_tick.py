@@ -1,4 +1,4 @@
-"""The simulated vehicle's lockstep tick, piece by piece, in-process (issue #13).
+"""The simulated vehicle's lockstep tick, piece by piece, in-process.
 
 Each piece of what ``sitl.vehicle.Vehicle`` does per control tick, timed alone on the
 paper scenario (rotor 2 attacked, 1 kHz physics and control): µs per call, the *minimum*

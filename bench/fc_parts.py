@@ -41,7 +41,7 @@ def flight_computer_parts(sc: Scenario, duration_s: float | None,
     its cost among the laws, their caches and branch history; and ``detector alone``, a
     fresh detector replaying its own recorded inputs in a loop. (The laws cannot be left
     out one at a time: the flight computer hands the safe law's path parameter to the TFL
-    law, so a recorded safe law would change the TFL law's inputs.) Measured (#13): in situ
+    law, so a recorded safe law would change the TFL law's inputs.) Measured: in situ
     ~2x alone; with the laws replaced as well it is the same as alone, so the difference
     is what the laws' code and data leave of the caches, not the detector's inputs."""
     parts = [(AttackDetector, "detector"), (TFLController, "TFL law"),

@@ -1,4 +1,4 @@
-"""Fuzzing both UDP endpoints over real loopback sockets (issue #5, "bad input").
+"""Fuzzing both UDP endpoints over real loopback sockets.
 
 Shared by ``tests/test_fuzz.py`` (a small seeded set) and ``bench/bench_fuzz.py`` (≥ 100 000
 inputs per endpoint). Nothing here is mocked: a real :class:`~sitl.vehicle.Vehicle` or

@@ -1,4 +1,4 @@
-"""The simulator's RK4 step compiled to C (issue #13, :mod:`tfl_mav.native`).
+"""The simulator's RK4 step compiled to C (:mod:`tfl_mav.native`).
 
 :func:`physics.rk4_stepper`'s ``step`` — the classical RK4 step written out on floats — is
 translated from its own source into C, with the airframe's constants as arguments (one build

@@ -1,4 +1,4 @@
-"""The vehicle's recorder hooks, and when they run (issue #13).
+"""The vehicle's recorder hooks, and when they run.
 
 ``on_frame(direction, raw, msg, time_s)`` sees every frame of both links;
 ``on_truth(sim)`` sees the simulator at every control tick's state. Called at once, they

@@ -10,7 +10,7 @@ scenario's rpm noise), battery voltage (cV), current (cA), consumed charge (mAh)
 temperature (°C) from :mod:`sitl.power`, and a message counter (the same for all four,
 wrapping at 2¹⁶). Every field is clamped to its wire type.
 
-``ACTUATOR_OUTPUT_STATUS`` says which command the rpm answer to (issue #12): ``time_usec`` =
+``ACTUATOR_OUTPUT_STATUS`` says which command the rpm answer to: ``time_usec`` =
 the ``time_usec`` of the HIL_ACTUATOR_CONTROLS held over the period that just ended (0 =
 none: before the first command, motors cut, disarmed), ``actuator[0..3]`` = the thrust
 fractions actually driven (0 when cut), ``active`` = 0b1111 while a command (or the initial

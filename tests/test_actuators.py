@@ -1,4 +1,4 @@
-"""Motor lag (#6): the deadbeat lag inverse against the simulator's own motors, the
+"""Motor lag: the deadbeat lag inverse against the simulator's own motors, the
 allocation under per-rotor bounds, and the law with and without lag."""
 
 from __future__ import annotations
@@ -155,7 +155,7 @@ def test_lag_unaware_law_flips_and_the_lag_aware_law_does_not():
     sc = load_scenario("paper").replace(**{"vehicle.motor_time_constant_s": 0.02})
     blind = fly_offline(sc.replace(**{"controller.motor_time_constant_scale": 0.0}),
                         duration_s=4.0)
-    assert blind.crashed  # flipped, or (#14: the safe law took over too late) hit the ground
+    assert blind.crashed  # flipped, or (the safe law took over too late) hit the ground
     aware = fly_offline(sc, attack_info="detector", duration_s=4.0)
     assert not aware.crashed
     d = aware.data["path_distance_m"]

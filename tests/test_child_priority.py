@@ -1,4 +1,4 @@
-"""The recorder child's CPU priority (#13): idle in lockstep, promoted when it falls behind.
+"""The recorder child's CPU priority: idle in lockstep, promoted when it falls behind.
 
 Real child processes; their policy and nice value read back from the kernel. A child that
 gets no CPU at all (``SIGSTOP``) stands in for one starved by a busy machine: its pipe

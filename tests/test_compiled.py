@@ -1,4 +1,4 @@
-"""The compiled path tracker (#13) against the reference jets: the same numbers to rounding.
+"""The compiled path tracker against the reference jets: the same numbers to rounding.
 
 Every path kind, random states inside the projection tube, first (cold) and warm-started
 evaluations; the kernels themselves against jets; paths that cannot be traced fall back to

@@ -236,7 +236,7 @@ def test_paper_attack_on_rotor_2_is_found_within_20_ms():
 
 
 def test_detection_is_released_once_the_rotor_obeys_again():
-    """#14: a rotor the attacker lets go follows its command; after RELEASE_TICKS obeying
+    """A rotor the attacker lets go follows its command; after RELEASE_TICKS obeying
     samples the verdict returns to 0 (released on exactly one tick)."""
     sc = scenario(rotor=3, signal="off", sigma=20.0)
     released = 0
@@ -335,7 +335,7 @@ def test_random_bounded_input_never_gives_nan(tau, steps):
         out: DetectorOutput = det.update(t, rpm, cmd)
         assert all(map(math.isfinite, out.residuals_n + out.cusum))
         if rotor and not out.released:
-            # latched, or moved to another rotor on an alarm (#14: the attacker moved)
+            # latched, or moved to another rotor on an alarm (the attacker moved)
             assert out.detected_rotor == rotor or out.alarm
         rotor = out.detected_rotor
         assert math.isfinite(out.estimate_n) == bool(rotor)

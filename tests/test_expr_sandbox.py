@@ -1,4 +1,4 @@
-"""Scenario expressions cannot execute code or exhaust the machine (issue #5).
+"""Scenario expressions cannot execute code or exhaust the machine.
 
 Attack signals (``attack.signal``) and expression paths (``path.s[i]``, ``path.sigma[i]``)
 are compiled by :mod:`tfl_mav.expr`. Every hostile text must be refused at load time with

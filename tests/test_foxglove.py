@@ -1,4 +1,4 @@
-"""Foxglove's official schemas in the files and on the live WebSocket (issue #17).
+"""Foxglove's official schemas in the files and on the live WebSocket.
 
 The scene, ``/tf`` and ``/log`` are protobuf from Foxglove's SDK; here every such message in
 a real MCAP file, and every message a real WebSocket client receives from a running

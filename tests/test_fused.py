@@ -1,4 +1,4 @@
-"""The fused tick (#13): the law's middle generated as one function per flight gives the
+"""The fused tick: the law's middle generated as one function per flight gives the
 numbers of the reference jets, to rounding, on random states for every path kind.
 
 The reference is the law flying :class:`tracker.PathTracker` (``compiled_path=False``), one

@@ -1,4 +1,4 @@
-"""Bad input at both UDP endpoints, over real loopback sockets (issue #5).
+"""Bad input at both UDP endpoints, over real loopback sockets.
 
 A small seeded run of the fuzzer in ``tests/fuzz.py`` against a lockstep vehicle and the
 daemon (``bench/bench_fuzz.py`` runs ≥ 100 000 inputs per endpoint), a hypothesis property

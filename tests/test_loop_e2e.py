@@ -29,7 +29,7 @@ def _demo(tmp_path, *extra: str) -> dict:
 @pytest.mark.slow
 def test_demo_paper_converges_and_detects_rotor_2(tmp_path):
     # The paper's A is ≈ 0 twice in the first ~14 s (the dead-rotor stretches, flown by the
-    # reduced-attitude law at ~0.1 m, #14); after the last hand-back (~13.5 s) the TFL chains
+    # reduced-attitude law at ~0.1 m); after the last hand-back (~13.5 s) the TFL chains
     # (poles −2.5 s⁻¹) close a 0.1 m error to well under 5 cm by 20 s.
     m = _demo(tmp_path, "--duration", "20", "--set", "vehicle.rpm_noise_std=10")
     assert not m["crashed"], m["crash_reason"]
@@ -67,7 +67,7 @@ def test_demo_detects_another_rotor(tmp_path):
 
 @pytest.mark.slow
 def test_demo_with_20ms_motor_lag_converges_and_detects_rotor_2(tmp_path):
-    """#6: real motors (τ_m = 20 ms, controller's τ_m 20 % long, noisy rpm) over MAVLink.
+    """Real motors (τ_m = 20 ms, controller's τ_m 20 % long, noisy rpm) over MAVLink.
     Ignoring the lag flips the vehicle within 2 s (tests/test_actuators.py). 20 s: past the
     paper's second dead-rotor stretch, as in the test above."""
     m = _demo(tmp_path, "--duration", "20", "--set", "vehicle.motor_time_constant_s=0.02",
@@ -173,7 +173,7 @@ def test_report_from_the_log_alone(tmp_path):
 
 
 def test_daemon_tick_record_is_tick_state(sim_factory):
-    """The daemon writes its per-tick record out in ``_control_newest`` (#13); it must stay
+    """The daemon writes its per-tick record out in ``_control_newest``; it must stay
     the tuple ``tick_state`` builds from the same tick's result. A real lockstep flight (the
     paper's attack: detection, then the attacked and safe laws), every tick compared."""
     from tfl_mav.daemon import Daemon

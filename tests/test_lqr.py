@@ -1,4 +1,4 @@
-"""The safe law's LQR without scipy (#13): expm, the DARE by doubling, and the gains, each
+"""The safe law's LQR without scipy: expm, the DARE by doubling, and the gains, each
 against scipy.linalg on the very models the law designs for (the whole spin schedule, both
 inertia orders, 1 kHz and 250 Hz)."""
 

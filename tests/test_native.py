@@ -1,4 +1,4 @@
-"""The law's compiled core (#13, :mod:`tfl_mav.native`) is the Python core bit for bit.
+"""The law's compiled core (:mod:`tfl_mav.native`) is the Python core bit for bit.
 
 The C is translated from the Python core's own source; these tests hold the translation to
 CPython's semantics operation by operation (values *and* where Python raises, which the

@@ -1,4 +1,4 @@
-"""Closed-loop flights of the TFL law on the sitl physics (issue #3's claims, one test each).
+"""Closed-loop flights of the TFL law on the sitl physics (one claim a test).
 
 Every flight is the real controller sampled at 1 kHz (zero-order hold) on the real plant;
 the runner tells the controller which rotor is attacked and its thrust measured from rpm
@@ -30,7 +30,7 @@ def _fly(name: str, **overrides):
 @pytest.mark.slow
 def test_exact_model_converges_below_1mm_within_the_thrust_limits():
     """The paper's A is ≈ 0 twice in the first 15 s (the dead-rotor stretch, flown by the
-    reduced-attitude law, #14); after the last hand-back (~14.6 s) the TFL chains settle with
+    reduced-attitude law); after the last hand-back (~14.6 s) the TFL chains settle with
     poles at −2.5/−4 s⁻¹, so 10 s later the error is far below 1 mm. The applied commands
     stay in [0, f_max] (the requests may leave it while a rotor is dead: logged honestly)."""
     log, m = _fly("paper-exact", **{"controller.law": "robust"})

@@ -1,4 +1,4 @@
-"""Issue #12: real time without false alarms, degrading instead of falling, restarts.
+"""Real time without false alarms, degrading instead of falling, restarts.
 
 Pure and fast where the mechanism allows it: the detector is fed late, lost and reordered
 commands through :meth:`FlightComputer.step` offline (a seeded link model between the

@@ -1,4 +1,4 @@
-"""Issue #12: recording never costs a real-time flight.
+"""Recording never costs a real-time flight.
 
 * ``tfl-mav fly``'s :class:`~tools.fly.StartingRecorder` starts the recorder's child beside
   the flight (after the first command) instead of before it: what the flight hands it

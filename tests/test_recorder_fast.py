@@ -1,4 +1,4 @@
-"""The recorder's fast paths write exactly what the careful ones do (issue #13).
+"""The recorder's fast paths write exactly what the careful ones do.
 
 * :class:`~tfl_mav.flightlog.mcapfast.FastWriter` vs mcap's own ``Writer``: the same file,
   byte for byte (chunks, message indexes, statistics, summary), across chunk boundaries,

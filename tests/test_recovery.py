@@ -1,4 +1,4 @@
-"""The safe law's path projection (#13): compiled σ kernel against the reference jets.
+"""The safe law's path projection: compiled σ kernel against the reference jets.
 
 The projector (:class:`recovery.PathProjector`) runs the same Newton steps on σ, σ', σ''
 whichever evaluation it is given; the compiled ``sigma2`` kernel and the reference jets
@@ -7,7 +7,7 @@ agree to rounding too — for every path kind, ``kind = "expr"`` included. The p
 also checked to be the closest point (against a dense search), which no agreement between
 two implementations can show.
 
-Then the take-over of a restarted controller (#12, "Restart"), offline and deterministic: the
+Then the take-over of a restarted controller, offline and deterministic: the
 same fall the real-time test (test_faults) can only catch by chance.
 """
 
@@ -141,7 +141,7 @@ def test_the_safe_law_gives_the_same_thrusts_with_either_projection(rotor):
         assert b.path_distance_m == pytest.approx(a.path_distance_m, rel=1e-9)
 
 
-# ------------------------------------------------------------------ restart take-over (#12)
+# ------------------------------------------------------------------ restart take-over
 KILL_S = 1.0          # the old controller dies here (at the paper path's lowest bend) …
 HELD_S = 0.25         # … the vehicle holds its last command this long (--command-timeout) …
 AFTER_S = 1.6         # … and the new controller flies this long (the old flip came at 0.8 s)

@@ -1,4 +1,4 @@
-"""Python float functions translated to C, operation for operation (issue #13).
+"""Python float functions translated to C, operation for operation.
 
 :func:`translate` turns one Python function of the restricted form the law's generated
 code takes — numbers and sequences of numbers in, straight-line float arithmetic with

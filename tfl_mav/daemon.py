@@ -292,7 +292,7 @@ class Daemon(Intake):
         states arrive in increasing time); True if a valid state arrived (for the failsafe's
         clock).
 
-        Runs every tick (#13): the applied command's usual case (our own copy, by the
+        Runs every tick: the applied command's usual case (our own copy, by the
         state's ``time_usec``), the tick and the command message are written out here, one
         Python call instead of four."""
         arrived, self._arrived = self._arrived, False
@@ -349,7 +349,7 @@ class Daemon(Intake):
             self._event("warning", f"ATTACK on rotor {rotor} detected at "
                                    f"t={t:.3f} s; attacked law engaged")
         if events:
-            for text in events:              # law switches, in words (#14)
+            for text in events:              # law switches, in words
                 self._event("warning", text)
         self._last_cmd = thrust
         keys = self._history_keys

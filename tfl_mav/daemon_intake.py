@@ -153,7 +153,7 @@ class Intake:
         self._pending_state = None
         applied, self._pending_applied = self._pending_applied, None
         # classified (:mod:`tfl_mav.arrivals`); a fresh state, the usual one, joins the batch
-        # here (one call less a tick, #13). Lockstep's usual case, written out: newer than
+        # here (one call less a tick). Lockstep's usual case, written out: newer than
         # the watermark by at most the plausible step is FRESH (classify's last branch; its
         # wall times stay 0.0 in lockstep), no call at all.
         arr = self._arrivals

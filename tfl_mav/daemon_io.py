@@ -152,7 +152,7 @@ def tick_state(res: TickResult) -> tuple[Any, ...]:
     """The controller's internals of one tick, compact: plain values in
     :data:`TICK_FIELDS` order (the recording child names them and encodes JSON).
     :meth:`~tfl_mav.daemon.Daemon._control_newest` builds the same tuple written out (every
-    tick, #13): change both together."""
+    tick): change both together."""
     out, det = res.law, res.detection
     est = det.estimate_n if det is not None else res.attack_estimate_n
     return (_MODE_NAMES[out.mode], res.attack_rotor, est, out.path_distance_m,

@@ -241,7 +241,7 @@ class FlightComputer:
         why — the daemon's loop must not die.
         """
         try:
-            # Runs every tick (#13): attribute look-ups hoisted, the NaN/range tests written as
+            # Runs every tick: attribute look-ups hoisted, the NaN/range tests written as
             # comparisons (False for NaN), the decisions and their order exactly as in words.
             ctrl = self.controller
             if type(rpm) is np.ndarray:          # the simulator's: floats are 3-5× cheaper
@@ -500,6 +500,6 @@ class FlightComputer:
             est = estimate if _isfinite(estimate) else 0.0
             hover = self._hover_share_n
             applied[rotor - 1] = hover if abs(hover - est) > 1.0 else self._probe_high_n
-        # TickResult(...) without its generated Python __new__ (every tick, #13): all fields
+        # TickResult(...) without its generated Python __new__ (every tick): all fields
         return _new(TickResult, (applied, out, detection, rotor, estimate, new, req,
                                  tuple(events)))

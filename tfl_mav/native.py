@@ -1,4 +1,4 @@
-"""Generated float code compiled to machine code with the system C compiler (issue #13).
+"""Generated float code compiled to machine code with the system C compiler.
 
 The law's fused tick (:mod:`fused`) is Python: ~1 000 float operations a tick, each a
 bytecode dispatch and a float object. Its arithmetic as one pure function

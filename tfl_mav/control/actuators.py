@@ -1,4 +1,4 @@
-"""Inverting the rotors' first-order speed lag so the law's thrusts are the ones flown (#6).
+"""Inverting the rotors' first-order speed lag so the law's thrusts are the ones flown.
 
 Model (the simulator's, and a fair first model of a brushless motor + ESC): each rotor speed
 obeys dω/dt = (ω_c − ω)/τ_m with thrust f = k_f ω² and the command ω_c held over a control
@@ -24,7 +24,7 @@ per-period error is multiplied by 1 − s (−0.2 … +0.2 for ±20 %), so it st
 a period or two, and rpm noise passes to the rotor speed about one-to-one instead of being
 amplified by 1/(1 − e^{−h/τ}) ≈ τ/h. "About one-to-one" is still too much for ESC noise of
 100 rpm (10 rad/s): the deadbeat command jumps by τ/h × that every period, and the vehicle
-hits the ground within a second (issue #14). So with noise (:meth:`set_rpm_noise`) the
+hits the ground within a second. So with noise (:meth:`set_rpm_noise`) the
 speed the inverse closes on is a steady-state Kalman estimate ω̂ from the same motor model
 and the command actually sent, ω̂ = ω̂⁻ + L (ω_meas − ω̂⁻), with a process noise of
 ``PROCESS_STD_RADPS`` per period (the model's own error: τ_m off by ~20 %); without noise

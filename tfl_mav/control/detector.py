@@ -18,7 +18,7 @@ period). An attacker who forces a rotor's thrust makes that rotor's speed leave 
   anomalous samples are needed. Gaussian false-alarm rate (Siegmund's approximation,
   ARL₀ ≈ e^{2k(h+1.166)}/(2k²)): k = 2, h = 8 gives ~10¹⁵ ticks per statistic.
 * **Isolation**: the rotor with the largest statistic on the alarm tick. Latched, but it
-  follows the attacker (issue #14): the other rotors' statistics keep running, and when one
+  follows the attacker: the other rotors' statistics keep running, and when one
   of them alarms the attacker has moved (MAV_CMD_INJECT_FAILURE on another rotor) and the
   verdict moves with it (a new alarm). The latched rotor is released with evidence: the
   flight computer commands it a probe thrust away from its estimate, and when its speed
@@ -228,7 +228,7 @@ class AttackDetector:
         Runs every tick, so the four rotors' model, residual and CUSUM are straight-line
         float code (generated once from one rotor's template: :func:`_rotors_source`); the
         isolation runs only on a tick whose largest statistic reaches ``h``. The same
-        floating-point operations, in the same order, as the step-by-step form before #13
+        floating-point operations, in the same order, as the step-by-step form
         (the golden flights are bit-identical).
         """
         if len(rpm_measured) != 4:

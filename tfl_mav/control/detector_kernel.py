@@ -1,4 +1,4 @@
-"""The detector's four-rotor tick as generated code (issue #13): one rotor's template,
+"""The detector's four-rotor tick as generated code: one rotor's template,
 expanded for the four rotors (:class:`detector.AttackDetector` runs it every tick).
 
 :func:`rotors_source` writes it as a method-like function on the detector's state

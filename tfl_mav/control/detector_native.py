@@ -1,11 +1,11 @@
-"""The detector's four-rotor tick compiled to C (issue #13, :mod:`native`).
+"""The detector's four-rotor tick compiled to C (:mod:`native`).
 
 :func:`detector_kernel.rotors_source` writes the tick twice from one template: as Python on
 the detector's attributes, and as a pure function of their numbers. The pure one is
 compiled; the detector then calls a small Python function that reads its state, makes the
 one call and writes the new state back — the same floats, so the same verdicts (the lagged
-detector's update makes that call itself, through ``_core``: one Python call less a tick,
-#13). When the compiled tick declines (an operation that would raise in Python, a state that is not
+detector's update makes that call itself, through ``_core``: one Python call less a tick).
+When the compiled tick declines (an operation that would raise in Python, a state that is not
 numbers) the Python tick runs instead, from the same state.
 """
 

@@ -1,4 +1,4 @@
-"""What the vehicle can physically do, stated before a flight (issue #14).
+"""What the vehicle can physically do, stated before a flight.
 
 From the mixer (eq. (4)) and the per-rotor limits [0, f_max], in the canonical frame of an
 attack on rotor 2 (:mod:`tfl_mav.control.allocation`): τ_p = l(f4 − A) must average zero

@@ -1,4 +1,4 @@
-"""The TFL law's tick for one flight as one generated function (issue #13).
+"""The TFL law's tick for one flight as one generated function.
 
 A tick of the law (paper §V) is ~1 000 floating-point operations spread over ~30 Python
 calls; the calls, tuple packs and attribute reads cost more than the arithmetic. A path and

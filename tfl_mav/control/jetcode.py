@@ -1,4 +1,4 @@
-"""Jets compiled to straight-line float code, once per path, at start-up (issue #13).
+"""Jets compiled to straight-line float code, once per path, at start-up.
 
 The reference jets (:mod:`jets`) build tuples and objects for every operation of every
 tick, yet a path is fixed for a flight. So the path's own code is run *once* on symbolic

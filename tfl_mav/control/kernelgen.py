@@ -1,4 +1,4 @@
-"""Tapes (:mod:`jetcode`) turned into compiled Python functions (issue #13).
+"""Tapes (:mod:`jetcode`) turned into compiled Python functions.
 
 :func:`compile_kernel` makes one straight-line function of a traced computation (the path
 kernels of :mod:`compiled`); :func:`trace_block` makes the same straight-line code as a

@@ -392,7 +392,7 @@ class TFLController:
     def _saturate_and_apply(self, f: list[float], raw: list[float], pc: float, qc: float,
                             rc: float) -> tuple[list[float], list[bool], float]:
         """Clip to [0, f_max], give the attacked rotor what it is (not ours to command),
-        invert the motor lag (#6), and predict ṗ, q̇ for the observer from what the rotors
+        invert the motor lag, and predict ṗ, q̇ for the observer from what the rotors
         will deliver. Returns (command, saturated, applied u_f)."""
         m = self.model
         fmax = m.thrust_max_n

@@ -1,4 +1,4 @@
-"""Discrete LQR in plain numpy: the safe law's gains without importing scipy (#13).
+"""Discrete LQR in plain numpy: the safe law's gains without importing scipy.
 
 The reduced-attitude law (:mod:`recovery`) designs its gain on the zero-order-hold model at
 the control period, scheduled on the spin rate, so a gain is computed in flight the first

@@ -194,7 +194,7 @@ class PathProjector:
     σ, σ' and σ'' come exactly from one ``sigma2`` evaluation a step — the compiled kernel
     the TFL tracker uses, or the reference jets (:func:`projector_sigma2`): a warm-started
     tick costs two or three evaluations of a few dozen float operations. (Central
-    differences of σ, as before #13, needed three σ calls a step and carried ~1e-7 of
+    differences of σ, as the projector once did, needed three σ calls a step and carried ~1e-7 of
     rounding noise in σ'' with a 1e-4 step.)
     """
 

@@ -1,4 +1,4 @@
-"""Model-based state filter for the flight computer (#14).
+"""Model-based state filter for the flight computer.
 
 The TFL law differentiates the output four times; the measured velocity enters y' and the
 rates enter y''' directly, and the law's rate-disturbance observer differences the rates

@@ -1,7 +1,7 @@
 """Precompiled MAVLink 2 pack/decode for the few messages of every control tick.
 
 Why: pymavlink packs a message in ~40 µs and decodes a frame in ~70 µs on the machines we
-measured (issue #13), mostly generic Python (header objects, per-field loops, list
+measured, mostly generic Python (header objects, per-field loops, list
 building). A lockstep tick carries ODOMETRY + ESC_TELEMETRY_1_TO_4 (+ ACTUATOR_OUTPUT_STATUS)
 one way and HIL_ACTUATOR_CONTROLS back, so that is ~350 µs a tick across both processes.
 
