@@ -7,7 +7,7 @@ offline loop against a plain numpy RK4 physics-only loop — all in the same run
 
 1. ``TFLController.update`` alone, median and p90 µs over a closed-loop flight (so the
    projection is warm-started as in real use), with the path evaluated by the reference jets
-   (``compiled_path=False``, the jets evaluated generically) and by the compiled tracker (the default:
+   (``compiled_path=False``: the jets evaluated generically) and by the compiled tracker (default:
    the fused tick: without motor lag the whole tick as one generated call, ``fused``).
 2. Where an update's time goes, per step of :meth:`TFLController.update` (exclusive µs per
    tick, by wrapping each step with a timer: absolute numbers include the wrapper's cost,
