@@ -90,3 +90,21 @@ def test_a_lockstep_flight_is_on_the_timeline_at_sim_time(flight: Path) -> None:
         assert stats.message_start_time <= start_ns
         starts.append(start_ns)
     assert abs(starts[0] - starts[1]) < 50_000_000      # one flight, two files: aligned
+
+
+def test_inspect_says_what_the_log_knows_and_nothing_it_does_not(flight: Path) -> None:
+    done = _cli("inspect", str(flight / "run.mcap"))
+    assert done.returncode == 0, done.stderr
+    text = done.stdout
+    assert "sim time 1.000 s (the timeline's" in text and "x real time)" in text
+    assert "Hz(log)" not in text              # one rate: log time is sim time here
+    lines = text.splitlines()
+    flight_lines = lines[lines.index("  flight:") + 1:]
+    assert not [ln for ln in flight_lines if ln.split()[-1] in ("-", "0.000")], flight_lines
+    assert not [ln for ln in flight_lines if " m" in ln and "0.0" in ln.split()[-2]
+                and ln.split()[-1] == "m"], flight_lines     # small distances in mm/µm
+    assert any(ln.split()[-1] in ("mm", "µm") for ln in flight_lines)
+    report = json.loads(_cli("inspect", str(flight / "run.mcap"), "--json").stdout)
+    wall = report["flight"]["wall_time_s"]          # the log's own wall clock (metadata)
+    assert 0 < wall < 120 and report["flight"]["real_time_factor"] > 0
+    assert report["timeline"] == "sim"
