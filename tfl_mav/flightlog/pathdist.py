@@ -47,12 +47,14 @@ def _compiled(path: Path) -> Callable[[float], Coefficients] | None:
     return taylor
 
 
-def path_distances(path: Path, positions_m: Sequence[Sequence[float]]) -> list[float]:
+def path_distances(path: Path, positions_m: Sequence[Sequence[float]], *,
+                   compiled: bool = True) -> list[float]:
     """|y − σ(λ)| of each position (m, paper frame), in order, as successive
-    ``PathTracker.evaluate`` calls give it (NaN where it loses the projection)."""
+    ``PathTracker.evaluate`` calls give it (NaN where it loses the projection).
+    ``compiled`` False: the reference jets throughout."""
     tracker = PathTracker(path)
     reference = _reference(path)
-    fast = _compiled(path)
+    fast = _compiled(path) if compiled else None
     out: list[float] = []
     sqrt, isfinite = math.sqrt, math.isfinite
     for k, y in enumerate(positions_m):
