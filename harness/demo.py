@@ -274,7 +274,7 @@ def _traffic_metrics(run_mcap: Path, ctl_mcap: Path, fly: dict[str, Any]) -> dic
             continue
         for m in LogReader(path).messages({"/mavlink/raw"}):
             logged += 1
-            if m.json().get("direction") == "tx":
+            if m.data.startswith(b'{"direction":"tx"'):   # the recorder writes it first
                 sent += 1
     link = fly.get("stats", {}).get("link", {})
     return {"messages_logged": logged, "messages_sent": sent,

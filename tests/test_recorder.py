@@ -107,6 +107,12 @@ def _decode(sc, ch, data: bytes) -> tuple[str, dict]:
     ``protobuf:<name>``."""
     if ch.message_encoding == "json":
         return sc.data.decode(), json.loads(data)
+    if ch.message_encoding == "cdr":     # plot channels: the MCAP project's ROS 2 decoder
+        from mcap_ros2.decoder import DecoderFactory
+
+        msg = DecoderFactory().decoder_for("cdr", sc)(data)
+        return f"ros2msg:{sc.name}", {"labels": msg.layout.dim[0].label,   # NaN as text:
+                                      "data": [v if v == v else "NaN" for v in msg.data]}
     from google.protobuf.json_format import MessageToDict
 
     assert ch.message_encoding == "protobuf" and sc.encoding == "protobuf"
@@ -188,8 +194,8 @@ def test_every_message_validates_against_its_channel_schema(flight, side):
     topics = set()
     for topic, schema, m, _, _ in _read_all(path):
         topics.add(topic)
-        if schema.startswith("protobuf:"):      # decoded by the official class: typed
-            continue
+        if schema.startswith(("protobuf:", "ros2msg:")):   # decoded by the official
+            continue                                       # classes/decoder: typed
         v = validators.get(schema)
         if v is None:
             s = json.loads(schema)
@@ -235,7 +241,7 @@ def test_every_schema_is_one_foxglove_can_read(flight):
     from tfl_mav.flightlog import schemas
 
     seen = {sc for path in flight[:2] for _, sc, *_ in _read_all(path)
-            if not sc.startswith("protobuf:")}
+            if not sc.startswith(("protobuf:", "ros2msg:"))}
     everything = [json.loads(sc) for sc in seen] + [
         schemas.RAW_FRAME, schemas.TRUTH_STATE, schemas.TRUTH_ATTACK, schemas.TRUTH_THRUSTS,
         schemas.PATH_DISTANCE, TICK_SCHEMA] + [
@@ -482,7 +488,8 @@ def test_background_flush_makes_quiet_data_readable_while_open(tmp_path):
         assert len(seen) == 10
     assert rec.error is None
     rec.truth(1.0, [0.0] * 3, [0.0] * 3, [1, 0, 0, 0], [0] * 3, [1] * 4, 0, 0.0, 0.0)
-    assert rec.stats.dropped == 5        # after close: state, attack, thrusts, tf, scene
+    # after close: state, attack, thrusts, tf, scene and the three truth plots
+    assert rec.stats.dropped == 8
 
 
 # ---------------------------------------------------------------- RecorderProcess

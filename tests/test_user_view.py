@@ -9,7 +9,11 @@ its files.
 from __future__ import annotations
 
 import json
+import os
+import re
+import shutil
 import subprocess
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -90,3 +94,68 @@ def test_a_lockstep_flight_is_on_the_timeline_at_sim_time(flight: Path) -> None:
         assert stats.message_start_time <= start_ns
         starts.append(start_ns)
     assert abs(starts[0] - starts[1]) < 50_000_000      # one flight, two files: aligned
+
+
+def test_inspect_says_what_the_log_knows_and_nothing_it_does_not(flight: Path) -> None:
+    done = _cli("inspect", str(flight / "run.mcap"))
+    assert done.returncode == 0, done.stderr
+    text = done.stdout
+    assert "sim time 1.000 s (the timeline's" in text and "x real time)" in text
+    assert "Hz(log)" not in text              # one rate: log time is sim time here
+    lines = text.splitlines()
+    flight_lines = lines[lines.index("  flight:") + 1:]
+    assert not [ln for ln in flight_lines if ln.split()[-1] in ("-", "0.000")], flight_lines
+    assert not [ln for ln in flight_lines if " m" in ln and "0.0" in ln.split()[-2]
+                and ln.split()[-1] == "m"], flight_lines     # small distances in mm/µm
+    assert any(ln.split()[-1] in ("mm", "µm") for ln in flight_lines)
+    report = json.loads(_cli("inspect", str(flight / "run.mcap"), "--json").stdout)
+    wall = report["flight"]["wall_time_s"]          # the log's own wall clock (metadata)
+    assert 0 < wall < 120 and report["flight"]["real_time_factor"] > 0
+    assert report["timeline"] == "sim"
+
+
+_RRD_CHUNK = re.compile(r"with (\d+) rows \([^)]*\) - (\S+) - data columns: \[([^\]]*)\]")
+
+
+def _rerun(*args: str) -> str:
+    """The rerun CLI that rerun-sdk installs (the viewer's own MCAP importer)."""
+    exe = shutil.which("rerun") or str(Path(sys.executable).with_name("rerun"))
+    done = subprocess.run([exe, *args], capture_output=True, text=True, timeout=300,
+                          env={**os.environ, "RERUN_ANALYTICS": "0"})
+    assert done.returncode == 0, done.stderr
+    return done.stdout
+
+
+def _entities(rrd: Path) -> dict[str, tuple[set[str], int]]:
+    """Entity path → (archetypes of its data columns, rows) in an .rrd, as rerun prints it."""
+    out: dict[str, tuple[set[str], int]] = {}
+    for rows, entity, columns in _RRD_CHUNK.findall(_rerun("rrd", "print", str(rrd))):
+        kinds = {c.split(":")[0] for c in columns.split()}
+        if kinds & {"McapChannel", "McapSchema"}:        # the channel's description row
+            continue
+        seen, n = out.get(entity, (set(), 0))
+        out[entity] = (seen | kinds, n + int(rows))
+    return out
+
+
+def test_rerun_converts_a_flight_into_poses_scalars_and_text(flight: Path,
+                                                             tmp_path: Path) -> None:
+    """`rerun mcap convert` (rerun-sdk) on both logs: the pose (/tf) becomes Transform3D,
+    the events TextLog, and the truth, rotor and controller numbers Scalars, a row per
+    sample at the scene rate (50 Hz of sim time)."""
+    run, ctl = tmp_path / "run.rrd", tmp_path / "ctl.rrd"
+    _rerun("mcap", "convert", str(flight / "run.mcap"), "-o", str(run))
+    _rerun("mcap", "convert", str(flight / "ctl.mcap"), "-o", str(ctl))
+    veh, con = _entities(run), _entities(ctl)
+    assert "Transform3D" in veh["/tf"][0]
+    assert "TextLog" in veh["/log"][0] and "TextLog" in con["/log"][0]
+    samples = round(DURATION_S * 50) + 1
+    for entity in ("/plot/truth/position_m", "/plot/truth/rotor_thrust_n",
+                   "/plot/truth/attack_n", "/plot/truth/path_distance_m"):
+        assert veh[entity] == ({"Scalars"}, samples), entity
+    for field in ("path_distance_m", "attack_estimate_n", "detected_rotor", "cusum",
+                  "rotor_thrust_cmd_n", "xi", "eta"):
+        kinds, rows = con[f"/plot/controller/{field}"]
+        assert kinds == {"Scalars"} and abs(rows - samples) <= 1, field
+    # what is left opaque is named as such: the JSON records (complete, for scripts)
+    assert veh["/sim/truth/state"][0] == {"McapMessage"}

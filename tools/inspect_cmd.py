@@ -30,7 +30,13 @@ from typing import Any
 import numpy as np
 
 from tfl_mav.flightlog.flight import summarize
-from tfl_mav.flightlog.from_mcap import load_flight, scenario_from_log
+from tfl_mav.flightlog.from_mcap import (
+    TRUTH_TOPICS,
+    add_truth,
+    load_flight,
+    log_texts,
+    scenario_from_log,
+)
 from tfl_mav.flightlog.logread import LogReader, recover
 from tfl_mav.flightlog.metrics import converged, detection, saturated_fraction
 from tfl_mav.flightlog.polyline import Polyline
@@ -41,6 +47,8 @@ __all__ = ["add_parser", "inspect_log", "run"]
 _SUMMARY_TOPICS = {"/sim/truth/state", "/sim/truth/attack", "/sim/truth/thrusts",
                    "/controller/state", "/scene/path"}
 _LAST_WINDOW_S = 10.0
+_RX = b'{"direction":"rx"'
+_REJECTED = b'"accepted":false'
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -88,33 +96,44 @@ class _Channel:
 
 
 def inspect_log(path: str | Path) -> dict[str, Any]:
-    """The ``inspect --json`` report of ``path`` (see the module docstring)."""
+    """The ``inspect --json`` report of ``path`` (see the module docstring).
+
+    One pass over the file: every message counts for its channel; only what the summary
+    needs is decoded (the truth records, the controller's, ``/log``), and the flight is
+    rebuilt from those (:func:`~tfl_mav.flightlog.from_mcap.load_flight`, given them)."""
     reader = LogReader(path)
     chans: dict[str, _Channel] = {}
     series: dict[str, list[Any]] = defaultdict(list)
+    truth: dict[int, dict[str, Any]] = {}
+    texts: list[str] = []
     frames = {"rx": 0, "tx": 0, "rx_rejected": 0}
-    sat_hil = [0, 0]
+    sat_hil = [0]
     path_points: list[list[float]] | None = None
     for m in reader.messages():
-        c = chans.get(m.topic)
+        topic = m.topic
+        c = chans.get(topic)
         if c is None:
-            c = chans[m.topic] = _Channel(m.schema_name)
+            c = chans[topic] = _Channel(m.schema_name)
             c.first_log, c.first_pub = m.log_time_ns, m.publish_time_ns
         c.count += 1
         c.last_log, c.last_pub = m.log_time_ns, m.publish_time_ns
-        if m.topic == "/mavlink/raw":
-            f = m.json()
-            frames[f["direction"]] += 1
-            frames["rx_rejected"] += f["direction"] == "rx" and not f["accepted"]
-        elif m.topic.endswith("/HIL_ACTUATOR_CONTROLS"):
-            controls = m.json().get("controls")      # absent if it held NaN/inf
-            if controls is not None:
-                sat_hil[0] += 1
-                sat_hil[1] += any(u <= 0.0 or u >= 1.0 for u in controls[:4])
-        elif m.topic == "/scene/path":
+        if topic == "/mavlink/raw":     # the recorder writes direction, accepted first
+            head = m.data[:40]
+            rx = head.startswith(_RX)
+            frames["rx" if rx else "tx"] += 1
+            frames["rx_rejected"] += rx and _REJECTED in head
+        elif topic in TRUTH_TOPICS:
+            record = m.json()
+            add_truth(truth, topic, record)
+            series[topic].append(record)
+        elif topic.endswith("/HIL_ACTUATOR_CONTROLS"):
+            sat_hil[0] += 1
+        elif topic == "/log":
+            texts.append(log_texts(m.data))
+        elif topic == "/scene/path":
             path_points = _path_points(m.data) or path_points
-        elif m.topic in _SUMMARY_TOPICS:
-            series[m.topic].append(m.json())
+        elif topic in _SUMMARY_TOPICS:
+            series[topic].append(m.json())
     if not chans and reader.error:
         raise OSError(f"{path}: not a readable MCAP file ({reader.error})")
     log_first = min((c.first_log for c in chans.values()), default=0)
@@ -132,7 +151,9 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
         "channels": {topic: _channel_report(c) for topic, c in sorted(chans.items())},
         "metadata": {md.name: md.metadata for md in reader.metadata},
     }
-    report["flight"] = _flight_summary(path, series, path_points, sat_hil)
+    timeline = report["metadata"].get("timeline", {})
+    report["timeline"] = timeline.get("log_time", "wall")
+    report["flight"] = _flight_summary(path, series, path_points, sat_hil, truth, texts)
     return report
 
 
@@ -188,16 +209,18 @@ def _distance_stats(t: np.ndarray, d: np.ndarray, source: str) -> dict[str, Any]
 
 
 def _flight_summary(path: str | Path, series: dict[str, list[Any]],
-                    path_points: list[list[float]] | None, sat_hil: list[int]
-                    ) -> dict[str, Any]:
+                    path_points: list[list[float]] | None, sat_hil: list[int],
+                    truth: dict[int, dict[str, Any]], texts: list[str]) -> dict[str, Any]:
     try:
         sc = scenario_from_log(path)
     except (ScenarioError, ValueError):
         sc = None
     state = series.get("/sim/truth/state", [])
     if state and sc is not None:
-        log, _ = load_flight(path, sc)
+        log, _ = load_flight(path, sc, truth=truth, texts=texts)
         out = summarize(log)
+        if not log.wall_time_s:         # not in the log: no number rather than a wrong one
+            del out["wall_time_s"], out["real_time_factor"]
         out["path_distance_source"] = "truth position vs the scenario's path"
         has_ctl = log.detected_rotor is not None
         out["saturation_source"] = "/controller/state.saturated (ctl.mcap)" if has_ctl else None
@@ -255,13 +278,42 @@ def _flight_summary(path: str | Path, series: dict[str, list[Any]],
 
 
 # ------------------------------------------------------------------ text output
+_UNITS = (("_radps", "rad/s"), ("_mps", "m/s"), ("_kg", "kg"), ("_hz", "Hz"), ("_s", "s"),
+          ("_n", "N"), ("_m", "m"))
+
+
+def _value(key: str, v: Any) -> tuple[str, str]:
+    """(label, text) of one summary field: the unit moved from the name to the value, a
+    distance below a metre in mm (µm below a millimetre), a fraction in %."""
+    if isinstance(v, bool) or not isinstance(v, float):
+        return key, "-" if v is None else str(v)
+    if key.endswith("_fraction"):
+        return key, f"{100.0 * v:.2f} %"
+    for suffix, unit in _UNITS:
+        if key.endswith(suffix):
+            label = key[:-len(suffix)]
+            if unit == "m" and abs(v) < 1.0:
+                return label, (f"{v * 1e3:.3f} mm" if abs(v) >= 1e-3 or v == 0.0
+                               else f"{v * 1e6:.3f} µm")
+            return label, f"{v:.3f} {unit}"
+    return key, f"{v:.3f}"
+
+
 def _num(x: Any, fmt: str = ".3f") -> str:
     return "-" if x is None else format(x, fmt) if isinstance(x, float) else str(x)
 
 
 def _format(r: dict[str, Any]) -> str:
-    lines = [f"{r['file']}: {r['messages']} messages, log time {r['log_time_span_s']:.3f} s, "
-             f"sim time {r['sim_time_span_s']:.3f} s"]
+    tl = r["metadata"].get("timeline", {})
+    sim_timeline = r.get("timeline") == "sim"
+    head = f"{r['file']}: {r['messages']} messages, sim time {r['sim_time_span_s']:.3f} s"
+    if sim_timeline:
+        head += (f" (the timeline's: log_time = flight start + sim time); flown in "
+                 f"{tl.get('wall_time_s', '?')} s wall ({tl.get('real_time_factor', '?')}x "
+                 "real time)")
+    else:
+        head += f", log time {r['log_time_span_s']:.3f} s"
+    lines = [head]
     if not r["complete"]:
         lines.append(f"  NOT FINISHED (read up to: {r['read_error'] or 'end of file'}); "
                      "`--recover OUT` writes a valid copy")
@@ -269,12 +321,19 @@ def _format(r: dict[str, Any]) -> str:
     lines.append(f"  MAVLink frames: rx {fr['rx']} (rejected {fr['rx_rejected']}), "
                  f"tx {fr['tx']}")
     width = max((len(t) for t in r["channels"]), default=10)
-    lines.append(f"  {'channel':{width}s}  {'count':>8s}  {'Hz(log)':>9s}  {'Hz(sim)':>9s}  "
-                 "schema")
+    rates = "  {:>9s}" if sim_timeline else "  {:>9s}  {:>9s}"
+    lines.append(f"  {'channel':{width}s}  {'count':>8s}"
+                 + (rates.format("Hz") if sim_timeline else rates.format("Hz(log)", "Hz(sim)"))
+                 + "  schema")
     for topic, c in r["channels"].items():
-        lines.append(f"  {topic:{width}s}  {c['count']:8d}  {_num(c['rate_hz'], '.1f'):>9s}  "
-                     f"{_num(c['sim_rate_hz'], '.1f'):>9s}  {c['schema']}")
+        hz = ((_num(c["sim_rate_hz"], ".1f"),) if sim_timeline
+              else (_num(c["rate_hz"], ".1f"), _num(c["sim_rate_hz"], ".1f")))
+        lines.append(f"  {topic:{width}s}  {c['count']:8d}" + rates.format(*hz)
+                     + f"  {c['schema']}")
     lines.append("  flight:")
     for k, v in r["flight"].items():
-        lines.append(f"    {k:30s} {_num(v)}")
+        if v == "" or v is None:         # no crash: no reason; not in this log: no number
+            continue
+        label, text = _value(k, v)
+        lines.append(f"    {label:30s} {text}")
     return "\n".join(lines)

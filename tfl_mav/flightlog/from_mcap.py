@@ -15,18 +15,17 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from mcap.records import Message
 
 from tfl_mav.airframe import mix
 from tfl_mav.build import scenario_path
-from tfl_mav.control.paths import PathTracker
 from tfl_mav.flightlog.flight import FlightLog
 from tfl_mav.flightlog.logread import LogReader
+from tfl_mav.flightlog.pathdist import path_distances
 from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario, ScenarioError, scenario_from_dict
 
-__all__ = ["controller_states", "flight_log_from_mcap", "load_flight", "log_metadata",
-           "scenario_from_log"]
+__all__ = ["TRUTH_TOPICS", "add_truth", "controller_states", "flight_log_from_mcap",
+           "load_flight", "log_metadata", "scenario_from_log"]
 
 _TRUTH = {"/sim/truth/state", "/sim/truth/thrusts", "/sim/truth/attack"}
 
@@ -40,14 +39,29 @@ def controller_states(ctl_path: str | Path) -> dict[int, dict[str, Any]]:
     return out
 
 
+TRUTH_TOPICS = frozenset(_TRUTH)
+
+
+def add_truth(truth: dict[int, dict[str, Any]], topic: str, record: dict[str, Any]) -> None:
+    """File one decoded ``/sim/truth/*`` record under its tick (sim time in µs)."""
+    truth.setdefault(round(record["t_s"] * 1e6), {})[topic.rsplit("/", 1)[-1]] = record
+
+
 def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,
-                         ctl_path: str | Path | None = None) -> FlightLog:
-    """The flight in ``run_path`` (and ``ctl_path``) as a finished FlightLog."""
-    truth: dict[int, dict[str, Any]] = {}
-    for m in LogReader(run_path).messages(_TRUTH):
-        d = m.json()
-        truth.setdefault(round(d["t_s"] * 1e6), {}).update(
-            {m.topic.rsplit("/", 1)[-1]: d})
+                         ctl_path: str | Path | None = None,
+                         truth: dict[int, dict[str, Any]] | None = None,
+                         texts: list[str] | None = None) -> FlightLog:
+    """The flight in ``run_path`` (and ``ctl_path``) as a finished FlightLog. ``truth``
+    and ``texts``: its truth records (:func:`add_truth`) and ``/log`` texts already read
+    (a reader that passes over the file anyway), else they are read here."""
+    if truth is None:
+        truth, texts = {}, []
+        for m in LogReader(run_path).messages(_TRUTH | {"/log"}):
+            if m.topic == "/log":
+                texts.append(log_texts(m.data))
+            else:
+                add_truth(truth, m.topic, m.json())
+    crashed = crash_reason(texts or [])
     ctl = controller_states(ctl_path) if ctl_path and Path(ctl_path).exists() else {}
     v = scenario.vehicle
     log = FlightLog(thrust_max_n=v.thrust_max_n, attack_rotor=scenario.attack.rotor,
@@ -55,10 +69,10 @@ def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,
                     else math.nan)
     path = scenario_path(scenario)
     log.path_points_m = path.sample(400)
-    tracker = PathTracker(path)
     detected: list[int] = []
     yaw_prev: float | None = None
     yaw_unwrapped = 0.0
+    rows = []
     for key in sorted(truth):
         rec = truth[key]
         if not {"state", "thrusts", "attack"} <= rec.keys():
@@ -69,19 +83,22 @@ def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,
         if not ("position_m" in st and "quaternion_wxyz" in st and "thrust_n" in th
                 and "applied_n" in at):
             continue
+        rows.append((key, st, th, at))
+    # the true distance of every sample, as a tracker evaluating each in turn gives it
+    distances = path_distances(path, [st["position_m"] for _, st, _, _ in rows])
+    for (key, st, th, at), distance in zip(rows, distances, strict=True):
         pos = st["position_m"]
         w, x, y, z = st["quaternion_wxyz"]
         yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
         yaw_unwrapped = yaw if yaw_prev is None else \
             yaw_unwrapped + math.remainder(yaw - yaw_prev, math.tau)
         yaw_prev = yaw
-        out = tracker.evaluate([[c, 0.0, 0.0, 0.0, 0.0] for c in pos])
         c = ctl.get(key, {})
         uf, tp, tq, tr = mix(v, th["thrust_n"])
         est = c.get("attack_estimate_n")
         log.append(t_s=st["t_s"], position_m=pos, velocity_mps=st["velocity_mps"],
                    body_rates_radps=st["body_rates_radps"], yaw_rad=yaw_unwrapped,
-                   path_distance_m=out.distance_m, thrust_cmd_n=c.get("rotor_thrust_cmd_n",
+                   path_distance_m=distance, thrust_cmd_n=c.get("rotor_thrust_cmd_n",
                                                                      th["thrust_n"]),
                    thrust_true_n=th["thrust_n"], attack_true_n=at["applied_n"],
                    attack_estimate_n=est if est is not None else math.nan, uf_n=uf,
@@ -96,16 +113,32 @@ def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,
     if len(log["t_s"]):
         rates = np.abs(log["body_rates_radps"])
         log.crashed = bool(np.max(rates) > 300.0)
+    if crashed:                  # the vehicle said so (flipped, hit the ground, ...)
+        log.crashed, log.crash_reason = True, crashed
     return log
 
 
 def log_metadata(path: str | Path) -> dict[str, dict[str, str]]:
-    """The MCAP metadata records of ``path`` (name → key/value map)."""
-    reader = LogReader(path)
-    for rec in reader.records():   # metadata precedes the chunked messages: stop early
-        if isinstance(rec, Message):
-            break
-    return {md.name: dict(md.metadata) for md in reader.metadata}
+    """The MCAP metadata records of ``path`` (name → key/value map; of an unfinished file,
+    those before its first message)."""
+    return {md.name: dict(md.metadata) for md in LogReader(path).read_metadata()}
+
+
+def crash_reason(texts: list[str]) -> str:
+    """The vehicle's own word on a crash among its logged texts (its "crashed: ..."
+    STATUSTEXT, on ``/log``), or ""."""
+    for text in texts:
+        at = text.find("crashed: ")
+        if at >= 0:
+            return text[at + len("crashed: "):]
+    return ""
+
+
+def log_texts(data: bytes) -> str:
+    """The text of one ``/log`` message (foxglove.Log, protobuf)."""
+    from foxglove_schemas_protobuf.Log_pb2 import Log
+
+    return str(Log.FromString(data).message)
 
 
 def scenario_from_log(path: str | Path) -> Scenario:
@@ -122,15 +155,23 @@ def scenario_from_log(path: str | Path) -> Scenario:
 
 
 def load_flight(run_path: str | Path, scenario: Scenario | None = None,
-                ctl_path: str | Path | None = None) -> tuple[FlightLog, Scenario]:
+                ctl_path: str | Path | None = None,
+                truth: dict[int, dict[str, Any]] | None = None,
+                texts: list[str] | None = None) -> tuple[FlightLog, Scenario]:
     """The flight of a vehicle log as ``report``, ``inspect`` and ``demo`` all see it:
     scenario from the log unless given, the controller's log from ``ctl_path`` or
-    ``ctl.mcap`` next to it, the requested duration from the ``run`` metadata."""
+    ``ctl.mcap`` next to it, the requested duration from the ``run`` metadata
+    (``truth``, ``texts``: as :func:`flight_log_from_mcap`)."""
     run_path = Path(run_path)
     sc = scenario if scenario is not None else scenario_from_log(run_path)
     ctl = Path(ctl_path) if ctl_path else run_path.with_name("ctl.mcap")
-    log = flight_log_from_mcap(run_path, sc, ctl if ctl.exists() and ctl != run_path else None)
-    duration = log_metadata(run_path).get("run", {}).get("duration_s")
+    log = flight_log_from_mcap(run_path, sc, ctl if ctl.exists() and ctl != run_path else None,
+                               truth, texts)
+    meta = log_metadata(run_path)
+    duration = meta.get("run", {}).get("duration_s")
     if duration is not None:
         log.duration_s = float(duration)
+    wall = meta.get("timeline", {}).get("wall_time_s")     # lockstep logs keep the wall clock
+    if wall is not None:
+        log.wall_time_s = float(wall)
     return log, sc

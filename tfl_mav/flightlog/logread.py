@@ -2,21 +2,32 @@
 
 A file whose writer died (SIGKILL, disk full) has no summary and is refused by
 ``mcap.reader.make_reader``. Read as a stream, every record before the damage is still good:
-:class:`LogReader` always streams (``mcap.stream_reader.StreamReader``, chunk CRCs checked)
-and stops quietly at the first record that does not read, saying why in ``error``. Messages
-come in file order, which is the order the recorder wrote them.
+:class:`LogReader` streams such a file (``mcap.stream_reader.StreamReader``, chunk CRCs
+checked) and stops quietly at the first record that does not read, saying why in
+``error``. Messages come in file order, which is the order the recorder wrote them.
+
+A finished file is read through its summary instead (``mcap.reader`` for the summary,
+``mcap.stream_reader.get_chunk_data_stream`` for each chunk, decompressed and CRC-checked
+by the library): the library's record-by-record parse costs ~25 µs a message in Python, a
+30 s flight has ~350 000 of them, so :meth:`LogReader.messages` splits a chunk's message
+records with one ``struct`` unpack each (the MCAP spec's fixed header: opcode, length,
+channel id, sequence, log time, publish time) and skips the channels not asked for
+without building them: the same messages, in the same order (tests/test_logread.py).
 """
 
 from __future__ import annotations
 
-import json
+import struct
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from mcap.records import Channel, Footer, Message, Metadata, Schema
-from mcap.stream_reader import StreamReader
+import msgspec
+from mcap.exceptions import McapError
+from mcap.reader import make_reader
+from mcap.records import Channel, Chunk, Footer, Message, Metadata, ReadDataStream, Schema
+from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from mcap.writer import CompressionType, IndexType, Writer
 
 __all__ = ["LogMessage", "LogReader", "recover"]
@@ -31,7 +42,14 @@ class LogMessage:
     data: bytes
 
     def json(self) -> Any:
-        return json.loads(self.data)
+        return _decode_json(self.data)
+
+
+_decode_json = msgspec.json.Decoder().decode     # what json.loads gives, several times faster
+_OP_MESSAGE = 0x05                                # MCAP Message record (spec)
+_RECORD_HEAD = struct.Struct("<BQ")               # opcode, length
+_MESSAGE_HEAD = struct.Struct("<HIQQ")            # channel id, sequence, log/publish time
+_MESSAGE_FIXED = _MESSAGE_HEAD.size
 
 
 class LogReader:
@@ -82,6 +100,10 @@ class LogReader:
 
     def messages(self, topics: set[str] | None = None) -> Iterator[LogMessage]:
         """Messages (optionally only ``topics``) in file order, up to the damage."""
+        summary = self._summary()
+        if summary is not None:
+            yield from self._indexed(summary, topics)
+            return
         for rec in self.records():
             if not isinstance(rec, Message):
                 continue
@@ -91,6 +113,72 @@ class LogReader:
             sc = self.schemas.get(ch.schema_id)
             yield LogMessage(ch.topic, sc.name if sc else "", rec.log_time, rec.publish_time,
                              rec.data)
+
+
+    def read_metadata(self) -> list[Metadata]:
+        """The file's metadata records: all of a finished file's (its summary indexes them,
+        wherever they are), else those before the first message (a stream stops there)."""
+        if self._summary() is None:
+            for rec in self.records():
+                if isinstance(rec, Message):
+                    break
+        return self.metadata
+
+    def _summary(self) -> Any:
+        """The summary of a finished file with chunk indexes, or None (stream it)."""
+        try:
+            with open(self.path, "rb") as f:
+                reader = make_reader(f)
+                summary = reader.get_summary()
+                if summary is None or not summary.chunk_indexes:
+                    return None
+                self.metadata = list(reader.iter_metadata())
+        except OSError as exc:
+            raise OSError(f"cannot read MCAP file {self.path}: {exc.strerror}") from None
+        except (McapError, ValueError, struct.error, EOFError, IndexError, KeyError):
+            return None          # not a finished file: the stream reader says why
+        return summary
+
+    def _indexed(self, summary: Any, topics: set[str] | None) -> Iterator[LogMessage]:
+        """:meth:`messages` of a finished file: its chunks in file order (see the module
+        docstring); an unreadable chunk ends it, saying why in ``error``."""
+        self.schemas = dict(summary.schemas)
+        self.channels = dict(summary.channels)
+        wanted = {cid: (ch.topic, summary.schemas[ch.schema_id].name
+                        if ch.schema_id in summary.schemas else "")
+                  for cid, ch in summary.channels.items()
+                  if topics is None or ch.topic in topics}
+        head, msg_head = _RECORD_HEAD.unpack_from, _MESSAGE_HEAD.unpack_from
+        with open(self.path, "rb") as f:
+            for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
+                if not any(cid in wanted for cid in index.message_index_offsets):
+                    continue           # no message of a channel asked for in this chunk
+                try:
+                    stream, n = get_chunk_data_stream(_chunk(f, index), validate_crc=True)
+                    data = stream.read(n)
+                except Exception as exc:     # a bad CRC, bad compression, a short file
+                    self.error = f"{type(exc).__name__}: {exc}" if str(exc) else \
+                        type(exc).__name__
+                    return
+                at = 0
+                while at < n:
+                    op, length = head(data, at)
+                    body = at + 9
+                    at = body + length
+                    if op != _OP_MESSAGE:
+                        continue
+                    cid, _seq, log_ns, pub_ns = msg_head(data, body)
+                    name = wanted.get(cid)
+                    if name is not None:
+                        yield LogMessage(name[0], name[1], log_ns, pub_ns,
+                                         data[body + _MESSAGE_FIXED:at])
+        self.complete = True
+
+
+def _chunk(f: Any, index: Any) -> Chunk:
+    """The Chunk record a chunk index points at (its opcode and length skipped)."""
+    f.seek(index.chunk_start_offset + 1 + 8)
+    return Chunk.read(ReadDataStream(f))
 
 
 def recover(src: str | Path, dst: str | Path) -> tuple[int, str | None]:

@@ -68,7 +68,7 @@ from pathlib import Path
 from typing import Any
 
 from tfl_mav.flightlog import foxglove as fg
-from tfl_mav.flightlog import schemas
+from tfl_mav.flightlog import plotchan, schemas
 from tfl_mav.flightlog.framerec import FrameRecorder
 from tfl_mav.flightlog.jsonenc import RecordFormat, _numbers_json
 from tfl_mav.flightlog.jsonobj import encode as _encode_obj
@@ -93,6 +93,26 @@ def _floats(values: Any, n: int, field: str) -> list[float]:
     if len(out) != n:
         raise ValueError(f"{field}: expected {n} values, got {len(out)}")
     return out
+
+
+def _numbers(value: Any) -> list[float]:
+    """The numbers in ``value`` (a number, bool, numpy value or nested sequence), flattened
+    in order; [] for text or anything else."""
+    if isinstance(value, (bool, int, float)):
+        return [float(value)]
+    if isinstance(value, str) or value is None:
+        return []
+    if hasattr(value, "tolist"):
+        value = value.tolist()
+    if isinstance(value, (list, tuple)):
+        out: list[float] = []
+        for v in value:
+            part = _numbers(v)
+            if not part and not isinstance(v, (list, tuple)):
+                return []               # mixed with text: not a plot
+            out += part
+        return out
+    return []
 
 
 _TRUTH_STATE = RecordFormat([("t_s", 0), ("position_m", 3), ("velocity_mps", 3),
@@ -154,6 +174,8 @@ class Recorder(FrameRecorder):
         self._ctl_shapes: dict[tuple[Any, ...], Any] = {}
         self._ctl_cid = 0
         self._polyline: Polyline | None = None
+        self._plots: dict[str, tuple[int, bytes]] = {}   # topic → channel id, message head
+        self._next_ctl_plot_s = -math.inf
         super().__init__(path, clock=clock, flush_interval_s=flush_interval_s, profile=profile,
                          compression=compression, chunk_size_bytes=chunk_size_bytes, live=live,
                          timeline=timeline)
@@ -212,7 +234,7 @@ class Recorder(FrameRecorder):
             log_ns = self._now_ns()
             if self._truth_records(log_ns, (*vals, attack_rotor), attack_rotor != 0):
                 self._scene(vals[0], log_ns, vals[1:4], vals[7:11], vals[16:20],
-                            attack_rotor)
+                            attack_rotor, vals[14])
                 return
         parts = _numbers_json((*vals, attack_rotor)) if fast else None
         if parts is not None:
@@ -225,7 +247,8 @@ class Recorder(FrameRecorder):
                  % (parts[0], parts[20], parts[14], parts[15])),
                 (thrusts_cid, _TRUTH_THRUSTS.bfmt % (parts[0], *parts[16:20], parts[20]))),
                 log_ns, self._sim_ns)
-            self._scene(vals[0], log_ns, vals[1:4], vals[7:11], vals[16:20], attack_rotor)
+            self._scene(vals[0], log_ns, vals[1:4], vals[7:11], vals[16:20], attack_rotor,
+                        vals[14])
             return
         try:
             if not math.isfinite(time_s):
@@ -265,7 +288,7 @@ class Recorder(FrameRecorder):
                             self._channel_ids.get("/sim/truth/attack", 0),
                             self._channel_ids.get("/sim/truth/thrusts", 0))
         self._setup_truth_c()
-        self._scene(t, log_ns, pos, quat, thrust, rotor)
+        self._scene(t, log_ns, pos, quat, thrust, rotor, applied)
 
     def _c_ready(self, fn: Any) -> None:
         super()._c_ready(fn)
@@ -307,8 +330,9 @@ class Recorder(FrameRecorder):
         return True
 
     def _scene(self, t: float, log_ns: int, pos: Sequence[float], quat: Sequence[float],
-               thrust: Sequence[float], rotor: int) -> None:
-        """``/tf``, ``/scene/vehicle``, ``/sim/truth/path_distance`` at up to scene_hz."""
+               thrust: Sequence[float], rotor: int, attack_n: float) -> None:
+        """``/tf``, ``/scene/vehicle``, ``/sim/truth/path_distance`` and the truth's plot
+        channels (:mod:`~tfl_mav.flightlog.plotchan`) at up to scene_hz."""
         pub_ns = self._sim_ns
         # 1 µs slack so k·dt rounding does not push a sample to the next tick
         if self._last_scene_t <= t < self._last_scene_t + self._scene_period_s - 1e-6:
@@ -324,10 +348,42 @@ class Recorder(FrameRecorder):
             self._write(self._fg_channel("/scene/vehicle", "foxglove.SceneUpdate"),
                         fg.vehicle_scene(log_ns, self._rotor_xy_m, thrust, self._thrust_max_n,
                                          rotor), log_ns, pub_ns)
+        plot = self._plot
+        plot("/plot/truth/position_m", ("x_m", "y_m", "z_m"), pos, log_ns, pub_ns)
+        plot("/plot/truth/rotor_thrust_n", ("f1_n", "f2_n", "f3_n", "f4_n"), thrust, log_ns,
+             pub_ns)
+        plot("/plot/truth/attack_n", ("applied_n",), (attack_n,), log_ns, pub_ns)
         if self._polyline is not None:
+            distance = self._polyline.distance(pos)
             self._write(self._channel("/sim/truth/path_distance", schemas.PATH_DISTANCE),
-                        self._dumps({"t_s": t, "distance_m": self._polyline.distance(pos)}),
-                        log_ns, pub_ns)
+                        self._dumps({"t_s": t, "distance_m": distance}), log_ns, pub_ns)
+            plot("/plot/truth/path_distance_m", ("distance_m",), (distance,), log_ns, pub_ns)
+
+    def _controller_plots(self, t: float, log_ns: int,
+                          fields: Iterable[tuple[str, Any]]) -> None:
+        """The controller record's numbers as plot channels, at up to scene_hz of sim time:
+        ``/plot/controller/NAME`` per numeric field (a number, a flag as 0/1, or numbers
+        nested in lists, flattened in order); text fields are the JSON channel's."""
+        self._next_ctl_plot_s = t + self._scene_period_s - 1e-6
+        pub_ns = self._sim_ns
+        for name, value in fields:
+            flat = _numbers(value)
+            if flat:
+                self._plot(f"/plot/controller/{name}",
+                           [name] if len(flat) == 1 else [f"{name}[{i}]"
+                                                          for i in range(len(flat))],
+                           flat, log_ns, pub_ns)
+
+    def _plot(self, topic: str, names: Sequence[str], values: Sequence[float], log_ns: int,
+              pub_ns: int) -> None:
+        """One sample of a plot channel (a Float64MultiArray labelled ``names``)."""
+        entry = self._plots.get(topic)
+        if entry is None or len(entry[1]) != len(values):
+            cid = self._register(topic, plotchan.FLOAT64_MULTI_ARRAY, plotchan.SCHEMA_ENCODING,
+                                 plotchan.SCHEMA_TEXT, plotchan.MESSAGE_ENCODING) \
+                if entry is None else entry[0]
+            entry = self._plots[topic] = (cid, plotchan.labels(names))
+        self._write(entry[0], plotchan.encode(entry[1], values), log_ns, pub_ns)
 
     def path(self, points_m: Any) -> None:
         """The path as sampled points (N, 3) in m, world frame ENU: ``/scene/path`` now and with
@@ -381,7 +437,11 @@ class Recorder(FrameRecorder):
                         break
                     entry[1] = True
                 self.set_sim_time(time_s)
-                self._write(self._ctl_cid, data, self._now_ns(), self._sim_ns)
+                log_ns = self._now_ns()
+                self._write(self._ctl_cid, data, log_ns, self._sim_ns)
+                if time_s >= self._next_ctl_plot_s:
+                    self._controller_plots(time_s, log_ns,
+                                           zip(self._controller_fields, state, strict=True))
                 return
         record = state
         try:
@@ -399,8 +459,11 @@ class Recorder(FrameRecorder):
             self._bad(f"controller state: {exc}")
             return
         self.set_sim_time(t)
+        log_ns = self._now_ns()
         self._write(self._channel("/controller/state", self._controller_schema), data,
-                    self._now_ns(), self._sim_ns)
+                    log_ns, self._sim_ns)
+        if t >= self._next_ctl_plot_s:
+            self._controller_plots(t, log_ns, state.items())
         if isinstance(record, Mapping) or len(self._ctl_shapes) >= _MAX_RECORD_PLANS:
             return
         shape = tuple((type(v), len(v)) if type(v) in (list, tuple) else type(v)
