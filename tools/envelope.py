@@ -69,7 +69,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--markdown", action="store_true",
                    help="print the README envelope table from the baseline (no flights)")
     p.add_argument("--write-readme", action="store_true",
-                   help="with --markdown: write it between the README's envelope markers")
+                   help="with --markdown: write the families between the README's envelope "
+                        "markers and every case between docs/envelope.md's")
     p.add_argument("--fly-reference", metavar="TREE",
                    help="fly the spec with another checkout's own `tfl-mav offline` (its "
                         ".venv) and write reference-LABEL.json next to the baseline")
@@ -211,14 +212,17 @@ def _markdown(args: argparse.Namespace, spec: EnvelopeSpec, baseline: ResultsFil
         print("tfl-mav envelope: the baseline is empty: fly --rewrite-baseline first",
               file=sys.stderr)
         return EXIT_USAGE
-    block = markdown(spec, baseline, references)
     if not args.write_readme:
-        print(block, end="")
+        print(markdown(spec, baseline, references), end="")
         return 0
-    try:
-        changed = replace_readme_block(Path(args.readme), block)
-    except (OSError, ValueError) as exc:
-        print(f"tfl-mav envelope: {exc}", file=sys.stderr)
-        return EXIT_USAGE
-    print(f"{'updated' if changed else 'unchanged'}: {args.readme}")
+    readme = Path(args.readme)
+    targets = [(readme, markdown(spec, baseline, references, every_case=False)),
+               (readme.parent / "docs" / "envelope.md", markdown(spec, baseline, references))]
+    for path, block in targets:
+        try:
+            changed = replace_readme_block(path, block)
+        except (OSError, ValueError) as exc:
+            print(f"tfl-mav envelope: {path}: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        print(f"{'updated' if changed else 'unchanged'}: {path}")
     return 0

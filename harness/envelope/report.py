@@ -178,8 +178,9 @@ def _md_row(cells: Sequence[str]) -> str:
 
 
 def markdown(spec: EnvelopeSpec, baseline: ResultsFile,
-             references: Sequence[ResultsFile] = ()) -> str:
-    """The README's envelope block: one row per family, then every case (collapsed)."""
+             references: Sequence[ResultsFile] = (), *, every_case: bool = True) -> str:
+    """The envelope block: one row per family, then (``every_case``) every case. The
+    README holds the families, docs/envelope.md both."""
     ref_cols = [f"{rf.tree} (mm)" for rf in references]
     lines = [
         f"{len(spec.cases)} offline flights (`harness/envelope/cases.toml`), the attack found "
@@ -202,7 +203,10 @@ def markdown(spec: EnvelopeSpec, baseline: ResultsFile,
             refs.append(f"{_range_mm(got)} ({_outcomes(got)})" if got else "—")
         lines.append(_md_row([fam.title, str(len(cases)), _outcomes(base) or "—",
                               _range_mm(base), *refs]))
-    lines += ["", "<details><summary>Every case</summary>", "",
+    if not every_case:
+        lines += ["", "Every case, with its overrides: [docs/envelope.md](docs/envelope.md)."]
+        return "\n".join(lines) + "\n"
+    lines += ["", "### Every case", "",
               _md_row(["case", "family", "overrides", "baseline", "detection",
                        *(rf.tree for rf in references)]),
               _md_row(["---", "---", "---", "---", "---", *("---" for _ in references)])]
@@ -213,7 +217,6 @@ def markdown(spec: EnvelopeSpec, baseline: ResultsFile,
         overrides = sets if c.base == "paper" else f"{base} {sets}"
         lines.append(_md_row([c.name, c.family, overrides, result_text(b), detection_text(b),
                               *(result_text(rf.get(c.name)) for rf in references)]))
-    lines += ["", "</details>"]
     return "\n".join(lines) + "\n"
 
 

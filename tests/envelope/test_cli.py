@@ -67,11 +67,15 @@ def test_markdown_writes_the_readme_block(tiny: tuple[list[str], Path], tmp_path
     assert main([*args, "--rewrite-baseline", "--only", "tiny-dead"]) == 0
     readme = tmp_path / "README.md"
     readme.write_text("intro\n<!-- envelope:begin -->\nold\n<!-- envelope:end -->\nend\n")
+    (tmp_path / "docs").mkdir()
+    doc = tmp_path / "docs" / "envelope.md"
+    doc.write_text("# doc\n<!-- envelope:begin -->\nold\n<!-- envelope:end -->\n")
     capsys.readouterr()
     assert main([*args, "--markdown", "--write-readme", "--readme", str(readme)]) == 0
     text = readme.read_text()
     assert "old" not in text and text.startswith("intro\n") and text.endswith("end\n")
-    assert "| two short flights | 2 |" in text and "tiny-dead" in text
+    assert "| two short flights | 2 |" in text and "tiny-dead" not in text
+    assert "tiny-dead" in doc.read_text() and "old" not in doc.read_text()
 
 
 def test_a_bad_spec_is_one_line_and_exit_2(tmp_path: Path,
