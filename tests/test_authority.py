@@ -14,7 +14,7 @@ FREE = (2.0, 2.0)   # side rotors well inside [0, f_max]
 
 def _ticks_to_lose(mon: AuthorityMonitor, f_opp: float, side=FREE, limit: int = 5000) -> int:
     for k in range(1, limit + 1):
-        if mon.update(f_opp, side, DT_S):
+        if mon.update(f_opp, *side, DT_S):
             return k
     return -1
 
@@ -34,11 +34,11 @@ def test_short_or_intermittent_pinning_keeps_authority():
     pinned about half the time): the share never exceeds one half."""
     mon = AuthorityMonitor(8.0)
     for _ in range(50):
-        assert not mon.update(0.0, FREE, DT_S)
+        assert not mon.update(0.0, *FREE, DT_S)
     for _ in range(200):
-        mon.update(1.0, FREE, DT_S)
+        mon.update(1.0, *FREE, DT_S)
     for k in range(5000):
-        assert not mon.update(0.0 if k % 5 < 2 else 1.0, FREE, DT_S)
+        assert not mon.update(0.0 if k % 5 < 2 else 1.0, *FREE, DT_S)
 
 
 @pytest.mark.parametrize(("f_opp", "side", "bound"), [
@@ -58,9 +58,9 @@ def test_reset_and_bad_periods():
     mon.reset()
     assert not mon.lost and mon.share == 0.0
     for dt in (math.nan, -1.0, 0.0):
-        mon.update(0.0, FREE, dt)
+        mon.update(0.0, *FREE, dt)
     assert mon.share == 0.0
-    mon.update(0.0, FREE, 10.0)          # a long gap counts as one whole window
+    mon.update(0.0, *FREE, 10.0)          # a long gap counts as one whole window
     assert mon.share == 1.0
 
 

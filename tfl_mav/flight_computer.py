@@ -348,7 +348,7 @@ class FlightComputer:
         # Over any horizon: f₄ = A and f₁ + f₃ ≥ 0 make u_f ≥ 2A, more than the weight once
         # A > m g/2, and the vehicle flips within 0.1 s at A = f_max. Lost now, not on average.
         hopeless = 2.0 * estimate > self._weight_n
-        if not mon.update(f[opposite], (f[rotor % 4], f[(rotor + 2) % 4]), dt) \
+        if not mon.update(f[opposite], f[rotor % 4], f[(rotor + 2) % 4], dt) \
                 and not hopeless:
             return False
         a_text = f"{estimate:.2f} N" if math.isfinite(estimate) else "unknown thrust"
@@ -398,9 +398,10 @@ class FlightComputer:
         # other three whichever way it was entered (a take-over of an attacked vehicle too).
         out = rec.update(state, rotor, a_n)
         dist = out.path_distance_m
-        ok = (rec.hold_m is None and _isfinite(dist) and dist < ROA_DIST_M
-              and not calm_fail(state) and not not_benign(state, rotor, self.speed_mps)
-              and (not rotor or (finite and A_HANDBACK_N < estimate < self._a_high_n)))
+        # Cheapest tests first: with a dead rotor the attack test fails every tick.
+        ok = ((not rotor or (finite and A_HANDBACK_N < estimate < self._a_high_n))
+              and rec.hold_m is None and dist < ROA_DIST_M
+              and not calm_fail(state) and not not_benign(state, rotor, self.speed_mps))
         self._good_s = self._good_s + dt if ok else 0.0
         if self._good_s >= HANDBACK_S:
             self._hand_back(state, out, events)

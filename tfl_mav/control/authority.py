@@ -65,7 +65,8 @@ class AuthorityMonitor:
     def bound(self) -> str:
         return "ceiling" if self.ceiling_share > 0.5 * self.share else "floor"
 
-    def update(self, f_opposite_n: float, f_side_n: tuple[float, float], dt_s: float) -> bool:
+    def update(self, f_opposite_n: float, f_side1_n: float, f_side3_n: float,
+               dt_s: float) -> bool:
         """One tick of the attacked law: its commands (N) to the opposite rotor and to the
         two side rotors (canonical 1 and 3, which make τ_q and the rest of u_f) over the
         period ``dt_s`` (s). Returns :attr:`lost`."""
@@ -75,11 +76,12 @@ class AuthorityMonitor:
         elif k > 1.0:
             k = 1.0
         top = self.thrust_max_n - _EPS_N
-        s1, s3 = f_side_n
         # f₄ at f_max, or a side rotor at 0 (f₁ + f₃ = u_f − 2A − τ_p/l: A too large) …
-        ceiling = f_opposite_n >= top or s1 <= _EPS_N or s3 <= _EPS_N
+        ceiling = f_opposite_n >= top or f_side1_n <= _EPS_N or f_side3_n <= _EPS_N
         # … or f₄ at 0 (A too small), or a side rotor at f_max
-        pinned = ceiling or f_opposite_n <= _EPS_N or s1 >= top or s3 >= top
-        self.share += k * ((1.0 if pinned else 0.0) - self.share)
+        if ceiling or f_opposite_n <= _EPS_N or f_side1_n >= top or f_side3_n >= top:
+            self.share += k * (1.0 - self.share)
+        else:
+            self.share -= k * self.share
         self.ceiling_share += k * ((1.0 if ceiling else 0.0) - self.ceiling_share)
         return self.share > self.lost_share

@@ -53,6 +53,7 @@ from typing import NamedTuple
 
 import numpy as np
 
+from tfl_mav.control import lost_rotor
 from tfl_mav.control.allocation import RotorFrame, allocate_nominal, canonical_frame
 from tfl_mav.control.compiled import PathKernels, compile_path
 from tfl_mav.control.jetcode import TraceError
@@ -75,6 +76,7 @@ YAW_DAMP = 2.0                      # healthy: r decays at 2 /s
 # 10 rad/s of p, q and 0.2 N m of τ_q; τ_p costs 100× (one-sided, only for a slow spin).
 # With motor lag the τ_q weight grows (:func:`lqr_r`).
 _TAN_MAX_TILT = math.tan(MAX_TILT_RAD)
+_isfinite = math.isfinite
 _KP = 3.0 * POS_OMEGA * POS_OMEGA      # outer-loop PID gains: (s + ω_p)³
 _KD = 3.0 * POS_OMEGA
 _KI = POS_OMEGA * POS_OMEGA * POS_OMEGA
@@ -296,11 +298,14 @@ class RecoveryLaw:
             else _PARTIAL.setdefault(self._model_key, {}))
         self._frames: dict[int, RotorFrame] = {}
         self._inverse_perm: dict[int, tuple[int, int, int, int]] = {}
+        self._rot6: dict[int, tuple[int, ...]] = {}       # the canonical rotation's rows 1-2
+        self._step_model = (mass_kg, k_t, gravity_mps2, arm_m, thrust_max_n)
         # ∫ position error (m s, inertial): the integral action's state. It carries over
         # between take-overs of one flight: the steady force it has learnt (the model's mass
         # error) is the same force the next time.
         self.integral_ms = [0.0, 0.0, 0.0]
         self._pending_error_m: tuple[float, float, float] | None = None  # this tick's e
+        self._integral_top_ms = MAX_INTEGRAL_G * gravity_mps2 / _KI
 
     # ------------------------------------------------------------------ targets
     def hold(self, position_m: Sequence[float]) -> None:
@@ -309,10 +314,6 @@ class RecoveryLaw:
 
     def follow_path(self) -> None:
         self.hold_m = None
-
-    def reset_integral(self) -> None:
-        """Forget the integral action (a new flight, or a state it was not learnt in)."""
-        self.integral_ms = [0.0, 0.0, 0.0]
 
     def _accel_demand(self, y: Sequence[float], v: Sequence[float]
                       ) -> tuple[float, float, float, float]:
@@ -341,7 +342,7 @@ class RecoveryLaw:
         a1 = _KP * e[1] - _KD * v[1] + ff[1] + _KI * integ[1]
         a2 = _KP * e[2] - _KD * v[2] + ff[2] + _KI * integ[2]
         lim = MAX_VERTICAL_G * self.g
-        az = min(max(a2, -lim), lim)
+        az = lim if a2 > lim else (-lim if a2 < -lim else a2)
         ah = math.hypot(a0, a1)
         amax = (self.g + az) * _TAN_MAX_TILT
         limited = az != a2
@@ -361,13 +362,18 @@ class RecoveryLaw:
         integral fed through that saturation winds up into a limit cycle metres wide."""
         e = self._pending_error_m
         self._pending_error_m = None
-        if e is None or not all(math.isfinite(c) for c in e):
+        if e is None:
             return
-        integ = self.integral_ms
-        top = MAX_INTEGRAL_G * self.g / _KI
+        e0, e1, e2 = e
+        if not _isfinite(e0 + e1 + e2):      # a finite sum: all three finite
+            return
+        i0, i1, i2 = self.integral_ms
         dt = self.dt
-        for i in range(3):
-            integ[i] = min(max(integ[i] + e[i] * dt, -top), top)
+        top = self._integral_top_ms
+        i0, i1, i2 = i0 + e0 * dt, i1 + e1 * dt, i2 + e2 * dt
+        self.integral_ms = [(top if i0 > top else (-top if i0 < -top else i0)),
+                            (top if i1 > top else (-top if i1 < -top else i1)),
+                            (top if i2 > top else (-top if i2 < -top else i2))]
 
     # ------------------------------------------------------------------ gains
     def _lqr(self, r: float, ix: float, iy: float) -> Gains:
@@ -408,6 +414,11 @@ class RecoveryLaw:
         y, v = _floats(s.position_m), _floats(s.velocity_mps)
         p, q, r = _floats(s.body_rates_radps)
         a0, a1, a2, dist = self._accel_demand(y, v)
+        ix, iy, iz = self.inertia
+        ell, fmax = self.arm_m, self.fmax
+        if attacked_rotor:
+            return self._three_rotor(attacked_rotor, (a0, a1, a2), v, (qw, qx, qy, qz),
+                                     (p, q, r), attack_n, dist)
         m, k_t = self.mass_kg, self.k_t
         F0, F1, F2 = m * a0 + k_t * v[0], m * a1 + k_t * v[1], m * (a2 + self.g) + k_t * v[2]
         fn = math.sqrt(F0 ** 2 + F1 ** 2 + F2 ** 2)
@@ -424,56 +435,46 @@ class RecoveryLaw:
         # Thrust along b3: the component of F there; never negative (upside down: idle).
         uf = fn * h2
         uf = 0.0 if uf < 0.0 else uf
-        ix, iy, iz = self.inertia
-        ell, fmax = self.arm_m, self.fmax
-        if not attacked_rotor:
-            tau_p = ix * (ATT_KP * -h1 - ATT_KD * p) + (iz - iy) * q * r + self.k_r * p
-            tau_q = iy * (ATT_KP * h0 - ATT_KD * q) + (ix - iz) * p * r + self.k_r * q
-            tau_r = -iz * YAW_DAMP * r + self.k_r * r
-            req = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m)
-            f = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m, fmax)
-            clamped = tuple(not -1e-9 <= x <= fmax + 1e-9 for x in req)
-            if not any(clamped):
-                self._integrate()
-            return RecoveryOutput(f, f, tilt_err, dist, uf, clamped)  # type: ignore[arg-type]
+        tau_p = ix * (ATT_KP * -h1 - ATT_KD * p) + (iz - iy) * q * r + self.k_r * p
+        tau_q = iy * (ATT_KP * h0 - ATT_KD * q) + (ix - iz) * p * r + self.k_r * q
+        tau_r = -iz * YAW_DAMP * r + self.k_r * r
+        req = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m)
+        f = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m, fmax)
+        clamped = tuple(not -1e-9 <= x <= fmax + 1e-9 for x in req)
+        if not any(clamped):
+            self._integrate()
+        return RecoveryOutput(f, f, tilt_err, dist, uf, clamped)  # type: ignore[arg-type]
+
+    def _three_rotor(self, attacked_rotor: int, acc: tuple[float, float, float],
+                     v: Sequence[float], quat: tuple[float, float, float, float],
+                     rates: tuple[float, float, float], attack_n: float,
+                     dist: float) -> RecoveryOutput:
+        """The three-rotor tick: the LQR gain for the canonical spin rate, then
+        :func:`~tfl_mav.control.lost_rotor.lost_rotor_step` (compiled where it is built)."""
         fr = self._frames.get(attacked_rotor)
         if fr is None:
             fr = self._frames[attacked_rotor] = canonical_frame(attacked_rotor)
             # canonical rotor i is physical fr.perm[i]: physical j is canonical inv[j]
             self._inverse_perm[attacked_rotor] = tuple(fr.perm.index(j) for j in range(4))
-        (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = fr.rot
-        # Canonical components (as sum() over the integer rotation: the same roundings).
-        x0 = 0 + r00 * h0 + r01 * h1 + r02 * h2
-        x1 = 0 + r10 * h0 + r11 * h1 + r12 * h2
-        x2 = 0 + r00 * p + r01 * q + r02 * r
-        x3 = 0 + r10 * p + r11 * q + r12 * r
+            self._rot6[attacked_rotor] = (*fr.rot[0], *fr.rot[1])
+        r20, r21, r22 = fr.rot[2]
+        p, q, r = rates
+        ix, iy = self.inertia[0], self.inertia[1]
         ixc, iyc = (iy, ix) if fr.swap_xy else (ix, iy)
         (k00, k01, k02, k03), (k10, k11, k12, k13) = self._lqr(0 + r20 * p + r21 * q + r22 * r,
                                                                ixc, iyc)
-        tau_p = -(k00 * x0 + k01 * x1 + k02 * x2 + k03 * x3)
-        tau_q = -(k10 * x0 + k11 * x1 + k12 * x2 + k13 * x3)
-        an = 0.0 if attack_n < 0.0 else attack_n          # min(max(A, 0), f_max)
-        an = fmax if fmax < an else an
-        f4 = an + tau_p / ell
-        s13 = uf - an - f4
-        half = 0.5 * tau_q / ell
-        f4c = 0.0 if f4 < 0.0 else f4
-        f4c = fmax if fmax < f4c else f4c
-        s13_free = uf - an - f4c
-        s13c = 0.0 if s13_free < 0.0 else s13_free
-        s13c = 2.0 * fmax if 2.0 * fmax < s13c else s13c
-        mid = 0.5 * s13c
-        bound = mid if mid <= 0.5 * fmax else fmax - mid   # max(−b, min(b, half))
-        halfc = half if half < bound else bound
-        halfc = halfc if halfc > -bound else -bound
-        canon_req = (0.5 * s13 - half, an, 0.5 * s13 + half, f4)
-        canon = (mid - halfc, an, mid + halfc, f4c)
-        hi = fmax + 1e-9
+        args = (acc, (v[0], v[1], v[2]), quat, rates, self._rot6[attacked_rotor],
+                (k00, k01, k02, k03, k10, k11, k12, k13), self._step_model, attack_n)
+        out = lost_rotor.step_function()(*args)
+        if out is None:                   # the C bails where Python raises: raise here
+            out = lost_rotor.lost_rotor_step(*args)
+        tilt_err, uf, c0, c1, c2, c3, made, d0, d2, d3 = out
+        if made:
+            self._integrate()
+        canon = (c0, c1, c2, c3)
+        hi = self.fmax + 1e-9
         j0, j1, j2, j3 = self._inverse_perm[attacked_rotor]
         f = [canon[j0], canon[j1], canon[j2], canon[j3]]
-        clamped = tuple(not -1e-9 <= canon_req[j] <= hi for j in (j0, j1, j2, j3))
-        # The opposite rotor's τ_p is given up by design (f₄ pinned at 0 with A = 0 is the
-        # normal case); the side rotors carry u_f and τ_q, what the outer loop asked for.
-        if s13c == s13_free and halfc == half:
-            self._integrate()
+        req = (d0, c1, d2, d3)
+        clamped = tuple(not -1e-9 <= req[j] <= hi for j in (j0, j1, j2, j3))
         return RecoveryOutput(f, list(f), tilt_err, dist, uf, clamped)  # type: ignore[arg-type]
