@@ -392,7 +392,7 @@ class FlightComputer:
         finite = _isfinite(estimate)
         a_n = estimate if rotor and finite else 0.0
         lost = self.law_name == "lost_rotor"
-        if rotor and finite:
+        if rotor and finite and (2.0 * estimate > self._weight_n) is not self._climbing:
             self._say_if_climbing(rotor, estimate, events)
         # An attacked rotor is never ours to command: with one known, the safe law flies the
         # other three whichever way it was entered (a take-over of an attacked vehicle too).

@@ -77,6 +77,7 @@ YAW_DAMP = 2.0                      # healthy: r decays at 2 /s
 # With motor lag the τ_q weight grows (:func:`lqr_r`).
 _TAN_MAX_TILT = math.tan(MAX_TILT_RAD)
 _isfinite = math.isfinite
+_new_output = tuple.__new__     # a named tuple made without its Python __new__ frame
 _KP = 3.0 * POS_OMEGA * POS_OMEGA      # outer-loop PID gains: (s + ω_p)³
 _KD = 3.0 * POS_OMEGA
 _KI = POS_OMEGA * POS_OMEGA * POS_OMEGA
@@ -476,5 +477,7 @@ class RecoveryLaw:
         j0, j1, j2, j3 = self._inverse_perm[attacked_rotor]
         f = [canon[j0], canon[j1], canon[j2], canon[j3]]
         req = (d0, c1, d2, d3)
-        clamped = tuple(not -1e-9 <= req[j] <= hi for j in (j0, j1, j2, j3))
-        return RecoveryOutput(f, list(f), tilt_err, dist, uf, clamped)  # type: ignore[arg-type]
+        r0, r1, r2, r3 = req[j0], req[j1], req[j2], req[j3]
+        clamped = (not -1e-9 <= r0 <= hi, not -1e-9 <= r1 <= hi, not -1e-9 <= r2 <= hi,
+                   not -1e-9 <= r3 <= hi)
+        return _new_output(RecoveryOutput, (f, list(f), tilt_err, dist, uf, clamped))
