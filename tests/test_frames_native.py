@@ -28,7 +28,7 @@ def core():
     frames_native.attach(got.append)
     mp.undo()
     if not got:
-        pytest.skip("no compiled ODOMETRY conversion here (no compiler, or another BLAS)")
+        pytest.skip("no compiled ODOMETRY conversion here (no compiler)")
     return got[0]
 
 

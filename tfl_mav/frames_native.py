@@ -1,19 +1,17 @@
-"""The daemon's ODOMETRY → paper-frame conversion compiled to C (issue #13, :mod:`native`).
+"""The daemon's ODOMETRY → paper-frame conversion compiled to C (:mod:`native`).
 
 :func:`~tfl_mav.frames.paper_from_odometry_fields` runs on every state the daemon receives:
-~300 bytecodes and a numpy matrix product (a few µs in all). Here the same operations, in
-the same order, are one C function of the link's ODOMETRY tuple (:func:`~tfl_mav.link.codec
+~300 bytecodes (~3 µs a tick in the daemon's loop). Here the same operations, in the same
+order, are one C function of the link's ODOMETRY tuple (:func:`~tfl_mav.link.codec
 .rx_lite_class`: its fields in wire order) and the :class:`~tfl_mav.state.State` class,
 returning the State itself: its slots set as its ``__init__`` sets them (the same values;
 no Python runs).
 
-The one product that is not a float expression — the body-FRD velocity rotated by R(q) —
-is numpy's BLAS ``dgemv``, which fuses multiply-adds: OpenBLAS's kernel for a 3×3 matrix
-(its three-column tail) computes each row as ``0 + fma(r₂, x₂, fma(r₀, x₀, r₁ x₁))`` (the
-``0 +``: ``y`` starts at zero; it turns a −0 into +0). That is written here with C's
-``fma`` (correctly rounded, like the hardware's). Because a different BLAS or processor
-may order it otherwise, the compiled function is used only after it gave numpy's bits on
-:data:`_CHECKS` (vectors that tell the plausible orders apart) in this process; else the
+The body-FRD velocity rotated by R(q) is each row's products summed left to right, as in
+Python, built with ``-ffp-contract=off`` (:data:`native.CFLAGS`: no multiply-add is fused)
+so every operation rounds as Python's does. The compiled function is used only after it
+gave the Python function's bits on :data:`_CHECKS` (vectors that tell a fused or reordered
+sum apart) in this process, so a compiler that fused anyway would only cost speed; else the
 Python path flies, with one warning.
 
 Every case the fast path does not cover returns None and the caller runs the Python
@@ -77,9 +75,9 @@ static int find_slots(PyObject *type) {
     return 0;
 }
 
-/* numpy's m.dot(v) for one row (OpenBLAS dgemv_t, 3 columns): see frames_native.py. */
+/* One row of R v, as frames.py sums it: (r0 x0 + r1 x1) + r2 x2, no fused multiply-add. */
 static double row(double r0, double r1, double r2, double x0, double x1, double x2) {
-    return 0.0 + fma(r2, x2, fma(r0, x0, r1 * x1));
+    return r0 * x0 + r1 * x1 + r2 * x2;
 }
 
 static PyObject *
@@ -206,14 +204,14 @@ def verified(core: Callable[[Any], Any]) -> bool:
 
 def attach(ready: Callable[[Callable[[Any], Any]], None]) -> None:
     """``ready(core)`` with the compiled conversion once it is built (now if it is cached,
-    or with ``TFL_MAV_NATIVE=sync``; else from a background build) and has given numpy's
-    bits on this machine; never, with one warning, if it does not."""
+    or with ``TFL_MAV_NATIVE=sync``; else from a background build) and has given the
+    Python function's bits on this machine; never, with one warning, if it does not."""
     def check(core: Callable[[Any], Any]) -> None:
         if verified(core):
             ready(core)
         else:
-            native.warn_once("the compiled ODOMETRY conversion does not give this BLAS's "
-                             "velocity bits")
+            native.warn_once("the compiled ODOMETRY conversion does not give the Python "
+                             "conversion's velocity bits")
 
     core = native.obtain_c(C_SOURCE, "odometry", check)
     if core is not None:
