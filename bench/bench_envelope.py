@@ -20,7 +20,6 @@ from __future__ import annotations
 import argparse
 import json
 import math
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -28,13 +27,10 @@ from typing import Any
 
 import numpy as np
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
-
-from harness.offline import fly_offline  # noqa: E402
-from tfl_mav.flightlog.flight import summarize  # noqa: E402
-from tfl_mav.modes import Mode  # noqa: E402
-from tfl_mav.scenario import apply_overrides, load_scenario  # noqa: E402
+from harness.offline import fly_offline
+from tfl_mav.flightlog.flight import summarize
+from tfl_mav.modes import Mode
+from tfl_mav.scenario import apply_overrides, load_scenario
 
 
 @dataclass

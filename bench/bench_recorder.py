@@ -37,8 +37,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO))
+REPO = Path(__file__).resolve().parents[1]    # the subprocesses' working directory
 
 _LISTEN_RE = re.compile(r"listening on ([\d.]+):(\d+)")
 
@@ -259,8 +258,7 @@ def bench_child_cost(ticks: int = 3000) -> dict[str, float]:
 def bench_child_flight(seconds: float) -> dict[str, float]:
     """The recording children's CPU per tick on a real lockstep flight's hand-off batches
     (bench/recorder_replay.py: captured, then replayed through the child's batch handler)."""
-    sys.path.insert(0, str(REPO / "bench"))
-    import recorder_replay
+    import recorder_replay  # bench/recorder_replay.py, next to this file
 
     with tempfile.TemporaryDirectory() as d:
         recorder_replay.capture(round(seconds * 1000), Path(d))

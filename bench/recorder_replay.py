@@ -38,10 +38,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-BENCH = Path(__file__).resolve().parent
-REPO = BENCH.parent
-sys.path.insert(0, str(REPO))
-sys.path.insert(0, str(BENCH))
+REPO = Path(__file__).resolve().parents[1]    # the subprocesses' working directory
 
 _LISTEN_RE = re.compile(r"listening on ([\d.]+):(\d+)")
 
@@ -289,7 +286,7 @@ def main() -> int:
     ap.add_argument("--profile", action="store_true",
                     help="also by piece: replays keeping one kind of call each")
     ap.add_argument("--compression", choices=["zstd", "lz4", "none"], default=None)
-    ap.add_argument("--tree", metavar="DIR", help=argparse.SUPPRESS)  # set before imports
+    ap.add_argument("--tree", metavar="DIR", help=argparse.SUPPRESS)  # a --before child
     ap.add_argument("--before", metavar="DIR", help="also replay with this checkout's "
                     "tfl_mav (e.g. main), alternating, and print both")
     ap.add_argument("--rounds", type=int, default=3, help="alternations with --before")
@@ -301,6 +298,13 @@ def main() -> int:
         src.mkdir(parents=True, exist_ok=True)
         capture(args.ticks, src, args.scenario)
     if args.tree:                       # a child run for --before: print JSON only
+        import tfl_mav
+
+        # its parent put the tree first on PYTHONPATH; an editable install of this
+        # checkout would otherwise answer silently, and both columns would be one tree
+        here = Path(tfl_mav.__file__).resolve()
+        if not here.is_relative_to(Path(args.tree).resolve()):
+            raise SystemExit(f"--tree {args.tree}: tfl_mav imported from {here}")
         print(json.dumps(measure(src, args.repeats, args.profile, args.compression,
                                  Path(tmp.name))))
         tmp.cleanup()
@@ -314,8 +318,12 @@ def main() -> int:
                    "--repeats", str(args.repeats)]
             cmd += ["--profile"] if args.profile else []
             cmd += ["--compression", args.compression] if args.compression else []
+            # the other checkout's packages ahead of this one's (installed) ones
+            env = {**os.environ, "PYTHONPATH": os.pathsep.join(
+                filter(None, (args.before, os.environ.get("PYTHONPATH"))))}
             before.append(json.loads(subprocess.run(cmd, check=True, capture_output=True,
-                                                    text=True).stdout.splitlines()[-1]))
+                                                    text=True, env=env)
+                                     .stdout.splitlines()[-1]))
         now.append(measure(src, args.repeats, args.profile, args.compression, Path(tmp.name)))
     print(f"load {os.getloadavg()[0]:.2f}; batches from {src}; CPU µs per tick, min of "
           f"{args.repeats} runs{f', {rounds} rounds alternating' if args.before else ''}")
@@ -366,6 +374,4 @@ def main() -> int:
 
 
 if __name__ == "__main__":
-    if "--tree" in sys.argv:            # another checkout's tfl_mav, before any import
-        sys.path.insert(0, sys.argv[sys.argv.index("--tree") + 1])
     sys.exit(main())

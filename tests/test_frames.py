@@ -12,6 +12,8 @@ from hypothesis import strategies as st
 from tfl_mav.frames import (
     MAV_FRAME_BODY_FRD,
     MAV_FRAME_LOCAL_NED,
+    P_ENU_TO_NED,
+    Q_FLU_TO_FRD,
     body_to_inertial,
     enu_to_ned,
     flu_to_frd,
@@ -22,6 +24,7 @@ from tfl_mav.frames import (
     quaternion_enu_flu_to_ned_frd,
     quaternion_ned_frd_to_enu_flu,
     rotation_enu_flu_to_ned_frd,
+    rotation_ned_frd_to_enu_flu,
 )
 from tfl_mav.geometry import (
     euler_to_quaternion,
@@ -193,15 +196,56 @@ def test_bad_odometry_raises_naming_the_field(change, field):
         paper_from_odometry(msg)
 
 
+@given(st.lists(st.floats(-1e6, 1e6), min_size=9, max_size=9))
+@settings(max_examples=200, deadline=None)
+def test_the_attitude_conversion_is_p_r_q_moved_not_multiplied(entries):
+    """P R Q for the signed permutations P and Q: numpy's product to the value (a product
+    with 0 and ±1 entries is exact), each way."""
+    R = np.array(entries).reshape(3, 3)
+    expected = P_ENU_TO_NED @ R @ Q_FLU_TO_FRD
+    assert np.array_equal(rotation_enu_flu_to_ned_frd(R), expected)
+    assert np.array_equal(rotation_ned_frd_to_enu_flu(R), expected)
+    assert np.array_equal(rotation_ned_frd_to_enu_flu(rotation_enu_flu_to_ned_frd(R)), R)
+
+
 @settings(max_examples=300, deadline=None)
 @given(q=st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4).filter(
            lambda c: sum(x * x for x in c) > 1e-3),
        v=st.lists(st.floats(-1e6, 1e6), min_size=3, max_size=3))
-def test_body_to_inertial_is_numpys_product_bit_for_bit(q, v):
-    """The preallocated-array product paper_from_odometry uses is numpy's fresh-array
-    ``@`` to the bit (BLAS fuses multiply-adds: a float sum of products is not)."""
+def test_body_to_inertial_sums_each_row_left_to_right(q, v):
+    """R v is (r₀ v₀ + r₁ v₁) + r₂ v₂ for each row, each operation rounded: the same bits
+    on every IEEE machine, whatever BLAS numpy has (which fuses multiply-adds in an order
+    of its own)."""
     rows = rotation_rows(q)
-    assert body_to_inertial(rows, v) == (np.array(rows) @ np.array(v)).tolist()
+    got = body_to_inertial(rows, v)
+    assert [float.hex(g) for g in got] == [
+        float.hex((r[0] * v[0] + r[1] * v[1]) + r[2] * v[2]) for r in rows]
+
+
+def test_body_to_inertial_is_not_a_fused_multiply_add():
+    """A row where a fused multiply-add (one rounding for r₀ v₀ + r₁ v₁) and the plain
+    sum part: 1 + 2⁻²⁷ squared is 1 + 2⁻²⁶ + 2⁻⁵⁴, whose last term only the fused form
+    keeps, so the plain form (what runs here) gives 0 and a fused one 2⁻⁵⁴."""
+    e = 1.0 + 2.0 ** -27
+    rows = [[e, -1.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]
+    assert body_to_inertial(rows, [e, e * e, 0.0]) == [0.0, e * e, 0.0]
+
+
+@settings(max_examples=300, deadline=None)
+@given(q=st.lists(st.floats(-1.0, 1.0), min_size=4, max_size=4).filter(
+           lambda c: sum(x * x for x in c) > 1e-3),
+       v=st.lists(st.floats(-1e6, 1e6), min_size=3, max_size=3))
+def test_the_daemons_velocity_is_body_to_inertial_of_rotation_rows(q, v):
+    """paper_from_odometry_fields writes the body-FRD velocity's rotation out (every tick):
+    the same bits as body_to_inertial(rotation_rows(q_enu_flu), Q v)."""
+    from tfl_mav.frames import paper_from_odometry_fields
+
+    n = math.sqrt(sum(c * c for c in q))
+    q_ned = [c / n for c in q]
+    state = paper_from_odometry_fields(1, 0.0, 0.0, 0.0, *q_ned, *v, 0.0, 0.0, 0.0,
+                                       MAV_FRAME_LOCAL_NED, MAV_FRAME_BODY_FRD)
+    expected = body_to_inertial(rotation_rows(state.quaternion_wxyz), frd_to_flu(v).tolist())
+    assert [float.hex(c) for c in state.velocity_mps] == [float.hex(c) for c in expected]
 
 
 _ODOMETRY_VALUES = st.one_of(st.floats(-1e3, 1e3), st.sampled_from([math.nan, math.inf, 0.0]))

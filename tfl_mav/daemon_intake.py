@@ -21,7 +21,7 @@ import math
 from collections.abc import Callable
 from typing import Any
 
-from tfl_mav import arrivals, frames_native
+from tfl_mav import arrivals
 from tfl_mav.arrivals import FRESH, OLD, REPEATED, RESTART, Arrivals
 from tfl_mav.daemon_io import DaemonStats
 from tfl_mav.frames import paper_from_odometry, paper_from_odometry_fields
@@ -74,13 +74,6 @@ class Intake:
             _RxOdometry: self._on_odometry,
             rx_lite_class(_ID_ACTUATOR_OUTPUT_STATUS): self._on_applied,
             _RxEsc: self._on_esc}
-        self._odometry_core: Callable[[Any], Any] | None = None
-        frames_native.attach(self._use_odometry_core)
-
-    def _use_odometry_core(self, core: Callable[[Any], Any]) -> None:
-        """The compiled ODOMETRY conversion is built and checked (maybe mid-flight, from
-        the build's thread: the same values, so the switch is invisible)."""
-        self._odometry_core = core
 
     _event: Callable[..., None]             # the Daemon's methods, called back
     _send_command: Callable[[int, Any], None]
@@ -128,10 +121,7 @@ class Intake:
         self._pending_applied = None
         try:
             if type(msg) is _RxOdometry:   # the link's tuple: fields in wire order
-                core = self._odometry_core      # compiled (frames_native), or its None
-                state = core(msg, State) if core is not None else None
-                self._pending_state = (state if state is not None
-                                       else _from_fields(*msg[:_ODOMETRY_FIELDS]))
+                self._pending_state = _from_fields(*msg[:_ODOMETRY_FIELDS])
             else:
                 self._pending_state = paper_from_odometry(msg)
         except ValueError as exc:

@@ -20,6 +20,13 @@ Q = diag(1, −1, −1) (180° about b1). Both are their own inverses, so every 
 an involution: the same formula goes either way. Note the sign flip of pitch: in FLU a
 positive θ about b2 (left) puts the nose **down**; in FRD a positive pitch puts it **up**.
 
+Everything here is scalar float arithmetic in a fixed order, with no matrix product (numpy's
+BLAS chooses its own order and fuses multiply-adds, so its bits depend on the library and
+the processor). P and Q are signed permutations, so each entry of a converted vector or
+matrix is ± one entry of the input, exact. The one genuine product, R(q) v in
+:func:`paper_from_odometry_fields` and :func:`body_to_inertial`, is summed left to right:
+``(r₀ v₀ + r₁ v₁) + r₂ v₂``, rounded after every operation, the same on any IEEE machine.
+
 ``ODOMETRY`` carries the twist (linear velocity and body rates) in ``child_frame_id``
 (MAVLink spec, ROS REP 147). With ``child_frame_id = MAV_FRAME_BODY_FRD`` the velocity is
 therefore body-frame FRD, not NED; :func:`odometry_from_paper` and :func:`paper_from_odometry`
@@ -29,8 +36,6 @@ get this right in both directions (and the latter also accepts a LOCAL_NED twist
 from __future__ import annotations
 
 import math
-import struct
-import threading
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
@@ -90,14 +95,21 @@ def frd_to_flu(w_frd: Sequence[float]) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------- attitude
+def _p_r_q(R: np.ndarray) -> np.ndarray:
+    """P · R · Q by moving entries: P swaps rows 0 and 1 and negates row 2, Q negates
+    columns 1 and 2 (row 2 thus keeps columns 1 and 2 and negates column 0)."""
+    (a, b, c), (d, e, f), (g, h, i) = np.asarray(R, dtype=float).tolist()
+    return np.array([[d, -e, -f], [a, -b, -c], [-g, h, i]])
+
+
 def rotation_enu_flu_to_ned_frd(R_enu_flu: np.ndarray) -> np.ndarray:
     """R_ned_frd = P · R_enu_flu · Q (3×3, body → world)."""
-    return P_ENU_TO_NED @ np.asarray(R_enu_flu, dtype=float) @ Q_FLU_TO_FRD
+    return _p_r_q(R_enu_flu)
 
 
 def rotation_ned_frd_to_enu_flu(R_ned_frd: np.ndarray) -> np.ndarray:
     """R_enu_flu = P · R_ned_frd · Q (P, Q are involutions)."""
-    return P_ENU_TO_NED @ np.asarray(R_ned_frd, dtype=float) @ Q_FLU_TO_FRD
+    return _p_r_q(R_ned_frd)
 
 
 def quaternion_enu_flu_to_ned_frd(q_enu_flu: Sequence[float]) -> np.ndarray:
@@ -159,34 +171,16 @@ def odometry_from_paper(position_m: Sequence[float], velocity_mps: Sequence[floa
     )
 
 
-class _Scratch(threading.local):
-    """Preallocated arrays for the one matrix product of :func:`paper_from_odometry`, one
-    set per thread: R (3×3) and v (3) are views of one 12-float buffer, filled with one
-    ``struct.pack_into`` (cheaper than numpy's own assignment), multiplied into ``out``
-    (``np.dot``: its call costs half of ``@``'s). The same BLAS product as ``np.array(R) @
-    np.array(v)`` on fresh arrays, bit for bit (tests/test_frames.py), ~2 µs cheaper."""
-
-    def __init__(self) -> None:
-        buf = np.empty(12)
-        matrix = buf[:9].reshape(3, 3)
-        # matrix.dot(vec, out): np.dot's own C function, bound once (no dispatch per call)
-        self.arrays = (memoryview(buf).cast("B"), matrix, buf[9:], np.empty(3), matrix.dot)
-
-
-_SCRATCH = _Scratch()
 _sqrt = math.sqrt
-_pack_12_doubles = struct.Struct("=12d").pack_into   # numpy's float64: native
 
 
 def body_to_inertial(rows: Sequence[Sequence[float]], v: Sequence[float]) -> list[float]:
-    """R v for R given by its ``rows`` (:func:`~tfl_mav.geometry.rotation_rows`), computed
-    as numpy computes ``np.array(rows) @ np.array(v)`` (BLAS: fused multiply-adds, so not
-    the float sum of products), on per-thread preallocated arrays."""
-    buf, _, vec, out, dot = _SCRATCH.arrays
-    r0, r1, r2 = rows
-    _pack_12_doubles(buf, 0, *r0, *r1, *r2, *v)
-    dot(vec, out)
-    return out.tolist()
+    """R v for R given by its ``rows`` (:func:`~tfl_mav.geometry.rotation_rows`): each row's
+    products summed left to right, ``(r₀ v₀ + r₁ v₁) + r₂ v₂`` (the order
+    :func:`paper_from_odometry_fields` uses)."""
+    (a, b, c), (d, e, f), (g, h, i) = rows
+    x, y, z = v
+    return [a * x + b * y + c * z, d * x + e * y + f * z, g * x + h * y + i * z]
 
 
 def paper_from_odometry(msg: object) -> State:
@@ -231,24 +225,22 @@ def paper_from_odometry_fields(time_usec: int, px: float, py: float, pz: float, 
     w, x, y, z = qw / norm, qx / norm, qy / norm, qz / norm
     s = _SQRT1_2
     q_enu_flu = (s * (w + z), s * (x + y), s * (x - y), s * (w - z))   # the involution
-    # Floats, not 3-vectors (this runs every tick in the daemon), except the one product
-    # numpy computes differently (BLAS, fused multiply-add) from a float sum: kept as it
-    # was, so the state is the same to the bit.
+    # Floats, not 3-vectors: this runs every tick in the daemon.
     if child == MAV_FRAME_BODY_FRD:
         # body_to_inertial(rotation_rows(q_enu_flu), (vx, -vy, -vz)), written out (every
-        # tick): R(q) = rotation_from_quaternion, the quaternion normalised again, as there
+        # tick, the same operations in the same order): R(q) with the quaternion
+        # normalised again, as rotation_rows does
         a, b, c, d = q_enu_flu
         n = _sqrt(a * a + b * b + c * c + d * d)
         a, b, c, d = a / n, b / n, c / n, d / n
-        buf, _, vec, out, dot = _SCRATCH.arrays
-        _pack_12_doubles(
-            buf, 0,
-            1 - 2 * (c * c + d * d), 2 * (b * c - a * d), 2 * (b * d + a * c),
-            2 * (b * c + a * d), 1 - 2 * (b * b + d * d), 2 * (c * d - a * b),
-            2 * (b * d - a * c), 2 * (c * d + a * b), 1 - 2 * (b * b + c * c),
-            vx, -vy, -vz)
-        dot(vec, out)
-        velocity = out.tolist()
+        left, up = -vy, -vz                     # the FRD twist in FLU
+        velocity = [
+            (1 - 2 * (c * c + d * d)) * vx + 2 * (b * c - a * d) * left
+            + 2 * (b * d + a * c) * up,
+            2 * (b * c + a * d) * vx + (1 - 2 * (b * b + d * d)) * left
+            + 2 * (c * d - a * b) * up,
+            2 * (b * d - a * c) * vx + 2 * (c * d + a * b) * left
+            + (1 - 2 * (b * b + c * c)) * up]
     elif child == MAV_FRAME_LOCAL_NED:
         velocity = [vy, vx, -vz]
     else:
