@@ -202,13 +202,26 @@ class PathProjector:
     """
 
     def __init__(self, path: Path, sigma2: Sigma2 | None = None,
-                 evaluation: str = "given") -> None:
+                 evaluation: str = "given", *, source: str | None = None) -> None:
+        """``source``: the generated source of ``sigma2`` (a compiled path kernel's), which
+        :mod:`tfl_mav.native` then compiles to C — the same bits, a third of the time; the
+        Python kernel evaluates until it is built, and wherever the C declines."""
         self.path = path
         if sigma2 is None:
             sigma2, evaluation = projector_sigma2(path)
         self.evaluation = evaluation        # "compiled" | "reference jets (why)" | "given"
         self._sigma2 = sigma2
+        self._sigma2_c: Sigma2 | None = None
         self.lam: float | None = None
+        if source is not None:
+            from tfl_mav import native
+
+            def ready(core: Sigma2) -> None:
+                self._sigma2_c = core
+
+            core = native.obtain(source, ready)
+            if core is not None:
+                ready(core)
 
     def project(self, y: Sequence[float]) -> tuple[tuple[float, float, float],
                                                    tuple[float, float, float],
@@ -223,9 +236,11 @@ class PathProjector:
             d2 = (x - yx) ** 2 + (sy - yy) ** 2 + (z - yz) ** 2
             self.lam = float(lam_grid[int(np.argmin(d2))])
         lam = self.lam
-        sigma2 = self._sigma2
+        fast, sigma2 = self._sigma2_c, self._sigma2
         for _ in range(8):
-            c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = sigma2((lam,))
+            out = fast((lam,)) if fast is not None else None
+            c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = out if out is not None \
+                else sigma2((lam,))
             ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
             g = ex * c1x + ey * c1y + ez * c1z
             dg = 2.0 * (ex * c2x + ey * c2y + ez * c2z) - (c1x * c1x + c1y * c1y + c1z * c1z)
@@ -237,7 +252,9 @@ class PathProjector:
         if not math.isfinite(lam):
             return None
         self.lam = lam
-        c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = sigma2((lam,))
+        out = fast((lam,)) if fast is not None else None
+        c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = out if out is not None \
+            else sigma2((lam,))
         s1sq = c1x * c1x + c1y * c1y + c1z * c1z
         if not s1sq > 0.0:
             return None
@@ -284,8 +301,12 @@ class RecoveryLaw:
         self.dt = dt_s
         self.speed = speed_mps
         # The path's compiled σ kernel (the TFL tracker's ``kernels`` when given: traced once).
-        self.projector = (PathProjector(path, *projector_sigma2(path, kernels, compiled_path))
-                          if path is not None else None)
+        self.projector = None
+        if path is not None:
+            sig, note = projector_sigma2(path, kernels, compiled_path)
+            source = kernels.sigma2.source if kernels is not None and note == "compiled" \
+                else None
+            self.projector = PathProjector(path, sig, note, source=source)
         self.hold_m: list[float] | None = None    # held point (None: follow the path)
         # The LQR gains: the whole schedule designed now (``design_gains``: a real-time
         # flight never designs mid-air), or a block of GAIN_BLOCK steps when a spin rate of
