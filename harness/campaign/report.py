@@ -79,6 +79,9 @@ def _reason_kind(reason: Any) -> str:
     """The reason without its numbers, so alike failures count together."""
     text = str(reason or "unknown")
     text = re.sub(r"-?\d+(\.\d+)?(e-?\d+)?", "#", text)
+    # Flight software failures say what went wrong after their time ("NAME failed at t = #
+    # s: raised ..."): keep the what; a crash's time is its tail, cut below.
+    text = re.sub(r" at t = # s(?=: )", "", text)
     return text.split(" at t = ")[0]
 
 

@@ -3,10 +3,13 @@
 :func:`execute` is the flight itself — ``offline``: exactly
 :func:`harness.offline.fly_offline` + :func:`tfl_mav.flightlog.flight.summarize`, as
 ``tfl-mav offline --set ...``; ``mavlink``: :func:`harness.demo.run_demo`, as
-``tfl-mav demo --set ...`` — and returns the row of the results table. :class:`Child` runs
-it in a forked process of its own session, so a timeout kills the run *and* whatever it
-started (the sim and daemon of a MAVLink run), and a segfault is a failed row. Both
-executors use it, so the table does not depend on the executor.
+``tfl-mav demo --set ...`` — and returns the row of the results table. A run whose
+``controller`` is not ``tfl`` flies that software offline through the public API
+(:class:`tfl_mav.api.Environment`, as ``tfl-mav compare`` does); the same metrics, and a
+controller that raises or returns a bad thrust fails its row with its one-line reason.
+:class:`Child` runs it in a forked process of its own session, so a timeout kills the run
+*and* whatever it started (the sim and daemon of a MAVLink run), and a segfault is a failed
+row. Both executors use it, so the table does not depend on the executor.
 """
 
 from __future__ import annotations
@@ -23,14 +26,16 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from harness.campaign.spec import SUCCESS_MAX_DISTANCE_M, Run
+import numpy as np
+
+from harness.campaign.spec import DEFAULT_CONTROLLER, SUCCESS_MAX_DISTANCE_M, Run
 from tfl_mav.scenario import Scenario, apply_overrides, load_scenario
 
 if TYPE_CHECKING:
     from tfl_mav.flightlog.flight import FlightLog
 
 __all__ = ["RESULT_COLUMNS", "Child", "Target", "execute", "failed_row", "offline_metrics",
-           "run_isolated", "run_outcome"]
+           "run_isolated", "run_outcome", "software_metrics"]
 
 # The measured columns of results.csv, after run_id, the swept keys and seed.
 RESULT_COLUMNS = ("success", "crashed", "max_path_distance_last_10s_m",
@@ -47,8 +52,11 @@ def run_outcome(metrics: dict[str, Any], scenario: Scenario, *,
     :func:`tfl_mav.flightlog.metrics.converged` (largest distance to the path over the last
     10 s, at most half the flight) with the campaign's bound ``max_distance_m``,
     and — when the attack was detected from rpm (``detected_rotor`` present) — the detected
-    rotor is the attacked one (0 when there is no attack) with no false alarm.
+    rotor is the attacked one (0 when there is no attack) with no false alarm. A flight
+    whose software failed (``failure_reason``) failed for that reason, whatever came after.
     """
+    if metrics.get("failure_reason"):
+        return False, metrics["failure_reason"]
     if metrics.get("crashed"):
         return False, f"crashed: {metrics.get('crash_reason') or 'no reason logged'}"
     # tfl_mav.flightlog.metrics.converged's window (10 s, at most half the flight) and its
@@ -81,7 +89,10 @@ def execute(run: Run) -> dict[str, Any]:
     """Fly ``run`` in this process and return its measured columns."""
     t0 = time.perf_counter()
     sc = apply_overrides(load_scenario(run.base), list(run.settings))
-    fly = _fly_offline if run.mode == "offline" else _fly_mavlink
+    if run.controller != DEFAULT_CONTROLLER:
+        fly = _fly_software            # the spec allows other software offline only
+    else:
+        fly = _fly_offline if run.mode == "offline" else _fly_mavlink
     metrics = fly(sc, run)
     ok, reason = run_outcome(metrics, sc, max_distance_m=run.success_max_distance_m)
     row = {k: metrics.get(k) for k in RESULT_COLUMNS}
@@ -107,6 +118,59 @@ def offline_metrics(sc: Scenario, attack_info: str) -> tuple[dict[str, Any], Fli
 
 def _fly_offline(sc: Scenario, run: Run) -> dict[str, Any]:
     return offline_metrics(sc, run.attack_info)[0]
+
+
+def software_metrics(sc: Scenario, controller: str, attack_info: str
+                     ) -> tuple[dict[str, Any], FlightLog | None]:
+    """Fly ``sc`` offline with the flight software ``controller`` names (``se3``,
+    ``module:Name`` …): the metrics of :func:`offline_metrics` and the log they came from,
+    plus ``failure_reason`` when the software failed (the flight stopped there).
+
+    The path distance judged is the one the software measured from the state it saw, as for
+    TFL rows (:class:`~tfl_mav.software.ControllerSoftware` measures it for a controller);
+    software that reports none gets the true distance computed after the flight, rather
+    than a row that reads "path lost".
+    """
+    from harness.offline import detections
+    from tfl_mav.api import Environment
+    from tfl_mav.flightlog.flight import summarize
+    from tfl_mav.flightlog.metrics import detection_from_alarms
+    from tfl_mav.software import load_flight_software
+
+    name, factory = load_flight_software(controller)
+
+    def make(scenario: Scenario) -> Any:
+        # A constructor that raises fails the row naming the software, not as a bare
+        # TypeError from somewhere inside the run.
+        try:
+            return factory(scenario)
+        except Exception as exc:
+            text = " ".join(str(exc).split())
+            raise _MakeError(f"{name}: making it raised {type(exc).__name__}: {text}") from None
+
+    try:
+        flight = Environment(sc, make, attack_info=attack_info, name=name).fly()
+    except _MakeError as exc:
+        return {"crashed": False, "failure_reason": str(exc)}, None
+    log = flight.log
+    dist = log.data.get("path_distance_m")
+    if dist is not None and len(dist) and not np.isfinite(dist).any():
+        log.data["path_distance_m"] = flight.path_distance_m
+    metrics = summarize(log)
+    if attack_info == "detector":
+        metrics.update(detection_from_alarms(detections(log), sc.attack.rotor,
+                                             sc.attack.start_s))
+    if flight.failure_reason:
+        metrics["failure_reason"] = flight.failure_reason
+    return metrics, log
+
+
+class _MakeError(RuntimeError):
+    """The flight software could not be made for the scenario."""
+
+
+def _fly_software(sc: Scenario, run: Run) -> dict[str, Any]:
+    return software_metrics(sc, run.controller, run.attack_info)[0]
 
 
 def _fly_mavlink(sc: Scenario, run: Run) -> dict[str, Any]:

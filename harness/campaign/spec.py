@@ -5,6 +5,11 @@ turned into the ``--set KEY=VALUE`` text that ``tfl-mav offline``/``demo`` accep
 with :func:`tfl_mav.scenario.apply_overrides` before any run starts, so a bad key fails at
 once with the scenario's own one-line error, and a run is the CLI flight with those
 ``--set`` options by construction.
+
+One key is not the scenario's: ``controller`` (in ``[set]``, ``[grid]`` or ``[[variants]]``)
+names the flight software, as ``tfl-mav compare --controllers`` takes it (``tfl``, ``se3``,
+``cascade``, ``MODULE:NAME``, ``FILE.py:NAME``; default ``tfl``). It is loaded when the spec
+is validated, so an unknown name fails before any run; it never becomes a ``--set`` text.
 """
 
 from __future__ import annotations
@@ -24,11 +29,17 @@ import numpy as np
 
 from tfl_mav.build import build_controller
 from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
+from tfl_mav.software import FlightSoftwareError
 
-__all__ = ["SUCCESS_MAX_DISTANCE_M", "CampaignSpec", "Run", "SpecError", "builtin_specs",
-           "load_spec", "scenario_value", "spec_from_dict", "toml_value"]
+__all__ = ["CONTROLLER_KEY", "DEFAULT_CONTROLLER", "SUCCESS_MAX_DISTANCE_M", "CampaignSpec",
+           "Run", "SpecError", "builtin_specs", "load_spec", "scenario_value", "spec_from_dict",
+           "toml_value"]
 
 SUCCESS_MAX_DISTANCE_M = 0.05
+# The flight software of a run: a reserved key beside the scenario's dotted keys (a bare
+# name, so it cannot collide with the scenario's own [controller] section keys).
+CONTROLLER_KEY = "controller"
+DEFAULT_CONTROLLER = "tfl"
 MODES = ("offline", "mavlink")
 ATTACK_INFO = ("detector", "oracle")
 _TOP_KEYS = ("name", "description", "base", "mode", "seeds", "duration_s", "attack_info",
@@ -55,6 +66,7 @@ class Run:
     success_max_distance_m: float = SUCCESS_MAX_DISTANCE_M
     out_dir: str = ""               # mavlink: where run_demo writes its files
     keep_logs: bool = False
+    controller: str = DEFAULT_CONTROLLER   # flight software, as `tfl-mav compare` names it
 
 
 @dataclass(frozen=True)
@@ -103,7 +115,8 @@ class CampaignSpec:
     def runs(self, out_dir: Path | None = None) -> list[Run]:
         """Every run, in a fixed order (run_id = its index), values drawn with the spec seed."""
         base = self.base_scenario()
-        common = [f"{k}={toml_value(v)}" for k, v in self.fixed.items()]
+        common = [f"{k}={toml_value(v)}" for k, v in self.fixed.items() if k != CONTROLLER_KEY]
+        fixed_controller = self.fixed.get(CONTROLLER_KEY, DEFAULT_CONTROLLER)
         if self.duration_s is not None:
             common.append(f"run.duration_s={toml_value(self.duration_s)}")
         variants = self.variants or [{}]
@@ -117,10 +130,12 @@ class CampaignSpec:
             for gp in grid_points:
                 for sample in samples:
                     point = {**vset, **dict(zip(grid_keys, gp, strict=True)), **sample}
+                    controller = point.pop(CONTROLLER_KEY, fixed_controller)
                     settings = common + [f"{k}={toml_value(v)}" for k, v in point.items()]
                     sc = apply_overrides(base, settings)
                     build_controller(sc)     # path and law errors now, not mid-campaign
-                    values = {c: scenario_value(sc, c) for c in cols if c != "variant"}
+                    values = {c: controller if c == CONTROLLER_KEY else scenario_value(sc, c)
+                              for c in cols if c != "variant"}
                     if self.variants:
                         values = {"variant": variant["name"], **values}
                     for seed in range(self.seeds):
@@ -128,7 +143,8 @@ class CampaignSpec:
                         run_dir = str(out_dir / "runs" / rid) if out_dir else ""
                         out.append(Run(rid, self.base, (*settings, f"run.seed={seed}"), values,
                                        seed, self.mode, self.attack_info, self.timeout_s,
-                                       self.success_max_distance_m, run_dir, self.keep_logs))
+                                       self.success_max_distance_m, run_dir, self.keep_logs,
+                                       controller))
         return out
 
 
@@ -284,13 +300,18 @@ def _spec_from_dict(data: dict[str, Any], source: str, text: str) -> CampaignSpe
     _need(isinstance(keep_logs, bool), "keep_logs", f"must be true or false, got {keep_logs!r}")
 
     fixed = _table(data, "set")
-    sc = _check(sc, fixed, "set")
+    if CONTROLLER_KEY in fixed:
+        _check_controller(fixed[CONTROLLER_KEY], "set", mode)
+    sc = _check(sc, _scenario_keys(fixed), "set")
     grid = _table(data, "grid")
     for key, values in grid.items():
         _need(isinstance(values, list) and bool(values), f"grid.{key}",
               f"must be a non-empty list of values, got {values!r}")
         for v in values:
-            _check(sc, {key: v}, "grid")
+            if key == CONTROLLER_KEY:
+                _check_controller(v, "grid", mode)
+            else:
+                _check(sc, {key: v}, "grid")
     rnd = _table(data, "random")
     samples = _number(rnd, "samples", 0, integer=True) if rnd else 0
     rseed = _number(rnd, "seed", 0, integer=True) if rnd else 0
@@ -298,6 +319,8 @@ def _spec_from_dict(data: dict[str, Any], source: str, text: str) -> CampaignSpe
     for key, bounds in rnd.items():
         if key in ("samples", "seed"):
             continue
+        _need(key != CONTROLLER_KEY, f"random.{key}",
+              "names flight software, not a number: sweep it in [grid] or [[variants]]")
         _need(isinstance(bounds, list) and len(bounds) == 2
               and all(isinstance(b, (int, float)) and not isinstance(b, bool) for b in bounds)
               and bounds[0] <= bounds[1], f"random.{key}",
@@ -316,7 +339,9 @@ def _spec_from_dict(data: dict[str, Any], source: str, text: str) -> CampaignSpe
         _need(isinstance(vname, str) and vname not in names, f"variants[{i}].name",
               f"must be a unique string, got {vname!r}")
         names.append(vname)
-        _check(sc, {k: x for k, x in v.items() if k != "name"}, f"variants[{i}]")
+        if CONTROLLER_KEY in v:
+            _check_controller(v[CONTROLLER_KEY], f"variants[{i}]", mode)
+        _check(sc, _scenario_keys({k: x for k, x in v.items() if k != "name"}), f"variants[{i}]")
     swept = [*grid, *ranges]
     for key in swept:
         _need(key not in fixed, key, "is both fixed ([set]) and swept")
@@ -343,6 +368,33 @@ def _spec_from_dict(data: dict[str, Any], source: str, text: str) -> CampaignSpe
     spec = dataclasses.replace(spec, maps=[tuple(p) for p in maps])
     spec.runs()          # every combination must build (e.g. path keys of its path kind)
     return spec
+
+
+def _scenario_keys(values: dict[str, Any]) -> dict[str, Any]:
+    """``values`` without the reserved ``controller`` key (the rest are the scenario's)."""
+    return {k: v for k, v in values.items() if k != CONTROLLER_KEY}
+
+
+def _check_controller(name: Any, where: str, mode: str) -> None:
+    """A controller name ``tfl-mav compare`` accepts, loaded now (its import errors too), so
+    a typo fails the spec before any run rather than every row of it."""
+    key = f"{where}.{CONTROLLER_KEY}"
+    _need(isinstance(name, str) and bool(name), key,
+          f"must be a controller name (tfl, se3, cascade, MODULE:NAME or FILE.py:NAME), "
+          f"got {name!r}")
+    # The MAVLink run is `tfl-mav demo`, whose daemon flies the TFL law; handing it other
+    # software is not wired, so say so rather than fly TFL under another name.
+    _need(mode == "offline" or name == DEFAULT_CONTROLLER, key,
+          f"{name!r} needs mode = \"offline\" (a mavlink campaign flies the TFL daemon "
+          f"only; fly other software over MAVLink with `tfl-mav fly --controller`)")
+    if name == DEFAULT_CONTROLLER:
+        return
+    from tfl_mav.comparison import check_controllers
+
+    try:
+        check_controllers([name])
+    except FlightSoftwareError as exc:
+        raise SpecError(f"{key}: {exc}") from None
 
 
 def _check(sc: Scenario, values: dict[str, Any], where: str) -> Scenario:
