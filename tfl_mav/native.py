@@ -87,6 +87,16 @@ def cache_dir() -> Path:
 
 
 # ----- build, cache, load -------------------------------------------------------------------
+def compiler_expected() -> bool:
+    """True where a C compiler is part of the platform the project is built for (Linux),
+    or when ``TFL_MAV_EXPECT_COMPILER=1`` says so: the contract tests then fail without
+    one instead of skipping."""
+    flag = os.environ.get("TFL_MAV_EXPECT_COMPILER")
+    if flag is not None:
+        return flag == "1"
+    return sys.platform.startswith("linux")
+
+
 def _compiler() -> list[str] | None:
     cc = os.environ.get("CC") or sysconfig.get_config_var("CC") or "cc"
     argv = shlex.split(cc)
