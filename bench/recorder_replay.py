@@ -49,13 +49,27 @@ def _wrap(out_dir: str, module: str, args: list[str]) -> None:
     from tfl_mav.flightlog import recorder_process as rp
 
     init, close = rp.RecorderProcess.__init__, rp.RecorderProcess.close
+    write = getattr(rp, "_write_message", None)    # the pipe's writer (else send_bytes)
+    by_fd: dict[int, list[bytes]] = {}
 
     def patched_init(self: Any, path: Any, **kw: Any) -> None:
         init(self, path, **kw)
         sent: list[bytes] = []
-        send = self._conn.send_bytes
         self._captured = sent
-        self._conn.send_bytes = lambda b: (sent.append(bytes(b)), send(b))[1]
+        if write is not None:
+            by_fd[self._conn.fileno()] = sent
+        else:
+            send = self._conn.send_bytes
+            self._conn.send_bytes = lambda b: (sent.append(bytes(b)), send(b))[1]
+
+    def patched_write(fd: int, data: bytes, waited: Any) -> None:
+        sent = by_fd.get(fd)
+        if sent is not None:
+            sent.append(bytes(data))
+        write(fd, data, waited)   # type: ignore[misc]
+
+    if write is not None:
+        rp._write_message = patched_write
 
     def patched_close(self: Any) -> None:
         close(self)

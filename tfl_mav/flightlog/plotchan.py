@@ -17,7 +17,7 @@ is a uint32 length (with its NUL) and the bytes; a sequence a uint32 count and t
 from __future__ import annotations
 
 import struct
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 
 __all__ = ["FLOAT64_MULTI_ARRAY", "SCHEMA_ENCODING", "SCHEMA_TEXT", "encode", "labels"]
 
@@ -44,18 +44,26 @@ _HEADER = b"\x00\x01\x00\x00"
 
 
 def labels(names: Sequence[str]) -> bytes:
-    """The message bytes up to the data's count, for one dimension labelled ``names``
-    (the part that is the same in every sample of a channel)."""
+    """The message bytes before the values, for one dimension labelled ``names`` (the part
+    that is the same in every sample of a channel), padded so the float64 values that
+    follow are aligned to 8 from the end of the encapsulation header."""
     label = ",".join(names).encode() + b"\x00"
     n = len(names)
     body = struct.pack("<II", 1, len(label)) + label        # dim: 1 entry; its label
     body += b"\x00" * (-len(body) % 4)                       # size: aligned to 4
     body += struct.pack("<IIII", n, n, 0, n)                 # size, stride, data_offset, count
+    body += b"\x00" * (-len(body) % 8)
     return _HEADER + body
 
 
+_PACK: dict[int, Callable[..., bytes]] = {}
+
+
 def encode(head: bytes, values: Sequence[float]) -> bytes:
-    """A Float64MultiArray: ``head`` (from :func:`labels`), then the values as float64,
-    aligned to 8 from the end of the encapsulation header."""
-    pad = b"\x00" * (-(len(head) - 4) % 8)
-    return head + pad + struct.pack(f"<{len(values)}d", *values)
+    """A Float64MultiArray: ``head`` (from :func:`labels`, for ``len(values)`` names), then
+    the values as float64."""
+    n = len(values)
+    pack = _PACK.get(n)
+    if pack is None:
+        pack = _PACK[n] = struct.Struct(f"<{n}d").pack
+    return head + pack(*values)
