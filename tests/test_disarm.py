@@ -24,6 +24,7 @@ from pymavlink import mavutil
 
 from harness.ports import free_udp_port
 from harness.processes import Proc, start_sim
+from tfl_mav.flightlog.logread import mavlink_messages
 from tfl_mav.link.dialect import mav
 
 mavutil.set_dialect("ardupilotmega")
@@ -103,12 +104,14 @@ def test_disarm_from_a_gcs_raises_no_alarm_and_keeps_the_detection(tmp_path):
 
     # The vehicle's side: while disarmed ACTUATOR_OUTPUT_STATUS says nothing drives the
     # motors, and the stopped rotors read exactly 0.
-    applied = _messages(run_mcap, "/mavlink/1/1/ACTUATOR_OUTPUT_STATUS")
+    # every tick's frames, decoded from /mavlink/raw (the decoded channels are at 50 Hz)
+    applied = [(t * 1e-9, m) for t, m in mavlink_messages(run_mcap, "ACTUATOR_OUTPUT_STATUS",
+                                                          1, 1)]
     off = [t for t, m in applied if m["active"] == 0]
     assert off and off[0] >= DISARM_S - 0.01 and off[-1] <= ARM_S + 0.2
     assert all(m["active"] == 0b1111 for t, m in applied if not off[0] <= t <= off[-1])
-    esc = {round(t, 6): m["rpm"] for t, m in _messages(run_mcap,
-                                                       "/mavlink/1/1/ESC_TELEMETRY_1_TO_4")}
+    esc = {round(t * 1e-9, 6): m["rpm"]
+           for t, m in mavlink_messages(run_mcap, "ESC_TELEMETRY_1_TO_4", 1, 1)}
     stopped = [esc[round(t, 6)] for t in off[1:] if round(t, 6) in esc]
     assert len(stopped) >= 50
     assert all(r == [0, 0, 0, 0] for r in stopped), stopped[:5]

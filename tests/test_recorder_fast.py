@@ -205,8 +205,16 @@ def test_on_frames_writes_what_on_frame_does(tmp_path: Any) -> None:
         with open(path, "rb") as fh:
             got.append([(ch.topic, m.log_time, m.publish_time, m.data)
                         for _s, ch, m in make_reader(fh).iter_messages()])
-    assert got[0] == got[1] and len(got[0]) == 50 * 4 + 7     # 2 a frame, 1 if no message
-    assert sum(b'"_nonfinite":["pose_covariance"]' in m[3] for m in got[0]) == 50
+    assert got[0] == got[1]
+    # every frame raw (100 accepted, 7 rejected); decoded at most every 20 ms of sim time
+    # (the scene rate): ODOMETRY and HIL_ACTUATOR_CONTROLS at 0, 20 and 40 ms
+    raw = [m for m in got[0] if m[0] == "/mavlink/raw"]
+    decoded = [(m[0], m[2]) for m in got[0] if m[0] != "/mavlink/raw"]
+    assert len(raw) == 50 * 2 + 7
+    assert sorted(decoded) == sorted((topic, ms * 1_000_000) for ms in (0, 20, 40)
+                                     for topic in ("/mavlink/1/1/ODOMETRY",
+                                                   "/mavlink/1/1/HIL_ACTUATOR_CONTROLS"))
+    assert sum(b'"_nonfinite":["pose_covariance"]' in m[3] for m in got[0]) == 3
 
 
 class _Syscalls(io.RawIOBase):

@@ -47,7 +47,7 @@ def test_frames_read_back_as_the_dict_encoder_prints_them(tmp_path_factory: Any,
     mv = new_mavlink(1, 1)
     raws: list[bytes] = []
     for k, v in enumerate(vs * 2):           # each channel's first frame: the careful path
-        usec = 1000 * (k + 1)
+        usec = 20_000 * (k + 1)              # 20 ms apart: every one decoded (50 Hz)
         for msg in (
                 mav.MAVLink_odometry_message(usec, 1, 12, v[0], v[1], v[2], v[3:7], v[7], v[8],
                                              v[9], v[10], v[11], v[12], v[13:34], v[34:55],

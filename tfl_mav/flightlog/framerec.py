@@ -59,7 +59,8 @@ _Fast = tuple[_MavChannel, MavPlan, bytes, bool, int]   # channel, plan, raw JSO
 class FrameRecorder(McapOutput):
     """The frame half of :class:`~tfl_mav.flightlog.recorder.Recorder`."""
 
-    def _init_frames(self, sim_time_messages: Iterable[str]) -> None:
+    def _init_frames(self, sim_time_messages: Iterable[str],
+                     decoded_period_s: float = 0.0) -> None:
         names = set(sim_time_messages)
         self._sim_time_ids = {mav_id for mav_id, cls in mav.mavlink_map.items()
                               if cls.msgname in names and "time_usec" in cls.fieldnames}
@@ -74,6 +75,11 @@ class FrameRecorder(McapOutput):
         self._frames_c: Any = frames_c.obtain(self._c_ready)
         self._sim_ns = 0
         self._sim_known = False
+        # decoded MAVLink channels: at most one record a period of sim time each (a person
+        # looks at 50 Hz; /mavlink/raw keeps every frame for decoding on read). channel id
+        # → the sim time (ns) from which the next may be written.
+        self._decoded_next: dict[int, int] = {}
+        self._decoded_period_ns = max(round(decoded_period_s * 1e9) - 1000, 0)
 
     def on_frame(self, direction: str, raw: bytes, msg: Any, time_s: float) -> None:
         """The :class:`~tfl_mav.link.transport.Link` frame hook (``on_frame``): record one
@@ -112,14 +118,15 @@ class FrameRecorder(McapOutput):
         while i < n:
             epoch = self._epoch_ns
             state = [self._sim_ns, self._sim_known, 0, 0, n,
-                     -1 if epoch is None else epoch, 1 if self._timeline_sim else 0]
+                     -1 if epoch is None else epoch, 1 if self._timeline_sim else 0,
+                     self._decoded_period_ns, 0]
             failed: Exception | None = None
             with self._lock:
                 if not self._open:
                     break
                 try:
                     i = c(items, i, self._frame_fast_c, w.chunk, w.end_chunk, w.chunk_limit,
-                          state, _encode_obj)
+                          state, _encode_obj, self._decoded_next)
                 except Exception as exc:      # a write failed: the file stops here
                     failed = exc
                 finally:
@@ -129,8 +136,8 @@ class FrameRecorder(McapOutput):
                     st = self.stats
                     st.frames_rx += state[2]
                     st.frames_tx += state[3]
-                    st.messages += 2 * (state[2] + state[3])
-                    self._pending += 2 * (state[2] + state[3])
+                    st.messages += state[2] + state[3] + state[8]
+                    self._pending += state[2] + state[3] + state[8]
             if failed is not None:
                 self._failed(failed)
                 i = state[4] + 1
@@ -156,14 +163,15 @@ class FrameRecorder(McapOutput):
         buf, index = chunk.buf, chunk.index
         pack = MESSAGE_HEADER.pack
         live = self._live_channels if self._live is not None else None
-        n_rx = n_tx = 0
+        n_rx = n_tx = written = 0
+        decoded_next, period = self._decoded_next, self._decoded_period_ns
         todo = iter(frames)
         with self._lock:
             try:
                 for f in todo:
                     _, time_s, direction, raw, accepted = f
                     fast = get((direction, raw[5:10])) if accepted and self._open else None
-                    data = None
+                    t = None
                     if fast is not None:
                         chan, plan, head, rx, raw_cid = fast
                         n = len(raw)
@@ -174,6 +182,25 @@ class FrameRecorder(McapOutput):
                         try:
                             t = plan.unpack(payload)
                             log_ns = int(time_s * 1e9)
+                        except Exception:     # struct.error, a bad stamp: the careful path
+                            t = None
+                    if t is None or not 0 <= log_ns <= MAX_NS:
+                        self._on_frame(direction, raw, True if accepted else None, time_s)
+                        buf, index = chunk.buf, chunk.index   # it may have ended a chunk
+                        continue
+                    if chan.sim_time and t[plan.time_index] * 1000 <= MAX_NS:
+                        self._sim_ns = t[plan.time_index] * 1000
+                        self._sim_known = True
+                    if self._timeline_sim:
+                        log_ns = self._on_timeline(log_ns)
+                    pub_ns = self._sim_ns
+                    cid = chan.channel_id
+                    # the decoded record at most every decoded period of sim time (the raw
+                    # one always); before sim time is known, every one
+                    keep = not self._sim_known or pub_ns >= decoded_next.get(cid, -1)
+                    data = None
+                    if keep:
+                        try:
                             obj = plan.obj
                             if obj is not None:   # numbers only: one msgspec call (jsonobj)
                                 data = encode_obj(obj.build(t))
@@ -183,23 +210,18 @@ class FrameRecorder(McapOutput):
                                             or plan.json(t))   # NaN/inf: left out, listed
                             else:
                                 data = plan.json(t)
-                        except Exception:     # struct.error, a bad stamp: the careful path
+                        except Exception:     # the careful path (it writes both records)
                             data = None
-                    if data is None or not 0 <= log_ns <= MAX_NS:
-                        self._on_frame(direction, raw, True if accepted else None, time_s)
-                        buf, index = chunk.buf, chunk.index   # it may have ended a chunk
-                        continue
-                    if chan.sim_time and t[plan.time_index] * 1000 <= MAX_NS:
-                        self._sim_ns = t[plan.time_index] * 1000
-                        self._sim_known = True
-                    if self._timeline_sim:
-                        log_ns = self._on_timeline(log_ns)
-                    if chan.nonfinite:
-                        chan.nonfinite = False
+                        if data is None:
+                            self._on_frame(direction, raw, True if accepted else None,
+                                           time_s)
+                            buf, index = chunk.buf, chunk.index
+                            continue
+                        decoded_next[cid] = min(pub_ns + period, MAX_NS)
+                        if chan.nonfinite:
+                            chan.nonfinite = False
                     raw_json = b'%s%d,"len":%d,"data":"%s"}' % (
                         head, raw[4], n, b2a_base64(raw, newline=False))
-                    pub_ns = self._sim_ns
-                    cid = chan.channel_id
                     flat = index.get(raw_cid)
                     if flat is None:
                         flat = index[raw_cid] = []
@@ -210,32 +232,34 @@ class FrameRecorder(McapOutput):
                     if len(buf) > limit:
                         w.end_chunk()
                         buf, index = chunk.buf, chunk.index
-                    flat = index.get(cid)
-                    if flat is None:
-                        flat = index[cid] = []
-                    flat += (log_ns, len(buf))
-                    buf += pack(MESSAGE_OPCODE, MESSAGE_FIXED + len(data), cid, 0, log_ns,
-                                pub_ns)
-                    buf += data
-                    if len(buf) > limit:
-                        w.end_chunk()
-                        buf, index = chunk.buf, chunk.index
+                    if data is not None:
+                        flat = index.get(cid)
+                        if flat is None:
+                            flat = index[cid] = []
+                        flat += (log_ns, len(buf))
+                        buf += pack(MESSAGE_OPCODE, MESSAGE_FIXED + len(data), cid, 0, log_ns,
+                                    pub_ns)
+                        buf += data
+                        if len(buf) > limit:
+                            w.end_chunk()
+                            buf, index = chunk.buf, chunk.index
+                        written += 1
                     if rx:
                         n_rx += 1
                     else:
                         n_tx += 1
                     if live is not None:
-                        for cid, d in ((raw_cid, raw_json), (chan.channel_id, data)):
-                            if cid in live:
-                                live[cid].log(d, log_time=log_ns)
+                        for lc, d in ((raw_cid, raw_json), (cid, data)):
+                            if d is not None and lc in live:
+                                live[lc].log(d, log_time=log_ns)
             except Exception as exc:          # a write failed: the file stops here
                 self._failed(exc)
             finally:
                 st = self.stats
                 st.frames_rx += n_rx
                 st.frames_tx += n_tx
-                st.messages += 2 * (n_rx + n_tx)
-                self._pending += 2 * (n_rx + n_tx)
+                st.messages += n_rx + n_tx + written
+                self._pending += n_rx + n_tx + written
         for f in todo:                        # after a failure: counted as dropped
             self._on_frame(f[2], f[3], True if f[4] else None, f[1])
 
@@ -292,9 +316,16 @@ class FrameRecorder(McapOutput):
         self._write(self._raw_channel(),
                     f'{head}{raw[4]},"len":{len(raw)},"data":"{data}"}}'.encode(),
                     log_ns, pub_ns)
+        # the decoded record at most once a period of sim time, as the hot paths (a
+        # STATUSTEXT always: it is also the /log entry)
+        keep = chan is not None and (chan.statustext or not self._sim_known or pub_ns
+                                     >= self._decoded_next.get(chan.channel_id, -1))
+        if keep:
+            self._decoded_next[chan.channel_id] = min(pub_ns + self._decoded_period_ns, MAX_NS)
         if fast is not None:
             chan.nonfinite = False
-            self._write(chan.channel_id, fast[0], log_ns, pub_ns)
+            if keep:
+                self._write(chan.channel_id, fast[0], log_ns, pub_ns)
             plan = self._mav.plan(msgid)
             if plan is not None and (plan.time_index is not None or not chan.sim_time):
                 self._frame_fast[(direction, raw[5:10])] = (
@@ -307,6 +338,8 @@ class FrameRecorder(McapOutput):
             return
         if fields is None:
             self._bad(f"frame: {name} (#{msgid}) did not decode from its wire bytes")
+            return
+        if not keep:
             return
         data, chan.nonfinite = self._json.dumps_sticky(fields, chan.nonfinite)
         self._write(chan.channel_id, data, log_ns, pub_ns)

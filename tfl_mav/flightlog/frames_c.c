@@ -248,23 +248,27 @@ static int chunk_check(PyObject **buf, PyObject **index, PyObject *chunk,
 #define MAX_NS 9223372036854775807LL
 
 
-/* frames(items, start, fast, chunk, end_chunk, limit, state, enc) -> index of the first item
-   not written (len(items) when all were). items: (any, time_s, direction, raw, accepted);
-   fast: frame key -> (layout, head, rx, raw_cid, cid, time_off, size); state: [sim_ns,
-   sim_known, n_rx, n_tx, i, epoch_ns, sim_timeline], updated after every frame written;
-   when an error is raised state[4] is the frame it was raised on (the caller's counts stay
-   right). sim_timeline 1: once sim time is known, log_time = epoch_ns + sim time, epoch_ns
-   (-1: not yet) set from the first such frame's receipt time (McapOutput._on_timeline). */
+/* frames(items, start, fast, chunk, end_chunk, limit, state, enc, decoded_next) -> index of
+   the first item not written (len(items) when all were). items: (any, time_s, direction,
+   raw, accepted); fast: frame key -> (layout, head, rx, raw_cid, cid, time_off, size);
+   state: [sim_ns, sim_known, n_rx, n_tx, i, epoch_ns, sim_timeline, period_ns, decoded],
+   updated after every frame written; when an error is raised state[4] is the frame it was
+   raised on (the caller's counts stay right). sim_timeline 1: once sim time is known,
+   log_time = epoch_ns + sim time, epoch_ns (-1: not yet) set from the first such frame's
+   receipt time (McapOutput._on_timeline). decoded_next: cid -> sim ns from which its next
+   decoded record may be written (then + period_ns); before sim time is known, always
+   (FrameRecorder._frames_py, the same decisions). */
 static PyObject *frames(PyObject *self, PyObject *const *args, Py_ssize_t nargs) {
-    if (nargs != 8) { PyErr_SetString(PyExc_TypeError, "frames: 8 arguments"); return NULL; }
+    if (nargs != 9) { PyErr_SetString(PyExc_TypeError, "frames: 9 arguments"); return NULL; }
     PyObject *items = args[0], *fast = args[2], *chunk = args[3], *end_chunk = args[4];
-    PyObject *state = args[6], *enc = args[7];
+    PyObject *state = args[6], *enc = args[7], *next = args[8];
     Py_ssize_t i = PyLong_AsSsize_t(args[1]), limit = PyLong_AsSsize_t(args[5]);
     if (PyErr_Occurred()) return NULL;
     if (!PyList_Check(items) && !PyTuple_Check(items)) {
         PyErr_SetString(PyExc_TypeError, "frames: items"); return NULL;
     }
-    if (!PyDict_Check(fast) || !PyList_Check(state) || PyList_GET_SIZE(state) != 7) {
+    if (!PyDict_Check(fast) || !PyDict_Check(next) || !PyList_Check(state)
+        || PyList_GET_SIZE(state) != 9) {
         PyErr_SetString(PyExc_TypeError, "frames: fast or state"); return NULL;
     }
     long long sim_ns = PyLong_AsLongLong(PyList_GET_ITEM(state, 0));
@@ -273,6 +277,8 @@ static PyObject *frames(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
     if (epoch_ns == -1 && PyErr_Occurred()) return NULL;
     long sim_timeline = PyLong_AsLong(PyList_GET_ITEM(state, 6));
     if (sim_timeline == -1 && PyErr_Occurred()) return NULL;
+    long long period_ns = PyLong_AsLongLong(PyList_GET_ITEM(state, 7));
+    if (period_ns == -1 && PyErr_Occurred()) return NULL;
     PyObject *buf = PyObject_GetAttrString(chunk, "buf");
     PyObject *index = buf ? PyObject_GetAttrString(chunk, "index") : NULL;
     if (!index || !PyByteArray_Check(buf) || !PyDict_Check(index)) {
@@ -329,11 +335,6 @@ static PyObject *frames(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
         double v = PyFloat_AS_DOUBLE(ts) * 1e9;
         if (!(v > -1.0 && v < 9223372036854775808.0)) break;
         long long log_ns = (long long)v;
-        out_json.n = 0;
-        int rc = put_object(&out_json, (const unsigned char *)PyBytes_AS_STRING(lay),
-                            PyBytes_GET_SIZE(lay), pay, enc);
-        if (rc < 0) { failed = 1; break; }
-        if (rc > 0) break;                  /* NaN/inf: the Python plan's */
         if (time_off >= 0) {
             if (time_off + 8 > size) break;
             uint64_t usec = rd(pay + time_off, 8);
@@ -356,6 +357,23 @@ static PyObject *frames(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
             __int128 t = (__int128)epoch_ns + sim_ns;     /* as Python: no overflow */
             log_ns = t < 0 ? 0 : t > MAX_NS ? MAX_NS : (long long)t;
         }
+        /* the decoded record at most once a period of sim time (the raw one always) */
+        int keep = PyList_GET_ITEM(state, 1) != Py_True;
+        PyObject *cid_obj = PyTuple_GET_ITEM(e, 4);
+        if (!keep) {
+            PyObject *nx = PyDict_GetItemWithError(next, cid_obj);
+            if (!nx && PyErr_Occurred()) { failed = 1; break; }
+            long long due = nx ? PyLong_AsLongLong(nx) : -1;
+            if (due == -1 && PyErr_Occurred()) { failed = 1; break; }
+            keep = sim_ns >= due;
+        }
+        if (keep) {
+            out_json.n = 0;
+            int rc = put_object(&out_json, (const unsigned char *)PyBytes_AS_STRING(lay),
+                                PyBytes_GET_SIZE(lay), pay, enc);
+            if (rc < 0) { failed = 1; break; }
+            if (rc > 0) break;                  /* NaN/inf: the Python plan's */
+        }
         out_raw.n = 0;
         char num[64];
         int m = snprintf(num, sizeof num, "%d,\"len\":%zd,\"data\":\"", r[4], n);
@@ -363,11 +381,25 @@ static PyObject *frames(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
             || text_put(&out_raw, num, m) < 0 || put_base64(&out_raw, r, n) < 0
             || text_put(&out_raw, "\"}", 2) < 0) { failed = 1; break; }
         if (add_record(buf, index, raw_cid, log_ns, sim_ns, &out_raw) < 0
-            || chunk_check(&buf, &index, chunk, end_chunk, limit) < 0
-            || add_record(buf, index, cid, log_ns, sim_ns, &out_json) < 0) {
+            || chunk_check(&buf, &index, chunk, end_chunk, limit) < 0) {
             failed = 1; break;
         }
-        if (chunk_check(&buf, &index, chunk, end_chunk, limit) < 0) { failed = 1; break; }
+        if (keep) {
+            if (add_record(buf, index, cid, log_ns, sim_ns, &out_json) < 0
+                || chunk_check(&buf, &index, chunk, end_chunk, limit) < 0) {
+                failed = 1; break;
+            }
+            __int128 nxt = (__int128)sim_ns + period_ns;      /* as Python: min(., MAX) */
+            PyObject *due = PyLong_FromLongLong(nxt > MAX_NS ? MAX_NS : (long long)nxt);
+            if (!due || PyDict_SetItem(next, cid_obj, due) < 0) {
+                Py_XDECREF(due); failed = 1; break;
+            }
+            Py_DECREF(due);
+            long long nd = PyLong_AsLongLong(PyList_GET_ITEM(state, 8));
+            PyObject *d = (nd == -1 && PyErr_Occurred()) ? NULL : PyLong_FromLongLong(nd + 1);
+            if (!d) { failed = 1; break; }
+            PyList_SetItem(state, 8, d);
+        }
         Py_ssize_t slot = rx ? 2 : 3;
         long long count = PyLong_AsLongLong(PyList_GET_ITEM(state, slot));
         PyObject *c = (count == -1 && PyErr_Occurred()) ? NULL

@@ -30,7 +30,7 @@ from mcap.records import Channel, Chunk, Footer, Message, Metadata, ReadDataStre
 from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from mcap.writer import CompressionType, IndexType, Writer
 
-__all__ = ["LogMessage", "LogReader", "recover"]
+__all__ = ["LogMessage", "LogReader", "mavlink_messages", "recover"]
 
 
 @dataclass(frozen=True)
@@ -173,6 +173,32 @@ class LogReader:
                         yield LogMessage(name[0], name[1], log_ns, pub_ns,
                                          data[body + _MESSAGE_FIXED:at])
         self.complete = True
+
+
+def mavlink_messages(path: str | Path, name: str, sysid: int | None = None,
+                     compid: int | None = None, direction: str | None = None
+                     ) -> Iterator[tuple[int, dict[str, Any]]]:
+    """Every frame of MAVLink message ``name`` (e.g. ``"ESC_TELEMETRY_1_TO_4"``) the log
+    holds, decoded from ``/mavlink/raw`` (the decoded channels are at most 50 Hz; the raw
+    one has every frame): (publish time ns, fields) in file order, optionally only from
+    ``sysid``/``compid`` and ``direction`` ("rx"/"tx"); rejected frames are left out."""
+    import base64
+
+    from tfl_mav.link.payload import PayloadDecoder
+
+    decoder = PayloadDecoder()
+    key = b'"name":"%s"' % name.encode()
+    for m in LogReader(path).messages({"/mavlink/raw"}):
+        if key not in m.data:
+            continue
+        f = m.json()
+        if (sysid is not None and f["sysid"] != sysid) or (
+                compid is not None and f["compid"] != compid) or (
+                direction is not None and f["direction"] != direction):
+            continue
+        fields = decoder.fields(base64.b64decode(f["data"]), f["msgid"])
+        if fields is not None:
+            yield m.publish_time_ns, fields
 
 
 def _chunk(f: Any, index: Any) -> Chunk:

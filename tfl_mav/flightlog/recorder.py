@@ -4,8 +4,10 @@ Channels (docs/design.md, "The flight log"):
 
 * ``/mavlink/raw``: every frame the link saw, both directions, exact wire bytes (base64),
   with ``direction`` and ``accepted``: replayable byte for byte (``tfl-mav replay``).
-* ``/mavlink/{sysid}/{compid}/{MSG}``: each accepted rx frame and each frame this process
-  packed and sent, decoded *from its wire bytes* (float32 rounding and all).
+* ``/mavlink/{sysid}/{compid}/{MSG}``: accepted rx frames and frames this process packed
+  and sent, decoded *from their wire bytes* (float32 rounding and all), at most one a
+  channel every scene period of sim time (all before sim time is known; every STATUSTEXT);
+  every frame stays in ``/mavlink/raw`` (``logread.mavlink_messages`` decodes them all).
 * ``/sim/truth/state``, ``/sim/truth/attack``, ``/sim/truth/thrusts`` (every
   :meth:`Recorder.truth` call) and ``/sim/truth/path_distance``, ``/tf``,
   ``/scene/vehicle`` (at most ``scene_hz`` in sim time); ``/scene/path`` (on
@@ -177,7 +179,7 @@ class Recorder(FrameRecorder):
         self._thrust_max_n = thrust_max_n
         self._controller_fields = tuple(controller_fields)
         self._controller_schema = dict(controller_schema or _DEFAULT_RECORD)
-        self._init_frames(sim_time_messages)
+        self._init_frames(sim_time_messages, self._scene_period_s)
         self._dumps = self._json.dumps
         self._last_scene_t = -math.inf
         self._truth_cids: tuple[int, int, int] | None = None
