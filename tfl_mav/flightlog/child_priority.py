@@ -1,6 +1,6 @@
 """A recorder child's CPU priority: below its flight process, and idle where that is safe.
 
-Why (#13, measured with ``bench/bench_lockstep.py``): a lockstep flight is a serial chain,
+Why (measured with ``bench/bench_lockstep.py``): a lockstep flight is a serial chain,
 sim → daemon → sim, and each hop is a wake-up. On 2 cores the two recorder children are
 busy most of the time, and a woken flight process waited a median ~60 µs (p90 ~150 µs)
 for the CPU a *niced* child was running: ``nice`` sets a share, not a latency, so the
@@ -39,7 +39,7 @@ processes (sim, daemon, two recorder children) and the loop is the serial sim �
 chain; the children only need to keep up on average (the pipe buffers a backlog), so when
 the CPU is contended the chain should win it. At equal priority a child's batch work
 (decode, JSON, protobuf, writing: milliseconds per 10 ms batch) delayed a real-time loop's
-wake-up on a busy machine and crashed the paper flight (#12); in lockstep a child that falls
+wake-up on a busy machine and crashed the paper flight; in lockstep a child that falls
 behind fills the pipe and the flight waits ("Backpressure"), so it cannot be starved."""
 
 _CAP_SYS_NICE = 23          # linux/capability.h

@@ -97,7 +97,7 @@ def _thrust_rgb(fraction: float) -> tuple[float, float, float]:
 class _Airframe:
     """The parts of :func:`vehicle_scene` fixed by the rotor layout (poses, sizes, the
     body), built once per layout: the SDK's objects cost ~1-2 µs each, and a scene is
-    drawn 50 times a second (issue #13). Values are the ones the scene always drew."""
+    drawn 50 times a second. Values are the ones the scene always drew."""
 
     def __init__(self, rotor_xy_m: tuple[tuple[float, float], ...]) -> None:
         arm = max(math.hypot(*xy) for xy in rotor_xy_m)

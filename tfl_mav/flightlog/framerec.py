@@ -4,7 +4,7 @@ Every frame makes two messages: the raw record (wire bytes as base64, direction,
 the link accepted it) and, for an accepted frame, its fields decoded from the wire bytes.
 See :mod:`~tfl_mav.flightlog.recorder` for the channels and the time stamps.
 
-Why a module of its own (issue #13): frames are most of what a recorder child does (4-5 a
+Why a module of its own: frames are most of what a recorder child does (4-5 a
 1 ms tick per side). :meth:`FrameRecorder.on_frames` takes a whole hand-off batch: for a
 (direction, sysid, compid, msgid) seen before whose fields print by the precompiled
 :class:`~tfl_mav.flightlog.jsonenc.MavPlan`, a frame costs one unpack, one msgspec call

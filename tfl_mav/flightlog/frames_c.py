@@ -1,6 +1,6 @@
 """The recorder's frame hot path in C: a hand-off batch's frames → two MCAP records each.
 
-Why (issue #13): a recorder child spends most of its CPU on frames (4-5 a 1 ms tick per
+Why: a recorder child spends most of its CPU on frames (4-5 a 1 ms tick per
 side): in Python, ~8-10 µs a frame (unpack, the JSON object, the raw record's base64,
 two record headers and index entries), ~2× that in a full lockstep loop where four
 processes share two cores and evict each other's caches. Here

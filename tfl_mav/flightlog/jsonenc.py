@@ -149,7 +149,7 @@ def _reprint_odd(body: bytes, parts: list[bytes], values: tuple[Any, ...]) -> No
     """Re-print with ``repr`` the few values msgspec writes in another notation (above):
     those with an exponent, and those printed ``0.0000x`` (positional below 1e-4). Found
     with ``bytes.find`` (C), one Python step per such value: a regular expression over the
-    whole text cost ~20 µs a message, more than the rest of its encoding (issue #13)."""
+    whole text cost ~20 µs a message, more than the rest of its encoding."""
     odd: set[int] = set()
     find, count = body.find, body.count
     i = find(b"e")

@@ -1,4 +1,4 @@
-"""A JSON object of fixed keys printed whole by one msgspec call (issue #13).
+"""A JSON object of fixed keys printed whole by one msgspec call.
 
 Why: the recorder children print ~12 JSON objects per 1 ms tick. The precompiled ``%``
 templates of :mod:`~tfl_mav.flightlog.jsonenc` print the numbers with one msgspec call but

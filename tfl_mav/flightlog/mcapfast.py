@@ -1,7 +1,7 @@
 """mcap's :class:`~mcap.writer.Writer` with a lean per-message path.
 
 Why: ``Writer.add_message`` builds a ``Message`` dataclass and writes it field by field
-through several small Python calls (~9 µs a message here, issue #13); a flight records
+through several small Python calls (~9 µs a message here); a flight records
 ~10-12 messages per 1 ms tick per process, which made the recorder children the slowest
 processes of a lockstep flight on 2 cores. Here the chunk in progress is one ``bytearray``
 (:class:`_Chunk`, standing in for the library's chunk builder): a message is one

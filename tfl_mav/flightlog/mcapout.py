@@ -40,12 +40,12 @@ MAX_NS = 2**63 - 1
 ZSTD_LEVEL = 1
 """zstd level of the chunks. Why not the library's 3: on a flight's chunks (base64 frames,
 JSON) level 1 compresses as well (18.5 % vs 19.0 % of the raw size) at ~60 % of the CPU;
-lz4 costs about as much CPU as level 1 for files ~1.7x larger, none ~5x larger (issue #13,
-bench/recorder_replay.py --compression)."""
+lz4 costs about as much CPU as level 1 for files ~1.7x larger, none ~5x larger
+(bench/recorder_replay.py --compression)."""
 
 
 WRITE_PIECE_BYTES = 32 * 1024
-"""The largest single write to the MCAP file. Why (#13): the kernel here does not preempt
+"""The largest single write to the MCAP file. Why: the kernel here does not preempt
 a task inside a system call (``PREEMPT_NONE``, the usual server setting), so a recorder
 child writing a finished chunk (~0.3 MB compressed) in one ``write`` made a woken flight
 process wait for the whole copy, even from a ``SCHED_IDLE`` child. In 32 KiB pieces the

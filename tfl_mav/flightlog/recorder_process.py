@@ -26,7 +26,7 @@ Backpressure: if the queue grows past ``batch_max`` × 8 calls (the sender threa
 the flight thread sends inline; if the child falls behind, the pipe fills and the flight
 process waits. Not in real time (``realtime=True``): there the flight thread only ever
 appends, and past ``batch_max`` × 64 queued calls drops them (counted in ``dropped``) — a
-real-time loop that waits for its recorder misses its deadlines (#12). The child runs
+real-time loop that waits for its recorder misses its deadlines. The child runs
 :data:`NICE_INCREMENT` nicer than its parent and, in lockstep where the system lets it
 be promoted back, at ``SCHED_IDLE`` until it first falls behind (:attr:`priority`).
 Errors never raise into the loop: :attr:`error` reports the child's write error, or that
@@ -200,7 +200,7 @@ class RecorderProcess:
         self._error: str | None = None
         self._batch_s = batch_s
         self._backlog_max = 8 * batch_max
-        # Real time (#12): the flight thread never waits for the child; past this many
+        # Real time: the flight thread never waits for the child; past this many
         # queued calls (seconds of a 1 kHz flight) new ones are dropped and counted.
         self._realtime_max = 64 * batch_max if realtime else 0
         self._room = self._realtime_max or self._backlog_max   # 0: closed or child gone

@@ -1,4 +1,4 @@
-"""Precompiled JSON for a caller's per-tick record (``/controller/state``), issue #13.
+"""Precompiled JSON for a caller's per-tick record (``/controller/state``).
 
 Why: the daemon hands its recorder child one compact tuple a tick (``tick_state``: mode,
 rotor, estimates, thrusts, the chains ξ and η, CUSUM, reason ...). Naming it as a dict and
