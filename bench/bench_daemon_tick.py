@@ -1,6 +1,6 @@
 """The controller daemon's lockstep tick outside the flight computer, in-process.
 
-A real :class:`~tfl_mav.daemon.Daemon` (paper scenario, rotor 2 attacked) is fed a real
+A real :class:`~tfl_mav.controller.daemon.Daemon` (paper scenario, rotor 2 attacked) is fed a real
 simulator's states, packed by our Link into the datagram the vehicle sends (ODOMETRY +
 ACTUATOR_OUTPUT_STATUS + ESC_TELEMETRY_1_TO_4), closed loop: its commands drive the
 simulator. Per tick, thread CPU time of what the daemon's loop does with one datagram,
@@ -39,10 +39,10 @@ def main() -> None:
     ap.add_argument("--json", help="write the figures to this file")
     args = ap.parse_args()
 
-    from sitl.vehicle import Vehicle
-    from tfl_mav.daemon import Daemon
+    from tfl_mav.controller.daemon import Daemon
     from tfl_mav.link.transport import Link
     from tfl_mav.scenario import load_scenario
+    from tfl_mav.sim.vehicle import Vehicle
 
     sc = load_scenario("paper")
     vehicle = Vehicle(sc, listen=("127.0.0.1", 0))

@@ -1,13 +1,13 @@
 """The attack-class envelope: each failure family flown offline, with its bound.
 
 Every case is the paper scenario (or the circle) with ``--set`` overrides, flown in-process by
-:func:`harness.offline.fly_offline` with the attack found from ESC rpm (``detector``), as
+:func:`tfl_mav.harness.offline.fly_offline` with the attack found from ESC rpm (``detector``), as
 the daemon does. For each case the table gives whether it crashed (and why), the path
 distance over the last ``--window`` s (max), the maximum |yaw rate|, the modes the flight
 computer flew, and the bound the case is meant to meet:
 
 * ``ok ≤ B``: not crashed and the last-window path distance ≤ B (m);
-* ``infeasible``: the pre-flight check (:func:`tfl_mav.control.feasibility.check_scenario`)
+* ``infeasible``: the pre-flight check (:func:`tfl_mav.controller.feasibility.check_scenario`)
   must warn; the flight itself only has to end safely (no crash).
 
 Usage (from the repository root; a case takes ~1-2 × its sim time on an idle core)::
@@ -27,9 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from harness.offline import fly_offline
 from tfl_mav.flightlog.flight import summarize
-from tfl_mav.modes import Mode
+from tfl_mav.harness.offline import fly_offline
+from tfl_mav.model.modes import Mode
 from tfl_mav.scenario import apply_overrides, load_scenario
 
 
@@ -76,7 +76,7 @@ CASES: list[Case] = [
 
 def _warnings(sc: Any) -> list[str]:
     try:
-        from tfl_mav.control.feasibility import check_scenario
+        from tfl_mav.controller.feasibility import check_scenario
     except ImportError:
         return []
     return check_scenario(sc)

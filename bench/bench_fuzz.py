@@ -1,6 +1,7 @@
 """Fuzz both UDP endpoints: ≥ 100 000 hostile datagrams each, over loopback.
 
-The vehicle (``sitl.vehicle.Vehicle``, lockstep) and the daemon (``tfl_mav.daemon.Daemon``)
+The vehicle (``tfl_mav.sim.vehicle.Vehicle``, lockstep) and the daemon
+(``tfl_mav.controller.daemon.Daemon``)
 each run in a thread on a real UDP socket; the fuzzer is their pinned peer and flies them in
 lockstep while it sends random bytes, mutated frames (with and without a recomputed CRC),
 truncated and oversize datagrams, MAVLink 1, unknown ids, wrong sysids and targets, garbage
@@ -26,7 +27,7 @@ import time
 import warnings
 from pathlib import Path
 
-from harness import fuzz
+from tfl_mav.harness import fuzz
 
 _SHORT = {"garbage": "garb", "mavlink1": "v1", "truncated": "trunc", "bad_flags": "flags",
           "bad_crc": "crc", "bad_signature": "sig", "malformed": "malf", "unknown_id": "unk",

@@ -22,7 +22,7 @@ import numpy as np
 
 import tfl_mav.gym  # noqa: F401  (registers TflMav-v0)
 from tfl_mav.api import Environment
-from tfl_mav.software import load_flight_software
+from tfl_mav.controller.software import load_flight_software
 
 
 def _single(base: str | None, seconds: float) -> dict[str, Any]:

@@ -18,8 +18,8 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
-from harness.offline import fly_offline
 from tfl_mav.flightlog.flight import summarize
+from tfl_mav.harness.offline import fly_offline
 from tfl_mav.scenario import load_scenario
 
 NOISE = {"sensors.velocity_noise_std_mps": 0.01, "sensors.rate_noise_std_radps": 0.005}

@@ -44,7 +44,7 @@ _LISTEN_RE = re.compile(r"listening on ([\d.]+):(\d+)")
 
 def _start_sim(seconds: float) -> tuple[subprocess.Popen[str], int]:
     sim = subprocess.Popen(
-        [sys.executable, "-m", "tools.cli", "sim", "paper", "--listen", "127.0.0.1:0",
+        [sys.executable, "-m", "tfl_mav.cli", "sim", "paper", "--listen", "127.0.0.1:0",
          "--duration", f"{seconds:g}"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
         text=True, cwd=REPO)
     assert sim.stdout is not None
@@ -70,7 +70,7 @@ class _Timed:
 
 def _fly(seconds: float, record: bool, tmp: Path) -> dict[str, float]:
     """One lockstep flight of the daemon in this process; recorder hooks timed."""
-    from tfl_mav.daemon import Daemon
+    from tfl_mav.controller.daemon import Daemon
     from tfl_mav.scenario import load_scenario
 
     scenario = load_scenario("paper")
@@ -97,7 +97,7 @@ def _fly(seconds: float, record: bool, tmp: Path) -> dict[str, float]:
 def _fly_recorder(scenario: Any, path: Path) -> tuple[dict[str, Any], Any]:
     """The recorder hooks of ``tfl-mav fly --mcap`` (whatever this tree's fly uses)."""
     try:
-        from tools.fly import open_recorder
+        from tfl_mav.cli.fly import open_recorder
     except ImportError:       # an older tree: an in-process Recorder, built as fly.py did
         from tfl_mav.build import scenario_path
         from tfl_mav.flightlog.recorder import Recorder
@@ -134,7 +134,7 @@ def bench_control_path(seconds: float, repeats: int) -> dict[str, Any]:
 
 
 def _demo(seconds: float, out: Path, foxglove: str | None) -> tuple[float, Path]:
-    cmd = [sys.executable, "-m", "tools.cli", "demo", "paper", "--out", str(out),
+    cmd = [sys.executable, "-m", "tfl_mav.cli", "demo", "paper", "--out", str(out),
            "--duration", f"{seconds:g}", "--no-plots", "--json"]
     if foxglove:
         cmd += ["--foxglove", foxglove]
@@ -209,9 +209,9 @@ class _LiveClient:
 def bench_child_cost(ticks: int = 3000) -> dict[str, float]:
     """The recording child's own work per tick (decode, encode, write; + live publishing
     to one client subscribed to everything): the CPU the live server adds beside the loop."""
-    from tfl_mav.airframe import rotor_xy_m
     from tfl_mav.flightlog.recorder import Recorder
     from tfl_mav.link.dialect import mav, new_mavlink
+    from tfl_mav.model.airframe import rotor_xy_m
     from tfl_mav.scenario import load_scenario
 
     v = load_scenario("paper").vehicle
@@ -307,7 +307,7 @@ def main() -> int:
                     help="leave out a part (its numbers come from --merge)")
     ap.add_argument("--merge", metavar="FILE", help="take the skipped parts from this JSON")
     args = ap.parse_args()
-    import tools.demo as demo_cmd
+    import tfl_mav.cli.demo as demo_cmd
 
     live = "--foxglove" in Path(demo_cmd.__file__).read_text()
     res: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),

@@ -11,11 +11,11 @@ import time
 from collections.abc import Callable
 from typing import Any
 
-from harness.offline import fly_offline
-from tfl_mav.control.detector import AttackDetector
-from tfl_mav.control.law import TFLController
-from tfl_mav.control.recovery import RecoveryLaw
-from tfl_mav.flight_computer import FlightComputer
+from tfl_mav.control.detect.detector import AttackDetector
+from tfl_mav.control.safe.recovery import RecoveryLaw
+from tfl_mav.control.tfl.law import TFLController
+from tfl_mav.controller.flight_computer import FlightComputer
+from tfl_mav.harness.offline import fly_offline
 from tfl_mav.scenario import Scenario
 
 __all__ = ["flight_computer_parts"]

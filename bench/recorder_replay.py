@@ -84,7 +84,7 @@ def _wrap(out_dir: str, module: str, args: list[str]) -> None:
 
 def capture(n_ticks: int, out_dir: Path, scenario: str = "paper") -> None:
     """One lockstep flight (sim + fly, both ``--mcap``) whose batches land in ``out_dir``."""
-    wrap = [sys.executable, __file__, "--wrap", str(out_dir), "tools.cli"]
+    wrap = [sys.executable, __file__, "--wrap", str(out_dir), "tfl_mav.cli.main"]
     dur = f"{n_ticks / 1000.0:g}"
     sim = subprocess.Popen([*wrap, "sim", scenario, "--listen", "127.0.0.1:0", "--duration",
                             dur, "--mcap", str(out_dir / "run.mcap")],
@@ -163,8 +163,8 @@ def replay(batches_file: Path, out: Path, kwargs: dict[str, Any],
 
 def _side_kwargs(side: str) -> dict[str, Any]:
     """The child's Recorder keywords as ``tfl-mav sim``/``fly`` give them (drawing only)."""
-    from tfl_mav.airframe import rotor_xy_m
-    from tfl_mav.daemon import TICK_FIELDS, TICK_SCHEMA
+    from tfl_mav.controller.daemon import TICK_FIELDS, TICK_SCHEMA
+    from tfl_mav.model.airframe import rotor_xy_m
     from tfl_mav.scenario import load_scenario
 
     v = load_scenario("paper").vehicle

@@ -12,7 +12,7 @@ import sys
 from tfl_mav.api import Environment
 from tfl_mav.baselines.reference import PathReference, controller_model
 from tfl_mav.control.allocation import allocate_nominal
-from tfl_mav.geometry import rotation_rows
+from tfl_mav.model.geometry import rotation_rows
 
 
 class PathPD:

@@ -14,13 +14,13 @@ from typing import Any
 
 import pytest
 
-from harness.pilot import Pilot
-from harness.ports import free_udp_port
-from harness.processes import Proc, start_sim
+from tfl_mav.harness.pilot import Pilot
+from tfl_mav.harness.ports import free_udp_port
+from tfl_mav.harness.processes import Proc, start_sim
 from tfl_mav.link.transport import Address
 
 # The suite flies the law's Python core (the compiled one gives the same bits, and building
-# one per distinct scenario would cost the suite minutes): tests/test_native.py turns it on
+# one per distinct scenario would cost the suite minutes): tests/contract/test_native.py turns it on
 # where it is under test; `TFL_MAV_NATIVE=sync python -m pytest` flies everything compiled.
 # Set at import, so that every `tfl-mav` subprocess inherits it.
 os.environ.setdefault("TFL_MAV_NATIVE", "off")

@@ -11,7 +11,7 @@ Four protocols say what a part must do (structural: no base class to inherit):
 
 * :class:`FlightSoftware` — everything between the sensors and the motors, one
   ``step(t_s, state, rpm, applied_n) -> TickResult`` a control tick. The project's
-  :class:`~tfl_mav.flight_computer.FlightComputer` is one.
+  :class:`~tfl_mav.controller.flight_computer.FlightComputer` is one.
 * :class:`Controller` — the simpler form: ``reset(scenario)`` and
   ``update(t_s, state, rpm) -> 4 thrusts (N)``; :class:`ControllerSoftware` makes it flight
   software (with the project's attack detector, or yours).
@@ -39,11 +39,9 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 
 from tfl_mav.build import scenario_path
-from tfl_mav.control.recovery import PathProjector
-from tfl_mav.flight_computer import FlightComputer, TickResult
-from tfl_mav.modes import Mode
-from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
-from tfl_mav.software import (
+from tfl_mav.control.safe.recovery import PathProjector
+from tfl_mav.controller.flight_computer import FlightComputer, TickResult
+from tfl_mav.controller.software import (
     ControllerSoftware,
     FlightSoftwareError,
     GuardedSoftware,
@@ -52,7 +50,9 @@ from tfl_mav.software import (
     software_name,
     tick_result,
 )
-from tfl_mav.state import State
+from tfl_mav.model.modes import Mode
+from tfl_mav.model.state import State
+from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
 
 __all__ = ["Attack", "AttackSignal", "Controller", "ControllerSoftware", "Detection", "Detector",
            "Environment", "FlightArrays", "FlightSoftware", "FlightSoftwareError",
@@ -103,7 +103,7 @@ class Controller(Protocol):
 
 class Detection(Protocol):
     """What a :class:`Detector` answers each tick (the project's
-    :class:`~tfl_mav.control.detector.DetectorOutput` is one)."""
+    :class:`~tfl_mav.control.detect.detector.DetectorOutput` is one)."""
 
     detected_rotor: int          # 0: none, else 1-4 (stays set while the attack lasts)
     estimate_n: float            # the attacked rotor's thrust (N), NaN if unknown
@@ -277,7 +277,7 @@ class Environment:
 
     def fly(self, duration_s: float | None = None) -> FlightArrays:
         """Fly the scenario for ``duration_s`` (s; None: its ``run.duration_s``)."""
-        from harness.offline import fly_offline
+        from tfl_mav.harness.offline import fly_offline
 
         sc = self.scenario
         software = self._software()

@@ -1,7 +1,7 @@
 """A scenario → the controller's parts: its (wrong on purpose) model, law, path, detector.
 
 Shared by the offline runner and the daemon through
-:class:`~tfl_mav.flight_computer.FlightComputer`.
+:class:`~tfl_mav.controller.flight_computer.FlightComputer`.
 The controller's model is the scenario's vehicle scaled by ``model_mass_scale`` and
 ``model_inertia_scale``: the controller never sees the true mass or inertia. The detector's
 motor model is the scenario's vehicle (``k_f``, ``thrust_max_n``, ``motor_time_constant_s``
@@ -14,9 +14,9 @@ from __future__ import annotations
 
 import dataclasses
 
-from tfl_mav.control.detector import AttackDetector, DetectorConfig
-from tfl_mav.control.law import LawConfig, ModelParams, TFLController
-from tfl_mav.control.paths import Path, build_path
+from tfl_mav.control.detect.detector import AttackDetector, DetectorConfig
+from tfl_mav.control.path.paths import Path, build_path
+from tfl_mav.control.tfl.law import LawConfig, ModelParams, TFLController
 from tfl_mav.scenario import Scenario, ScenarioError
 
 __all__ = ["build_controller", "build_detector", "detector_config", "law_config",
@@ -47,7 +47,7 @@ def law_config(sc: Scenario) -> LawConfig:
 
 def scenario_path(sc: Scenario) -> Path:
     """The scenario's path; path-library errors are re-raised naming the scenario key."""
-    from tfl_mav.control.paths import PathError
+    from tfl_mav.control.path.paths import PathError
 
     try:
         return build_path(sc.path.kind, sc.path.params)

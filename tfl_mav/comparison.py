@@ -25,8 +25,8 @@ from typing import Any
 import numpy as np
 
 from tfl_mav.api import Environment, FlightArrays
+from tfl_mav.controller.software import load_flight_software
 from tfl_mav.scenario import Scenario
-from tfl_mav.software import load_flight_software
 
 __all__ = ["DEFAULT_CONTROLLERS", "ON_PATH_M", "Result", "check_controllers", "fly_all",
            "plot", "result", "table", "write_csv"]

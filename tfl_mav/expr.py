@@ -8,7 +8,7 @@ into a tree of plain closures. Attribute access, subscripts, lambdas, comprehens
 strings, keywords and any name not declared are rejected with an error naming the field.
 
 The compiled expression is generic over the number type: the caller passes a *function
-library* (``MATH`` for floats, :data:`tfl_mav.control.jets.JET_LIB` for Taylor jets), so a
+library* (``MATH`` for floats, :data:`tfl_mav.control.path.jets.JET_LIB` for Taylor jets), so a
 path written once as text is differentiated exactly by evaluating it on jets.
 """
 

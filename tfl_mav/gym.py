@@ -50,12 +50,17 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from sitl.simulator import Simulator
 from tfl_mav.api import AttackSignal, with_attack
 from tfl_mav.baselines.reference import PathReference
-from tfl_mav.flight_computer import FlightComputer
+from tfl_mav.controller.flight_computer import FlightComputer
+from tfl_mav.controller.software import (
+    GuardedSoftware,
+    load_flight_software,
+    load_object,
+    software_name,
+)
 from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
-from tfl_mav.software import GuardedSoftware, load_flight_software, load_object, software_name
+from tfl_mav.sim.simulator import Simulator
 
 __all__ = ["OBSERVATION_FIELDS", "TflMavEnv"]
 

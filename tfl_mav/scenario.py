@@ -20,7 +20,7 @@ from importlib import resources
 from pathlib import Path
 from typing import Any
 
-from tfl_mav.control.detector import DetectorConfig
+from tfl_mav.control.detect.detector import DetectorConfig
 
 __all__ = [
     "AttackConfig",
@@ -119,7 +119,7 @@ class AttackConfig:
 
 @dataclass(frozen=True)
 class PathConfig:
-    """The path: ``kind`` and its own keys (see ``tfl_mav.control.paths.PATH_KINDS``)."""
+    """The path: ``kind`` and its own keys (see ``tfl_mav.control.path.paths.PATH_KINDS``)."""
 
     kind: str = _f("paper")
     speed_mps: float = _f(0.5, "m/s", doc="desired speed along the path (eta reference)")

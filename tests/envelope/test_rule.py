@@ -1,4 +1,5 @@
-"""The regression rule (harness/envelope/regression.py), on hand-made results: no flights."""
+"""The regression rule (tfl_mav/harness/envelope/regression.py), on hand-made results: no
+flights."""
 
 from __future__ import annotations
 
@@ -6,8 +7,8 @@ import math
 
 import pytest
 
-from harness.envelope.regression import judge, worse_limit_m
-from harness.envelope.results import CaseResult, outcome_of
+from tfl_mav.harness.envelope.regression import judge, worse_limit_m
+from tfl_mav.harness.envelope.results import CaseResult, outcome_of
 
 
 def result(outcome: str = "converged", mm: float | None = 1.0, detected: int | None = 2,

@@ -6,14 +6,19 @@ from pathlib import Path
 
 import pytest
 
-from harness.envelope.report import markdown, readme_block
-from harness.envelope.results import (
+from tfl_mav.harness.envelope.report import markdown, readme_block
+from tfl_mav.harness.envelope.results import (
     OUTCOMES,
     default_baseline_path,
     read_results_file,
     reference_files,
 )
-from harness.envelope.spec import EnvelopeSpecError, case_scenario, load_envelope, spec_from_dict
+from tfl_mav.harness.envelope.spec import (
+    EnvelopeSpecError,
+    case_scenario,
+    load_envelope,
+    spec_from_dict,
+)
 from tfl_mav.scenario import apply_overrides, load_scenario
 
 REPO = Path(__file__).resolve().parents[2]

@@ -5,7 +5,7 @@
 A golden result is the deterministic part of a flight's summary plus SHA-256 digests of its
 true trajectory and of the commands the vehicle applied, so "bit-identical" is checked on the
 whole flight, not on a handful of numbers. Refactors that are not meant to change behaviour
-must leave these files untouched (tests/test_golden.py compares).
+must leave these files untouched (tests/golden/test_golden.py compares).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ import json
 import tempfile
 from pathlib import Path
 
-from harness.golden import LOCKSTEP_CASES, OFFLINE_CASES, fly_lockstep, fly_offline_case
+from tfl_mav.harness.golden import LOCKSTEP_CASES, OFFLINE_CASES, fly_lockstep, fly_offline_case
 
 HERE = Path(__file__).resolve().parent
 

@@ -40,10 +40,10 @@ import numpy as np
 
 from tfl_mav.baselines.reference import PathReference, controller_model
 from tfl_mav.control.allocation import allocate_nominal
-from tfl_mav.geometry import rotation_rows
-from tfl_mav.modes import Mode
+from tfl_mav.model.geometry import rotation_rows
+from tfl_mav.model.modes import Mode
+from tfl_mav.model.state import State
 from tfl_mav.scenario import Scenario
-from tfl_mav.state import State
 
 __all__ = ["CascadeController", "lost_rotor_allocation"]
 

@@ -2,8 +2,8 @@
 
 The TFL law makes the path invariant and needs no time parameterisation; a trajectory
 tracker needs a reference point, velocity and acceleration every tick. The reference here is
-the one the project's safe law already flies (:mod:`tfl_mav.control.recovery`): the closest
-point p* of the path to the vehicle (:class:`~tfl_mav.control.recovery.PathProjector`,
+the one the project's safe law already flies (:mod:`tfl_mav.control.safe.recovery`): the closest
+point p* of the path to the vehicle (:class:`~tfl_mav.control.safe.recovery.PathProjector`,
 warm-started Newton on ⟨y − σ(λ), σ'(λ)⟩ = 0), the velocity v* = s T (unit tangent T
 towards increasing λ, the direction TFL flies, at the path speed s), and the acceleration
 of a point moving along the path at constant speed, a* = s² κN (κN the curvature vector).
@@ -18,9 +18,9 @@ from collections.abc import Sequence
 from typing import NamedTuple
 
 from tfl_mav.build import model_params, scenario_path
-from tfl_mav.control.law_types import ModelParams
-from tfl_mav.control.paths import Path
-from tfl_mav.control.recovery import PathProjector
+from tfl_mav.control.path.paths import Path
+from tfl_mav.control.safe.recovery import PathProjector
+from tfl_mav.control.tfl.law_types import ModelParams
 from tfl_mav.scenario import Scenario
 
 __all__ = ["PathReference", "Reference", "controller_model"]

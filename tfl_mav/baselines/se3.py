@@ -37,11 +37,11 @@ from collections.abc import Sequence
 
 from tfl_mav.baselines.reference import PathReference, controller_model
 from tfl_mav.control.allocation import allocate_nominal
-from tfl_mav.control.recovery import MAX_TILT_RAD, MAX_VERTICAL_G
-from tfl_mav.geometry import rotation_rows
-from tfl_mav.modes import Mode
+from tfl_mav.control.safe.recovery import MAX_TILT_RAD, MAX_VERTICAL_G
+from tfl_mav.model.geometry import rotation_rows
+from tfl_mav.model.modes import Mode
+from tfl_mav.model.state import State
 from tfl_mav.scenario import Scenario
-from tfl_mav.state import State
 
 __all__ = ["GeometricController", "limit_acceleration"]
 
@@ -56,7 +56,7 @@ J_MEAN_PAPER = (0.0820 + 0.0845 + 0.1377) / 3.0
 def limit_acceleration(a: Sequence[float], g: float) -> tuple[float, float, float]:
     """The wanted acceleration (m/s²) within what the rotors can fly from far off the path:
     vertical within ±``MAX_VERTICAL_G`` g, horizontal within (g + a_z) tan ``MAX_TILT_RAD``
-    — the project's safe law's limits (:mod:`tfl_mav.control.recovery`). Lee et al. assume
+    — the project's safe law's limits (:mod:`tfl_mav.control.safe.recovery`). Lee et al. assume
     unbounded thrust; with 4 × 8 N the unlimited law flips the vehicle from 3.85 m off the
     paper path within 1 s. Near the path the limits are inactive: the law is the paper's."""
     lim = MAX_VERTICAL_G * g

@@ -26,9 +26,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from tfl_mav.control.law_types import ModelParams
-from tfl_mav.geometry import rotation_rows
-from tfl_mav.state import State
+from tfl_mav.control.tfl.law_types import ModelParams
+from tfl_mav.model.geometry import rotation_rows
+from tfl_mav.model.state import State
 
 __all__ = ["StateFilter", "YawRateModel"]
 

@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from tfl_mav.flightlog import metrics
-from tfl_mav.modes import Mode
+from tfl_mav.model.modes import Mode
 
 __all__ = ["FlightLog", "summarize"]
 
@@ -36,7 +36,7 @@ SERIES = (
     "uf_n",                     # (N,) total thrust u_f
     "torque_nm",                # (N,3) (τ_p, τ_q, τ_r) from the true thrusts
     "saturated",                # (N,) any rotor command saturated
-    "mode",                     # (N,) int(tfl_mav.modes.Mode)
+    "mode",                     # (N,) int(tfl_mav.model.modes.Mode)
 )
 
 

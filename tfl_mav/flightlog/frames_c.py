@@ -8,7 +8,7 @@ processes share two cores and evict each other's caches. Here
 frames of a (direction, sysid, compid, msgid) already seen whose message prints by a
 numbers-only plan: ~1 µs a frame.
 
-Same bytes, by construction and by test (tests/test_frames_c.py): JSON prints a float as
+Same bytes, by construction and by test (tests/contract/test_frames_c.py): JSON prints a float as
 ``float.__repr__`` does, which is CPython's ``PyOS_double_to_string(x, 'r', 0,
 Py_DTSF_ADD_DOT_0)`` — called here; an int as its decimal digits; the keys and values in
 the plan's order (:class:`~tfl_mav.flightlog.jsonenc.MavPlan`: ``fieldnames`` order, a list
@@ -19,7 +19,7 @@ index entry are :class:`~tfl_mav.flightlog.mcapfast.FastWriter`'s. A frame C doe
 channel not in the table, a rejected frame — stops the loop at that frame, and the Python
 path writes it; then C goes on.
 
-Built by :mod:`tfl_mav.native` (``TFL_MAV_NATIVE``, the compiled cores' cache); until it is
+Built by :mod:`tfl_mav.accel.native` (``TFL_MAV_NATIVE``, the compiled cores' cache); until it is
 built, or with no compiler, the Python path writes every frame.
 """
 
@@ -31,7 +31,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from tfl_mav import native
+from tfl_mav.accel import native
 
 __all__ = ["C_SOURCE", "frame_key", "layout", "obtain"]
 

@@ -16,12 +16,12 @@ from typing import Any
 
 import numpy as np
 
-from tfl_mav.airframe import mix
 from tfl_mav.build import scenario_path
 from tfl_mav.flightlog.flight import FlightLog
 from tfl_mav.flightlog.logread import LogReader
 from tfl_mav.flightlog.pathdist import path_distances
-from tfl_mav.modes import Mode
+from tfl_mav.model.airframe import mix
+from tfl_mav.model.modes import Mode
 from tfl_mav.scenario import Scenario, ScenarioError, scenario_from_dict
 
 __all__ = ["TRUTH_TOPICS", "add_truth", "controller_states", "flight_log_from_mcap",

@@ -114,7 +114,8 @@ class JsonEncoder:
 # the values are printed with ``repr``, byte-identical to JsonEncoder's (JSON prints a
 # finite float as ``float.__repr__`` and an int as ``int.__repr__``). Checked against
 # ``repr`` on ~1.5 million floats across every decade and the notation thresholds, and by
-# tests/test_recorder_fast.py. Without msgspec installed everything takes the ``repr`` path.
+# tests/contract/test_recorder_fast.py. Without msgspec installed everything takes the ``repr``
+# path.
 try:
     from msgspec.json import Encoder as _MsgspecEncoder
 

@@ -168,7 +168,7 @@ class _EstimateDrawer:
         if log_ns < self._next_ns:
             return
         from tfl_mav.flightlog import foxglove as fg
-        from tfl_mav.frames import paper_from_odometry
+        from tfl_mav.model.frames import paper_from_odometry
 
         try:
             state = paper_from_odometry(SimpleNamespace(**json.loads(data)))

@@ -12,7 +12,7 @@ by the library): the library's record-by-record parse costs ~25 µs a message in
 30 s flight has ~350 000 of them, so :meth:`LogReader.messages` splits a chunk's message
 records with one ``struct`` unpack each (the MCAP spec's fixed header: opcode, length,
 channel id, sequence, log time, publish time) and skips the channels not asked for
-without building them: the same messages, in the same order (tests/test_logread.py).
+without building them: the same messages, in the same order (tests/unit/test_logread.py).
 """
 
 from __future__ import annotations

@@ -8,7 +8,7 @@ processes of a lockstep flight on 2 cores. Here the chunk in progress is one ``b
 ``struct.pack`` of its record header plus the data, appended, and its index entry two ints
 on a flat per-channel list; the chunk's and the file's statistics (counts, start and end
 times) are summed once per chunk, when it ends. The file is byte-identical to the
-library's (tests/test_recorder.py checks it). Everything else (schemas, channels, chunk
+library's (tests/system/test_recorder.py checks it). Everything else (schemas, channels, chunk
 compression, indexes, summary) is the library's own code, which calls :class:`_Chunk`
 exactly as it calls its own builder.
 

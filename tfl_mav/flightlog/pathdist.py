@@ -1,11 +1,11 @@
 """The true distance to the path of every sample of a flight, for reading a log back.
 
-:meth:`PathTracker.evaluate <tfl_mav.control.tracker.PathTracker.evaluate>` gives the
+:meth:`PathTracker.evaluate <tfl_mav.control.path.tracker.PathTracker.evaluate>` gives the
 distance with the virtual output's jets to order 4 (what the law needs); a log reader needs
 the distance only. :func:`path_distances` runs the same closest-point iteration (warm
 started from the last sample, the global search on the first), stops where the distance
 is known, and takes σ's Taylor coefficients from the path's compiled kernel
-(:func:`~tfl_mav.control.compiled.compile_path`) where it reproduces the reference jets
+(:func:`~tfl_mav.control.path.compiled.compile_path`) where it reproduces the reference jets
 (checked on the first samples; else the jets): the same distances to the bit, a small
 part of the time (a 30 s flight: ~0.5 s instead of ~2.5 s).
 """
@@ -15,8 +15,8 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 
-from tfl_mav.control.paths import Path, PathTracker
-from tfl_mav.control.tracker import _NEWTON_ITERS, newton_on_poly, poly_g
+from tfl_mav.control.path.paths import Path, PathTracker
+from tfl_mav.control.path.tracker import _NEWTON_ITERS, newton_on_poly, poly_g
 
 __all__ = ["path_distances"]
 
@@ -26,14 +26,14 @@ Coefficients = list[tuple[float, float, float]]
 
 
 def _reference(path: Path) -> Callable[[float], Coefficients]:
-    from tfl_mav.control.tracker import _taylor_curve
+    from tfl_mav.control.path.tracker import _taylor_curve
 
     return lambda lam: _taylor_curve(path, lam)
 
 
 def _compiled(path: Path) -> Callable[[float], Coefficients] | None:
-    from tfl_mav.control.compiled import compile_path
-    from tfl_mav.control.jetcode import TraceError
+    from tfl_mav.control.path.compiled import compile_path
+    from tfl_mav.control.path.jetcode import TraceError
 
     try:
         fn = compile_path(path).sigma5.fn

@@ -12,7 +12,7 @@ the header, CRC-16/MCRF4XX (pymavlink's own C ``fastcrc`` when it has it) and, o
 packer, the signature block exactly as pymavlink's ``sign_packet`` makes it. Decoding checks
 the CRC, restores truncated zeros and builds an instance of **pymavlink's class** with the
 same attributes its ``decode`` sets (fields, ``_header``, ``_msgbuf``, ``_payload``, ``_crc``,
-``_signed``...), so callers cannot tell the difference. tests/test_codec.py checks both
+``_signed``...), so callers cannot tell the difference. tests/contract/test_codec.py checks both
 directions byte for byte and attribute for attribute against pymavlink (hypothesis), signed
 and truncated frames included. Anything else goes through pymavlink unchanged.
 
@@ -21,7 +21,7 @@ every tick: the same checks (CRC, lengths, the parser's signature count), but th
 a :class:`LiteMessage`, the unpacked wire tuple itself plus the frame bytes. Its fields are
 properties that read the tuple (arrays as fresh lists, as pymavlink gives them), so a field
 nobody reads costs nothing; the ``get_*`` methods, ``to_dict`` and ``str`` answer as
-pymavlink's message would (tests/test_codec.py checks every field and method). Building
+pymavlink's message would (tests/contract/test_codec.py checks every field and method). Building
 pymavlink's object (a dict of every field, the header object, two buffer copies) was most of
 a decode's cost. The message classes, and the array fields a received message leaves
 in its frame bytes until read (ODOMETRY's covariances), are in :mod:`tfl_mav.link.lite`.
@@ -29,7 +29,7 @@ in its frame bytes until read (ODOMETRY's covariances), are in :mod:`tfl_mav.lin
 A sender on the hot path can build the LiteMessage itself (:func:`lite_class`, its wire-order
 values and :data:`UNSENT` for the frame): :meth:`FastCodec.pack` packs it with one
 ``struct.pack`` of the tuple, into the bytes pymavlink's message with the same fields packs to
-(tests/test_codec.py), without pymavlink's constructor or the per-field attribute reads.
+(tests/contract/test_codec.py), without pymavlink's constructor or the per-field attribute reads.
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ HOT_MESSAGE_IDS = (
     mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS,
     mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS,
     mav.MAVLINK_MSG_ID_HEARTBEAT,
-    # the vehicle's GCS telemetry (sitl.gcs), 50 times a second of sim time in lockstep
+    # the vehicle's GCS telemetry (tfl_mav.sim.gcs), 50 times a second of sim time in lockstep
     mav.MAVLINK_MSG_ID_ATTITUDE,
     mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
     mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
@@ -70,7 +70,7 @@ HOT_MESSAGE_IDS = (
 )
 
 PACK_ONLY_IDS = (
-    # the controller's own telemetry (tfl_mav.daemon), 50 times a second of sim time
+    # the controller's own telemetry (tfl_mav.controller.daemon), 50 times a second of sim time
     mav.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT,
     mav.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY,
 )
@@ -395,7 +395,7 @@ class SkimmedMessage:
     records by their bytes (the vehicle ignores the daemon's NAMED_VALUE_FLOAT and
     DEBUG_FLOAT_ARRAY telemetry; the recorders decode ``raw`` themselves). The ``get_*``
     header methods answer from the frame; any field is decoded by pymavlink on first read,
-    so ``m.value`` is what pymavlink's message would say (tests/test_link_skim.py)."""
+    so ``m.value`` is what pymavlink's message would say (tests/contract/test_link_skim.py)."""
 
     __slots__ = ("_decoded", "raw")
 

@@ -11,7 +11,7 @@ bytes last), kept apart from the packing and checking code.
   nobody reads per tick out of its tuple (ODOMETRY's 42 covariance floats: the daemon reads
   pose and twist only). The decode's ``struct`` skips them as pad bytes and the property
   unpacks them from the frame bytes on first read, with the values pymavlink gives
-  (tests/test_codec.py). Such a message has a class of its own (``rx_lite_class``), which
+  (tests/contract/test_codec.py). Such a message has a class of its own (``rx_lite_class``), which
   the codec packs field by field, as pymavlink's message.
 """
 

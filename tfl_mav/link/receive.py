@@ -11,8 +11,8 @@ the recorder's ``on_frame`` hook. Every other frame goes through
 :meth:`Receiver._decode_other` (skimmed, or pymavlink's ``decode``), as before.
 
 The decisions and counters are the ones :meth:`FastCodec.decode_lite
-<tfl_mav.link.codec.FastCodec.decode_lite>` and pymavlink make (tests/test_codec.py,
-tests/test_link*.py, and tests/test_fuzz.py, which predicts every counter of hostile
+<tfl_mav.link.codec.FastCodec.decode_lite>` and pymavlink make (tests/contract/test_codec.py,
+tests/test_link*.py, and tests/system/test_fuzz.py, which predicts every counter of hostile
 input): a bad CRC is ``bad_crc``, a signed frame counts on the parser's ``sig_count``, a
 short payload is zero-extended and a long one (unknown extensions) cut.
 

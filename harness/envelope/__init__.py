@@ -1,9 +1,0 @@
-"""The flight envelope: a checked-in spec of offline flights, its baseline, and the guard.
-
-:mod:`~harness.envelope.spec` (``cases.toml`` → cases), :mod:`~harness.envelope.run` (fly
-them in a pool), :mod:`~harness.envelope.results` (a result, its outcome, the JSON files),
-:mod:`~harness.envelope.regression` (the rule that fails a case),
-:mod:`~harness.envelope.reference` (the same spec flown by another tree's CLI) and
-:mod:`~harness.envelope.report` (the tables and the README block). The command is
-``tfl-mav envelope``; the test tier is ``python -m pytest -m envelope``.
-"""

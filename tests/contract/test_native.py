@@ -1,0 +1,443 @@
+"""The law's compiled core (:mod:`tfl_mav.accel.native`) is the Python core bit for bit.
+
+The C is translated from the Python core's own source; these tests hold the translation to
+CPython's semantics operation by operation (values *and* where Python raises, which the
+compiled core answers with ``None``), then whole controllers on random states for every
+path kind, then whole flights against the golden results. Builds go to the session's kernel
+cache (tests/conftest.py).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import random
+import struct
+import time
+
+import numpy as np
+import pytest
+
+from tests.contract.test_compiled import PATHS
+from tests.contract.test_fused import _random_state
+from tests.golden.test_golden import _LOCKSTEP, _OFFLINE
+from tfl_mav.accel import native
+from tfl_mav.build import law_config, model_params
+from tfl_mav.control.path.kernelgen import KERNEL_GLOBALS, compile_source
+from tfl_mav.control.path.paths import build_path
+from tfl_mav.control.tfl.fused import GLOBALS
+from tfl_mav.control.tfl.fused_native import CORE_ARGS
+from tfl_mav.control.tfl.law import TFLController
+from tfl_mav.harness.golden import LOCKSTEP_CASES, OFFLINE_CASES, fly_lockstep, fly_offline_case
+from tfl_mav.model.state import State
+from tfl_mav.scenario import load_scenario
+
+# Where a compiler is expected (Linux: CI and every user machine we build for, or
+# TFL_MAV_EXPECT_COMPILER=1), a missing one fails these contract tests instead of skipping
+# them, so "compiled = Python, bit for bit" is never silently untested.
+pytestmark = pytest.mark.skipif(native._compiler() is None and not native.compiler_expected(),
+                                reason="no C compiler, and none expected on this platform")
+
+# One function holding every operation the translation knows, chosen by k: one build.
+_OPS = [
+    "a / b", "a ** 2", "a ** 3", "a ** -1", "a ** -2", "_sqrt(a)", "_sin(a)", "_cos(a)",
+    "_tan(a)", "_exp(a)", "_log(a)", "_atan(a)", "_tanh(a)", "_pow(a, b)", "abs(a)",
+    "a if a < b else b", "1.0 if a <= b <= 2.0 else 0.0", "(-a) * b + a - b",
+    "1.0 if not (a > b or a == 0.5) else 0.0", "1.0 if _isfinite(a) and a != b else 0.0",
+    "_atan2(a, b)", "_copysign(a, b)", "_acos(a)", "_hypot(a, b)",
+]
+_OPS_SOURCE = "def ops(k, a, b):\n    r = 0.0\n" + "".join(
+    f"    if k == {i}:\n        r = {op}\n" for i, op in enumerate(_OPS)) + "    return (r,)\n"
+_LOOP_SOURCE = """def loop(a, n):
+    s = 0.0
+    for _ in range(5):
+        s += a
+        if s >= n:
+            break
+    else:
+        return None
+    a += 1.0
+    return (s, a)
+"""
+_SPECIAL = [-math.nan, 0.0, -0.0, 1.0, -1.0, 0.5, -2.5, 3.0, 2.0, 1e-320, -1e-320, 1e300, -1e300,
+            1e154, 710.0, -746.0, math.pi, math.inf, -math.inf, math.nan, 1e22, 7.0e-9]
+
+
+def _bits(x: float) -> bytes:
+    return struct.pack("<d", x)
+
+
+def _python(fn, *args):
+    try:
+        return fn(*args)
+    except (ValueError, ZeroDivisionError, OverflowError):
+        return None
+
+
+def _same_bits(a, b) -> bool:
+    """Equal to the bit, or both NaN: IEEE 754 leaves a NaN result's sign and payload
+    unspecified, and a C compiler may swap the operands of a commutative operation."""
+    return all(_bits(x) == _bits(y) or (math.isnan(x) and math.isnan(y))
+               for x, y in zip(a, b, strict=True))
+
+
+@pytest.fixture(scope="module")
+def ops():
+    py = compile_source("ops", _OPS_SOURCE, {"_isfinite": math.isfinite, "_atan2": math.atan2,
+                                             "_copysign": math.copysign, "_acos": math.acos,
+                                             "_hypot": math.hypot})
+    return py, native.build(_OPS_SOURCE)
+
+
+def test_every_operation_gives_pythons_bits_or_bails_where_python_raises(ops):
+    py, c = ops
+    for k, op in enumerate(_OPS):
+        for a in _SPECIAL:
+            for b in _SPECIAL:
+                want, got = _python(py, float(k), a, b), c(float(k), a, b)
+                if want is None:            # Python raises: the compiled core says None
+                    assert got is None, (op, a, b, got)
+                elif got is None:
+                    # Only math.pow with a non-finite operand is declined on purpose
+                    # (CPython special-cases those before calling libm's pow).
+                    assert op == "_pow(a, b)" and not (math.isfinite(a) and math.isfinite(b)), \
+                        (op, a, b, want)
+                else:
+                    assert _same_bits(want, got), (op, a, b, want, got)
+
+
+def test_random_operands_agree_bit_for_bit(ops):
+    py, c = ops
+    rng = random.Random(5)
+    for _ in range(4000):
+        k = rng.randrange(len(_OPS))
+        a, b = (rng.choice([rng.uniform(-10, 10), rng.gauss(0, 1e3), rng.uniform(0, 1e-3)])
+                for _ in range(2))
+        want, got = _python(py, float(k), a, b), c(float(k), a, b)
+        assert (want is None and got is None) or _same_bits(want, got), (_OPS[k], a, b)
+
+
+def test_loop_break_and_else_and_arguments_that_are_not_numbers():
+    py = compile_source("loop", _LOOP_SOURCE)
+    c = native.build(_LOOP_SOURCE)
+    for a, n in [(1.0, 3.0), (0.5, 10.0), (2.0, 2.0), (math.nan, 1.0), (-1.0, -0.5)]:
+        assert py(a, n) == c(a, n) or (py(a, n) is None and c(a, n) is None), (a, n)
+    assert c(1, 2) == py(1, 2)          # ints convert as Python's mixed arithmetic does
+    assert c("1.0", 2.0) is None        # not a number: declined, no exception
+    with pytest.raises(TypeError, match="takes 2 arguments"):
+        c(1.0)
+
+
+_SEQ_SOURCE = """def seqs(a, p, q):
+    x = 0.0
+    if p is not None:
+        (u, v), w = p
+        x = u * v - w
+    if q is None:
+        return None
+    i, j, k = q
+    return (x, (i, (j, k)), a)
+"""
+
+
+def test_sequences_nested_unpacking_none_and_nested_results():
+    py = compile_source("seqs", _SEQ_SOURCE)
+    c = native.build(_SEQ_SOURCE)
+    q3 = [(1.0, 2.0, 3.0), [1.0, 2.0, 3.0], np.array([1.0, 2.0, 3.0]), range(1, 4),
+          (1, True, 3.0)]
+    for p in [None, ((2.0, 3.0), 0.5), [[2.0, 3.0], 0.5], (np.array([2.0, 3.0]), 0.5)]:
+        for q in q3:
+            want = py(0.25, p, q)
+            assert c(0.25, p, q) == want, (p, q)
+        assert c(0.25, p, None) is None
+    # what the Python core would reject, the compiled one declines (None), never raises
+    for bad in [(1.0, 2.0), (1.0, 2.0, 3.0, 4.0), ("a", 2.0, 3.0), np.array([1.0, 2.0]),
+                np.array([1, 2, 3], dtype=np.float32), np.arange(6.0)[::2], 5.0]:
+        assert c(0.25, None, bad) is None, bad
+    assert c(0.25, ((1.0,), 2.0), (1.0, 2.0, 3.0)) is None
+
+
+@pytest.mark.parametrize("src, match", [
+    ("def f(a):\n    b = a.x\n    return (b,)\n", "cannot translate"),
+    ("def f(a):\n    return (b,)\n", "never set"),
+    ("def f(a):\n    b = a ** a\n    return (b,)\n", "int literal"),
+    ("def f(a):\n    b = _erf(a)\n    return (b,)\n", "call of '_erf'"),
+    ("def f(a):\n    b = a + 'x'\n    return (b,)\n", "not a number"),
+])
+def test_what_cannot_be_translated_is_refused_by_name(src, match):
+    with pytest.raises(native.NativeError, match=match):
+        native.translate(src, "_m")
+
+
+def _controllers(path) -> TFLController:
+    sc = load_scenario("paper")
+    return TFLController(model_params(sc), path, law_config(sc), 0.001)
+
+
+def _pair(path, monkeypatch):
+    monkeypatch.setenv("TFL_MAV_NATIVE", "off")
+    py = _controllers(path)
+    monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
+    c = _controllers(path)
+    assert c._fused is not py._fused and c._fused.__globals__["_core"] is not None
+    return py, c
+
+
+def _paths_under_test():
+    fast = {"paper", "expr-all-functions"}
+    return [pytest.param(n, marks=() if n in fast else pytest.mark.slow) for n in sorted(PATHS)]
+
+
+@pytest.mark.parametrize("name", _paths_under_test())
+def test_compiled_core_flies_the_python_cores_bits_on_random_states(name, monkeypatch):
+    kind, params, y0 = PATHS[name]
+    path = build_path(kind, params)
+    rng = random.Random(23)
+    py, c = _pair(path, monkeypatch)
+    for trial in range(40):
+        rotor = (0, 0, 2, 3)[trial % 4]
+        for ctrl in (py, c):
+            ctrl.set_attack(rotor, 1.0 if rotor else 0.0)
+        st = _random_state(rng, y0)
+        for tick in range(3):
+            if tick:
+                st = State(tuple(p + 1e-3 * v for p, v in zip(st.position_m, st.velocity_mps,
+                                                              strict=True)),
+                           st.velocity_mps, st.quaternion_wxyz, st.body_rates_radps)
+            if trial % 2:       # the daemon's and the simulator's states are numpy arrays
+                st = State(*(np.array(f, dtype=float) for f in (
+                    st.position_m, st.velocity_mps, st.quaternion_wxyz, st.body_rates_radps)))
+            assert repr(py.update(st)) == repr(c.update(st))
+
+
+def test_the_pure_core_in_python_is_the_tick_it_replaces(monkeypatch):
+    """``fused_core`` run as Python (no C at all) and the calling tick fly the Python tick's
+    outputs: the layout of the core (reads in, one call, writes out) is itself exact."""
+    monkeypatch.setenv("TFL_MAV_NATIVE", "off")
+    sc = load_scenario("paper")
+    path = build_path("paper", {})
+    py, layout = (TFLController(model_params(sc), path, law_config(sc), 0.001)
+                  for _ in range(2))
+    source = _core_source(layout)
+    core = compile_source("fused_core", source, {**KERNEL_GLOBALS, **GLOBALS})
+    assert core.__code__.co_varnames[:len(CORE_ARGS)] == CORE_ARGS
+    layout._fused = _fused(layout).with_core(core)[0]
+    rng = random.Random(11)
+    for trial in range(30):
+        rotor = (0, 0, 2, 3)[trial % 4]
+        for ctrl in (py, layout):
+            ctrl.set_attack(rotor, 1.0 if rotor else 0.0)
+        st = _random_state(rng, PATHS["paper"][2])
+        for _ in range(3):
+            assert repr(py.update(st)) == repr(layout.update(st))
+
+
+def _fused(ctl: TFLController):
+    from tfl_mav.control.tfl.fused import build_fused
+    return build_fused(ctl.model, ctl.tracker.kernels, dt_s=ctl.dt, mass_est=ctl.mass_est,
+                       dob=ctl.dob)
+
+
+def _core_source(ctl: TFLController) -> str:
+    return _fused(ctl).core_source
+
+
+@pytest.mark.parametrize("name", sorted(OFFLINE_CASES))
+def test_offline_golden_flights_are_bit_identical_compiled(name, monkeypatch):
+    monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
+    assert fly_offline_case(*OFFLINE_CASES[name]) == _OFFLINE[name]
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["paper", "lag20ms"])
+def test_lockstep_golden_flights_are_bit_identical_compiled(name, tmp_path, monkeypatch):
+    monkeypatch.setenv("TFL_MAV_NATIVE", "sync")    # the daemon subprocess inherits it
+    assert fly_lockstep(*LOCKSTEP_CASES[name], out=tmp_path) == _LOCKSTEP[name]
+
+
+@pytest.mark.slow
+def test_auto_switches_to_the_compiled_core_mid_flight_without_changing_a_bit(
+        tmp_path, monkeypatch):
+    """A cold cache: the controller flies the Python core while the compiler runs in the
+    background, then switches; the outputs are those of a Python-only controller."""
+    monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path / "cold"))
+    monkeypatch.setattr(native, "_loaded", {})      # as a new process: nothing loaded yet
+    path = build_path("paper", {})
+    monkeypatch.setenv("TFL_MAV_NATIVE", "off")
+    py = _controllers(path)
+    monkeypatch.setenv("TFL_MAV_NATIVE", "auto")
+    c = _controllers(path)
+    python_tick = c._fused
+    rng = random.Random(3)
+    st = _random_state(rng, PATHS["paper"][2])
+    deadline = time.monotonic() + 120.0     # a compile of ~1 s, on a loaded 2-core box
+    ticks_before = 0
+    while c._fused is python_tick and time.monotonic() < deadline:
+        assert repr(py.update(st)) == repr(c.update(st))
+        ticks_before += 1
+        time.sleep(0.001)
+    assert c._fused is not python_tick, "the background build never completed"
+    assert ticks_before > 0
+    for _ in range(50):
+        assert repr(py.update(st)) == repr(c.update(st))
+
+
+def test_no_compiler_leaves_the_python_core_flying_with_one_warning(monkeypatch, caplog,
+                                                                    tmp_path):
+    monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path / "empty"))
+    monkeypatch.setattr(native, "_loaded", {})
+    monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
+    monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
+    monkeypatch.setattr(native, "_warned", set())
+    path = build_path("paper", {})
+    with caplog.at_level(logging.WARNING, logger="tfl_mav.accel.native"):
+        a = _controllers(path)
+        b = _controllers(path)
+    assert "_core" not in a._fused.__globals__ and "_core" not in b._fused.__globals__
+    warnings = [r for r in caplog.records if "no C compiler" in r.getMessage()]
+    assert len(warnings) == 1
+
+
+def test_a_bad_mode_is_named_and_means_off(monkeypatch, caplog):
+    monkeypatch.setenv("TFL_MAV_NATIVE", "fast")
+    with caplog.at_level(logging.WARNING, logger="tfl_mav.accel.native"):
+        assert native.mode() == "off"
+    assert "TFL_MAV_NATIVE='fast'" in caplog.text
+
+
+@pytest.mark.parametrize("tau_s", [0.0, 0.03])
+def test_detector_compiled_tick_gives_the_python_ticks_verdicts(tau_s, monkeypatch):
+    """The detector's four-rotor tick compiled (detector_native) against the Python tick:
+    the same outputs and state, bit for bit, through noise, an attack that starts and
+    moves, NaN and out-of-range rpm samples, non-finite commands and time glitches."""
+    from tfl_mav.control.detect.detector import AttackDetector
+
+    def make(mode):
+        monkeypatch.setenv("TFL_MAV_NATIVE", mode)
+        return AttackDetector(1.2e-5, 8.0, tau_s, 0.001)
+
+    py, c = make("off"), make("sync")
+    assert c._rotors is not py._rotors and c._rotors.__globals__["_core"] is not None
+    rng = random.Random(7)
+    hover = 1.2 * 9.81 / 4.0
+    t = 0.0
+    for tick in range(3000):
+        t += 0.001 if tick % 97 else rng.choice([0.001, math.nan, -0.5, 0.0005])
+        cmd = [hover + rng.gauss(0, 0.3) for _ in range(4)]
+        if tick % 211 == 0:
+            cmd[rng.randrange(4)] = rng.choice([math.nan, math.inf, -1.0, 9.0])
+        rpm = [60.0 / (2 * math.pi) * math.sqrt(max(min(f, 8.0), 0.0) / 1.2e-5)
+               + rng.gauss(0, 20.0) if f == f and abs(f) != math.inf else 0.0 for f in cmd]
+        attacked = 1 + (tick // 1000) % 4
+        if tick > 500:
+            rpm[attacked - 1] *= 1.3
+        if tick % 173 == 0:
+            rpm[rng.randrange(4)] = rng.choice([math.nan, 2e6, -math.inf])
+        a, b = py.update(t, rpm, cmd), c.update(t, rpm, cmd)
+        assert repr(a) == repr(b), tick
+    assert py.detected_rotor and py.rejected_samples > 0
+    for attr in ("_band", "_var", "_s_hi", "_s_lo", "_z", "_rpm", "_resid",
+                 "rejected_samples", "moves", "estimate_n"):
+        assert repr(getattr(py, attr)) == repr(getattr(c, attr)), attr
+
+
+def test_rk4_step_compiled_is_the_python_step_bit_for_bit(monkeypatch):
+    """tfl_mav.sim.physics_native: the simulator's RK4 step compiled, on random states and wrenches
+    (repr: -0.0 and 0.0 differ), and a diverging state still takes the Python path (which
+    raises for the simulator's numpy fallback)."""
+    from tfl_mav.sim.physics import RigidBodyParams, rk4_stepper
+
+    monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
+    p = RigidBodyParams(mass_kg=1.2, inertia_kgm2=(0.011, 0.013, 0.021), k_t=0.05,
+                        k_r=0.00275, gravity_mps2=9.81, arm_m=0.2656, drag_thrust_ratio_m=0.02)
+    py, c = rk4_stepper(p, compiled=False), rk4_stepper(p)
+    assert c.__globals__["_core"] is not None
+    rng = random.Random(4)
+    for _ in range(5000):
+        x = [rng.uniform(-5, 5) for _ in range(13)]
+        w = (rng.uniform(0, 30), rng.gauss(0, 1), rng.gauss(0, 1), rng.gauss(0, 0.1),
+             rng.choice([1e-3, 5e-4, 1e-2]))
+        a, b = py(x, *w), c(x, *w)
+        assert type(b) is list and repr(a) == repr(b)
+    huge = [0.0] * 6 + [1e160, 0.0, 0.0, 0.0] + [0.0] * 3     # |q|² overflows
+    with pytest.raises(OverflowError):
+        py(huge, 10.0, 0.0, 0.0, 0.0, 1e-3)
+    with pytest.raises(OverflowError):
+        c(huge, 10.0, 0.0, 0.0, 0.0, 1e-3)
+    scalars = [np.float64(v) for v in x]
+    with np.errstate(all="ignore"):
+        assert repr(py(scalars, *w)) == repr(c(scalars, *w))   # numpy scalars: Python's
+
+
+@pytest.mark.slow
+def test_one_build_per_source_and_a_cache_that_cannot_be_written(tmp_path, monkeypatch, caplog):
+    """Many asks for one source in auto mode queue one build, and every asker gets the
+    core; a cache directory that cannot be created is a warning, not an error."""
+    monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path / "cold"))
+    monkeypatch.setenv("TFL_MAV_NATIVE", "auto")
+    monkeypatch.setattr(native, "_loaded", {})
+    got: list = []
+    source = _LOOP_SOURCE.replace("loop", "loop_once")
+    for _ in range(5):
+        assert native.obtain(source, got.append) is None
+    assert len(native._waiting[native._paths(source)[0]]) == 5
+    deadline = time.monotonic() + 120.0
+    while len(got) < 5 and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert len(got) == 5 and len({id(c) for c in got}) == 1
+    assert native.obtain(source, got.append) is got[0]      # loaded: at once, no rebuild
+    blocker = tmp_path / "file"
+    blocker.write_text("")
+    monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(blocker / "kernels"))
+    monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
+    with caplog.at_level(logging.WARNING, logger="tfl_mav.accel.native"):
+        assert native.obtain(source.replace("loop_once", "loop_ro"), got.append) is None
+    assert "not available" in caplog.text
+
+
+def test_a_build_left_behind_by_an_exited_process_is_swept(tmp_path, monkeypatch):
+    """Builds run in the cache directory; one older than an hour (its process exited
+    mid-build) is removed by the next build, a fresh one (a build under way) is not."""
+    cache = tmp_path / "kernels"
+    cache.mkdir()
+    monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(cache))
+    monkeypatch.setattr(native, "_loaded", {})
+    old, fresh = cache / ".build-old", cache / ".build-fresh"
+    for d in (old, fresh):
+        d.mkdir()
+        (d / "k.c").write_text("int x;")
+    two_hours_ago = time.time() - 7200
+    os.utime(old, (two_hours_ago, two_hours_ago))
+    native.build(_LOOP_SOURCE.replace("loop", "loop_swept"))
+    assert not old.exists() and fresh.exists()
+    assert not [p for p in cache.iterdir() if p.name.startswith(".build-") and p != fresh]
+
+
+def test_safe_law_three_rotor_step_compiled_is_the_python_step(monkeypatch):
+    """lost_rotor.lost_rotor_step compiled from its own source (no hand-written twin)
+    against the Python function on random inputs: the same floats, bit for bit."""
+    from tfl_mav.control.safe import lost_rotor
+    monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
+    monkeypatch.setitem(lost_rotor._native, "loaded", False)
+    monkeypatch.setitem(lost_rotor._native, "core", None)
+    compiled = lost_rotor.step_function()
+    assert compiled is not lost_rotor.lost_rotor_step          # a compiler is expected here
+    rng = random.Random(11)
+    rots = [(1, 0, 0, 0, 1, 0), (0, -1, 0, 1, 0, 0), (-1, 0, 0, 0, -1, 0), (0, 1, 0, -1, 0, 0)]
+    for trial in range(500):
+        q = [rng.uniform(-1, 1) for _ in range(4)]
+        n = math.sqrt(sum(c * c for c in q))
+        args = (tuple(rng.uniform(-8, 8) for _ in range(3)),
+                tuple(rng.uniform(-3, 3) for _ in range(3)), tuple(c / n for c in q),
+                (rng.uniform(-5, 5), rng.uniform(-5, 5), rng.uniform(-80, 80)),
+                rots[trial % 4], tuple(rng.uniform(-2, 2) for _ in range(8)),
+                (1.1, 0.05, 9.81, 0.2656, 8.0), rng.choice([0.0, 0.3, 2.0, -1.0, 9.0]))
+        assert repr(compiled(*args)) == repr(lost_rotor.lost_rotor_step(*args))
+
+
+def test_a_compiler_is_there_where_one_is_expected():
+    """On Linux the compiled cores are part of the product: no compiler is a failure."""
+    if native.compiler_expected():
+        assert native._compiler() is not None, \
+            "no C compiler (cc or $CC) with Python's headers: install gcc and python3-dev"

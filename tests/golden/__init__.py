@@ -1,0 +1,2 @@
+"""Golden flights: digests of whole trajectories and commands that refactors must leave
+unchanged."""

@@ -1,0 +1,111 @@
+"""The control law's pieces: allocation, relabelling for any rotor, saturation, no NaN out."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from tfl_mav.build import build_controller
+from tfl_mav.control.allocation import allocate_attacked, allocate_nominal, canonical_frame
+from tfl_mav.control.tfl.law import chain_gains
+from tfl_mav.model.modes import Mode
+from tfl_mav.model.state import State
+from tfl_mav.scenario import load_scenario
+from tfl_mav.sim.physics import RigidBodyParams, mix
+
+L, D, FMAX = 0.2656, 0.016, 8.0
+PARAMS = RigidBodyParams(1.1, (0.0020066, 0.0020038, 0.0013323), L, D, 0.05, 2.75e-3, 9.81)
+
+
+def test_chain_gains_are_the_paper_numbers():
+    """ξ poles at −2.5 and η poles at −2 give the gains quoted in the controller issue."""
+    assert chain_gains(-2.5, 4) == pytest.approx((39.0625, 62.5, 37.5, 10.0))
+    assert chain_gains(-2.0, 3) == pytest.approx((8.0, 12.0, 6.0))
+
+
+def test_nominal_allocation_inverts_the_mixer():
+    f = allocate_nominal(10.0, 0.1, -0.2, 0.01, L, D)
+    assert mix(PARAMS, f) == pytest.approx((10.0, 0.1, -0.2, 0.01))
+
+
+@pytest.mark.parametrize("rotor", [1, 2, 3, 4])
+def test_attacked_allocation_for_any_rotor(rotor):
+    """Relabelled allocation → physical rotors → the physical mixer reproduces, in the
+    canonical frame, u_f, τ_q, τ_r and τ_p = (u_f − τ_r/d')l/2 − 2lA (eq. (6))."""
+    frame = canonical_frame(rotor)
+    uf, tq, tr, a = 10.0, 0.05, 0.08, 1.3
+    d_c = D * frame.d_sign
+    canon = allocate_attacked(uf, tq, tr, a, L, d_c)
+    f = [0.0] * 4
+    for i, phys in enumerate(frame.perm):
+        f[phys] = canon[i]
+    assert f[rotor - 1] == a                       # the attacked rotor carries A
+    u, tp, tq_p, tr_p = mix(PARAMS, f)
+    rot = np.array(frame.rot, dtype=float)
+    tau_c = rot @ np.array([tp, tq_p, tr_p])       # physical torques in canonical axes
+    assert u == pytest.approx(uf)
+    assert tau_c[1] == pytest.approx(tq)
+    assert tau_c[2] == pytest.approx(tr)
+    assert tau_c[0] == pytest.approx((uf - tr / d_c) * L / 2 - 2 * L * a)
+
+
+@settings(max_examples=300, deadline=None)
+@given(uf=st.floats(0, 40), tq=st.floats(-3, 3), tr=st.floats(-1, 1), a=st.floats(0, FMAX))
+def test_saturated_attacked_allocation_is_feasible_and_keeps_thrust(uf, tq, tr, a):
+    f = allocate_attacked(uf, tq, tr, a, L, D, FMAX)
+    assert all(0.0 <= x <= FMAX for x in f)
+    assert f[1] == a
+    # u_f is kept whenever the three healthy rotors can carry u_f − A.
+    if a <= uf <= a + 3 * FMAX:
+        assert sum(f) == pytest.approx(uf, abs=1e-9)
+
+
+@settings(max_examples=300, deadline=None)
+@given(uf=st.floats(0, 40), tp=st.floats(-3, 3), tq=st.floats(-3, 3), tr=st.floats(-1, 1))
+def test_saturated_nominal_allocation_is_feasible(uf, tp, tq, tr):
+    f = allocate_nominal(uf, tp, tq, tr, L, D, FMAX)
+    assert all(0.0 <= x <= FMAX for x in f)
+
+
+def _state(pos=(1.5, 0.3, 0.5), vel=(0, 0, 0), q=(1, 0, 0, 0), w=(0, 0, 0)):
+    return State(pos, vel, q, w)
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf])
+def test_controller_never_outputs_nan(bad):
+    ctrl = build_controller(load_scenario("paper"))
+    ctrl.set_attack(2, 1.0)
+    out = ctrl.update(_state(vel=(bad, 0, 0)))
+    assert all(math.isfinite(x) and 0 <= x <= FMAX for x in out.rotor_thrust_n)
+    assert out.mode is Mode.FALLBACK and out.reason
+    ok = ctrl.update(_state())
+    assert all(math.isfinite(x) for x in ok.rotor_thrust_n)
+
+
+def test_nan_attack_estimate_is_ignored():
+    ctrl = build_controller(load_scenario("paper"))
+    ctrl.set_attack(2, 1.5)
+    ctrl.set_attack(2, math.nan)
+    assert ctrl.attack_estimate_n == 1.5
+
+
+def test_attacked_output_gives_the_attacked_rotor_its_estimate():
+    ctrl = build_controller(load_scenario("paper"))
+    ctrl.set_attack(3, 2.25)
+    out = ctrl.update(_state())
+    assert out.mode is Mode.ATTACKED
+    assert out.rotor_thrust_n[2] == 2.25
+
+
+def test_far_from_the_path_falls_back_safely():
+    """At the centre of a circle the projection is not unique: fallback, finite output."""
+    sc = load_scenario("circle")
+    ctrl = build_controller(sc)
+    out = ctrl.update(_state(pos=(0.0, 0.0, 5.0)))
+    assert out.mode is Mode.FALLBACK
+    assert "tube" in out.reason
+    assert all(math.isfinite(x) and 0 <= x <= FMAX for x in out.rotor_thrust_n)

@@ -1,0 +1,138 @@
+"""``tfl-mav demo``: the whole product in one command.
+
+Starts the simulated vehicle (``tfl-mav sim``) and the controller daemon (``tfl-mav fly``)
+as two processes on free loopback ports in lockstep (``--realtime``: paced by the wall
+clock), both recording MCAP (``run.mcap`` from
+the vehicle: all traffic + ground truth; ``ctl.mcap`` from the controller: its traffic and
+state every tick), then writes the report PNGs and prints a summary (``--json``: one JSON
+object). Exit code 0 when the flight converged (path distance within --bound over the last
+--window seconds) with the attack detected correctly and no false alarm, 1 otherwise, 2 for
+usage errors, 3 when the output directory is not writable or a process failed to start,
+130/143 when interrupted (SIGINT/SIGTERM: both children are stopped, never orphaned).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+from tfl_mav.build import scenario_path
+from tfl_mav.cli.outputs import EXIT_IO, dir_problem
+from tfl_mav.controller.feasibility import check_scenario
+from tfl_mav.flightlog.metrics import DEFAULT_BOUND_M, DEFAULT_WINDOW_S
+from tfl_mav.harness.demo import run_demo
+from tfl_mav.link.signing import load_key
+from tfl_mav.scenario import ScenarioError, apply_overrides, load_scenario
+
+__all__ = ["add_parser", "run"]
+
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "demo", help="fly SCENARIO end to end over MAVLink: sim + controller + MCAP + report",
+        description=__doc__.split("\n\n")[1].replace("\n", " "),
+        epilog="Open run.mcap in Foxglove with the layout tfl_mav/layouts/tfl-mav.json.")
+    p.add_argument("scenario", nargs="?", default="paper",
+                   help="built-in scenario name or .toml path (default: paper)")
+    p.add_argument("--out", default="tfl-mav-demo", metavar="DIR",
+                   help="output directory (default ./tfl-mav-demo)")
+    p.add_argument("--duration", type=float, metavar="S", help="sim seconds (default: the "
+                                                                "scenario's run.duration_s)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="settings",
+                   help="override a scenario key (TOML value), repeatable")
+    p.add_argument("--key-file", metavar="PATH",
+                   help="MAVLink 2 signing key for both processes (docs/SIGNING.md)")
+    p.add_argument("--foxglove", metavar="[HOST:]PORT",
+                   help="watch it live: the vehicle serves its channels (scene, truth, all "
+                        "MAVLink incl. the controller's telemetry and events) on a Foxglove "
+                        "WebSocket (Open connection, ws://localhost:PORT); default off")
+    p.add_argument("--realtime", action="store_true",
+                   help="the same flight paced by the wall clock (both processes --realtime), "
+                        "to watch it live, e.g. in Foxglove")
+    p.add_argument("--json", action="store_true", help="print the summary as one JSON object")
+    p.add_argument("--no-plots", action="store_true", help="skip the PNG report")
+    p.add_argument("--bound", type=float, default=DEFAULT_BOUND_M, metavar="M",
+                   help=f"converged: path distance ≤ M metres (default {DEFAULT_BOUND_M:g})")
+    p.add_argument("--window", type=float, default=DEFAULT_WINDOW_S, metavar="S",
+                   help=f"... over the last S seconds of sim time (default "
+                        f"{DEFAULT_WINDOW_S:g}; at most half the flight)")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    try:
+        scenario = apply_overrides(load_scenario(args.scenario), args.settings)
+        scenario_path(scenario)      # a bad path fails here, before any process starts
+        if args.key_file:
+            load_key(args.key_file)      # fail here, once, rather than in both children
+        if args.foxglove:
+            from tfl_mav.flightlog.live import parse_live_address
+
+            parse_live_address(args.foxglove)
+    except (ScenarioError, ValueError) as exc:
+        print(f"tfl-mav demo: {exc}", file=sys.stderr)
+        return 2
+    if not (args.bound > 0 and args.window > 0):
+        print("tfl-mav demo: --bound and --window must be > 0", file=sys.stderr)
+        return 2
+    problem = dir_problem(args.out, "--out")
+    if problem:
+        print(f"tfl-mav demo: {problem}", file=sys.stderr)
+        return EXIT_IO
+    for warning in check_scenario(scenario):
+        print(f"tfl-mav demo: warning: {warning}", file=sys.stderr)
+    try:
+        summary = run_demo(args.scenario, Path(args.out), settings=args.settings,
+                           duration_s=args.duration, plots=not args.no_plots,
+                           progress=not args.json, scenario=scenario,
+                           key_file=args.key_file, foxglove=args.foxglove,
+                           realtime=args.realtime, bound_m=args.bound, window_s=args.window)
+    except RuntimeError as exc:
+        print(f"tfl-mav demo: {exc}", file=sys.stderr)
+        return 3
+    if args.json:
+        print(json.dumps(summary, indent=2))
+    else:
+        _print_summary(summary)
+    if "signal" in summary:
+        return 128 + int(signal.Signals[summary["signal"]])
+    return 0 if success(summary, scenario.attack.rotor) else 1
+
+
+def success(m: dict[str, Any], attack_rotor: int) -> bool:
+    """The demo's verdict: converged, no crash, the attacked rotor found, no false alarm."""
+    return (bool(m.get("converged")) and not m["crashed"] and m.get("false_alarms") == 0
+            and m.get("detected_rotor") == attack_rotor)
+
+
+def _print_summary(m: dict[str, Any]) -> None:
+    def mm(x: float | None) -> str:
+        return f"{1000 * x:.3f} mm" if x is not None else "-"
+    status = "CRASHED: " + m["crash_reason"] if m["crashed"] else m["convergence"]
+    phases = ", ".join(f"{k} {v:.1f} s" for k, v in m.get("phase_wall_s", {}).items())
+    print(f"tfl-mav demo: {status}; {m['sim_time_s']:.1f} s sim flown in "
+          f"{m['wall_time_s']:.1f} s wall ({m['real_time_factor']}x real time); "
+          f"{m.get('total_wall_s', m['wall_time_s']):.1f} s in all ({phases})")
+    print(f"  path distance: final {mm(m['final_path_distance_m'])}, last 10 s max "
+          f"{mm(m['max_path_distance_last_10s_m'])}, rms {mm(m['rms_path_distance_last_10s_m'])}")
+    if m["detected_rotor"]:
+        lat = m["detection_latency_s"]
+        lat_s = (f"{1000 * lat:.1f} ms ({m['detection_latency_ticks']} ticks)"
+                 if lat is not None else "-")
+        rms = m["attack_estimate_rms_n"]
+        print(f"  attack: rotor {m['detected_rotor']} detected after {lat_s}; estimate RMS "
+              f"error {rms:.4f} N; false alarms {m['false_alarms']}" if rms is not None else
+              f"  attack: rotor {m['detected_rotor']} detected; false alarms "
+              f"{m['false_alarms']}")
+    else:
+        print(f"  attack: none detected; false alarms {m['false_alarms']}")
+    print(f"  rotor thrust [{m['thrust_min_n']:.2f}, {m['thrust_max_n']:.2f}] N, saturated "
+          f"{100 * m['saturated_fraction']:.2f} % of ticks; max |yaw rate| "
+          f"{m['max_yaw_rate_radps']:.1f} rad/s")
+    print(f"  MAVLink: {m['messages_sent']} frames sent, {m['messages_logged']} logged; "
+          f"files in {m['out_dir']}/ (run.mcap, ctl.mcap, summary.json, *.png)")

@@ -1,0 +1,73 @@
+"""The ``tfl-mav`` command: one entry point, one subcommand per job.
+
+Exit codes (all subcommands): 0 success; 1 the flight failed (vehicle crashed, or a check
+did not pass); 2 usage or scenario error; 3 link or I/O error (port in use, unwritable file).
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+
+from tfl_mav import __version__
+
+# Command → the module that adds it. Each module has add_parser(subparsers) and its own run
+# function. Only the invoked command's module is imported (each pulls in what its command
+# needs: a daemon, pymavlink, MCAP, plotting), so `tfl-mav offline` does not pay for the
+# link stack at start-up; --help and an unknown command import them all to list them.
+SUBCOMMANDS = {
+    "demo": "tfl_mav.cli.demo",
+    "sim": "tfl_mav.cli.sim",
+    "fly": "tfl_mav.cli.fly",
+    "offline": "tfl_mav.cli.offline",
+    "inspect": "tfl_mav.cli.inspect_cmd",
+    "report": "tfl_mav.cli.report",
+    "replay": "tfl_mav.cli.replay",
+    "scenarios": "tfl_mav.cli.scenarios_cmd",
+    "relay": "tfl_mav.cli.relay",
+    "campaign": "tfl_mav.cli.campaign",
+    "envelope": "tfl_mav.cli.envelope",
+    "compare": "tfl_mav.cli.compare",
+}
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The whole CLI's parser; with a known ``command``, only that subcommand is added."""
+    parser = argparse.ArgumentParser(
+        prog="tfl-mav",
+        description="Fly a quadrotor along a 3-D path while an attacker controls one rotor: "
+                    "a MAVLink SITL vehicle, the TFL offboard controller, and tools around a "
+                    "flight. Start with `tfl-mav demo`.",
+        epilog="Exit codes: 0 ok, 1 flight failed, 2 usage/scenario error, 3 link/I-O error.")
+    parser.add_argument("--version", action="version", version=f"tfl-mav {__version__}")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    names = [SUBCOMMANDS[command]] if command in SUBCOMMANDS else SUBCOMMANDS.values()
+    for name in names:
+        try:
+            module = importlib.import_module(name)
+        except ModuleNotFoundError as exc:
+            if exc.name == name:
+                continue  # subcommand not part of this build
+            raise
+        module.add_parser(sub)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = sys.argv[1:] if argv is None else argv
+    command = next((a for a in argv if not a.startswith("-")), None)
+    parser = build_parser(command)
+    args = parser.parse_args(argv)
+    if not getattr(args, "func", None):
+        parser.print_help()
+        return 2
+    try:
+        return int(args.func(args) or 0)
+    except KeyboardInterrupt:
+        print("tfl-mav: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

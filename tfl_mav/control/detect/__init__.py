@@ -1,0 +1,1 @@
+"""Attack detection, isolation and estimation from ESC rpm."""

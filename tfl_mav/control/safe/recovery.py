@@ -1,0 +1,503 @@
+"""A safe reduced-attitude law: a dead rotor, a take-over from an unknown state, a lost path.
+
+Why another law. The TFL attacked law (:mod:`tfl_mav.control.tfl.law`) needs τ_p of both signs
+from the rotor opposite the attacked one: f4 = A + τ_p/l (canonical frame, see
+:mod:`tfl_mav.control.allocation`). With A ≈ 0 (a dead rotor, or the paper's signal
+clamped to 0 while 3.2 < z < 6.2) f4 ≥ 0 allows τ_p ≥ 0 only, so the law's τ_p demand is
+physically out of reach and the vehicle flips within seconds. This law never asks for τ_p.
+
+The idea is Mueller & D'Andrea's relaxed hover (ICRA 2014, "Stability and control of a
+quadrocopter despite the complete loss of one, two, or three propellers"): with f4 = A the
+pair 2-4 makes no roll torque, and the yaw torque d(f1 + f3 − 2A) is unbalanced, so the
+vehicle spins about b3 at r̄ = d(u_f − 4A)/k_r (≈ 63 rad/s at A = 0 for the paper
+vehicle). One does not control its yaw; one controls only the *direction* of the thrust
+axis b3 — a two-DoF reduced attitude — and the total thrust. In body axes let
+h = Rᵀ n_des (n_des the wanted thrust direction, inertial); b3 = n_des means h = (0, 0, 1).
+Linearised about the spin (h3 ≈ 1, r ≈ const):
+
+    ḣ1 = r h2 − q,  ḣ2 = p − r h1,
+    I_x ṗ = τ_p − k_r p − (I_z − I_y) q r,  I_y q̇ = τ_q − k_r q − (I_x − I_z) p r.
+
+With r ≠ 0 this 4-state system is controllable from τ_q = l(f3 − f1) alone (the spin carries
+the body axes round, so one torque axis reaches both tilt directions). A discrete LQR on
+the zero-order-hold model at the control period (so a 250 Hz loop is designed for what it
+is; :mod:`lqr`, numpy only) gives the gain; it is recomputed when the measured r moves
+by more than 0.5 rad/s (gain scheduling on r). τ_p stays an input with a cost 100× τ_q's:
+it is needed only when the spin is slow (right after a take-over), and its one-sided range
+is clipped.
+
+With four healthy rotors (a take-over, a lost projection) the same reduced attitude is
+flown with a PD on (−h2, h1) through both torques and a yaw-rate damper.
+
+The outer loop is a PID on position towards a target: the closest point of the path with
+its velocity (speed × tangent) and centripetal acceleration, or a held point (altitude hold,
+velocity zero). Its poles are a triple one at −ω_p (ω_p = 1.25 rad/s): k_p = 3ω_p², k_d = 3ω_p,
+k_i = ω_p³. The integral is what makes the law precise: the steady forces it does not model
+(the model's mass error Δm g, drag, the spinning attitude loop's bias) are a constant
+acceleration demand, which a PD alone leaves as an offset Δm g/k_p (0.10 m at 5 % mass
+error) and the integral removes. It is bounded (±``MAX_INTEGRAL_G`` g) and frozen while the
+demand is limited or the allocation cannot make it (anti-windup, :meth:`_integrate`). The
+wanted acceleration is limited to a 30° tilt and
+±0.5 g vertically: a safe law does not chase the path hard.
+
+Thrust requests are feasible by construction: the three-rotor allocation gives up τ_p (the
+opposite rotor within [0, f_max]) before τ_q, and τ_q before u_f, so what the law asks for
+is what the rotors can do (``RecoveryOutput.clamped`` says where it had to give up).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from tfl_mav.control.allocation import RotorFrame, allocate_nominal, canonical_frame
+from tfl_mav.control.path.compiled import PathKernels, compile_path
+from tfl_mav.control.path.jetcode import TraceError
+from tfl_mav.control.path.jets import Jet
+from tfl_mav.control.path.paths import Path
+from tfl_mav.control.safe import lost_rotor
+from tfl_mav.control.safe.lqr import dlqr, dlqr_zoh_many, zoh
+from tfl_mav.model.state import State
+
+__all__ = ["PathProjector", "RecoveryLaw", "RecoveryOutput", "gain_schedule",
+           "projector_sigma2", "reference_sigma2"]
+
+MAX_TILT_RAD = math.radians(30.0)   # outer loop: horizontal acceleration ≤ g tan 30°
+MAX_VERTICAL_G = 0.5                # outer loop: |vertical acceleration| ≤ 0.5 g
+POS_OMEGA = 1.25  # outer-loop triple pole (rad/s)
+MAX_INTEGRAL_G = 0.2                # |integral action| ≤ 0.2 g per axis (a 20 % model error)
+ATT_KP = 100.0                      # healthy reduced attitude: (10 rad/s)²
+ATT_KD = 20.0                       # … critically damped
+YAW_DAMP = 2.0                      # healthy: r decays at 2 /s
+# LQR weights on (h1, h2, p, q) and (τ_p, τ_q): Bryson's rule with 0.1 of h (≈ 6°),
+# 10 rad/s of p, q and 0.2 N m of τ_q; τ_p costs 100× (one-sided, only for a slow spin).
+# With motor lag the τ_q weight grows (:func:`lqr_r`).
+_TAN_MAX_TILT = math.tan(MAX_TILT_RAD)
+_isfinite = math.isfinite
+_new_output = tuple.__new__     # a named tuple made without its Python __new__ frame
+_KP = 3.0 * POS_OMEGA * POS_OMEGA      # outer-loop PID gains: (s + ω_p)³
+_KD = 3.0 * POS_OMEGA
+_KI = POS_OMEGA * POS_OMEGA * POS_OMEGA
+LQR_MAX_SPIN_RADPS = 150.0   # gain schedule range (see RecoveryLaw._lqr)
+LQR_Q = (100.0, 100.0, 0.01, 0.01)
+LQR_R = (2500.0, 25.0)
+SPIN_SWING_HZ = 10.0         # the rate τ_q must swing at: the ~60 rad/s spin of a dead rotor
+
+
+def lqr_r(motor_time_constant_s: float) -> tuple[float, float]:
+    """The input weights for rotors of time constant τ_m (s): LQR_R × (1 + (2π f τ_m)²).
+
+    τ_q is fixed in the body, which spins at ~60 rad/s, so the rotors must swing it at
+    f ≈ 10 Hz; a first-order lag cuts that swing by √(1 + (2π f τ_m)²) (3.3× at 50 ms). The
+    weight grows by the square, so the law asks for no more swing than a lagging rotor
+    makes: with the weight of ideal rotors it asks for what a 30 ms rotor cannot do and the
+    vehicle falls; with this one it flies 0-50 ms."""
+    tau = motor_time_constant_s if motor_time_constant_s > 0.0 else 0.0
+    scale = 1.0 + (2.0 * math.pi * SPIN_SWING_HZ * tau) ** 2
+    return LQR_R[0] * scale, LQR_R[1] * scale
+
+
+Sigma2 = Callable[[tuple[float]], Sequence[float]]
+Gains = tuple[tuple[float, float, float, float], tuple[float, float, float, float]]  # K, 2×4
+GainKey = tuple[int, bool]     # (spin rate in 0.5 rad/s steps, I_x' > I_y')
+_SCHEDULES: dict[tuple[float, ...], dict[GainKey, Gains]] = {}   # whole schedules, by model
+_PARTIAL: dict[tuple[float, ...], dict[GainKey, Gains]] = {}     # blocks met so far, by model
+GAIN_BLOCK = 32    # spin-rate steps (16 rad/s) designed together when first met (lazy law)
+
+
+def _spin_model(rr: float, ix: float, iy: float, iz: float,
+                kr: float) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of the reduced attitude (h1, h2, p, q) linearised about the spin ``rr``."""
+    a = np.array([[0.0, rr, 0.0, -1.0],
+                  [-rr, 0.0, 1.0, 0.0],
+                  [0.0, 0.0, -kr / ix, -(iz - iy) * rr / ix],
+                  [0.0, 0.0, -(ix - iz) * rr / iy, -kr / iy]])
+    b = np.array([[0.0, 0.0], [0.0, 0.0], [1.0 / ix, 0.0], [0.0, 1.0 / iy]])
+    return a, b
+
+
+def gain_schedule(inertia_kgm2: Sequence[float], k_r: float, dt_s: float,
+                  motor_time_constant_s: float = 0.0) -> dict[GainKey, Gains]:
+    """Every gain :meth:`RecoveryLaw._lqr` can ask for (|r| ≤ LQR_MAX_SPIN_RADPS, either
+    canonical inertia order), designed at once by :func:`lqr.dlqr_zoh_many` — the same
+    gains bit for bit as one at a time, ~0.1 ms apiece instead of ~1 ms, so a flight never
+    designs one mid-air (an overrun at 1 kHz). Cached by model within a process (the daemon
+    builds a warm-up flight computer and then the real one; a sweep builds thousands)."""
+    ix, iy, iz = (float(x) for x in inertia_kgm2)
+    r_w = lqr_r(motor_time_constant_s)
+    cache_key = (ix, iy, iz, float(k_r), float(dt_s), *r_w)
+    sched = _SCHEDULES.get(cache_key)
+    if sched is not None:
+        return sched
+    top = round(LQR_MAX_SPIN_RADPS * 2.0)
+    sched = {}
+    for ixc, iyc in dict.fromkeys(((ix, iy), (iy, ix))):
+        sched.update(_design_steps(ixc, iyc, iz, float(k_r), float(dt_s), -top, top + 1,
+                                   r_w))
+    _SCHEDULES[cache_key] = sched
+    _PARTIAL[cache_key] = dict(sched)
+    return sched
+
+
+def _design_steps(ixc: float, iyc: float, iz: float, k_r: float, dt_s: float, lo: int,
+                  hi: int, r_weights: tuple[float, float] = LQR_R) -> dict[GainKey, Gains]:
+    """The gains of spin-rate steps lo … hi−1 (0.5 rad/s each) in one inertia order, by
+    stacked calls (:func:`lqr.dlqr_zoh_many`: item by item the same operations, so the same
+    gains bit for bit whatever else is in the stack); a step whose design fails is left out
+    (:meth:`RecoveryLaw._lqr` then designs it alone and reports the failure)."""
+    steps = np.arange(lo, hi)
+    # _spin_model for every step at once (the same IEEE operations, element-wise).
+    rr = steps / 2.0
+    a = np.zeros((len(steps), 4, 4))
+    a[:, 0, 1], a[:, 0, 3] = rr, -1.0
+    a[:, 1, 0], a[:, 1, 2] = -rr, 1.0
+    a[:, 2, 2], a[:, 2, 3] = -k_r / ixc, -(iz - iyc) * rr / ixc
+    a[:, 3, 2], a[:, 3, 3] = -(ixc - iz) * rr / iyc, -k_r / iyc
+    b = np.repeat(_spin_model(0.0, ixc, iyc, iz, k_r)[1][None], len(steps), 0)
+    gains = dlqr_zoh_many(a, b, np.diag(LQR_Q), np.diag(r_weights), dt_s)
+    order = ixc > iyc
+    return {(k, order): (tuple(g[0].tolist()), tuple(g[1].tolist()))
+            for k, g in zip(steps.tolist(), gains, strict=True) if g is not None}
+
+
+def reference_sigma2(path: Path) -> Sigma2:
+    """σ's Taylor coefficients (σ, σ', σ''/2, j-major) at λ by the reference jets: the
+    generic evaluation the compiled ``sigma2`` kernel (:mod:`compiled`) is tested against."""
+    def sigma2(lam: tuple[float]) -> tuple[float, ...]:
+        comps = [v.c if isinstance(v, Jet) else (float(v), 0.0, 0.0)
+                 for v in path.sigma(Jet.variable(lam[0], order=2))]
+        return tuple(comps[i][j] for j in range(3) for i in range(3))
+
+    return sigma2
+
+
+def projector_sigma2(path: Path, kernels: PathKernels | None = None,
+                     compiled_path: bool = True) -> tuple[Sigma2, str]:
+    """The σ evaluation the projector uses and a note: the compiled kernel (``kernels``, or
+    traced now) when the path's code traces, else the reference jets (the note says why)."""
+    if not compiled_path:
+        return reference_sigma2(path), "reference jets"
+    try:
+        return (kernels if kernels is not None else compile_path(path)).sigma2.fn, "compiled"
+    except TraceError as exc:
+        return reference_sigma2(path), f"reference jets ({exc})"
+
+
+def _floats(x: Sequence[float]) -> Sequence[float]:
+    """``x`` with Python floats (``tolist`` of a numpy array; other sequences as they are)."""
+    return x.tolist() if type(x) is np.ndarray else x
+
+
+class PathProjector:
+    """Closest point of a path, kept between calls (Newton on ⟨y − σ(λ), σ'(λ)⟩ = 0).
+
+    σ, σ' and σ'' come exactly from one ``sigma2`` evaluation a step — the compiled kernel
+    the TFL tracker uses, or the reference jets (:func:`projector_sigma2`): a warm-started
+    tick costs two or three evaluations of a few dozen float operations. (Central
+    differences of σ, as the projector once did, needed three σ calls a step and carried ~1e-7 of
+    rounding noise in σ'' with a 1e-4 step.)
+    """
+
+    def __init__(self, path: Path, sigma2: Sigma2 | None = None,
+                 evaluation: str = "given", *, source: str | None = None) -> None:
+        """``source``: the generated source of ``sigma2`` (a compiled path kernel's), which
+        :mod:`tfl_mav.accel.native` then compiles to C — the same bits, a third of the time; the
+        Python kernel evaluates until it is built, and wherever the C declines."""
+        self.path = path
+        if sigma2 is None:
+            sigma2, evaluation = projector_sigma2(path)
+        self.evaluation = evaluation        # "compiled" | "reference jets (why)" | "given"
+        self._sigma2 = sigma2
+        self._sigma2_c: Sigma2 | None = None
+        self.lam: float | None = None
+        if source is not None:
+            from tfl_mav.accel import native
+            def ready(core: Sigma2) -> None:
+                self._sigma2_c = core
+
+            core = native.obtain(source, ready)
+            if core is not None:
+                ready(core)
+
+    def project(self, y: Sequence[float]) -> tuple[tuple[float, float, float],
+                                                   tuple[float, float, float],
+                                                   tuple[float, float, float],
+                                                   float] | None:
+        """(point, unit tangent, curvature vector κN, distance) or None if not found."""
+        yx, yy, yz = y
+        if self.lam is None:
+            lo, hi = self.path.lam_range
+            lam_grid = np.linspace(lo, hi, 2001)
+            x, sy, z = self.path.sigma(lam_grid)
+            d2 = (x - yx) ** 2 + (sy - yy) ** 2 + (z - yz) ** 2
+            self.lam = float(lam_grid[int(np.argmin(d2))])
+        lam = self.lam
+        fast, sigma2 = self._sigma2_c, self._sigma2
+        for _ in range(8):
+            out = fast((lam,)) if fast is not None else None
+            c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = out if out is not None \
+                else sigma2((lam,))
+            ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
+            g = ex * c1x + ey * c1y + ez * c1z
+            dg = 2.0 * (ex * c2x + ey * c2y + ez * c2z) - (c1x * c1x + c1y * c1y + c1z * c1z)
+            step = -g / dg if dg < 0.0 else -0.1 * math.copysign(1.0, g)
+            step = -0.5 if step < -0.5 else (0.5 if step > 0.5 else step)
+            lam += step
+            if abs(step) < 1e-9:
+                break
+        if not math.isfinite(lam):
+            return None
+        self.lam = lam
+        out = fast((lam,)) if fast is not None else None
+        c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = out if out is not None \
+            else sigma2((lam,))
+        s1sq = c1x * c1x + c1y * c1y + c1z * c1z
+        if not s1sq > 0.0:
+            return None
+        s1 = math.sqrt(s1sq)
+        tx, ty, tz = c1x / s1, c1y / s1, c1z / s1
+        # κN = (σ'' − (σ''·T) T)/|σ'|², σ'' = 2 c2
+        d2x, d2y, d2z = 2.0 * c2x, 2.0 * c2y, 2.0 * c2z
+        a = d2x * tx + d2y * ty + d2z * tz
+        ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
+        return ((c0x, c0y, c0z), (tx, ty, tz),
+                ((d2x - a * tx) / s1sq, (d2y - a * ty) / s1sq, (d2z - a * tz) / s1sq),
+                math.sqrt(ex * ex + ey * ey + ez * ez))
+
+
+class RecoveryOutput(NamedTuple):
+    """One decision of the recovery law (physical rotor order, N; a named tuple: one is
+    made every safe-law tick)."""
+
+    requested_n: list[float]     # what the law asks for: within [0, f_max] by construction
+    thrust_n: list[float]        # the same thrusts (the attacked rotor: its estimate)
+    tilt_error_rad: float        # angle between b3 and the wanted thrust direction
+    path_distance_m: float       # NaN when holding a point without a path
+    uf_n: float
+    clamped: tuple[bool, bool, bool, bool]   # a rotor's unconstrained demand left [0, f_max]
+
+
+class RecoveryLaw:
+    """Reduced-attitude + position law for 4, or 3 (one at A, opposite held at A) rotors."""
+
+    def __init__(self, mass_kg: float, inertia_kgm2: Sequence[float], arm_m: float,
+                 drag_thrust_ratio_m: float, k_t: float, k_r: float, thrust_max_n: float,
+                 gravity_mps2: float, dt_s: float, path: Path | None,
+                 speed_mps: float, *, kernels: PathKernels | None = None,
+                 compiled_path: bool = True, design_gains: bool = True,
+                 motor_time_constant_s: float = 0.0) -> None:
+        self.mass_kg = mass_kg
+        self.inertia = tuple(inertia_kgm2)
+        self.arm_m = arm_m
+        self.d_m = drag_thrust_ratio_m
+        self.k_t = k_t
+        self.k_r = k_r
+        self.fmax = thrust_max_n
+        self.g = gravity_mps2
+        self.dt = dt_s
+        self.speed = speed_mps
+        # The path's compiled σ kernel (the TFL tracker's ``kernels`` when given: traced once).
+        self.projector = None
+        if path is not None:
+            sig, note = projector_sigma2(path, kernels, compiled_path)
+            source = kernels.sigma2.source if kernels is not None and note == "compiled" \
+                else None
+            self.projector = PathProjector(path, sig, note, source=source)
+        self.hold_m: list[float] | None = None    # held point (None: follow the path)
+        # The LQR gains: the whole schedule designed now (``design_gains``: a real-time
+        # flight never designs mid-air), or a block of GAIN_BLOCK steps when a spin rate of
+        # it is first met (offline: a flight meets a few blocks, ~3 ms each, not the 38 of
+        # the schedule); the same gains either way, shared by every law of this model.
+        ix, iy, iz = (float(x) for x in inertia_kgm2)
+        self._r_weights = lqr_r(motor_time_constant_s)
+        self._model_key = (ix, iy, iz, float(k_r), float(dt_s), *self._r_weights)
+        self._gains: dict[GainKey, Gains] = (
+            dict(gain_schedule(inertia_kgm2, k_r, dt_s, motor_time_constant_s)) if design_gains
+            else _PARTIAL.setdefault(self._model_key, {}))
+        self._frames: dict[int, RotorFrame] = {}
+        self._inverse_perm: dict[int, tuple[int, int, int, int]] = {}
+        self._rot6: dict[int, tuple[int, ...]] = {}       # the canonical rotation's rows 1-2
+        self._step_model = (mass_kg, k_t, gravity_mps2, arm_m, thrust_max_n)
+        # ∫ position error (m s, inertial): the integral action's state. It carries over
+        # between take-overs of one flight: the steady force it has learnt (the model's mass
+        # error) is the same force the next time.
+        self.integral_ms = [0.0, 0.0, 0.0]
+        self._pending_error_m: tuple[float, float, float] | None = None  # this tick's e
+        self._integral_top_ms = MAX_INTEGRAL_G * gravity_mps2 / _KI
+
+    # ------------------------------------------------------------------ targets
+    def hold(self, position_m: Sequence[float]) -> None:
+        """Hold this point (altitude hold, velocity zero) instead of the path."""
+        self.hold_m = [float(c) for c in position_m]
+
+    def follow_path(self) -> None:
+        self.hold_m = None
+
+    def _accel_demand(self, y: Sequence[float], v: Sequence[float]
+                      ) -> tuple[float, float, float, float]:
+        """(a_x, a_y, a_z, path distance): the outer loop's wanted acceleration (m/s²) —
+        PID towards the closest path point (or the held point) plus the path's centripetal
+        term, limited to MAX_TILT_RAD and ±MAX_VERTICAL_G — and the distance (NaN when
+        holding)."""
+        dist = math.nan
+        proj = None
+        hold = self.hold_m
+        if hold is None and self.projector is not None:
+            proj = self.projector.project(y)
+        if proj is not None:
+            (p0, p1, p2), (t0, t1, t2), (k0, k1, k2), dist = proj
+            sp = self.speed
+            sp2 = sp * sp
+            e = (p0 - y[0], p1 - y[1], p2 - y[2])
+            ff = (_KD * sp * t0 + sp2 * k0, _KD * sp * t1 + sp2 * k1, _KD * sp * t2 + sp2 * k2)
+        else:
+            if hold is None:
+                hold = self.hold_m = list(y)
+            e = (hold[0] - y[0], hold[1] - y[1], hold[2] - y[2])
+            ff = (0.0, 0.0, 0.0)
+        integ = self.integral_ms
+        a0 = _KP * e[0] - _KD * v[0] + ff[0] + _KI * integ[0]
+        a1 = _KP * e[1] - _KD * v[1] + ff[1] + _KI * integ[1]
+        a2 = _KP * e[2] - _KD * v[2] + ff[2] + _KI * integ[2]
+        lim = MAX_VERTICAL_G * self.g
+        az = lim if a2 > lim else (-lim if a2 < -lim else a2)
+        ah = math.hypot(a0, a1)
+        amax = (self.g + az) * _TAN_MAX_TILT
+        limited = az != a2
+        if ah > amax:
+            a0 *= amax / ah
+            a1 *= amax / ah
+            limited = True
+        self._pending_error_m = None if limited else e
+        return a0, a1, az, dist
+
+    def _integrate(self) -> None:
+        """Anti-windup: the position error enters the integral only on a tick whose demand
+        was flown as asked — neither limited by the tilt/vertical caps nor clipped by the
+        allocation (a rotor at a bound: the wanted thrust or τ_q was not made) — and never
+        past MAX_INTEGRAL_G, so a wrong integral costs at most that much acceleration. An
+        attack near m g/2 leaves the side rotors almost nothing (f₁ + f₃ = u_f − 2A): an
+        integral fed through that saturation winds up into a limit cycle metres wide."""
+        e = self._pending_error_m
+        self._pending_error_m = None
+        if e is None:
+            return
+        e0, e1, e2 = e
+        if not _isfinite(e0 + e1 + e2):      # a finite sum: all three finite
+            return
+        i0, i1, i2 = self.integral_ms
+        dt = self.dt
+        top = self._integral_top_ms
+        i0, i1, i2 = i0 + e0 * dt, i1 + e1 * dt, i2 + e2 * dt
+        self.integral_ms = [(top if i0 > top else (-top if i0 < -top else i0)),
+                            (top if i1 > top else (-top if i1 < -top else i1)),
+                            (top if i2 > top else (-top if i2 < -top else i2))]
+
+    # ------------------------------------------------------------------ gains
+    def _lqr(self, r: float, ix: float, iy: float) -> Gains:
+        # Gains are scheduled on the spin rate in 0.5 rad/s steps; beyond ±LQR_MAX_SPIN the
+        # airframe has long come apart (the simulator ends a run at 300 rad/s), so a measured
+        # rate out there (a glitch, a fuzzed message) uses the edge's gains: bounded cache,
+        # and no overflow in expm.
+        r = min(max(r, -LQR_MAX_SPIN_RADPS), LQR_MAX_SPIN_RADPS) if math.isfinite(r) else 0.0
+        key = (round(r * 2.0), ix > iy)
+        k = self._gains.get(key)
+        if k is not None:
+            return k
+        top = round(LQR_MAX_SPIN_RADPS * 2.0)
+        lo = key[0] // GAIN_BLOCK * GAIN_BLOCK
+        self._gains.update(_design_steps(ix, iy, self.inertia[2], self.k_r, self.dt,
+                                         max(lo, -top), min(lo + GAIN_BLOCK, top + 1),
+                                         self._r_weights))
+        k = self._gains.get(key)
+        if k is not None:
+            return k
+        a, b = _spin_model(key[0] / 2.0, ix, iy, self.inertia[2], self.k_r)
+        ad, bd = zoh(a, b, self.dt)
+        k = dlqr(ad, bd, np.diag(LQR_Q), np.diag(self._r_weights))
+        gains = self._gains[key] = (tuple(k[0].tolist()), tuple(k[1].tolist()))
+        return gains
+
+    # ------------------------------------------------------------------ the law
+    def update(self, s: State, attacked_rotor: int = 0,
+               attack_n: float = 0.0) -> RecoveryOutput:
+        """Rotor thrusts for this period; ``attacked_rotor`` 0 = four healthy rotors.
+
+        R(q) is written out as the nine entries :func:`~tfl_mav.model.geometry.rotation_rows`
+        computes."""
+        # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
+        qw, qx, qy, qz = _floats(s.quaternion_wxyz)
+        nq = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+        qw, qx, qy, qz = qw / nq, qx / nq, qy / nq, qz / nq
+        y, v = _floats(s.position_m), _floats(s.velocity_mps)
+        p, q, r = _floats(s.body_rates_radps)
+        a0, a1, a2, dist = self._accel_demand(y, v)
+        ix, iy, iz = self.inertia
+        ell, fmax = self.arm_m, self.fmax
+        if attacked_rotor:
+            return self._three_rotor(attacked_rotor, (a0, a1, a2), v, (qw, qx, qy, qz),
+                                     (p, q, r), attack_n, dist)
+        m, k_t = self.mass_kg, self.k_t
+        F0, F1, F2 = m * a0 + k_t * v[0], m * a1 + k_t * v[1], m * (a2 + self.g) + k_t * v[2]
+        fn = math.sqrt(F0 ** 2 + F1 ** 2 + F2 ** 2)
+        n0, n1, n2 = (F0 / fn, F1 / fn, F2 / fn) if fn > 1e-9 else (0.0, 0.0, 1.0)
+        # h = Rᵀ n, R's rows as rotation_rows builds them
+        h0 = ((1 - 2 * (qy * qy + qz * qz)) * n0 + (2 * (qx * qy + qw * qz)) * n1
+              + (2 * (qx * qz - qw * qy)) * n2)
+        h1 = ((2 * (qx * qy - qw * qz)) * n0 + (1 - 2 * (qx * qx + qz * qz)) * n1
+              + (2 * (qy * qz + qw * qx)) * n2)
+        h2 = ((2 * (qx * qz + qw * qy)) * n0 + (2 * (qy * qz - qw * qx)) * n1
+              + (1 - 2 * (qx * qx + qy * qy)) * n2)
+        c = h2 if h2 < 1.0 else 1.0
+        tilt_err = math.acos(c if c > -1.0 else -1.0)
+        # Thrust along b3: the component of F there; never negative (upside down: idle).
+        uf = fn * h2
+        uf = 0.0 if uf < 0.0 else uf
+        tau_p = ix * (ATT_KP * -h1 - ATT_KD * p) + (iz - iy) * q * r + self.k_r * p
+        tau_q = iy * (ATT_KP * h0 - ATT_KD * q) + (ix - iz) * p * r + self.k_r * q
+        tau_r = -iz * YAW_DAMP * r + self.k_r * r
+        req = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m)
+        f = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m, fmax)
+        clamped = tuple(not -1e-9 <= x <= fmax + 1e-9 for x in req)
+        if not any(clamped):
+            self._integrate()
+        return RecoveryOutput(f, f, tilt_err, dist, uf, clamped)  # type: ignore[arg-type]
+
+    def _three_rotor(self, attacked_rotor: int, acc: tuple[float, float, float],
+                     v: Sequence[float], quat: tuple[float, float, float, float],
+                     rates: tuple[float, float, float], attack_n: float,
+                     dist: float) -> RecoveryOutput:
+        """The three-rotor tick: the LQR gain for the canonical spin rate, then
+        :func:`~tfl_mav.control.safe.lost_rotor.lost_rotor_step` (compiled where it is built)."""
+        fr = self._frames.get(attacked_rotor)
+        if fr is None:
+            fr = self._frames[attacked_rotor] = canonical_frame(attacked_rotor)
+            # canonical rotor i is physical fr.perm[i]: physical j is canonical inv[j]
+            self._inverse_perm[attacked_rotor] = tuple(fr.perm.index(j) for j in range(4))
+            self._rot6[attacked_rotor] = (*fr.rot[0], *fr.rot[1])
+        r20, r21, r22 = fr.rot[2]
+        p, q, r = rates
+        ix, iy = self.inertia[0], self.inertia[1]
+        ixc, iyc = (iy, ix) if fr.swap_xy else (ix, iy)
+        (k00, k01, k02, k03), (k10, k11, k12, k13) = self._lqr(0 + r20 * p + r21 * q + r22 * r,
+                                                               ixc, iyc)
+        args = (acc, (v[0], v[1], v[2]), quat, rates, self._rot6[attacked_rotor],
+                (k00, k01, k02, k03, k10, k11, k12, k13), self._step_model, attack_n)
+        out = lost_rotor.step_function()(*args)
+        if out is None:                   # the C bails where Python raises: raise here
+            out = lost_rotor.lost_rotor_step(*args)
+        tilt_err, uf, c0, c1, c2, c3, made, d0, d2, d3 = out
+        if made:
+            self._integrate()
+        canon = (c0, c1, c2, c3)
+        hi = self.fmax + 1e-9
+        j0, j1, j2, j3 = self._inverse_perm[attacked_rotor]
+        f = [canon[j0], canon[j1], canon[j2], canon[j3]]
+        req = (d0, c1, d2, d3)
+        r0, r1, r2, r3 = req[j0], req[j1], req[j2], req[j3]
+        clamped = (not -1e-9 <= r0 <= hi, not -1e-9 <= r1 <= hi, not -1e-9 <= r2 <= hi,
+                   not -1e-9 <= r3 <= hi)
+        return _new_output(RecoveryOutput, (f, list(f), tilt_err, dist, uf, clamped))

@@ -1,0 +1,172 @@
+"""The TFL law's arithmetic (paper §V) as plain functions of their arguments.
+
+Written as arithmetic on whatever it is given, so that the same code runs on floats in the
+law's step-by-step tick (:mod:`law`) and on traced symbols when :mod:`fused` generates the
+one-call tick of a flight: both perform the same floating-point operations in the same
+order. Branches (a singular matrix, u_f ≤ 0) stay with the callers.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import Any
+
+__all__ = ["attacked_tau_r", "b0_inverse", "cofactors", "cramer", "linear_rhs", "output_rows",
+           "rate_prediction", "rotation", "saturate", "solve3", "torques", "yaw_tau_r"]
+
+V3 = Sequence[Any]
+
+
+def rotation(q: V3, sqrt: Callable[[Any], Any]) -> tuple[Any, ...]:
+    """R(q) row by row (9 values) of the quaternion (w, x, y, z), normalised first: the same
+    operations as :func:`tfl_mav.model.geometry.rotation_rows` (the step-by-step law's), to
+    trace."""
+    w, x, y, z = q
+    n = sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
+            2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
+            2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y))
+
+
+def output_rows(y: V3, v: V3, b1: V3, b2: V3, b3: V3, pc: Any, qc: Any, rc: Any, uf: Any,
+                duf: Any, mass: Any, k_t: Any, gravity: Any) -> tuple[tuple[Any, ...], ...]:
+    """Taylor rows (y, ẏ, ÿ/2, y⃛/6, a₀/24) of the output y = x_q (eq. (5)) from the
+    model (eq. (3)) with the extension x13 = u_f, x14 = u̇_f (eq. (9)): ÿ = (u_f/m) b3
+    − g e3 − (k_t/m) ẏ, and a₀ = y⁽⁴⁾ at ü_f = ṗ = q̇ = 0 (the drift L_f⁴ of eq. (10))."""
+    kt = k_t / mass
+    ufm = uf / mass
+    dufm = duf / mass
+    dufm2 = 2.0 * duf / mass
+    pr, qr = pc * rc, qc * rc
+    pq2 = pc * pc + qc * qc
+    b1x, b1y, b1z = b1
+    b2x, b2y, b2z = b2
+    b3x, b3y, b3z = b3
+    vx, vy, vz = v
+    # x, y, z written out (this runs every tick); the same operations as one loop.
+    yddx = ufm * b3x - kt * vx
+    yddy = ufm * b3y - kt * vy
+    yddz = ufm * b3z - kt * vz - gravity
+    db3x = qc * b1x - pc * b2x
+    db3y = qc * b1y - pc * b2y
+    db3z = qc * b1z - pc * b2z
+    ydddx = dufm * b3x + ufm * db3x - kt * yddx
+    ydddy = dufm * b3y + ufm * db3y - kt * yddy
+    ydddz = dufm * b3z + ufm * db3z - kt * yddz
+    a0x = dufm2 * db3x + ufm * (pr * b1x + qr * b2x - pq2 * b3x) - kt * ydddx
+    a0y = dufm2 * db3y + ufm * (pr * b1y + qr * b2y - pq2 * b3y) - kt * ydddy
+    a0z = dufm2 * db3z + ufm * (pr * b1z + qr * b2z - pq2 * b3z) - kt * ydddz
+    return ((y[0], vx, yddx / 2.0, ydddx / 6.0, a0x / 24.0),
+            (y[1], vy, yddy / 2.0, ydddy / 6.0, a0y / 24.0),
+            (y[2], vz, yddz / 2.0, ydddz / 6.0, a0z / 24.0))
+
+
+def linear_rhs(xi1: V3, xi2: V3, eta: V3, kx: V3, ke: V3, speed: Any
+               ) -> tuple[Any, Any, Any]:
+    """v − L_f⁴φ: the linear ξ, η controllers (eqs. (23), (24), the η chain about the
+    path speed) less the drift of (α1, α2, π)."""
+    v_xi1 = -(kx[0] * xi1[0] + kx[1] * xi1[1] + kx[2] * xi1[2] + kx[3] * xi1[3])
+    v_xi2 = -(kx[0] * xi2[0] + kx[1] * xi2[1] + kx[2] * xi2[2] + kx[3] * xi2[3])
+    v_eta = -(ke[0] * (eta[1] - speed) + ke[1] * eta[2] + ke[2] * eta[3])
+    return v_xi1 - xi1[4], v_xi2 - xi2[4], v_eta - eta[4]
+
+
+def cofactors(A: Sequence[V3], sqrt: Callable[[Any], Any]) -> tuple[Any, ...]:
+    """(co0, co1, co2, det, row-norm product) of a 3×3 matrix, for Cramer's rule."""
+    (a, b_, c), (d, e, f), (g, h, i) = A
+    co0 = e * i - f * h
+    co1 = f * g - d * i
+    co2 = d * h - e * g
+    det = a * co0 + b_ * co1 + c * co2
+    norms = (sqrt(a * a + b_ * b_ + c * c) * sqrt(d * d + e * e + f * f)
+             * sqrt(g * g + h * h + i * i))
+    return co0, co1, co2, det, norms
+
+
+def cramer(A: Sequence[V3], b: V3, co0: Any, co1: Any, co2: Any, inv: Any
+           ) -> tuple[Any, Any, Any]:
+    """x with A x = b, given the first-row cofactors and ``inv`` = 1/det."""
+    (a, b_, c), (d, e, f), (g, h, i) = A
+    x0 = (b[0] * co0 + b[1] * (c * h - b_ * i) + b[2] * (b_ * f - c * e)) * inv
+    x1 = (b[0] * co1 + b[1] * (a * i - c * g) + b[2] * (c * d - a * f)) * inv
+    x2 = (b[0] * co2 + b[1] * (b_ * g - a * h) + b[2] * (a * e - b_ * d)) * inv
+    return x0, x1, x2
+
+
+def solve3(A: Sequence[Sequence[float]], b: Sequence[float]) -> tuple[list[float], float]:
+    """Solve a 3×3 system by Cramer's rule; returns (x, |det| relative to the row norms),
+    x = 0 when that is below 1e-12 (floats only: the fused tick branches itself)."""
+    co0, co1, co2, det, norms = cofactors(A, math.sqrt)
+    rel = abs(det) / norms if norms > 0 else 0.0
+    if rel < 1e-12:
+        return [0.0, 0.0, 0.0], rel
+    return list(cramer(A, b, co0, co1, co2, 1.0 / det)), rel
+
+
+def b0_inverse(z: V3, b1: V3, b2: V3, b3: V3, mass: Any, uf: Any) -> tuple[Any, Any, Any]:
+    """w = (ü_f, ṗ, q̇) with B₀ w = z, B₀ = [b3/m, −(u_f/m) b2, (u_f/m) b1] (orthogonal
+    columns; u_f > 0)."""
+    z0, z1, z2 = z
+    udd = mass * (z0 * b3[0] + z1 * b3[1] + z2 * b3[2])
+    pdot = -mass / uf * (z0 * b2[0] + z1 * b2[1] + z2 * b2[2])
+    qdot = mass / uf * (z0 * b1[0] + z1 * b1[1] + z2 * b1[2])
+    return udd, pdot, qdot
+
+
+def torques(pdot: Any, qdot: Any, pc: Any, qc: Any, rc: Any, ix: Any, iy: Any, iz: Any,
+            kr: Any) -> tuple[Any, Any]:
+    """τ_p, τ_q for the demanded ṗ, q̇ by Euler's equation with rate damping (eq. (3))."""
+    return (ix * pdot + kr * pc + (iz - iy) * qc * rc,
+            iy * qdot + kr * qc + (ix - iz) * pc * rc)
+
+
+def attacked_tau_r(uf: Any, tau_p: Any, attack_n: Any, arm: Any, d: Any) -> Any:
+    """τ_r from τ_p with f₂ = A (eq. (6))."""
+    return d * (uf - 2.0 * (tau_p + 2.0 * arm * attack_n) / arm)
+
+
+def yaw_tau_r(r2: V3, psi_e: float, psi_ref: float, pc: float, qc: float, rc: float,
+              qdot: float, k_yaw: V3, ixyz: V3, kr: float) -> float:
+    """τ_r of the nominal law's yaw loop ψ̈ = −k₁ψ̇ − k₀(ψ − ψ_ref), exact through the
+    Euler chart (eq. (2)); ``r2`` is R's last row, ψ_e = atan2(R₁₀, R₀₀) (floats only)."""
+    ix, iy, iz = ixyz
+    phi_e = math.atan2(r2[1], r2[2])
+    th_e = -math.asin(max(-1.0, min(1.0, r2[0])))
+    sph, cph = math.sin(phi_e), math.cos(phi_e)
+    cth, sth = math.cos(th_e), math.sin(th_e)
+    dphi = pc + (qc * sph + rc * cph) * sth / cth
+    dth = qc * cph - rc * sph
+    dpsi = (qc * sph + rc * cph) / cth
+    err = math.remainder(psi_e - psi_ref, math.tau)
+    psi_dd = -k_yaw[1] * dpsi - k_yaw[0] * err
+    drift = (qc * cph * dphi - rc * sph * dphi) / cth + (qc * sph + rc * cph) * sth \
+        * dth / (cth * cth)
+    rdot = ((psi_dd - drift) * cth - qdot * sph) / cph
+    return iz * rdot + kr * rc + (iy - ix) * pc * qc
+
+
+def saturate(f: Sequence[float], raw: Sequence[float], last: Sequence[float], fmax: float
+             ) -> tuple[list[float], list[bool]]:
+    """(f clipped to [0, f_max], saturated flags of the unbounded thrusts ``raw``); a
+    non-finite thrust (f − f is NaN) keeps the ``last`` command (floats only)."""
+    hi = fmax + 1e-9
+    r0, r1, r2, r3 = raw
+    sat = [not -1e-9 <= r0 <= hi, not -1e-9 <= r1 <= hi, not -1e-9 <= r2 <= hi,
+           not -1e-9 <= r3 <= hi]
+    # max(f, 0), min(·, f_max) written out, rotor by rotor (this runs every tick).
+    f0, f1, f2, f3 = f
+    l0, l1, l2, l3 = last
+    return [(0.0 if f0 < 0.0 else (fmax if fmax < f0 else f0)) if f0 - f0 == 0.0 else l0,
+            (0.0 if f1 < 0.0 else (fmax if fmax < f1 else f1)) if f1 - f1 == 0.0 else l1,
+            (0.0 if f2 < 0.0 else (fmax if fmax < f2 else f2)) if f2 - f2 == 0.0 else l2,
+            (0.0 if f3 < 0.0 else (fmax if fmax < f3 else f3)) if f3 - f3 == 0.0 else l3], sat
+
+
+def rate_prediction(d0: Any, d1: Any, d2: Any, d3: Any, pc: Any, qc: Any, rc: Any, ix: Any,
+                    iy: Any, iz: Any, kr: Any, arm: Any) -> tuple[Any, Any]:
+    """ṗ, q̇ the model predicts (eq. (3)) for the thrusts d0…d3 canonical rotors 1-4
+    deliver: τ_p' = l (f₄' − f₂'), τ_q' = l (f₃' − f₁')."""
+    return ((arm * (d3 - d1) - kr * pc - (iz - iy) * qc * rc) / ix,
+            (arm * (d2 - d0) - kr * qc - (ix - iz) * pc * rc) / iy)

@@ -1,0 +1,504 @@
+"""The flight computer: one control tick, written once, for every way tfl-mav flies.
+
+``step(t, state, rpm, applied)`` runs the attack detector on the ESC rpm against the command
+the vehicle *applied*, switches the TFL law to the attacked rotor when the detector (or an
+oracle) says so, evaluates the law and returns the rotor thrusts to send, with the internals
+worth logging. The daemon (:mod:`tfl_mav.controller.daemon`) is link ↔ flight computer ↔ recorder;
+the offline runner (:mod:`tfl_mav.harness.offline`) is simulator ↔ the same flight computer; so a
+fix to
+the tick is a fix everywhere.
+
+How the computer learns of the attack (``attack_info``):
+
+* ``"detector"`` — from ESC rpm alone (:mod:`tfl_mav.control.detect.detector`), as in flight;
+* ``"oracle"`` — the paper's assumption (§III): the caller says which rotor is attacked
+  (:meth:`FlightComputer.tell_attack`), and its thrust is read from its measured speed,
+  f = k_f ω² (§VI).
+
+Which law flies (:mod:`tfl_mav.control.safe.recovery` says why a second law exists):
+
+* **TFL** (``nominal``/``attacked``) wherever it has the authority it asks for. With an
+  attacked rotor that is decided in the moment, from the law's own command
+  (:mod:`tfl_mav.control.safe.authority`): while the rotor opposite the attacked one is pinned at
+  0 or f_max on more than half of the last 0.2 s, the τ_p the law counts on is not made,
+  and the vehicle goes to
+* **lost_rotor** (reduced attitude on three rotors, spinning), which never asks for τ_p. It
+  hands back once the attacked rotor's thrust leaves TFL a two-sided τ_p again
+  (``A_HANDBACK_N`` < A < m g/2 − ``A_HANDBACK_N``) for ``HANDBACK_S``, the attitude is calm
+  and the vehicle is within TFL's region of attraction (``ROA_DIST_M`` of the path: in the
+  paper scenario TFL converges from 3.85 m at t = 0). The TFL law then takes over bumpless
+  (its dynamic extension starts at the thrust applied).
+* **recovery** (reduced attitude on four rotors) on the first tick when the state is not
+  benign (:mod:`~tfl_mav.control.safe.takeover`; a controller restarted mid-flight: tilt > 30°,
+  |v| > max(0.5, 2 × speed) m/s or |(p, q)| > 2 rad/s; a yaw spin alone is TFL's internal
+  dynamics and is flown), and whenever the TFL law has no valid answer (left the projection
+  tube, D(x) singular). It levels the vehicle and holds the altitude where it took over,
+  then flies back to the path and hands back under the same conditions. The limits are
+  those the TFL law is started from in every scenario (hover, still) with a margin. Speed
+  especially: a vehicle whose motors were cut for 0.18 s (a restarted daemon) falls level
+  at 1.65 m/s; taken over by TFL at the paper path's lowest bend it flips 0.8 s later — the
+  same state flown from t = 0 by a fresh flight computer flips identically, so it is the
+  law's region of attraction, not a leftover of the old flight.
+
+Before the law: with sensor noise in the scenario the state is filtered with the
+model (:mod:`tfl_mav.control.state_filter`; noise-free flights skip it); a yaw rate at the
+gyro's range (``sensors.gyro_range_radps``) is replaced by the model's; a path speed the
+vehicle cannot fly is lowered once to the highest feasible one
+(:func:`~tfl_mav.controller.feasibility.feasible_speed_mps`), said on the first tick.
+
+Every switch produces an event in words (:attr:`TickResult.events`, the daemon sends them as
+STATUSTEXT). Nothing non-finite ever leaves :meth:`FlightComputer.step`: thrusts are clamped
+to [0, f_max] and a NaN becomes 0 N.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Sequence
+from typing import NamedTuple
+
+import numpy as np
+
+from tfl_mav.build import (
+    build_controller,
+    build_detector,
+    detector_config,
+    model_params,
+    scenario_path,
+)
+from tfl_mav.control.detect.detector import AttackDetector, DetectorOutput
+from tfl_mav.control.safe.authority import AuthorityMonitor
+from tfl_mav.control.safe.recovery import RecoveryLaw, RecoveryOutput
+from tfl_mav.control.safe.takeover import A_HANDBACK_N, TAKEOVER_TILT_RAD, calm_fail, not_benign
+from tfl_mav.control.safe.takeover import floats as _floats
+from tfl_mav.control.state_filter import StateFilter, YawRateModel
+from tfl_mav.control.tfl.law import ControlOutput, TFLController
+from tfl_mav.controller.feasibility import feasible_speed_mps, path_demand
+from tfl_mav.model.modes import Mode
+from tfl_mav.model.state import State
+from tfl_mav.scenario import Scenario
+
+__all__ = ["ATTACK_INFO", "TAKEOVER_TILT_RAD", "FlightComputer", "TickResult"]
+
+ATTACK_INFO = ("detector", "oracle")
+RPM_TO_RADPS = 2.0 * math.pi / 60.0   # ESC rpm → rotor speed ω (rad/s)
+
+HANDBACK_S = 0.5       # conditions for handing back must hold this long
+ROA_DIST_M = 4.0       # TFL's region of attraction: it converges from this far off the path
+HOLD_BEFORE_PATH_S = 1.0  # take-over / lost path: level and hold this long, then fly back
+
+
+class TickResult(NamedTuple):
+    """One control decision (a named tuple: one is made every tick).
+
+    ``thrust_n``: the rotor thrusts to command (N, physical rotor order 1-4, each in
+    [0, f_max]); ``law``: the law's internals; ``detection``: the detector's view this tick
+    (None with an oracle); ``attack_estimate_n``: the attacked rotor's thrust the law used
+    (NaN when no attack is known); ``new_detection``: the detector alarmed on this tick.
+    """
+
+    thrust_n: list[float]
+    law: ControlOutput
+    detection: DetectorOutput | None
+    attack_rotor: int
+    attack_estimate_n: float
+    new_detection: bool
+    thrust_requested_n: list[float] | None = None   # what the law asked (may leave [0, f_max])
+    events: tuple[str, ...] = ()                    # law switches etc., in words
+
+    @property
+    def mode(self) -> Mode:
+        return self.law.mode
+
+
+_new = tuple.__new__
+_MODE_TEXT = {m: str(m) for m in Mode}    # formatting an enum costs µs: once, here
+_FALLBACK, _LOST_ROTOR, _RECOVERY = Mode.FALLBACK, Mode.LOST_ROTOR, Mode.RECOVERY
+# The safe law's reason, by mode and whole degrees of tilt error (acos: 0-180°): a float
+# formatted every tick costs more than the rest of the output.
+_TILT_TEXT = {m: tuple(f"{_MODE_TEXT[m]}: tilt error {d} deg" for d in range(181))
+              for m in (_LOST_ROTOR, _RECOVERY)}
+_RAD_TO_DEG = 180.0 / math.pi     # math.degrees multiplies by this very constant
+_NAN = math.nan
+_ZERO2, _ZERO4 = (0.0, 0.0), (0.0, 0.0, 0.0, 0.0)
+_ZERO_XI = (_ZERO4, _ZERO4)
+_sqrt, _acos, _hypot, _isfinite = math.sqrt, math.acos, math.hypot, math.isfinite
+_ndarray = np.ndarray
+
+
+class FlightComputer:
+    """Detector + TFL law for one flight of one scenario. See the module docstring."""
+
+    def __init__(self, scenario: Scenario, *, attack_info: str = "detector",
+                 design_gains: bool = True) -> None:
+        """``design_gains``: design the safe law's whole LQR gain schedule now (a real-time
+        flight never designs one mid-air), or False: a block at a time when first met
+        (offline: no deadline; the same gains, a fraction of the start-up)."""
+        if attack_info not in ATTACK_INFO:
+            raise ValueError(f"attack_info: must be one of {', '.join(ATTACK_INFO)}, "
+                             f"got {attack_info!r}")
+        self.scenario = scenario
+        self.attack_info = attack_info
+        self.controller: TFLController = build_controller(scenario)
+        self.detector: AttackDetector | None = (build_detector(scenario)
+                                                if attack_info == "detector" else None)
+        self.thrust_max_n = scenario.vehicle.thrust_max_n
+        self.k_f = self.controller.model.k_f
+        self._told_rotor = 0
+        self.detected_rotor = 0
+        self.detection_time_s = math.nan
+        mp = model_params(scenario)
+        self._pending_events: list[str] = []
+        self.speed_mps = self._flyable_speed(scenario)
+        if self.speed_mps != scenario.path.speed_mps:
+            self.controller.cfg = dataclasses.replace(self.controller.cfg,
+                                                      speed_mps=self.speed_mps)
+        self.recovery = RecoveryLaw(mp.mass_kg, mp.inertia_kgm2, mp.arm_m,
+                                    mp.drag_thrust_ratio_m, mp.k_t, mp.k_r, mp.thrust_max_n,
+                                    mp.gravity_mps2, scenario.run.control_dt_s,
+                                    scenario_path(scenario), self.speed_mps,
+                                    kernels=getattr(self.controller.tracker, "kernels", None),
+                                    compiled_path=self.controller.path_eval == "compiled",
+                                    design_gains=design_gains,
+                                    motor_time_constant_s=mp.motor_time_constant_s)
+        self.authority = AuthorityMonitor(mp.thrust_max_n)
+        # Above this attack the three others cannot balance it at hover (f₄ = A, f₁ + f₃ ≥ 0).
+        self._weight_n = mp.mass_kg * mp.gravity_mps2
+        self._a_high_n = self._weight_n / 2.0 - A_HANDBACK_N
+        self._climbing = False         # said: the attack is more than the weight allows
+        self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
+        self._probe_high_n = min(self._hover_share_n + 1.5, self.thrust_max_n)
+        if self.controller.lag_inverter is not None:   # ESC noise: filter ω (actuators)
+            self.controller.lag_inverter.set_rpm_noise(detector_config(scenario).rpm_noise_std)
+        sens = scenario.sensors
+        trans = sens.position_noise_std_m > 0.0 or sens.velocity_noise_std_mps > 0.0
+        rot = sens.rate_noise_std_radps > 0.0
+        # Noisy sensors: fuse with the model (state_filter). Gated on the scenario's noise so
+        # a noise-free flight is untouched (bit-identical), not merely close.
+        self.state_filter: StateFilter | None = (
+            StateFilter(mp, scenario.run.control_dt_s,
+                        position_std_m=sens.position_noise_std_m,
+                        velocity_std_mps=sens.velocity_noise_std_mps,
+                        rate_std_radps=sens.rate_noise_std_radps,
+                        translation=trans, rotation=rot) if trans or rot else None)
+        # A gyro saturates at its range (the attacked vehicle spins near 60 rad/s, beyond
+        # 2000 deg/s): past it the yaw rate comes from the model (state_filter).
+        self.gyro_range_radps = sens.gyro_range_radps
+        self.yaw_model = (YawRateModel(mp, self.k_f, sens.gyro_range_radps)
+                          if sens.gyro_range_radps > 0.0 else None)
+        self._needs_omega = (self.state_filter is not None or self.yaw_model is not None
+                             or self.controller.lag_inverter is not None)
+        self.law_name = "tfl"          # "tfl" | "recovery" | "lost_rotor"
+        self.switches = 0
+        self._ticks = 0
+        self.internal_errors = 0   # ticks a law raised (held the last command)
+        self._since_s = 0.0            # time in the current safe law
+        self._good_s = 0.0             # time the hand-back conditions have held
+        self._last_t: float | None = None
+        self._last_tfl: ControlOutput | None = None
+
+    @property
+    def yaw_rate_substituted_ticks(self) -> int:
+        """Ticks whose yaw rate came from the model (the gyro at its range)."""
+        return self.yaw_model.substituted_ticks if self.yaw_model is not None else 0
+
+    def _flyable_speed(self, sc: Scenario) -> float:
+        """The path speed to fly: the scenario's, or the highest the vehicle can fly when the
+        path's bends ask for more than the rotors can give (feasibility); said in words."""
+        try:
+            s_ok = feasible_speed_mps(sc)
+        except Exception:  # an unusable path is reported by the law's own checks
+            return sc.path.speed_mps
+        if s_ok < sc.path.speed_mps:
+            d = path_demand(sc)
+            self._pending_events.append(
+                f"path at {sc.path.speed_mps:g} m/s needs {-d.min_vertical_mps2:.1f} m/s^2 "
+                f"downward at its tightest bend (more than the rotors can give): "
+                f"flying it at {s_ok:.2f} m/s, the highest speed the vehicle can")
+        return s_ok
+
+    def tell_attack(self, rotor: int) -> None:
+        """Oracle only: rotor 1-4 is attacked from now on (0: none)."""
+        if self.attack_info != "oracle":
+            raise RuntimeError("tell_attack: this flight computer detects attacks itself")
+        self._told_rotor = rotor
+
+    def step(self, t_s: float, state: State, rpm: Sequence[float],
+             applied_n: Sequence[float], *, dt_s: float | None = None) -> TickResult:
+        """One control tick.
+
+        ``t_s``: sim time of ``state`` (s); ``rpm``: measured ESC rpm of rotors 1-4 at that
+        time; ``applied_n``: the rotor thrust commands (N) the vehicle held over the period
+        that ended at ``t_s`` — what the rpm answers to, not what was last sent. ``dt_s``:
+        the time since the last tick when it is not one control period (a real-time daemon
+        that skipped states): the law's internal states integrate over it.
+
+        A numerical failure inside a law (an input no flight produces: the fuzzer finds
+        them) never escapes: the tick holds the applied command, in mode FALLBACK, and says
+        why — the daemon's loop must not die.
+        """
+        try:
+            # Runs every tick: attribute look-ups hoisted, the NaN/range tests written as
+            # comparisons (False for NaN), the decisions and their order exactly as in words.
+            ctrl = self.controller
+            if type(rpm) is np.ndarray:          # the simulator's: floats are 3-5× cheaper
+                rpm = rpm.tolist()
+            events: list[str] = []
+            detection = None
+            new = False
+            estimate = math.nan
+            rotor = 0
+            detector = self.detector
+            if detector is not None:
+                detection = detector.update(t_s, rpm, applied_n)
+                if detection.released:
+                    ctrl.set_attack(0, 0.0)
+                    self.detected_rotor = 0
+                    events.append("rotor obeys its commands again: attack over, four-rotor law")
+                rotor = detection.detected_rotor
+                if rotor:
+                    estimate = detection.estimate_n
+                    if detection.alarm:
+                        new = True
+                        self.detected_rotor = rotor
+                        self.detection_time_s = detection.detection_time_s
+                    if rotor == ctrl.attacked_rotor and 0.0 <= estimate <= ctrl.model.thrust_max_n \
+                            and ctrl.cfg.aware_of_attack:
+                        ctrl.attack_estimate_n = estimate   # set_attack's every-tick case
+                    else:
+                        ctrl.set_attack(rotor, estimate)
+            elif self._told_rotor:
+                rotor = self._told_rotor
+                w = rpm[rotor - 1] * RPM_TO_RADPS
+                estimate = self.k_f * w * w
+                ctrl.set_attack(rotor, estimate)
+            # ω (rad/s) for the state filter, the yaw-rate model and the law's lag inverse; the
+            # law reads it only with motor lag (TFLController.update), so nothing else needs it.
+            omega = [r * RPM_TO_RADPS for r in rpm] if self._needs_omega else None
+            last = self._last_t
+            if last is None:
+                dt = ctrl.dt
+            else:                      # max(t − last, 0) or the period (a NaN stays NaN)
+                dt = t_s - last
+                if not (dt > 0.0 or dt != dt):
+                    dt = ctrl.dt
+            self._last_t = t_s
+            if self.state_filter is not None:
+                # The thrusts that acted over the last period: what the ESCs report (f = k_f ω²),
+                # the attacked rotor's included.
+                k_f = self.k_f
+                state = self.state_filter.update(state, [k_f * w * w for w in omega], dt)
+            if self.yaw_model is not None:
+                state = self.yaw_model.update(state, omega, dt, events)
+            if self._ticks == 0:
+                events[:0] = self._pending_events
+                why = not_benign(state, rotor, self.speed_mps) or self._beyond_roa(state)
+                if why:
+                    self._enter("recovery", state, f"take-over: {why}", events, hold=True)
+            self._ticks += 1
+            if self.law_name == "tfl":
+                if dt_s is None:
+                    out = ctrl.update(state, omega)
+                else:   # states were skipped: integrate the law's states over the real gap
+                    period = ctrl.dt
+                    ctrl.dt = dt_s
+                    try:
+                        out = ctrl.update(state, omega)
+                    finally:
+                        ctrl.dt = period
+                self._last_tfl = out
+                if out.mode is _FALLBACK:
+                    self._enter("recovery", state, f"TFL: {out.reason}; level, hold altitude",
+                                events, hold=True)
+                elif not ctrl.attacked_rotor or not self._authority_lost(out, dt, estimate,
+                                                                         state, events):
+                    return self._result(out.rotor_thrust_n, None, out, detection, rotor,
+                                        estimate, new, events)
+            return self._fly_safe(dt, state, rotor, estimate, omega, events, detection, new)
+        except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
+            return self._failed(exc, applied_n)
+
+    def _failed(self, exc: BaseException, applied_n: Sequence[float]) -> TickResult:
+        """A law raised: hold the applied command, in mode FALLBACK, and say why."""
+        self.internal_errors += 1
+        fmax = self.thrust_max_n
+        hold = [min(max(f, 0.0), fmax) if math.isfinite(f) else 0.0 for f in applied_n]
+        zero4 = (0.0, 0.0, 0.0, 0.0)
+        why = f"internal error ({type(exc).__name__}: {exc}); last command held"
+        out = ControlOutput(
+            rotor_thrust_n=hold, mode=Mode.FALLBACK, saturated=[False] * 4,
+            xi=(zero4, zero4), eta=zero4, mu=(0.0, 0.0), path_distance_m=math.nan,
+            lam=math.nan, cond_d=math.nan, thrust_n=sum(hold),
+            mass_estimate_kg=self.controller.mass_kg, disturbance_radps2=(0.0, 0.0),
+            fine_gains=False, reason=why)
+        return TickResult(hold, out, None, 0, math.nan, False, list(hold), (why,))
+
+    # ------------------------------------------------------------------ switching
+    def _authority_lost(self, out: ControlOutput, dt: float, estimate: float, state: State,
+                        events: list[str]) -> bool:
+        """Feed the attacked law's command to the authority monitor; on a loss, switch to
+        the lost-rotor law (this tick is already its) and say why. True when switched."""
+        rotor = self.controller.attacked_rotor
+        opposite = (rotor + 1) % 4         # physical index of the rotor opposite ``rotor``
+        f = out.rotor_thrust_n
+        mon = self.authority
+        # Over any horizon: f₄ = A and f₁ + f₃ ≥ 0 make u_f ≥ 2A, more than the weight once
+        # A > m g/2, and the vehicle flips within 0.1 s at A = f_max. Lost now, not on average.
+        hopeless = 2.0 * estimate > self._weight_n
+        if not mon.update(f[opposite], f[rotor % 4], f[(rotor + 2) % 4], dt) \
+                and not hopeless:
+            return False
+        a_text = f"{estimate:.2f} N" if math.isfinite(estimate) else "unknown thrust"
+        if hopeless or mon.bound == "ceiling":
+            why = (f"rotor {rotor} at {a_text}: more than the three others can balance "
+                   "(pinned at their limits); keeping attitude, cannot hold the path")
+        else:
+            why = (f"rotor {rotor} at {a_text}: rotor {opposite + 1} pinned at 0 N, no roll "
+                   "authority; reduced-attitude law")
+        self._enter("lost_rotor", state, why, events, hold=False)
+        return True
+
+    def _enter(self, law: str, state: State, why: str, events: list[str], *,
+               hold: bool) -> None:
+        if self.law_name != law:
+            self.switches += 1
+            events.append(f"{law}: {why}")
+        self.law_name = law
+        self._since_s = 0.0
+        self._good_s = 0.0
+        rec = self.recovery
+        if hold:
+            rec.hold(state.position_m)
+        else:
+            rec.follow_path()
+        lag = self.controller.lag_inverter
+        if lag is not None:
+            lag.reset()            # the old law's demand is not a trend of this one's
+
+    def _fly_safe(self, dt: float, state: State, rotor: int, estimate: float,
+                  omega: list[float] | None, events: list[str],
+                  detection: DetectorOutput | None, new: bool) -> TickResult:
+        """A tick of the safe law (recovery or lost_rotor), its hand-back test and its
+        output."""
+        rec = self.recovery
+        self._since_s += dt
+        if rec.hold_m is not None and self._since_s >= HOLD_BEFORE_PATH_S \
+                and not not_benign(state, rotor, self.speed_mps) and rec.projector is not None:
+            rec.projector.lam = None          # a fresh global search: we may be far away
+            rec.follow_path()
+        finite = _isfinite(estimate)
+        a_n = estimate if rotor and finite else 0.0
+        lost = self.law_name == "lost_rotor"
+        if rotor and finite and (2.0 * estimate > self._weight_n) is not self._climbing:
+            self._say_if_climbing(rotor, estimate, events)
+        # An attacked rotor is never ours to command: with one known, the safe law flies the
+        # other three whichever way it was entered (a take-over of an attacked vehicle too).
+        out = rec.update(state, rotor, a_n)
+        dist = out.path_distance_m
+        # Cheapest tests first: with a dead rotor the attack test fails every tick.
+        ok = ((not rotor or (finite and A_HANDBACK_N < estimate < self._a_high_n))
+              and rec.hold_m is None and dist < ROA_DIST_M
+              and not calm_fail(state) and not not_benign(state, rotor, self.speed_mps))
+        self._good_s = self._good_s + dt if ok else 0.0
+        if self._good_s >= HANDBACK_S:
+            self._hand_back(state, out, events)
+        thrust = out.thrust_n
+        lag = self.controller.lag_inverter
+        if lag is not None:     # the motor-lag inverse, as the TFL law flies it
+            lag.reachable(omega)
+            command = lag.invert(thrust).command_n
+            if rotor:
+                command[rotor - 1] = thrust[rotor - 1]   # not ours to command
+            thrust = command
+        # the output; after a hand-back this tick is still the safe law's, in mode recovery
+        mode = _LOST_ROTOR if lost else _RECOVERY
+        deg = out.tilt_error_rad * _RAD_TO_DEG
+        reason = (_TILT_TEXT[mode][round(deg)] if 0.0 <= deg <= 180.0
+                  else f"{_MODE_TEXT[mode]}: tilt error {deg:.0f} deg")
+        law = ControlOutput(   # positional: the fields in order (rotor_thrust_n … reason)
+            list(thrust), mode, list(out.clamped), _ZERO_XI, _ZERO4, _ZERO2, dist, _NAN, _NAN,
+            out.uf_n, self.controller.mass_kg, _ZERO2, False, reason)
+        return self._result(thrust, out.requested_n, law, detection, rotor, estimate, new,
+                            events)
+
+    def _beyond_roa(self, state: State) -> str:
+        """Why ``state`` is too far from the path for the TFL law ('' if it is not): farther
+        than ``ROA_DIST_M``, where it is not known to converge (from 4.6 m off the paper
+        path at hover it flips within 1.2 s, attack or none)."""
+        proj = self.recovery.projector
+        if proj is None:
+            return ""
+        found = proj.project(_floats(state.position_m))
+        proj.lam = None          # the safe law, if it flies, searches afresh
+        if found is None or not found[3] > ROA_DIST_M:
+            return ""
+        return f"{found[3]:.1f} m from the path (TFL converges from {ROA_DIST_M:g} m)"
+
+    def _say_if_climbing(self, rotor: int, estimate: float, events: list[str]) -> None:
+        """Say it when the attack makes the vehicle climb whatever the others do (and when
+        that ends): keeping the attitude needs the opposite rotor at A, so u_f ≥ 2A, more
+        than the weight once A > m g/2. No law can hold the path or the altitude there."""
+        w = self._weight_n
+        if not self._climbing and 2.0 * estimate > w:
+            self._climbing = True
+            events.append(f"lost_rotor: rotor {rotor} at {estimate:.2f} N: keeping the attitude "
+                          f"takes {2.0 * estimate:.1f} N of thrust, more than the weight "
+                          f"({w:.1f} N); the vehicle climbs away from the path")
+        elif self._climbing and 2.0 * estimate < w - 2.0 * A_HANDBACK_N:
+            self._climbing = False
+            events.append(f"lost_rotor: rotor {rotor} at {estimate:.2f} N: the vehicle can "
+                          "hold its altitude again")
+
+    def _hand_back(self, state: State, out: RecoveryOutput, events: list[str]) -> None:
+        """Back to TFL, bumpless: its dynamic extension starts at the thrust now applied."""
+        ctrl = self.controller
+        events.append(f"tfl: handed back after {self._since_s:.1f} s "
+                      f"({out.path_distance_m * 1000:.0f} mm from the path)")
+        self.law_name = "tfl"
+        self.switches += 1
+        self.authority.reset()
+        ctrl.x13 = sum(out.thrust_n)
+        ctrl.x14 = 0.0
+        ctrl.dob.reset()
+        ctrl._pred = None
+        ctrl._last_out = list(out.thrust_n)
+        if ctrl.lag_inverter is not None:
+            ctrl.lag_inverter.reset()
+        tracker = getattr(ctrl, "tracker", None)
+        if tracker is not None and self.recovery.projector is not None \
+                and self.recovery.projector.lam is not None:
+            tracker.lam = self.recovery.projector.lam
+
+    def _result(self, thrust: Sequence[float], requested: Sequence[float] | None,
+                out: ControlOutput, detection: DetectorOutput | None, rotor: int,
+                estimate: float, new: bool, events: list[str]) -> TickResult:
+        """The command to send: each thrust min(max(f, 0), f_max), a NaN → 0 N; what the law
+        asked (``requested``; None: the same as ``thrust``) with a NaN → 0 N."""
+        fmax = self.thrust_max_n
+        f1, f2, f3, f4 = thrust
+        # One chained test passes four thrusts in range (comparisons are False for NaN).
+        if 0.0 <= f1 <= fmax and 0.0 <= f2 <= fmax and 0.0 <= f3 <= fmax \
+                and 0.0 <= f4 <= fmax:
+            applied = [f1, f2, f3, f4]
+            if requested is None:
+                requested = applied
+        else:
+            applied = [(fmax if fmax < f else (0.0 if f < 0.0 else f)) if math.isfinite(f)
+                       else 0.0 for f in thrust]
+            if requested is None:
+                requested = thrust
+        r1, r2, r3, r4 = requested
+        if _isfinite(r1 + r2 + r3 + r4):        # a finite sum: all four finite
+            req = [r1, r2, r3, r4]
+        else:
+            req = [r if math.isfinite(r) else 0.0 for r in requested]
+        if rotor and self.detector is not None:
+            # The attacked rotor's command is not ours to use: send it a probe away from its
+            # estimate, so that a rotor the attacker lets go shows it by following (detector).
+            est = estimate if _isfinite(estimate) else 0.0
+            hover = self._hover_share_n
+            applied[rotor - 1] = hover if abs(hover - est) > 1.0 else self._probe_high_n
+        # TickResult(...) without its generated Python __new__ (every tick): all fields
+        return _new(TickResult, (applied, out, detection, rotor, estimate, new, req,
+                                 tuple(events)))

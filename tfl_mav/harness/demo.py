@@ -1,0 +1,283 @@
+"""Fly a scenario end to end over MAVLink: simulator and controller daemon as two processes.
+
+The library behind ``tfl-mav demo`` (and the golden lockstep tests): starts ``tfl-mav sim``
+and ``tfl-mav fly`` on free loopback ports in lockstep (or real time), both recording MCAP,
+then rebuilds the flight from the logs and returns the summary dict.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from tfl_mav.build import scenario_path
+from tfl_mav.flightlog.flight import summarize
+from tfl_mav.flightlog.from_mcap import flight_log_from_mcap
+from tfl_mav.flightlog.logread import LogReader
+from tfl_mav.flightlog.metrics import DEFAULT_BOUND_M, DEFAULT_WINDOW_S, flight_verdict
+from tfl_mav.harness.processes import raise_priority
+from tfl_mav.scenario import apply_overrides, load_scenario
+
+__all__ = ["run_demo"]
+
+_LISTEN_RE = re.compile(r"listening on ([\d.]+):(\d+)")
+_PROGRESS_RE = re.compile(r"^progress ([\d.]+) ([\d.]+) (\S+)")
+
+
+def _cli() -> list[str]:
+    return [sys.executable, "-m", "tfl_mav.cli"]
+
+
+class _Children:
+    """The demo's child processes, stopped whatever happens to the demo.
+
+    Each child runs in its own session (so a terminal's Ctrl-C reaches only the demo, which
+    decides); SIGINT/SIGTERM to the demo, from a terminal or to its PID alone, are forwarded
+    as SIGTERM (a clean stop: MCAP files finished), and :meth:`reap` waits a grace period
+    and then SIGKILLs whatever is left. No orphan either way.
+    """
+
+    GRACE_S = 10.0
+
+    def __init__(self) -> None:
+        self.procs: list[subprocess.Popen[str]] = []
+        self.signals: list[int] = []
+        self._previous: dict[int, Any] = {}
+
+    def __enter__(self) -> _Children:
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._previous[sig] = signal.signal(sig, self._on_signal)
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.reap()
+        for sig, old in self._previous.items():
+            signal.signal(sig, old)
+
+    def start(self, cmd: list[str], **kw: Any) -> subprocess.Popen[str]:
+        p = subprocess.Popen(cmd, text=True, start_new_session=True, **kw)
+        self.procs.append(p)
+        if self.signals:      # a signal arrived while starting it
+            p.terminate()
+        return p
+
+    def _on_signal(self, signum: int, _frame: Any) -> None:
+        self.signals.append(signum)
+        for p in self.procs:
+            if p.poll() is None:
+                (p.kill if len(self.signals) > 1 else p.terminate)()
+
+    def reap(self) -> None:
+        deadline = time.monotonic() + self.GRACE_S
+        for p in self.procs:
+            if p.poll() is None and self.signals:
+                p.terminate()
+            try:
+                p.wait(timeout=max(0.1, deadline - time.monotonic()))
+            except subprocess.TimeoutExpired:
+                p.kill()
+                p.wait(timeout=10)
+
+
+def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
+             duration_s: float | None = None, plots: bool = True, progress: bool = False,
+             scenario: Any = None, key_file: str | None = None,
+             foxglove: str | None = None, realtime: bool = False,
+             bound_m: float = DEFAULT_BOUND_M, window_s: float = DEFAULT_WINDOW_S
+             ) -> dict[str, Any]:
+    """Fly ``name`` over MAVLink in two processes; returns the summary dict. ``key_file``:
+    sign the link (both processes get ``--key-file``); ``foxglove``: the simulator serves
+    the live view there (``--foxglove``); ``realtime``: both run with ``--realtime`` (paced
+    by the wall clock, at raised priority when allowed) instead of lockstep. SIGINT/SIGTERM
+    stop both children and the summary says ``interrupted`` (its ``signal`` key names the
+    signal)."""
+    settings = list(settings or [])
+    scenario = scenario or apply_overrides(load_scenario(name), settings)
+    scenario_path(scenario)   # ScenarioError for a bad path now, before any process starts
+    duration = duration_s if duration_s is not None else scenario.run.duration_s
+    out.mkdir(parents=True, exist_ok=True)
+    run_mcap, ctl_mcap, fly_json = out / "run.mcap", out / "ctl.mcap", out / "fly.json"
+    for f in (run_mcap, ctl_mcap, fly_json):
+        f.unlink(missing_ok=True)
+    shared = [a for s in settings for a in ("--set", s)]
+    if key_file:
+        shared += ["--key-file", str(key_file)]
+    if realtime:
+        shared += ["--realtime"]
+    pre = raise_priority if realtime else None
+    t0 = time.perf_counter()
+    with _Children() as children:
+        sim = children.start(
+            [*_cli(), "sim", name, "--listen", "127.0.0.1:0", "--gcs", "none",
+             "--legacy-ports", "--duration", str(duration), "--mcap", str(run_mcap), *shared,
+             *(["--foxglove", foxglove] if foxglove else [])],
+            stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=pre)
+        port = _await_port(sim)
+        fly = children.start(
+            [*_cli(), "fly", name, "--vehicle", f"127.0.0.1:{port}", "--duration",
+             str(duration), "--mcap", str(ctl_mcap), "--summary-json", str(fly_json),
+             "--progress", *shared],
+            stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=pre)
+        fly_err = _follow(fly, duration, progress)
+        fly_code = fly.wait(timeout=60)
+        sim_out, sim_err = sim.communicate(timeout=60)
+    interrupted = bool(children.signals)
+    wall = time.perf_counter() - t0
+    say = _Say(progress)
+    say.line(f"  flight: {duration:g} s of sim time in {wall:.1f} s wall")
+    if not fly_json.exists() and not interrupted:
+        raise RuntimeError(f"the controller did not finish (exit {fly_code}):\n{fly_err}")
+    fly_summary = json.loads(fly_json.read_text()) if fly_json.exists() else {}
+    t1 = time.perf_counter()
+    size_mib = sum(f.stat().st_size for f in (run_mcap, ctl_mcap) if f.exists()) / 2**20
+    say.start(f"  report: reading run.mcap and ctl.mcap ({size_mib:.0f} MiB) ...")
+    log = flight_log_from_mcap(run_mcap, scenario, ctl_mcap)
+    log.crashed = sim.returncode == 1
+    log.crash_reason = _crash_reason(sim_out + sim_err) if log.crashed else ""
+    log.wall_time_s = wall
+    log.duration_s = duration
+    log.interrupted = interrupted
+    m = summarize(log)
+    m.update(flight_verdict(log, bound_m=bound_m, window_s=window_s))
+    if interrupted:
+        m["signal"] = signal.Signals(children.signals[0]).name
+    m.update(_detection_extras(scenario, m, log))
+    m.update(_traffic_metrics(run_mcap, ctl_mcap, fly_summary))
+    m["real_time_factor"] = round(m["sim_time_s"] / wall, 2) if wall else None
+    m["out_dir"] = str(out)
+    phases = {"flight": round(wall, 3), "report": round(time.perf_counter() - t1, 3)}
+    say.end(f" {phases['report']:.1f} s")
+    if plots:
+        t2 = time.perf_counter()
+        say.start("  plots: drawing the six PNGs ...")
+        from tfl_mav.flightlog.plots import write_report
+
+        m["plots"] = [str(p) for p in write_report(log, out, title=scenario.name)]
+        phases["plots"] = round(time.perf_counter() - t2, 3)
+        say.end(f" {phases['plots']:.1f} s")
+    m["phase_wall_s"] = phases         # what the user waited for, phase by phase
+    m["total_wall_s"] = round(time.perf_counter() - t0, 3)
+    (out / "summary.json").write_text(json.dumps(m, indent=2))
+    return m
+
+
+class _Say:
+    """The demo's phase lines on stderr as the user waits for them (nothing when quiet):
+    a phase is announced when it starts and timed when it ends."""
+
+    def __init__(self, on: bool) -> None:
+        self.on = on
+
+    def line(self, text: str) -> None:
+        if self.on:
+            print(text, file=sys.stderr, flush=True)
+
+    def start(self, text: str) -> None:
+        if self.on:
+            print(text, end="", file=sys.stderr, flush=True)
+
+    def end(self, text: str) -> None:
+        self.line(text)
+
+
+def _await_port(sim: subprocess.Popen[str]) -> int:
+    assert sim.stdout is not None
+    deadline = time.monotonic() + 30.0
+    lines = []
+    while time.monotonic() < deadline:
+        line = sim.stdout.readline()
+        if not line:
+            break
+        lines.append(line)
+        if match := _LISTEN_RE.search(line):
+            return int(match.group(2))
+    err = sim.stderr.read() if sim.stderr and sim.poll() is not None else ""
+    raise RuntimeError("the simulator did not start: " + "".join(lines) + err)
+
+
+def _follow(fly: subprocess.Popen[str], duration: float, show: bool) -> str:
+    """Render the controller's progress lines; return its other stderr text."""
+    assert fly.stderr is not None
+    other = []
+    tty = sys.stderr.isatty()    # a terminal: one bar redrawn; a file or pipe: a line each 5 s
+    drawn = False
+    for line in fly.stderr:
+        if match := _PROGRESS_RE.match(line):
+            t, total, dist = float(match.group(1)), float(match.group(2)), float(match.group(3))
+            if show and (tty or round(t) % 5 == 0):
+                n = int(30 * min(1.0, t / total)) if total else 30
+                print(f"{chr(13) if tty else ''}  [{'#' * n}{'.' * (30 - n)}] {t:5.1f}/"
+                      f"{total:.0f} s sim, path distance {_length(dist)} ",
+                      end="" if tty else "\n", file=sys.stderr, flush=True)
+                drawn = tty
+        else:
+            other.append(line)
+    if drawn:
+        print(file=sys.stderr)
+    return "".join(other)
+
+
+def _length(x_m: float) -> str:
+    """A distance in the unit that shows it: mm below a metre, µm below a millimetre."""
+    if not math.isfinite(x_m):
+        return "-"
+    if abs(x_m) >= 1.0:
+        return f"{x_m:.2f} m"
+    if abs(x_m) >= 1e-3:
+        return f"{x_m * 1e3:.1f} mm"
+    return f"{x_m * 1e6:.1f} µm"
+
+
+def _crash_reason(text: str) -> str:
+    for line in text.splitlines():
+        if "crash" in line.lower() or "flipped" in line.lower():
+            return line.strip()
+    return "crashed"
+
+
+def _detection_extras(sc: Any, m: dict[str, Any], log: Any) -> dict[str, Any]:
+    """What only the demo adds to the shared detection metrics (:mod:`..metrics`): the
+    latency in ticks and the RMS error of the attack estimate."""
+    rotor = m.get("detected_rotor") or 0
+    attacked = sc.attack.rotor
+    latency = m.get("detection_latency_s")
+    rms = None
+    if rotor and rotor == attacked:
+        est = log["attack_estimate_n"]
+        ok = np.isfinite(est)
+        if np.any(ok):
+            # The detector estimates the rotor's *actual* thrust (from its rpm); with motor
+            # lag that trails the attacker's command, so compare with the rotor's thrust.
+            true_f = log["thrust_true_n"][:, rotor - 1]
+            rms = float(np.sqrt(np.mean((est[ok] - true_f[ok]) ** 2)))
+    dt = sc.run.control_dt_s
+    return {"detection_latency_ticks": round(latency / dt) if latency is not None else None,
+            "attack_estimate_rms_n": rms}
+
+
+def _traffic_metrics(run_mcap: Path, ctl_mcap: Path, fly: dict[str, Any]) -> dict[str, Any]:
+    logged = 0
+    sent = 0
+    for path in (run_mcap, ctl_mcap):
+        if not path.exists():
+            continue
+        for m in LogReader(path).messages({"/mavlink/raw"}):
+            logged += 1
+            if m.data.startswith(b'{"direction":"tx"'):   # the recorder writes it first
+                sent += 1
+    link = fly.get("stats", {}).get("link", {})
+    return {"messages_logged": logged, "messages_sent": sent,
+            "controller_rejected_frames": sum(v for k, v in link.items() if k not in
+                                              ("rx_datagrams", "rx_bytes", "rx_frames",
+                                               "tx_frames", "tx_bytes"))}
