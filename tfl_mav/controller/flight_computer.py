@@ -458,17 +458,8 @@ class FlightComputer:
         self.law_name = "tfl"
         self.switches += 1
         self.authority.reset()
-        ctrl.x13 = sum(out.thrust_n)
-        ctrl.x14 = 0.0
-        ctrl.dob.reset()
-        ctrl._pred = None
-        ctrl._last_out = list(out.thrust_n)
-        if ctrl.lag_inverter is not None:
-            ctrl.lag_inverter.reset()
-        tracker = getattr(ctrl, "tracker", None)
-        if tracker is not None and self.recovery.projector is not None \
-                and self.recovery.projector.lam is not None:
-            tracker.lam = self.recovery.projector.lam
+        projector = self.recovery.projector
+        ctrl.resume(out.thrust_n, projector.lam if projector is not None else None)
 
     def _result(self, thrust: Sequence[float], requested: Sequence[float] | None,
                 out: ControlOutput, detection: DetectorOutput | None, rotor: int,

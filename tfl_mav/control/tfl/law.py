@@ -183,6 +183,21 @@ class TFLController:
         namespace = getattr(self._fused, "__globals__", {})
         return "compiled" if namespace.get("_core") is not None else "python"
 
+    def resume(self, thrust_n: Sequence[float], lam: float | None = None) -> None:
+        """Fly again, bumpless, from a state another law flew: the dynamic extension starts at
+        the thrust now applied (x13 = Σ f, x14 = 0, eq. (9)), the rate observer, the ṗ, q̇
+        prediction and the lag inverse start afresh, and the tracker's path parameter moves
+        to ``lam`` (the other law's projection; None keeps its own)."""
+        self.x13 = sum(thrust_n)
+        self.x14 = 0.0
+        self.dob.reset()
+        self._pred = None
+        self._last_out = list(thrust_n)
+        if self.lag_inverter is not None:
+            self.lag_inverter.reset()
+        if lam is not None:
+            self.tracker.lam = lam
+
     def set_attack(self, rotor: int, estimate_n: float) -> None:
         """Declare rotor (1-4) attacked with the given thrust estimate (N); 0 = none.
 
