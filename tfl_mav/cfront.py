@@ -207,7 +207,7 @@ class _Frame:
         out = self.low.out
         if isinstance(value, Tup) and {t.id for t in targets} & set().union(
                 *(_read(v) for v in values)):
-            values = [self.low.temp(v) for v in values]     # (a, b) = (b, a): read first
+            values = [self.low.temp(v, True) for v in values]   # t = (t[1], t[0])
         out.extend(ast.Assign([ast.Name(t.id, ast.Store())], v) for t, v in
                    zip(targets, values, strict=True))
 
@@ -216,24 +216,31 @@ class _Frame:
         if isinstance(target, ast.Name):
             self.bind(target.id, value)
             return
-        if not isinstance(target, (ast.Tuple, ast.List)) or any(
-                isinstance(t, ast.Starred) for t in target.elts):
+        if not isinstance(target, (ast.Tuple, ast.List)):
             raise NativeError(f"cannot assign to {ast.unparse(target)!r}")
-        if not isinstance(value, Tup) or len(value.items) != len(target.elts):
+        elts = list(target.elts)
+        star = [k for k, t in enumerate(elts) if isinstance(t, ast.Starred)]
+        if not isinstance(value, Tup) or (len(value.items) != len(elts) if not star
+                                          else len(value.items) < len(elts) - 1):
             raise NativeError(f"cannot unpack into {ast.unparse(target)!r}: not a tuple of "
-                              f"{len(target.elts)}")
+                              f"{len(elts)}")
+        if star:                                # a, *rest, b = t: rest is a tuple
+            k, m = star[0], len(value.items) - len(elts) + 1
+            elts[k] = elts[k].value     # type: ignore[attr-defined]
+            value = Tup([*value.items[:k], Tup(value.items[k:k + m]), *value.items[k + m:]])
         written = {n.id for n in ast.walk(target) if isinstance(n, ast.Name)}
         if any(self.prefix + w in _read(x) or any(
                 n.startswith(self.prefix + w + "__") for n in _read(x))
                for w in written for x in _leaves(value)):
-            value = _retemp(self.low, value)            # a, b = b, a: read first
-        for t, v in zip(target.elts, value.items, strict=True):
+            value = _retemp(self.low, value, True)      # a, b = b, a: read first
+        for t, v in zip(elts, value.items, strict=True):
             self.unpack(t, v)
 
 
-def _retemp(low: _Lowerer, v: Any) -> Any:
-    return Tup([_retemp(low, x) for x in v.items], v.fields) if isinstance(v, Tup) \
-        else low.temp(v)
+def _retemp(low: _Lowerer, v: Any, names: bool = False) -> Any:
+    """``v`` with each float computed into a local now (``names``: a name copied too)."""
+    return Tup([_retemp(low, x, names) for x in v.items], v.fields) if isinstance(v, Tup) \
+        else low.temp(v, names)
 
 
 class _Lowerer:
@@ -243,8 +250,8 @@ class _Lowerer:
         self.stack: list[types.FunctionType] = []
         self.depth = 0                          # nesting in kept branches and loops
 
-    def temp(self, e: Any) -> Any:
-        if _simple(e):
+    def temp(self, e: Any, names: bool = False) -> Any:
+        if isinstance(e, ast.Constant) or _simple(e) and not names:
             return e
         self.n += 1
         name = f"_t{self.n}"
@@ -398,8 +405,11 @@ class _Lowerer:
         if not isinstance(fv, _Ref):
             raise NativeError(f"{ast.unparse(e.func)!r} is not a function: {what!r}")
         obj = fv.obj
-        if any(isinstance(a, ast.Starred) for a in e.args):
-            raise NativeError(f"cannot lower *arguments: {what!r}")
+        if any(isinstance(a, ast.Starred) for a in e.args):      # f(*t): t's items
+            e = ast.Call(e.func, [y for a in e.args for y in (
+                [ast.Subscript(a.value, ast.Constant(k), ast.Load())
+                 for k in range(len(self.tup(f, a.value, cond).items))]
+                if isinstance(a, ast.Starred) else [a])], e.keywords)
         if isinstance(obj, types.FunctionType):
             if cond:
                 raise NativeError(f"{what!r} is called on some paths only (a conditional "

@@ -45,19 +45,22 @@ import sysconfig
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 try:
     import fcntl
 except ImportError:         # not POSIX: concurrent processes may build the same source twice
     fcntl = None  # type: ignore[assignment]
 
-from tfl_mav import ctranslate
+from tfl_mav import cfront, ctranslate
+from tfl_mav.cfront import lower
 from tfl_mav.ctranslate import NativeError, translate
 
-__all__ = ["NativeError", "build", "c_source", "cache_dir", "compile_async", "load_cached",
-           "mode", "obtain", "obtain_c", "translate", "warn_once"]
+__all__ = ["NativeError", "build", "build_function", "c_source", "cache_dir", "compile_async",
+           "load_cached", "lower", "mode", "obtain", "obtain_c", "obtain_function", "translate",
+           "warn_once"]
 
 log = logging.getLogger(__name__)
 
@@ -108,7 +111,8 @@ def _compiler() -> list[str] | None:
 @functools.cache
 def _translator() -> str:
     """The translator's own source, hashed: a changed translation is a new cache entry."""
-    return hashlib.sha256(Path(ctranslate.__file__).read_bytes()).hexdigest()[:16]
+    return hashlib.sha256(Path(ctranslate.__file__).read_bytes()
+                          + Path(cfront.__file__).read_bytes()).hexdigest()[:16]
 
 
 def _key(source: str) -> str:
@@ -324,6 +328,27 @@ def obtain(source: str, ready: Callable[[Core], None]) -> Core | None:
         return None
     compile_async(source, c_text, ready)
     return None
+
+
+def obtain_function(fn: Callable[..., Any], example: Sequence[Any],
+                    ready: Callable[[Core], None]) -> Core | None:
+    """:func:`obtain` for a pure Python function itself: lowered first (:func:`cfront.lower`:
+    its calls inlined, its index loops unrolled, its tuples scalar-replaced, for arguments
+    shaped like ``example``). A function the front end cannot lower is a warning and None,
+    as a failed build is."""
+    if mode() == "off":
+        return None
+    try:
+        source = lower(fn, example)
+    except NativeError as exc:
+        warn_once(str(exc))
+        return None
+    return obtain(source, ready)
+
+
+def build_function(fn: Callable[..., Any], example: Sequence[Any]) -> Core:
+    """:func:`build` of a pure Python function (lowered as :func:`obtain_function` does)."""
+    return build(lower(fn, example))
 
 
 def obtain_c(c_text: str, fn: str, ready: Callable[[Core], None]) -> Core | None:
