@@ -251,7 +251,7 @@ class _Lowerer:
         self.depth = 0                          # nesting in kept branches and loops
 
     def temp(self, e: Any, names: bool = False) -> Any:
-        if isinstance(e, ast.Constant) or _simple(e) and not names:
+        if isinstance(e, ast.Constant) or (_simple(e) and not names):
             return e
         self.n += 1
         name = f"_t{self.n}"
@@ -510,15 +510,15 @@ class _Lowerer:
         elif isinstance(st, ast.For):
             self.loop(f, st)
         elif isinstance(st, ast.Return):
-            if not (st.value is None or isinstance(st.value, ast.Constant)
-                    and st.value.value is None) or f.prefix:
+            if not (st.value is None or (isinstance(st.value, ast.Constant)
+                    and st.value.value is None)) or f.prefix:
                 raise NativeError(f"{f.fn.__qualname__}: only the last statement returns a "
                                   f"value: {ast.unparse(st)!r}")
             self.out.append(ast.Return(ast.Constant(None)))
         elif isinstance(st, ast.Break):
             self.out.append(ast.Break())
-        elif isinstance(st, ast.Pass) or isinstance(st, ast.Expr) \
-                and isinstance(st.value, ast.Constant) and isinstance(st.value.value, str):
+        elif isinstance(st, ast.Pass) or (isinstance(st, ast.Expr) \
+                and isinstance(st.value, ast.Constant) and isinstance(st.value.value, str)):
             pass
         else:
             raise NativeError(f"cannot lower the statement {ast.unparse(st)!r}")
