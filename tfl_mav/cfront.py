@@ -46,7 +46,7 @@ __all__ = ["Tup", "lower"]
 _INTRINSICS: dict[Any, str] = {
     getattr(math, n): f"_{n}" for n in ("sqrt", "sin", "cos", "tan", "atan", "acos", "tanh",
                                         "log", "exp", "pow", "atan2", "copysign", "hypot",
-                                        "isfinite")}
+                                        "isfinite", "isnan")}
 _INTRINSICS[abs] = "abs"
 _RESERVED = re.compile(r"_[itv]\d.*|.*__.*")     # the names lowering itself makes
 
@@ -114,7 +114,7 @@ def _value(obj: Any, what: str) -> Any:
     if isinstance(obj, (int, float)):
         f = float(obj)
         if f != f:
-            raise NativeError(f"{what} is NaN")
+            return ast.Name("_nan", ast.Load())
         if f in (math.inf, -math.inf):
             inf = ast.Name("_inf", ast.Load())
             return inf if f > 0 else ast.UnaryOp(ast.USub(), inf)
@@ -250,6 +250,10 @@ class _Lowerer:
         self.stack: list[types.FunctionType] = []
         self.depth = 0                          # nesting in kept branches and loops
 
+    def fresh(self) -> ast.Name:
+        self.n += 1
+        return ast.Name(f"_t{self.n}", ast.Load())
+
     def temp(self, e: Any, names: bool = False) -> Any:
         if isinstance(e, ast.Constant) or (_simple(e) and not names):
             return e
@@ -374,6 +378,8 @@ class _Lowerer:
             test = self.num(f, e.test, cond)
             if isinstance(test, ast.Constant):
                 return self.expr(f, e.body if test.value else e.orelse, cond)
+            if not cond:
+                return self.if_expr(f, test, e)
             body, orelse = self.value(f, e.body, True), self.value(f, e.orelse, True)
             if not (isinstance(body, Tup) or isinstance(orelse, Tup)):
                 return ast.IfExp(test, body, orelse)
@@ -386,6 +392,30 @@ class _Lowerer:
         if isinstance(e, (ast.GeneratorExp, ast.ListComp)):
             return self.comprehension(f, e, cond)
         raise NativeError(f"cannot lower {ast.unparse(e)!r}")
+
+    def if_expr(self, f: _Frame, test: Any, e: ast.IfExp) -> Any:
+        """``a if test else b``: as it is when its branches are expressions, else (a call
+        inlined, a ``min`` computed ahead) an ``if`` statement setting new locals — only the
+        branch taken is computed, as in Python."""
+        saved, self.depth = self.out, self.depth + 1
+        self.out = []
+        body = self.value(f, e.body, False)
+        body_st, self.out = self.out, []
+        orelse = self.value(f, e.orelse, False)
+        orelse_st, self.out, self.depth = self.out, saved, self.depth - 1
+        if not (body_st or orelse_st or isinstance(body, Tup) or isinstance(orelse, Tup)):
+            return ast.IfExp(test, body, orelse)
+        if not _same_shape(_shape(body), _shape(orelse)):
+            raise NativeError(f"{ast.unparse(e)!r}: the branches differ in shape")
+        if not (body_st or orelse_st):
+            test = self.hoist(test, False)
+            return _zip_tup(lambda a, b: ast.IfExp(test, a, b), body, orelse)
+        names = _zip_tup(lambda a, b: self.fresh(), body, orelse)
+        for st, v in ((body_st, body), (orelse_st, orelse)):
+            st.extend(ast.Assign([ast.Name(n.id, ast.Store())], x)
+                      for n, x in zip(_leaves(names), _leaves(v), strict=True))
+        self.out.append(ast.If(test, body_st, orelse_st))
+        return names
 
     def value(self, f: _Frame, e: ast.expr, cond: bool) -> Any:
         v = self.expr(f, e, cond)
