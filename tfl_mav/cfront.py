@@ -40,7 +40,7 @@ from typing import Any
 
 from tfl_mav.ctranslate import NativeError
 
-__all__ = ["Tup", "lower"]
+__all__ = ["Tup", "lower", "lower_files", "shape_key"]
 
 #: math functions by object → the name the translator knows them by.
 _INTRINSICS: dict[Any, str] = {
@@ -67,6 +67,16 @@ class _Ref:
     obj: Any
 
 
+class _Lazy:
+    """An expression's text, made only for an error message."""
+
+    def __init__(self, e: ast.AST) -> None:
+        self.e = e
+
+    def __repr__(self) -> str:
+        return repr(ast.unparse(self.e))
+
+
 def _shape(v: Any) -> Any:
     return Tup([_shape(x) for x in v.items], v.fields) if isinstance(v, Tup) else None
 
@@ -91,7 +101,7 @@ def _simple(e: Any) -> bool:
         isinstance(e, ast.UnaryOp) and isinstance(e.operand, ast.Constant))
 
 
-def _int(e: Any, what: str) -> int:
+def _int(e: Any, what: object) -> int:
     """The constant integer ``e`` is (an index, a range), folded from constants."""
     if isinstance(e, ast.Constant) and type(e.value) is int:
         return e.value
@@ -107,7 +117,7 @@ _INT_OPS: dict[type, Callable[[int, int], int]] = {
     ast.FloorDiv: int.__floordiv__, ast.Mod: int.__mod__}
 
 
-def _value(obj: Any, what: str) -> Any:
+def _value(obj: Any, what: object) -> Any:
     """A global's value: a number (a constant), a tuple of them, or a reference."""
     if isinstance(obj, bool):
         return ast.Constant(int(obj))
@@ -127,6 +137,17 @@ def _value(obj: Any, what: str) -> Any:
 
 
 def _source(fn: types.FunctionType) -> ast.FunctionDef:
+    """``fn``'s definition, its docstring dropped (parsed once: lowering never changes it)."""
+    node = _SOURCES.get(fn.__code__)
+    if node is None:
+        node = _SOURCES[fn.__code__] = _parse(fn)
+    return node
+
+
+_SOURCES: dict[types.CodeType, ast.FunctionDef] = {}
+
+
+def _parse(fn: types.FunctionType) -> ast.FunctionDef:
     if fn.__closure__:
         raise NativeError(f"{fn.__qualname__} is a closure: only module-level functions")
     try:
@@ -146,6 +167,22 @@ def _source(fn: types.FunctionType) -> ast.FunctionDef:
     return node
 
 
+def _assigned(fn: types.FunctionType, node: ast.FunctionDef) -> set[str]:
+    """The function's local names (a name assigned anywhere in it is local)."""
+    names = _ASSIGNED.get(fn.__code__)
+    if names is None:
+        names = {n.id for n in ast.walk(node) if isinstance(n, ast.Name)
+                 and isinstance(n.ctx, ast.Store)} | {a.arg for a in node.args.args}
+        for name in names:
+            if _RESERVED.fullmatch(name):
+                raise NativeError(f"{fn.__qualname__}: the name {name!r} is the seam's own")
+        _ASSIGNED[fn.__code__] = names
+    return names
+
+
+_ASSIGNED: dict[types.CodeType, set[str]] = {}
+
+
 class _Frame:
     """One function being lowered: the top-level one, or one inlined instance of a callee."""
 
@@ -157,15 +194,19 @@ class _Frame:
         self.alias: dict[str, Any] = {}         # unrolled index → its constant
         self.version: dict[str, int] = {}       # a name rebound with another shape: new floats
         self.depth = low.depth                  # the branches and loops it is called in
-        self.assigned = {n.id for n in ast.walk(node) if isinstance(n, ast.Name)
-                         and isinstance(n.ctx, ast.Store)} | {a.arg for a in node.args.args}
-        for name in self.assigned:
-            if _RESERVED.fullmatch(name):
-                raise NativeError(f"{fn.__qualname__}: the name {name!r} is the seam's own")
+        self.made: dict[tuple[str, int, int], tuple[Any, Any]] = {}     # local()'s, kept
+        self.assigned = _assigned(fn, node)
 
     # ----- names ------------------------------------------------------------------------
     def local(self, name: str, shape: Any) -> Any:
         """The value of local ``name`` of this shape: its float variables."""
+        key = (name, self.version.get(name, 0), id(shape))
+        made = self.made.get(key)
+        if made is None or made[0] is not shape:
+            made = self.made[key] = (shape, self._local(name, shape))
+        return made[1]
+
+    def _local(self, name: str, shape: Any) -> Any:
         ver = self.version.get(name, 0)
         base = self.prefix + name + (f"__v{ver}" if ver else "")
         if shape is None:
@@ -249,6 +290,7 @@ class _Lowerer:
         self.n = 0
         self.stack: list[types.FunctionType] = []
         self.depth = 0                          # nesting in kept branches and loops
+        self.files: set[str] = set()            # the source files of the functions read
 
     def fresh(self) -> ast.Name:
         self.n += 1
@@ -297,6 +339,7 @@ class _Lowerer:
             else:
                 raise NativeError(f"{fn.__qualname__}: no argument for {p!r}")
         self.stack.append(fn)
+        self.files.add(fn.__code__.co_filename)
         for st in body:
             self.stmt(f, st)
         result = self.expr(f, ret.value, False)
@@ -332,7 +375,7 @@ class _Lowerer:
                 return v.items[v.fields.index(e.attr)]
             if isinstance(v, _Ref) and isinstance(v.obj, types.ModuleType) \
                     and hasattr(v.obj, e.attr):
-                return _value(getattr(v.obj, e.attr), ast.unparse(e))
+                return _value(getattr(v.obj, e.attr), _Lazy(e))
             raise NativeError(f"cannot lower {ast.unparse(e)!r}")
         if isinstance(e, ast.Subscript):
             v = self.expr(f, e.value, cond)
@@ -342,7 +385,7 @@ class _Lowerer:
                 lo, hi, step = (None if x is None else _int(self.expr(f, x, cond), "a slice")
                                 for x in (e.slice.lower, e.slice.upper, e.slice.step))
                 return Tup(v.items[lo:hi:step])
-            k = _int(self.expr(f, e.slice, cond), f"the index of {ast.unparse(e)!r}")
+            k = _int(self.expr(f, e.slice, cond), _Lazy(e))
             if not -len(v.items) <= k < len(v.items):
                 raise NativeError(f"{ast.unparse(e)!r}: index {k} out of range")
             return v.items[k]
@@ -357,7 +400,7 @@ class _Lowerer:
         if isinstance(e, ast.BinOp):
             a, b = self.value(f, e.left, cond), self.value(f, e.right, cond)
             if isinstance(a, Tup) or isinstance(b, Tup):
-                return _tuple_op(a, e.op, b, ast.unparse(e))
+                return _tuple_op(a, e.op, b, _Lazy(e))
             return ast.BinOp(a, e.op, b)
         if isinstance(e, ast.UnaryOp):
             return ast.UnaryOp(e.op, self.num(f, e.operand, cond))
@@ -431,7 +474,7 @@ class _Lowerer:
 
     def call(self, f: _Frame, e: ast.Call, cond: bool) -> Any:
         fv = self.expr(f, e.func, cond)
-        what = ast.unparse(e)
+        what = _Lazy(e)
         if not isinstance(fv, _Ref):
             raise NativeError(f"{ast.unparse(e.func)!r} is not a function: {what!r}")
         obj = fv.obj
@@ -526,7 +569,7 @@ class _Lowerer:
             cur = f.name(st.target.id)
             value = self.value(f, st.value, False)
             if isinstance(cur, Tup) or isinstance(value, Tup):
-                f.bind(st.target.id, _tuple_op(cur, st.op, value, ast.unparse(st)))
+                f.bind(st.target.id, _tuple_op(cur, st.op, value, _Lazy(st)))
             else:
                 f.bind(st.target.id, ast.BinOp(cur, st.op, value))
         elif isinstance(st, ast.If):
@@ -602,14 +645,14 @@ def _own(st: ast.stmt) -> list[ast.AST]:
     return out
 
 
-def _tuple_op(a: Any, op: ast.operator, b: Any, what: str) -> Tup:
+def _tuple_op(a: Any, op: ast.operator, b: Any, what: object) -> Tup:
     if isinstance(op, ast.Add) and isinstance(a, Tup) and isinstance(b, Tup):
         return Tup(a.items + b.items)
     if isinstance(op, ast.Mult):
         t, n = (a, b) if isinstance(a, Tup) else (b, a)
         if isinstance(t, Tup) and not isinstance(n, Tup):
             return Tup(t.items * _int(n, "a tuple's repeat count"))
-    raise NativeError(f"cannot lower the tuple operation {what!r}")
+    raise NativeError(f"cannot lower the tuple operation {what}")
 
 
 def _zip_tup(fn: Callable[[Any, Any], Any], a: Any, b: Any) -> Any:
@@ -631,6 +674,16 @@ def lower(fn: Callable[..., Any], example: Sequence[Any]) -> str:
     """The source of one function the translator takes, doing what ``fn`` does on arguments
     shaped like ``example`` (numbers, and tuples or lists of them, nested; NamedTuples name
     their fields): the same name, the same parameters, each sequence unpacked at entry."""
+    return lower_files(fn, example)[0]
+
+
+def shape_key(example: Sequence[Any]) -> str:
+    """The shapes of ``example`` as text (what the lowering depends on besides the code)."""
+    return repr(tuple(_entry_shape(x, "an argument") for x in example))
+
+
+def lower_files(fn: Callable[..., Any], example: Sequence[Any]) -> tuple[str, set[str]]:
+    """:func:`lower`, and the source files of every function it read."""
     if not isinstance(fn, types.FunctionType):
         raise NativeError(f"{fn!r} is not a Python function")
     node = _source(fn)
@@ -639,6 +692,7 @@ def lower(fn: Callable[..., Any], example: Sequence[Any]) -> str:
         raise NativeError(f"{fn.__qualname__}: {len(params)} parameters, "
                           f"{len(example)} example arguments")
     low = _Lowerer()
+    low.files.add(fn.__code__.co_filename)
     f = _Frame(low, fn, node, "")
     for p, x in zip(params, example, strict=True):
         shape = f.shapes[p] = _entry_shape(x, f"{fn.__qualname__}({p})")
@@ -656,8 +710,18 @@ def lower(fn: Callable[..., Any], example: Sequence[Any]) -> str:
     low.out.append(ast.Return(_tuple(result)))
     out = ast.FunctionDef(name=fn.__name__, args=ast.arguments(
         posonlyargs=[], args=[ast.arg(p) for p in params], kwonlyargs=[], kw_defaults=[],
-        defaults=[]), body=low.out, decorator_list=[])
-    return ast.unparse(ast.fix_missing_locations(ast.Module([out], []))) + "\n"
+        defaults=[]), body=low.out, decorator_list=[], lineno=1)
+    _number(low.out)
+    return ast.unparse(ast.Module([out], [])) + "\n", low.files
+
+
+def _number(body: list[ast.stmt]) -> None:
+    """Line numbers on the statements (ast.unparse reads them; the expressions need none)."""
+    for st in body:
+        st.lineno = 1
+        for block in (getattr(st, "body", None), getattr(st, "orelse", None)):
+            if block:
+                _number(block)
 
 
 def _target(v: Any) -> ast.expr:

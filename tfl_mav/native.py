@@ -34,6 +34,7 @@ import functools
 import hashlib
 import importlib.machinery
 import importlib.util
+import json
 import logging
 import os
 import queue
@@ -59,8 +60,8 @@ from tfl_mav.cfront import lower
 from tfl_mav.ctranslate import NativeError, translate
 
 __all__ = ["NativeError", "build", "build_function", "c_source", "cache_dir", "compile_async",
-           "load_cached", "lower", "mode", "obtain", "obtain_c", "obtain_function", "translate",
-           "warn_once"]
+           "load_cached", "lower", "lowered", "mode", "obtain", "obtain_c", "obtain_function",
+           "translate", "warn_once"]
 
 log = logging.getLogger(__name__)
 
@@ -339,7 +340,7 @@ def obtain_function(fn: Callable[..., Any], example: Sequence[Any],
     if mode() == "off":
         return None
     try:
-        source = lower(fn, example)
+        source = lowered(fn, example)
     except NativeError as exc:
         warn_once(str(exc))
         return None
@@ -348,7 +349,45 @@ def obtain_function(fn: Callable[..., Any], example: Sequence[Any],
 
 def build_function(fn: Callable[..., Any], example: Sequence[Any]) -> Core:
     """:func:`build` of a pure Python function (lowered as :func:`obtain_function` does)."""
-    return build(lower(fn, example))
+    return build(lowered(fn, example))
+
+
+_lowered: dict[tuple[Any, str], str] = {}
+
+
+def lowered(fn: Callable[..., Any], example: Sequence[Any]) -> str:
+    """:func:`cfront.lower`'s source, kept: in this process, and in the cache directory
+    with the hashes of the source files it was lowered from (a process that flies once
+    would otherwise spend a tenth of a second lowering the detector)."""
+    key = (fn, cfront.shape_key(example))
+    source = _lowered.get(key)
+    if source is not None:
+        return source
+    name = hashlib.sha256(f"{_translator()}|{fn.__module__}.{fn.__qualname__}|{key[1]}"
+                          .encode()).hexdigest()[:20]
+    path = cache_dir() / f"_tflf_{name}.json"
+    try:
+        entry = json.loads(path.read_text())
+        if all(_file_hash(f) == h for f, h in entry["files"].items()):
+            source = _lowered[key] = entry["source"]
+            return source
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        pass
+    source, files = cfront.lower_files(fn, example)
+    _lowered[key] = source
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps({"source": source,
+                                   "files": {f: _file_hash(f) for f in sorted(files)}}))
+        os.replace(tmp, path)
+    except OSError:
+        pass                # not kept: lowered again next time
+    return source
+
+
+def _file_hash(path: str) -> str:
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def obtain_c(c_text: str, fn: str, ready: Callable[[Core], None]) -> Core | None:
