@@ -116,12 +116,23 @@ def test_the_lowered_source_has_no_calls_tuples_or_index_loops():
     assert src.count("for _ in range(3)") == 1 and "[" not in src
 
 
-def _raises(x):
-    return math.sqrt(x) if x > 0.0 else 0.0
+def _root(x):
+    return math.sqrt(x)
 
 
 def call_in_conditional(x):
-    return (_raises(x) if x > 1.0 else 0.0,)
+    """The call only where x ≥ 0 (Python never takes the root of a negative here)."""
+    return (_root(x) if x >= 0.0 else -1.0, (x, _root(-x)) if x < 0.0 else (0.0, 0.0))
+
+
+def call_in_and(x):
+    return (1.0 if x > 0.0 and _root(x) > 1.0 else 0.0,)
+
+
+def test_a_call_in_a_conditional_expression_runs_only_on_its_branch():
+    c = native.build_function(call_in_conditional, (1.0,))
+    for x in (4.0, 0.0, -0.0, -9.0, math.inf, -math.inf, math.nan):
+        assert _bits(c(x)) == _bits(call_in_conditional(x)), x
 
 
 def variable_index(t, k):
@@ -171,7 +182,7 @@ def tuple_in_compare(t):
 
 
 @pytest.mark.parametrize("fn, example, match", [
-    (call_in_conditional, (1.0,), "some paths only"),
+    (call_in_and, (1.0,), "some paths only"),
     (variable_index, ((1.0, 2.0), 0.0), "not a constant integer"),
     (breaking_index_loop, ((1.0, 2.0),), "cannot break"),
     (recursion, (1.0,), "recursive"),
