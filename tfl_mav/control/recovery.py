@@ -441,22 +441,8 @@ class RecoveryLaw:
         if attacked_rotor:
             return self._three_rotor(attacked_rotor, (a0, a1, a2), v, (qw, qx, qy, qz),
                                      (p, q, r), attack_n, dist)
-        m, k_t = self.mass_kg, self.k_t
-        F0, F1, F2 = m * a0 + k_t * v[0], m * a1 + k_t * v[1], m * (a2 + self.g) + k_t * v[2]
-        fn = math.sqrt(F0 ** 2 + F1 ** 2 + F2 ** 2)
-        n0, n1, n2 = (F0 / fn, F1 / fn, F2 / fn) if fn > 1e-9 else (0.0, 0.0, 1.0)
-        # h = Rᵀ n, R's rows as rotation_rows builds them
-        h0 = ((1 - 2 * (qy * qy + qz * qz)) * n0 + (2 * (qx * qy + qw * qz)) * n1
-              + (2 * (qx * qz - qw * qy)) * n2)
-        h1 = ((2 * (qx * qy - qw * qz)) * n0 + (1 - 2 * (qx * qx + qz * qz)) * n1
-              + (2 * (qy * qz + qw * qx)) * n2)
-        h2 = ((2 * (qx * qz + qw * qy)) * n0 + (2 * (qy * qz - qw * qx)) * n1
-              + (1 - 2 * (qx * qx + qy * qy)) * n2)
-        c = h2 if h2 < 1.0 else 1.0
-        tilt_err = math.acos(c if c > -1.0 else -1.0)
-        # Thrust along b3: the component of F there; never negative (upside down: idle).
-        uf = fn * h2
-        uf = 0.0 if uf < 0.0 else uf
+        tilt_err, uf, h0, h1, _ = lost_rotor.thrust_direction(
+            (a0, a1, a2), v, (qw, qx, qy, qz), self.mass_kg, self.k_t, self.g)
         tau_p = ix * (ATT_KP * -h1 - ATT_KD * p) + (iz - iy) * q * r + self.k_r * p
         tau_q = iy * (ATT_KP * h0 - ATT_KD * q) + (ix - iz) * p * r + self.k_r * q
         tau_r = -iz * YAW_DAMP * r + self.k_r * r
