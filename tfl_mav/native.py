@@ -55,8 +55,8 @@ try:
 except ImportError:         # not POSIX: concurrent processes may build the same source twice
     fcntl = None  # type: ignore[assignment]
 
-from tfl_mav import cfront, ctranslate
-from tfl_mav.cfront import lower
+from tfl_mav import accel, ctranslate
+from tfl_mav.accel import lower
 from tfl_mav.ctranslate import NativeError, translate
 
 __all__ = ["NativeError", "build", "build_function", "c_source", "cache_dir", "compile_async",
@@ -112,8 +112,9 @@ def _compiler() -> list[str] | None:
 @functools.cache
 def _translator() -> str:
     """The translator's own source, hashed: a changed translation is a new cache entry."""
-    return hashlib.sha256(Path(ctranslate.__file__).read_bytes()
-                          + Path(cfront.__file__).read_bytes()).hexdigest()[:16]
+    text = Path(ctranslate.__file__).read_bytes() + b"".join(
+        p.read_bytes() for p in sorted(Path(accel.__file__).parent.glob("*.py")))
+    return hashlib.sha256(text).hexdigest()[:16]
 
 
 def _key(source: str) -> str:
@@ -333,7 +334,7 @@ def obtain(source: str, ready: Callable[[Core], None]) -> Core | None:
 
 def obtain_function(fn: Callable[..., Any], example: Sequence[Any],
                     ready: Callable[[Core], None]) -> Core | None:
-    """:func:`obtain` for a pure Python function itself: lowered first (:func:`cfront.lower`:
+    """:func:`obtain` for a pure Python function itself: lowered first (:func:`accel.lower`:
     its calls inlined, its index loops unrolled, its tuples scalar-replaced, for arguments
     shaped like ``example``). A function the front end cannot lower is a warning and None,
     as a failed build is."""
@@ -356,10 +357,10 @@ _lowered: dict[tuple[Any, str], str] = {}
 
 
 def lowered(fn: Callable[..., Any], example: Sequence[Any]) -> str:
-    """:func:`cfront.lower`'s source, kept: in this process, and in the cache directory
+    """:func:`accel.lower`'s source, kept: in this process, and in the cache directory
     with the hashes of the source files it was lowered from (a process that flies once
     would otherwise spend a tenth of a second lowering the detector)."""
-    key = (fn, cfront.shape_key(example))
+    key = (fn, accel.shape_key(example))
     source = _lowered.get(key)
     if source is not None:
         return source
@@ -373,7 +374,7 @@ def lowered(fn: Callable[..., Any], example: Sequence[Any]) -> str:
             return source
     except (OSError, ValueError, KeyError, TypeError, AttributeError):
         pass
-    source, files = cfront.lower_files(fn, example)
+    source, files = accel.lower_files(fn, example)
     _lowered[key] = source
     try:
         path.parent.mkdir(parents=True, exist_ok=True)

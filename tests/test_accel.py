@@ -1,4 +1,4 @@
-"""The seam's front end (:mod:`tfl_mav.cfront`): a natural pure function — helpers called,
+"""The seam's front end (:mod:`tfl_mav.accel`): a natural pure function — helpers called,
 index loops, tuples and NamedTuples — compiled through it returns the Python function's own
 bits (or None where Python raises); what it cannot lower is refused by name."""
 
