@@ -35,6 +35,7 @@ import hashlib
 import importlib.machinery
 import importlib.util
 import json
+import linecache
 import logging
 import os
 import queue
@@ -46,6 +47,7 @@ import sysconfig
 import tempfile
 import threading
 import time
+import types
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
@@ -364,8 +366,12 @@ def lowered(fn: Callable[..., Any], example: Sequence[Any]) -> str:
     source = _lowered.get(key)
     if source is not None:
         return source
-    name = hashlib.sha256(f"{_translator()}|{fn.__module__}.{fn.__qualname__}|{key[1]}"
-                          .encode()).hexdigest()[:20]
+    # A function linked to generated code (a path's σ kernel) is another lowering.
+    linked = sorted(_file_hash(g.__code__.co_filename) for g in getattr(fn, "__globals__", {})
+                    .values() if isinstance(g, types.FunctionType)
+                    and g.__code__.co_filename.startswith("<"))
+    name = hashlib.sha256(f"{_translator()}|{fn.__module__}.{fn.__qualname__}|{key[1]}|"
+                          f"{linked}".encode()).hexdigest()[:20]
     path = cache_dir() / f"_tflf_{name}.json"
     try:
         entry = json.loads(path.read_text())
@@ -388,6 +394,9 @@ def lowered(fn: Callable[..., Any], example: Sequence[Any]) -> str:
 
 
 def _file_hash(path: str) -> str:
+    """A source file's hash; generated code's (``<…>``) from its text in linecache."""
+    if path.startswith("<"):
+        return hashlib.sha256("".join(linecache.getlines(path)).encode()).hexdigest()
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
