@@ -5,20 +5,19 @@ with a rotor attacked: from the outer loop's wanted acceleration to the canonica
 thrusts — the thrust direction n, the reduced attitude h = Rᵀ n, the canonical LQR torques
 and the saturation-aware three-rotor allocation (Mueller & D'Andrea's relaxed hover; the
 module docstring of :mod:`recovery` says why). It is plain Python the accelerator seam
-compiles (:func:`tfl_mav.native.obtain_function`: :func:`thrust_direction`, which the
-four-rotor law calls too, inlined), so the very same source flies as Python and, compiled
-mechanically, as C — the same operations in the same order, the same bits
-(``tests/test_native.py``). Where the C bails (an operation Python would raise on) the
+compiles, inlined in the safe law's whole tick (:func:`~tfl_mav.control.safe_step.safe_tick`)
+with :func:`thrust_direction`, which the four-rotor law calls too: the very same source flies
+as Python and, compiled mechanically, as C — the same operations in the same order, the same
+bits (``tests/test_native.py``). Where the C bails (an operation Python would raise on) the
 Python runs and raises, as it would have.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
-from typing import Any
+from collections.abc import Sequence
 
-__all__ = ["STEP_EXAMPLE", "lost_rotor_step", "step_function", "thrust_direction"]
+__all__ = ["STEP_EXAMPLE", "lost_rotor_step", "thrust_direction"]
 
 
 def thrust_direction(acc: Sequence[float], vel: Sequence[float], quat: Sequence[float],
@@ -98,26 +97,6 @@ def lost_rotor_step(acc: Sequence[float], vel: Sequence[float], quat: Sequence[f
             0.5 * s13 - half, 0.5 * s13 + half, f4)
 
 
-#: Arguments shaped as :meth:`RecoveryLaw._three_rotor` passes them (for the seam's lowering).
+#: Arguments shaped as :func:`~tfl_mav.control.safe_step.safe_tick` passes them.
 STEP_EXAMPLE = ((0.0,) * 3, (0.0,) * 3, (1.0, 0.0, 0.0, 0.0), (0.0,) * 3, (0,) * 6,
                 (0.0,) * 8, (0.0,) * 5, 0.0)
-
-
-_native: dict[str, Any] = {"core": None, "loaded": False}
-
-
-def step_function() -> Callable[..., tuple[float, ...] | None]:
-    """The compiled step once it is built (this process, the cache, or
-    ``TFL_MAV_NATIVE=sync``; ``auto`` builds it in the background), else the Python one."""
-    if not _native["loaded"]:
-        _native["loaded"] = True
-        from tfl_mav import native
-
-        def ready(core: Any) -> None:
-            _native["core"] = core
-
-        core = native.obtain_function(lost_rotor_step, STEP_EXAMPLE, ready)
-        if core is not None:
-            ready(core)
-    core = _native["core"]
-    return core if core is not None else lost_rotor_step
