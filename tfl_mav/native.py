@@ -375,22 +375,30 @@ def lowered(fn: Callable[..., Any], example: Sequence[Any]) -> str:
     path = cache_dir() / f"_tflf_{name}.json"
     try:
         entry = json.loads(path.read_text())
-        if all(_file_hash(f) == h for f, h in entry["files"].items()):
+        if all(_file_hash(f) == h for f, h in entry["files"].items()) and all(
+                _constant(m, n) == text for m, n, text in entry["constants"]):
             source = _lowered[key] = entry["source"]
             return source
-    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, ImportError):
         pass
-    source, files = accel.lower_files(fn, example)
+    source, files, constants = accel.lower_files(fn, example)
     _lowered[key] = source
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
         tmp.write_text(json.dumps({"source": source,
-                                   "files": {f: _file_hash(f) for f in sorted(files)}}))
+                                   "files": {f: _file_hash(f) for f in sorted(files)},
+                                   "constants": sorted([m, n, text] for (m, n), text
+                                                       in constants.items())}))
         os.replace(tmp, path)
     except OSError:
         pass                # not kept: lowered again next time
     return source
+
+
+def _constant(module: str, name: str) -> str:
+    """The repr of a module's constant now (what a kept lowering folded in)."""
+    return repr(vars(importlib.import_module(module)).get(name))
 
 
 def _file_hash(path: str) -> str:

@@ -30,13 +30,13 @@ from __future__ import annotations
 import ast
 import types
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 from tfl_mav.accel.lowering import Lowerer
 from tfl_mav.accel.values import Frame, Tup, _source
 from tfl_mav.ctranslate import NativeError
 
-__all__ = ["Tup", "lower", "lower_files", "shape_key"]
+__all__ = ["Lowered", "Tup", "lower", "lower_files", "shape_key"]
 
 
 def _entry_shape(x: Any, what: str) -> Any:
@@ -59,8 +59,16 @@ def shape_key(example: Sequence[Any]) -> str:
     return repr(tuple(_entry_shape(x, "an argument") for x in example))
 
 
-def lower_files(fn: Callable[..., Any], example: Sequence[Any]) -> tuple[str, set[str]]:
-    """:func:`lower`, and the source files of every function it read."""
+class Lowered(NamedTuple):
+    """A lowering and what it depends on besides the shapes."""
+
+    source: str
+    files: set[str]                         # the source files of every function read
+    constants: dict[tuple[str, str], str]   # the module constants folded in: repr by name
+
+
+def lower_files(fn: Callable[..., Any], example: Sequence[Any]) -> Lowered:
+    """:func:`lower`, and what it read: functions' files, modules' constants."""
     if not isinstance(fn, types.FunctionType):
         raise NativeError(f"{fn!r} is not a Python function")
     node = _source(fn)
@@ -89,7 +97,7 @@ def lower_files(fn: Callable[..., Any], example: Sequence[Any]) -> tuple[str, se
         posonlyargs=[], args=[ast.arg(p) for p in params], kwonlyargs=[], kw_defaults=[],
         defaults=[]), body=low.out, decorator_list=[], lineno=1)
     _number(low.out)
-    return ast.unparse(ast.Module([out], [])) + "\n", low.files
+    return Lowered(ast.unparse(ast.Module([out], [])) + "\n", low.files, low.constants)
 
 
 def _number(body: list[ast.stmt]) -> None:

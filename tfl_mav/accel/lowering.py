@@ -39,6 +39,12 @@ class Lowerer:
         self.stack: list[types.FunctionType] = []
         self.depth = 0                          # nesting in kept branches and loops
         self.files: set[str] = set()            # the source files of the functions read
+        # the module constants read, as (module, name) → repr: folded into the lowering
+        self.constants: dict[tuple[str, str], str] = {}
+
+    def read(self, module: str | None, name: str, value: Any) -> None:
+        if module is not None:
+            self.constants[(module, name)] = repr(value)
 
     def fresh(self) -> ast.Name:
         self.n += 1
@@ -123,7 +129,10 @@ class Lowerer:
                 return v.items[v.fields.index(e.attr)]
             if isinstance(v, _Ref) and isinstance(v.obj, types.ModuleType) \
                     and hasattr(v.obj, e.attr):
-                return _value(getattr(v.obj, e.attr), _Lazy(e))
+                value = _value(getattr(v.obj, e.attr), _Lazy(e))
+                if not isinstance(value, _Ref):
+                    self.read(v.obj.__name__, e.attr, getattr(v.obj, e.attr))
+                return value
             raise NativeError(f"cannot lower {ast.unparse(e)!r}")
         if isinstance(e, ast.Subscript):
             v = self.expr(f, e.value, cond)

@@ -203,7 +203,10 @@ class Frame:
                 raise NativeError(f"{self.fn.__qualname__}: {name!r} is read before it is set")
             return self.local(name, self.shapes[name])
         if name in self.globals:
-            return _value(self.globals[name], f"global {name!r}")
+            value = _value(self.globals[name], f"global {name!r}")
+            if not isinstance(value, _Ref):
+                self.low.read(self.globals.get("__name__"), name, self.globals[name])
+            return value
         if hasattr(builtins, name):
             return _Ref(getattr(builtins, name))
         raise NativeError(f"{self.fn.__qualname__}: name {name!r} is not defined")
