@@ -4,8 +4,10 @@ bits (or None where Python raises); what it cannot lower is refused by name."""
 
 from __future__ import annotations
 
+import json
 import math
 import struct
+import sys
 from typing import NamedTuple
 
 import pytest
@@ -204,3 +206,21 @@ def test_obtain_function_warns_and_declines_what_it_cannot_lower(monkeypatch, ca
         assert native.obtain_function(recursion, (1.0,), lambda core: None) is None
     assert "recursive" in caplog.text
     assert native.obtain_function(natural, _EXAMPLE, lambda core: None) is not None
+
+
+def test_a_kept_lowering_is_used_until_a_constant_it_folded_in_changes(tmp_path, monkeypatch):
+    """native.lowered keeps a lowering on disk; it is taken while the functions' files and
+    the module constants it read are as they were, and lowered afresh once one changes."""
+    monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path))
+    monkeypatch.setattr(native, "_lowered", {})
+    first = native.lowered(natural, _EXAMPLE)
+    (kept,) = tmp_path.glob("_tflf_*.json")
+    entry = json.loads(kept.read_text())
+    assert [__name__, "GAIN", "0.75"] in entry["constants"]
+    kept.write_text(json.dumps({**entry, "source": "marker"}))
+    monkeypatch.setattr(native, "_lowered", {})
+    assert native.lowered(natural, _EXAMPLE) == "marker"        # the kept one
+    monkeypatch.setattr(sys.modules[__name__], "GAIN", 0.5)
+    monkeypatch.setattr(native, "_lowered", {})
+    again = native.lowered(natural, _EXAMPLE)
+    assert again != first and "0.5" in again
