@@ -230,7 +230,9 @@ class AttackDetector:
         r = core(self.params, self.state, (time_s, rpm_measured, thrust_cmd_n)) \
             if core is not None else None
         if r is None:       # no compiled step, or it declined: the Python step, same state
-            r = detector_step(self.params, _named(self.state), (
+            state = self.state
+            r = detector_step(self.params, state if type(state) is DetectorState
+                              else _named(state), (
                 float(time_s), tuple(map(float, rpm_measured)), tuple(map(float, thrust_cmd_n))))
         self.state, (d, estimate, resid, cusum, t_detect, alarm, rejected, released) = r
         # DetectorOutput(...) without its generated Python __new__: all eight fields
