@@ -57,6 +57,8 @@ class _C:
         if isinstance(e, ast.Name):
             if e.id == "_inf":
                 return "INFINITY"
+            if e.id == "_nan":
+                return "Py_NAN"
             if e.id in self.objects:
                 raise NativeError(f"{e.id!r} is a sequence or None, not a number")
             if e.id not in self.names:
@@ -150,6 +152,8 @@ class _C:
                     f" {r}; }})")
         if fn == "_isfinite" and len(args) == 1:
             return f"__builtin_isfinite({args[0]})"
+        if fn == "_isnan" and len(args) == 1:
+            return f"__builtin_isnan({args[0]})"
         if fn in _UNARY and len(args) == 1:
             call, raises = _UNARY[fn]
             v = self.fresh()

@@ -34,6 +34,8 @@ import functools
 import hashlib
 import importlib.machinery
 import importlib.util
+import json
+import linecache
 import logging
 import os
 import queue
@@ -45,19 +47,23 @@ import sysconfig
 import tempfile
 import threading
 import time
-from collections.abc import Callable
+import types
+from collections.abc import Callable, Sequence
 from pathlib import Path
+from typing import Any
 
 try:
     import fcntl
 except ImportError:         # not POSIX: concurrent processes may build the same source twice
     fcntl = None  # type: ignore[assignment]
 
-from tfl_mav.accel import ctranslate
+from tfl_mav.accel import ctranslate, frontend
 from tfl_mav.accel.ctranslate import NativeError, translate
+from tfl_mav.accel.frontend import lower
 
-__all__ = ["NativeError", "build", "c_source", "cache_dir", "compile_async", "load_cached",
-           "mode", "obtain", "obtain_c", "translate", "warn_once"]
+__all__ = ["NativeError", "build", "build_function", "c_source", "cache_dir", "compile_async",
+           "load_cached", "lower", "lowered", "mode", "obtain", "obtain_c", "obtain_function",
+           "translate", "warn_once"]
 
 log = logging.getLogger(__name__)
 
@@ -108,7 +114,10 @@ def _compiler() -> list[str] | None:
 @functools.cache
 def _translator() -> str:
     """The translator's own source, hashed: a changed translation is a new cache entry."""
-    return hashlib.sha256(Path(ctranslate.__file__).read_bytes()).hexdigest()[:16]
+    here = Path(__file__).parent
+    text = Path(ctranslate.__file__).read_bytes() + b"".join(
+        (here / name).read_bytes() for name in ("frontend.py", "lowering.py", "values.py"))
+    return hashlib.sha256(text).hexdigest()[:16]
 
 
 def _key(source: str) -> str:
@@ -324,6 +333,80 @@ def obtain(source: str, ready: Callable[[Core], None]) -> Core | None:
         return None
     compile_async(source, c_text, ready)
     return None
+
+
+def obtain_function(fn: Callable[..., Any], example: Sequence[Any],
+                    ready: Callable[[Core], None]) -> Core | None:
+    """:func:`obtain` for a pure Python function itself: lowered first (:func:`frontend.lower`:
+    its calls inlined, its index loops unrolled, its tuples scalar-replaced, for arguments
+    shaped like ``example``). A function the front end cannot lower is a warning and None,
+    as a failed build is."""
+    if mode() == "off":
+        return None
+    try:
+        source = lowered(fn, example)
+    except NativeError as exc:
+        warn_once(str(exc))
+        return None
+    return obtain(source, ready)
+
+
+def build_function(fn: Callable[..., Any], example: Sequence[Any]) -> Core:
+    """:func:`build` of a pure Python function (lowered as :func:`obtain_function` does)."""
+    return build(lowered(fn, example))
+
+
+_lowered: dict[tuple[Any, str], str] = {}
+
+
+def lowered(fn: Callable[..., Any], example: Sequence[Any]) -> str:
+    """:func:`frontend.lower`'s source, kept: in this process, and in the cache directory
+    with the hashes of the source files it was lowered from (a process that flies once
+    would otherwise spend a tenth of a second lowering the detector)."""
+    key = (fn, frontend.shape_key(example))
+    source = _lowered.get(key)
+    if source is not None:
+        return source
+    # A function linked to generated code (a path's σ kernel) is another lowering.
+    linked = sorted(_file_hash(g.__code__.co_filename) for g in getattr(fn, "__globals__", {})
+                    .values() if isinstance(g, types.FunctionType)
+                    and g.__code__.co_filename.startswith("<"))
+    name = hashlib.sha256(f"{_translator()}|{fn.__module__}.{fn.__qualname__}|{key[1]}|"
+                          f"{linked}".encode()).hexdigest()[:20]
+    path = cache_dir() / f"_tflf_{name}.json"
+    try:
+        entry = json.loads(path.read_text())
+        if all(_file_hash(f) == h for f, h in entry["files"].items()) and all(
+                _constant(m, n) == text for m, n, text in entry["constants"]):
+            source = _lowered[key] = entry["source"]
+            return source
+    except (OSError, ValueError, KeyError, TypeError, AttributeError, ImportError):
+        pass
+    source, files, constants = frontend.lower_files(fn, example)
+    _lowered[key] = source
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        tmp.write_text(json.dumps({"source": source,
+                                   "files": {f: _file_hash(f) for f in sorted(files)},
+                                   "constants": sorted([m, n, text] for (m, n), text
+                                                       in constants.items())}))
+        os.replace(tmp, path)
+    except OSError:
+        pass                # not kept: lowered again next time
+    return source
+
+
+def _constant(module: str, name: str) -> str:
+    """The repr of a module's constant now (what a kept lowering folded in)."""
+    return repr(vars(importlib.import_module(module)).get(name))
+
+
+def _file_hash(path: str) -> str:
+    """A source file's hash; generated code's (``<…>``) from its text in linecache."""
+    if path.startswith("<"):
+        return hashlib.sha256("".join(linecache.getlines(path)).encode()).hexdigest()
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 def obtain_c(c_text: str, fn: str, ready: Callable[[Core], None]) -> Core | None:

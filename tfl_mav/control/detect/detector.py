@@ -33,34 +33,41 @@ period). An attacker who forces a rotor's thrust makes that rotor's speed leave 
   (zero), so it is right when the motors are driven again, but the statistics stay at 0: no
   alarm, no move, no release, and the verdict of before (latched rotor, its detection time)
   stands. The estimate still comes from the latched rotor's rpm.
+
+The law is :mod:`detector_step`'s state and pure step; :class:`AttackDetector` holds the
+state and calls the step — compiled through the accelerator seam where it is built, the
+Python function otherwise: the same bits either way.
 """
 
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
 from typing import Any, NamedTuple
 
-from tfl_mav.control.detect import detector_native
-from tfl_mav.control.detect.detector_kernel import (
+from tfl_mav.accel import native
+from tfl_mav.control.detect.detector_step import (
     N_MODELS,
+    N_ROTORS,
     RADPS_TO_RPM,
-    RPM_TO_RADPS,
-    python_kernel,
+    RELEASE_TICKS,
+    RPM_VALID_LIMIT,
+    DetectorParams,
+    DetectorState,
+    RotorState,
+    detector_step,
+    initial_state,
+    motors_driven,
 )
 
-__all__ = ["RPM_QUANTISATION_STD", "AttackDetector", "DetectorConfig", "DetectorOutput"]
+__all__ = ["RELEASE_TICKS", "RPM_QUANTISATION_STD", "RPM_VALID_LIMIT", "AttackDetector",
+           "DetectorConfig", "DetectorOutput"]
 
 # ESC_TELEMETRY_1_TO_4 carries rpm as uint16: rounding adds uniform noise of std 1/√12 rpm.
 RPM_QUANTISATION_STD = 1.0 / math.sqrt(12.0)
-# A speed beyond any ESC's range is a corrupt sample, not a rotor state (rejected like NaN).
-RPM_VALID_LIMIT = 1.0e6
 _ALARM_TOL = 1e-9  # relative slack so min_ticks capped increments reach h despite rounding
-# Consecutive obeying samples that release a latched rotor: 50 ticks (50 ms at 1 kHz) of
-# |z| < k is a false-release probability of ~P(|N(0,1)| < 2)^50 ≈ 0.1 for a rotor whose
-# speed merely sits near the probe by chance, and none while it is held elsewhere.
-RELEASE_TICKS = 50
 
 
 def _param(default: float, unit: str = "", *, lo: float | None = None,
@@ -131,9 +138,17 @@ class DetectorOutput(NamedTuple):
     released: bool = False               # True only on the tick a latched rotor was released
 
 
-_ZERO4 = (0.0, 0.0, 0.0, 0.0)
-_isfinite = math.isfinite
 _new = tuple.__new__
+_ZERO4 = (0.0,) * N_ROTORS
+# The compiled step, once built (one per process, whatever the number of detectors).
+_compiled: dict[str, Any] = {"core": None}
+
+
+def _named(state: Any) -> DetectorState:
+    """``state`` as NamedTuples (the compiled step returns plain tuples of the same
+    layout)."""
+    s = DetectorState(*state)
+    return s._replace(rotors=tuple(RotorState(*r) for r in s.rotors))
 
 
 class AttackDetector:
@@ -142,7 +157,8 @@ class AttackDetector:
     ``k_f`` N/(rad/s)², ``thrust_max_n`` N, ``motor_time_constant_s`` the vehicle's τ_m (s;
     the model uses ``config.model_time_constant_scale`` × it), ``dt_s`` the control period
     (s; the lag is propagated over the elapsed ``time_s``, and over ``dt_s`` for a tick whose
-    time is not finite).
+    time is not finite). Holds :class:`~tfl_mav.control.detect.detector_step.DetectorState` and
+    calls :func:`~tfl_mav.control.detect.detector_step.detector_step`.
     """
 
     def __init__(self, k_f: float, thrust_max_n: float, motor_time_constant_s: float,
@@ -154,65 +170,46 @@ class AttackDetector:
         self.config = cfg = config if config is not None else DetectorConfig()
         self.k_f = float(k_f)
         self.thrust_max_n = float(thrust_max_n)
-        self.dt_s = float(dt_s)
         self.tau_s = float(motor_time_constant_s) * cfg.model_time_constant_scale
         self.sigma_rpm = math.hypot(cfg.rpm_noise_std, RPM_QUANTISATION_STD)
         self.k = cfg.cusum_drift_sigma
         self.h = cfg.cusum_threshold_sigma
         self.z_cap = self.k + self.h / cfg.min_ticks
-        self._omega_max = math.sqrt(self.thrust_max_n / self.k_f)
         tol = 1.0 + cfg.time_constant_tolerance
-        self._taus = tuple(self.tau_s * tol ** (j / 2) for j in range(-2, 3))
-        self._sig2 = self.sigma_rpm ** 2
-        self._rotors = python_kernel(self.tau_s > 0.0)   # the four rotors' tick (generated)
-        # the compiled lagged tick itself (detector_native.attach sets it): update calls it
-        # directly, state in and out (what detector_native's caller does, written out)
-        self._core: Any = None
-        self._sd0 = math.sqrt(self._sig2 + 0.0)   # the residual's std without lag
-        self._h_alarm = self.h * (1.0 - _ALARM_TOL)
-        # The per-rotor state as float tuples, rotor-major (read and rewritten whole each
-        # tick by _rotors): per rotor the speed (rad/s) each model of the band predicts
-        # (τ/tol … τ·tol), the variance of the band's start (rpm², decays with the lag), the
-        # CUSUM statistics, the last residuals, normalised residual (σ, for isolation ties)
-        # and finite rpm sample (for the estimate).
-        self._band: tuple[float, ...] = (0.0,) * (4 * N_MODELS)
-        self._var = self._s_hi = self._s_lo = self._resid = self._z = self._rpm = _ZERO4
-        # exp(−dt/τ_j) per elapsed dt: the sim's tick times are float sums, so dt takes a
-        # handful of values a bit apart (14 in the paper flight): each computed once.
-        self._decays: dict[float, tuple[float, ...]] = {}
-        self._cmd = _ZERO4              # last valid command (N)
-        self._last_time: float | None = None
-        self.rejected_samples = 0
-        self.detected_rotor = 0
-        self.detection_time_s = math.nan
-        self.estimate_n = math.nan
-        self._obey = 0
-        self.moves = 0
-        self.releases = 0
-        self.motors_off = False         # the vehicle says no command drives the motors
-        self.paused_ticks = 0           # ticks judged nothing because of that
+        sig2 = self.sigma_rpm ** 2
+        omega_max = math.sqrt(self.thrust_max_n / self.k_f)
+        self.params = DetectorParams(
+            self.k_f, self.thrust_max_n, float(dt_s), self.tau_s > 0.0,
+            tuple(self.tau_s * tol ** (j / 2) for j in range(-(N_MODELS // 2),
+                                                            N_MODELS // 2 + 1)),
+            sig2, math.sqrt(sig2 + 0.0), (omega_max * RADPS_TO_RPM) ** 2, self.k, self.z_cap,
+            self.h * (1.0 - _ALARM_TOL), cfg.enabled)
+        self.state: Any = initial_state()
         self._out = DetectorOutput(0, math.nan, _ZERO4, _ZERO4, math.nan, False)
-        detector_native.attach(self, self.tau_s > 0.0)    # compiled, where it can be
+        self._core: Any = None
+        self._attach()
 
-    # ------------------------------------------------------------------ model
-    def _omega_target(self, thrust_n: float) -> float:
-        """Steady speed (rad/s) for a command, clamped like the motor clamps it."""
-        return math.sqrt(min(max(thrust_n, 0.0), self.thrust_max_n) / self.k_f)
+    def _attach(self) -> None:
+        """The compiled step: now if it is built (this process, the cache, or
+        ``TFL_MAV_NATIVE=sync``), else when a background build completes (``auto``)."""
+        if native.mode() == "off":
+            return
+        if _compiled["core"] is not None:
+            self._core = _compiled["core"]
+            return
+        ref = weakref.ref(self)
 
-    def _start(self, rpm: Sequence[float], cmd: Sequence[float]) -> None:
-        """First tick with lag: the motor state from the measurement (ω before any lag
-        acts)."""
-        band, var = [], []
-        for i in range(4):
-            if not math.isnan(rpm[i]):
-                w, v = max(rpm[i], 0.0) * RPM_TO_RADPS, self.sigma_rpm ** 2
-            else:           # unknown start: the model is as uncertain as the rotor's range
-                w, v = self._omega_target(cmd[i]), (self._omega_max * RADPS_TO_RPM) ** 2
-            band += [w] * N_MODELS
-            var.append(v)
-        self._band, self._var = tuple(band), tuple(var)
+        def ready(core: Any) -> None:
+            _compiled["core"] = core
+            target = ref()
+            if target is not None:
+                target._core = core
 
-    # ------------------------------------------------------------------ update
+        example = (self.params, self.state, (0.0, _ZERO4, _ZERO4))
+        core = native.obtain_function(detector_step, example, ready)
+        if core is not None:
+            ready(core)
+
     def update(self, time_s: float, rpm_measured: Sequence[float],
                thrust_cmd_n: Sequence[float]) -> DetectorOutput:
         """One control tick.
@@ -224,138 +221,50 @@ class AttackDetector:
         tick (counted); a ``time_s`` not after the previous one (a duplicate or out-of-order
         sample) rejects the whole update (counted) and returns the previous verdict. Raises
         ValueError only for a wrong number of values.
-
-        Runs every tick, so the four rotors' model, residual and CUSUM are straight-line
-        float code (generated once from one rotor's template: :func:`_rotors_source`); the
-        isolation runs only on a tick whose largest statistic reaches ``h``. The same
-        floating-point operations, in the same order, as the step-by-step form
-        (the golden flights are bit-identical).
         """
-        if len(rpm_measured) != 4:
+        if len(rpm_measured) != N_ROTORS:
             raise ValueError(f"rpm_measured: expected 4 values, got {len(rpm_measured)}")
-        if len(thrust_cmd_n) != 4:
+        if len(thrust_cmd_n) != N_ROTORS:
             raise ValueError(f"thrust_cmd_n: expected 4 values, got {len(thrust_cmd_n)}")
-        t = float(time_s)
-        last = self._last_time
-        if not _isfinite(t):
-            self.rejected_samples += 1
-            t = last + self.dt_s if last is not None else 0.0
-        elif last is not None and t <= last:
-            self.rejected_samples += 1
-            return self._reissue(alarm=False)
-        lim = RPM_VALID_LIMIT
-        r0, r1, r2, r3 = map(float, rpm_measured)      # float() each, in C
-        if not (-lim <= r0 <= lim and -lim <= r1 <= lim and -lim <= r2 <= lim
-                and -lim <= r3 <= lim):                 # NaN fails too
-            r0, r1, r2, r3 = (r if -lim <= r <= lim else math.nan for r in (r0, r1, r2, r3))
-        c0, c1, c2, c3 = map(float, thrust_cmd_n)
-        if _isfinite(c0 + c1 + c2 + c3):        # a finite sum: all four finite
-            self._cmd = (c0, c1, c2, c3)
-        else:
-            cmd = list(self._cmd)           # the last valid command per rotor
-            for i, f in enumerate((c0, c1, c2, c3)):
-                if math.isfinite(f):
-                    cmd[i] = f
-                else:       # the vehicle rejects a non-finite command and keeps the last one
-                    self.rejected_samples += 1
-            self._cmd = cmd_t = tuple(cmd)
-            c0, c1, c2, c3 = cmd_t
-        self._last_time = t
-        if self.tau_s <= 0.0:           # no lag: the speed is the command's, every tick
-            top = self._rotors(self, r0, r1, r2, r3, c0, c1, c2, c3)
-        else:
-            decay = None
-            if last is None:
-                self._start((r0, r1, r2, r3), (c0, c1, c2, c3))
-            else:
-                dt = t - last
-                decay = self._decays.get(dt)
-                if decay is None:
-                    if len(self._decays) >= 1024:   # a clock with many distinct periods
-                        self._decays.clear()
-                    decay = self._decays[dt] = tuple(math.exp(-dt / tau_j)
-                                                     for tau_j in self._taus)
-            core = self._core
-            if core is None:        # no compiled tick: the Python one
-                top = self._rotors(self, r0, r1, r2, r3, c0, c1, c2, c3, decay)
-            elif (r := core(self._band, self._sig2, self.thrust_max_n, self._s_hi, self._s_lo,
-                            self._z, self._rpm, self._resid, self._var, self.k, self.z_cap,
-                            self.k_f, self.detected_rotor, r0, r1, r2, r3, c0, c1, c2, c3,
-                            decay)) is None:    # it declined: the Python tick, same state
-                top = python_kernel(True)(self, r0, r1, r2, r3, c0, c1, c2, c3, decay)
-            else:
-                (top, nrej, self._band, self._s_hi, self._s_lo, self._z, self._rpm,
-                 self._resid, self._var) = r
-                if nrej:
-                    self.rejected_samples += int(nrej)
-
-        alarm = False
-        released = False
-        d = self.detected_rotor
-        if self.motors_off:     # no evidence either way: the statistics stay at zero
-            self.paused_ticks += 1
-            self._s_hi = self._s_lo = _ZERO4
-            self._obey = 0
-        elif self.config.enabled:
-            if top >= self._h_alarm:
-                if d:
-                    self.moves += 1             # the attacker moved
-                s_his, s_los, zs = self._s_hi, self._s_lo, self._z
-                _, _, rotor = max((max(s_his[i], s_los[i]), abs(zs[i]), i + 1)
-                                  for i in range(4) if i + 1 != d)
-                self._latch(rotor, t)
-                alarm = True
-            elif d:
-                self._obey = self._obey + 1 if abs(self._z[d - 1]) < self.k else 0
-                if self._obey >= RELEASE_TICKS:             # it follows its commands again
-                    self.releases += 1
-                    self.detected_rotor = 0
-                    self.estimate_n = math.nan
-                    self._s_hi = self._s_lo = _ZERO4
-                    released = True
-        d = self.detected_rotor
-        if d:
-            w = self._rpm[d - 1]
-            w = (0.0 if w < 0.0 else w) * RPM_TO_RADPS     # max(w, 0.0), NaN and -0.0 alike
-            f = self.k_f * w * w
-            fmax = self.thrust_max_n
-            self.estimate_n = fmax if fmax < f else f      # min(f, fmax), alike
-        # _reissue, written out (every tick)
-        h0, h1, h2, h3 = self._s_hi
-        l0, l1, l2, l3 = self._s_lo
+        core = self._core
+        r = core(self.params, self.state, (time_s, rpm_measured, thrust_cmd_n)) \
+            if core is not None else None
+        if r is None:       # no compiled step, or it declined: the Python step, same state
+            state = self.state
+            r = detector_step(self.params, state if type(state) is DetectorState
+                              else _named(state), (
+                float(time_s), tuple(map(float, rpm_measured)), tuple(map(float, thrust_cmd_n))))
+        self.state, (d, estimate, resid, cusum, t_detect, alarm, rejected, released) = r
         # DetectorOutput(...) without its generated Python __new__: all eight fields
-        self._out = out = _new(DetectorOutput, (
-            d, self.estimate_n, self._resid,
-            (h0 if h0 >= l0 else -l0, h1 if h1 >= l1 else -l1, h2 if h2 >= l2 else -l2,
-             h3 if h3 >= l3 else -l3), self.detection_time_s, alarm, self.rejected_samples,
-            released))
+        self._out = out = _new(DetectorOutput, (int(d), estimate, resid, cusum, t_detect,
+                                                alarm != 0.0, int(rejected), released != 0.0))
         return out
 
     def set_motors_off(self, off: bool) -> None:
         """The vehicle says whether a command drives its motors (ACTUATOR_OUTPUT_STATUS
         ``active``): while ``off``, :meth:`update` judges nothing (module docstring). Every
         statistic starts from zero when they are driven again."""
-        self.motors_off = bool(off)
-        self._s_hi = self._s_lo = _ZERO4
-        self._obey = 0
-
-    def _latch(self, rotor: int, t: float) -> None:
-        self.detected_rotor = rotor
-        self.detection_time_s = t
-        self._obey = 0
-        self._s_hi = self._s_lo = _ZERO4   # a fresh start: the old rotor's evidence is spent
-
-    def _reissue(self, alarm: bool, released: bool = False) -> DetectorOutput:
-        h0, h1, h2, h3 = self._s_hi
-        l0, l1, l2, l3 = self._s_lo
-        cusum = (h0 if h0 >= l0 else -l0, h1 if h1 >= l1 else -l1,
-                 h2 if h2 >= l2 else -l2, h3 if h3 >= l3 else -l3)
-        self._out = out = DetectorOutput(self.detected_rotor, self.estimate_n, self._resid,
-                                         cusum, self.detection_time_s, alarm,
-                                         self.rejected_samples, released)
-        return out
+        self.state = motors_driven(self.state, bool(off))
 
     @property
     def output(self) -> DetectorOutput:
         """The latest verdict (what :meth:`update` last returned)."""
         return self._out
+
+    @property
+    def compiled(self) -> bool:
+        """True when the step runs compiled."""
+        return self._core is not None
+
+    # The state's counts and verdict, as the detector's attributes.
+    motors_off = property(lambda self: bool(self.state[_FIELD["motors_off"]]))
+    detected_rotor = property(lambda self: int(self.state[_FIELD["detected_rotor"]]))
+    detection_time_s = property(lambda self: self.state[_FIELD["detection_time_s"]])
+    estimate_n = property(lambda self: self.state[_FIELD["estimate_n"]])
+    rejected_samples = property(lambda self: int(self.state[_FIELD["rejected"]]))
+    moves = property(lambda self: int(self.state[_FIELD["moves"]]))
+    releases = property(lambda self: int(self.state[_FIELD["releases"]]))
+    paused_ticks = property(lambda self: int(self.state[_FIELD["paused_ticks"]]))
+
+
+_FIELD = {name: k for k, name in enumerate(DetectorState._fields)}

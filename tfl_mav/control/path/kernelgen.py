@@ -15,6 +15,7 @@ import ast
 import functools
 import heapq
 import inspect
+import linecache
 import math
 import re
 import textwrap
@@ -165,7 +166,10 @@ def compile_source(name: str, source: str, extra: dict[str, Any] | None = None
     """The function ``name`` defined by generated ``source`` (globals: the math functions
     and ``extra``)."""
     namespace: dict[str, Any] = {**KERNEL_GLOBALS, **(extra or {})}
-    exec(compile(source, f"<tfl-mav kernel {name}>", "exec"), namespace)
+    filename = f"<tfl-mav kernel {name}>"
+    # Its text where inspect finds it: tracebacks, and the seam's front end inlines it.
+    linecache.cache[filename] = (len(source), None, source.splitlines(True), filename)
+    exec(compile(source, filename, "exec"), namespace)
     return namespace[name]  # type: ignore[no-any-return]
 
 

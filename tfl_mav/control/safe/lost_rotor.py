@@ -5,23 +5,51 @@
 with a rotor attacked: from the outer loop's wanted acceleration to the canonical rotor
 thrusts — the thrust direction n, the reduced attitude h = Rᵀ n, the canonical LQR torques
 and the saturation-aware three-rotor allocation (Mueller & D'Andrea's relaxed hover; the
-module docstring of :mod:`recovery` says why). It is plain Python of the restricted form
-:mod:`tfl_mav.accel.native` translates (floats and sequences in, straight-line arithmetic, a tuple
-of floats out), so the very same source flies as Python and, compiled mechanically, as C —
-the same operations in the same order, the same bits (``tests/contract/test_native.py``). Where the
-C bails (an operation Python would raise on) the Python runs and raises, as it would have.
+module docstring of :mod:`recovery` says why). It is plain Python the accelerator seam
+compiles, inlined in the safe law's whole tick (:func:`~tfl_mav.control.safe.safe_step.safe_tick`)
+with :func:`thrust_direction`, which the four-rotor law calls too: the very same source flies
+as Python and, compiled mechanically, as C — the same operations in the same order, the same
+bits (``tests/contract/test_native.py``). Where the C bails (an operation Python would raise on) the
+Python runs and raises, as it would have.
 """
 
 from __future__ import annotations
 
-import ast
-import inspect
 import math
-import textwrap
-from collections.abc import Callable, Sequence
-from typing import Any
+from collections.abc import Sequence
 
-__all__ = ["lost_rotor_step", "lost_rotor_step_source", "step_function"]
+__all__ = ["STEP_EXAMPLE", "lost_rotor_step", "thrust_direction"]
+
+
+def thrust_direction(acc: Sequence[float], vel: Sequence[float], quat: Sequence[float],
+                     mass_kg: float, k_t: float, gravity_mps2: float
+                     ) -> tuple[float, float, float, float, float]:
+    """The wanted thrust F = m (a + g e₃) + k_t v, its direction n and the reduced attitude
+    h = Rᵀ n: (tilt error rad — the angle between b3 and n —, u_f N — F's component along
+    b3, never negative —, h₀, h₁, h₂). ``acc`` m/s² and ``vel`` m/s (paper frame, z up),
+    ``quat`` the normalised attitude (w, x, y, z). One copy for the four-rotor law and the
+    three-rotor step."""
+    a0, a1, a2 = acc
+    v0, v1, v2 = vel
+    qw, qx, qy, qz = quat
+    F0 = mass_kg * a0 + k_t * v0
+    F1 = mass_kg * a1 + k_t * v1
+    F2 = mass_kg * (a2 + gravity_mps2) + k_t * v2
+    fn = math.sqrt(F0 ** 2 + F1 ** 2 + F2 ** 2)
+    n0, n1, n2 = (F0 / fn, F1 / fn, F2 / fn) if fn > 1e-9 else (0.0, 0.0, 1.0)
+    # h = Rᵀ n, R's rows as rotation_rows builds them
+    h0 = ((1 - 2 * (qy * qy + qz * qz)) * n0 + (2 * (qx * qy + qw * qz)) * n1
+          + (2 * (qx * qz - qw * qy)) * n2)
+    h1 = ((2 * (qx * qy - qw * qz)) * n0 + (1 - 2 * (qx * qx + qz * qz)) * n1
+          + (2 * (qy * qz + qw * qx)) * n2)
+    h2 = ((2 * (qx * qz + qw * qy)) * n0 + (2 * (qy * qz - qw * qx)) * n1
+          + (1 - 2 * (qx * qx + qy * qy)) * n2)
+    c = h2 if h2 < 1.0 else 1.0
+    tilt_err = math.acos(c if c > -1.0 else -1.0)
+    # Thrust along b3: the component of F there; never negative (upside down: idle).
+    uf = fn * h2
+    uf = 0.0 if uf < 0.0 else uf
+    return tilt_err, uf, h0, h1, h2
 
 
 def lost_rotor_step(acc: Sequence[float], vel: Sequence[float], quat: Sequence[float],
@@ -37,36 +65,11 @@ def lost_rotor_step(acc: Sequence[float], vel: Sequence[float], quat: Sequence[f
 
     Returns (tilt error rad, u_f N, the canonical thrusts f1..f4 N, the side rotors' demand
     made as asked: 1.0 or 0.0, and the unconstrained demands of f1, f3, f4 N)."""
-    a0, a1, a2 = acc
-    v0, v1, v2 = vel
-    qw, qx, qy, qz = quat
     p, q, r = rates
     r00, r01, r02, r10, r11, r12 = rot
     k00, k01, k02, k03, k10, k11, k12, k13 = gains
     m, k_t, g, ell, fmax = model
-    F0 = m * a0 + k_t * v0
-    F1 = m * a1 + k_t * v1
-    F2 = m * (a2 + g) + k_t * v2
-    fn = math.sqrt(F0 ** 2 + F1 ** 2 + F2 ** 2)
-    n0 = 0.0
-    n1 = 0.0
-    n2 = 1.0
-    if fn > 1e-9:
-        n0 = F0 / fn
-        n1 = F1 / fn
-        n2 = F2 / fn
-    # h = Rᵀ n, R's rows as rotation_rows builds them
-    h0 = ((1 - 2 * (qy * qy + qz * qz)) * n0 + (2 * (qx * qy + qw * qz)) * n1
-          + (2 * (qx * qz - qw * qy)) * n2)
-    h1 = ((2 * (qx * qy - qw * qz)) * n0 + (1 - 2 * (qx * qx + qz * qz)) * n1
-          + (2 * (qy * qz + qw * qx)) * n2)
-    h2 = ((2 * (qx * qz + qw * qy)) * n0 + (2 * (qy * qz - qw * qx)) * n1
-          + (1 - 2 * (qx * qx + qy * qy)) * n2)
-    c = h2 if h2 < 1.0 else 1.0
-    tilt_err = math.acos(c if c > -1.0 else -1.0)
-    # Thrust along b3: the component of F there; never negative (upside down: idle).
-    uf = fn * h2
-    uf = 0.0 if uf < 0.0 else uf
+    tilt_err, uf, h0, h1, h2 = thrust_direction(acc, vel, quat, m, k_t, g)
     # Canonical components (as sum() over the integer rotation: the same roundings).
     x0 = 0 + r00 * h0 + r01 * h1 + r02 * h2
     x1 = 0 + r10 * h0 + r11 * h1 + r12 * h2
@@ -95,32 +98,6 @@ def lost_rotor_step(acc: Sequence[float], vel: Sequence[float], quat: Sequence[f
             0.5 * s13 - half, 0.5 * s13 + half, f4)
 
 
-def lost_rotor_step_source() -> str:
-    """:func:`lost_rotor_step`'s source as :mod:`tfl_mav.accel.native` compiles it (no docstring,
-    no annotations)."""
-    fn = ast.parse(textwrap.dedent(inspect.getsource(lost_rotor_step))).body[0]
-    assert isinstance(fn, ast.FunctionDef)
-    fn.body = fn.body[1:]
-    fn.returns = None
-    for arg in fn.args.args:
-        arg.annotation = None
-    return ast.unparse(fn) + "\n"
-
-
-_native: dict[str, Any] = {"core": None, "loaded": False}
-
-
-def step_function() -> Callable[..., tuple[float, ...] | None]:
-    """The compiled step once it is built (this process, the cache, or
-    ``TFL_MAV_NATIVE=sync``; ``auto`` builds it in the background), else the Python one."""
-    if not _native["loaded"]:
-        _native["loaded"] = True
-        from tfl_mav.accel import native
-        def ready(core: Any) -> None:
-            _native["core"] = core
-
-        core = native.obtain(lost_rotor_step_source(), ready)
-        if core is not None:
-            ready(core)
-    core = _native["core"]
-    return core if core is not None else lost_rotor_step
+#: Arguments shaped as :func:`~tfl_mav.control.safe.safe_step.safe_tick` passes them.
+STEP_EXAMPLE = ((0.0,) * 3, (0.0,) * 3, (1.0, 0.0, 0.0, 0.0), (0.0,) * 3, (0,) * 6,
+                (0.0,) * 8, (0.0,) * 5, 0.0)

@@ -49,38 +49,39 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import NamedTuple
+from typing import Any, NamedTuple
 
 import numpy as np
 
+from tfl_mav.accel import native
 from tfl_mav.control.allocation import RotorFrame, allocate_nominal, canonical_frame
 from tfl_mav.control.path.compiled import PathKernels, compile_path
 from tfl_mav.control.path.jetcode import TraceError
 from tfl_mav.control.path.jets import Jet
 from tfl_mav.control.path.paths import Path
-from tfl_mav.control.safe import lost_rotor
+from tfl_mav.control.safe import lost_rotor, safe_step
 from tfl_mav.control.safe.lqr import dlqr, dlqr_zoh_many, zoh
+from tfl_mav.control.safe.safe_step import (
+    KI,
+    MAX_INTEGRAL_G,
+    MAX_TILT_RAD,
+    MAX_VERTICAL_G,
+    POS_OMEGA,
+    SafeParams,
+)
 from tfl_mav.model.state import State
 
-__all__ = ["PathProjector", "RecoveryLaw", "RecoveryOutput", "gain_schedule",
-           "projector_sigma2", "reference_sigma2"]
+__all__ = ["MAX_INTEGRAL_G", "MAX_TILT_RAD", "MAX_VERTICAL_G", "POS_OMEGA", "PathProjector",
+           "RecoveryLaw", "RecoveryOutput", "gain_schedule", "projector_sigma2",
+           "reference_sigma2"]
 
-MAX_TILT_RAD = math.radians(30.0)   # outer loop: horizontal acceleration ≤ g tan 30°
-MAX_VERTICAL_G = 0.5                # outer loop: |vertical acceleration| ≤ 0.5 g
-POS_OMEGA = 1.25  # outer-loop triple pole (rad/s)
-MAX_INTEGRAL_G = 0.2                # |integral action| ≤ 0.2 g per axis (a 20 % model error)
 ATT_KP = 100.0                      # healthy reduced attitude: (10 rad/s)²
 ATT_KD = 20.0                       # … critically damped
 YAW_DAMP = 2.0                      # healthy: r decays at 2 /s
 # LQR weights on (h1, h2, p, q) and (τ_p, τ_q): Bryson's rule with 0.1 of h (≈ 6°),
 # 10 rad/s of p, q and 0.2 N m of τ_q; τ_p costs 100× (one-sided, only for a slow spin).
 # With motor lag the τ_q weight grows (:func:`lqr_r`).
-_TAN_MAX_TILT = math.tan(MAX_TILT_RAD)
-_isfinite = math.isfinite
 _new_output = tuple.__new__     # a named tuple made without its Python __new__ frame
-_KP = 3.0 * POS_OMEGA * POS_OMEGA      # outer-loop PID gains: (s + ω_p)³
-_KD = 3.0 * POS_OMEGA
-_KI = POS_OMEGA * POS_OMEGA * POS_OMEGA
 LQR_MAX_SPIN_RADPS = 150.0   # gain schedule range (see RecoveryLaw._lqr)
 LQR_Q = (100.0, 100.0, 0.01, 0.01)
 LQR_R = (2500.0, 25.0)
@@ -192,7 +193,8 @@ def _floats(x: Sequence[float]) -> Sequence[float]:
 
 
 class PathProjector:
-    """Closest point of a path, kept between calls (Newton on ⟨y − σ(λ), σ'(λ)⟩ = 0).
+    """Closest point of a path, kept between calls (Newton on ⟨y − σ(λ), σ'(λ)⟩ = 0:
+    :func:`~tfl_mav.control.safe.safe_step.closest_point` linked to this path's σ kernel).
 
     σ, σ' and σ'' come exactly from one ``sigma2`` evaluation a step — the compiled kernel
     the TFL tracker uses, or the reference jets (:func:`projector_sigma2`): a warm-started
@@ -203,69 +205,49 @@ class PathProjector:
 
     def __init__(self, path: Path, sigma2: Sigma2 | None = None,
                  evaluation: str = "given", *, source: str | None = None) -> None:
-        """``source``: the generated source of ``sigma2`` (a compiled path kernel's), which
-        :mod:`tfl_mav.accel.native` then compiles to C — the same bits, a third of the time; the
-        Python kernel evaluates until it is built, and wherever the C declines."""
+        """``source``: the generated source of ``sigma2`` (a compiled path kernel's): then
+        the accelerator seam compiles the projection with it inlined — the same bits; the
+        Python evaluates until it is built, and wherever the C declines."""
         self.path = path
         if sigma2 is None:
             sigma2, evaluation = projector_sigma2(path)
         self.evaluation = evaluation        # "compiled" | "reference jets (why)" | "given"
-        self._sigma2 = sigma2
-        self._sigma2_c: Sigma2 | None = None
+        self.linked = safe_step.linked(sigma2)      # the safe law's functions on this σ
+        self.lowerable = source is not None         # the seam can compile them
+        self._closest = self.linked["closest_point"]
+        self._closest_c: Callable[..., Any] | None = None
         self.lam: float | None = None
-        if source is not None:
-            from tfl_mav.accel import native
-            def ready(core: Sigma2) -> None:
-                self._sigma2_c = core
+        if self.lowerable:
+            def ready(core: Callable[..., Any]) -> None:
+                self._closest_c = core
 
-            core = native.obtain(source, ready)
+            core = native.obtain_function(self._closest, (0.0, (0.0, 0.0, 0.0)), ready)
             if core is not None:
                 ready(core)
+
+    def start(self, y: Sequence[float]) -> None:
+        """λ from a global search: the nearest of 2001 points along the path."""
+        yx, yy, yz = y
+        lo, hi = self.path.lam_range
+        lam_grid = np.linspace(lo, hi, 2001)
+        x, sy, z = self.path.sigma(lam_grid)
+        d2 = (x - yx) ** 2 + (sy - yy) ** 2 + (z - yz) ** 2
+        self.lam = float(lam_grid[int(np.argmin(d2))])
 
     def project(self, y: Sequence[float]) -> tuple[tuple[float, float, float],
                                                    tuple[float, float, float],
                                                    tuple[float, float, float],
                                                    float] | None:
         """(point, unit tangent, curvature vector κN, distance) or None if not found."""
-        yx, yy, yz = y
         if self.lam is None:
-            lo, hi = self.path.lam_range
-            lam_grid = np.linspace(lo, hi, 2001)
-            x, sy, z = self.path.sigma(lam_grid)
-            d2 = (x - yx) ** 2 + (sy - yy) ** 2 + (z - yz) ** 2
-            self.lam = float(lam_grid[int(np.argmin(d2))])
-        lam = self.lam
-        fast, sigma2 = self._sigma2_c, self._sigma2
-        for _ in range(8):
-            out = fast((lam,)) if fast is not None else None
-            c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = out if out is not None \
-                else sigma2((lam,))
-            ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
-            g = ex * c1x + ey * c1y + ez * c1z
-            dg = 2.0 * (ex * c2x + ey * c2y + ez * c2z) - (c1x * c1x + c1y * c1y + c1z * c1z)
-            step = -g / dg if dg < 0.0 else -0.1 * math.copysign(1.0, g)
-            step = -0.5 if step < -0.5 else (0.5 if step > 0.5 else step)
-            lam += step
-            if abs(step) < 1e-9:
-                break
-        if not math.isfinite(lam):
-            return None
-        self.lam = lam
-        out = fast((lam,)) if fast is not None else None
-        c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = out if out is not None \
-            else sigma2((lam,))
-        s1sq = c1x * c1x + c1y * c1y + c1z * c1z
-        if not s1sq > 0.0:
-            return None
-        s1 = math.sqrt(s1sq)
-        tx, ty, tz = c1x / s1, c1y / s1, c1z / s1
-        # κN = (σ'' − (σ''·T) T)/|σ'|², σ'' = 2 c2
-        d2x, d2y, d2z = 2.0 * c2x, 2.0 * c2y, 2.0 * c2z
-        a = d2x * tx + d2y * ty + d2z * tz
-        ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
-        return ((c0x, c0y, c0z), (tx, ty, tz),
-                ((d2x - a * tx) / s1sq, (d2y - a * ty) / s1sq, (d2z - a * tz) / s1sq),
-                math.sqrt(ex * ex + ey * ey + ez * ez))
+            self.start(y)
+        fast = self._closest_c
+        out = fast(self.lam, y) if fast is not None else None
+        if out is None:
+            yx, yy, yz = y
+            out = self._closest(self.lam, (yx, yy, yz))
+        found, self.lam, point, tangent, curvature, dist = out
+        return (point, tangent, curvature, dist) if found else None
 
 
 class RecoveryOutput(NamedTuple):
@@ -326,7 +308,21 @@ class RecoveryLaw:
         # error) is the same force the next time.
         self.integral_ms = [0.0, 0.0, 0.0]
         self._pending_error_m: tuple[float, float, float] | None = None  # this tick's e
-        self._integral_top_ms = MAX_INTEGRAL_G * gravity_mps2 / _KI
+        self._integral_top_ms = MAX_INTEGRAL_G * gravity_mps2 / KI
+        # The attacked tick: safe_step's pure step, on this path's σ, compiled by the seam
+        # where it is built (the projection's kernel must be generated code to be inlined).
+        self._safe = SafeParams(self._step_model, speed_mps, dt_s, self._integral_top_ms,
+                                self.projector is not None)
+        self._tick = (self.projector.linked if self.projector is not None
+                      else vars(safe_step))["safe_tick"]
+        self._tick_c: Callable[..., Any] | None = None
+        if self.projector is None or self.projector.lowerable:
+            def ready(core: Callable[..., Any]) -> None:
+                self._tick_c = core
+
+            core = native.obtain_function(self._tick, (self._safe, _STATE0, _INPUTS0), ready)
+            if core is not None:
+                ready(core)
 
     # ------------------------------------------------------------------ targets
     def hold(self, position_m: Sequence[float]) -> None:
@@ -338,39 +334,23 @@ class RecoveryLaw:
 
     def _accel_demand(self, y: Sequence[float], v: Sequence[float]
                       ) -> tuple[float, float, float, float]:
-        """(a_x, a_y, a_z, path distance): the outer loop's wanted acceleration (m/s²) —
-        PID towards the closest path point (or the held point) plus the path's centripetal
-        term, limited to MAX_TILT_RAD and ±MAX_VERTICAL_G — and the distance (NaN when
-        holding)."""
+        """(a_x, a_y, a_z, path distance): the outer loop's wanted acceleration (m/s²,
+        :func:`~tfl_mav.control.safe.safe_step.accel_demand`) towards the closest path point (or
+        the held point), and the distance (NaN when holding)."""
         dist = math.nan
         proj = None
         hold = self.hold_m
         if hold is None and self.projector is not None:
             proj = self.projector.project(y)
         if proj is not None:
-            (p0, p1, p2), (t0, t1, t2), (k0, k1, k2), dist = proj
-            sp = self.speed
-            sp2 = sp * sp
-            e = (p0 - y[0], p1 - y[1], p2 - y[2])
-            ff = (_KD * sp * t0 + sp2 * k0, _KD * sp * t1 + sp2 * k1, _KD * sp * t2 + sp2 * k2)
+            target, tangent, curvature, dist = proj
         else:
             if hold is None:
                 hold = self.hold_m = list(y)
-            e = (hold[0] - y[0], hold[1] - y[1], hold[2] - y[2])
-            ff = (0.0, 0.0, 0.0)
-        integ = self.integral_ms
-        a0 = _KP * e[0] - _KD * v[0] + ff[0] + _KI * integ[0]
-        a1 = _KP * e[1] - _KD * v[1] + ff[1] + _KI * integ[1]
-        a2 = _KP * e[2] - _KD * v[2] + ff[2] + _KI * integ[2]
-        lim = MAX_VERTICAL_G * self.g
-        az = lim if a2 > lim else (-lim if a2 < -lim else a2)
-        ah = math.hypot(a0, a1)
-        amax = (self.g + az) * _TAN_MAX_TILT
-        limited = az != a2
-        if ah > amax:
-            a0 *= amax / ah
-            a1 *= amax / ah
-            limited = True
+            target = tangent = curvature = (hold[0], hold[1], hold[2])
+        a0, a1, az, e, limited = safe_step.accel_demand(
+            self._safe, target, tangent, curvature, self.integral_ms, y, v, self.g,
+            1.0 if proj is not None else 0.0)
         self._pending_error_m = None if limited else e
         return a0, a1, az, dist
 
@@ -383,18 +363,9 @@ class RecoveryLaw:
         integral fed through that saturation winds up into a limit cycle metres wide."""
         e = self._pending_error_m
         self._pending_error_m = None
-        if e is None:
-            return
-        e0, e1, e2 = e
-        if not _isfinite(e0 + e1 + e2):      # a finite sum: all three finite
-            return
-        i0, i1, i2 = self.integral_ms
-        dt = self.dt
-        top = self._integral_top_ms
-        i0, i1, i2 = i0 + e0 * dt, i1 + e1 * dt, i2 + e2 * dt
-        self.integral_ms = [(top if i0 > top else (-top if i0 < -top else i0)),
-                            (top if i1 > top else (-top if i1 < -top else i1)),
-                            (top if i2 > top else (-top if i2 < -top else i2))]
+        if e is not None:
+            self.integral_ms = list(safe_step.integrated(
+                tuple(self.integral_ms), e, self.dt, self._integral_top_ms))
 
     # ------------------------------------------------------------------ gains
     def _lqr(self, r: float, ix: float, iy: float) -> Gains:
@@ -428,6 +399,8 @@ class RecoveryLaw:
 
         R(q) is written out as the nine entries :func:`~tfl_mav.model.geometry.rotation_rows`
         computes."""
+        if attacked_rotor:
+            return self._three_rotor(s, attacked_rotor, attack_n)
         # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
         qw, qx, qy, qz = _floats(s.quaternion_wxyz)
         nq = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
@@ -437,25 +410,8 @@ class RecoveryLaw:
         a0, a1, a2, dist = self._accel_demand(y, v)
         ix, iy, iz = self.inertia
         ell, fmax = self.arm_m, self.fmax
-        if attacked_rotor:
-            return self._three_rotor(attacked_rotor, (a0, a1, a2), v, (qw, qx, qy, qz),
-                                     (p, q, r), attack_n, dist)
-        m, k_t = self.mass_kg, self.k_t
-        F0, F1, F2 = m * a0 + k_t * v[0], m * a1 + k_t * v[1], m * (a2 + self.g) + k_t * v[2]
-        fn = math.sqrt(F0 ** 2 + F1 ** 2 + F2 ** 2)
-        n0, n1, n2 = (F0 / fn, F1 / fn, F2 / fn) if fn > 1e-9 else (0.0, 0.0, 1.0)
-        # h = Rᵀ n, R's rows as rotation_rows builds them
-        h0 = ((1 - 2 * (qy * qy + qz * qz)) * n0 + (2 * (qx * qy + qw * qz)) * n1
-              + (2 * (qx * qz - qw * qy)) * n2)
-        h1 = ((2 * (qx * qy - qw * qz)) * n0 + (1 - 2 * (qx * qx + qz * qz)) * n1
-              + (2 * (qy * qz + qw * qx)) * n2)
-        h2 = ((2 * (qx * qz + qw * qy)) * n0 + (2 * (qy * qz - qw * qx)) * n1
-              + (1 - 2 * (qx * qx + qy * qy)) * n2)
-        c = h2 if h2 < 1.0 else 1.0
-        tilt_err = math.acos(c if c > -1.0 else -1.0)
-        # Thrust along b3: the component of F there; never negative (upside down: idle).
-        uf = fn * h2
-        uf = 0.0 if uf < 0.0 else uf
+        tilt_err, uf, h0, h1, _ = lost_rotor.thrust_direction(
+            (a0, a1, a2), v, (qw, qx, qy, qz), self.mass_kg, self.k_t, self.g)
         tau_p = ix * (ATT_KP * -h1 - ATT_KD * p) + (iz - iy) * q * r + self.k_r * p
         tau_q = iy * (ATT_KP * h0 - ATT_KD * q) + (ix - iz) * p * r + self.k_r * q
         tau_r = -iz * YAW_DAMP * r + self.k_r * r
@@ -466,12 +422,10 @@ class RecoveryLaw:
             self._integrate()
         return RecoveryOutput(f, f, tilt_err, dist, uf, clamped)  # type: ignore[arg-type]
 
-    def _three_rotor(self, attacked_rotor: int, acc: tuple[float, float, float],
-                     v: Sequence[float], quat: tuple[float, float, float, float],
-                     rates: tuple[float, float, float], attack_n: float,
-                     dist: float) -> RecoveryOutput:
-        """The three-rotor tick: the LQR gain for the canonical spin rate, then
-        :func:`~tfl_mav.control.safe.lost_rotor.lost_rotor_step` (compiled where it is built)."""
+    def _three_rotor(self, s: State, attacked_rotor: int, attack_n: float) -> RecoveryOutput:
+        """The three-rotor tick: the LQR gain for the canonical spin rate, then the pure
+        :func:`~tfl_mav.control.safe.safe_step.safe_tick` (compiled where it is built) from the
+        law's state, written back."""
         fr = self._frames.get(attacked_rotor)
         if fr is None:
             fr = self._frames[attacked_rotor] = canonical_frame(attacked_rotor)
@@ -479,25 +433,40 @@ class RecoveryLaw:
             self._inverse_perm[attacked_rotor] = tuple(fr.perm.index(j) for j in range(4))
             self._rot6[attacked_rotor] = (*fr.rot[0], *fr.rot[1])
         r20, r21, r22 = fr.rot[2]
-        p, q, r = rates
+        rates = p, q, r = _floats(s.body_rates_radps)
         ix, iy = self.inertia[0], self.inertia[1]
         ixc, iyc = (iy, ix) if fr.swap_xy else (ix, iy)
-        (k00, k01, k02, k03), (k10, k11, k12, k13) = self._lqr(0 + r20 * p + r21 * q + r22 * r,
-                                                               ixc, iyc)
-        args = (acc, (v[0], v[1], v[2]), quat, rates, self._rot6[attacked_rotor],
-                (k00, k01, k02, k03, k10, k11, k12, k13), self._step_model, attack_n)
-        out = lost_rotor.step_function()(*args)
-        if out is None:                   # the C bails where Python raises: raise here
-            out = lost_rotor.lost_rotor_step(*args)
-        tilt_err, uf, c0, c1, c2, c3, made, d0, d2, d3 = out
-        if made:
-            self._integrate()
-        canon = (c0, c1, c2, c3)
-        hi = self.fmax + 1e-9
-        j0, j1, j2, j3 = self._inverse_perm[attacked_rotor]
-        f = [canon[j0], canon[j1], canon[j2], canon[j3]]
-        req = (d0, c1, d2, d3)
-        r0, r1, r2, r3 = req[j0], req[j1], req[j2], req[j3]
-        clamped = (not -1e-9 <= r0 <= hi, not -1e-9 <= r1 <= hi, not -1e-9 <= r2 <= hi,
-                   not -1e-9 <= r3 <= hi)
-        return _new_output(RecoveryOutput, (f, list(f), tilt_err, dist, uf, clamped))
+        gains = self._lqr(0 + r20 * p + r21 * q + r22 * r, ixc, iyc)
+        proj, hold = self.projector, self.hold_m
+        if proj is not None and hold is None and proj.lam is None:
+            proj.start(_floats(s.position_m))
+        state = (proj.lam if proj is not None and proj.lam is not None else 0.0,
+                 0.0 if hold is None else 1.0, _ZERO3 if hold is None else hold,
+                 self.integral_ms)
+        core = self._tick_c
+        out = core(self._safe, state, (s.position_m, s.velocity_mps, s.quaternion_wxyz,
+                                       rates, attack_n, self._rot6[attacked_rotor],
+                                       self._inverse_perm[attacked_rotor], gains)) \
+            if core is not None else None
+        if out is None:       # the C bails where Python raises: raise here
+            out = self._tick(self._safe, state, (
+                _floats(s.position_m), _floats(s.velocity_mps), _floats(s.quaternion_wxyz),
+                rates, attack_n, self._rot6[attacked_rotor], self._inverse_perm[attacked_rotor],
+                gains))
+        (lam, holding, hold_m, integral), (f, tilt_err, dist, uf, clamped) = out
+        if proj is not None and hold is None:
+            proj.lam = lam
+        if holding and hold is None:
+            self.hold_m = list(hold_m)
+        self.integral_ms = list(integral)
+        f = list(f)
+        c0, c1, c2, c3 = clamped
+        return _new_output(RecoveryOutput, (f, list(f), tilt_err, dist, uf,
+                                            (c0 != 0.0, c1 != 0.0, c2 != 0.0, c3 != 0.0)))
+
+
+_ZERO3 = (0.0, 0.0, 0.0)
+# safe_tick's arguments' shapes, for the seam's lowering.
+_STATE0 = (0.0, 0.0, _ZERO3, _ZERO3)
+_INPUTS0 = (_ZERO3, _ZERO3, (1.0, 0.0, 0.0, 0.0), _ZERO3, 0.0, (0,) * 6, (0,) * 4,
+            ((0.0,) * 4, (0.0,) * 4))

@@ -1,0 +1,120 @@
+"""The accelerator seam's front end: a natural pure Python function lowered, mechanically, to
+the one straight-line function :mod:`ctranslate` translates.
+
+:func:`lower` reads a function's own source (:func:`inspect.getsource`) and rewrites its
+syntax tree, never its arithmetic:
+
+* **calls inlined**: a call of another module-level pure Python function (found in the
+  caller's module globals, or an attribute of a module there) is replaced by that function's
+  body, its locals renamed, its parameters bound to the arguments' values; a NamedTuple
+  class called is its tuple; ``min``/``max`` are the comparisons the builtins make
+  (``min(a, b)`` is ``b if b < a else a``), ``float``/``len``/``tuple`` what they mean on
+  floats and tuples;
+* **loops unrolled**: ``for i in range(N)`` with a constant ``N`` whose body reads ``i``
+  (and ``for x in <tuple>``, and ``tuple(… for i in range(N))``) becomes ``N`` copies of the
+  body with ``i`` the constant; a loop that does not read its index stays a loop;
+* **tuples scalar-replaced**: tuple literals, unpacking, ``t[k]`` and ``t.field`` with a
+  constant ``k`` (NamedTuples: the field's index), ``+`` and ``*`` of tuples, are resolved at
+  lowering into one float local per element; a sequence argument is unpacked once at entry
+  (its shape taken from an example argument).
+
+Every float operation of the original stays, with its operands, in the order each value
+needs it: the compiled function returns the original's bits (tests/contract/test_accel.py). What it
+cannot lower — a call inside a conditional expression (it would run unconditionally), a
+non-constant index, a loop with ``break`` that must unroll, recursion, an early ``return``
+of a value — is a :class:`~tfl_mav.accel.ctranslate.NativeError` naming it.
+"""
+
+from __future__ import annotations
+
+import ast
+import types
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
+
+from tfl_mav.accel.ctranslate import NativeError
+from tfl_mav.accel.lowering import Lowerer
+from tfl_mav.accel.values import Frame, Tup, _source
+
+__all__ = ["Lowered", "Tup", "lower", "lower_files", "shape_key"]
+
+
+def _entry_shape(x: Any, what: str) -> Any:
+    if isinstance(x, (bool, int, float)):
+        return None
+    if isinstance(x, (tuple, list)) and x:
+        return Tup([_entry_shape(v, what) for v in x], getattr(x, "_fields", None))
+    raise NativeError(f"{what}: an argument must be a number or a non-empty tuple of them")
+
+
+def lower(fn: Callable[..., Any], example: Sequence[Any]) -> str:
+    """The source of one function the translator takes, doing what ``fn`` does on arguments
+    shaped like ``example`` (numbers, and tuples or lists of them, nested; NamedTuples name
+    their fields): the same name, the same parameters, each sequence unpacked at entry."""
+    return lower_files(fn, example)[0]
+
+
+def shape_key(example: Sequence[Any]) -> str:
+    """The shapes of ``example`` as text (what the lowering depends on besides the code)."""
+    return repr(tuple(_entry_shape(x, "an argument") for x in example))
+
+
+class Lowered(NamedTuple):
+    """A lowering and what it depends on besides the shapes."""
+
+    source: str
+    files: set[str]                         # the source files of every function read
+    constants: dict[tuple[str, str], str]   # the module constants folded in: repr by name
+
+
+def lower_files(fn: Callable[..., Any], example: Sequence[Any]) -> Lowered:
+    """:func:`lower`, and what it read: functions' files, modules' constants."""
+    if not isinstance(fn, types.FunctionType):
+        raise NativeError(f"{fn!r} is not a Python function")
+    node = _source(fn)
+    params = [a.arg for a in node.args.args]
+    if len(params) != len(example):
+        raise NativeError(f"{fn.__qualname__}: {len(params)} parameters, "
+                          f"{len(example)} example arguments")
+    low = Lowerer()
+    low.files.add(fn.__code__.co_filename)
+    f = Frame(low, fn, node, "")
+    for p, x in zip(params, example, strict=True):
+        shape = f.shapes[p] = _entry_shape(x, f"{fn.__qualname__}({p})")
+        if shape is not None:
+            target = _target(f.local(p, shape))
+            low.out.append(ast.Assign([target], ast.Name(p, ast.Load())))
+    *body, ret = node.body or [ast.Pass()]
+    if not isinstance(ret, ast.Return) or ret.value is None:
+        raise NativeError(f"{fn.__qualname__} must end with return (…)")
+    for st in body:
+        low.stmt(f, st)
+    result = low.expr(f, ret.value, False)
+    if not isinstance(result, Tup):
+        raise NativeError(f"{fn.__qualname__} must return a tuple")
+    low.out.append(ast.Return(_tuple(result)))
+    out = ast.FunctionDef(name=fn.__name__, args=ast.arguments(
+        posonlyargs=[], args=[ast.arg(p) for p in params], kwonlyargs=[], kw_defaults=[],
+        defaults=[]), body=low.out, decorator_list=[], lineno=1)
+    _number(low.out)
+    return Lowered(ast.unparse(ast.Module([out], [])) + "\n", low.files, low.constants)
+
+
+def _number(body: list[ast.stmt]) -> None:
+    """Line numbers on the statements (ast.unparse reads them; the expressions need none)."""
+    for st in body:
+        st.lineno = 1
+        for block in (getattr(st, "body", None), getattr(st, "orelse", None)):
+            if block:
+                _number(block)
+
+
+def _target(v: Any) -> ast.expr:
+    if isinstance(v, Tup):
+        return ast.Tuple([_target(x) for x in v.items], ast.Store())
+    return ast.Name(v.id, ast.Store())
+
+
+def _tuple(v: Any) -> ast.expr:
+    return ast.Tuple([_tuple(x) for x in v.items], ast.Load()) if isinstance(v, Tup) else v
+

@@ -1,0 +1,385 @@
+"""The seam front end's rewriting: expressions and statements of a pure Python function
+lowered to straight-line float code (the package docstring says what and why)."""
+
+from __future__ import annotations
+
+import ast
+import types
+from typing import Any
+
+from tfl_mav.accel.ctranslate import NativeError
+from tfl_mav.accel.values import (
+    _INTRINSICS,
+    Frame,
+    Tup,
+    _int,
+    _is_range,
+    _Lazy,
+    _leaves,
+    _own,
+    _Ref,
+    _retemp,
+    _same_shape,
+    _shape,
+    _simple,
+    _source,
+    _tuple_op,
+    _value,
+    _zip_tup,
+)
+
+
+class Lowerer:
+    """One lowering: the statements made so far, the temporaries' counter, the functions
+    being inlined."""
+
+    def __init__(self) -> None:
+        self.out: list[ast.stmt] = []
+        self.n = 0
+        self.stack: list[types.FunctionType] = []
+        self.depth = 0                          # nesting in kept branches and loops
+        self.files: set[str] = set()            # the source files of the functions read
+        # the module constants read, as (module, name) → repr: folded into the lowering
+        self.constants: dict[tuple[str, str], str] = {}
+
+    def read(self, module: str | None, name: str, value: Any) -> None:
+        if module is not None:
+            self.constants[(module, name)] = repr(value)
+
+    def fresh(self) -> ast.Name:
+        self.n += 1
+        return ast.Name(f"_t{self.n}", ast.Load())
+
+    def temp(self, e: Any, names: bool = False) -> Any:
+        if isinstance(e, ast.Constant) or (_simple(e) and not names):
+            return e
+        self.n += 1
+        name = f"_t{self.n}"
+        self.out.append(ast.Assign([ast.Name(name, ast.Store())], e))
+        return ast.Name(name, ast.Load())
+
+    def block(self, f: Frame, body: list[ast.stmt]) -> list[ast.stmt]:
+        saved, self.out = self.out, []
+        self.depth += 1
+        for st in body:
+            self.stmt(f, st)
+        self.depth -= 1
+        block, self.out = self.out, saved
+        return block or [ast.Pass()]
+
+    def inline(self, fn: types.FunctionType, args: list[Any], kwargs: dict[str, Any]) -> Any:
+        """A call of ``fn``: its body here, renamed; the value of its final ``return``."""
+        if fn in self.stack:
+            raise NativeError(f"{fn.__qualname__} is recursive")
+        node = _source(fn)
+        params = [a.arg for a in node.args.args]
+        defaults = dict(zip(params[len(params) - len(fn.__defaults__ or ()):],
+                            fn.__defaults__ or (), strict=True))
+        if len(args) > len(params) or set(kwargs) - set(params):
+            raise NativeError(f"{fn.__qualname__}: wrong arguments")
+        bound = dict(zip(params, args, strict=False)) | kwargs
+        *body, ret = node.body or [ast.Pass()]
+        if not isinstance(ret, ast.Return) or ret.value is None or any(
+                isinstance(n, ast.Return) for st in body for n in ast.walk(st)):
+            raise NativeError(f"{fn.__qualname__}: an inlined function must end with its "
+                              "one return of a value")
+        self.n += 1
+        f = Frame(self, fn, node, f"_i{self.n}_")
+        for p in params:
+            if p in bound:
+                f.bind(p, bound[p])
+            elif p in defaults:
+                f.bind(p, _value(defaults[p], f"default of {p!r}"))
+            else:
+                raise NativeError(f"{fn.__qualname__}: no argument for {p!r}")
+        self.stack.append(fn)
+        self.files.add(fn.__code__.co_filename)
+        for st in body:
+            self.stmt(f, st)
+        result = self.expr(f, ret.value, False)
+        self.stack.pop()
+        return _retemp(self, result) if isinstance(result, Tup) else self.temp(result)
+
+
+    # ----- expressions --------------------------------------------------------------------
+    def num(self, f: Frame, e: ast.expr, cond: bool) -> Any:
+        v = self.expr(f, e, cond)
+        if isinstance(v, (Tup, _Ref)):
+            raise NativeError(f"{ast.unparse(e)!r} is not a number here")
+        return v
+
+    def hoist(self, e: Any, cond: bool) -> Any:
+        """``e`` computed once, ahead, into a local — unless only some paths compute it
+        (``cond``): then written where it is used (the same operation, maybe twice)."""
+        return e if cond else self.temp(e)
+
+    def expr(self, f: Frame, e: ast.expr, cond: bool) -> Any:
+        """``e``'s value: a float expression, a :class:`Tup`, or a reference. ``cond``: only
+        some paths evaluate ``e`` (a branch of ``… if … else …``, a later operand of
+        ``and``/``or`` or of a comparison chain): no call is inlined ahead of it there."""
+        if isinstance(e, ast.Constant):
+            if e.value is None or not isinstance(e.value, (int, float)):
+                raise NativeError(f"constant {e.value!r} is not a number")
+            return _value(e.value, "constant")
+        if isinstance(e, ast.Name):
+            return f.name(e.id)
+        if isinstance(e, ast.Attribute):
+            v = self.expr(f, e.value, cond)
+            if isinstance(v, Tup) and v.fields and e.attr in v.fields:
+                return v.items[v.fields.index(e.attr)]
+            if isinstance(v, _Ref) and isinstance(v.obj, types.ModuleType) \
+                    and hasattr(v.obj, e.attr):
+                value = _value(getattr(v.obj, e.attr), _Lazy(e))
+                if not isinstance(value, _Ref):
+                    self.read(v.obj.__name__, e.attr, getattr(v.obj, e.attr))
+                return value
+            raise NativeError(f"cannot lower {ast.unparse(e)!r}")
+        if isinstance(e, ast.Subscript):
+            v = self.expr(f, e.value, cond)
+            if not isinstance(v, Tup):
+                raise NativeError(f"{ast.unparse(e.value)!r} is not a tuple")
+            if isinstance(e.slice, ast.Slice):
+                lo, hi, step = (None if x is None else _int(self.expr(f, x, cond), "a slice")
+                                for x in (e.slice.lower, e.slice.upper, e.slice.step))
+                return Tup(v.items[lo:hi:step])
+            k = _int(self.expr(f, e.slice, cond), _Lazy(e))
+            if not -len(v.items) <= k < len(v.items):
+                raise NativeError(f"{ast.unparse(e)!r}: index {k} out of range")
+            return v.items[k]
+        if isinstance(e, (ast.Tuple, ast.List)):
+            items: list[Any] = []
+            for x in e.elts:
+                if isinstance(x, ast.Starred):
+                    items.extend(self.tup(f, x.value, cond).items)
+                else:
+                    items.append(self.value(f, x, cond))
+            return Tup(items)
+        if isinstance(e, ast.BinOp):
+            a, b = self.value(f, e.left, cond), self.value(f, e.right, cond)
+            if isinstance(a, Tup) or isinstance(b, Tup):
+                return _tuple_op(a, e.op, b, _Lazy(e))
+            return ast.BinOp(a, e.op, b)
+        if isinstance(e, ast.UnaryOp):
+            return ast.UnaryOp(e.op, self.num(f, e.operand, cond))
+        if isinstance(e, ast.Compare):
+            if any(isinstance(op, (ast.Is, ast.IsNot, ast.In, ast.NotIn)) for op in e.ops):
+                raise NativeError(f"cannot lower {ast.unparse(e)!r}")
+            left = self.num(f, e.left, cond)
+            rights = [self.num(f, c, cond or k > 0) for k, c in enumerate(e.comparators)]
+            if all(isinstance(x, ast.Constant) and type(x.value) is int
+                   for x in (left, *rights)):          # indices of an unrolled loop
+                return ast.Constant(int(eval(compile(ast.Expression(ast.Compare(
+                    left, e.ops, rights)), "<index>", "eval"))))
+            return ast.Compare(left, e.ops, rights)
+        if isinstance(e, ast.BoolOp):
+            return ast.BoolOp(e.op, [self.num(f, v, cond or k > 0)
+                                     for k, v in enumerate(e.values)])
+        if isinstance(e, ast.IfExp):
+            test = self.num(f, e.test, cond)
+            if isinstance(test, ast.Constant):
+                return self.expr(f, e.body if test.value else e.orelse, cond)
+            if not cond:
+                return self.if_expr(f, test, e)
+            body, orelse = self.value(f, e.body, True), self.value(f, e.orelse, True)
+            if not (isinstance(body, Tup) or isinstance(orelse, Tup)):
+                return ast.IfExp(test, body, orelse)
+            if not (_same_shape(_shape(body), _shape(orelse)) and isinstance(body, Tup)):
+                raise NativeError(f"{ast.unparse(e)!r}: the branches differ in shape")
+            test = self.hoist(test, cond)
+            return _zip_tup(lambda a, b: ast.IfExp(test, a, b), body, orelse)
+        if isinstance(e, ast.Call):
+            return self.call(f, e, cond)
+        if isinstance(e, (ast.GeneratorExp, ast.ListComp)):
+            return self.comprehension(f, e, cond)
+        raise NativeError(f"cannot lower {ast.unparse(e)!r}")
+
+    def if_expr(self, f: Frame, test: Any, e: ast.IfExp) -> Any:
+        """``a if test else b``: as it is when its branches are expressions, else (a call
+        inlined, a ``min`` computed ahead) an ``if`` statement setting new locals — only the
+        branch taken is computed, as in Python."""
+        saved, self.depth = self.out, self.depth + 1
+        self.out = []
+        body = self.value(f, e.body, False)
+        body_st, self.out = self.out, []
+        orelse = self.value(f, e.orelse, False)
+        orelse_st, self.out, self.depth = self.out, saved, self.depth - 1
+        if not (body_st or orelse_st or isinstance(body, Tup) or isinstance(orelse, Tup)):
+            return ast.IfExp(test, body, orelse)
+        if not _same_shape(_shape(body), _shape(orelse)):
+            raise NativeError(f"{ast.unparse(e)!r}: the branches differ in shape")
+        if not (body_st or orelse_st):
+            test = self.hoist(test, False)
+            return _zip_tup(lambda a, b: ast.IfExp(test, a, b), body, orelse)
+        names = _zip_tup(lambda a, b: self.fresh(), body, orelse)
+        for st, v in ((body_st, body), (orelse_st, orelse)):
+            st.extend(ast.Assign([ast.Name(n.id, ast.Store())], x)
+                      for n, x in zip(_leaves(names), _leaves(v), strict=True))
+        self.out.append(ast.If(test, body_st, orelse_st))
+        return names
+
+    def value(self, f: Frame, e: ast.expr, cond: bool) -> Any:
+        v = self.expr(f, e, cond)
+        if isinstance(v, _Ref):
+            raise NativeError(f"{ast.unparse(e)!r} is {v.obj!r}, not a number or tuple")
+        return v
+
+    def tup(self, f: Frame, e: ast.expr, cond: bool) -> Tup:
+        v = self.expr(f, e, cond)
+        if not isinstance(v, Tup):
+            raise NativeError(f"{ast.unparse(e)!r} is not a tuple")
+        return v
+
+    def call(self, f: Frame, e: ast.Call, cond: bool) -> Any:
+        fv = self.expr(f, e.func, cond)
+        what = _Lazy(e)
+        if not isinstance(fv, _Ref):
+            raise NativeError(f"{ast.unparse(e.func)!r} is not a function: {what!r}")
+        obj = fv.obj
+        if any(isinstance(a, ast.Starred) for a in e.args):      # f(*t): t's items
+            e = ast.Call(e.func, [y for a in e.args for y in (
+                [ast.Subscript(a.value, ast.Constant(k), ast.Load())
+                 for k in range(len(self.tup(f, a.value, cond).items))]
+                if isinstance(a, ast.Starred) else [a])], e.keywords)
+        if isinstance(obj, types.FunctionType):
+            if cond:
+                raise NativeError(f"{what!r} is called on some paths only (a conditional "
+                                  "expression, and/or): write it as an if statement")
+            args = [self.value(f, a, cond) for a in e.args]
+            kwargs = {k.arg: self.value(f, k.value, cond) for k in e.keywords
+                      if k.arg is not None}
+            return self.inline(obj, args, kwargs)
+        if isinstance(obj, type) and issubclass(obj, tuple) and hasattr(obj, "_fields"):
+            items = dict(zip(obj._fields, (self.value(f, a, cond) for a in e.args),
+                             strict=False))
+            items |= {k.arg: self.value(f, k.value, cond) for k in e.keywords}
+            defaults = obj._field_defaults
+            missing = [n for n in obj._fields if n not in items and n not in defaults]
+            if missing or set(items) - set(obj._fields):
+                raise NativeError(f"{what!r}: fields do not match {obj.__name__}")
+            return Tup([items[n] if n in items else _value(defaults[n], n)
+                        for n in obj._fields], obj._fields)
+        if e.keywords:
+            raise NativeError(f"cannot lower keyword arguments: {what!r}")
+        if obj in (min, max):
+            args = [self.value(f, a, cond) for a in e.args]
+            if len(args) == 1 and isinstance(args[0], Tup):
+                args = args[0].items
+            if not args or any(isinstance(a, Tup) for a in args):
+                raise NativeError(f"{what!r}: min/max of numbers only")
+            op = ast.Lt() if obj is min else ast.Gt()
+            best = self.hoist(args[0], cond)
+            for k, b in enumerate(args[1:]):
+                b = self.hoist(b, cond)     # the builtin: the first of equals, b op best
+                best = ast.IfExp(ast.Compare(b, [op], [best]), b, best)
+                if k < len(args) - 2:
+                    best = self.hoist(best, cond)
+            return best
+        if obj is float and len(e.args) == 1:
+            return self.num(f, e.args[0], cond)
+        if obj is len and len(e.args) == 1:
+            return ast.Constant(len(self.tup(f, e.args[0], cond).items))
+        if obj in (tuple, list) and len(e.args) == 1:
+            return Tup(list(self.tup(f, e.args[0], cond).items))
+        try:
+            name = _INTRINSICS.get(obj)
+        except TypeError:
+            name = None
+        if name is not None:
+            return ast.Call(ast.Name(name, ast.Load()),
+                            [self.num(f, a, cond) for a in e.args], [])
+        raise NativeError(f"{what!r}: {obj!r} is neither a pure Python function nor a math "
+                          "function the translator knows")
+
+    def iteration(self, f: Frame, it: ast.expr, cond: bool) -> list[Any]:
+        """The values a ``for`` takes: ``range`` of constants, or a tuple's items."""
+        if _is_range(f, it):
+            bounds = [_int(self.expr(f, a, cond), "a range bound") for a in it.args]
+            return [ast.Constant(k) for k in range(*bounds)]
+        return list(self.tup(f, it, cond).items)
+
+    def comprehension(self, f: Frame, e: ast.GeneratorExp | ast.ListComp, cond: bool) -> Tup:
+        gen = e.generators
+        if len(gen) != 1 or gen[0].ifs or not isinstance(gen[0].target, ast.Name):
+            raise NativeError(f"only (… for x in range(N) / a tuple): {ast.unparse(e)!r}")
+        name = gen[0].target.id
+        saved = f.alias.get(name, ...)
+        items = []
+        for v in self.iteration(f, gen[0].iter, cond):
+            f.alias[name] = v
+            items.append(self.value(f, e.elt, cond))
+        if saved is ...:
+            f.alias.pop(name, None)
+        else:
+            f.alias[name] = saved
+        return Tup(items)
+
+    # ----- statements ---------------------------------------------------------------------
+    def stmt(self, f: Frame, st: ast.stmt) -> None:
+        if isinstance(st, (ast.Assign, ast.AnnAssign)) and st.value is not None:
+            value = self.value(f, st.value, False)
+            targets = st.targets if isinstance(st, ast.Assign) else [st.target]
+            if len(targets) > 1:
+                value = _retemp(self, value) if isinstance(value, Tup) else self.temp(value)
+            for t in targets:
+                f.unpack(t, value)
+        elif isinstance(st, ast.AugAssign) and isinstance(st.target, ast.Name):
+            cur = f.name(st.target.id)
+            value = self.value(f, st.value, False)
+            if isinstance(cur, Tup) or isinstance(value, Tup):
+                f.bind(st.target.id, _tuple_op(cur, st.op, value, _Lazy(st)))
+            else:
+                f.bind(st.target.id, ast.BinOp(cur, st.op, value))
+        elif isinstance(st, ast.If):
+            test = self.num(f, st.test, False)
+            if isinstance(test, ast.Constant):          # decided at lowering
+                for s in st.body if test.value else st.orelse:
+                    self.stmt(f, s)
+                return
+            self.out.append(ast.If(test, self.block(f, st.body),
+                                   self.block(f, st.orelse) if st.orelse else []))
+        elif isinstance(st, ast.For):
+            self.loop(f, st)
+        elif isinstance(st, ast.Return):
+            if not (st.value is None or (isinstance(st.value, ast.Constant)
+                    and st.value.value is None)) or f.prefix:
+                raise NativeError(f"{f.fn.__qualname__}: only the last statement returns a "
+                                  f"value: {ast.unparse(st)!r}")
+            self.out.append(ast.Return(ast.Constant(None)))
+        elif isinstance(st, ast.Break):
+            self.out.append(ast.Break())
+        elif isinstance(st, ast.Pass) or (isinstance(st, ast.Expr) \
+                and isinstance(st.value, ast.Constant) and isinstance(st.value.value, str)):
+            pass
+        else:
+            raise NativeError(f"cannot lower the statement {ast.unparse(st)!r}")
+
+    def loop(self, f: Frame, st: ast.For) -> None:
+        """A loop that does not read its index stays a loop; any other is unrolled."""
+        it = st.iter
+        is_range = _is_range(f, it)
+        simple_range = is_range and len(it.args) == 1  # type: ignore[attr-defined]
+        reads_index = not isinstance(st.target, ast.Name) or st.target.id in {
+            n.id for s in st.body for n in ast.walk(s) if isinstance(n, ast.Name)}
+        if simple_range and not reads_index:
+            n = _int(self.expr(f, it.args[0], False), "a loop count")
+            self.out.append(ast.For(ast.Name("_", ast.Store()),
+                                    ast.Call(ast.Name("range", ast.Load()),
+                                             [ast.Constant(n)], []),
+                                    self.block(f, st.body),
+                                    self.block(f, st.orelse) if st.orelse else []))
+            return
+        if any(isinstance(n, (ast.Break, ast.Continue)) for s in st.body for n in _own(s)):
+            raise NativeError(f"a loop that reads its index is unrolled, and cannot break: "
+                              f"{ast.unparse(st.target)!r}")
+        for v in self.iteration(f, it, False):
+            if is_range and isinstance(st.target, ast.Name):
+                f.alias[st.target.id] = v          # the index: a constant in each copy
+            else:
+                f.unpack(st.target, v)
+            for s in st.body:
+                self.stmt(f, s)
+        if is_range and isinstance(st.target, ast.Name):
+            f.alias.pop(st.target.id, None)
+        for s in st.orelse:                         # no break: the else always runs
+            self.stmt(f, s)
+

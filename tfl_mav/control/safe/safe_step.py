@@ -1,0 +1,206 @@
+"""The safe law's tick with a rotor attacked, as explicit state and one pure step.
+
+:func:`safe_tick` is :meth:`~tfl_mav.control.safe.recovery.RecoveryLaw.update` with a rotor
+attacked: the closest point of the path (:func:`closest_point`, Newton on
+⟨y − σ(λ), σ'(λ)⟩ = 0), the outer PID loop (:func:`accel_demand`), the three-rotor step
+(:func:`~tfl_mav.control.safe.lost_rotor.lost_rotor_step`) and the integral's anti-windup, in
+plain Python over tuples of floats. The path's σ kernel is linked in per path
+(:func:`linked`: these functions with ``_sigma2`` the path's generated kernel), and the
+accelerator seam compiles the whole tick (:func:`tfl_mav.accel.native.obtain_function`) — the
+same operations in the same order, the same bits — where it is built; this very Python
+flies otherwise. :mod:`recovery` says what the law does and why.
+"""
+
+from __future__ import annotations
+
+import math
+import types
+from typing import Any, NamedTuple
+
+from tfl_mav.control.safe.lost_rotor import lost_rotor_step
+
+__all__ = ["MAX_INTEGRAL_G", "MAX_TILT_RAD", "MAX_VERTICAL_G", "POS_OMEGA", "SafeParams",
+           "SafeState", "accel_demand", "closest_point", "integrated", "linked", "safe_tick"]
+
+MAX_TILT_RAD = math.radians(30.0)   # outer loop: horizontal acceleration ≤ g tan 30°
+MAX_VERTICAL_G = 0.5                # outer loop: |vertical acceleration| ≤ 0.5 g
+POS_OMEGA = 1.25  # outer-loop triple pole (rad/s)
+MAX_INTEGRAL_G = 0.2                # |integral action| ≤ 0.2 g per axis (a 20 % model error)
+TAN_MAX_TILT = math.tan(MAX_TILT_RAD)
+KP = 3.0 * POS_OMEGA * POS_OMEGA      # outer-loop PID gains: (s + ω_p)³
+KD = 3.0 * POS_OMEGA
+KI = POS_OMEGA * POS_OMEGA * POS_OMEGA
+
+
+class SafeParams(NamedTuple):
+    """The safe law's constants."""
+
+    model: tuple[float, ...]    # (m kg, k_t N s/m, g m/s², l m, f_max N): lost_rotor_step's
+    speed_mps: float            # the speed along the path
+    dt_s: float                 # control period (s): the integral's step
+    integral_top_ms: float      # |∫e| ≤ this (m s): MAX_INTEGRAL_G g / k_i
+    has_path: bool              # False: a point is held, no path to project on
+
+
+class SafeState(NamedTuple):
+    """What the safe law remembers between ticks."""
+
+    lam: float                          # the path parameter of the closest point
+    holding: float                      # 1.0: holding ``hold_m`` (told to, or the path lost)
+    hold_m: tuple[float, float, float]  # the held point (m)
+    integral_ms: tuple[float, float, float]     # ∫ position error (m s, inertial)
+
+
+def _sigma2(a0: tuple[float]) -> tuple[float, ...]:
+    """σ, σ', σ''/2 at λ: the path's kernel, linked in per path (:func:`linked`); no path
+    here."""
+    return (0.0,) * 9
+
+
+def closest_point(lam: float, y: tuple[float, float, float]
+                  ) -> tuple[float, float, tuple[float, float, float],
+                             tuple[float, float, float], tuple[float, float, float], float]:
+    """Newton from ``lam`` on ⟨y − σ(λ), σ'(λ)⟩ = 0: (found 1/0, the new λ — the old one if
+    Newton left the reals —, the point, the unit tangent T, the curvature vector κN, the
+    distance m). σ, σ' and σ'' come exactly from one ``_sigma2`` evaluation a step."""
+    yx, yy, yz = y
+    lam0 = lam
+    for _ in range(8):
+        c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = _sigma2((lam,))
+        ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
+        g = ex * c1x + ey * c1y + ez * c1z
+        dg = 2.0 * (ex * c2x + ey * c2y + ez * c2z) - (c1x * c1x + c1y * c1y + c1z * c1z)
+        step = -g / dg if dg < 0.0 else -0.1 * math.copysign(1.0, g)
+        step = -0.5 if step < -0.5 else (0.5 if step > 0.5 else step)
+        lam += step
+        if abs(step) < 1e-9:
+            break
+    found, lam_out, dist = 0.0, lam0, 0.0
+    point = tangent = curvature = (0.0, 0.0, 0.0)
+    if math.isfinite(lam):
+        lam_out = lam
+        c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = _sigma2((lam,))
+        s1sq = c1x * c1x + c1y * c1y + c1z * c1z
+        if s1sq > 0.0:
+            found = 1.0
+            s1 = math.sqrt(s1sq)
+            tx, ty, tz = c1x / s1, c1y / s1, c1z / s1
+            # κN = (σ'' − (σ''·T) T)/|σ'|², σ'' = 2 c2
+            d2x, d2y, d2z = 2.0 * c2x, 2.0 * c2y, 2.0 * c2z
+            a = d2x * tx + d2y * ty + d2z * tz
+            ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
+            point, tangent = (c0x, c0y, c0z), (tx, ty, tz)
+            curvature = ((d2x - a * tx) / s1sq, (d2y - a * ty) / s1sq, (d2z - a * tz) / s1sq)
+            dist = math.sqrt(ex * ex + ey * ey + ez * ez)
+    return found, lam_out, point, tangent, curvature, dist
+
+
+def accel_demand(p: SafeParams, target: tuple[float, float, float],
+                 tangent: tuple[float, float, float], curvature: tuple[float, float, float],
+                 integral: tuple[float, float, float], y: tuple[float, float, float],
+                 v: tuple[float, float, float], g: float, on_path: float
+                 ) -> tuple[float, float, float, tuple[float, float, float], float]:
+    """The outer loop's wanted acceleration (m/s², z up): PID towards ``target`` (the
+    closest path point, with the path's speed × tangent and centripetal term when
+    ``on_path``; else a held point, velocity zero), limited to MAX_TILT_RAD and
+    ±MAX_VERTICAL_G. Returns (a_x, a_y, a_z, the position error e m, limited 1/0)."""
+    e = (target[0] - y[0], target[1] - y[1], target[2] - y[2])
+    ff = (0.0, 0.0, 0.0)
+    if on_path:
+        sp = p.speed_mps
+        sp2 = sp * sp
+        ff = (KD * sp * tangent[0] + sp2 * curvature[0], KD * sp * tangent[1]
+              + sp2 * curvature[1], KD * sp * tangent[2] + sp2 * curvature[2])
+    a0 = KP * e[0] - KD * v[0] + ff[0] + KI * integral[0]
+    a1 = KP * e[1] - KD * v[1] + ff[1] + KI * integral[1]
+    a2 = KP * e[2] - KD * v[2] + ff[2] + KI * integral[2]
+    lim = MAX_VERTICAL_G * g
+    az = lim if a2 > lim else (-lim if a2 < -lim else a2)
+    ah = math.hypot(a0, a1)
+    amax = (g + az) * TAN_MAX_TILT
+    limited = 1.0 if az != a2 else 0.0
+    if ah > amax:
+        a0 *= amax / ah
+        a1 *= amax / ah
+        limited = 1.0
+    return a0, a1, az, e, limited
+
+
+def integrated(integral: tuple[float, float, float], e: tuple[float, float, float],
+               dt_s: float, top_ms: float) -> tuple[float, float, float]:
+    """∫e after one tick flown as asked (anti-windup: :meth:`RecoveryLaw._integrate`): a
+    non-finite error is left out, each axis bounded by ``top_ms``."""
+    e0, e1, e2 = e
+    if math.isfinite(e0 + e1 + e2):          # a finite sum: all three finite
+        i0, i1, i2 = integral
+        i0, i1, i2 = i0 + e0 * dt_s, i1 + e1 * dt_s, i2 + e2 * dt_s
+        integral = ((top_ms if i0 > top_ms else (-top_ms if i0 < -top_ms else i0)),
+                    (top_ms if i1 > top_ms else (-top_ms if i1 < -top_ms else i1)),
+                    (top_ms if i2 > top_ms else (-top_ms if i2 < -top_ms else i2)))
+    return integral
+
+
+def _pick(values: tuple[float, ...], k: float) -> float:
+    """``values[k]`` for a k of 0-3."""
+    v = 0.0
+    for i in range(4):
+        if k == i:
+            v = values[i]
+    return v
+
+
+def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
+              ) -> tuple[SafeState, tuple[Any, ...]]:
+    """One tick with a rotor attacked. ``inputs``: position m, velocity m/s, attitude
+    (w, x, y, z; normalised here), body rates rad/s, the attacked rotor's thrust estimate N,
+    the canonical frame's rotation rows 1-2, the canonical rotor of each physical one
+    (0-3), the LQR gains (two rows of four).
+
+    Returns the new state and (the thrusts of the physical rotors 1-4 N, tilt error rad,
+    path distance m — NaN when holding —, u_f N, clamped 1/0 per physical rotor: its
+    unconstrained demand left [0, f_max])."""
+    y, v, quat, rates, attack_n, rot, inverse, gains = inputs
+    qw, qx, qy, qz = quat
+    nq = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    q = (qw / nq, qx / nq, qy / nq, qz / nq)
+    lam, holding, hold, integral = s
+    g, fmax = p.model[2], p.model[4]
+    found, point, tangent, curvature, dist = 0.0, hold, hold, hold, math.nan
+    if p.has_path and not holding:
+        found, lam, point, tangent, curvature, dist = closest_point(lam, y)
+        if not found:
+            dist = math.nan
+    if not found:
+        if not holding:             # no path, or it was lost: hold where the vehicle is
+            hold = (y[0], y[1], y[2])
+            holding = 1.0
+        point = hold
+    a0, a1, a2, e, limited = accel_demand(p, point, tangent, curvature, integral, y, v, g,
+                                          found)
+    tilt_err, uf, c0, c1, c2, c3, made, d0, d2, d3 = lost_rotor_step(
+        (a0, a1, a2), (v[0], v[1], v[2]), q, rates, rot, (*gains[0], *gains[1]), p.model,
+        attack_n)
+    if made and not limited:
+        integral = integrated(integral, e, p.dt_s, p.integral_top_ms)
+    canon, req = (c0, c1, c2, c3), (d0, c1, d2, d3)
+    hi = fmax + 1e-9
+    f = tuple(_pick(canon, inverse[j]) for j in range(4))
+    clamped = tuple(0.0 if -1e-9 <= _pick(req, inverse[j]) <= hi else 1.0 for j in range(4))
+    return SafeState(lam, holding, hold, integral), (f, tilt_err, dist, uf, clamped)
+
+
+def linked(sigma2: Any) -> dict[str, Any]:
+    """This module's functions with ``_sigma2`` the path's kernel (``sigma2((λ,))`` → σ, σ',
+    σ''/2: nine floats): one namespace per kernel, the same code."""
+    ns = _LINKED.get(sigma2)
+    if ns is None:
+        ns = dict(globals())
+        ns["_sigma2"] = sigma2
+        for name, fn in list(ns.items()):
+            if isinstance(fn, types.FunctionType) and fn.__module__ == __name__:
+                ns[name] = types.FunctionType(fn.__code__, ns, name, fn.__defaults__)
+        _LINKED[sigma2] = ns
+    return ns
+
+
+_LINKED: dict[Any, dict[str, Any]] = {}
