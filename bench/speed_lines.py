@@ -33,6 +33,8 @@ SPEED_ONLY = {
     "jsonobj": "a whole JSON object in one msgspec call",
     "recordplan": "precompiled tick records",
     "lite": "light MAVLink message classes instead of pymavlink's",
+    "recovery_native": "the safe law's tick mirrored by hand in C",
+    "frames_native": "the frame conversion's FMA order replayed in C",
 }
 ROOTS = ("tfl_mav", "sitl", "tools", "harness")
 
