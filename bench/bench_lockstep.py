@@ -442,21 +442,19 @@ def _print_in_process(physics: dict[str, float], breakdown: dict[str, float]) ->
 
 def _cores(core: str) -> None:
     """Every process of the bench (subprocesses inherit it) on one kind of core (the
-    recorder children's frame path too); compiled ones are built (or found in the cache)
+    recorder children too); compiled ones are built (or found in the cache)
     now, for every case flown, so no timed process waits for a compiler or flies Python
     until one is done."""
     os.environ["TFL_MAV_NATIVE"] = "sync" if core == "compiled" else "off"
     if core == "compiled":
         from sitl.simulator import Simulator
         from tfl_mav.flight_computer import FlightComputer
-        from tfl_mav.flightlog import frames_c
         from tfl_mav.scenario import load_scenario
 
         for sc in (load_scenario("paper"), load_scenario("paper").replace(
                 **{"attack.rotor": 0})):
             FlightComputer(sc)
             Simulator(sc)
-        frames_c.obtain(lambda _fn: None)          # the recorder children's hot path
 
 
 def main() -> int:

@@ -34,7 +34,7 @@ def controller_states(ctl_path: str | Path) -> dict[int, dict[str, Any]]:
     """``/controller/state`` messages keyed by sim time in µs."""
     out: dict[int, dict[str, Any]] = {}
     for m in LogReader(ctl_path).messages({"/controller/state"}):
-        d = m.json()
+        d = m.decode()
         out[round(d["t_s"] * 1e6)] = d
     return out
 
@@ -60,7 +60,7 @@ def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,
             if m.topic == "/log":
                 texts.append(log_texts(m.data))
             else:
-                add_truth(truth, m.topic, m.json())
+                add_truth(truth, m.topic, m.decode())
     crashed = crash_reason(texts or [])
     ctl = controller_states(ctl_path) if ctl_path and Path(ctl_path).exists() else {}
     v = scenario.vehicle
@@ -78,10 +78,12 @@ def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,
         if not {"state", "thrusts", "attack"} <= rec.keys():
             continue
         st, th, at = rec["state"], rec["thrusts"], rec["attack"]
-        # The recorder leaves non-finite values out (Foxglove cannot read null): a
-        # diverged sample has no position/thrust/attack and is not plotted.
+        # older files left non-finite values out (JSON has no NaN): such a sample has no
+        # position/thrust/attack; a diverged one is not plotted
         if not ("position_m" in st and "quaternion_wxyz" in st and "thrust_n" in th
-                and "applied_n" in at):
+                and "applied_n" in at) or not all(map(math.isfinite, (
+                    *st["position_m"], *st["quaternion_wxyz"], *th["thrust_n"],
+                    at["applied_n"]))):
             continue
         rows.append((key, st, th, at))
     # the true distance of every sample, as a tracker evaluating each in turn gives it

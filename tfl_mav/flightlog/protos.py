@@ -1,0 +1,340 @@
+"""The recorder's own protobuf messages: schemas (``FileDescriptorSet``) and encoders.
+
+Why protobuf: a per-tick record of float64 values is 8 bytes a value, where JSON printed
+~18 characters (and a reader had to parse text); every MCAP viewer (Foxglove, PlotJuggler,
+Rerun) and ``protoc`` reads protobuf from the schema stored in the file, and the fields
+keep the names the JSON had (``/sim/truth/state.position_m[0]`` is the same message path).
+
+Messages (proto2, so a left-out field is *absent*, not 0; repeated numbers packed):
+
+* ``tfl_mav.MavlinkFrame``: ``data`` (the wire bytes), ``tx`` (sent by the recording
+  process; absent: received), ``rejected`` (a received frame the link refused);
+* ``tfl_mav.TruthState``, ``tfl_mav.TruthAttack``, ``tfl_mav.TruthThrusts``,
+  ``tfl_mav.PathDistance``: simulator ground truth (units in the field names);
+* a caller's record (the controller's ``/controller/state``) from its JSON-Schema-like
+  description (:func:`~tfl_mav.flightlog.schemas.record_schema`): ``number`` → double,
+  ``integer`` → sint64, ``boolean`` → bool, ``string`` → string, an array of numbers →
+  packed repeated double, a property without a type (numbers nested in lists, e.g. ξ) →
+  repeated ``tfl_mav.Doubles`` (one per inner list); a free key of a mapping record holding
+  a mapping → its JSON text (a string; NaN/inf as null).
+
+NaN and inf are plain doubles here (nothing is left out); None is an absent field.
+
+Encoding is the protobuf wire format written with :mod:`struct` (the layouts are fixed, one
+``pack`` per message, ~10x cheaper than building the library's message objects on every
+tick); reading uses the ``protobuf`` library on the schema in the file
+(:func:`message_class`), so a writer bug cannot hide behind a matching hand-written reader.
+"""
+
+from __future__ import annotations
+
+import struct
+from collections.abc import Callable, Mapping, Sequence
+from functools import cache
+from typing import Any
+
+from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
+
+__all__ = ["FRAME", "PATH_DISTANCE", "TRUTH_ATTACK", "TRUTH_STATE", "TRUTH_THRUSTS",
+           "RecordEncoder", "frame", "message_class", "schema", "to_dict"]
+
+PACKAGE = "tfl_mav"
+FRAME, TRUTH_STATE, TRUTH_ATTACK, TRUTH_THRUSTS, PATH_DISTANCE = (
+    f"{PACKAGE}.{n}" for n in ("MavlinkFrame", "TruthState", "TruthAttack", "TruthThrusts",
+                               "PathDistance"))
+
+_F = descriptor_pb2.FieldDescriptorProto
+_TYPES = {"double": _F.TYPE_DOUBLE, "sint64": _F.TYPE_SINT64, "uint32": _F.TYPE_UINT32,
+          "bool": _F.TYPE_BOOL, "string": _F.TYPE_STRING, "bytes": _F.TYPE_BYTES,
+          "doubles": _F.TYPE_DOUBLE, "nested": _F.TYPE_MESSAGE, "json": _F.TYPE_STRING}
+_WIRE = {"double": 1, "doubles": 2, "sint64": 0, "uint32": 0, "bool": 0, "string": 2,
+         "bytes": 2, "nested": 2, "json": 2}
+
+# (name, kind) in field-number order (1, 2, ...); kinds as _TYPES
+_FIXED: dict[str, tuple[str, tuple[tuple[str, str, str], ...]]] = {
+    FRAME: ("One MAVLink frame exactly as it crossed the wire (replayable byte for byte)", (
+        ("data", "bytes", "the wire bytes (MAVLink 2 frame, CRC and any signature)"),
+        ("tx", "bool", "sent by the recording process; absent: received"),
+        ("rejected", "bool", "received, and refused by the link (not decoded)"))),
+    TRUTH_STATE: ("True rigid-body state from the simulator, world frame ENU (z up), body "
+                  "frame x forward, z along thrust", (
+                      ("t_s", "double", "sim time (s)"),
+                      ("position_m", "doubles", "position x_q (m), 3 values"),
+                      ("velocity_mps", "doubles", "velocity v_q (m/s), 3 values"),
+                      ("quaternion_wxyz", "doubles", "attitude body → world (w, x, y, z)"),
+                      ("body_rates_radps", "doubles", "body rates (p, q, r) (rad/s)"))),
+    TRUTH_ATTACK: ("The attack as the simulator applies it", (
+        ("t_s", "double", "sim time (s)"),
+        ("rotor", "uint32", "attacked rotor 1-4, 0 = none"),
+        ("active", "bool", "an attack is applied"),
+        ("applied_n", "double", "thrust forced on the rotor (N), clamped to [0, f_max]"),
+        ("requested_n", "double", "what the attack signal asked for (N)"))),
+    TRUTH_THRUSTS: ("True rotor thrusts (N), rotors 1-4", (
+        ("t_s", "double", "sim time (s)"),
+        ("thrust_n", "doubles", "true thrust of rotors 1-4 (N)"),
+        ("attack_rotor", "uint32", "attacked rotor 1-4, 0 = none"))),
+    PATH_DISTANCE: ("Distance from the true position to the recorded path polyline", (
+        ("t_s", "double", "sim time (s)"),
+        ("distance_m", "double", "distance to the polyline given to Recorder.path (m)"))),
+}
+_DOUBLES = f"{PACKAGE}.Doubles"
+
+
+def _message(name: str, fields: Sequence[tuple[str, str, str]]) -> descriptor_pb2.DescriptorProto:
+    msg = descriptor_pb2.DescriptorProto(name=name.rsplit(".", 1)[-1])
+    for number, (fname, kind, _doc) in enumerate(fields, 1):
+        f = msg.field.add(name=fname, number=number, type=_TYPES[kind],
+                          label=_F.LABEL_REPEATED if kind in ("doubles", "nested")
+                          else _F.LABEL_OPTIONAL)
+        if kind == "doubles":
+            f.options.packed = True
+        elif kind == "nested":
+            f.type_name = f".{_DOUBLES}"
+    return msg
+
+
+def _file(name: str, fields: Sequence[tuple[str, str, str]]) -> bytes:
+    """The ``FileDescriptorSet`` of message ``name`` (and ``tfl_mav.Doubles``)."""
+    fd = descriptor_pb2.FileDescriptorProto(name=f"{name}.proto", package=PACKAGE,
+                                            syntax="proto2")
+    fd.message_type.append(_message(name, fields))
+    if any(kind == "nested" for _, kind, _ in fields):
+        fd.message_type.append(_message(_DOUBLES, (("values", "doubles", ""),)))
+    return descriptor_pb2.FileDescriptorSet(file=[fd]).SerializeToString()
+
+
+@cache
+def schema(name: str) -> tuple[str, str, bytes]:
+    """(name, encoding, data) of one of the fixed messages (``FRAME``, ``TRUTH_*``, ...)."""
+    return name, "protobuf", _file(name, _FIXED[name][1])
+
+
+@cache
+def message_class(name: str, data: bytes) -> Any:
+    """The protobuf message class of ``name`` from a file's schema ``data`` (a reader's)."""
+    pool = descriptor_pool.DescriptorPool()
+    for fd in descriptor_pb2.FileDescriptorSet.FromString(data).file:
+        pool.Add(fd)
+    return message_factory.GetMessageClass(pool.FindMessageTypeByName(name))
+
+
+def to_dict(msg: Any) -> dict[str, Any]:
+    """A parsed message as plain values: set fields only, repeated as lists, nested
+    ``Doubles`` as lists of floats."""
+    out: dict[str, Any] = {}
+    for fd, value in msg.ListFields():
+        if fd.message_type is not None:
+            out[fd.name] = [list(v.values) for v in value] if fd.is_repeated else to_dict(value)
+        else:
+            out[fd.name] = list(value) if fd.is_repeated else value
+    return out
+
+
+# ---------------------------------------------------------------- writing
+def _varint(n: int) -> bytes:
+    out = bytearray()
+    while n > 0x7F:
+        out.append(n & 0x7F | 0x80)
+        n >>= 7
+    out.append(n)
+    return bytes(out)
+
+
+def _tag(number: int, wire: int) -> bytes:
+    return _varint(number << 3 | wire)
+
+
+_TX, _REJECTED = _tag(2, 0) + b"\x01", _tag(3, 0) + b"\x01"
+_DATA = _tag(1, 2)
+_LEN1 = [bytes([n]) for n in range(128)]
+
+
+def frame(raw: bytes, tx: bool, rejected: bool = False) -> bytes:
+    """A ``tfl_mav.MavlinkFrame``: the wire bytes, sent or received, refused or not."""
+    n = len(raw)
+    out = _DATA + (_LEN1[n] if n < 128 else _varint(n)) + raw
+    if tx:
+        out += _TX
+    return out + _REJECTED if rejected else out
+
+
+def _truth_state_pack() -> Callable[..., bytes]:
+    pack = struct.Struct("<Bd" + "BB3d" + "BB3d" + "BB4d" + "BB3d").pack
+    def encode(t: float, p: Sequence[float], v: Sequence[float], q: Sequence[float],
+               w: Sequence[float]) -> bytes:
+        return pack(0x09, t, 0x12, 24, *p, 0x1A, 24, *v, 0x22, 32, *q, 0x2A, 24, *w)
+    return encode
+
+
+_ATTACK = struct.Struct("<BdBBBBBdBd").pack
+_THRUSTS = struct.Struct("<BdBB4dBB").pack
+_PATH = struct.Struct("<BdBd").pack
+truth_state = _truth_state_pack()
+
+
+def truth_attack(t: float, rotor: int, applied_n: float, requested_n: float) -> bytes:
+    return _ATTACK(0x09, t, 0x10, rotor, 0x18, rotor != 0, 0x21, applied_n, 0x29, requested_n)
+
+
+def truth_thrusts(t: float, thrust_n: Sequence[float], attack_rotor: int) -> bytes:
+    return _THRUSTS(0x09, t, 0x12, 32, *thrust_n, 0x18, attack_rotor)
+
+
+def path_distance(t: float, distance_m: float) -> bytes:
+    return _PATH(0x09, t, 0x11, distance_m)
+
+
+_D = struct.Struct("<d").pack
+_PACKED: dict[int, Callable[..., bytes]] = {}
+
+
+def _doubles(values: Sequence[float]) -> bytes:
+    n = len(values)
+    pack = _PACKED.get(n)
+    if pack is None:
+        pack = _PACKED[n] = struct.Struct(f"<{n}d").pack
+    body = pack(*values)
+    return _len(8 * n) + body
+
+
+def _len(n: int) -> bytes:
+    return _LEN1[n] if n < 128 else _varint(n)
+
+
+def _kind(prop: Mapping[str, Any]) -> str:
+    t = prop.get("type")
+    if t == "array" and prop.get("items", {}).get("type") in ("number", "integer"):
+        return "doubles"
+    return {"number": "double", "integer": "sint64", "boolean": "bool",
+            "string": "string"}.get(t, "nested")
+
+
+def kind_of(value: Any) -> str:
+    """The field kind of a value with no schema (a free key of a mapping record)."""
+    v = _plain(value)
+    if isinstance(v, bool):
+        return "bool"
+    if isinstance(v, int):
+        return "sint64"
+    if isinstance(v, float):
+        return "double"
+    if isinstance(v, str):
+        return "string"
+    if isinstance(v, (list, tuple)) and all(isinstance(x, (int, float)) for x in v):
+        return "doubles"
+    if isinstance(v, Mapping):
+        return "json"
+    return "nested"
+
+
+class RecordEncoder:
+    """A caller's record as protobuf: ``t_s``, then ``names`` (the order of a sequence
+    record's values), then the schema's other properties; kinds from the JSON-Schema-like
+    ``json_schema`` (a name it does not type: numbers nested in lists), or ``kinds``.
+    :attr:`schema_data` is the schema; :meth:`encode` a sequence record, :meth:`encode_map`
+    a mapping. A value of the wrong kind raises ValueError naming the field."""
+
+    def __init__(self, json_schema: Mapping[str, Any], names: Sequence[str] = (),
+                 kinds: Mapping[str, str] | None = None) -> None:
+        props = {k: v for k, v in json_schema.get("properties", {}).items()
+                 if not k.startswith("_")}
+        order = ["t_s", *(n for n in names if n != "t_s")]
+        order += [k for k in props if k not in order]
+        order += [k for k in (kinds or {}) if k not in order]
+        self.name = str(json_schema.get("title") or f"{PACKAGE}.Record")
+        if "." not in self.name:
+            self.name = f"{PACKAGE}.{self.name}"
+        kinds = dict(kinds or {})
+        self.fields = tuple((n, "double" if n == "t_s" else kinds.get(n) or _kind(
+            props.get(n, {})), str(props.get(n, {}).get("description", ""))) for n in order)
+        self.names = tuple(n for n, _, _ in self.fields)
+        self.schema_data = _file(self.name, self.fields)
+        self._writers = [_writer(_tag(i, _WIRE[k]), k) for i, (_, k, _) in
+                         enumerate(self.fields, 1)]
+        self._t = self._writers[0]
+        self._seq = self._writers[1:1 + len([n for n in names if n != "t_s"])]
+
+    def encode(self, t_s: float, values: Sequence[Any]) -> bytes:
+        """``t_s`` and the values of ``names`` in order (None: left out)."""
+        try:
+            return self._t(t_s) + b"".join([w(v) for w, v in zip(self._seq, values,
+                                                                 strict=True)
+                                            if v is not None])
+        except (TypeError, ValueError, struct.error, OverflowError):
+            return self.encode_map({"t_s": t_s, **dict(zip(self.names[1:], values,
+                                                           strict=True))})
+
+    def encode_map(self, values: Mapping[str, Any]) -> bytes:
+        """A mapping record (its keys among :attr:`names`; None: left out)."""
+        parts = []
+        for name, write in zip(self.names, self._writers, strict=True):
+            v = values.get(name)
+            if v is None:
+                continue
+            try:
+                parts.append(write(v))
+            except (TypeError, ValueError, struct.error, OverflowError) as exc:
+                kind = self.fields[self.names.index(name)][1]
+                raise ValueError(f"{name}: cannot record {v!r} as {kind} ({exc})") from None
+        return b"".join(parts)
+
+
+def _plain(v: Any) -> Any:
+    return v.tolist() if hasattr(v, "tolist") else v
+
+
+def _writer(tag: bytes, kind: str) -> Callable[[Any], bytes]:
+    """The encoder of one field (its tag first) of ``kind``."""
+    if kind == "double":
+        return lambda v: tag + _D(v)
+    if kind == "doubles":
+        return lambda v: tag + _doubles(v)
+    if kind == "bool":
+        def write_bool(v: Any) -> bytes:
+            if isinstance(_plain(v), (str, list, tuple, dict)):
+                raise TypeError("not a flag")
+            return tag + (b"\x01" if v else b"\x00")
+        return write_bool
+    if kind == "string":
+        def write_str(v: Any) -> bytes:
+            b = str(v).encode()
+            return tag + _varint(len(b)) + b
+        return write_str
+    if kind == "sint64":
+        def write_int(v: Any) -> bytes:
+            n = _plain(v)
+            if not isinstance(n, int):
+                raise TypeError("not an integer")
+            if not -(2**63) <= n < 2**63:
+                raise OverflowError("beyond 64 bits")
+            return tag + _varint((n << 1) ^ (n >> 63))
+        return write_int
+    if kind == "json":
+        def write_json(v: Any) -> bytes:
+            import msgspec
+
+            b = msgspec.json.encode(v, enc_hook=_plain)
+            return tag + _varint(len(b)) + b
+        return write_json
+    return lambda v: _nested(tag, v)
+
+
+def _nested(tag: bytes, v: Any) -> bytes:
+    """Repeated ``tfl_mav.Doubles``: one submessage (``values``, packed) per inner list (a
+    number alone: a list of one)."""
+    try:
+        parts = []
+        for inner in v:
+            body = _VALUES + _doubles(inner)
+            parts.append(tag + _len(len(body)) + body)
+        return b"".join(parts)
+    except TypeError:
+        pass
+    v = _plain(v)
+    if not isinstance(v, (list, tuple)):
+        raise TypeError("expected lists of numbers")
+    return _nested(tag, [[float(x) for x in _plain(i)] if isinstance(_plain(i), (list, tuple))
+                         else [float(i)] for i in v])
+
+
+_VALUES = _tag(1, 2)
