@@ -287,8 +287,8 @@ def _writer(tag: bytes, kind: str) -> Callable[[Any], bytes]:
     """The encoder of one field (its tag first) of ``kind``."""
     if kind == "double":
         return lambda v: tag + _D(v)
-    if kind == "doubles":
-        return lambda v: tag + _doubles(v)
+    if kind == "doubles":           # an empty packed field is left out, as protobuf does
+        return lambda v: tag + _doubles(v) if len(v) else b""
     if kind == "bool":
         def write_bool(v: Any) -> bytes:
             if isinstance(_plain(v), (str, list, tuple, dict)):
@@ -325,7 +325,7 @@ def _nested(tag: bytes, v: Any) -> bytes:
     try:
         parts = []
         for inner in v:
-            body = _VALUES + _doubles(inner)
+            body = _VALUES + _doubles(inner) if len(inner) else b""
             parts.append(tag + _len(len(body)) + body)
         return b"".join(parts)
     except TypeError:
