@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import base64
 import json
 import math
 import socket
@@ -131,9 +130,9 @@ def test_inspect_reads_a_truncated_file_and_recover_makes_it_whole(flight_file, 
 
 
 def _recorded_frames(path: Path) -> list[tuple[str, bytes, int]]:
-    return [(f["direction"], base64.b64decode(f["data"]), m.log_time_ns)
+    return [("tx" if f.get("tx") else "rx", f["data"], m.log_time_ns)
             for m in LogReader(path).messages({"/mavlink/raw"})
-            for f in [json.loads(m.data)]]
+            for f in [m.decode()]]
 
 
 class _Sink:

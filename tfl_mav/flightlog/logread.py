@@ -214,12 +214,17 @@ def mavlink_messages(path: str | Path, name: str, sysid: int | None = None,
                      ) -> Iterator[tuple[int, dict[str, Any]]]:
     """Every frame of MAVLink message ``name`` (e.g. ``"ESC_TELEMETRY_1_TO_4"``) the log
     holds, decoded from ``/mavlink/raw`` (the decoded channels are at most 50 Hz; the raw
-    one has every frame): (log time ns, fields) in file order, optionally only from
-    ``sysid``/``compid`` and ``direction`` ("rx"/"tx"); rejected frames are left out."""
+    one has every frame): (time ns, fields) in file order, optionally only from
+    ``sysid``/``compid`` and ``direction`` ("rx"/"tx"); rejected frames are left out. The
+    time is sim time on a lockstep log's sim timeline (log time − the ``timeline``
+    metadata's ``flight_start_ns``; 0 before the flight), else the log time."""
     from tfl_mav.link.dialect import mav
     from tfl_mav.link.payload import PayloadDecoder
 
     decoder = PayloadDecoder()
+    start = {md.name: md.metadata for md in LogReader(path).read_metadata()}.get(
+        "timeline", {}).get("flight_start_ns")
+    start_ns = int(start) if start else 0
     msgid = next(i for i, cls in mav.mavlink_map.items() if cls.msgname == name)
     for m, raw, tx, rejected in raw_frames(path):
         if rejected or len(raw) < 12 or (raw[7] | raw[8] << 8 | raw[9] << 16) != msgid:
@@ -230,7 +235,7 @@ def mavlink_messages(path: str | Path, name: str, sysid: int | None = None,
             continue
         fields = decoder.fields(raw, msgid)
         if fields is not None:
-            yield m.log_time_ns, fields
+            yield max(m.log_time_ns - start_ns, 0) if start else m.log_time_ns, fields
 
 
 def _chunk(f: Any, index: Any) -> Chunk:
