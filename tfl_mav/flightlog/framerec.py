@@ -118,6 +118,7 @@ class FrameRecorder(McapOutput):
                 protos.FRAME), "protobuf")
         st = self.stats
         encode_frame = protos.frame
+        out: list[tuple[Any, bytes, int]] = []       # written in order, under one lock
         for _, time_s, direction, raw, accepted in frames:
             tx = direction == "tx"
             if not tx and direction != "rx":
@@ -150,29 +151,32 @@ class FrameRecorder(McapOutput):
                 log_ns = self._on_timeline(log_ns)
             if rejected:
                 st.frames_rejected += 1
-            self._write(raw_emit, encode_frame(raw, tx, rejected), log_ns)
+            out.append((raw_emit, encode_frame(raw, tx, rejected), log_ns))
             if chan is not None and (chan.statustext or not self._sim_known
                                      or self._sim_ns >= chan.next_ns):
-                self._decoded(chan, raw, tx, log_ns)
+                self._decoded(chan, raw, tx, log_ns, out)
+        self._write_timed(out)
 
-    def _decoded(self, chan: _MavChannel, raw: bytes, tx: bool, log_ns: int) -> None:
-        """The decoded record of an accepted frame (and a STATUSTEXT's ``/log`` entry)."""
+    def _decoded(self, chan: _MavChannel, raw: bytes, tx: bool, log_ns: int,
+                 out: list[tuple[Any, bytes, int]]) -> None:
+        """The decoded record of an accepted frame (and a STATUSTEXT's ``/log`` entry), onto
+        ``out``."""
         fields = self._decoder.fields(raw, chan.msgid)
         if fields is None:
             self._bad(f"frame: {chan.name} (#{chan.msgid}) did not decode from its wire "
                       "bytes")
             return
         chan.next_ns = min(self._sim_ns + self._decoded_period_ns, MAX_NS)
-        self._write(chan.emit, fields_json(fields), log_ns)
+        out.append((chan.emit, fields_json(fields), log_ns))
         if chan.statustext:     # /log gets the whole text once its last chunk is here
             sysid, compid = raw[5], raw[6]
             direction = "tx" if tx else "rx"
             for text in self._texts.add((sysid, compid, direction), fields["text"],
                                         fields.get("id", 0), fields.get("chunk_seq", 0)):
-                self._write(self._fg_channel("/log", "foxglove.Log"),
+                out.append((self._fg_channel("/log", "foxglove.Log"),
                             fg.log_entry(log_ns, fg.mav_severity_to_level(fields["severity"]),
                                          self._with_time(text),
-                                         f"mavlink/{sysid}/{compid} {direction}"), log_ns)
+                                         f"mavlink/{sysid}/{compid} {direction}"), log_ns))
 
     def _fg_channel(self, topic: str, type_name: str) -> Any:
         """The channel of a Foxglove well-known type (protobuf)."""

@@ -376,6 +376,24 @@ class McapOutput:
         except Exception as exc:
             self._failed(exc)
 
+    def _write_timed(self, items: list[tuple[Any, bytes, int]]) -> None:
+        """Several (channel, data, log time), in order, under one lock."""
+        if not items:
+            return
+        if not self._open:
+            self.stats.dropped += len(items)
+            return
+        try:
+            with self._lock:
+                for emit, data, log_ns in items:
+                    emit(data, log_ns)
+                self._pending += len(items)
+                self.stats.messages += len(items)
+            if time.monotonic() >= self._next_flush:
+                self._flush()
+        except Exception as exc:
+            self._failed(exc)
+
     def _flush(self) -> None:
         """Finish the chunk in progress (with a fresh copy of the path) and flush the file."""
         with self._lock:

@@ -210,6 +210,34 @@ class Recorder(FrameRecorder):
         rates (rad/s), true rotor thrusts 1-4 (N), attacked rotor (1-4, 0 = none), applied
         and requested attack thrust (N). Also drives ``/tf``, ``/scene/vehicle`` and
         ``/sim/truth/path_distance`` at up to ``scene_hz``."""
+        try:                 # the usual call: plain lists of the right lengths
+            v = tuple(map(float, (time_s, *position_m, *velocity_mps, *quaternion_wxyz,
+                                  *body_rates_radps, *rotor_thrust_n)))
+            fast = (len(v) == 18 and len(position_m) == 3 and len(velocity_mps) == 3
+                    and len(quaternion_wxyz) == 4 and len(body_rates_radps) == 3
+                    and type(attack_rotor) is int
+                    and 0 <= attack_rotor <= 4 and math.isfinite(v[0]))
+        except (TypeError, ValueError):
+            fast = False
+        if fast:
+            t, pos, vel, quat, rates, thrust = v[0], v[1:4], v[4:7], v[7:11], v[11:14], v[14:]
+            rotor = attack_rotor
+            try:
+                applied, requested = float(attack_applied_n), float(attack_requested_n)
+            except (TypeError, ValueError):
+                fast = False
+        if not fast:
+            self._truth_checked(time_s, position_m, velocity_mps, quaternion_wxyz,
+                                body_rates_radps, rotor_thrust_n, attack_rotor,
+                                attack_applied_n, attack_requested_n)
+            return
+        self._truth(t, pos, vel, quat, rates, thrust, rotor, applied, requested)
+
+    def _truth_checked(self, time_s: Any, position_m: Any, velocity_mps: Any,
+                       quaternion_wxyz: Any, body_rates_radps: Any, rotor_thrust_n: Any,
+                       attack_rotor: Any, attack_applied_n: Any,
+                       attack_requested_n: Any) -> None:
+        """:meth:`truth` of anything: checked, and what is wrong counted (bad input)."""
         try:
             t = float(time_s)
             if not math.isfinite(t):
@@ -226,6 +254,11 @@ class Recorder(FrameRecorder):
         except (TypeError, ValueError) as exc:
             self._bad(f"truth: {exc}")
             return
+        self._truth(t, pos, vel, quat, rates, thrust, rotor, applied, requested)
+
+    def _truth(self, t: float, pos: Sequence[float], vel: Sequence[float],
+               quat: Sequence[float], rates: Sequence[float], thrust: Sequence[float],
+               rotor: int, applied: float, requested: float) -> None:
         self.set_sim_time(t)
         log_ns = self._now_ns()
         emits = self._truth_emits
