@@ -185,16 +185,16 @@ def path_distance(t: float, distance_m: float) -> bytes:
 
 
 _D = struct.Struct("<d").pack
-_PACKED: dict[int, Callable[..., bytes]] = {}
+_PACKED: dict[int, tuple[bytes, Callable[..., bytes]]] = {}
 
 
 def _doubles(values: Sequence[float]) -> bytes:
+    """A packed run of doubles: its length (varint), then the values."""
     n = len(values)
-    pack = _PACKED.get(n)
-    if pack is None:
-        pack = _PACKED[n] = struct.Struct(f"<{n}d").pack
-    body = pack(*values)
-    return _len(8 * n) + body
+    packer = _PACKED.get(n)
+    if packer is None:
+        packer = _PACKED[n] = (_len(8 * n), struct.Struct(f"<{n}d").pack)
+    return packer[0] + packer[1](*values)
 
 
 def _len(n: int) -> bytes:
@@ -290,18 +290,28 @@ def _writer(tag: bytes, kind: str) -> Callable[[Any], bytes]:
     if kind == "doubles":           # an empty packed field is left out, as protobuf does
         return lambda v: tag + _doubles(v) if len(v) else b""
     if kind == "bool":
+        yes, no = tag + b"\x01", tag + b"\x00"
+
         def write_bool(v: Any) -> bytes:
+            if v is True:
+                return yes
+            if v is False:
+                return no
             if isinstance(_plain(v), (str, list, tuple, dict)):
                 raise TypeError("not a flag")
-            return tag + (b"\x01" if v else b"\x00")
+            return yes if v else no
         return write_bool
     if kind == "string":
         def write_str(v: Any) -> bytes:
-            b = str(v).encode()
-            return tag + _varint(len(b)) + b
+            b = (v if type(v) is str else str(v)).encode()
+            return tag + _len(len(b)) + b
         return write_str
     if kind == "sint64":
+        small = [tag + _LEN1[2 * n] for n in range(64)]
+
         def write_int(v: Any) -> bytes:
+            if type(v) is int and 0 <= v < 64:      # a rotor number, a count
+                return small[v]
             n = _plain(v)
             if not isinstance(n, int):
                 raise TypeError("not an integer")

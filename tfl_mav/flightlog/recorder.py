@@ -375,12 +375,16 @@ class Recorder(FrameRecorder):
             t = float(time_s)
             if not math.isfinite(t):
                 raise ValueError(f"time_s: not finite ({time_s})")
-            if isinstance(state, Mapping):
+            if type(state) is tuple and len(state) == len(self._controller_fields):
+                data = self._ctl.encode(t, state)           # the per-tick record
+                fields: Iterable[tuple[str, Any]] = zip(self._controller_fields, state,
+                                                        strict=True)
+            elif isinstance(state, Mapping):
                 state = {k: v for k, v in state.items() if k != "t_s"}
                 if not state.keys() <= set(self._ctl.names):
                     self._extend_record(state)
                 data = self._ctl.encode_map({**state, "t_s": t})
-                fields: Iterable[tuple[str, Any]] = state.items()
+                fields = state.items()
             else:
                 if len(state) != len(self._controller_fields):
                     raise ValueError(f"record: expected {len(self._controller_fields)} values "
