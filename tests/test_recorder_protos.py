@@ -69,6 +69,9 @@ def test_fixed_messages_are_the_librarys_bytes(v: list[float], rotor: int, raw: 
     if rejected:
         lib.rejected = True
     assert protos.frame(raw, tx, rejected) == lib.SerializeToString()
+    assert protos.frame_fields(lib.SerializeToString()) == (raw, tx, rejected)
+    lib.ClearField("data")              # another layout: the library's to read
+    assert protos.frame_fields(lib.SerializeToString()) is None
 
 
 _RECORD = st.tuples(st.sampled_from(["nominal", "attacked", "fällback"]),

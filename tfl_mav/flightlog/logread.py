@@ -198,7 +198,13 @@ def raw_frames(path: str | Path, reader: LogReader | None = None
     """Every frame of ``/mavlink/raw`` in file order: (message, wire bytes, sent by the
     recording process, refused by its link); ``reader``: the one to read with (its
     ``error`` then says why reading stopped)."""
+    from tfl_mav.flightlog.protos import frame_fields
+
     for m in (reader or LogReader(path)).messages({"/mavlink/raw"}):
+        fields = frame_fields(m.data) if m.data[:1] != b"{" else None
+        if fields is not None:
+            yield m, *fields
+            continue
         f = m.decode()
         data = f["data"]
         if isinstance(data, str):                # JSON files: base64
