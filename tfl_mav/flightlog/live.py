@@ -15,7 +15,7 @@ a status message) and then never gets that channel: a vehicle missing for the wh
 Channels that exist when a viewer connects are recorded before its messages are read, so
 ``/tf``, ``/scene/vehicle``, ``/scene/path`` and ``/log`` (Foxglove's well-known types, fixed
 schemas) are created with the server; the recorder's later ``channel()`` for one of them
-gets that channel back. Channels first seen mid-flight (MAVLink and JSON topics) still
+gets that channel back. Channels first seen mid-flight (MAVLink and record topics) still
 depend on the SDK; a viewer refused one sees the status error and recovers by reconnecting.
 
 Who draws the vehicle: on the simulator's side the recorder's ``truth`` calls fill ``/tf``
@@ -148,9 +148,10 @@ class _Tee:
 
 class _EstimateDrawer:
     """``/tf`` and ``/scene/vehicle`` from the controller's view (see the module docstring),
-    at most every ``PERIOD_NS`` of log time, so the ~1 kHz ODOMETRY costs a comparison per
-    message and a JSON parse only per drawing. A message it cannot use (a non-finite field
-    left out of the JSON, another frame, not a unit quaternion) is counted in ``errors``
+    at most every ``PERIOD_NS`` of log time, from the decoded ODOMETRY (JSON, at most 50 Hz
+    of sim time) and the latest controller record (protobuf, parsed only per drawing). A
+    message it cannot use (a non-finite field left out of the JSON, another frame, not a
+    unit quaternion) is counted in ``errors``
     with its reason in ``last_error``, and the next one is tried: the recorder never sees
     an exception from here."""
 
