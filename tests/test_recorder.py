@@ -152,9 +152,10 @@ def test_counts_match_link_stats(flight, side):
     path, link = (veh_file, veh) if side == "veh" else (ctl_file, ctl)
     raw = [m for topic, _, m, _, _ in _read_all(path) if topic == "/mavlink/raw"]
     st = link.stats
-    assert sum(not f.get("tx") and not f.get("rejected") for f in raw) == st.rx_frames
-    assert sum(not f.get("tx") and f.get("rejected", False) for f in raw) == st.rejected
-    assert sum(f.get("tx", False) for f in raw) == st.tx_frames
+    rx = [f for f in raw if not f.get("tx")]
+    assert sum(len(f["frames"]) - len(f.get("rejected", [])) for f in rx) == st.rx_frames
+    assert sum(len(f.get("rejected", [])) for f in rx) == st.rejected
+    assert sum(len(f["frames"]) for f in raw if f.get("tx")) == st.tx_frames
     assert st.rx_frames >= TICKS and st.tx_frames >= TICKS
     if side == "veh":
         assert st.rejected == 4   # garbage, MAVLink 1, truncated, foreign
@@ -169,33 +170,39 @@ def test_raw_bytes_reparse_to_the_decoded_messages(flight, side):
     for topic, _, m, _, _ in msgs:
         if topic.startswith("/mavlink/") and topic != "/mavlink/raw":
             decoded[topic].append(m)
-    # Every frame is raw; a decoded record (at most one per channel every 20 ms of sim
-    # time) follows its frame's raw record at the same times: the decoded of a raw frame is
-    # the next record of its channel when one was written for it.
+    # Every frame is raw, a datagram a message; a decoded record (at most one per channel
+    # every 20 ms of sim time) follows its datagram's raw record at the same time: the
+    # decoded of a raw frame is the next record of its channel when one was written for it.
     cursor: dict[str, int] = defaultdict(int)
     parser = new_mavlink(200, 1)
     checked = 0
-    for k, (topic, _, f, log_ns, pub_ns) in enumerate(msgs):
-        if topic != "/mavlink/raw" or f.get("rejected"):
+    for k, (topic, _, f, log_ns, _pub_ns) in enumerate(msgs):
+        if topic != "/mavlink/raw":
             continue
-        raw = base64.b64decode(f["data"])
-        try:
-            wire = parser.decode(bytearray(raw))
-        except Exception:                                # sent with send_raw: not MAVLink
-            continue
-        chan = f"/mavlink/{wire.get_srcSystem()}/{wire.get_srcComponent()}/{wire.get_type()}"
-        twin = next(((t, lt, pt) for t, _, _, lt, pt in msgs[k + 1:k + 3] if t == chan), None)
-        if twin is None or (twin[1], twin[2]) != (log_ns, pub_ns):
-            continue                                     # decoded less often than raw
-        rec = decoded[chan][cursor[chan]]
-        cursor[chan] += 1
-        for name in wire.get_fieldnames():
-            value = getattr(wire, name)
-            if _finite(value):
-                assert rec[name] == value, (chan, name, rec[name])
-            else:   # NaN/inf: left out of the JSON and listed
-                assert name not in rec and name in rec["_nonfinite"], (chan, name)
-        checked += 1
+        # the datagram's decoded records follow it, at its log time, in its frames' order
+        after = [t for t, _, _, lt, _ in msgs[k + 1:k + 1 + len(f["frames"])]
+                 if lt == log_ns and t.startswith("/mavlink/") and t != "/mavlink/raw"]
+        for i, data in enumerate(f["frames"]):
+            if i in f.get("rejected", []):
+                continue
+            try:
+                wire = parser.decode(bytearray(base64.b64decode(data)))
+            except Exception:                            # sent with send_raw: not MAVLink
+                continue
+            chan = (f"/mavlink/{wire.get_srcSystem()}/{wire.get_srcComponent()}/"
+                    f"{wire.get_type()}")
+            if not after or after[0] != chan:
+                continue                                 # decoded less often than raw
+            after.pop(0)
+            rec = decoded[chan][cursor[chan]]
+            cursor[chan] += 1
+            for name in wire.get_fieldnames():
+                value = getattr(wire, name)
+                if _finite(value):
+                    assert rec[name] == value, (chan, name, rec[name])
+                else:   # NaN/inf: left out of the JSON and listed
+                    assert name not in rec and name in rec["_nonfinite"], (chan, name)
+            checked += 1
     assert checked >= 2 * TICKS // 20 if side == "veh" else checked >= TICKS // 20
     assert all(cursor[t] == len(v) for t, v in decoded.items()), "decoded without raw"
 
@@ -217,7 +224,7 @@ def test_every_message_validates_against_its_channel_schema(flight, side):
         v.validate(m)
     expected = ({"/mavlink/raw", "/mavlink/1/1/ODOMETRY", "/mavlink/1/1/ESC_TELEMETRY_1_TO_4",
                  "/mavlink/2/1/HIL_ACTUATOR_CONTROLS", "/mavlink/1/1/STATUSTEXT", "/log",
-                 "/sim/truth/state", "/sim/truth/attack", "/sim/truth/thrusts", "/tf",
+                 "/sim/truth/state", "/tf",
                  "/scene/vehicle", "/scene/path", "/sim/truth/path_distance"}
                 if side == "veh" else {"/controller/state", "/log", "/mavlink/raw"})
     assert expected <= topics
@@ -270,10 +277,11 @@ def test_times_and_foxglove_content(flight):
         if topic == "/mavlink/1/1/ODOMETRY":
             assert m["_nonfinite"] == ["pose_covariance", "velocity_covariance"]
             assert m["vx"] == pytest.approx(0.1, abs=1e-8) and m["vx"] != 0.1  # float32 wire
-    attack = [m for t, _, m, _, _ in msgs if t == "/sim/truth/attack"]
-    at_60 = [a for a in attack if a["t_s"] == pytest.approx(0.06)]
-    assert len(at_60) == 1 and at_60[0]["requested_n"] == "NaN"     # kept, as protobuf does
-    assert at_60[0]["applied_n"] == 1.5 and at_60[0]["rotor"] == 2 and at_60[0]["active"]
+    truth = [m for t, _, m, _, _ in msgs if t == "/sim/truth/state"]
+    at_60 = [a for a in truth if a["t_s"] == pytest.approx(0.06)]
+    assert len(at_60) == 1 and at_60[0]["attack_requested_n"] == "NaN"   # kept, as protobuf
+    assert at_60[0]["attack_applied_n"] == 1.5 and at_60[0]["attack_rotor"] == 2
+    assert at_60[0]["thrust_n"] == [2.7, 2.6, 2.8, 2.7]
     logs = [m["message"] for t, _, m, _, _ in msgs if t == "/log"]
     assert any("attack \ufffd on rotor 2" in text for text in logs)
     scenes = [m for t, _, m, _, _ in msgs if t == "/scene/vehicle"]
@@ -497,8 +505,8 @@ def test_background_flush_makes_quiet_data_readable_while_open(tmp_path):
         assert len(seen) == 10
     assert rec.error is None
     rec.truth(1.0, [0.0] * 3, [0.0] * 3, [1, 0, 0, 0], [0] * 3, [1] * 4, 0, 0.0, 0.0)
-    # after close: state, attack, thrusts, tf, scene and the three truth plots
-    assert rec.stats.dropped == 8
+    # after close: the truth, tf, scene and the three truth plots
+    assert rec.stats.dropped == 6
 
 
 # ---------------------------------------------------------------- RecorderProcess
@@ -554,7 +562,7 @@ def test_recorder_process_writes_what_the_in_process_recorder_writes(tmp_path):
         return sorted(out, key=lambda x: (x[2], x[0], json.dumps(x[1])))
 
     ca, cb = content(a), content(b)
-    assert len(ca) == len(cb) > 2000
+    assert len(ca) == len(cb) > 1500     # per tick: 2 datagrams, a truth, a controller record
     assert ca == cb
     with open(b, "rb") as f:
         assert {m.name for m in make_reader(f).iter_metadata()} == {"tfl-mav", "scenario"}

@@ -23,7 +23,7 @@ from mcap.reader import make_reader
 
 from tfl_mav.daemon_io import TICK_FIELDS, TICK_SCHEMA
 from tfl_mav.flightlog import protos
-from tfl_mav.flightlog.logread import LogReader
+from tfl_mav.flightlog.logread import LogReader, raw_frames
 from tfl_mav.flightlog.recorder import Recorder
 from tfl_mav.flightlog.recorder_process import RecorderProcess
 from tfl_mav.link.dialect import mav, new_mavlink
@@ -50,28 +50,23 @@ def _cls(name: str) -> Any:
        st.binary(min_size=0, max_size=300), st.booleans(), st.booleans())
 def test_fixed_messages_are_the_librarys_bytes(v: list[float], rotor: int, raw: bytes,
                                                tx: bool, rejected: bool) -> None:
-    State, Attack, Thrusts, Dist, Frame = (_cls(n) for n in (
-        protos.TRUTH_STATE, protos.TRUTH_ATTACK, protos.TRUTH_THRUSTS, protos.PATH_DISTANCE,
-        protos.FRAME))
-    assert protos.truth_state(v[0], v[1:4], v[4:7], v[7:11], v[11:14]) == State(
+    State, Dist, Frames = (_cls(n) for n in (protos.TRUTH_STATE, protos.PATH_DISTANCE,
+                                             protos.FRAMES))
+    assert protos.truth_state(v[0], v[1:4], v[4:7], v[7:11], v[11:14], v[14:18], rotor, v[18],
+                              v[19]) == State(
         t_s=v[0], position_m=v[1:4], velocity_mps=v[4:7], quaternion_wxyz=v[7:11],
-        body_rates_radps=v[11:14]).SerializeToString()
-    assert protos.truth_attack(v[0], rotor, v[14], v[15]) == Attack(
-        t_s=v[0], rotor=rotor, active=rotor != 0, applied_n=v[14],
-        requested_n=v[15]).SerializeToString()
-    assert protos.truth_thrusts(v[0], v[16:20], rotor) == Thrusts(
-        t_s=v[0], thrust_n=v[16:20], attack_rotor=rotor).SerializeToString()
+        body_rates_radps=v[11:14], thrust_n=v[14:18], attack_rotor=rotor,
+        attack_applied_n=v[18], attack_requested_n=v[19]).SerializeToString()
     assert protos.path_distance(v[0], v[1]) == Dist(t_s=v[0], distance_m=v[1]) \
         .SerializeToString()
-    lib = Frame(data=raw)
+    raws = [raw, raw[:5], b"", raw * 2]
+    refused = [1, 3] if rejected else []
+    lib = Frames(frames=raws, rejected=refused)
     if tx:
         lib.tx = True
-    if rejected:
-        lib.rejected = True
-    assert protos.frame(raw, tx, rejected) == lib.SerializeToString()
-    assert protos.frame_fields(lib.SerializeToString()) == (raw, tx, rejected)
-    lib.ClearField("data")              # another layout: the library's to read
-    assert protos.frame_fields(lib.SerializeToString()) is None
+    assert protos.frames(raws, tx, refused) == lib.SerializeToString()
+    assert protos.frames_fields(lib.SerializeToString()) == (raws, tx, refused)
+    assert protos.frames_fields(lib.SerializeToString()[:-1]) is None     # cut short
 
 
 _RECORD = st.tuples(st.sampled_from(["nominal", "attacked", "fällback"]),
@@ -157,10 +152,14 @@ def test_on_frames_writes_what_on_frame_does(tmp_path: Any) -> None:
             got.append([(ch.topic, m.log_time, m.publish_time, m.data)
                         for _s, ch, m in make_reader(fh).iter_messages()])
     assert got[0] == got[1]
-    # every frame raw (100 accepted, 7 rejected); decoded at most every 20 ms of sim time
-    # (the scene rate): ODOMETRY and HIL_ACTUATOR_CONTROLS at 0, 20 and 40 ms
+    # every frame raw (100 accepted, 7 rejected), a datagram a message; decoded at most
+    # every 20 ms of sim time (the scene rate): ODOMETRY and HIL_ACTUATOR_CONTROLS at 0, 20
+    # and 40 ms
     raw = [m for m in got[0] if m[0] == "/mavlink/raw"]
-    assert len(raw) == 50 * 2 + 7
+    assert len(raw) == 50
+    frames = list(raw_frames(files[0]))
+    assert len(frames) == 50 * 2 + 7 and sum(f[3] for f in frames) == 4    # refused: rx
+    assert [f[1] for f in frames] == [r for _d, raws, _m in _frames() for r in raws]
     decoded = sorted((m.topic, m.decode()["time_usec"]) for m in LogReader(files[0]).messages()
                      if m.topic != "/mavlink/raw")
     assert decoded == sorted((topic, ms * 1000) for ms in (0, 20, 40)

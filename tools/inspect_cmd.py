@@ -37,10 +37,12 @@ from tfl_mav.flightlog.from_mcap import (
     load_flight,
     log_texts,
     scenario_from_log,
+    truth_parts,
 )
 from tfl_mav.flightlog.logread import LogReader, recover
 from tfl_mav.flightlog.metrics import converged, detection, saturated_fraction
 from tfl_mav.flightlog.polyline import Polyline
+from tfl_mav.flightlog.protos import frames_fields
 from tfl_mav.scenario import ScenarioError
 
 __all__ = ["add_parser", "inspect_log", "run"]
@@ -116,16 +118,15 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
             c.first_log, c.first_pub = m.log_time_ns, m.publish_time_ns
         c.count += 1
         c.last_log, c.last_pub = m.log_time_ns, m.publish_time_ns
-        if topic == "/mavlink/raw":
-            f = m.decode()
-            tx = f.get("tx", f.get("direction") == "tx")
-            frames["tx" if tx else "rx"] += 1
-            frames["rx_rejected"] += not tx and bool(f.get("rejected",
-                                                           f.get("accepted") is False))
+        if topic == "/mavlink/raw":       # a datagram's frames (one a message in old files)
+            raws, tx, refused = frames_fields(m.data) or _frames_of(m)
+            frames["tx" if tx else "rx"] += len(raws)
+            frames["rx_rejected"] += len(refused)
         elif topic in TRUTH_TOPICS:
             record = m.decode()
             add_truth(truth, topic, record)
-            series[topic].append(record)
+            for part, rec in truth_parts(topic, record).items():
+                series[f"/sim/truth/{part}"].append(rec)
         elif topic.endswith("/HIL_ACTUATOR_CONTROLS"):
             sat_hil[0] += 1
         elif topic == "/log":
@@ -161,6 +162,15 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
     report["timeline"] = timeline.get("log_time", "wall")
     report["flight"] = _flight_summary(path, series, path_points, sat_hil, truth, texts)
     return report
+
+
+def _frames_of(m: Any) -> tuple[list[Any], bool, list[int]]:
+    """(frames, tx, refused indexes) of a ``/mavlink/raw`` message the shortcut did not read
+    (another layout, or an old file's JSON frame)."""
+    f = m.decode()
+    if "direction" in f:
+        return [f["data"]], f["direction"] == "tx", [] if f["accepted"] else [0]
+    return f.get("frames", []), bool(f.get("tx")), f.get("rejected", [])
 
 
 def _path_points(data: bytes) -> list[list[float]] | None:

@@ -1,8 +1,11 @@
 """The recorder's MAVLink frames: ``/mavlink/raw`` and ``/mavlink/{sysid}/{compid}/{MSG}``.
 
-Every frame goes to ``/mavlink/raw`` as a ``tfl_mav.MavlinkFrame`` (its wire bytes, sent or
-received, refused or not; :mod:`~tfl_mav.flightlog.protos`): nothing is lost, and
-``tfl-mav replay`` re-sends them byte for byte. An accepted frame is also decoded from its
+Every frame goes to ``/mavlink/raw``: a ``tfl_mav.MavlinkFrames`` message per datagram (the
+frames of one direction and one receipt time: their wire bytes, sent or received, which
+ones the link refused; :mod:`~tfl_mav.flightlog.protos`): nothing is lost, and ``tfl-mav
+replay`` re-sends them byte for byte. One message a datagram rather than a frame: an MCAP
+message costs ~50 bytes besides its data (record header, message index entry), as much as a
+small frame. An accepted frame is also decoded from its
 wire bytes (float32 rounding and all) onto its message's channel as JSON (JSON Schema from
 pymavlink's definitions, :mod:`~tfl_mav.flightlog.schemas`), at most one a channel every
 decoded period of sim time (every one before sim time is known, and every STATUSTEXT):
@@ -11,9 +14,9 @@ from ``/mavlink/raw`` on read. See :mod:`~tfl_mav.flightlog.recorder` for the ti
 
 Why the hot path is small: frames are most of what a recorder child does (4-5 a 1 ms tick
 per side). For a (direction, sysid, compid, msgid) seen before, a frame costs a dict
-lookup, the sim time read from the payload when the message carries it (one
-``unpack_from``), the raw record (a few bytes prepended) and one SDK ``log`` call; the
-decoded record only when its period is due.
+lookup and the sim time read from the payload when the message carries it (one
+``unpack``); a datagram one raw record and one SDK ``log`` call; the decoded record only
+when its period is due.
 """
 
 from __future__ import annotations
@@ -110,36 +113,48 @@ class FrameRecorder(McapOutput):
         self.on_frames(((None, time_s, direction, raw, msg is not None),))
 
     def on_frames(self, frames: Iterable[tuple[Any, float, str, bytes, bool]]) -> None:
-        """Record many frames: (anything, ``time_s``, direction, raw, accepted) each, as
-        :meth:`on_frame` would one by one (a hand-off batch's frame items)."""
+        """Record many frames: (anything, ``time_s``, direction, raw, accepted) each (a
+        hand-off batch's frame items). Consecutive frames of one direction and one receipt
+        time (one datagram's) make one ``/mavlink/raw`` message."""
         raw_emit = self._raw_emit
         if raw_emit is None:
             raw_emit = self._raw_emit = self._channel("/mavlink/raw", *protos.schema(
-                protos.FRAME), "protobuf")
+                protos.FRAMES), "protobuf")
         st = self.stats
-        encode_frame = protos.frame
         out: list[tuple[Any, bytes, int]] = []       # written in order, under one lock
+        raws: list[bytes] = []                       # the datagram in hand
+        refused: list[int] = []
+        due: list[tuple[_MavChannel, bytes]] = []
+        key: tuple[str, Any] | None = None
+        tx = False
         for _, time_s, direction, raw, accepted in frames:
-            tx = direction == "tx"
-            if not tx and direction != "rx":
-                self._bad(f"direction: expected 'rx' or 'tx', got {direction!r}")
-                continue
+            if (direction, time_s) != key:
+                if raws:
+                    self._datagram(raw_emit, key[1], tx, raws, refused, due, out)
+                    raws, refused, due = [], [], []
+                tx = direction == "tx"
+                if not tx and direction != "rx":
+                    self._bad(f"direction: expected 'rx' or 'tx', got {direction!r}")
+                    key = None
+                    continue
+                key = (direction, time_s)
             if tx:
                 st.frames_tx += 1
             else:
                 st.frames_rx += 1
-            try:
-                log_ns = min(max(int(time_s * 1e9), 0), MAX_NS)
-            except (TypeError, ValueError, OverflowError):
-                log_ns = self._now_ns()
             raw = bytes(raw)
-            rejected = not accepted and not tx
             chan = None
             if accepted and len(raw) >= 12:
-                key = raw[5:10]
+                head = raw[5:10]
                 table = self._mav[tx]
-                chan = table.get(key) if key in table else self._new_channel(tx, key)
-            if chan is not None and chan.usec_at >= 0:
+                chan = table.get(head) if head in table else self._new_channel(tx, head)
+            elif not tx:
+                st.frames_rejected += 1
+                refused.append(len(raws))
+            raws.append(raw)
+            if chan is None:
+                continue
+            if chan.usec_at >= 0:
                 at = chan.usec_at
                 payload_end = len(raw) - (15 if raw[2] & 1 else 2)
                 usec = _USEC.unpack(raw[at:min(at + 8, payload_end)].ljust(8, b"\0"))[0] \
@@ -147,15 +162,26 @@ class FrameRecorder(McapOutput):
                 if usec * 1000 <= MAX_NS:
                     self._sim_ns = usec * 1000
                     self._sim_known = True
-            if self._timeline_sim:
-                log_ns = self._on_timeline(log_ns)
-            if rejected:
-                st.frames_rejected += 1
-            out.append((raw_emit, encode_frame(raw, tx, rejected), log_ns))
-            if chan is not None and (chan.statustext or not self._sim_known
-                                     or self._sim_ns >= chan.next_ns):
-                self._decoded(chan, raw, tx, log_ns, out)
+            if chan.statustext or not self._sim_known or self._sim_ns >= chan.next_ns:
+                chan.next_ns = min(self._sim_ns + self._decoded_period_ns, MAX_NS)
+                due.append((chan, raw))
+        if raws:
+            self._datagram(raw_emit, key[1], tx, raws, refused, due, out)
         self._write_timed(out)
+
+    def _datagram(self, raw_emit: Any, time_s: Any, tx: bool, raws: list[bytes],
+                  refused: list[int], due: list[tuple[_MavChannel, bytes]],
+                  out: list[tuple[Any, bytes, int]]) -> None:
+        """One datagram's raw record and its frames' decoded records, at one log time."""
+        try:
+            log_ns = min(max(int(time_s * 1e9), 0), MAX_NS)
+        except (TypeError, ValueError, OverflowError):
+            log_ns = self._now_ns()
+        if self._timeline_sim:
+            log_ns = self._on_timeline(log_ns)
+        out.append((raw_emit, protos.frames(raws, tx, refused), log_ns))
+        for chan, raw in due:
+            self._decoded(chan, raw, tx, log_ns, out)
 
     def _decoded(self, chan: _MavChannel, raw: bytes, tx: bool, log_ns: int,
                  out: list[tuple[Any, bytes, int]]) -> None:
@@ -166,7 +192,6 @@ class FrameRecorder(McapOutput):
             self._bad(f"frame: {chan.name} (#{chan.msgid}) did not decode from its wire "
                       "bytes")
             return
-        chan.next_ns = min(self._sim_ns + self._decoded_period_ns, MAX_NS)
         out.append((chan.emit, fields_json(fields), log_ns))
         if chan.statustext:     # /log gets the whole text once its last chunk is here
             sysid, compid = raw[5], raw[6]

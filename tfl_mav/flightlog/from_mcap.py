@@ -1,7 +1,9 @@
 """Rebuild a :class:`~tfl_mav.flightlog.flight.FlightLog` from the MCAP files of a flight.
 
-The vehicle's log (``run.mcap``) holds the ground truth (``/sim/truth/state``,
-``/sim/truth/thrusts``, ``/sim/truth/attack``) and every MAVLink frame; the controller's
+The vehicle's log (``run.mcap``) holds the ground truth (``/sim/truth/state``: the rigid
+body, the true rotor thrusts and the attack, one message a tick; older files had the
+thrusts and the attack on ``/sim/truth/thrusts``, ``/sim/truth/attack``) and every MAVLink
+frame; the controller's
 log (``ctl.mcap``, optional) holds ``/controller/state`` every tick (mode, detection,
 estimate, saturation). The path distance is recomputed from the true positions with the
 scenario's path, so it is the *true* distance, not the controller's measured one.
@@ -25,7 +27,7 @@ from tfl_mav.modes import Mode
 from tfl_mav.scenario import Scenario, ScenarioError, scenario_from_dict
 
 __all__ = ["TRUTH_TOPICS", "add_truth", "controller_states", "flight_log_from_mcap",
-           "load_flight", "log_metadata", "scenario_from_log"]
+           "load_flight", "log_metadata", "scenario_from_log", "truth_parts"]
 
 _TRUTH = {"/sim/truth/state", "/sim/truth/thrusts", "/sim/truth/attack"}
 
@@ -43,8 +45,26 @@ TRUTH_TOPICS = frozenset(_TRUTH)
 
 
 def add_truth(truth: dict[int, dict[str, Any]], topic: str, record: dict[str, Any]) -> None:
-    """File one decoded ``/sim/truth/*`` record under its tick (sim time in µs)."""
-    truth.setdefault(round(record["t_s"] * 1e6), {})[topic.rsplit("/", 1)[-1]] = record
+    """File one decoded ``/sim/truth/*`` record under its tick (sim time in µs), as the
+    parts ``state``, ``thrusts`` and ``attack`` (:func:`truth_parts`)."""
+    truth.setdefault(round(record["t_s"] * 1e6), {}).update(
+        truth_parts(topic, record))
+
+
+def truth_parts(topic: str, record: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """A ``/sim/truth/*`` record as the parts it holds: ``state`` (t_s, position_m,
+    velocity_mps, quaternion_wxyz, body_rates_radps), ``thrusts`` (t_s, thrust_n,
+    attack_rotor), ``attack`` (t_s, rotor, active, applied_n, requested_n)."""
+    name = topic.rsplit("/", 1)[-1]
+    if name != "state" or "thrust_n" not in record:     # an older file's separate part
+        return {name: record}
+    t, rotor = record["t_s"], record.get("attack_rotor", 0)
+    thrusts = {"t_s": t, "attack_rotor": rotor, "thrust_n": record["thrust_n"]}
+    attack = {"t_s": t, "rotor": rotor, "active": rotor != 0}
+    for key in ("applied_n", "requested_n"):
+        if f"attack_{key}" in record:
+            attack[key] = record[f"attack_{key}"]
+    return {"state": record, "thrusts": thrusts, "attack": attack}
 
 
 def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,

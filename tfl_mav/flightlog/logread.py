@@ -195,24 +195,25 @@ class LogReader:
 
 def raw_frames(path: str | Path, reader: LogReader | None = None
                ) -> Iterator[tuple[LogMessage, bytes, bool, bool]]:
-    """Every frame of ``/mavlink/raw`` in file order: (message, wire bytes, sent by the
-    recording process, refused by its link); ``reader``: the one to read with (its
-    ``error`` then says why reading stopped)."""
-    from tfl_mav.flightlog.protos import frame_fields
+    """Every frame of ``/mavlink/raw`` in file order: (its datagram's message, wire bytes,
+    sent by the recording process, refused by its link); ``reader``: the one to read with
+    (its ``error`` then says why reading stopped)."""
+    from tfl_mav.flightlog.protos import frames_fields
 
     for m in (reader or LogReader(path)).messages({"/mavlink/raw"}):
-        fields = frame_fields(m.data) if m.data[:1] != b"{" else None
-        if fields is not None:
-            yield m, *fields
-            continue
-        f = m.decode()
-        data = f["data"]
-        if isinstance(data, str):                # JSON files: base64
-            import base64
+        fields = frames_fields(m.data) if m.data[:1] != b"{" else None
+        if fields is None:
+            f = m.decode()
+            if isinstance(f.get("data"), str):          # JSON files: base64, one a frame
+                import base64
 
-            yield m, base64.b64decode(data), f["direction"] == "tx", not f["accepted"]
-        else:
-            yield m, data, bool(f.get("tx")), bool(f.get("rejected"))
+                fields = ([base64.b64decode(f["data"])], f["direction"] == "tx",
+                          [] if f["accepted"] else [0])
+            else:
+                fields = (f.get("frames", []), bool(f.get("tx")), f.get("rejected", []))
+        raws, tx, rejected = fields
+        for i, raw in enumerate(raws):
+            yield m, raw, tx, i in rejected
 
 
 def mavlink_messages(path: str | Path, name: str, sysid: int | None = None,

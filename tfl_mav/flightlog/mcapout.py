@@ -181,7 +181,7 @@ class McapOutput:
                     self._file, context=self._context, writer_options=MCAPWriteOptions(
                         compression=_COMPRESSION[compression], profile=profile,
                         chunk_size=chunk_size_bytes, compression_level=ZSTD_LEVEL,
-                        compression_threads=0, emit_message_indexes=False))
+                        compression_threads=0))
                 self._writer.write_metadata("tfl-mav", {
                     "log_time": (_SIM_LOG_TIME if self._timeline_sim else
                                  "receipt time on the recorder clock, ns (Unix epoch by "

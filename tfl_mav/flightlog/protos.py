@@ -7,10 +7,11 @@ keep the names the JSON had (``/sim/truth/state.position_m[0]`` is the same mess
 
 Messages (proto2, so a left-out field is *absent*, not 0; repeated numbers packed):
 
-* ``tfl_mav.MavlinkFrame``: ``data`` (the wire bytes), ``tx`` (sent by the recording
-  process; absent: received), ``rejected`` (a received frame the link refused);
-* ``tfl_mav.TruthState``, ``tfl_mav.TruthAttack``, ``tfl_mav.TruthThrusts``,
-  ``tfl_mav.PathDistance``: simulator ground truth (units in the field names);
+* ``tfl_mav.MavlinkFrames``: the frames of one datagram: ``frames`` (each one's wire
+  bytes), ``tx`` (sent by the recording process; absent: received), ``rejected`` (the
+  indexes in ``frames`` of received frames the link refused);
+* ``tfl_mav.TruthState`` (one a tick: the rigid body, the true rotor thrusts, the attack as
+  applied), ``tfl_mav.PathDistance``: simulator ground truth (units in the field names);
 * a caller's record (the controller's ``/controller/state``) from its JSON-Schema-like
   description (:func:`~tfl_mav.flightlog.schemas.record_schema`): ``number`` → double,
   ``integer`` → sint64, ``boolean`` → bool, ``string`` → string, an array of numbers →
@@ -35,44 +36,46 @@ from typing import Any
 
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-__all__ = ["FRAME", "PATH_DISTANCE", "TRUTH_ATTACK", "TRUTH_STATE", "TRUTH_THRUSTS",
-           "RecordEncoder", "frame", "frame_fields", "message_class", "schema", "to_dict"]
+__all__ = ["FRAMES", "PATH_DISTANCE", "TRUTH_STATE",
+           "RecordEncoder", "frames", "frames_fields", "message_class", "schema", "to_dict"]
 
 PACKAGE = "tfl_mav"
-FRAME, TRUTH_STATE, TRUTH_ATTACK, TRUTH_THRUSTS, PATH_DISTANCE = (
-    f"{PACKAGE}.{n}" for n in ("MavlinkFrame", "TruthState", "TruthAttack", "TruthThrusts",
-                               "PathDistance"))
+FRAMES, TRUTH_STATE, PATH_DISTANCE = (
+    f"{PACKAGE}.{n}" for n in ("MavlinkFrames", "TruthState", "PathDistance"))
 
 _F = descriptor_pb2.FieldDescriptorProto
 _TYPES = {"double": _F.TYPE_DOUBLE, "sint64": _F.TYPE_SINT64, "uint32": _F.TYPE_UINT32,
           "bool": _F.TYPE_BOOL, "string": _F.TYPE_STRING, "bytes": _F.TYPE_BYTES,
-          "doubles": _F.TYPE_DOUBLE, "nested": _F.TYPE_MESSAGE, "json": _F.TYPE_STRING}
+          "doubles": _F.TYPE_DOUBLE, "nested": _F.TYPE_MESSAGE, "json": _F.TYPE_STRING,
+          "byteses": _F.TYPE_BYTES, "uint32s": _F.TYPE_UINT32}
 _WIRE = {"double": 1, "doubles": 2, "sint64": 0, "uint32": 0, "bool": 0, "string": 2,
          "bytes": 2, "nested": 2, "json": 2}
+_REPEATED = ("doubles", "nested", "byteses", "uint32s")
+_PACKED_KINDS = ("doubles", "uint32s")
 
 # (name, kind) in field-number order (1, 2, ...); kinds as _TYPES
 _FIXED: dict[str, tuple[str, tuple[tuple[str, str, str], ...]]] = {
-    FRAME: ("One MAVLink frame exactly as it crossed the wire (replayable byte for byte)", (
-        ("data", "bytes", "the wire bytes (MAVLink 2 frame, CRC and any signature)"),
-        ("tx", "bool", "sent by the recording process; absent: received"),
-        ("rejected", "bool", "received, and refused by the link (not decoded)"))),
-    TRUTH_STATE: ("True rigid-body state from the simulator, world frame ENU (z up), body "
-                  "frame x forward, z along thrust", (
+    FRAMES: ("The MAVLink frames of one datagram exactly as they crossed the wire "
+             "(replayable byte for byte)", (
+                 ("frames", "byteses", "each frame's wire bytes (MAVLink 2, CRC and any "
+                                       "signature)"),
+                 ("tx", "bool", "sent by the recording process; absent: received"),
+                 ("rejected", "uint32s", "indexes in frames of received frames the link "
+                                         "refused (not decoded)"))),
+    TRUTH_STATE: ("The simulator's truth at one tick: rigid-body state (world frame ENU, z "
+                  "up; body frame x forward, z along thrust), true rotor thrusts, the attack "
+                  "as applied", (
                       ("t_s", "double", "sim time (s)"),
                       ("position_m", "doubles", "position x_q (m), 3 values"),
                       ("velocity_mps", "doubles", "velocity v_q (m/s), 3 values"),
                       ("quaternion_wxyz", "doubles", "attitude body → world (w, x, y, z)"),
-                      ("body_rates_radps", "doubles", "body rates (p, q, r) (rad/s)"))),
-    TRUTH_ATTACK: ("The attack as the simulator applies it", (
-        ("t_s", "double", "sim time (s)"),
-        ("rotor", "uint32", "attacked rotor 1-4, 0 = none"),
-        ("active", "bool", "an attack is applied"),
-        ("applied_n", "double", "thrust forced on the rotor (N), clamped to [0, f_max]"),
-        ("requested_n", "double", "what the attack signal asked for (N)"))),
-    TRUTH_THRUSTS: ("True rotor thrusts (N), rotors 1-4", (
-        ("t_s", "double", "sim time (s)"),
-        ("thrust_n", "doubles", "true thrust of rotors 1-4 (N)"),
-        ("attack_rotor", "uint32", "attacked rotor 1-4, 0 = none"))),
+                      ("body_rates_radps", "doubles", "body rates (p, q, r) (rad/s)"),
+                      ("thrust_n", "doubles", "true thrust of rotors 1-4 (N)"),
+                      ("attack_rotor", "uint32", "attacked rotor 1-4, 0 = none"),
+                      ("attack_applied_n", "double", "thrust forced on the rotor (N), "
+                                                     "clamped to [0, f_max]"),
+                      ("attack_requested_n", "double", "what the attack signal asked for "
+                                                       "(N)"))),
     PATH_DISTANCE: ("Distance from the true position to the recorded path polyline", (
         ("t_s", "double", "sim time (s)"),
         ("distance_m", "double", "distance to the polyline given to Recorder.path (m)"))),
@@ -84,9 +87,8 @@ def _message(name: str, fields: Sequence[tuple[str, str, str]]) -> descriptor_pb
     msg = descriptor_pb2.DescriptorProto(name=name.rsplit(".", 1)[-1])
     for number, (fname, kind, _doc) in enumerate(fields, 1):
         f = msg.field.add(name=fname, number=number, type=_TYPES[kind],
-                          label=_F.LABEL_REPEATED if kind in ("doubles", "nested")
-                          else _F.LABEL_OPTIONAL)
-        if kind == "doubles":
+                          label=_F.LABEL_REPEATED if kind in _REPEATED else _F.LABEL_OPTIONAL)
+        if kind in _PACKED_KINDS:
             f.options.packed = True
         elif kind == "nested":
             f.type_name = f".{_DOUBLES}"
@@ -144,65 +146,73 @@ def _tag(number: int, wire: int) -> bytes:
     return _varint(number << 3 | wire)
 
 
-_TX, _REJECTED = _tag(2, 0) + b"\x01", _tag(3, 0) + b"\x01"
-_DATA = _tag(1, 2)
+_DATA, _TX, _REJECTED = _tag(1, 2), _tag(2, 0) + b"\x01", _tag(3, 2)
 _LEN1 = [bytes([n]) for n in range(128)]
 
 
-def frame(raw: bytes, tx: bool, rejected: bool = False) -> bytes:
-    """A ``tfl_mav.MavlinkFrame``: the wire bytes, sent or received, refused or not."""
-    n = len(raw)
-    out = _DATA + (_LEN1[n] if n < 128 else _varint(n)) + raw
+def frames(raws: Sequence[bytes], tx: bool, rejected: Sequence[int] = ()) -> bytes:
+    """A ``tfl_mav.MavlinkFrames``: one datagram's frames, sent or received, and the
+    indexes of those the link refused."""
+    out = b"".join([_DATA + (_LEN1[len(r)] if len(r) < 128 else _varint(len(r))) + r
+                    for r in raws])
     if tx:
         out += _TX
-    return out + _REJECTED if rejected else out
+    if rejected:
+        body = b"".join(map(_varint, rejected))
+        out += _REJECTED + _len(len(body)) + body
+    return out
 
 
-def frame_fields(data: bytes) -> tuple[bytes, bool, bool] | None:
-    """(wire bytes, tx, rejected) of a ``tfl_mav.MavlinkFrame`` as :func:`frame` writes it
-    (a reader's shortcut past the library for the ~1000 frames a second of flight); None
-    for any other layout (then decode it with the library)."""
-    if data[:1] != _DATA:
-        return None
-    n, at = 0, 1
-    for shift in (0, 7):
+def _read_varint(data: bytes, at: int) -> tuple[int, int]:
+    n = shift = 0
+    while True:
         b = data[at]
         at += 1
         n |= (b & 0x7F) << shift
         if not b & 0x80:
-            break
-    else:
+            return n, at
+        shift += 7
+
+
+def frames_fields(data: bytes) -> tuple[list[bytes], bool, list[int]] | None:
+    """(frames, tx, rejected indexes) of a ``tfl_mav.MavlinkFrames`` as :func:`frames`
+    writes it (a reader's shortcut past the library for the ~1000 datagrams a second of
+    flight); None for any other layout (then decode it with the library)."""
+    raws: list[bytes] = []
+    at, end = 0, len(data)
+    try:
+        while at < end and data[at] == 0x0A:
+            n, at = _read_varint(data, at + 1)
+            raws.append(data[at:at + n])
+            at += n
+        tx = data[at:at + 2] == _TX
+        if tx:
+            at += 2
+        rejected: list[int] = []
+        if at < end and data[at] == 0x1A:
+            n, at = _read_varint(data, at + 1)
+            stop = at + n
+            while at < stop:
+                i, at = _read_varint(data, at)
+                rejected.append(i)
+    except IndexError:
         return None
-    raw, rest = data[at:at + n], data[at + n:]
-    if len(raw) != n:
+    if at != end:
         return None
-    tx = rest.startswith(_TX)
-    if tx:
-        rest = rest[2:]
-    rejected = rest == _REJECTED
-    return (raw, tx, rejected) if rejected or not rest else None
+    return raws, tx, rejected
 
 
-def _truth_state_pack() -> Callable[..., bytes]:
-    pack = struct.Struct("<Bd" + "BB3d" + "BB3d" + "BB4d" + "BB3d").pack
-    def encode(t: float, p: Sequence[float], v: Sequence[float], q: Sequence[float],
-               w: Sequence[float]) -> bytes:
-        return pack(0x09, t, 0x12, 24, *p, 0x1A, 24, *v, 0x22, 32, *q, 0x2A, 24, *w)
-    return encode
-
-
-_ATTACK = struct.Struct("<BdBBBBBdBd").pack
-_THRUSTS = struct.Struct("<BdBB4dBB").pack
+_TRUTH = struct.Struct("<Bd" + "BB3d" + "BB3d" + "BB4d" + "BB3d" + "BB4d" + "BB" + "Bd" + "Bd").pack
 _PATH = struct.Struct("<BdBd").pack
-truth_state = _truth_state_pack()
 
 
-def truth_attack(t: float, rotor: int, applied_n: float, requested_n: float) -> bytes:
-    return _ATTACK(0x09, t, 0x10, rotor, 0x18, rotor != 0, 0x21, applied_n, 0x29, requested_n)
-
-
-def truth_thrusts(t: float, thrust_n: Sequence[float], attack_rotor: int) -> bytes:
-    return _THRUSTS(0x09, t, 0x12, 32, *thrust_n, 0x18, attack_rotor)
+def truth_state(t: float, p: Sequence[float], v: Sequence[float], q: Sequence[float],
+                w: Sequence[float], thrust_n: Sequence[float], attack_rotor: int,
+                attack_applied_n: float, attack_requested_n: float) -> bytes:
+    """A ``tfl_mav.TruthState`` (one ``struct`` pack: the tags and lengths are constants)."""
+    return _TRUTH(0x09, t, 0x12, 24, *p, 0x1A, 24, *v, 0x22, 32, *q, 0x2A, 24, *w,
+                  0x32, 32, *thrust_n, 0x38, attack_rotor, 0x41, attack_applied_n,
+                  0x49, attack_requested_n)
 
 
 def path_distance(t: float, distance_m: float) -> bytes:

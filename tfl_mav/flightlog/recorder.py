@@ -8,8 +8,8 @@ Channels (docs/design.md, "The flight log"):
   and sent, decoded *from their wire bytes* (JSON), at most one a channel every scene
   period of sim time (all before sim time is known; every STATUSTEXT); every frame stays in
   ``/mavlink/raw`` (``logread.mavlink_messages`` decodes them all).
-* ``/sim/truth/state``, ``/sim/truth/attack``, ``/sim/truth/thrusts`` (every
-  :meth:`Recorder.truth` call) and ``/sim/truth/path_distance``, ``/tf``,
+* ``/sim/truth/state`` (every :meth:`Recorder.truth` call: the rigid body, the true rotor
+  thrusts and the attack in one message) and ``/sim/truth/path_distance``, ``/tf``,
   ``/scene/vehicle`` (at most ``scene_hz`` in sim time); ``/scene/path`` (on
   :meth:`Recorder.path`, then again with every periodic flush so it survives seeking and
   reaches a viewer who connects late); ``/log`` (:meth:`Recorder.log` and every STATUSTEXT
@@ -164,7 +164,7 @@ class Recorder(FrameRecorder):
         self._ctl_emit: Any = None
         self._init_frames(sim_time_messages, self._scene_period_s)
         self._last_scene_t = -math.inf
-        self._truth_emits: tuple[Any, Any, Any] | None = None
+        self._truth_emit: Any = None
         self._polyline: Polyline | None = None
         # topic → (log, message head (plotchan.labels), number of values)
         self._plots: dict[str, tuple[Any, bytes, int]] = {}
@@ -261,15 +261,12 @@ class Recorder(FrameRecorder):
                rotor: int, applied: float, requested: float) -> None:
         self.set_sim_time(t)
         log_ns = self._now_ns()
-        emits = self._truth_emits
-        if emits is None:
-            emits = self._truth_emits = (
-                self._proto_channel("/sim/truth/state", protos.TRUTH_STATE),
-                self._proto_channel("/sim/truth/attack", protos.TRUTH_ATTACK),
-                self._proto_channel("/sim/truth/thrusts", protos.TRUTH_THRUSTS))
-        self._write_many(((emits[0], protos.truth_state(t, pos, vel, quat, rates)),
-                          (emits[1], protos.truth_attack(t, rotor, applied, requested)),
-                          (emits[2], protos.truth_thrusts(t, thrust, rotor))), log_ns)
+        emit = self._truth_emit
+        if emit is None:
+            emit = self._truth_emit = self._proto_channel("/sim/truth/state",
+                                                          protos.TRUTH_STATE)
+        self._write(emit, protos.truth_state(t, pos, vel, quat, rates, thrust, rotor, applied,
+                                             requested), log_ns)
         self._scene(t, log_ns, pos, quat, thrust, rotor, applied)
 
     def _scene(self, t: float, log_ns: int, pos: Sequence[float], quat: Sequence[float],
