@@ -202,9 +202,6 @@ class McapOutput:
                 reason = getattr(cause, "strerror", None) or str(cause)
                 raise RecorderError(f"cannot write MCAP file {self.file_path}: "
                                     f"{reason}") from None
-            self.error = None       # the set-up's failure was raised, not recorded
-            self.stats.write_errors = self.stats.dropped = 0
-            self._open = True
         if live is not None:
             from tfl_mav.flightlog.live import LiveServer
 
