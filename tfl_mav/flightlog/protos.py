@@ -122,14 +122,29 @@ def message_class(name: str, data: bytes) -> Any:
 
 def to_dict(msg: Any) -> dict[str, Any]:
     """A parsed message as plain values: set fields only, repeated as lists, nested
-    ``Doubles`` as lists of floats."""
+    ``Doubles`` as lists of floats (other nested messages as dicts)."""
+    plan = _PLANS.get(msg.DESCRIPTOR)
+    if plan is None:
+        plan = _PLANS[msg.DESCRIPTOR] = {
+            fd: (fd.name, (3 if [f.name for f in fd.message_type.fields] == ["values"]
+                           else 2) if fd.message_type is not None else int(fd.is_repeated))
+            for fd in msg.DESCRIPTOR.fields}
     out: dict[str, Any] = {}
     for fd, value in msg.ListFields():
-        if fd.message_type is not None:
-            out[fd.name] = [list(v.values) for v in value] if fd.is_repeated else to_dict(value)
+        name, kind = plan[fd]
+        if kind == 0:
+            out[name] = value
+        elif kind == 1:
+            out[name] = list(value)
+        elif kind == 3:
+            out[name] = [list(v.values) for v in value] if fd.is_repeated \
+                else list(value.values)
         else:
-            out[fd.name] = list(value) if fd.is_repeated else value
+            out[name] = [to_dict(v) for v in value] if fd.is_repeated else to_dict(value)
     return out
+
+
+_PLANS: dict[Any, dict[Any, tuple[str, int]]] = {}
 
 
 # ---------------------------------------------------------------- writing
