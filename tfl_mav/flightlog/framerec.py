@@ -4,8 +4,8 @@ Every frame goes to ``/mavlink/raw``: a ``tfl_mav.MavlinkFrames`` message per da
 frames of one direction and one receipt time: their wire bytes, sent or received, which
 ones the link refused; :mod:`~tfl_mav.flightlog.protos`): nothing is lost, and ``tfl-mav
 replay`` re-sends them byte for byte. One message a datagram rather than a frame: an MCAP
-message costs ~50 bytes besides its data (record header, message index entry), as much as a
-small frame. An accepted frame is also decoded from its
+message costs ~47 bytes besides its data (a 31-byte record header, a 16-byte message index
+entry), as much as a small frame. An accepted frame is also decoded from its
 wire bytes (float32 rounding and all) onto its message's channel as JSON (JSON Schema from
 pymavlink's definitions, :mod:`~tfl_mav.flightlog.schemas`), at most one a channel every
 decoded period of sim time (every one before sim time is known, and every STATUSTEXT):

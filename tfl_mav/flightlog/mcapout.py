@@ -45,9 +45,9 @@ _SIM_LOG_TIME = ("sim timeline: before the flight the receipt time on the record
 _COMPRESSION = {"zstd": MCAPCompression.Zstd, "lz4": MCAPCompression.Lz4, "none": None}
 MAX_NS = 2**63 - 1
 ZSTD_LEVEL = 1
-"""zstd level of the chunks (the SDK compresses in Rust, inline in the thread that logs).
-Level 3 made files ~4 % smaller (36.2 vs 37.7 MiB per flight-minute, both files, on
-bench/recorder_replay.py's captured flight) for about twice the compression CPU."""
+"""zstd level of the chunks (the SDK compresses in Rust, inline in the thread that logs):
+the recorder children's CPU is what they take from the lockstep loop, and level 3 made
+files only slightly smaller for more CPU."""
 
 CHUNK_BYTES = 1 << 20
 """Uncompressed size of a chunk (a flush ends one sooner, at least every

@@ -21,9 +21,9 @@ Messages (proto2, so a left-out field is *absent*, not 0; repeated numbers packe
 
 NaN and inf are plain doubles here (nothing is left out); None is an absent field.
 
-Encoding is the protobuf wire format written with :mod:`struct` (the layouts are fixed, one
-``pack`` per message, ~10x cheaper than building the library's message objects on every
-tick); reading uses the ``protobuf`` library on the schema in the file
+Encoding is the protobuf wire format written with :mod:`struct` (the layouts are fixed: one
+``pack`` per truth message, a few per record, no message objects built on the loop's
+ticks); reading uses the ``protobuf`` library on the schema in the file
 (:func:`message_class`), so a writer bug cannot hide behind a matching hand-written reader.
 """
 
