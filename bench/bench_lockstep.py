@@ -19,8 +19,14 @@ Measures, on this machine:
    (``TFL_MAV_RECORDER_IDLE=0``) and idle (the lockstep default,
    :mod:`tfl_mav.flightlog.child_priority`), alternating, ``--ab-rounds`` each.
 
+6. ``--ab-tree DIR``: only the full loop, this checkout and another (e.g. a worktree of
+   the commit before a change) alternating, ``--ab-pairs`` pairs, each in a fresh
+   interpreter whose ``tfl_mav`` is that tree's: ticks/s, the per-pair ratio, and the
+   MiB per flight-minute of both files of each flight.
+
 Usage: ``python bench/bench_lockstep.py [--ticks N] [--json FILE] [--breakdown-only |
---no-breakdown] [--no-profile] [--ab-rounds N]`` from the repository root;
+--no-breakdown] [--no-profile] [--ab-rounds N] [--ab-tree DIR [--ab-pairs N]]`` from the
+repository root;
 ``--profile-vehicle FILE`` only profiles the sim process of (2) (cProfile, CPU timer) and
 prints where its time goes.
 """
@@ -393,6 +399,79 @@ def bench_ab(n_ticks: int, rounds: int, first: dict[str, Any]) -> dict[str, Any]
             "paired_gain_median": statistics.median(pairs)}
 
 
+_FULL_LOOP_CHILD = """
+import json, os, pathlib, sys, tempfile
+sys.path.insert(0, os.path.join({tree!r}, "bench"))
+import bench_lockstep as b
+import tfl_mav
+assert pathlib.Path(tfl_mav.__file__).resolve().is_relative_to(pathlib.Path({tree!r}).resolve())
+b._cores("compiled")
+with tempfile.TemporaryDirectory() as d:
+    r = b.bench_full_loop({ticks}, pathlib.Path(d))
+    r["mcap_bytes"] = {{n: (pathlib.Path(d) / n).stat().st_size for n in ("run.mcap", "ctl.mcap")}}
+print(json.dumps(r))
+"""
+
+
+def full_loop_in(tree: Path, n_ticks: int) -> dict[str, Any]:
+    """:func:`bench_full_loop` run by checkout ``tree`` (its bench, its ``tfl_mav`` first on
+    the path, its directory the processes' working directory), in a fresh interpreter."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        filter(None, (str(tree), os.environ.get("PYTHONPATH")))))
+    done = subprocess.run([sys.executable, "-c", _FULL_LOOP_CHILD.format(
+        tree=str(tree.resolve()), ticks=n_ticks)], cwd=tree, env=env, capture_output=True,
+        text=True, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(f"full loop in {tree} failed: {done.stderr[-2000:]}")
+    return json.loads(done.stdout.splitlines()[-1])
+
+
+def bench_trees(n_ticks: int, pairs: int, other: Path) -> dict[str, Any]:
+    """The full loop in ``other`` and in this checkout, alternating (``other`` first in
+    each pair): ticks/s and MiB per flight-minute of each run, medians, per-pair ratios."""
+    here = Path(__file__).resolve().parents[1]
+    runs: dict[str, list[dict[str, Any]]] = {"other": [], "this": []}
+    for _ in range(pairs):
+        runs["other"].append(full_loop_in(other, n_ticks))
+        runs["this"].append(full_loop_in(here, n_ticks))
+    minutes = n_ticks / 1000.0 / 60.0
+    out: dict[str, Any] = {"ticks": n_ticks, "pairs": pairs, "other_tree": str(other)}
+    for key, rs in runs.items():
+        out[key] = {"ticks_per_s": [r["ticks_per_s"] for r in rs],
+                    "mib_per_min": [{n: b / 2**20 / minutes for n, b in r["mcap_bytes"].items()}
+                                    for r in rs],
+                    "cpu_us_per_tick": [r["cpu_us_per_tick"] for r in rs]}
+        out[key]["median_ticks_per_s"] = statistics.median(out[key]["ticks_per_s"])
+        out[key]["median_mib_per_min"] = statistics.median(
+            sum(m.values()) for m in out[key]["mib_per_min"])
+        for proc_name in rs[0]["cpu_us_per_tick"]:
+            out[key].setdefault("median_cpu_us", {})[proc_name] = statistics.median(
+                c[proc_name] for c in out[key]["cpu_us_per_tick"])
+    ratios = [t / o for t, o in zip(out["this"]["ticks_per_s"], out["other"]["ticks_per_s"],
+                                    strict=True)]
+    out["pair_ratios"] = ratios
+    out["pair_ratio_geomean"] = math.exp(sum(map(math.log, ratios)) / len(ratios))
+    return out
+
+
+def _print_trees(ab: dict[str, Any]) -> None:
+    print(f"full loop, {ab['other_tree']} vs this checkout ({ab['pairs']} alternated pairs, "
+          f"{ab['ticks']} ticks each; load {os.getloadavg()[0]:.2f})")
+    for i, r in enumerate(ab["pair_ratios"]):
+        o, t = ab["other"], ab["this"]
+        print(f"  pair {i + 1}: {o['ticks_per_s'][i]:7.0f} → {t['ticks_per_s'][i]:7.0f} ticks/s"
+              f"  ({r:.3f})   MiB/flight-min {sum(o['mib_per_min'][i].values()):5.1f} → "
+              f"{sum(t['mib_per_min'][i].values()):5.1f}")
+    print(f"  median ticks/s {ab['other']['median_ticks_per_s']:.0f} → "
+          f"{ab['this']['median_ticks_per_s']:.0f}; per-pair geometric mean "
+          f"{ab['pair_ratio_geomean']:.3f}")
+    print(f"  median MiB per flight-minute (run.mcap + ctl.mcap) "
+          f"{ab['other']['median_mib_per_min']:.1f} → {ab['this']['median_mib_per_min']:.1f}")
+    for proc_name, us in ab["this"]["median_cpu_us"].items():
+        print(f"  {proc_name:<40s} CPU µs/tick (median) "
+              f"{ab['other']['median_cpu_us'].get(proc_name, math.nan):7.1f} → {us:7.1f}")
+
+
 def profile_breakdown(n_ticks: int, cpu_us: dict[str, float]) -> dict[str, dict[str, float]]:
     """Where each process's CPU goes, per tick: the shares of a cProfile'd (CPU timer) run
     of the full loop, scaled to the unprofiled CPU per tick ``cpu_us`` (process → µs)."""
@@ -442,13 +521,12 @@ def _print_in_process(physics: dict[str, float], breakdown: dict[str, float]) ->
 
 def _cores(core: str) -> None:
     """Every process of the bench (subprocesses inherit it) on one kind of core (the
-    recorder children's frame path too); compiled ones are built (or found in the cache)
+    recorder children too); compiled ones are built (or found in the cache)
     now, for every case flown, so no timed process waits for a compiler or flies Python
     until one is done."""
     os.environ["TFL_MAV_NATIVE"] = "sync" if core == "compiled" else "off"
     if core == "compiled":
         from tfl_mav.controller.flight_computer import FlightComputer
-        from tfl_mav.flightlog import frames_c
         from tfl_mav.scenario import load_scenario
         from tfl_mav.sim.simulator import Simulator
 
@@ -456,7 +534,6 @@ def _cores(core: str) -> None:
                 **{"attack.rotor": 0})):
             FlightComputer(sc)
             Simulator(sc)
-        frames_c.obtain(lambda _fn: None)          # the recorder children's hot path
 
 
 def main() -> int:
@@ -482,6 +559,11 @@ def main() -> int:
                              "children niced only (TFL_MAV_RECORDER_IDLE=0) and idle (the "
                              "lockstep default), alternating: the idle children's gain in "
                              "the same run (default 2; 0: skip)")
+    parser.add_argument("--ab-tree", metavar="DIR", type=Path,
+                        help="only: the full loop of checkout DIR and of this one, "
+                             "alternating (see the module docstring)")
+    parser.add_argument("--ab-pairs", type=int, default=6, metavar="N",
+                        help="pairs for --ab-tree (default 6)")
     parser.add_argument("--role", help=argparse.SUPPRESS)
     parser.add_argument("--port-file", help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -490,6 +572,12 @@ def main() -> int:
         return 0
     if args.ticks <= WARMUP_TICKS:
         parser.error(f"--ticks: must be > {WARMUP_TICKS}")
+    if args.ab_tree:
+        trees = bench_trees(args.ticks, args.ab_pairs, args.ab_tree)
+        _print_trees(trees)
+        if args.json:
+            Path(args.json).write_text(json.dumps(trees, indent=2))
+        return 0
     if args.breakdown_only and args.no_breakdown:
         parser.error("--breakdown-only and --no-breakdown exclude each other")
     if args.profile_vehicle:

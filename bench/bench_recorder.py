@@ -17,9 +17,12 @@ Measures, on this machine, in one run:
    and on synthetic frames with and without the live server.
 
 ``--before FILE``: a JSON written by an earlier run (e.g. on the commit before the change)
-printed side by side. Usage: ``python bench/bench_recorder.py [--seconds S] [--repeats N]
-[--json FILE] [--before FILE] [--skip control|files --merge FILE]`` from the repository
-root. The machine is shared: compare ratios within one run, and read the load it prints.
+printed side by side; ``--tree DIR``: measure checkout DIR's ``tfl_mav`` and commands with
+this bench (its processes run in DIR, DIR first on their path), e.g. a worktree of the
+commit before the change, so both columns come from one bench in one session. Usage:
+``python bench/bench_recorder.py [--seconds S] [--repeats N] [--json FILE] [--before FILE]
+[--tree DIR] [--skip control|files --merge FILE]`` from the repository root. The machine
+is shared: compare ratios within one run, and read the load it prints.
 """
 
 from __future__ import annotations
@@ -95,20 +98,9 @@ def _fly(seconds: float, record: bool, tmp: Path) -> dict[str, float]:
 
 
 def _fly_recorder(scenario: Any, path: Path) -> tuple[dict[str, Any], Any]:
-    """The recorder hooks of ``tfl-mav fly --mcap`` (whatever this tree's fly uses)."""
-    try:
-        from tfl_mav.cli.fly import open_recorder
-    except ImportError:       # an older tree: an in-process Recorder, built as fly.py did
-        from tfl_mav.build import scenario_path
-        from tfl_mav.flightlog.recorder import Recorder
+    """The recorder hooks of ``tfl-mav fly --mcap`` (its own ``open_recorder``)."""
+    from tfl_mav.cli.fly import open_recorder
 
-        rec = Recorder(path, thrust_max_n=scenario.vehicle.thrust_max_n,
-                       arm_m=scenario.vehicle.arm_m)
-        rec.path(scenario_path(scenario).sample(800))
-        hooks = {"on_frame": rec.on_frame, "on_tick": rec.controller,
-                 "on_event": lambda lvl, text, t: rec.log(
-                     lvl if lvl != "critical" else "error", text, t)}
-        return hooks, rec.close
     rec = open_recorder(scenario, str(path), None)
     return {"on_frame": rec.on_frame, "on_tick": rec.controller,
             "on_event": lambda lvl, text, t: rec.log(
@@ -297,6 +289,24 @@ def bench_files_and_live(seconds: float, repeats: int, live: bool) -> dict[str, 
     return out
 
 
+def _use_tree(tree: Path) -> None:
+    """Measure checkout ``tree``: its packages first here and in every subprocess, and its
+    directory their working directory (``python -m tfl_mav.cli`` puts the cwd first)."""
+    global REPO
+    REPO = tree
+    sys.path.insert(0, str(tree))
+    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, (str(tree),
+                                                             os.environ.get("PYTHONPATH"))))
+    import recorder_replay
+
+    import tfl_mav
+
+    recorder_replay.REPO = tree
+    here = Path(tfl_mav.__file__).resolve()
+    if not here.is_relative_to(tree):
+        raise SystemExit(f"--tree {tree}: tfl_mav imported from {here}")
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--seconds", type=float, default=5.0, help="sim seconds per flight")
@@ -306,7 +316,11 @@ def main() -> int:
     ap.add_argument("--skip", choices=["control", "files"], action="append", default=[],
                     help="leave out a part (its numbers come from --merge)")
     ap.add_argument("--merge", metavar="FILE", help="take the skipped parts from this JSON")
+    ap.add_argument("--tree", metavar="DIR", type=Path,
+                    help="measure this checkout instead (see the module docstring)")
     args = ap.parse_args()
+    if args.tree:
+        _use_tree(args.tree.resolve())
     import tfl_mav.cli.demo as demo_cmd
 
     live = "--foxglove" in Path(demo_cmd.__file__).read_text()

@@ -7,17 +7,15 @@ fills and the flight's sends wait, exactly what a starved idle child does.
 
 from __future__ import annotations
 
-import base64
-import json
 import os
 import signal
 import time
 from pathlib import Path
 
 import pytest
-from mcap.reader import make_reader
 
 from tfl_mav.flightlog.child_priority import NICE_INCREMENT, can_promote
+from tfl_mav.flightlog.logread import raw_frames
 from tfl_mav.flightlog.recorder_process import _BEHIND_S, RecorderProcess
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="Linux scheduling")
@@ -88,9 +86,7 @@ def test_a_child_that_gets_no_cpu_is_promoted_and_loses_nothing(tmp_path: Path) 
     rec.close()
     assert rec.error is None
     assert rec.stats.dropped == 0
-    with path.open("rb") as f:
-        raws = [base64.b64decode(json.loads(msg.data)["data"])
-                for _, ch, msg in make_reader(f).iter_messages() if ch.topic == "/mavlink/raw"]
+    raws = [raw for _m, raw, _tx, _rejected in raw_frames(path)]
     # every frame, in order, though the child was stopped while they were sent
     assert raws == [i.to_bytes(2, "big") * 500 for i in range(n)]
 

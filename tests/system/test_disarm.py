@@ -22,7 +22,7 @@ from foxglove_schemas_protobuf.Log_pb2 import Log
 from mcap.reader import make_reader
 from pymavlink import mavutil
 
-from tfl_mav.flightlog.logread import mavlink_messages
+from tfl_mav.flightlog.logread import LogReader, mavlink_messages
 from tfl_mav.harness.ports import free_udp_port
 from tfl_mav.harness.processes import Proc, start_sim
 from tfl_mav.link.dialect import mav
@@ -49,11 +49,9 @@ def _sim_time_reached(gcs, t_s: float, timeout_s: float = 30.0) -> None:
             return
 
 
-def _messages(path: Path, topic: str) -> list[tuple[float, dict]]:
-    """(publish time in s, decoded JSON) of every message on ``topic``: the mcap reader."""
-    with open(path, "rb") as f:
-        return [(m.publish_time * 1e-9, json.loads(m.data))
-                for _s, _c, m in make_reader(f).iter_messages(topics=[topic])]
+def _records(path: Path, topic: str) -> list[tuple[float, dict]]:
+    """(sim time in s, record) of every record on ``topic`` (a recorder record's t_s)."""
+    return [(d["t_s"], d) for m in LogReader(path).messages({topic}) for d in [m.decode()]]
 
 
 def test_disarm_from_a_gcs_raises_no_alarm_and_keeps_the_detection(tmp_path):
@@ -117,7 +115,7 @@ def test_disarm_from_a_gcs_raises_no_alarm_and_keeps_the_detection(tmp_path):
     assert all(r == [0, 0, 0, 0] for r in stopped), stopped[:5]
 
     # The controller's side: the verdict never moved; its /log has the text whole.
-    states = _messages(ctl_mcap, "/controller/state")
+    states = _records(ctl_mcap, "/controller/state")
     assert states and all(m["detected_rotor"] == 2 for t, m in states if t >= t_alarm)
     with open(ctl_mcap, "rb") as f:
         logs = [Log.FromString(m.data).message

@@ -53,11 +53,15 @@ def test_every_foxglove_message_in_the_file_decodes_with_the_official_classes(tm
                       [0.0] * 3, [2.0, 1.0, 2.0, 2.0], 2 if k >= 40 else 0, 1.0, 1.0)
         rec.log("warning", "ATTACK on rotor 2", 0.04)
     seen: dict[str, int] = {}
+    scenes = 0
     with open(path, "rb") as f:
         for sc, ch, m in make_reader(f).iter_messages():
             if ch.topic.startswith("/plot/"):        # ROS 2 Float64MultiArray (plotchan)
                 assert (ch.message_encoding, sc.encoding, sc.name) == (
                     "cdr", "ros2msg", "std_msgs/msg/Float64MultiArray")
+                continue
+            if sc.name.startswith("tfl_mav."):     # the recorder's own (test_recorder_protos)
+                assert ch.message_encoding == sc.encoding == "protobuf"
                 continue
             if not sc.name.startswith("foxglove."):
                 assert ch.message_encoding == "json" and sc.encoding == "jsonschema"
@@ -74,7 +78,9 @@ def test_every_foxglove_message_in_the_file_decodes_with_the_official_classes(tm
             elif ch.topic == "/scene/vehicle":
                 ent = msg.entities[0]
                 assert len(ent.arrows) == 4 and len(ent.cylinders) == 4
-                assert len(ent.spheres) == (1 if m.publish_time >= 40_000_000 else 0)
+                # drawn at t = 0, 20, 40, ... ms: attacked from the third on
+                assert len(ent.spheres) == (1 if scenes >= 2 else 0)
+                scenes += 1
             elif ch.topic == "/log":
                 assert msg.level == Log.WARNING and msg.message.endswith("ATTACK on rotor 2")
     # 100 ticks of 1 ms at 50 Hz scene rate: t = 0, 20, ..., 80 ms
@@ -188,7 +194,12 @@ def test_the_controllers_live_view_draws_its_estimate():
     scene = EstimateScene(ROTORS, 8.0)
     server = LiveServer("127.0.0.1", 0, scene)
     odo_ch = server.channel("/mavlink/1/1/ODOMETRY", "ODOMETRY", "jsonschema", b"{}", "json")
-    ctl_ch = server.channel("/controller/state", "ctl", "jsonschema", b"{}", "json")
+    from tfl_mav.controller.daemon_io import TICK_FIELDS, TICK_SCHEMA
+    from tfl_mav.flightlog.protos import RecordEncoder
+
+    record = RecordEncoder(TICK_SCHEMA, TICK_FIELDS)
+    ctl_ch = server.channel("/controller/state", record.name, "protobuf", record.schema_data,
+                            "protobuf")
     pos, quat = [1.5, -2.0, 3.25], [math.cos(0.3), 0.0, 0.0, math.sin(0.3)]   # 0.6 rad yaw
     odo = odometry_from_paper(pos, [0.0] * 3, quat, [0.0] * 3)
     odo_json = json.dumps({"time_usec": 1000, "frame_id": 1, "child_frame_id": 12,
@@ -207,8 +218,8 @@ def test_the_controllers_live_view_draws_its_estimate():
             # a frame it cannot use (q left out: non-finite) is counted, not drawn
             odo_ch.log(odo_json.replace(b'"q"', b'"q_"'), log_time=log_ns[0])
             assert server.estimate.errors == 1 and server.estimate.drawn == 0
-            ctl_ch.log(json.dumps({"detected_rotor": 2, "rotor_thrust_cmd_n":
-                                   [2.0, 0.0, 4.0, 1.0]}).encode(), log_time=log_ns[0])
+            ctl_ch.log(record.encode_map({"t_s": 0.0, "detected_rotor": 2, "rotor_thrust_cmd_n":
+                                          [2.0, 0.0, 4.0, 1.0]}), log_time=log_ns[0])
             got = _subscribe_and_collect(
                 ws, channels, {1: "/tf", 2: "/scene/vehicle"},
                 lambda g: len(g["/tf"]) >= 3 and len(g["/scene/vehicle"]) >= 3, feed)

@@ -13,25 +13,22 @@ Real child processes, real MCAP files read back with the ``mcap`` reader.
 
 from __future__ import annotations
 
-import json
 import os
 import signal
 import time
 
 import pytest
-from mcap.reader import make_reader
 
 from tfl_mav.cli.fly import StartingRecorder
 from tfl_mav.controller.daemon import TICK_FIELDS
+from tfl_mav.flightlog.logread import LogReader
 from tfl_mav.flightlog.recorder_process import RecorderProcess
 from tfl_mav.link.transport import Link
 from tfl_mav.scenario import load_scenario
 
 
 def _controller_messages(path: os.PathLike[str]) -> list[tuple[int, dict]]:
-    with open(path, "rb") as fh:
-        return [(m.log_time, json.loads(m.data)) for _s, ch, m in make_reader(fh).iter_messages()
-                if ch.topic == "/controller/state"]
+    return [(m.log_time_ns, m.decode()) for m in LogReader(path).messages({"/controller/state"})]
 
 
 def _record(k: int) -> tuple:
@@ -102,10 +99,8 @@ def test_an_attached_link_is_recorded_before_and_after_the_child_is_up(tmp_path)
         sink.close()
         rec.close()
     assert rec.error is None
-    with open(path, "rb") as fh:
-        raw = [json.loads(m.data) for _s, ch, m in make_reader(fh).iter_messages()
-               if ch.topic == "/mavlink/raw"]
-    assert len(raw) == sent and all(r["direction"] == "tx" for r in raw)
+    raw = [m.decode() for m in LogReader(path).messages({"/mavlink/raw"})]
+    assert len(raw) == sent and all(r["tx"] for r in raw)
 
 
 @pytest.mark.slow

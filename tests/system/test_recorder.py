@@ -113,12 +113,19 @@ def _decode(sc, ch, data: bytes) -> tuple[str, dict]:
         msg = DecoderFactory().decoder_for("cdr", sc)(data)
         return f"ros2msg:{sc.name}", {"labels": msg.layout.dim[0].label,   # NaN as text:
                                       "data": [v if v == v else "NaN" for v in msg.data]}
+    from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
     from google.protobuf.json_format import MessageToDict
 
     assert ch.message_encoding == "protobuf" and sc.encoding == "protobuf"
-    module = __import__(f"foxglove_schemas_protobuf.{sc.name.split('.')[1]}_pb2",
-                        fromlist=["x"])
-    cls = getattr(module, sc.name.split(".")[1])
+    if sc.name.startswith("foxglove."):
+        module = __import__(f"foxglove_schemas_protobuf.{sc.name.split('.')[1]}_pb2",
+                            fromlist=["x"])
+        cls = getattr(module, sc.name.split(".")[1])
+    else:           # the recorder's own: the protobuf library on the schema in the file
+        pool = descriptor_pool.DescriptorPool()
+        for fd in descriptor_pb2.FileDescriptorSet.FromString(sc.data).file:
+            pool.Add(fd)
+        cls = message_factory.GetMessageClass(pool.FindMessageTypeByName(sc.name))
     return f"protobuf:{sc.name}", MessageToDict(cls.FromString(data),
                                                 preserving_proto_field_name=True,
                                                 use_integers_for_enums=True,
@@ -145,9 +152,10 @@ def test_counts_match_link_stats(flight, side):
     path, link = (veh_file, veh) if side == "veh" else (ctl_file, ctl)
     raw = [m for topic, _, m, _, _ in _read_all(path) if topic == "/mavlink/raw"]
     st = link.stats
-    assert sum(f["direction"] == "rx" and f["accepted"] for f in raw) == st.rx_frames
-    assert sum(f["direction"] == "rx" and not f["accepted"] for f in raw) == st.rejected
-    assert sum(f["direction"] == "tx" for f in raw) == st.tx_frames
+    rx = [f for f in raw if not f.get("tx")]
+    assert sum(len(f["frames"]) - len(f.get("rejected", [])) for f in rx) == st.rx_frames
+    assert sum(len(f.get("rejected", [])) for f in rx) == st.rejected
+    assert sum(len(f["frames"]) for f in raw if f.get("tx")) == st.tx_frames
     assert st.rx_frames >= TICKS and st.tx_frames >= TICKS
     if side == "veh":
         assert st.rejected == 4   # garbage, MAVLink 1, truncated, foreign
@@ -162,33 +170,39 @@ def test_raw_bytes_reparse_to_the_decoded_messages(flight, side):
     for topic, _, m, _, _ in msgs:
         if topic.startswith("/mavlink/") and topic != "/mavlink/raw":
             decoded[topic].append(m)
-    # Every frame is raw; a decoded record (at most one per channel every 20 ms of sim
-    # time) follows its frame's raw record at the same times: the decoded of a raw frame is
-    # the next record of its channel when one was written for it.
+    # Every frame is raw, a datagram a message; a decoded record (at most one per channel
+    # every 20 ms of sim time) follows its datagram's raw record at the same time: the
+    # decoded of a raw frame is the next record of its channel when one was written for it.
     cursor: dict[str, int] = defaultdict(int)
     parser = new_mavlink(200, 1)
     checked = 0
-    for k, (topic, _, f, log_ns, pub_ns) in enumerate(msgs):
-        if topic != "/mavlink/raw" or "name" not in f:   # rejected, or sent with send_raw
+    for k, (topic, _, f, log_ns, _pub_ns) in enumerate(msgs):
+        if topic != "/mavlink/raw":
             continue
-        raw = base64.b64decode(f["data"])
-        assert len(raw) == f["len"]
-        wire = parser.decode(bytearray(raw))
-        assert (wire.get_msgId(), wire.get_srcSystem(), wire.get_srcComponent(), wire.get_seq()) \
-            == (f["msgid"], f["sysid"], f["compid"], f["seq"])
-        chan = f"/mavlink/{f['sysid']}/{f['compid']}/{wire.get_type()}"
-        twin = next(((t, lt, pt) for t, _, _, lt, pt in msgs[k + 1:k + 3] if t == chan), None)
-        if twin is None or (twin[1], twin[2]) != (log_ns, pub_ns):
-            continue                                     # decoded less often than raw
-        rec = decoded[chan][cursor[chan]]
-        cursor[chan] += 1
-        for name in wire.get_fieldnames():
-            value = getattr(wire, name)
-            if _finite(value):
-                assert rec[name] == value, (chan, name, rec[name])
-            else:   # NaN/inf: left out of the JSON and listed
-                assert name not in rec and name in rec["_nonfinite"], (chan, name)
-        checked += 1
+        # the datagram's decoded records follow it, at its log time, in its frames' order
+        after = [t for t, _, _, lt, _ in msgs[k + 1:k + 1 + len(f["frames"])]
+                 if lt == log_ns and t.startswith("/mavlink/") and t != "/mavlink/raw"]
+        for i, data in enumerate(f["frames"]):
+            if i in f.get("rejected", []):
+                continue
+            try:
+                wire = parser.decode(bytearray(base64.b64decode(data)))
+            except Exception:                            # sent with send_raw: not MAVLink
+                continue
+            chan = (f"/mavlink/{wire.get_srcSystem()}/{wire.get_srcComponent()}/"
+                    f"{wire.get_type()}")
+            if not after or after[0] != chan:
+                continue                                 # decoded less often than raw
+            after.pop(0)
+            rec = decoded[chan][cursor[chan]]
+            cursor[chan] += 1
+            for name in wire.get_fieldnames():
+                value = getattr(wire, name)
+                if _finite(value):
+                    assert rec[name] == value, (chan, name, rec[name])
+                else:   # NaN/inf: left out of the JSON and listed
+                    assert name not in rec and name in rec["_nonfinite"], (chan, name)
+            checked += 1
     assert checked >= 2 * TICKS // 20 if side == "veh" else checked >= TICKS // 20
     assert all(cursor[t] == len(v) for t, v in decoded.items()), "decoded without raw"
 
@@ -210,7 +224,7 @@ def test_every_message_validates_against_its_channel_schema(flight, side):
         v.validate(m)
     expected = ({"/mavlink/raw", "/mavlink/1/1/ODOMETRY", "/mavlink/1/1/ESC_TELEMETRY_1_TO_4",
                  "/mavlink/2/1/HIL_ACTUATOR_CONTROLS", "/mavlink/1/1/STATUSTEXT", "/log",
-                 "/sim/truth/state", "/sim/truth/attack", "/sim/truth/thrusts", "/tf",
+                 "/sim/truth/state", "/tf",
                  "/scene/vehicle", "/scene/path", "/sim/truth/path_distance"}
                 if side == "veh" else {"/controller/state", "/log", "/mavlink/raw"})
     assert expected <= topics
@@ -248,9 +262,7 @@ def test_every_schema_is_one_foxglove_can_read(flight):
 
     seen = {sc for path in flight[:2] for _, sc, *_ in _read_all(path)
             if not sc.startswith(("protobuf:", "ros2msg:"))}
-    everything = [json.loads(sc) for sc in seen] + [
-        schemas.RAW_FRAME, schemas.TRUTH_STATE, schemas.TRUTH_ATTACK, schemas.TRUTH_THRUSTS,
-        schemas.PATH_DISTANCE, TICK_SCHEMA] + [
+    everything = [json.loads(sc) for sc in seen] + [TICK_SCHEMA] + [
         schemas.mavlink_schema(i) for i in mav.mavlink_map]
     for sc in everything:
         _foxglove_accepts(sc, sc["title"])
@@ -261,16 +273,15 @@ def test_times_and_foxglove_content(flight):
     msgs = _read_all(veh_file)
     for topic, _, m, log_ns, pub_ns in msgs:
         assert t_start - 1e-3 <= log_ns * 1e-9 <= t_end + 1e-3, topic
+        assert pub_ns == log_ns                              # the SDK's publish_time
         if topic == "/mavlink/1/1/ODOMETRY":
-            assert pub_ns == m["time_usec"] * 1000          # sim time from the frame itself
             assert m["_nonfinite"] == ["pose_covariance", "velocity_covariance"]
             assert m["vx"] == pytest.approx(0.1, abs=1e-8) and m["vx"] != 0.1  # float32 wire
-        if topic == "/sim/truth/state":
-            assert pub_ns == round(m["t_s"] * 1e9)
-    attack = [m for t, _, m, _, _ in msgs if t == "/sim/truth/attack"]
-    at_60 = [a for a in attack if a["t_s"] == pytest.approx(0.06)]
-    assert len(at_60) == 1 and "requested_n" not in at_60[0]
-    assert at_60[0]["_nonfinite"] == ["requested_n"] and at_60[0]["applied_n"] == 1.5
+    truth = [m for t, _, m, _, _ in msgs if t == "/sim/truth/state"]
+    at_60 = [a for a in truth if a["t_s"] == pytest.approx(0.06)]
+    assert len(at_60) == 1 and at_60[0]["attack_requested_n"] == "NaN"   # kept, as protobuf
+    assert at_60[0]["attack_applied_n"] == 1.5 and at_60[0]["attack_rotor"] == 2
+    assert at_60[0]["thrust_n"] == [2.7, 2.6, 2.8, 2.7]
     logs = [m["message"] for t, _, m, _, _ in msgs if t == "/log"]
     assert any("attack \ufffd on rotor 2" in text for text in logs)
     scenes = [m for t, _, m, _, _ in msgs if t == "/scene/vehicle"]
@@ -432,13 +443,12 @@ def test_bad_input_is_counted_never_raised(tmp_path):
             rec.path([[0.0, 0.0, NAN], [1.0, 1.0, 1.0]])       # setup call: raises
     msgs = _read_all(path)
     state = [m for t, _, m, _, _ in msgs if t == "/sim/truth/state"]
-    assert len(state) == 1 and "position_m" not in state[0]
-    assert state[0]["_nonfinite"] == ["position_m"]
+    assert len(state) == 1 and state[0]["position_m"] == ["NaN"] * 3   # recorded as it was
     assert not [t for t, *_ in msgs if t == "/tf"]             # NaN pose: no scene
     assert [m["level"] for t, _, m, _, _ in msgs if t == "/log"] == [0]
 
 
-def test_controller_state_keeps_free_keys_and_leaves_out_none_and_nan(tmp_path):
+def test_controller_state_keeps_free_keys_and_nan_and_leaves_out_none(tmp_path):
     path = tmp_path / "ctl.mcap"
     state = {"mode": "attacked", "detected_rotor": np.int64(2), "attack_estimate_n": None,
              "path_distance_m": np.float32(0.25), "saturated": np.bool_(False),
@@ -448,13 +458,11 @@ def test_controller_state_keeps_free_keys_and_leaves_out_none_and_nan(tmp_path):
     with Recorder(path) as rec:
         rec.controller(1.25, state)
     (msg,) = [m for t, _, m, _, _ in _read_all(path) if t == "/controller/state"]
-    assert msg == {"mode": "attacked", "detected_rotor": 2, "path_distance_m": 0.25,
+    assert msg == {"mode": "attacked", "detected_rotor": "2", "path_distance_m": 0.25,
                    "saturated": False, "rotor_thrust_cmd_n": [2.0, 0.0, 2.5, 3.0],
-                   "cusum": [0.0, 1.5], "reason": "ok", "nested": {"b": 1}, "t_s": 1.25,
-                   "_nonfinite": ["attack_estimate_n", "xi", "nested.a"]}
-    from tfl_mav.controller.daemon import TICK_SCHEMA
-
-    jsonschema.validate(msg, TICK_SCHEMA)
+                   "xi": [{"values": [0.1, "NaN"]}, {"values": [0.0, 1.0]}],
+                   "cusum": [0.0, 1.5], "reason": "ok", "nested": '{"a":null,"b":1}',
+                   "t_s": 1.25}        # MessageToDict: int64 as text, NaN as "NaN"
 
 
 def test_controller_record_is_named_by_the_callers_fields(tmp_path):
@@ -470,10 +478,13 @@ def test_controller_record_is_named_by_the_callers_fields(tmp_path):
         rec.controller(0.6, record[:3])
         assert rec.stats.bad_input == 1 and "expected 12 values" in rec.last_bad_input
     ((_, schema, msg, _, _),) = [r for r in _read_all(path) if r[0] == "/controller/state"]
-    assert json.loads(schema)["title"] == "tfl_mav.ControllerState"
-    assert msg["detected_rotor"] == 2 and msg["xi"] == [[0.1, 0.2], [0.0, 1.0]]
-    assert msg["_nonfinite"] == ["attack_estimate_n"] and msg["t_s"] == 0.5
-    jsonschema.validate(msg, TICK_SCHEMA)
+    assert schema == "protobuf:tfl_mav.ControllerState"
+    assert msg["detected_rotor"] == "2" and msg["xi"] == [{"values": [0.1, 0.2]},
+                                                          {"values": [0.0, 1.0]}]
+    assert msg["attack_estimate_n"] == "NaN" and msg["t_s"] == 0.5 and msg["fine_gains"]
+    (rec,) = [m.decode() for m in LogReader(path).messages({"/controller/state"})]
+    assert rec["xi"] == [[0.1, 0.2], [0.0, 1.0]] and math.isnan(rec["attack_estimate_n"])
+    assert rec["cusum"] == [0.0, 1.5, 0.0, 0.0] and rec["detected_rotor"] == 2
 
 
 def test_background_flush_makes_quiet_data_readable_while_open(tmp_path):
@@ -494,8 +505,8 @@ def test_background_flush_makes_quiet_data_readable_while_open(tmp_path):
         assert len(seen) == 10
     assert rec.error is None
     rec.truth(1.0, [0.0] * 3, [0.0] * 3, [1, 0, 0, 0], [0] * 3, [1] * 4, 0, 0.0, 0.0)
-    # after close: state, attack, thrusts, tf, scene and the three truth plots
-    assert rec.stats.dropped == 8
+    # after close: the truth, tf, scene and the three truth plots
+    assert rec.stats.dropped == 6
 
 
 # ---------------------------------------------------------------- RecorderProcess
@@ -551,7 +562,7 @@ def test_recorder_process_writes_what_the_in_process_recorder_writes(tmp_path):
         return sorted(out, key=lambda x: (x[2], x[0], json.dumps(x[1])))
 
     ca, cb = content(a), content(b)
-    assert len(ca) == len(cb) > 2000
+    assert len(ca) == len(cb) > 1500     # per tick: 2 datagrams, a truth, a controller record
     assert ca == cb
     with open(b, "rb") as f:
         assert {m.name for m in make_reader(f).iter_metadata()} == {"tfl-mav", "scenario"}
@@ -585,7 +596,7 @@ def test_recorder_process_finishes_the_file_when_the_flight_process_is_killed(tm
     # 2 × (8 × batch_max + 1) calls, 2 a tick (a frame, a truth). Seen at load 10:
     # 320-880 ticks; the old bound of 0.31 s of wall time held only while the child kept up.
     with open(path, "rb") as f:
-        ticks = [round(json.loads(m.data)["t_s"] * 1000) for _s, ch, m
+        ticks = [round(_decode(sc, ch, m.data)[1]["t_s"] * 1000) for sc, ch, m
                  in make_reader(f).iter_messages(topics=["/sim/truth/state"])]
     t_last, k_last = _last_tick(path)
     from tfl_mav.flightlog.recorder_process import RecorderProcess

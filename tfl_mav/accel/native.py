@@ -62,7 +62,7 @@ from tfl_mav.accel.ctranslate import NativeError, translate
 from tfl_mav.accel.frontend import lower
 
 __all__ = ["NativeError", "build", "build_function", "c_source", "cache_dir", "compile_async",
-           "load_cached", "lower", "lowered", "mode", "obtain", "obtain_c", "obtain_function",
+           "load_cached", "lower", "lowered", "mode", "obtain", "obtain_function",
            "translate", "warn_once"]
 
 log = logging.getLogger(__name__)
@@ -141,21 +141,12 @@ def _import(module: str, path: Path, fn: str) -> Core:
     return getattr(mod, fn)  # type: ignore[no-any-return]
 
 
-_C_EXPORT = "/* tfl-mav export: "
-
-
 def _fn_name(source: str) -> str:
-    if source.startswith(_C_EXPORT):           # hand-written C (obtain_c)
-        return source[len(_C_EXPORT):].split(" ", 1)[0]
     return source.split("def ", 1)[1].split("(", 1)[0].strip()
 
 
 def _c_text(source: str, module: str) -> str:
-    """The C of ``source``: hand-written C (obtain_c) with its module's name defined, or
-    the translation of Python."""
-    if source.startswith(_C_EXPORT):
-        return (f'#define MODULE_NAME "{module}"\n#define MODULE_INIT PyInit_{module}\n'
-                + source)
+    """The C translation of the Python ``source``."""
     return translate(source, module)
 
 
@@ -407,13 +398,6 @@ def _file_hash(path: str) -> str:
     if path.startswith("<"):
         return hashlib.sha256("".join(linecache.getlines(path)).encode()).hexdigest()
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()
-
-
-def obtain_c(c_text: str, fn: str, ready: Callable[[Core], None]) -> Core | None:
-    """:func:`obtain` for hand-written C: a CPython extension's source whose module
-    definition uses the macros ``MODULE_NAME`` and ``MODULE_INIT`` (defined here) and
-    which exports the function ``fn``. Same cache, modes and background build."""
-    return obtain(f"{_C_EXPORT}{fn} */\n{c_text}", ready)
 
 
 def compile_async(source: str, c_text: str, done: Callable[[Core], None]) -> None:

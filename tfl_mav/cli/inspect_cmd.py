@@ -1,8 +1,9 @@
 """``tfl-mav inspect RUN.mcap``: what is in a flight log, and how the flight went.
 
-Channels with schema names, message counts, rates and time spans (log time = receipt
-clock, sim time = ``publish_time``), then a flight summary recomputed from the log alone,
-with the same code as ``tfl-mav report`` and ``tfl-mav demo``
+Channels with schema names, message counts, rates and time spans (log time; sim time =
+log time − the flight's start on a lockstep log's sim timeline, the ``timeline``
+metadata's ``flight_start_ns``; else log time from the first message), then a flight
+summary recomputed from the log alone, with the same code as ``tfl-mav report`` and ``tfl-mav demo``
 (:func:`tfl_mav.flightlog.from_mcap.load_flight`, :func:`~tfl_mav.flightlog.flight.summarize`,
 :mod:`tfl_mav.flightlog.metrics`), so the three agree exactly:
 
@@ -36,10 +37,12 @@ from tfl_mav.flightlog.from_mcap import (
     load_flight,
     log_texts,
     scenario_from_log,
+    truth_parts,
 )
 from tfl_mav.flightlog.logread import LogReader, recover
 from tfl_mav.flightlog.metrics import converged, detection, saturated_fraction
 from tfl_mav.flightlog.polyline import Polyline
+from tfl_mav.flightlog.protos import frames_fields
 from tfl_mav.scenario import ScenarioError
 
 __all__ = ["add_parser", "inspect_log", "run"]
@@ -47,8 +50,6 @@ __all__ = ["add_parser", "inspect_log", "run"]
 _SUMMARY_TOPICS = {"/sim/truth/state", "/sim/truth/attack", "/sim/truth/thrusts",
                    "/controller/state", "/scene/path"}
 _LAST_WINDOW_S = 10.0
-_RX = b'{"direction":"rx"'
-_REJECTED = b'"accepted":false'
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -117,15 +118,15 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
             c.first_log, c.first_pub = m.log_time_ns, m.publish_time_ns
         c.count += 1
         c.last_log, c.last_pub = m.log_time_ns, m.publish_time_ns
-        if topic == "/mavlink/raw":     # the recorder writes direction, accepted first
-            head = m.data[:40]
-            rx = head.startswith(_RX)
-            frames["rx" if rx else "tx"] += 1
-            frames["rx_rejected"] += rx and _REJECTED in head
+        if topic == "/mavlink/raw":       # a datagram's frames (one a message in old files)
+            raws, tx, refused = frames_fields(m.data) or _frames_of(m)
+            frames["tx" if tx else "rx"] += len(raws)
+            frames["rx_rejected"] += len(refused)
         elif topic in TRUTH_TOPICS:
-            record = m.json()
+            record = m.decode()
             add_truth(truth, topic, record)
-            series[topic].append(record)
+            for part, rec in truth_parts(topic, record).items():
+                series[f"/sim/truth/{part}"].append(rec)
         elif topic.endswith("/HIL_ACTUATOR_CONTROLS"):
             sat_hil[0] += 1
         elif topic == "/log":
@@ -133,11 +134,17 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
         elif topic == "/scene/path":
             path_points = _path_points(m.data) or path_points
         elif topic in _SUMMARY_TOPICS:
-            series[topic].append(m.json())
+            series[topic].append(m.decode())
     if not chans and reader.error:
         raise OSError(f"{path}: not a readable MCAP file ({reader.error})")
     log_first = min((c.first_log for c in chans.values()), default=0)
     log_last = max((c.last_log for c in chans.values()), default=0)
+    metadata = {md.name: md.metadata for md in reader.metadata}
+    start = metadata.get("timeline", {}).get("flight_start_ns")
+    start_ns = int(start) if start else log_first
+    for c in chans.values():            # sim time from the timeline (see the docstring)
+        c.first_pub, c.last_pub = (max(c.first_log - start_ns, 0),
+                                   max(c.last_log - start_ns, 0))
     pub_first = min((c.first_pub for c in chans.values()), default=0)
     pub_last = max((c.last_pub for c in chans.values()), default=0)
     report: dict[str, Any] = {
@@ -149,12 +156,21 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
         "sim_time_span_s": (pub_last - pub_first) * 1e-9,
         "frames": frames,
         "channels": {topic: _channel_report(c) for topic, c in sorted(chans.items())},
-        "metadata": {md.name: md.metadata for md in reader.metadata},
+        "metadata": metadata,
     }
     timeline = report["metadata"].get("timeline", {})
     report["timeline"] = timeline.get("log_time", "wall")
     report["flight"] = _flight_summary(path, series, path_points, sat_hil, truth, texts)
     return report
+
+
+def _frames_of(m: Any) -> tuple[list[Any], bool, list[int]]:
+    """(frames, tx, refused indexes) of a ``/mavlink/raw`` message the shortcut did not read
+    (another layout, or an old file's JSON frame)."""
+    f = m.decode()
+    if "direction" in f:
+        return [f["data"]], f["direction"] == "tx", [] if f["accepted"] else [0]
+    return f.get("frames", []), bool(f.get("tx")), f.get("rejected", [])
 
 
 def _path_points(data: bytes) -> list[list[float]] | None:

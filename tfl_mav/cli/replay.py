@@ -11,14 +11,12 @@ multi-frame datagram is sent on its own.
 from __future__ import annotations
 
 import argparse
-import base64
-import json
 import math
 import socket
 import sys
 import time
 
-from tfl_mav.flightlog.logread import LogReader
+from tfl_mav.flightlog.logread import LogReader, raw_frames
 from tfl_mav.link.transport import parse_address
 
 __all__ = ["add_parser", "replay", "run"]
@@ -70,16 +68,15 @@ def replay(path: str, target: tuple[str, int], *, speed: float = 1.0,
            direction: str = "both", accepted_only: bool = False
            ) -> tuple[int, int, float, str | None]:
     """Send the recorded frames; returns (frames sent, bytes sent, seconds, read error)."""
-    reader = LogReader(path)
+    reader = LogReader(path)        # raw_frames reads it again: the error is the same
     sent = nbytes = 0
     t0_wall = time.perf_counter()
     t0_log: int | None = None
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        for m in reader.messages({"/mavlink/raw"}):
-            frame = json.loads(m.data)
-            if direction != "both" and frame["direction"] != direction:
+        for m, raw, tx, rejected in raw_frames(path, reader):
+            if direction != "both" and (direction == "tx") != tx:
                 continue
-            if accepted_only and not frame["accepted"]:
+            if accepted_only and rejected:
                 continue
             if speed > 0.0:
                 if t0_log is None:
@@ -89,7 +86,7 @@ def replay(path: str, target: tuple[str, int], *, speed: float = 1.0,
                 if wait > 0.0:
                     time.sleep(wait)
             try:
-                nbytes += sock.sendto(base64.b64decode(frame["data"]), target)
+                nbytes += sock.sendto(raw, target)
                 sent += 1
             except OSError as exc:
                 raise OSError(f"cannot send to {target[0]}:{target[1]}: {exc.strerror}") \

@@ -12,7 +12,8 @@ positions and attitude go in unchanged under ``world``. ``base_link`` is the bod
 (``rotor_xy_m``, body frame, m); this module only draws them.
 
 Timestamps inside these messages are the *log* time (the clock Foxglove plays by), so
-transforms and entities line up with the playback cursor; sim time is in ``publish_time``.
+transforms and entities line up with the playback cursor (in lockstep, the flight's start
++ sim time: docs/design.md, "Time on the timeline").
 """
 
 from __future__ import annotations

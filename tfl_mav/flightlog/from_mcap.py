@@ -1,7 +1,9 @@
 """Rebuild a :class:`~tfl_mav.flightlog.flight.FlightLog` from the MCAP files of a flight.
 
-The vehicle's log (``run.mcap``) holds the ground truth (``/sim/truth/state``,
-``/sim/truth/thrusts``, ``/sim/truth/attack``) and every MAVLink frame; the controller's
+The vehicle's log (``run.mcap``) holds the ground truth (``/sim/truth/state``: the rigid
+body, the true rotor thrusts and the attack, one message a tick; older files had the
+thrusts and the attack on ``/sim/truth/thrusts``, ``/sim/truth/attack``) and every MAVLink
+frame; the controller's
 log (``ctl.mcap``, optional) holds ``/controller/state`` every tick (mode, detection,
 estimate, saturation). The path distance is recomputed from the true positions with the
 scenario's path, so it is the *true* distance, not the controller's measured one.
@@ -25,7 +27,7 @@ from tfl_mav.model.modes import Mode
 from tfl_mav.scenario import Scenario, ScenarioError, scenario_from_dict
 
 __all__ = ["TRUTH_TOPICS", "add_truth", "controller_states", "flight_log_from_mcap",
-           "load_flight", "log_metadata", "scenario_from_log"]
+           "load_flight", "log_metadata", "scenario_from_log", "truth_parts"]
 
 _TRUTH = {"/sim/truth/state", "/sim/truth/thrusts", "/sim/truth/attack"}
 
@@ -34,7 +36,7 @@ def controller_states(ctl_path: str | Path) -> dict[int, dict[str, Any]]:
     """``/controller/state`` messages keyed by sim time in µs."""
     out: dict[int, dict[str, Any]] = {}
     for m in LogReader(ctl_path).messages({"/controller/state"}):
-        d = m.json()
+        d = m.decode()
         out[round(d["t_s"] * 1e6)] = d
     return out
 
@@ -43,8 +45,26 @@ TRUTH_TOPICS = frozenset(_TRUTH)
 
 
 def add_truth(truth: dict[int, dict[str, Any]], topic: str, record: dict[str, Any]) -> None:
-    """File one decoded ``/sim/truth/*`` record under its tick (sim time in µs)."""
-    truth.setdefault(round(record["t_s"] * 1e6), {})[topic.rsplit("/", 1)[-1]] = record
+    """File one decoded ``/sim/truth/*`` record under its tick (sim time in µs), as the
+    parts ``state``, ``thrusts`` and ``attack`` (:func:`truth_parts`)."""
+    truth.setdefault(round(record["t_s"] * 1e6), {}).update(
+        truth_parts(topic, record))
+
+
+def truth_parts(topic: str, record: dict[str, Any]) -> dict[str, dict[str, Any]]:
+    """A ``/sim/truth/*`` record as the parts it holds: ``state`` (t_s, position_m,
+    velocity_mps, quaternion_wxyz, body_rates_radps), ``thrusts`` (t_s, thrust_n,
+    attack_rotor), ``attack`` (t_s, rotor, active, applied_n, requested_n)."""
+    name = topic.rsplit("/", 1)[-1]
+    if name != "state" or "thrust_n" not in record:     # an older file's separate part
+        return {name: record}
+    t, rotor = record["t_s"], record.get("attack_rotor", 0)
+    thrusts = {"t_s": t, "attack_rotor": rotor, "thrust_n": record["thrust_n"]}
+    attack = {"t_s": t, "rotor": rotor, "active": rotor != 0}
+    for key in ("applied_n", "requested_n"):
+        if f"attack_{key}" in record:
+            attack[key] = record[f"attack_{key}"]
+    return {"state": record, "thrusts": thrusts, "attack": attack}
 
 
 def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,
@@ -60,7 +80,7 @@ def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,
             if m.topic == "/log":
                 texts.append(log_texts(m.data))
             else:
-                add_truth(truth, m.topic, m.json())
+                add_truth(truth, m.topic, m.decode())
     crashed = crash_reason(texts or [])
     ctl = controller_states(ctl_path) if ctl_path and Path(ctl_path).exists() else {}
     v = scenario.vehicle
@@ -78,10 +98,12 @@ def flight_log_from_mcap(run_path: str | Path, scenario: Scenario,
         if not {"state", "thrusts", "attack"} <= rec.keys():
             continue
         st, th, at = rec["state"], rec["thrusts"], rec["attack"]
-        # The recorder leaves non-finite values out (Foxglove cannot read null): a
-        # diverged sample has no position/thrust/attack and is not plotted.
+        # older files left non-finite values out (JSON has no NaN): such a sample has no
+        # position/thrust/attack; a diverged one is not plotted
         if not ("position_m" in st and "quaternion_wxyz" in st and "thrust_n" in th
-                and "applied_n" in at):
+                and "applied_n" in at) or not all(map(math.isfinite, (
+                    *st["position_m"], *st["quaternion_wxyz"], *th["thrust_n"],
+                    at["applied_n"]))):
             continue
         rows.append((key, st, th, at))
     # the true distance of every sample, as a tracker evaluating each in turn gives it

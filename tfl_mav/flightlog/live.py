@@ -1,10 +1,11 @@
-"""The live view: a Foxglove WebSocket server (Foxglove's own SDK) fed the recorder's bytes.
+"""The live view: a Foxglove WebSocket server (Foxglove's own SDK) on the recorder's channels.
 
 The Foxglove app connects with "Open connection" → ``ws://HOST:PORT`` (subprotocol
-``foxglove.websocket.v1``) and sees the channels the recorder writes to its file, with the
-same schemas and the same message bytes. It runs inside the recorder (in the recorder's
-child process for ``sim``/``fly``), so the flight loop never waits for a viewer: the
-server's own threads send, and a slow viewer loses messages, not the loop's time.
+``foxglove.websocket.v1``) and sees the channels the recorder writes to its file: the
+server is a second sink of the recorder's ``foxglove.Context`` (the file is the first), so
+one ``log`` call feeds both. It runs inside the recorder (in the recorder's child process
+for ``sim``/``fly``), so the flight loop never waits for a viewer: the server's own threads
+send, and a slow viewer loses messages, not the loop's time.
 
 The scene is advertised before anyone connects. foxglove-sdk (checked on 0.30.3) advertises a
 channel created while a viewer is connected *before* it records the channel for that viewer
@@ -14,7 +15,7 @@ a status message) and then never gets that channel: a vehicle missing for the wh
 Channels that exist when a viewer connects are recorded before its messages are read, so
 ``/tf``, ``/scene/vehicle``, ``/scene/path`` and ``/log`` (Foxglove's well-known types, fixed
 schemas) are created with the server; the recorder's later ``channel()`` for one of them
-gets that channel back. Channels first seen mid-flight (MAVLink and JSON topics) still
+gets that channel back. Channels first seen mid-flight (MAVLink and record topics) still
 depend on the SDK; a viewer refused one sees the status error and recovers by reconnecting.
 
 Who draws the vehicle: on the simulator's side the recorder's ``truth`` calls fill ``/tf``
@@ -77,13 +78,14 @@ class LiveServer:
     raises OSError (one line) if the port cannot be bound."""
 
     def __init__(self, host: str, port: int, estimate: EstimateScene | None = None,
-                 name: str = "tfl-mav") -> None:
+                 name: str = "tfl-mav", context: Any = None) -> None:
         import foxglove
 
         from tfl_mav.flightlog import foxglove as fg
 
         self._fg = foxglove
-        self._context = foxglove.Context()      # this server's channels only
+        # the recorder's context (its file is the other sink), else this server's own
+        self._context = context if context is not None else foxglove.Context()
         # before the server accepts anyone: no viewer can see these advertised too early
         self._channels: dict[str, tuple[tuple[str, str, bytes, str], Any]] = {}
         self.estimate: _EstimateDrawer | None = None
@@ -103,10 +105,10 @@ class LiveServer:
 
     def channel(self, topic: str, schema_name: str, schema_encoding: str, schema_data: bytes,
                 message_encoding: str) -> Any:
-        """A channel advertised to every viewer; ``.log(data, log_time=ns)`` publishes. The
-        same topic with the same schema is the same channel (the scene's, made at start).
-        On a controller's server (``estimate``) the ODOMETRY and ``/controller/state``
-        channels also feed its drawing of the vehicle."""
+        """A channel advertised to every viewer (and written to the context's file);
+        ``.log(data, log_ns)`` publishes. The same topic with the same schema is the same
+        channel (the scene's, made at start). On a controller's server (``estimate``) the
+        ODOMETRY and ``/controller/state`` channels also feed its drawing of the vehicle."""
         key = (schema_name, schema_encoding, bytes(schema_data), message_encoding)
         known = self._channels.get(topic)
         if known is not None and known[0] == key:
@@ -114,12 +116,15 @@ class LiveServer:
         ch = self._fg.Channel(topic, message_encoding=message_encoding,
                               schema=self._fg.Schema(name=schema_name, encoding=schema_encoding,
                                                      data=schema_data),
-                              context=self._context)
+                              context=self._context).base
         drawer = self.estimate
-        if drawer is not None and message_encoding == "json":
+        if drawer is not None:
             if topic.startswith("/mavlink/") and topic.endswith("/ODOMETRY"):
                 ch = _Tee(ch, drawer.odometry)
-            elif topic == "/controller/state":
+            elif topic == "/controller/state" and message_encoding == "protobuf":
+                from tfl_mav.flightlog.protos import message_class
+
+                drawer.record_class = message_class(schema_name, bytes(schema_data))
                 ch = _Tee(ch, drawer.controller)
         self._channels[topic] = (key, ch)
         return ch
@@ -136,16 +141,17 @@ class _Tee:
     def __init__(self, channel: Any, see: Any) -> None:
         self._channel, self._see = channel, see
 
-    def log(self, data: bytes, *, log_time: int) -> None:
-        self._channel.log(data, log_time=log_time)
+    def log(self, data: bytes, log_time: int, sink_id: int | None = None) -> None:
+        self._channel.log(data, log_time, sink_id)
         self._see(data, log_time)
 
 
 class _EstimateDrawer:
     """``/tf`` and ``/scene/vehicle`` from the controller's view (see the module docstring),
-    at most every ``PERIOD_NS`` of log time, so the ~1 kHz ODOMETRY costs a comparison per
-    message and a JSON parse only per drawing. A message it cannot use (a non-finite field
-    left out of the JSON, another frame, not a unit quaternion) is counted in ``errors``
+    at most every ``PERIOD_NS`` of log time, from the decoded ODOMETRY (JSON, at most 50 Hz
+    of sim time) and the latest controller record (protobuf, parsed only per drawing). A
+    message it cannot use (a non-finite field left out of the JSON, another frame, not a
+    unit quaternion) is counted in ``errors``
     with its reason in ``last_error``, and the next one is tried: the recorder never sees
     an exception from here."""
 
@@ -155,6 +161,7 @@ class _EstimateDrawer:
         self._scene, self._tf, self._vehicle = scene, tf, vehicle
         self._next_ns = 0
         self._record: bytes | None = None
+        self.record_class: Any = None     # the protobuf class of /controller/state
         self._thrust_n = [0.0] * len(scene.rotor_xy_m)
         self._detected = 0
         self.drawn = 0
@@ -179,18 +186,26 @@ class _EstimateDrawer:
             return
         self._next_ns = log_ns + self.PERIOD_NS
         self._tf.log(fg.frame_transform(log_ns, state.position_m, state.quaternion_wxyz),
-                     log_time=log_ns)
+                     log_ns)
         self._vehicle.log(fg.vehicle_scene(log_ns, self._scene.rotor_xy_m, self._thrust_n,
                                            self._scene.thrust_max_n, self._detected,
-                                           label="detected"), log_time=log_ns)
+                                           label="detected"), log_ns)
         self.drawn += 1
 
     def _take_record(self) -> None:
         """The latest controller record's commanded thrusts (N) and detected rotor; a field
-        missing (non-finite values are left out of the JSON) keeps the previous value."""
-        if self._record is None:
+        missing keeps the previous value."""
+        if self._record is None or self.record_class is None:
             return
-        rec, self._record = json.loads(self._record), None
+        from google.protobuf.message import DecodeError
+
+        from tfl_mav.flightlog.protos import to_dict
+
+        data, self._record = self._record, None
+        try:
+            rec = to_dict(self.record_class.FromString(data))
+        except DecodeError as exc:
+            raise ValueError(f"controller record: {exc}") from None
         thrust = rec.get("rotor_thrust_cmd_n")
         if isinstance(thrust, list) and len(thrust) == len(self._thrust_n):
             self._thrust_n = [float(f) for f in thrust]

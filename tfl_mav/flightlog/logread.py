@@ -13,6 +13,9 @@ by the library): the library's record-by-record parse costs ~25 µs a message in
 records with one ``struct`` unpack each (the MCAP spec's fixed header: opcode, length,
 channel id, sequence, log time, publish time) and skips the channels not asked for
 without building them: the same messages, in the same order (tests/unit/test_logread.py).
+
+:meth:`LogMessage.decode` turns a message into plain values whatever its encoding: JSON
+(msgspec) or protobuf (the ``protobuf`` library on the schema stored in the file).
 """
 
 from __future__ import annotations
@@ -30,7 +33,7 @@ from mcap.records import Channel, Chunk, Footer, Message, Metadata, ReadDataStre
 from mcap.stream_reader import StreamReader, get_chunk_data_stream
 from mcap.writer import CompressionType, IndexType, Writer
 
-__all__ = ["LogMessage", "LogReader", "mavlink_messages", "recover"]
+__all__ = ["LogMessage", "LogReader", "mavlink_messages", "raw_frames", "recover"]
 
 
 @dataclass(frozen=True)
@@ -40,9 +43,22 @@ class LogMessage:
     log_time_ns: int
     publish_time_ns: int
     data: bytes
+    schema: Schema | None = None
 
     def json(self) -> Any:
         return _decode_json(self.data)
+
+    def decode(self) -> Any:
+        """The message as plain values (a dict): JSON parsed, protobuf by its schema
+        (set fields only; repeated as lists). ValueError for another encoding."""
+        sc = self.schema
+        if sc is None or sc.encoding == "jsonschema" or self.data[:1] == b"{":
+            return _decode_json(self.data)
+        if sc.encoding == "protobuf":
+            from tfl_mav.flightlog.protos import message_class, to_dict
+
+            return to_dict(message_class(sc.name, bytes(sc.data)).FromString(self.data))
+        raise ValueError(f"{self.topic}: cannot decode schema encoding {sc.encoding!r}")
 
 
 _decode_json = msgspec.json.Decoder().decode     # what json.loads gives, several times faster
@@ -112,7 +128,7 @@ class LogReader:
                 continue
             sc = self.schemas.get(ch.schema_id)
             yield LogMessage(ch.topic, sc.name if sc else "", rec.log_time, rec.publish_time,
-                             rec.data)
+                             rec.data, sc)
 
 
     def read_metadata(self) -> list[Metadata]:
@@ -145,13 +161,15 @@ class LogReader:
         self.schemas = dict(summary.schemas)
         self.channels = dict(summary.channels)
         wanted = {cid: (ch.topic, summary.schemas[ch.schema_id].name
-                        if ch.schema_id in summary.schemas else "")
+                        if ch.schema_id in summary.schemas else "",
+                        summary.schemas.get(ch.schema_id))
                   for cid, ch in summary.channels.items()
                   if topics is None or ch.topic in topics}
         head, msg_head = _RECORD_HEAD.unpack_from, _MESSAGE_HEAD.unpack_from
         with open(self.path, "rb") as f:
             for index in sorted(summary.chunk_indexes, key=lambda c: c.chunk_start_offset):
-                if not any(cid in wanted for cid in index.message_index_offsets):
+                offsets = index.message_index_offsets
+                if offsets and not any(cid in wanted for cid in offsets):
                     continue           # no message of a channel asked for in this chunk
                 try:
                     stream, n = get_chunk_data_stream(_chunk(f, index), validate_crc=True)
@@ -171,8 +189,31 @@ class LogReader:
                     name = wanted.get(cid)
                     if name is not None:
                         yield LogMessage(name[0], name[1], log_ns, pub_ns,
-                                         data[body + _MESSAGE_FIXED:at])
+                                         data[body + _MESSAGE_FIXED:at], name[2])
         self.complete = True
+
+
+def raw_frames(path: str | Path, reader: LogReader | None = None
+               ) -> Iterator[tuple[LogMessage, bytes, bool, bool]]:
+    """Every frame of ``/mavlink/raw`` in file order: (its datagram's message, wire bytes,
+    sent by the recording process, refused by its link); ``reader``: the one to read with
+    (its ``error`` then says why reading stopped)."""
+    from tfl_mav.flightlog.protos import frames_fields
+
+    for m in (reader or LogReader(path)).messages({"/mavlink/raw"}):
+        fields = frames_fields(m.data) if m.data[:1] != b"{" else None
+        if fields is None:
+            f = m.decode()
+            if isinstance(f.get("data"), str):          # JSON files: base64, one a frame
+                import base64
+
+                fields = ([base64.b64decode(f["data"])], f["direction"] == "tx",
+                          [] if f["accepted"] else [0])
+            else:
+                fields = (f.get("frames", []), bool(f.get("tx")), f.get("rejected", []))
+        raws, tx, rejected = fields
+        for i, raw in enumerate(raws):
+            yield m, raw, tx, i in rejected
 
 
 def mavlink_messages(path: str | Path, name: str, sysid: int | None = None,
@@ -180,25 +221,28 @@ def mavlink_messages(path: str | Path, name: str, sysid: int | None = None,
                      ) -> Iterator[tuple[int, dict[str, Any]]]:
     """Every frame of MAVLink message ``name`` (e.g. ``"ESC_TELEMETRY_1_TO_4"``) the log
     holds, decoded from ``/mavlink/raw`` (the decoded channels are at most 50 Hz; the raw
-    one has every frame): (publish time ns, fields) in file order, optionally only from
-    ``sysid``/``compid`` and ``direction`` ("rx"/"tx"); rejected frames are left out."""
-    import base64
-
+    one has every frame): (time ns, fields) in file order, optionally only from
+    ``sysid``/``compid`` and ``direction`` ("rx"/"tx"); rejected frames are left out. The
+    time is sim time on a lockstep log's sim timeline (log time − the ``timeline``
+    metadata's ``flight_start_ns``; 0 before the flight), else the log time."""
+    from tfl_mav.link.dialect import mav
     from tfl_mav.link.payload import PayloadDecoder
 
     decoder = PayloadDecoder()
-    key = b'"name":"%s"' % name.encode()
-    for m in LogReader(path).messages({"/mavlink/raw"}):
-        if key not in m.data:
+    start = {md.name: md.metadata for md in LogReader(path).read_metadata()}.get(
+        "timeline", {}).get("flight_start_ns")
+    start_ns = int(start) if start else 0
+    msgid = next(i for i, cls in mav.mavlink_map.items() if cls.msgname == name)
+    for m, raw, tx, rejected in raw_frames(path):
+        if rejected or len(raw) < 12 or (raw[7] | raw[8] << 8 | raw[9] << 16) != msgid:
             continue
-        f = m.json()
-        if (sysid is not None and f["sysid"] != sysid) or (
-                compid is not None and f["compid"] != compid) or (
-                direction is not None and f["direction"] != direction):
+        if (sysid is not None and raw[5] != sysid) or (
+                compid is not None and raw[6] != compid) or (
+                direction is not None and (direction == "tx") != tx):
             continue
-        fields = decoder.fields(base64.b64decode(f["data"]), f["msgid"])
+        fields = decoder.fields(raw, msgid)
         if fields is not None:
-            yield m.publish_time_ns, fields
+            yield max(m.log_time_ns - start_ns, 0) if start else m.log_time_ns, fields
 
 
 def _chunk(f: Any, index: Any) -> Chunk:

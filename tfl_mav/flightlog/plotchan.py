@@ -3,8 +3,8 @@
 Each ``/plot/...`` channel carries one ROS 2 ``std_msgs/msg/Float64MultiArray`` per sample
 (CDR, schema encoding ``ros2msg``): Rerun's MCAP importer turns that type into
 ``Scalars`` (a time series per value), Foxglove and PlotJuggler read ROS 2 messages in MCAP
-natively (``.data[0]``…). The JSON channels (truth, controller) stay the complete record;
-Rerun imports JSON only as opaque bytes, which is why these exist. The array's one
+natively (``.data[0]``…). The protobuf records (truth, controller) stay the complete
+record; Rerun imports those as structs, not time series, which is why these exist. The array's one
 dimension is labelled with the values' names (``x_m,y_m,z_m``), so a reader sees what
 ``data[i]`` is. Written at the scene rate (≤ 50 Hz of sim time), the rate a person looks
 at.

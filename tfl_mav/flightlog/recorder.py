@@ -2,23 +2,25 @@
 
 Channels (docs/design.md, "The flight log"):
 
-* ``/mavlink/raw``: every frame the link saw, both directions, exact wire bytes (base64),
-  with ``direction`` and ``accepted``: replayable byte for byte (``tfl-mav replay``).
+* ``/mavlink/raw``: every frame the link saw, both directions, exact wire bytes
+  (``tfl_mav.MavlinkFrame``): replayable byte for byte (``tfl-mav replay``).
 * ``/mavlink/{sysid}/{compid}/{MSG}``: accepted rx frames and frames this process packed
-  and sent, decoded *from their wire bytes* (float32 rounding and all), at most one a
-  channel every scene period of sim time (all before sim time is known; every STATUSTEXT);
-  every frame stays in ``/mavlink/raw`` (``logread.mavlink_messages`` decodes them all).
-* ``/sim/truth/state``, ``/sim/truth/attack``, ``/sim/truth/thrusts`` (every
-  :meth:`Recorder.truth` call) and ``/sim/truth/path_distance``, ``/tf``,
+  and sent, decoded *from their wire bytes* (JSON), at most one a channel every scene
+  period of sim time (all before sim time is known; every STATUSTEXT); every frame stays in
+  ``/mavlink/raw`` (``logread.mavlink_messages`` decodes them all).
+* ``/sim/truth/state`` (every :meth:`Recorder.truth` call: the rigid body, the true rotor
+  thrusts and the attack in one message) and ``/sim/truth/path_distance``, ``/tf``,
   ``/scene/vehicle`` (at most ``scene_hz`` in sim time); ``/scene/path`` (on
   :meth:`Recorder.path`, then again with every periodic flush so it survives seeking and
   reaches a viewer who connects late); ``/log`` (:meth:`Recorder.log` and every STATUSTEXT
-  seen); ``/controller/state`` (:meth:`Recorder.controller`).
+  seen); ``/controller/state`` (:meth:`Recorder.controller`); ``/plot/...`` (the truth's
+  and the controller record's numbers at up to ``scene_hz``, :mod:`plotchan`).
 
-Encodings: MAVLink, truth and controller channels are JSON with JSON Schemas
-(:mod:`~tfl_mav.flightlog.schemas`, MAVLink ones generated from pymavlink's definitions);
-``/tf``, the scene and ``/log`` are Foxglove's well-known types as protobuf, built with
-Foxglove's SDK (:mod:`~tfl_mav.flightlog.foxglove`).
+Encodings: truth, controller and raw frames are protobuf (:mod:`~tfl_mav.flightlog.protos`,
+float64, NaN kept); decoded MAVLink is JSON with JSON Schemas generated from pymavlink's
+definitions (:mod:`~tfl_mav.flightlog.schemas`); ``/tf``, the scene and ``/log`` are
+Foxglove's well-known types (:mod:`~tfl_mav.flightlog.foxglove`); ``/plot/...`` ROS 2
+``Float64MultiArray``. All written through Foxglove's SDK (:mod:`mcapout`).
 
 What to draw is the caller's: ``rotor_xy_m`` (where the rotors sit in the body frame),
 ``thrust_max_n`` (the thrust scale), the path polyline (:meth:`Recorder.path`), and the
@@ -35,12 +37,11 @@ Time: ``log_time`` is the receipt time on the recorder's ``clock`` (ns; frames u
 does); with ``timeline="sim"`` (lockstep), from the first message whose sim time is known
 on, it is the receipt time of that message (the flight's wall-clock start) + sim time, so
 a viewer shows the flight at its own pace, not the machine's; the ``timeline`` metadata
-(written at close) keeps the wall clock: flight start, wall time, real-time factor.
-``publish_time`` is **sim time** (ns): the latest of :meth:`set_sim_time`, the
-``time_s`` given to ``truth``/``controller``/``log``, and ``time_usec`` of the messages in
-``sim_time_messages`` (ODOMETRY and HIL_ACTUATOR_CONTROLS carry sim time), taken
-when they pass, so a received state is stamped with its own time even before the caller
-reacts. 0 until a sim time is known.
+(written at close) keeps the wall clock: flight start, wall time, real-time factor. Sim
+time is the latest of :meth:`set_sim_time`, the ``time_s`` given to
+``truth``/``controller``/``log``, and ``time_usec`` of the messages in
+``sim_time_messages`` (ODOMETRY and HIL_ACTUATOR_CONTROLS carry sim time), taken when they
+pass, so a received state is on the timeline at its own time even before the caller reacts.
 
 Crash safety: chunked, zstd (or lz4) compressed; the chunk in progress is finished and the
 file flushed to the OS at least every ``flush_interval_s``: inline when messages keep
@@ -56,9 +57,7 @@ Failure policy: an unwritable path (or a live port in use) raises :class:`Record
 error (disk full) stops the recording, is counted (``stats.write_errors``) and described in
 :attr:`Recorder.error`; later messages are counted as ``dropped``. Bad arguments to the
 loop methods (wrong length, not a number, unknown direction) are counted
-(``stats.bad_input``) and described in :attr:`Recorder.last_bad_input`. NaN/inf (and None)
-are never written to a JSON channel: such values are left out and listed in
-``_nonfinite`` (:mod:`~tfl_mav.flightlog.jsonenc`).
+(``stats.bad_input``) and described in :attr:`Recorder.last_bad_input`.
 """
 
 from __future__ import annotations
@@ -71,19 +70,16 @@ from pathlib import Path
 from typing import Any
 
 from tfl_mav.flightlog import foxglove as fg
-from tfl_mav.flightlog import plotchan, schemas
+from tfl_mav.flightlog import plotchan, protos, schemas
 from tfl_mav.flightlog.framerec import FrameRecorder
-from tfl_mav.flightlog.jsonenc import RecordFormat, _numbers_json
-from tfl_mav.flightlog.jsonobj import encode as _encode_obj
-from tfl_mav.flightlog.mcapout import MAX_NS, RecorderError, RecorderStats
+from tfl_mav.flightlog.mcapout import CHUNK_BYTES, MAX_NS, RecorderError, RecorderStats
 from tfl_mav.flightlog.polyline import Polyline
-from tfl_mav.flightlog.recordplan import record_plan
 
 __all__ = ["Recorder", "RecorderError", "RecorderStats"]
 
-_MAX_NS = MAX_NS
 _MAX_PATH_POINTS = 2000
-_MAX_RECORD_PLANS = 4             # controller record shapes precompiled (then: the dict path)
+_DEFAULT_RECORD = schemas.record_schema("tfl_mav.Record", "a caller's record", {}, [])
+_PACK = {n: struct.Struct(f"<{n}d").pack for n in (1, 3, 4)}
 
 
 def _floats(values: Any, n: int, field: str) -> list[float]:
@@ -98,13 +94,6 @@ def _floats(values: Any, n: int, field: str) -> list[float]:
     return out
 
 
-_PACK1, _PACK3, _PACK4 = (struct.Struct(f"<{n}d").pack for n in (1, 3, 4))
-
-
-def _pack_floats(values: Sequence[float]) -> bytes:
-    return plotchan.encode(b"", values)
-
-
 def _numbers(value: Any) -> list[float]:
     """The numbers in ``value`` (a number, bool, numpy value or nested sequence), flattened
     in order; [] for text or anything else."""
@@ -113,10 +102,9 @@ def _numbers(value: Any) -> list[float]:
         return [float(value)]
     if t is str or value is None:
         return []
-    if t is tuple or t is list:
-        if all(type(v) is float for v in value):     # the usual record: floats, flat
-            return list(value)
-    elif isinstance(value, (bool, int, float)):      # numpy scalars and other numbers
+    if (t is tuple or t is list) and all(type(v) is float for v in value):
+        return list(value)
+    if isinstance(value, (bool, int, float)):      # numpy scalars and other numbers
         return [float(value)]
     if hasattr(value, "tolist"):
         value = value.tolist()
@@ -131,21 +119,12 @@ def _numbers(value: Any) -> list[float]:
     return []
 
 
-_TRUTH_STATE = RecordFormat([("t_s", 0), ("position_m", 3), ("velocity_mps", 3),
-                             ("quaternion_wxyz", 4), ("body_rates_radps", 3)])
-_TRUTH_ATTACK = {active: RecordFormat([("t_s", 0), ("rotor", 0), ("active", active),
-                                        ("applied_n", 0), ("requested_n", 0)])
-                 for active in ("true", "false")}
-_TRUTH_THRUSTS = RecordFormat([("t_s", 0), ("thrust_n", 4), ("attack_rotor", 0)])
-_DEFAULT_RECORD = schemas.record_schema("tfl_mav.Record", "a caller's record", {}, [])
-
-
 class Recorder(FrameRecorder):
     """Writes one MCAP file; see the module docstring. Use as a context manager."""
 
     def __init__(self, path: str | Path | None, *, clock: Callable[[], float] = time.time,
                  flush_interval_s: float = 1.0, profile: str = "tfl-mav",
-                 compression: str = "zstd", chunk_size_bytes: int = 1 << 20,
+                 compression: str = "zstd", chunk_size_bytes: int = CHUNK_BYTES,
                  scene_hz: float = 50.0, rotor_xy_m: Sequence[Sequence[float]] = (),
                  thrust_max_n: float = 1.0, controller_fields: Sequence[str] = (),
                  controller_schema: Mapping[str, Any] | None = None,
@@ -154,13 +133,15 @@ class Recorder(FrameRecorder):
         """Open ``path`` for writing (None: no file) and start the file.
 
         ``clock``: seconds, the receipt clock of ``log_time``. ``scene_hz``: max rate (sim
-        time) of ``/tf``, ``/scene/vehicle`` and ``/sim/truth/path_distance``.
-        ``rotor_xy_m``: rotor positions (x, y) in the body frame (m), rotors 1..n, and
-        ``thrust_max_n`` the thrust that draws a full-length arrow: drawing only (no
-        rotors: no ``/scene/vehicle``). ``controller_fields``: the names of the values of
-        a sequence given to :meth:`controller`; ``controller_schema``: the JSON Schema of
-        that record (:func:`~tfl_mav.flightlog.schemas.record_schema`). ``live``: also
-        serve everything on a Foxglove WebSocket at (host, port). ``timeline``: "wall"
+        time) of ``/tf``, ``/scene/vehicle``, ``/sim/truth/path_distance``, the plot
+        channels and the decoded MAVLink channels. ``rotor_xy_m``: rotor positions (x, y)
+        in the body frame (m), rotors 1..n, and ``thrust_max_n`` the thrust that draws a
+        full-length arrow: drawing only (no rotors: no ``/scene/vehicle``).
+        ``controller_fields``: the names of the values of a sequence given to
+        :meth:`controller`; ``controller_schema``: that record's description
+        (:func:`~tfl_mav.flightlog.schemas.record_schema`; its protobuf schema is made
+        from it, :class:`~tfl_mav.flightlog.protos.RecordEncoder`). ``live``: also serve
+        everything on a Foxglove WebSocket at (host, port). ``timeline``: "wall"
         (log_time = receipt time) or "sim" (lockstep: from sim time 0 on, log_time = the
         wall clock at sim time 0 + sim time; see the module docstring).
         Raises ValueError for a bad setting, :class:`RecorderError` if the file cannot be
@@ -178,23 +159,16 @@ class Recorder(FrameRecorder):
         self._rotor_xy_m = rotors
         self._thrust_max_n = thrust_max_n
         self._controller_fields = tuple(controller_fields)
-        self._controller_schema = dict(controller_schema or _DEFAULT_RECORD)
+        self._ctl_schema = dict(controller_schema or _DEFAULT_RECORD)
+        self._ctl = protos.RecordEncoder(self._ctl_schema, self._controller_fields)
+        self._ctl_emit: Any = None
         self._init_frames(sim_time_messages, self._scene_period_s)
-        self._dumps = self._json.dumps
         self._last_scene_t = -math.inf
-        self._truth_cids: tuple[int, int, int] | None = None
-        self._truth_c: Any = None          # frames_c ``records`` (when built)
-        self._truth_layouts: dict[bool, Any] = {}
-        # record plans of the shapes seen (recordplan), [plan, checked]; by shape
-        self._ctl_plans: list[list[Any]] = []
-        self._ctl_shapes: dict[tuple[Any, ...], Any] = {}
-        self._ctl_cid = 0
+        self._truth_emit: Any = None
         self._polyline: Polyline | None = None
-        # topic → channel id, message head (plotchan.labels), number of values
-        self._plots: dict[str, tuple[int, bytes, int]] = {}
+        # topic → (log, message head (plotchan.labels), number of values)
+        self._plots: dict[str, tuple[Any, bytes, int]] = {}
         self._next_ctl_plot_s = -math.inf
-        self._truth_plots: tuple[tuple[int, bytes], ...] | None = None
-        self._ctl_plot_plan: list[tuple[int, int, bytes, Any, bool]] | None = None
         super().__init__(path, clock=clock, flush_interval_s=flush_interval_s, profile=profile,
                          compression=compression, chunk_size_bytes=chunk_size_bytes, live=live,
                          timeline=timeline)
@@ -205,25 +179,26 @@ class Recorder(FrameRecorder):
         link.on_frame = self.on_frame
         link.clock = self.clock
 
-    def _pub_ns(self) -> int:
-        return self._sim_ns
-
     @property
     def sim_time_s(self) -> float:
         return self._sim_ns * 1e-9
 
     def set_sim_time(self, time_s: float) -> None:
-        """Sim time (s) for ``publish_time`` of what is recorded next."""
+        """Sim time (s) of what is recorded next."""
         try:
             ns = round(time_s * 1e9)
         except (TypeError, ValueError, OverflowError):
             self._bad(f"time_s: expected a finite number, got {time_s!r}")
             return
-        if 0 <= ns <= _MAX_NS:
+        if 0 <= ns <= MAX_NS:
             self._sim_ns = ns
             self._sim_known = True
         else:
             self._bad(f"time_s: out of range ({time_s})")
+
+    def _proto_channel(self, topic: str, name: str) -> Any:
+        return self._channels.get(topic) or self._channel(topic, *protos.schema(name),
+                                                          "protobuf")
 
     # ------------------------------------------------------------------ ground truth, scene
     def truth(self, time_s: float, position_m: Sequence[float], velocity_mps: Sequence[float],
@@ -235,42 +210,37 @@ class Recorder(FrameRecorder):
         rates (rad/s), true rotor thrusts 1-4 (N), attacked rotor (1-4, 0 = none), applied
         and requested attack thrust (N). Also drives ``/tf``, ``/scene/vehicle`` and
         ``/sim/truth/path_distance`` at up to ``scene_hz``."""
-        try:                 # the hot path: plain values, all finite, channels known
-            fast = (self._truth_cids is not None and len(position_m) == 3
-                    and len(velocity_mps) == 3 and len(quaternion_wxyz) == 4
-                    and len(body_rates_radps) == 3 and len(rotor_thrust_n) == 4
-                    and type(attack_rotor) is int and 0 <= attack_rotor <= 4)
-            if fast:
-                vals = tuple(map(float, (time_s, *position_m, *velocity_mps, *quaternion_wxyz,
-                                         *body_rates_radps, attack_applied_n,
-                                         attack_requested_n, *rotor_thrust_n)))
+        try:                 # the usual call: plain lists of the right lengths
+            v = tuple(map(float, (time_s, *position_m, *velocity_mps, *quaternion_wxyz,
+                                  *body_rates_radps, *rotor_thrust_n)))
+            fast = (len(v) == 18 and len(position_m) == 3 and len(velocity_mps) == 3
+                    and len(quaternion_wxyz) == 4 and len(body_rates_radps) == 3
+                    and type(attack_rotor) is int
+                    and 0 <= attack_rotor <= 4 and math.isfinite(v[0]))
         except (TypeError, ValueError):
             fast = False
-        log_ns = None
-        if (fast and self._truth_c is not None and self._live is None and self._open
-                and math.isfinite(sum(vals))):     # NaN/inf: left out by the Python path
-            self.set_sim_time(vals[0])     # the C path: three records in one call
-            log_ns = self._now_ns()
-            if self._truth_records(log_ns, (*vals, attack_rotor), attack_rotor != 0):
-                self._scene(vals[0], log_ns, vals[1:4], vals[7:11], vals[16:20],
-                            attack_rotor, vals[14])
-                return
-        parts = _numbers_json((*vals, attack_rotor)) if fast else None
-        if parts is not None:
-            self.set_sim_time(vals[0])
-            log_ns = self._now_ns() if log_ns is None else log_ns
-            state_cid, attack_cid, thrusts_cid = self._truth_cids
-            self._write_many((
-                (state_cid, _TRUTH_STATE.bfmt % tuple(parts[:14])),
-                (attack_cid, _TRUTH_ATTACK["true" if attack_rotor else "false"].bfmt
-                 % (parts[0], parts[20], parts[14], parts[15])),
-                (thrusts_cid, _TRUTH_THRUSTS.bfmt % (parts[0], *parts[16:20], parts[20]))),
-                log_ns, self._sim_ns)
-            self._scene(vals[0], log_ns, vals[1:4], vals[7:11], vals[16:20], attack_rotor,
-                        vals[14])
+        if fast:
+            t, pos, vel, quat, rates, thrust = v[0], v[1:4], v[4:7], v[7:11], v[11:14], v[14:]
+            rotor = attack_rotor
+            try:
+                applied, requested = float(attack_applied_n), float(attack_requested_n)
+            except (TypeError, ValueError):
+                fast = False
+        if not fast:
+            self._truth_checked(time_s, position_m, velocity_mps, quaternion_wxyz,
+                                body_rates_radps, rotor_thrust_n, attack_rotor,
+                                attack_applied_n, attack_requested_n)
             return
+        self._truth(t, pos, vel, quat, rates, thrust, rotor, applied, requested)
+
+    def _truth_checked(self, time_s: Any, position_m: Any, velocity_mps: Any,
+                       quaternion_wxyz: Any, body_rates_radps: Any, rotor_thrust_n: Any,
+                       attack_rotor: Any, attack_applied_n: Any,
+                       attack_requested_n: Any) -> None:
+        """:meth:`truth` of anything: checked, and what is wrong counted (bad input)."""
         try:
-            if not math.isfinite(time_s):
+            t = float(time_s)
+            if not math.isfinite(t):
                 raise ValueError(f"time_s: not finite ({time_s})")
             pos = _floats(position_m, 3, "position_m")
             vel = _floats(velocity_mps, 3, "velocity_mps")
@@ -284,75 +254,25 @@ class Recorder(FrameRecorder):
         except (TypeError, ValueError) as exc:
             self._bad(f"truth: {exc}")
             return
-        self.set_sim_time(time_s)
-        log_ns, pub_ns = self._now_ns() if log_ns is None else log_ns, self._sim_ns
-        t = float(time_s)
-        # precompiled JSON (byte-identical); the dict encoder for NaN/inf (left out)
-        self._write(self._channel("/sim/truth/state", schemas.TRUTH_STATE),
-                    _TRUTH_STATE.encode((t, *pos, *vel, *quat, *rates))
-                    or self._dumps({"t_s": t, "position_m": pos, "velocity_mps": vel,
-                                    "quaternion_wxyz": quat, "body_rates_radps": rates}),
-                    log_ns, pub_ns)
-        self._write(self._channel("/sim/truth/attack", schemas.TRUTH_ATTACK),
-                    _TRUTH_ATTACK["true" if rotor != 0 else "false"].encode(
-                        (t, rotor, applied, requested))
-                    or self._dumps({"t_s": t, "rotor": rotor, "active": rotor != 0,
-                                    "applied_n": applied, "requested_n": requested}),
-                    log_ns, pub_ns)
-        self._write(self._channel("/sim/truth/thrusts", schemas.TRUTH_THRUSTS),
-                    _TRUTH_THRUSTS.encode((t, *thrust, rotor))
-                    or self._dumps({"t_s": t, "thrust_n": thrust, "attack_rotor": rotor}),
-                    log_ns, pub_ns)
-        self._truth_cids = (self._channel_ids.get("/sim/truth/state", 0),
-                            self._channel_ids.get("/sim/truth/attack", 0),
-                            self._channel_ids.get("/sim/truth/thrusts", 0))
-        self._setup_truth_c()
+        self._truth(t, pos, vel, quat, rates, thrust, rotor, applied, requested)
+
+    def _truth(self, t: float, pos: Sequence[float], vel: Sequence[float],
+               quat: Sequence[float], rates: Sequence[float], thrust: Sequence[float],
+               rotor: int, applied: float, requested: float) -> None:
+        self.set_sim_time(t)
+        log_ns = self._now_ns()
+        emit = self._truth_emit
+        if emit is None:
+            emit = self._truth_emit = self._proto_channel("/sim/truth/state",
+                                                          protos.TRUTH_STATE)
+        self._write(emit, protos.truth_state(t, pos, vel, quat, rates, thrust, rotor, applied,
+                                             requested), log_ns)
         self._scene(t, log_ns, pos, quat, thrust, rotor, applied)
-
-    def _c_ready(self, fn: Any) -> None:
-        super()._c_ready(fn)
-        self._setup_truth_c()
-
-    def _setup_truth_c(self) -> None:
-        """The truth records' C path, once the channels and the compiled module exist."""
-        records = getattr(getattr(self._frames_c, "__self__", None), "records", None)
-        if (records is not None and getattr(self, "_truth_cids", None) is not None
-                and getattr(self._writer, "_fast", False)):
-            # the hot path's values: t, position, velocity, quaternion, rates, applied,
-            # requested, thrusts 1-4, rotor (indices 0, 1-3, 4-6, 7-10, 11-13, 14, 15,
-            # 16-19, 20)
-            state_cid, attack_cid, thrusts_cid = self._truth_cids
-            self._truth_layouts = {active: (
-                (state_cid, _TRUTH_STATE.pieces, tuple(range(14))),
-                (attack_cid, _TRUTH_ATTACK["true" if active else "false"].pieces,
-                 (0, 20, 14, 15)),
-                (thrusts_cid, _TRUTH_THRUSTS.pieces, (0, 16, 17, 18, 19, 20)))
-                for active in (False, True)}
-            self._truth_c = records
-
-    def _truth_records(self, log_ns: int, values: tuple[Any, ...], active: bool) -> bool:
-        """The three truth records by the C path; False (nothing written) for values it
-        does not print (NaN/inf: the Python path leaves them out)."""
-        w = self._writer
-        try:
-            with self._lock:
-                n = self._truth_c(w.chunk, w.end_chunk, w.chunk_limit, log_ns, self._sim_ns,
-                                  values, self._truth_layouts[active], _encode_obj)
-                if n is None:
-                    return False
-                self._pending += n
-                self.stats.messages += n
-            if time.monotonic() >= self._next_flush:
-                self._flush()
-        except Exception as exc:
-            self._failed(exc)
-        return True
 
     def _scene(self, t: float, log_ns: int, pos: Sequence[float], quat: Sequence[float],
                thrust: Sequence[float], rotor: int, attack_n: float) -> None:
         """``/tf``, ``/scene/vehicle``, ``/sim/truth/path_distance`` and the truth's plot
         channels (:mod:`~tfl_mav.flightlog.plotchan`) at up to scene_hz."""
-        pub_ns = self._sim_ns
         # 1 µs slack so k·dt rounding does not push a sample to the next tick
         if self._last_scene_t <= t < self._last_scene_t + self._scene_period_s - 1e-6:
             return
@@ -361,117 +281,54 @@ class Recorder(FrameRecorder):
             self._bad(f"truth: position/attitude/thrust not finite at t = {t} s; "
                       "scene not drawn")
             return
-        self._write(self._fg_channel("/tf", "foxglove.FrameTransform"),
-                    fg.frame_transform(log_ns, pos, quat), log_ns, pub_ns)
+        items = [(self._fg_channel("/tf", "foxglove.FrameTransform"),
+                  fg.frame_transform(log_ns, pos, quat))]
         if self._rotor_xy_m:
-            self._write(self._fg_channel("/scene/vehicle", "foxglove.SceneUpdate"),
-                        fg.vehicle_scene(log_ns, self._rotor_xy_m, thrust, self._thrust_max_n,
-                                         rotor), log_ns, pub_ns)
-        distance = None
+            items.append((self._fg_channel("/scene/vehicle", "foxglove.SceneUpdate"),
+                          fg.vehicle_scene(log_ns, self._rotor_xy_m, thrust,
+                                           self._thrust_max_n, rotor)))
+        plots = [("/plot/truth/position_m", ("x_m", "y_m", "z_m"), pos),
+                 ("/plot/truth/rotor_thrust_n", ("f1_n", "f2_n", "f3_n", "f4_n"), thrust),
+                 ("/plot/truth/attack_n", ("applied_n",), (attack_n,))]
         if self._polyline is not None:
             distance = self._polyline.distance(pos)
-            self._write(self._channel("/sim/truth/path_distance", schemas.PATH_DISTANCE),
-                        self._dumps({"t_s": t, "distance_m": distance}), log_ns, pub_ns)
-        heads = self._truth_plots
-        if heads is None or (distance is None) != (len(heads) == 3):
-            heads = self._truth_plots = self._truth_plot_heads(distance is not None)
-        (c1, h1), (c2, h2), (c3, h3) = heads[:3]
-        x, y, z = pos
-        f1, f2, f3, f4 = thrust
-        items = ((c1, h1 + _PACK3(x, y, z)), (c2, h2 + _PACK4(f1, f2, f3, f4)),
-                 (c3, h3 + _PACK1(attack_n)))
-        if distance is not None:
-            c4, h4 = heads[3]
-            items += ((c4, h4 + _PACK1(distance)),)
-        self._write_many(items, log_ns, pub_ns)
+            items.append((self._proto_channel("/sim/truth/path_distance",
+                                              protos.PATH_DISTANCE),
+                          protos.path_distance(t, distance)))
+            plots.append(("/plot/truth/path_distance_m", ("distance_m",), (distance,)))
+        for topic, names, values in plots:
+            entry = self._plot_entry(topic, names)
+            items.append((entry[0], entry[1] + _PACK[len(values)](*values)))
+        self._write_many(tuple(items), log_ns)
 
-    def _truth_plot_heads(self, distance: bool) -> tuple[tuple[int, bytes], ...]:
-        """(channel id, message head) of the truth's plot channels, registered now."""
-        out = []
-        for topic, names in (("/plot/truth/position_m", ("x_m", "y_m", "z_m")),
-                             ("/plot/truth/rotor_thrust_n", ("f1_n", "f2_n", "f3_n", "f4_n")),
-                             ("/plot/truth/attack_n", ("applied_n",)),
-                             ("/plot/truth/path_distance_m", ("distance_m",)))[:4 if distance
-                                                                              else 3]:
-            entry = self._plots.get(topic)
-            if entry is None:
-                cid = self._register(topic, plotchan.FLOAT64_MULTI_ARRAY,
-                                     plotchan.SCHEMA_ENCODING, plotchan.SCHEMA_TEXT,
-                                     plotchan.MESSAGE_ENCODING)
-                entry = self._plots[topic] = (cid, plotchan.labels(names), len(names))
-            out.append((entry[0], entry[1]))
-        return tuple(out)
-
-    def _controller_tuple_plots(self, t: float, log_ns: int, state: Sequence[Any]) -> None:
-        """:meth:`_controller_plots` of the compact record, by a plan made from the first
-        one (which field, how to pack it): the same messages, a few µs instead of ~16 per
-        sample; a record of another shape takes the general path (and a new plan)."""
-        plan = self._ctl_plot_plan
-        items = []
-        if plan is not None:
-            try:
-                for i, cid, head, pack, flat in plan:
-                    v = state[i]
-                    items.append((cid, head + (pack(*_numbers(v)) if flat else
-                                               pack(*v) if type(v) in (list, tuple) else
-                                               pack(v))))
-            except (TypeError, struct.error, IndexError):
-                plan = None
-        if plan is None:
-            self._controller_plots(t, log_ns, zip(self._controller_fields, state,
-                                                  strict=True))
-            self._ctl_plot_plan = self._plot_plan(state)
-            return
-        self._next_ctl_plot_s = t + self._scene_period_s - 1e-6
-        self._write_many(tuple(items), log_ns, self._sim_ns)
-
-    def _plot_plan(self, state: Sequence[Any]) -> list[tuple[int, int, bytes, Any, bool]]:
-        """For each numeric field of a compact record (channels registered by
-        :meth:`_controller_plots`): (index, channel id, head, pack, nested)."""
-        plan = []
-        for i, (name, value) in enumerate(zip(self._controller_fields, state, strict=True)):
-            entry = self._plots.get(f"/plot/controller/{name}")
-            if entry is None:
-                continue
-            nested = not (type(value) in (int, float, bool) or (
-                type(value) in (list, tuple) and all(type(v) is float for v in value)))
-            plan.append((i, entry[0], entry[1], struct.Struct(f"<{entry[2]}d").pack, nested))
-        return plan
+    def _plot_entry(self, topic: str, names: Sequence[str]) -> tuple[Any, bytes, int]:
+        """(log, message head, number of values) of a plot channel labelled ``names``."""
+        entry = self._plots.get(topic)
+        if entry is None or entry[2] != len(names):
+            emit = entry[0] if entry is not None else self._channel(
+                topic, plotchan.FLOAT64_MULTI_ARRAY, plotchan.SCHEMA_ENCODING,
+                plotchan.SCHEMA_TEXT, plotchan.MESSAGE_ENCODING)
+            entry = self._plots[topic] = (emit, plotchan.labels(names), len(names))
+        return entry
 
     def _controller_plots(self, t: float, log_ns: int,
                           fields: Iterable[tuple[str, Any]]) -> None:
         """The controller record's numbers as plot channels, at up to scene_hz of sim time:
         ``/plot/controller/NAME`` per numeric field (a number, a flag as 0/1, or numbers
-        nested in lists, flattened in order); text fields are the JSON channel's."""
+        nested in lists, flattened in order); text fields are the record's only."""
         self._next_ctl_plot_s = t + self._scene_period_s - 1e-6
-        pub_ns = self._sim_ns
-        plots = self._plots
         items = []
         for name, value in fields:
             flat = _numbers(value)
             if not flat:
                 continue
-            topic = f"/plot/controller/{name}"
-            entry = plots.get(topic)
-            if entry is not None and entry[2] == len(flat):     # the usual case: one write
-                items.append((entry[0], entry[1] + _pack_floats(flat)))
-                continue
-            self._plot(topic, [name] if len(flat) == 1 else [f"{name}[{i}]"
-                                                             for i in range(len(flat))],
-                       flat, log_ns, pub_ns)
+            entry = self._plots.get(f"/plot/controller/{name}")
+            if entry is None or entry[2] != len(flat):
+                entry = self._plot_entry(f"/plot/controller/{name}", [name] if len(flat) == 1
+                                         else [f"{name}[{i}]" for i in range(len(flat))])
+            items.append((entry[0], plotchan.encode(entry[1], flat)))
         if items:
-            self._write_many(tuple(items), log_ns, pub_ns)
-
-    def _plot(self, topic: str, names: Sequence[str], values: Sequence[float], log_ns: int,
-              pub_ns: int) -> None:
-        """One sample of a plot channel (a Float64MultiArray labelled ``names``)."""
-        entry = self._plots.get(topic)
-        if entry is None or entry[2] != len(values):
-            cid = self._register(topic, plotchan.FLOAT64_MULTI_ARRAY, plotchan.SCHEMA_ENCODING,
-                                 plotchan.SCHEMA_TEXT, plotchan.MESSAGE_ENCODING) \
-                if entry is None else entry[0]
-            entry = self._plots[topic] = (cid, plotchan.labels(names), len(values))
-        self._write(entry[0], plotchan.encode(entry[1], values), log_ns, pub_ns)
+            self._write_many(tuple(items), log_ns)
 
     def path(self, points_m: Any) -> None:
         """The path as sampled points (N, 3) in m, world frame ENU: ``/scene/path`` now and with
@@ -486,8 +343,7 @@ class Recorder(FrameRecorder):
         log_ns = self._now_ns()
         data = fg.path_scene(log_ns, [list(map(float, p)) for p in pts])
         self._polyline = poly
-        self.latch(self._fg_channel("/scene/path", "foxglove.SceneUpdate"), data, log_ns,
-                   self._sim_ns)
+        self.latch(self._fg_channel("/scene/path", "foxglove.SceneUpdate"), data, log_ns)
 
     # ------------------------------------------------------------------ logs, controller
     def log(self, level: int | str, text: str, time_s: float | None = None, *,
@@ -505,60 +361,54 @@ class Recorder(FrameRecorder):
             self.set_sim_time(time_s)
         log_ns = self._now_ns()
         self._write(self._fg_channel("/log", "foxglove.Log"),
-                    fg.log_entry(log_ns, lvl, self._with_time(str(text)), source),
-                    log_ns, self._sim_ns)
+                    fg.log_entry(log_ns, lvl, self._with_time(str(text)), source), log_ns)
 
     def controller(self, time_s: float, state: Mapping[str, Any] | Sequence[Any]) -> None:
-        """The controller's record at sim time ``time_s`` (s) on ``/controller/state``:
-        a sequence of values named by ``controller_fields`` (the compact per-tick form), or
-        a mapping. numpy values are fine; NaN/inf/None values are left out
-        (``_nonfinite``)."""
-        if self._ctl_plans and type(time_s) is float and not isinstance(state, Mapping):
-            for entry in self._ctl_plans:           # the hot path: a record plan
-                data = entry[0](state, time_s)
-                if data is None:
-                    continue
-                if not entry[1]:                    # its first record: checked once
-                    if data != self._dumps({**dict(zip(self._controller_fields, state,
-                                                       strict=True)), "t_s": time_s}):
-                        self._ctl_plans.remove(entry)
-                        break
-                    entry[1] = True
-                self.set_sim_time(time_s)
-                log_ns = self._now_ns()
-                self._write(self._ctl_cid, data, log_ns, self._sim_ns)
-                if time_s >= self._next_ctl_plot_s:
-                    self._controller_tuple_plots(time_s, log_ns, state)
-                return
-        record = state
+        """The controller's record at sim time ``time_s`` (s) on ``/controller/state``
+        (protobuf, :class:`~tfl_mav.flightlog.protos.RecordEncoder`): a sequence of values
+        named by ``controller_fields`` (the compact per-tick form), or a mapping (a key the
+        schema does not know extends it). numpy values are fine; None is left out."""
         try:
             t = float(time_s)
             if not math.isfinite(t):
                 raise ValueError(f"time_s: not finite ({time_s})")
-            if not isinstance(state, Mapping):
+            if type(state) is tuple and len(state) == len(self._controller_fields):
+                data = self._ctl.encode(t, state)           # the per-tick record
+                fields: Iterable[tuple[str, Any]] = zip(self._controller_fields, state,
+                                                        strict=True)
+            elif isinstance(state, Mapping):
+                state = {k: v for k, v in state.items() if k != "t_s"}
+                if not state.keys() <= set(self._ctl.names):
+                    self._extend_record(state)
+                data = self._ctl.encode_map({**state, "t_s": t})
+                fields = state.items()
+            else:
                 if len(state) != len(self._controller_fields):
                     raise ValueError(f"record: expected {len(self._controller_fields)} values "
                                      f"({', '.join(self._controller_fields)}), got "
                                      f"{len(state)}")
-                state = dict(zip(self._controller_fields, state, strict=True))
-            data = self._dumps({**state, "t_s": t})
+                data = self._ctl.encode(t, state)
+                fields = zip(self._controller_fields, state, strict=True)
         except (TypeError, ValueError) as exc:
             self._bad(f"controller state: {exc}")
             return
         self.set_sim_time(t)
         log_ns = self._now_ns()
-        self._write(self._channel("/controller/state", self._controller_schema), data,
-                    log_ns, self._sim_ns)
+        emit = self._ctl_emit
+        if emit is None:
+            emit = self._ctl_emit = self._channel("/controller/state", self._ctl.name,
+                                                  "protobuf", self._ctl.schema_data,
+                                                  "protobuf")
+        self._write(emit, data, log_ns)
         if t >= self._next_ctl_plot_s:
-            self._controller_plots(t, log_ns, state.items())
-        if isinstance(record, Mapping) or len(self._ctl_shapes) >= _MAX_RECORD_PLANS:
-            return
-        shape = tuple((type(v), len(v)) if type(v) in (list, tuple) else type(v)
-                      for v in record)
-        if shape not in self._ctl_shapes:           # a new shape: precompile it once
-            plan = self._ctl_shapes[shape] = record_plan(self._controller_fields, record)
-            if plan is not None:
-                self._ctl_plans.append([plan, False])
-                self._ctl_cid = self._channel_ids.get("/controller/state", 0)
+            self._controller_plots(t, log_ns, fields)
 
-    # ------------------------------------------------------------------ internals
+    def _extend_record(self, state: Mapping[str, Any]) -> None:
+        """A mapping record with keys the schema does not know: the record's schema grows
+        by them (kinds from their values) and the channel is made again with it."""
+        kinds = {n: k for n, k, _ in self._ctl.fields}
+        kinds.update({k: protos.kind_of(v) for k, v in state.items()
+                      if k not in kinds and v is not None})
+        self._ctl = protos.RecordEncoder(self._ctl_schema, self._controller_fields, kinds)
+        self._channels.pop("/controller/state", None)
+        self._ctl_emit = None

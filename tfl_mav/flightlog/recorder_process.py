@@ -1,13 +1,13 @@
 """The :class:`~tfl_mav.flightlog.recorder.Recorder` API with the work in a child process.
 
-Why: recording costs ~12-28 µs of CPU per frame in-process (JSON + MCAP records), a large
+Why: recording costs several µs of CPU per frame in-process (records + MCAP), a large
 share of a 1 kHz lockstep tick. Here the flight process only stamps each call with its
 clock and appends a tuple to a queue: raw datagrams as ``bytes``, the controller's record
-as the caller's compact tuple, no dict building and no JSON on the control path. A
+as the caller's compact tuple, no dict building and no encoding on the control path. A
 background thread pickles the queue in batches (every ``batch_s``, while the flight loop
 waits for its peer) and sends it over a pipe to a child that runs a real ``Recorder``
 with that clock reading as ``log_time``, on the other core: it decodes the frames, names
-the record's fields, encodes JSON and protobuf, writes the file and feeds the live
+the record's fields, encodes the records, writes the file and feeds the live
 Foxglove server (``live=``). The messages are the ones an in-process recording writes
 (only the periodic copies of ``/scene/path`` follow the child's flush timing).
 

@@ -1,21 +1,21 @@
-"""JSON Schemas of every channel the recorder writes (MCAP ``jsonschema`` encoding).
+"""JSON Schemas of the decoded MAVLink channels, and the description of a caller's record.
 
-Three families, all written by the project (docs/design.md, "The flight log"):
+* ``mavlink.<MSG>`` (MCAP ``jsonschema`` encoding): one schema per MAVLink message type,
+  generated from pymavlink's field metadata (``fieldnames``, ``fieldtypes``,
+  ``array_lengths``, units, enums). ``char[N]`` is a string; integers carry their C range.
+* :func:`record_schema`: a caller's own record (the controller's state) described in JSON
+  Schema terms; the recorder writes it as protobuf made from that description
+  (:class:`~tfl_mav.flightlog.protos.RecordEncoder`).
 
-* ``mavlink.<MSG>``: one schema per MAVLink message type, generated from pymavlink's field
-  metadata (``fieldnames``, ``fieldtypes``, ``array_lengths``, units, enums). ``char[N]`` is
-  a string; integers carry their C range.
-* ``tfl_mav.*``: raw wire frames and simulator ground truth; a caller's own records (the
-  controller's state) are described by the caller with :func:`record_schema`.
+Raw frames and the simulator's truth are protobuf (:mod:`tfl_mav.flightlog.protos`), the
+Foxglove well-known types (``/tf``, the scene, ``/log``) from Foxglove's own SDK
+(:mod:`tfl_mav.flightlog.foxglove`).
 
-The Foxglove well-known types (``/tf``, the scene, ``/log``) are not here: they are
-protobuf, from Foxglove's own SDK (:mod:`tfl_mav.flightlog.foxglove`).
-
-NaN/inf: JSON has no such numbers, and Foxglove's JSON-schema reader accepts one plain
-``type`` per property (no ``["number", "null"]``, no property without ``type``; see its
-``parseJsonSchema``). So a float that is not finite, or an array holding one, is *left out*
-of the message and its key listed in ``_nonfinite``; float fields are therefore optional,
-everything else is required. The raw frame keeps the wire value.
+NaN/inf in a decoded MAVLink message: JSON has no such numbers, and Foxglove's JSON-schema
+reader accepts one plain ``type`` per property (no ``["number", "null"]``, no property
+without ``type``; see its ``parseJsonSchema``). So a float that is not finite, or an array
+holding one, is *left out* of the message and its key listed in ``_nonfinite``; float
+fields are therefore optional, everything else is required. The raw frame keeps the wire value.
 
 Schemas are plain dicts; :func:`schema_bytes` is what goes into the file.
 """
@@ -30,11 +30,6 @@ from tfl_mav.link.dialect import mav
 
 __all__ = [
     "NONFINITE_KEY",
-    "PATH_DISTANCE",
-    "RAW_FRAME",
-    "TRUTH_ATTACK",
-    "TRUTH_STATE",
-    "TRUTH_THRUSTS",
     "mavlink_schema",
     "mavlink_schema_name",
     "record_schema",
@@ -74,12 +69,8 @@ def _array(items: Schema, description: str, length: int | None = None) -> Schema
     return out
 
 
-# ---------------------------------------------------------------- project channels
+# ---------------------------------------------------------------- a caller's records
 _T_S = {"type": "number", "description": "sim time (s)"}
-
-
-def _vec(n: int, description: str) -> Schema:
-    return _array({"type": "number"}, description, n)
 
 
 def _project(title: str, description: str, properties: dict[str, Schema],
@@ -87,60 +78,11 @@ def _project(title: str, description: str, properties: dict[str, Schema],
     return _obj(title, description, {**properties, NONFINITE_KEY: _NONFINITE}, required)
 
 
-RAW_FRAME: Schema = _obj(
-    "tfl_mav.MavlinkFrame", "One MAVLink frame exactly as it crossed the wire; name, msgid, "
-    "sysid, compid and seq are present when the frame was decoded", {
-        "direction": {"type": "string", "enum": ["rx", "tx"],
-                      "description": "received or sent by the recording process"},
-        "accepted": {"type": "boolean", "description": "rx: the link decoded and accepted it; "
-                     "tx: it was sent"},
-        "name": {"type": "string", "description": "message name"},
-        "msgid": {"type": "integer", "minimum": 0},
-        "sysid": {"type": "integer", "minimum": 0, "maximum": 255},
-        "compid": {"type": "integer", "minimum": 0, "maximum": 255},
-        "seq": {"type": "integer", "minimum": 0, "maximum": 255},
-        "len": {"type": "integer", "minimum": 0, "description": "wire bytes"},
-        "data": {"type": "string", "contentEncoding": "base64",
-                 "description": "the wire bytes, base64 (replayable byte for byte)"}},
-    ["direction", "accepted", "len", "data"])
-
-TRUTH_STATE: Schema = _project(
-    "tfl_mav.TruthState", "True rigid-body state from the simulator, world frame "
-    "ENU (z up), body frame x forward, z along thrust", {
-        "t_s": _T_S,
-        "position_m": _vec(3, "position x_q (m)"),
-        "velocity_mps": _vec(3, "velocity v_q (m/s)"),
-        "quaternion_wxyz": _vec(4, "attitude, body to world (w, x, y, z)"),
-        "body_rates_radps": _vec(3, "body rates (p, q, r) (rad/s)")}, ["t_s"])
-
-TRUTH_ATTACK: Schema = _project(
-    "tfl_mav.TruthAttack", "The attack as the simulator applies it", {
-        "t_s": _T_S,
-        "rotor": {"type": "integer", "minimum": 0, "maximum": 4,
-                  "description": "attacked rotor 1-4, 0 = none"},
-        "active": {"type": "boolean"},
-        "applied_n": {"type": "number", "description": "thrust forced on the rotor (N), "
-                      "clamped to [0, f_max]"},
-        "requested_n": {"type": "number", "description": "what the attack signal asked "
-                        "for (N)"}}, ["t_s", "rotor", "active"])
-
-TRUTH_THRUSTS: Schema = _project(
-    "tfl_mav.TruthThrusts", "True rotor thrusts (N), rotors 1-4", {
-        "t_s": _T_S,
-        "thrust_n": _vec(4, "true thrust of rotors 1-4 (N)"),
-        "attack_rotor": {"type": "integer", "minimum": 0, "maximum": 4}},
-    ["t_s", "attack_rotor"])
-
-PATH_DISTANCE: Schema = _project(
-    "tfl_mav.PathDistance", "Distance from the true position to the recorded path polyline", {
-        "t_s": _T_S,
-        "distance_m": {"type": "number", "description": "distance to the polyline given to "
-                       "Recorder.path (m)"}}, ["t_s"])
-
 def record_schema(title: str, description: str, properties: dict[str, Schema],
                   required: list[str]) -> Schema:
-    """A caller's own JSON record schema (e.g. the controller's ``/controller/state``),
-    with ``t_s`` and the ``_nonfinite`` list the recorder adds."""
+    """A caller's own record described as a JSON Schema (e.g. the controller's
+    ``/controller/state``), with the ``t_s`` the recorder adds (``_nonfinite`` is kept for
+    a JSON reader of it; the protobuf record carries NaN as it is)."""
     return _project(title, description, {"t_s": _T_S, **properties}, ["t_s", *required])
 
 

@@ -23,7 +23,7 @@ import numpy as np
 from tfl_mav.build import scenario_path
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.flightlog.from_mcap import flight_log_from_mcap
-from tfl_mav.flightlog.logread import LogReader
+from tfl_mav.flightlog.logread import raw_frames
 from tfl_mav.flightlog.metrics import DEFAULT_BOUND_M, DEFAULT_WINDOW_S, flight_verdict
 from tfl_mav.harness.processes import raise_priority
 from tfl_mav.scenario import apply_overrides, load_scenario
@@ -272,10 +272,9 @@ def _traffic_metrics(run_mcap: Path, ctl_mcap: Path, fly: dict[str, Any]) -> dic
     for path in (run_mcap, ctl_mcap):
         if not path.exists():
             continue
-        for m in LogReader(path).messages({"/mavlink/raw"}):
+        for _m, _raw, tx, _rejected in raw_frames(path):
             logged += 1
-            if m.data.startswith(b'{"direction":"tx"'):   # the recorder writes it first
-                sent += 1
+            sent += tx
     link = fly.get("stats", {}).get("link", {})
     return {"messages_logged": logged, "messages_sent": sent,
             "controller_rejected_frames": sum(v for k, v in link.items() if k not in
