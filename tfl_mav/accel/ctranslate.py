@@ -34,6 +34,7 @@ _UNARY = {
     "_tan": ("tan({0})", "__builtin_isinf({0})"),
     "_atan": ("atan({0})", "0"),
     "_acos": ("acos({0})", "{0} < -1.0 || {0} > 1.0"),
+    "_asin": ("asin({0})", "{0} < -1.0 || {0} > 1.0"),
     "_tanh": ("tanh({0})", "0"),
     "_log": ("log({0})", "{0} <= 0.0"),
     "abs": ("__builtin_fabs({0})", "0"),
@@ -164,6 +165,14 @@ class _C:
             v, r = self.fresh(), self.fresh()
             return (f"({{ double {v} = {args[0]}; double {r} = exp({v});"
                     f" if (__builtin_isinf({r}) && __builtin_isfinite({v})) goto bail; {r}; }})")
+        if fn == "_remainder" and len(args) == 2:
+            # IEEE 754 remainder is exact, so libm's is CPython's; ValueError for x = ±inf
+            # or y = 0 (NaN operands give NaN).
+            x, y = self.fresh(), self.fresh()
+            return (f"({{ double {x} = {args[0]}; double {y} = {args[1]};"
+                    f" if ((__builtin_isinf({x}) && !__builtin_isnan({y}))"
+                    f" || ({y} == 0.0 && !__builtin_isnan({x}))) goto bail;"
+                    f" remainder({x}, {y}); }})")
         if fn == "_pow" and len(args) == 2:     # math.pow: the finite, non-raising cases only
             x, y, r = self.fresh(), self.fresh(), self.fresh()
             return (f"({{ double {x} = {args[0]}; double {y} = {args[1]};"

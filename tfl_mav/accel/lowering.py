@@ -87,11 +87,15 @@ class Lowerer:
         f = Frame(self, fn, node, f"_i{self.n}_")
         for p in params:
             if p in bound:
-                f.bind(p, bound[p])
+                value = bound[p]
             elif p in defaults:
-                f.bind(p, _value(defaults[p], f"default of {p!r}"))
+                value = _value(defaults[p], f"default of {p!r}")
             else:
                 raise NativeError(f"{fn.__qualname__}: no argument for {p!r}")
+            if isinstance(value, _Ref):     # a function passed in (``sqrt=math.sqrt``)
+                f.alias[p] = value
+            else:
+                f.bind(p, value)
         self.stack.append(fn)
         self.files.add(fn.__code__.co_filename)
         for st in body:
@@ -162,6 +166,14 @@ class Lowerer:
         if isinstance(e, ast.UnaryOp):
             return ast.UnaryOp(e.op, self.num(f, e.operand, cond))
         if isinstance(e, ast.Compare):
+            if len(e.ops) == 1 and isinstance(e.ops[0], (ast.Is, ast.IsNot)) \
+                    and isinstance(e.comparators[0], ast.Constant) \
+                    and e.comparators[0].value is None:
+                # ``t is None`` of a tuple or a function: decided at lowering (a value that
+                # may be None is not lowered at all).
+                if not isinstance(self.expr(f, e.left, cond), (Tup, _Ref)):
+                    raise NativeError(f"cannot lower {ast.unparse(e)!r}: a number is never None")
+                return ast.Constant(int(isinstance(e.ops[0], ast.IsNot)))
             if any(isinstance(op, (ast.Is, ast.IsNot, ast.In, ast.NotIn)) for op in e.ops):
                 raise NativeError(f"cannot lower {ast.unparse(e)!r}")
             left = self.num(f, e.left, cond)
@@ -223,6 +235,15 @@ class Lowerer:
             raise NativeError(f"{ast.unparse(e)!r} is {v.obj!r}, not a number or tuple")
         return v
 
+    def argument(self, f: Frame, e: ast.expr, cond: bool) -> Any:
+        """An argument of an inlined call: a value, or a function or math function passed
+        in (what the callee then calls)."""
+        v = self.expr(f, e, cond)
+        if isinstance(v, _Ref) and not (isinstance(v.obj, types.FunctionType)
+                                        or v.obj in _INTRINSICS):
+            raise NativeError(f"{ast.unparse(e)!r} is {v.obj!r}, not a number or tuple")
+        return v
+
     def tup(self, f: Frame, e: ast.expr, cond: bool) -> Tup:
         v = self.expr(f, e, cond)
         if not isinstance(v, Tup):
@@ -244,8 +265,8 @@ class Lowerer:
             if cond:
                 raise NativeError(f"{what!r} is called on some paths only (a conditional "
                                   "expression, and/or): write it as an if statement")
-            args = [self.value(f, a, cond) for a in e.args]
-            kwargs = {k.arg: self.value(f, k.value, cond) for k in e.keywords
+            args = [self.argument(f, a, cond) for a in e.args]
+            kwargs = {k.arg: self.argument(f, k.value, cond) for k in e.keywords
                       if k.arg is not None}
             return self.inline(obj, args, kwargs)
         if isinstance(obj, type) and issubclass(obj, tuple) and hasattr(obj, "_fields"):

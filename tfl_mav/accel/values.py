@@ -23,7 +23,7 @@ if TYPE_CHECKING:
 _INTRINSICS: dict[Any, str] = {
     getattr(math, n): f"_{n}" for n in ("sqrt", "sin", "cos", "tan", "atan", "acos", "tanh",
                                         "log", "exp", "pow", "atan2", "copysign", "hypot",
-                                        "isfinite", "isnan")}
+                                        "isfinite", "isnan", "asin", "remainder")}
 _INTRINSICS[abs] = "abs"
 _RESERVED = re.compile(r"_[itv]\d.*|.*__.*")     # the names lowering itself makes
 

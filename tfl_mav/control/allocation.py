@@ -79,12 +79,7 @@ def allocate_nominal(uf: float, tau_p: float, tau_q: float, tau_r: float,
         elif f > hi and sr > 0.0 and b < hi:
             scale = min(scale, (hi - b) / abs(r))
     r *= scale
-    out = []
-    for i in range(4):
-        f = base[i] + (r if i % 2 == 0 else -r)
-        f = _max(f, lo4[i])
-        out.append(_min(f, hi4[i]))
-    return out
+    return [_min(_max(base[i] + (r if i % 2 == 0 else -r), lo4[i]), hi4[i]) for i in range(4)]
 
 
 def _max(a: float, b: float) -> float:

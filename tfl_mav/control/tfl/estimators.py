@@ -3,12 +3,12 @@
 Measured in a prototype (controller issue): with the paper's 2 % mass / 10 % inertia error
 the plain law sits 6–7 cm off the path or crashes. Two estimators remove the two biases:
 
-* :class:`MassEstimator` — the mass error biases α and the speed. Newton's law along the
+* the mass estimator (:func:`mass_update`) — the mass error biases α and the speed. Newton's law along the
   thrust direction, m (a + g i3) = u_f b3 − k_t v, is regressed with the acceleration taken
   from the velocity through a first-order filter (τ ≈ 0.2 s) and the regressor passed
   through the *same* filter, so both sides carry the same lag; the ratio is low-passed
   (τ ≈ 1 s) and clamped to a band around the nominal model.
-* :class:`RateDisturbanceObserver` — the inertia error (and anything else: unmodelled
+* the rate disturbance observer (:func:`dob_update`) — the inertia error (and anything else: unmodelled
   torques, a wrong attack estimate) shows up as a mismatch between the measured ṗ, q̇ and
   the model's prediction for the torque actually applied. A fast (τ ≈ 4 ms) filtered
   difference estimates it; the law subtracts it from its p/q acceleration demand (INDI-like).
@@ -19,10 +19,10 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
-__all__ = ["MassEstimator", "RateDisturbanceObserver", "clamp", "dob_step", "mass_blend",
-           "mass_filters"]
+__all__ = ["DOB_START", "DobState", "MassModel", "MassState", "clamp", "dob_step", "dob_update",
+           "mass_blend", "mass_filters", "mass_model", "mass_start", "mass_update"]
 
 V3 = Sequence[Any]
 
@@ -35,9 +35,8 @@ def clamp(x: float, lo: float, hi: float) -> float:
 
 def mass_filters(dt: Any, tau_s: Any, kt: Any, g: Any, v: V3, thrust: Any, b3: V3,
                  v_lp: V3, phi_lp: V3) -> tuple[Any, ...]:
-    """One step of :class:`MassEstimator`'s two first-order filters (arithmetic only, so
-    that :mod:`fused` traces the same operations): (LP(v) ×3, LP(φ) ×3, numerator and
-    denominator of the instantaneous mass (LP(φ)·â / |â|², â = LP(v̇) + g e3))."""
+    """One step of the mass estimator's two first-order filters: (LP(v) ×3, LP(φ) ×3,
+    numerator and denominator of the instantaneous mass (LP(φ)·â / |â|², â = LP(v̇) + g e3))."""
     tau_dt = tau_s + dt
     a = dt / tau_dt
     vx, vy, vz = v
@@ -61,77 +60,91 @@ def mass_blend(mass: Any, m_inst: Any, dt: Any, ratio_tau_s: Any) -> Any:
 
 
 def dob_step(d: Any, rate: Any, rate_prev: Any, pred: Any, dt: Any, a: Any) -> Any:
-    """:class:`RateDisturbanceObserver`'s filter on one axis, before its clamp."""
+    """The rate disturbance observer's filter on one axis, before its clamp."""
     return d + a * ((rate - rate_prev) / dt - pred - d)
 
 
-class MassEstimator:
-    """Estimate the vehicle mass (kg) from velocity and the applied total thrust (N)."""
+class MassModel(NamedTuple):
+    """The mass estimator's constants."""
 
-    def __init__(self, model_mass_kg: float, gravity_mps2: float, k_t: float,
-                 accel_tau_s: float = 0.2, ratio_tau_s: float = 1.0, band: float = 0.2,
-                 min_excitation: float = 0.5) -> None:
-        self.model_mass_kg = model_mass_kg
-        self.mass_kg = model_mass_kg
-        self.g = gravity_mps2
-        self.k_t = k_t
-        self.accel_tau_s = accel_tau_s
-        self.ratio_tau_s = ratio_tau_s
-        self.lo = model_mass_kg * (1.0 - band)
-        self.hi = model_mass_kg * (1.0 + band)
-        self.min_excitation = min_excitation
-        self._min_den = min_excitation ** 2
-        self._v_lp: tuple[float, ...] | None = None
-        self._phi_lp: tuple[float, ...] = (0.0, 0.0, 0.0)
-        self._g_lp = 0.0
-        self.updates = 0
-
-    def update(self, dt: float, velocity_mps: Sequence[float], thrust_n: float,
-               b3: Sequence[float]) -> float:
-        """Advance by ``dt`` s; returns the current mass estimate (kg)."""
-        if self._v_lp is None:
-            self._v_lp = tuple(velocity_mps)
-            self._phi_lp = tuple(thrust_n * b - self.k_t * v
-                                 for b, v in zip(b3, velocity_mps, strict=True))
-            self._g_lp = self.g
-            return self.mass_kg
-        lx, ly, lz, px, py, pz, num, den = mass_filters(dt, self.accel_tau_s, self.k_t, self.g,
-                                                        velocity_mps, thrust_n, b3, self._v_lp,
-                                                        self._phi_lp)
-        self._v_lp = (lx, ly, lz)
-        self._phi_lp = (px, py, pz)
-        if not self._min_den <= den < math.inf:
-            return self.mass_kg  # free fall or nonsense: nothing to learn from
-        m_inst = num / den
-        mass = self.mass_kg
-        if not -math.inf < m_inst < math.inf:
-            return mass
-        self.mass_kg = clamp(mass_blend(mass, m_inst, dt, self.ratio_tau_s), self.lo, self.hi)
-        self.updates += 1
-        return self.mass_kg
+    k_t: float              # translational drag (N s/m)
+    g: float                # gravity (m/s²)
+    accel_tau_s: float      # the velocity → acceleration filter (s)
+    ratio_tau_s: float      # the low-pass of the mass estimate (s)
+    lo_kg: float            # the estimate's band around the model mass (kg)
+    hi_kg: float
+    min_den: float          # |â|² below this ((m/s²)²): free fall or nonsense, not learnt from
 
 
-class RateDisturbanceObserver:
-    """Filtered estimate of (measured − predicted) ṗ, q̇ in rad/s² (canonical body axes)."""
+class MassState(NamedTuple):
+    """What the mass estimator remembers."""
 
-    def __init__(self, tau_s: float = 0.004, limit_radps2: float = 500.0) -> None:
-        self.tau_s = tau_s
-        self.limit = limit_radps2
-        self.d_p = 0.0
-        self.d_q = 0.0
-        self._prev: tuple[float, float] | None = None
+    started: float                      # 1.0 once the filters hold a first sample
+    mass_kg: float                      # the estimate
+    v_lp: tuple[float, float, float]    # LP(v) (m/s)
+    phi_lp: tuple[float, float, float]  # LP(φ), φ = u_f b3 − k_t v (N)
+    updates: float                      # ticks the estimate learnt from
 
-    def reset(self) -> None:
-        self.d_p = self.d_q = 0.0
-        self._prev = None
 
-    def update(self, dt: float, p: float, q: float, pdot_pred: float, qdot_pred: float) -> None:
-        """Feed the rates measured now and the model's ṗ, q̇ for the command just applied."""
-        prev = self._prev
-        self._prev = (p, q)
-        if prev is None:
-            return
-        a = dt / (self.tau_s + dt)
-        lim = self.limit
-        self.d_p = clamp(dob_step(self.d_p, p, prev[0], pdot_pred, dt, a), -lim, lim)
-        self.d_q = clamp(dob_step(self.d_q, q, prev[1], qdot_pred, dt, a), -lim, lim)
+def mass_model(model_mass_kg: float, gravity_mps2: float, k_t: float, accel_tau_s: float = 0.2,
+               ratio_tau_s: float = 1.0, band: float = 0.2, min_excitation: float = 0.5
+               ) -> MassModel:
+    """The estimator of a model of ``model_mass_kg``: the estimate stays within ±``band`` of
+    it, and learns only while |â| ≥ ``min_excitation`` (m/s²)."""
+    return MassModel(k_t, gravity_mps2, accel_tau_s, ratio_tau_s,
+                     model_mass_kg * (1.0 - band), model_mass_kg * (1.0 + band),
+                     min_excitation ** 2)
+
+
+def mass_start(model_mass_kg: float) -> MassState:
+    """The estimator before its first sample: the model's mass."""
+    return MassState(0.0, model_mass_kg, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0)
+
+
+def mass_update(m: MassModel, s: MassState, dt: float, v: V3, thrust_n: float, b3: V3
+                ) -> MassState:
+    """Advance by ``dt`` s with the velocity ``v`` (m/s), the total thrust applied over the
+    last period (N) and the thrust axis b3: Newton's law along b3 regressed through the
+    same first-order filter on both sides (module doc)."""
+    vx, vy, vz = v
+    mass, updates = s.mass_kg, s.updates
+    if s.started:
+        lx, ly, lz, px, py, pz, num, den = mass_filters(dt, m.accel_tau_s, m.k_t, m.g, v,
+                                                        thrust_n, b3, s.v_lp, s.phi_lp)
+        if m.min_den <= den < math.inf:
+            m_inst = num / den
+            if -math.inf < m_inst < math.inf:
+                mass = clamp(mass_blend(mass, m_inst, dt, m.ratio_tau_s), m.lo_kg, m.hi_kg)
+                updates = updates + 1.0
+    else:       # the first sample: the filters start at it
+        bx, by, bz = b3
+        kt = m.k_t
+        lx, ly, lz = vx, vy, vz
+        px, py, pz = thrust_n * bx - kt * vx, thrust_n * by - kt * vy, thrust_n * bz - kt * vz
+    return MassState(1.0, mass, (lx, ly, lz), (px, py, pz), updates)
+
+
+class DobState(NamedTuple):
+    """What the rate disturbance observer remembers (canonical body axes)."""
+
+    d_p: float          # the estimated disturbance of ṗ, q̇ (rad/s²)
+    d_q: float
+    has_prev: float     # 1.0: the rates of the last tick are known
+    prev_p: float       # p, q of the last tick (rad/s)
+    prev_q: float
+
+
+DOB_START = DobState(0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+def dob_update(tau_s: float, limit_radps2: float, s: DobState, dt: float, p: float, q: float,
+               pdot_pred: float, qdot_pred: float) -> DobState:
+    """Feed the rates measured now (rad/s) and the model's ṗ, q̇ for the command just applied:
+    the measured − predicted rate derivative through a first-order filter of ``tau_s``,
+    clamped to ±``limit_radps2``."""
+    d_p, d_q = s.d_p, s.d_q
+    if s.has_prev:
+        a = dt / (tau_s + dt)
+        d_p = clamp(dob_step(d_p, p, s.prev_p, pdot_pred, dt, a), -limit_radps2, limit_radps2)
+        d_q = clamp(dob_step(d_q, q, s.prev_q, qdot_pred, dt, a), -limit_radps2, limit_radps2)
+    return DobState(d_p, d_q, 1.0, p, q)

@@ -1,72 +1,67 @@
 """The transverse-feedback-linearizing path-following law (paper §V), nominal and attacked.
 
-Structure used (docs/design.md, "The law"). With y the position and the dynamic extension x13 = u_f,
-x14 = u̇_f (eq. (9)), the fourth derivative of the position is affine in the
+Structure used (docs/design.md, "The law"). With y the position and the dynamic extension
+x13 = u_f, x14 = u̇_f (eq. (9)), the fourth derivative of the position is affine in the
 *virtual inputs* w = (ü_f, ṗ, q̇):
 
     y⁽⁴⁾ = a₀(x) + B₀(x) w,   B₀ = [b3/m, −(u_f/m) b2, (u_f/m) b1]      (bᵢ = R eᵢ)
 
-so for the virtual output φ(y) = (α1, α2, π) (eq. (14)),
-φ⁽⁴⁾ = L_f⁴φ + Dφ(y) B₀ w, where L_f⁴φ is φ⁽⁴⁾ evaluated with y⁽⁴⁾ = a₀ (computed with
-Taylor jets by the path library) and Dφ is φ's Jacobian. The paper's decoupling matrix
-(eq. (15)) is D = Dφ B₀ T with T the constant map from (u_d, u_r, u_q)
-to w; solving eq. (21) for w first and then for the rotor
-commands keeps one formula for both laws:
+so for the virtual output φ(y) = (α1, α2, π) (eq. (14)), φ⁽⁴⁾ = L_f⁴φ + Dφ(y) B₀ w, where
+L_f⁴φ is φ⁽⁴⁾ evaluated with y⁽⁴⁾ = a₀ (computed with Taylor jets by the path library) and Dφ
+is φ's Jacobian. The paper's decoupling matrix (eq. (15)) is D = Dφ B₀ T with T the constant
+map from (u_d, u_r, u_q) to w; solving eq. (21) for w first and then for the rotor commands
+keeps one formula for both laws:
 
 * attacked (rotor 2 in the canonical frame, see ``allocation``): τ_q from q̇, τ_r from ṗ via
-  eq. (6) (τ_p = (u_f − τ_r/d) l/2 − 2lA), f2 = A (the *estimated* attack thrust);
-  yaw is internal dynamics (μ1 = ψ, eq. (18)) — no Euler angle is used at all,
-  so the law has no trouble with a vehicle spinning at tens of rad/s;
+  eq. (6) (τ_p = (u_f − τ_r/d) l/2 − 2lA), f2 = A (the *estimated* attack thrust); yaw is
+  internal dynamics (μ1 = ψ, eq. (18)) — no Euler angle is used at all, so the law has no
+  trouble with a vehicle spinning at tens of rad/s;
 * nominal: τ_p, τ_q from ṗ, q̇, and τ_r from a second-order yaw loop (ψ held).
 
 The ξ and η loops are eqs. (23) and (24) with repeated poles. The robust variant adds the
 estimators of :mod:`estimators` and a one-time switch to faster poles once the vehicle has
 settled on the path.
 
-:meth:`TFLController.update` is the tick, one small step per idea, in the order the paper
-builds the law. The path's derivatives come from :class:`compiled.CompiledPathTracker`
-(straight-line code generated at start-up; ``compiled_path=False`` flies the reference jets,
-which give the same numbers, for the benchmark and the tests). With the compiled tracker the
-tick runs as the flight's one generated function (:mod:`fused`, the same operations; with
-motor lag up to the torques), which hands every fallback back to the steps.
+The tick is :func:`step.tfl_step`, explicit state and one pure step; :class:`TFLController`
+holds its state, turns its codes into words and runs the motor-lag inverse around it. On the
+compiled path tracker the step flies whole — compiled by the accelerator seam where it is
+built, else as Python; on the reference jets (``compiled_path=False``, a path whose code
+cannot be traced) the tracker's own virtual output stands in for :func:`step.project`.
 """
 
 from __future__ import annotations
 
 import math
+import weakref
 from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
 
+from tfl_mav.accel import native
 from tfl_mav.control.actuators import MotorLagInverter
-from tfl_mav.control.allocation import (
-    Bounds,
-    RotorFrame,
-    allocate_attacked,
-    allocate_nominal,
-    canonical_frame,
-)
-from tfl_mav.control.path.compiled import CompiledPathTracker, make_tracker
-from tfl_mav.control.path.jetcode import TraceError
+from tfl_mav.control.allocation import RotorFrame, canonical_frame
+from tfl_mav.control.path.compiled import CompiledPathTracker, _pi_kernel, make_tracker
 from tfl_mav.control.path.paths import Path
-from tfl_mav.control.path.tracker import PathTracker, VirtualOutput
-from tfl_mav.control.tfl.estimators import MassEstimator, RateDisturbanceObserver
-from tfl_mav.control.tfl.fused import build_fused
-from tfl_mav.control.tfl.fused_native import attach_native
-from tfl_mav.control.tfl.law_math import (
-    attacked_tau_r,
-    b0_inverse,
-    linear_rhs,
-    output_rows,
-    rate_prediction,
-    saturate,
-    solve3,
-    torques,
-    yaw_tau_r,
-)
+from tfl_mav.control.path.tracker import PathTracker
+from tfl_mav.control.tfl import step
+from tfl_mav.control.tfl.estimators import DOB_START, mass_model, mass_start
 from tfl_mav.control.tfl.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
-from tfl_mav.model.geometry import rotation_rows
+from tfl_mav.control.tfl.step import (
+    R_COND,
+    R_THRUST,
+    R_TUBE,
+    VO_FAILED,
+    VO_MARGIN,
+    VO_NO_ROOT,
+    VO_NONFINITE,
+    VO_OK,
+    Frame,
+    PathState,
+    TFLInputs,
+    TFLParams,
+    TFLState,
+)
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
 
@@ -74,11 +69,75 @@ __all__ = ["ControlOutput", "LawConfig", "ModelParams", "TFLController", "chain_
 
 _NOMINAL, _ATTACKED, _FALLBACK = Mode.NOMINAL, Mode.ATTACKED, Mode.FALLBACK  # enum lookups
 _new_output = tuple.__new__   # ControlOutput from its fields in order, no keyword parsing
+_ndarray = np.ndarray
+_VO_REFERENCE = -1.0          # the reference tracker's own reason (its text)
+_PATH_ERRORS = (ValueError, ZeroDivisionError, OverflowError)
 
 
 def _floats(x: Sequence[float]) -> Sequence[float]:
     """``x`` with Python floats (``tolist`` of a numpy array; other sequences as they are)."""
-    return x.tolist() if type(x) is np.ndarray else x
+    return x.tolist() if type(x) is _ndarray else x
+
+
+def law_params(model: ModelParams, cfg: LawConfig, dt_s: float,
+               tube_min: float) -> TFLParams:
+    """The step's constants for ``model`` and ``cfg`` at a control period of ``dt_s``."""
+    g = float(model.gravity_mps2)
+    return TFLParams(
+        float(dt_s), g, float(model.k_t), float(model.k_r), float(model.arm_m),
+        float(model.thrust_max_n), float(model.inertia_kgm2[2]), float(cfg.speed_mps),
+        float(cfg.min_thrust_n), float(cfg.max_cond), float(tube_min),
+        float(cfg.settle_alpha), float(cfg.settle_time_s),
+        float(cfg.robust and cfg.mass_estimator), float(cfg.robust and cfg.disturbance_observer),
+        float(cfg.robust and cfg.gain_switch),
+        mass_model(float(model.mass_kg), g, float(model.k_t)),
+        float(cfg.observer_tau_s), 500.0,
+        chain_gains(cfg.xi_pole, 4), chain_gains(cfg.eta_pole, 3),  # type: ignore[arg-type]
+        chain_gains(cfg.xi_pole_fine, 4), chain_gains(cfg.eta_pole_fine, 3),  # type: ignore[arg-type]
+        chain_gains(cfg.yaw_pole, 2))  # type: ignore[arg-type]
+
+
+def frame_numbers(model: ModelParams, frame: RotorFrame | None) -> Frame:
+    """The step's view of the canonical frame for ``frame`` (None: the body axes).
+
+    ``rot`` is a signed permutation, so b1' = ±b_m and p' = ±Ω_m: kept as (m, sign) pairs,
+    which gives R' = R rotᵀ and Ω' = rot Ω exactly, without 3×3 products."""
+    ix, iy, iz = (float(x) for x in model.inertia_kgm2)
+    if frame is None:
+        axes = ((0, 1.0), (1, 1.0))
+        ixyz, d = (ix, iy, iz), float(model.drag_thrust_ratio_m)
+        perm: tuple[int, ...] = (0, 1, 2, 3)
+    else:
+        picked = []
+        for row in frame.rot[:2]:
+            k = next(i for i, v in enumerate(row) if v)
+            picked.append((k, float(row[k])))
+        axes = (picked[0], picked[1])
+        ixyz = (iy, ix, iz) if frame.swap_xy else (ix, iy, iz)
+        d = model.drag_thrust_ratio_m * frame.d_sign
+        perm = frame.perm
+    (m1, s1), (m2, s2) = axes
+    inv = tuple(float(perm.index(j)) for j in range(4))
+    return Frame(0.0 if frame is None else 1.0, float(m1), s1, float(m2), s2, ixyz, d,
+                 tuple(float(i) for i in perm), inv,  # type: ignore[arg-type]
+                 2 * model.inertia_kgm2[0] * d)
+
+
+def initial_state(model: ModelParams) -> TFLState:
+    """The law before its first tick: u_f at the model's hover thrust, nothing learnt."""
+    hover = model.mass_kg * model.gravity_mps2
+    return TFLState(hover, 0.0, mass_start(float(model.mass_kg)), DOB_START, 0.0, (0.0, 0.0),
+                    (hover / 4.0,) * 4, 0.0, 0.0, 0.0, 0.0,
+                    PathState(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, (0.0,) * 18))
+
+
+def as_state(s: Any) -> TFLState:
+    """A state the compiled step returned (plain nested tuples) as the NamedTuples."""
+    if type(s) is TFLState:
+        return s
+    x13, x14, mass, dob, has_pred, pred, last_out, has_psi, psi_ref, fine, settled, ps = s
+    return TFLState(x13, x14, step.MassState(*mass), step.DobState(*dob), has_pred, pred,
+                    last_out, has_psi, psi_ref, fine, settled, PathState(*ps))
 
 
 class TFLController:
@@ -95,108 +154,130 @@ class TFLController:
         self.model = model
         self.cfg = cfg
         self.dt = dt_s
+        self.tracker: PathTracker
         self.tracker, self.path_eval = make_tracker(path, compiled_path)
-        self.mass_kg = model.mass_kg
-        self.x13 = model.mass_kg * model.gravity_mps2   # u_f
-        self.x14 = 0.0                                  # u̇_f
+        self.params = law_params(model, cfg, dt_s, self.tracker.min_tube_margin)
+        self.state: Any = initial_state(model)
         self.attacked_rotor = 0
         self.attack_estimate_n = 0.0
         self.frame: RotorFrame | None = None
-        self.psi_ref: float | None = None
-        self.fine = False
-        self._settled_s = 0.0
+        self._frame = frame_numbers(model, None)
         self.saturation_count = 0
         self.fallback_count = 0
+        self.lag_clamped_count = 0
         self.ticks = 0
-        self.mass_est = MassEstimator(model.mass_kg, model.gravity_mps2, model.k_t)
-        self.dob = RateDisturbanceObserver(cfg.observer_tau_s)
-        self._pred: tuple[float, float] | None = None   # model ṗ, q̇ for the last command
-        self._last_out: list[float] = [model.mass_kg * model.gravity_mps2 / 4.0] * 4
         self.lag_inverter = (MotorLagInverter(model.k_f, model.thrust_max_n,
                                               model.motor_time_constant_s, dt_s)
                              if model.motor_time_constant_s > 0.0 else None)
-        self.lag_clamped_count = 0
-        self._use_mass = cfg.robust and cfg.mass_estimator
-        self._use_dob = cfg.robust and cfg.disturbance_observer
-        self._use_switch = cfg.robust and cfg.gain_switch
-        self._set_frame(None)
-        self._set_gains(fine=False)
-        # The generated tick (:mod:`fused`), made for this tracker only.
-        self._fused_for: PathTracker | None = None
-        self._fused: Callable[..., tuple[Any, ...]] | None = None
+        fmax = float(model.thrust_max_n)
+        self._free = ((0.0, 0.0, 0.0, 0.0), (fmax, fmax, fmax, fmax))
+        self._failure = ""          # the last path evaluation error (VO_FAILED's words)
+        self._vo_reason = ""        # the reference tracker's words
+        # The step on this path's kernels; compiled by the seam where it is built.
+        self._linked_for: PathTracker | None = None
+        self._step: Callable[..., Any] = step.tfl_step
+        self._core: Callable[..., Any] | None = None
         if type(self.tracker) is CompiledPathTracker:
-            try:
-                fused = build_fused(model, self.tracker.kernels, dt_s=dt_s,
-                                    mass_est=self.mass_est, dob=self.dob)
-                self._fused = fused.fn
-                self._fused_for = self.tracker
-                attach_native(self, fused)      # the compiled core, when there is one
-            except (TraceError, ArithmeticError, ValueError):
-                pass
+            k = self.tracker.kernels
+            ns = step.linked(k.sigma2.fn, k.sigma5.fn, k.s4.fn, _pi_kernel().fn)
+            self._step = ns["tfl_step"]
+            self._linked_for = self.tracker
+            self._obtain_core()
 
-    # ------------------------------------------------------------------ configuration
-    def _set_gains(self, fine: bool) -> None:
-        c = self.cfg
-        self.fine = fine
-        self.k_xi = chain_gains(c.xi_pole_fine if fine else c.xi_pole, 4)
-        self.k_eta = chain_gains(c.eta_pole_fine if fine else c.eta_pole, 3)
-        self.k_yaw = chain_gains(c.yaw_pole, 2)
+    def _obtain_core(self) -> None:
+        ref = weakref.ref(self)
 
-    def _set_frame(self, frame: RotorFrame | None) -> None:
-        """Canonical body axes for ``frame`` (None: the body axes themselves).
+        def ready(core: Callable[..., Any]) -> None:
+            target = ref()
+            if target is not None:
+                target._core = core         # one reference store: atomic under the GIL
 
-        ``rot`` is a signed permutation, so b1' = ±b_m and p' = ±Ω_m: kept as (m, sign)
-        pairs, which gives R' = R rotᵀ and Ω' = rot Ω exactly, without 3×3 products.
-        """
-        self.frame = frame
-        m = self.model
-        ix, iy, iz = m.inertia_kgm2
-        # Physical rotor of canonical rotor i (perm) and canonical index of physical rotor j.
-        self._perm = frame.perm if frame is not None else (0, 1, 2, 3)
-        self._inv_perm = tuple(self._perm.index(j) for j in range(4))
-        if frame is None:
-            self._axes = ((0, 1.0), (1, 1.0))
-            self._ixyz = (ix, iy, iz)
-            self._d = m.drag_thrust_ratio_m
-            self._set_mu2()
-            return
-        axes = []
-        for row in frame.rot[:2]:
-            k = next(i for i, v in enumerate(row) if v)
-            axes.append((k, float(row[k])))
-        self._axes = (axes[0], axes[1])
-        self._ixyz = (iy, ix, iz) if frame.swap_xy else (ix, iy, iz)
-        self._d = m.drag_thrust_ratio_m * frame.d_sign
-        self._set_mu2()
+        example = (self.params, self.state, self._inputs((0.0,) * 3, (0.0,) * 3,
+                                                         (1.0, 0.0, 0.0, 0.0), (0.0,) * 3,
+                                                         *self._free, 0.0, 0.0, 0.0))
+        core = native.obtain_function(self._step, example, ready)
+        if core is not None:
+            ready(core)
 
-    def _set_mu2(self) -> None:
-        """μ2 = −p/I_z − l r/(2 I_x d) (eq. (18)): its constants, once per frame."""
-        m = self.model
-        self._mu2 = (m.inertia_kgm2[2], m.arm_m, 2 * m.inertia_kgm2[0] * self._d)
+    def _inputs(self, y: Any, v: Any, quat: Any, rates: Any, lo: Any, hi: Any,
+                lam_start: float, ok: float, failed: float) -> TFLInputs:
+        return TFLInputs(y, v, quat, rates, self._frame, self.attack_estimate_n, lo, hi,
+                         lam_start, ok, failed)
 
+    # ------------------------------------------------------------------ the state
     @property
     def core(self) -> str:
-        """What flies the law's arithmetic: ``compiled`` (:mod:`native`), ``python`` (the
-        generated tick, :mod:`fused`) or ``step-by-step`` (a path that cannot be fused)."""
-        if self._fused is None:
-            return "step-by-step"
-        namespace = getattr(self._fused, "__globals__", {})
-        return "compiled" if namespace.get("_core") is not None else "python"
+        """What flies the law's arithmetic: ``compiled`` (the seam's build of the step),
+        ``python`` (the step itself) or ``reference jets`` (the reference tracker)."""
+        if self._linked_for is not self.tracker:
+            return "reference jets"
+        return "compiled" if self._core is not None else "python"
 
+    def _set(self, **fields: Any) -> None:
+        self.state = as_state(self.state)._replace(**fields)
+
+    @property
+    def x13(self) -> float:
+        """u_f (N), the dynamic extension's first state (eq. (9))."""
+        return float(self.state[0])
+
+    @x13.setter
+    def x13(self, value: float) -> None:
+        self._set(x13=value)
+
+    @property
+    def x14(self) -> float:
+        """u̇_f (N/s), the dynamic extension's second state (eq. (9))."""
+        return float(self.state[1])
+
+    @x14.setter
+    def x14(self, value: float) -> None:
+        self._set(x14=value)
+
+    @property
+    def mass_kg(self) -> float:
+        """The mass the law flies with (kg): the estimate when the estimator runs."""
+        return float(self.state[2][1])
+
+    @property
+    def fine(self) -> bool:
+        """True once the law has switched to the fine ξ, η poles."""
+        return bool(self.state[9])
+
+    @property
+    def k_xi(self) -> tuple[float, ...]:
+        """The ξ chain's gains now (eq. (23))."""
+        return self.params.k_xi_fine if self.fine else self.params.k_xi
+
+    @property
+    def k_eta(self) -> tuple[float, ...]:
+        """The η chain's gains now (eq. (24))."""
+        return self.params.k_eta_fine if self.fine else self.params.k_eta
+
+    @property
+    def lam(self) -> float | None:
+        """The path parameter of the closest point (None before the first projection)."""
+        if self._linked_for is not self.tracker:
+            return self.tracker.lam
+        ps = self.state[11]
+        return float(ps[1]) if ps[0] else None
+
+    # ------------------------------------------------------------------ configuration
     def resume(self, thrust_n: Sequence[float], lam: float | None = None) -> None:
         """Fly again, bumpless, from a state another law flew: the dynamic extension starts at
         the thrust now applied (x13 = Σ f, x14 = 0, eq. (9)), the rate observer, the ṗ, q̇
-        prediction and the lag inverse start afresh, and the tracker's path parameter moves
-        to ``lam`` (the other law's projection; None keeps its own)."""
-        self.x13 = sum(thrust_n)
-        self.x14 = 0.0
-        self.dob.reset()
-        self._pred = None
-        self._last_out = list(thrust_n)
+        prediction and the lag inverse start afresh, and the path parameter moves to ``lam``
+        (the other law's projection; None keeps its own)."""
+        s = as_state(self.state)
+        ps = s.path
+        if lam is not None:
+            ps = ps._replace(has_lam=1.0, lam=lam)
+            if self._linked_for is not self.tracker:
+                self.tracker.lam = lam
+        self.state = s._replace(x13=sum(thrust_n), x14=0.0, dob=DOB_START, has_pred=0.0,
+                                last_out=tuple(thrust_n), path=ps)
         if self.lag_inverter is not None:
             self.lag_inverter.reset()
-        if lam is not None:
-            self.tracker.lam = lam
 
     def set_attack(self, rotor: int, estimate_n: float) -> None:
         """Declare rotor (1-4) attacked with the given thrust estimate (N); 0 = none.
@@ -212,12 +293,12 @@ class TFLController:
         estimate_n = min(max(estimate_n, 0.0), self.model.thrust_max_n)
         if rotor != self.attacked_rotor:
             self.attacked_rotor = rotor
-            self._set_frame(canonical_frame(rotor) if rotor else None)
-            self.dob.reset()
-            self._pred = None
+            self.frame = canonical_frame(rotor) if rotor else None
+            self._frame = frame_numbers(self.model, self.frame)
+            self._set(dob=DOB_START, has_pred=0.0)
             if self.lag_inverter is not None:
                 self.lag_inverter.reset()
-        self.attack_estimate_n = estimate_n
+        self.attack_estimate_n = float(estimate_n)
 
     # ------------------------------------------------------------------ the law
     def update(self, s: State,
@@ -225,234 +306,104 @@ class TFLController:
         """Compute the rotor thrusts (N) for this control period from the measured state
         and, with motor lag, the measured rotor speeds ω (rad/s, from ESC rpm)."""
         self.ticks += 1
-        trk = self.tracker
-        # The flight's generated tick (:mod:`fused`) when it can run; it hands back to the
-        # step-by-step tick after the prelude for every fallback and failure.
-        k = None
-        if trk is self._fused_for and trk.lam is not None:
-            k = self._fused(self, trk, s)  # type: ignore[misc]
-            if type(k) is ControlOutput:    # the whole tick, fused
-                return k
-        reason = ""
-        if k is None or k[0] is None:
-            y, v, psi, r2, rates, b1, b2, b3, pc, qc, rc, mass = \
-                self._prelude(s) if k is None else k[1:]
-            core, reason = self._stepwise_core(y, v, b1, b2, b3, pc, qc, rc, mass)
-            udd, qdot, tau_p, tau_q, cond, xi, eta, lam, distance = core
-        else:
-            udd, qdot, tau_p, tau_q, cond, xi, eta, lam, distance, psi, r2, rates, pc, qc, rc, \
-                mass = k
-        uf, duf = self.x13, self.x14
-        bounds = (self.lag_inverter.reachable(rotor_speed_radps)
-                  if self.lag_inverter is not None else None)
-        if self.frame is not None:
-            f, raw = self._allocate_attacked(uf, tau_p, tau_q, bounds)
-            mode = _ATTACKED
-        else:
-            f, raw = self._allocate_nominal(psi, r2, uf, tau_p, tau_q, qdot, pc, qc, rc, bounds)
-            mode = _NOMINAL
-        if reason:
-            mode = _FALLBACK
-        command, sat, applied_uf = self._saturate_and_apply(f, raw, pc, qc, rc)
-        self._advance_extension(applied_uf, uf, duf, udd)
-        self._settle(xi[0][0], xi[1][0], reason)
-        iz, arm, den = self._mu2
-        # ControlOutput's fields in order, built as the tuple it is (a keyword call of a
-        # named tuple costs more than a microsecond a tick).
-        return _new_output(ControlOutput, (
-            command, mode, sat, xi, eta,
-            (psi, -rates[0] / iz - arm * rates[2] / den),
-            distance, lam, cond, uf, mass, (self.dob.d_p, self.dob.d_q), self.fine, reason))
-
-    # ------------------------------------------------------------------ the steps
-    def _prelude(self, s: State) -> tuple[Any, ...]:
-        """State as floats, attitude, canonical axes and rates, estimators: (y, v, ψ, R's
-        last row, rates, b1, b2, b3, p, q, r, mass)."""
         # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
         y, v, quat, rates = (_floats(s.position_m), _floats(s.velocity_mps),
                              _floats(s.quaternion_wxyz), _floats(s.body_rates_radps))
-        R = rotation_rows(quat)
-        psi = math.atan2(R[1][0], R[0][0])
-        if self.psi_ref is None:
-            self.psi_ref = psi
-        b1, b2, b3, pc, qc, rc = self._canonical_axes(R, rates)
-        mass = self._update_estimators(v, b3, pc, qc)
-        return y, v, psi, R[2], rates, b1, b2, b3, pc, qc, rc, mass
-
-    def _stepwise_core(self, y: Sequence[float], v: Sequence[float], b1: Sequence[float],
-                       b2: Sequence[float], b3: Sequence[float], pc: float, qc: float,
-                       rc: float, mass: float) -> tuple[tuple[Any, ...], str]:
-        """Model rows, virtual output, decoupling solve and torques, one step at a time
-        (any tracker; every fallback). Returns (ü_f, q̇, τ_p, τ_q, cond, ξ rows, η, λ,
-        distance) and the fallback reason ("" if none)."""
-        uf, duf = self.x13, self.x14
-        vo = self.tracker.virtual_output(self._output_taylor(y, v, b1, b2, b3, pc, qc, rc,
-                                                             mass))
-        reason, udd, pdot, qdot, cond = self._decoupling_solve(vo, b1, b2, b3, mass, uf, duf,
-                                                               pc, qc)
-        tau_p, tau_q = self._torques(pdot, qdot, pc, qc, rc)
-        xi1, xi2, eta = vo.xi1, vo.xi2, vo.eta
-        return (udd, qdot, tau_p, tau_q, cond,
-                ((xi1[0], xi1[1], xi1[2], xi1[3]), (xi2[0], xi2[1], xi2[2], xi2[3])),
-                (eta[0], eta[1], eta[2], eta[3]), vo.lam, vo.distance_m), reason
-
-    def _canonical_axes(self, R: list[list[float]], rates: Sequence[float]
-                        ) -> tuple[tuple[float, float, float], tuple[float, float, float],
-                                   tuple[float, float, float], float, float, float]:
-        """Body axes b1, b2, b3 (columns of R, eq. (1)) and rates (p, q, r), relabelled to
-        the canonical frame of the attacked rotor (:mod:`allocation`)."""
-        (m1, s1), (m2, s2) = self._axes
-        r0, r1, r2 = R
-        b1 = (s1 * r0[m1], s1 * r1[m1], s1 * r2[m1])
-        b2 = (s2 * r0[m2], s2 * r1[m2], s2 * r2[m2])
-        b3 = (r0[2], r1[2], r2[2])
-        return b1, b2, b3, s1 * rates[m1], s2 * rates[m2], rates[2]
-
-    def _update_estimators(self, v: Sequence[float], b3: Sequence[float], pc: float,
-                           qc: float) -> float:
-        """Robust add-ons fed with what was applied over the last period; returns the mass
-        (kg) the law uses this tick."""
-        if self._use_mass:
-            lo = self._last_out
-            self.mass_kg = self.mass_est.update(self.dt, v, lo[0] + lo[1] + lo[2] + lo[3], b3)
-        if self._use_dob and self._pred is not None:
-            self.dob.update(self.dt, pc, qc, self._pred[0], self._pred[1])
-        return self.mass_kg
-
-    def _output_taylor(self, y: Sequence[float], v: Sequence[float], b1: Sequence[float],
-                       b2: Sequence[float], b3: Sequence[float], pc: float, qc: float,
-                       rc: float, mass: float) -> tuple[tuple[float, ...], ...]:
-        """Taylor rows of the output y = x_q (eq. (5)) from the model (eqs. (3), (9)):
-        :func:`law_math.output_rows`."""
-        m = self.model
-        return output_rows(y, v, b1, b2, b3, pc, qc, rc, self.x13, self.x14, mass, m.k_t,
-                           m.gravity_mps2)
-
-    def _decoupling_solve(self, vo: VirtualOutput, b1: Sequence[float], b2: Sequence[float],
-                          b3: Sequence[float], mass: float, uf: float, duf: float,
-                          pc: float, qc: float) -> tuple[str, float, float, float, float]:
-        """The regular feedback (eq. (21)): w = (ü_f, ṗ, q̇) with Dφ B₀ w = v − L_f⁴φ, where
-        v are the linear ξ, η controllers (eqs. (23), (24)) and Dφ B₀ is the decoupling
-        matrix (eq. (15)). Returns (fallback reason or "", ü_f, ṗ, q̇, cond Dφ)."""
-        cfg = self.cfg
-        xi1, xi2, eta = vo.xi1, vo.xi2, vo.eta
-        kx, ke = self.k_xi, self.k_eta
-        rhs = linear_rhs(xi1, xi2, eta, kx, ke, cfg.speed_mps)
-        reason = ""
-        if not vo.in_tube:
-            reason = f"left the projection tube: {vo.reason}"
-        elif uf < cfg.min_thrust_n:
-            reason = f"total thrust {uf:.2f} N too small: D(x) singular"
-        # First Dφ z = rhs (z = B₀ w, the commanded snap) …
-        z, rel = solve3(vo.jacobian, rhs)
-        cond = 1.0 / rel if rel > 0 else math.inf
-        if not reason and cond > cfg.max_cond:
-            reason = f"decoupling matrix ill-conditioned (cond {cond:.1e})"
-        # … then B₀ w = z with B₀ = [b3/m, −(u_f/m) b2, (u_f/m) b1]: orthogonal columns.
-        if uf > 0:
-            udd, pdot, qdot = b0_inverse(z, b1, b2, b3, mass, uf)
+        lag = self.lag_inverter
+        lo, hi = lag.reachable(rotor_speed_radps) if lag is not None else self._free
+        st = self.state
+        trk = self.tracker
+        if self._linked_for is trk:
+            lam_start, ok, failed = 0.0, 0.0, 0.0
+            if not st[11][0]:               # no λ yet: a global search first
+                try:
+                    lam_start, found = trk._newton(y, trk._global_lam(y))
+                    ok = 1.0 if found else 0.0
+                except _PATH_ERRORS as exc:
+                    failed, self._failure = 1.0, str(exc)
+            u = TFLInputs(y, v, quat, rates, self._frame, self.attack_estimate_n, lo, hi,
+                          lam_start, ok, failed)
+            core = self._core
+            r = core(self.params, st, u) if core is not None else None
+            if r is None:       # not compiled, or the compiled step declined: Python decides
+                st = as_state(st)
+                try:
+                    r = self._step(self.params, st, u)
+                except _PATH_ERRORS as exc:
+                    self._failure = str(exc)
+                    r = self._step(self.params, st, u._replace(path_failed=1.0))
         else:
-            udd, pdot, qdot = mass * (z[0] * b3[0] + z[1] * b3[1] + z[2] * b3[2]), 0.0, 0.0
-        if not reason and not (math.isfinite(udd) and math.isfinite(pdot)
-                               and math.isfinite(qdot)):
-            reason = "non-finite control (numerical failure)"
+            r = self._reference_tick(as_state(st), y, v, quat, rates, lo, hi)
+        new, out = r
+        f, attacked, sat, xi, eta, mu, distance, lam, cond, uf, mass, dob, fine, reason, \
+            code, margin, canon_rates, sat_any = out
+        if sat_any:
+            self.saturation_count += 1
+        command = list(f)
+        if lag is not None:
+            command, new = self._invert_lag(f, new, canon_rates)
+        self.state = new
+        text = ""
         if reason:
             self.fallback_count += 1
-            udd, pdot, qdot = -4.0 * duf, -20.0 * pc, -20.0 * qc
-        if self._use_dob:
-            pdot -= self.dob.d_p
-            qdot -= self.dob.d_q
-        return reason, udd, pdot, qdot, cond
+            mode = _FALLBACK
+            text = self._reason_text(reason, code, distance, margin, uf, cond)
+        else:
+            mode = _ATTACKED if attacked else _NOMINAL
+        # ControlOutput's fields in order, built as the tuple it is (a keyword call of a
+        # named tuple costs more than a microsecond a tick).
+        return _new_output(ControlOutput, (
+            command, mode, [sat[0] != 0.0, sat[1] != 0.0, sat[2] != 0.0, sat[3] != 0.0],
+            xi, eta, mu, distance, lam, cond, uf, mass, dob, fine != 0.0, text))
 
-    def _torques(self, pdot: float, qdot: float, pc: float, qc: float, rc: float
-                 ) -> tuple[float, float]:
-        """τ_p, τ_q for the demanded ṗ, q̇ by Euler's equation with rate damping (eq. (3))."""
-        ix, iy, iz = self._ixyz
-        return torques(pdot, qdot, pc, qc, rc, ix, iy, iz, self.model.k_r)
+    def _reference_tick(self, st: TFLState, y: Any, v: Any, quat: Any, rates: Any, lo: Any,
+                        hi: Any) -> tuple[Any, Any]:
+        """The step with the reference tracker's virtual output for :func:`step.project`."""
+        u = TFLInputs(y, v, quat, rates, self._frame, self.attack_estimate_n, lo, hi, 0.0,
+                      0.0, 0.0)
+        seen = step.observe(self.params, st, u)
+        vo = self.tracker.virtual_output(seen[9])
+        self._vo_reason = vo.reason
+        packed = (VO_OK if vo.in_tube else _VO_REFERENCE, vo.xi1, vo.xi2, vo.eta,
+                  vo.jacobian, vo.lam, vo.distance_m, 0.0)
+        return step.command(self.params, st, u, seen, packed, st.path)
 
-    def _allocate_attacked(self, uf: float, tau_p: float, tau_q: float,
-                           bounds: Bounds | None) -> tuple[list[float], list[float]]:
-        """Rotor thrusts with f₂ = A (eq. (6)): τ_r from τ_p, rotor order restored.
-        Returns (feasible thrusts, unbounded thrusts) in physical order."""
-        m = self.model
-        d = self._d
-        a_n = self.attack_estimate_n
-        arm = m.arm_m
-        tau_r = attacked_tau_r(uf, tau_p, a_n, arm, d)   # eq. (6)
-        raw = allocate_attacked(uf, tau_q, tau_r, a_n, arm, d)
-        perm = self._perm
-        cb = None if bounds is None else tuple([b[phys] for phys in perm] for b in bounds)
-        f = allocate_attacked(uf, tau_q, tau_r, a_n, arm, d, m.thrust_max_n,
-                              cb)  # type: ignore[arg-type]
-        i0, i1, i2, i3 = self._inv_perm
-        if i0:   # not rotor 2 itself: back to the physical order
-            f = [f[i0], f[i1], f[i2], f[i3]]
-            raw = [raw[i0], raw[i1], raw[i2], raw[i3]]
-        return f, raw
+    def _invert_lag(self, f: Sequence[float], new: Any, canon_rates: Any
+                    ) -> tuple[list[float], Any]:
+        """The motor-lag inverse of the step's thrusts (:mod:`actuators`): the command to
+        send, and the state with the ṗ, q̇ prediction and the last output made from what
+        the rotors will deliver."""
+        assert self.lag_inverter is not None
+        inv = self.lag_inverter.invert(f)
+        command, delivered = inv.command_n, inv.expected_mean_n
+        if self.frame is not None:
+            p1 = self.frame.perm[1]
+            command[p1] = f[p1]
+            delivered[p1] = f[p1]
+        if any(inv.clamped):
+            self.lag_clamped_count += 1
+        pred = step.predict(self.params, self._frame, tuple(delivered), canon_rates)
+        new = as_state(new)._replace(pred=pred, last_out=tuple(delivered))
+        return command, new
 
-    def _allocate_nominal(self, psi_e: float, r2: Sequence[float], uf: float, tau_p: float,
-                          tau_q: float, qdot: float, pc: float, qc: float, rc: float,
-                          bounds: Bounds | None) -> tuple[list[float], list[float]]:
-        """All four rotors (inverse of eq. (4)); τ_r from the yaw loop ψ̈ = −k₁ψ̇ −
-        k₀(ψ − ψ_ref), exact through the Euler chart (eq. (2)). (feasible, unbounded)."""
-        m = self.model
-        assert self.psi_ref is not None
-        tau_r = yaw_tau_r(r2, psi_e, self.psi_ref, pc, qc, rc, qdot, self.k_yaw, self._ixyz,
-                          m.k_r)
-        d = self._d
-        raw = allocate_nominal(uf, tau_p, tau_q, tau_r, m.arm_m, d)
-        f = allocate_nominal(uf, tau_p, tau_q, tau_r, m.arm_m, d, m.thrust_max_n, bounds)
-        return f, raw
-
-    def _saturate_and_apply(self, f: list[float], raw: list[float], pc: float, qc: float,
-                            rc: float) -> tuple[list[float], list[bool], float]:
-        """Clip to [0, f_max], give the attacked rotor what it is (not ours to command),
-        invert the motor lag, and predict ṗ, q̇ for the observer from what the rotors
-        will deliver. Returns (command, saturated, applied u_f)."""
-        m = self.model
-        fmax = m.thrust_max_n
-        f, sat = saturate(f, raw, self._last_out, fmax)
-        frame = self.frame
-        p0, p1, p2, p3 = self._perm
-        if frame is not None:
-            f[p1] = self.attack_estimate_n
-        if sat[0] or sat[1] or sat[2] or sat[3]:
-            self.saturation_count += 1
-        applied_uf = f[0] + f[1] + f[2] + f[3]
-        command = delivered = f
-        if self.lag_inverter is not None:
-            inv = self.lag_inverter.invert(f)
-            command, delivered = inv.command_n, inv.expected_mean_n
-            if frame is not None:
-                command[p1] = f[p1]
-                delivered[p1] = f[p1]
-            if any(inv.clamped):
-                self.lag_clamped_count += 1
-        ix, iy, iz = self._ixyz
-        self._pred = rate_prediction(delivered[p0], delivered[p1], delivered[p2], delivered[p3],
-                                     pc, qc, rc, ix, iy, iz, m.k_r, m.arm_m)
-        self._last_out = delivered
-        return command, sat, applied_uf
-
-    def _advance_extension(self, applied_uf: float, uf: float, duf: float,
-                           udd: float) -> None:
-        """Dynamic extension x13 = u_f, x14 = u̇_f, u_d = ü_f (eq. (9)), kept consistent
-        with the thrust actually applied (anti-windup at the limits)."""
-        dt = self.dt
-        if abs(applied_uf - uf) > 1e-9:
-            self.x13 = applied_uf
-            if (applied_uf - uf) * duf < 0:
-                self.x14 = 0.0  # anti-windup: stop pushing into the limit
-        self.x13 += dt * self.x14 + 0.5 * dt * dt * udd
-        self.x14 += dt * udd
-
-    def _settle(self, alpha1: float, alpha2: float, reason: str) -> None:
-        """The robust law's one-time switch to the fine ξ, η poles once |α| has stayed
-        below ``settle_alpha`` for ``settle_time_s``."""
-        cfg = self.cfg
-        if self._use_switch and not self.fine and not reason:
-            alpha_norm = math.hypot(alpha1, alpha2)
-            self._settled_s = self._settled_s + self.dt if alpha_norm < cfg.settle_alpha \
-                else 0.0
-            if self._settled_s >= cfg.settle_time_s:
-                self._set_gains(fine=True)
+    def _reason_text(self, reason: float, code: float, distance: float, margin: float,
+                     uf: float, cond: float) -> str:
+        """Why the law fell back, in words."""
+        if reason == R_TUBE:
+            if code == VO_NONFINITE:
+                why = "non-finite state"
+            elif code == VO_NO_ROOT:
+                why = "closest-point search did not converge"
+            elif code == VO_MARGIN:
+                why = (f"distance {distance:.3f} m near the radius of curvature "
+                       f"(projection margin {margin:.2f})")
+            elif code == VO_FAILED:
+                why = f"path evaluation failed: {self._failure}"
+            else:
+                why = self._vo_reason
+            return f"left the projection tube: {why}"
+        if reason == R_THRUST:
+            return f"total thrust {uf:.2f} N too small: D(x) singular"
+        if reason == R_COND:
+            return f"decoupling matrix ill-conditioned (cond {cond:.1e})"
+        return "non-finite control (numerical failure)"

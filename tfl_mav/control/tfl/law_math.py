@@ -1,9 +1,8 @@
 """The TFL law's arithmetic (paper §V) as plain functions of their arguments.
 
-Written as arithmetic on whatever it is given, so that the same code runs on floats in the
-law's step-by-step tick (:mod:`law`) and on traced symbols when :mod:`fused` generates the
-one-call tick of a flight: both perform the same floating-point operations in the same
-order. Branches (a singular matrix, u_f ≤ 0) stay with the callers.
+Plain functions of floats and tuples, the pieces :func:`tfl_mav.control.tfl.step.tfl_step`
+is made of; the accelerator seam inlines them into the compiled tick, the same operations in
+the same order.
 """
 
 from __future__ import annotations
@@ -95,14 +94,16 @@ def cramer(A: Sequence[V3], b: V3, co0: Any, co1: Any, co2: Any, inv: Any
     return x0, x1, x2
 
 
-def solve3(A: Sequence[Sequence[float]], b: Sequence[float]) -> tuple[list[float], float]:
+def solve3(A: Sequence[Sequence[float]], b: Sequence[float]
+           ) -> tuple[tuple[float, float, float], float]:
     """Solve a 3×3 system by Cramer's rule; returns (x, |det| relative to the row norms),
-    x = 0 when that is below 1e-12 (floats only: the fused tick branches itself)."""
+    x = 0 when that is below 1e-12."""
     co0, co1, co2, det, norms = cofactors(A, math.sqrt)
     rel = abs(det) / norms if norms > 0 else 0.0
-    if rel < 1e-12:
-        return [0.0, 0.0, 0.0], rel
-    return list(cramer(A, b, co0, co1, co2, 1.0 / det)), rel
+    x = (0.0, 0.0, 0.0)
+    if not rel < 1e-12:
+        x = cramer(A, b, co0, co1, co2, 1.0 / det)
+    return x, rel
 
 
 def b0_inverse(z: V3, b1: V3, b2: V3, b3: V3, mass: Any, uf: Any) -> tuple[Any, Any, Any]:
