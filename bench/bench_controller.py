@@ -7,11 +7,11 @@ offline loop against a plain numpy RK4 physics-only loop — all in the same run
 
 1. ``TFLController.update`` alone, median and p90 µs over a closed-loop flight (so the
    projection is warm-started as in real use), with the path evaluated by the reference jets
-   (``compiled_path=False``: the jets evaluated generically) and by the compiled tracker (default:
-   the fused tick: without motor lag the whole tick as one generated call, ``fused``).
-2. Where an update's time goes, per step of :meth:`TFLController.update` (exclusive µs per
-   tick, by wrapping each step with a timer: absolute numbers include the wrapper's cost,
-   use the shares).
+   (``compiled_path=False``: the jets evaluated generically) and on the path's kernels (the
+   pure step, :mod:`tfl_mav.control.tfl.step`), in Python and compiled by the seam.
+2. Where an update's time goes, per piece of the step (``observe``, ``project``,
+   ``command``; exclusive µs per tick, by wrapping each with a timer: absolute numbers
+   include the wrapper's cost, use the shares); compiled, the step is one call.
 3. :meth:`FlightComputer.step` (detector + which law flies + the law + the command) timed
    tick by tick over a whole offline flight of the scenario (``fly_offline`` with the
    detector; the step wrapped from here, the runner untouched): median and p90 µs, by the
@@ -63,8 +63,7 @@ from tfl_mav.control import actuators
 from tfl_mav.control.path import compiled, tracker
 from tfl_mav.control.path.compiled import compile_path
 from tfl_mav.control.safe import recovery
-from tfl_mav.control.tfl import law
-from tfl_mav.control.tfl.fused import build_fused
+from tfl_mav.control.tfl import law, step
 from tfl_mav.control.tfl.law import TFLController
 from tfl_mav.controller.flight_computer import FlightComputer
 from tfl_mav.harness import offline
@@ -78,7 +77,7 @@ _cpu = time.thread_time
 
 def _controller(sc: Scenario, compiled_path: bool, core: str | None = None) -> TFLController:
     """The scenario's law: on the reference jets (``compiled_path=False``), else on the
-    generated tick with its core in Python (``core="python"``) or compiled (``"compiled"``;
+    step in Python (``core="python"``) or compiled (``"compiled"``;
     None: whatever ``--core`` chose)."""
     saved = os.environ.get("TFL_MAV_NATIVE")
     if core is not None:
@@ -99,13 +98,12 @@ def _controller(sc: Scenario, compiled_path: bool, core: str | None = None) -> T
 
 
 def time_law(sc: Scenario, ticks: int, compiled_path: bool, core: str | None = None,
-             wrap_tick: Callable[[Callable[..., Any]], Callable[..., Any]] | None = None
-             ) -> list[float]:
+             wrap_ctrl: Callable[[TFLController], None] | None = None) -> list[float]:
     """Seconds per ``update`` over a closed-loop flight of ``ticks`` control periods
-    (``wrap_tick``: wraps the controller's generated tick, whichever core it flies)."""
+    (``wrap_ctrl(ctrl)``: wraps the controller's pieces with timers before it flies)."""
     sim, ctrl = Simulator(sc), _controller(sc, compiled_path, core)
-    if wrap_tick is not None and ctrl._fused is not None:
-        ctrl._fused = wrap_tick(ctrl._fused)
+    if wrap_ctrl is not None:
+        wrap_ctrl(ctrl)
     out_s = []
     for _ in range(ticks):
         m = sim.measured
@@ -121,27 +119,19 @@ def time_law(sc: Scenario, ticks: int, compiled_path: bool, core: str | None = N
 
 
 # ----- breakdown ----------------------------------------------------------------------------
-FUSED = "fused tick (all of it without lag)"   # timed apart: see breakdown
+COMPILED = "the compiled step (one call)"
+# The step's pieces (tfl_mav.control.tfl.step), wrapped where the flying step calls them: in
+# the namespace of the path's linked step, and in the module (the reference tracker's tick).
+PIECES = [("observe: R, axes, estimators, rows (1), (3), (9)", "observe"),
+          ("project: closest point, π, α, Dφ (13)-(15)", "project"),
+          ("command: (21), (3), allocation (4), (6), (9)", "command")]
 STEPS: list[tuple[str, Any, str]] = [
-    ("body axes (R, canonical frame)", law.TFLController, "_prelude"),
-    ("body axes (R, canonical frame)", law.TFLController, "_canonical_axes"),
-    ("estimators (mass, rate DOB)", law.TFLController, "_update_estimators"),
-    ("model derivatives ÿ…y⁽⁴⁾ (3), (9)", law.TFLController, "_output_taylor"),
-    ("path: projection + σ Taylor (13)", compiled.CompiledPathTracker, "_project_compiled"),
-    ("path: projection + σ Taylor (13)", tracker.PathTracker, "_project"),
-    ("path: α jets, Dφ, π rates (8), (14)", compiled.CompiledPathTracker, "virtual_output"),
-    ("path: α jets, Dφ, π rates (8), (14)", tracker.PathTracker, "virtual_output"),
-    ("aux inputs + decoupling (15), (21)", law.TFLController, "_decoupling_solve"),
-    ("torques (3)", law.TFLController, "_torques"),
-    ("allocation (4), (6) + yaw (2)", law.TFLController, "_allocate_attacked"),
-    ("allocation (4), (6) + yaw (2)", law.TFLController, "_allocate_nominal"),
+    ("path: reference jets (8), (13)-(15)", tracker.PathTracker, "virtual_output"),
     ("lag inverse", actuators.MotorLagInverter, "reachable"),
     ("lag inverse", actuators.MotorLagInverter, "invert"),
-    ("saturation, applied, ṗ/q̇ prediction", law.TFLController, "_saturate_and_apply"),
-    ("extension (9) + settling", law.TFLController, "_advance_extension"),
-    ("extension (9) + settling", law.TFLController, "_settle"),
-    ("update: the rest (output record)", law.TFLController, "update"),
+    ("update: the rest (inputs, words, record)", law.TFLController, "update"),
 ]
+LABELS = [COMPILED, *(label for label, _ in PIECES), *(label for label, _, _ in STEPS)]
 
 
 def breakdown(sc: Scenario, ticks: int, compiled_path: bool, core: str | None = None
@@ -194,13 +184,26 @@ def breakdown(sc: Scenario, ticks: int, compiled_path: bool, core: str | None = 
         if fn is not None:
             saved.append((owner, name, fn))
             setattr(owner, name, wrap(label, fn))
-    # The generated tick is an instance's function that update calls directly: timed by
-    # wrapping the one the controller flies (the Python or the compiled core's).
+    spaces = [vars(step)]
+
+    def wrap_ctrl(ctrl: TFLController) -> None:
+        if ctrl._core is not None:
+            ctrl._core = wrap(COMPILED, ctrl._core)
+        if ctrl._step.__globals__ is not vars(step):
+            spaces.append(ctrl._step.__globals__)
+        for ns in spaces:
+            for label, name in PIECES:
+                saved.append((ns, name, ns[name]))
+                ns[name] = wrap(label, ns[name])
+
     try:
-        time_law(sc, ticks, compiled_path, core, wrap_tick=lambda fn: wrap(FUSED, fn))
+        time_law(sc, ticks, compiled_path, core, wrap_ctrl=wrap_ctrl)
     finally:
-        for owner, name, fn in saved:
-            setattr(owner, name, fn)
+        for owner, name, fn in reversed(saved):
+            if isinstance(owner, dict):
+                owner[name] = fn
+            else:
+                setattr(owner, name, fn)
     return {k: 1e6 * v / ticks for k, v in acc.items()}
 
 
@@ -377,10 +380,7 @@ def main(argv: list[str] | None = None) -> int:
     ctl0 = build_controller(sc0)
     kernels = compile_path(ctl0.tracker.path)
     result["codegen_ms"] = {"path": 1e3 * kernels.build_s,
-                            "controller_build": 1e3 * (_cpu() - t0),
-                            "fused_tick": 1e3 * build_fused(
-                                ctl0.model, kernels, dt_s=ctl0.dt, mass_est=ctl0.mass_est,
-                                dob=ctl0.dob).build_s}
+                            "controller_build": 1e3 * (_cpu() - t0)}
     mp = model_params(sc0)
     recovery._SCHEDULES.clear()          # designed afresh, as a new process would
     t0 = _cpu()
@@ -388,8 +388,8 @@ def main(argv: list[str] | None = None) -> int:
     result["safe_law_gains"] = {"count": n_gains, "design_ms": 1e3 * (_cpu() - t0)}
 
     rows = []
-    print("TFL law update, µs per tick: the reference jets, the generated tick with its core "
-          "in Python, and compiled to C\n"
+    print("TFL law update, µs per tick: the reference jets, the step in Python, and compiled "
+          "to C\n"
           f"{'law':8s} {'jets median':>11s} {'python median':>13s} {'C median':>9s} "
           f"{'speed-up':>8s} {'jets p90':>8s} {'python p90':>10s} {'C p90':>7s}")
     for law_name in ("robust", "paper"):
@@ -409,17 +409,17 @@ def main(argv: list[str] | None = None) -> int:
               f"{r['compiled_median_us']:9.1f} {r['speedup']:7.2f}x {r['jets_p90_us']:8.1f} "
               f"{r['python_p90_us']:10.1f} {r['compiled_p90_us']:7.1f}")
     result["controller"] = rows
-    print(f"(path code generation at start-up: {result['codegen_ms']['path']:.1f} ms, fused "
-          f"tick {result['codegen_ms']['fused_tick']:.1f} ms; the safe "
+    print(f"(path code generation at start-up: {result['codegen_ms']['path']:.1f} ms, the "
+          f"controller {result['codegen_ms']['controller_build']:.1f} ms; the safe "
           f"law's {n_gains} LQR gains: {result['safe_law_gains']['design_ms']:.1f} ms)")
 
     print(f"\nbreakdown, robust law, exclusive µs per tick (the timers' own cost removed; the "
-          f"generated tick is one step)\n{'step':40s} {'jets':>8s} {'python':>8s} {'C':>8s}")
+          f"compiled step is one call)\n{'step':40s} {'jets':>8s} {'python':>8s} {'C':>8s}")
     sc = sc0.replace(**{"controller.law": "robust"})
     n = max(500, args.ticks // 2)
     b_ref, b_py, b_fast = (breakdown(sc, n, False), breakdown(sc, n, True, "python"),
                            breakdown(sc, n, True, "compiled"))
-    for label in dict.fromkeys([FUSED, *(label for label, _, _ in STEPS)]):
+    for label in dict.fromkeys(LABELS):
         print(f"{label:40s} {b_ref.get(label, 0.0):8.1f} {b_py.get(label, 0.0):8.1f} "
               f"{b_fast.get(label, 0.0):8.1f}")
     print(f"{'total':40s} {sum(b_ref.values()):8.1f} {sum(b_py.values()):8.1f} "

@@ -20,14 +20,12 @@ import numpy as np
 import pytest
 
 from tests.contract.test_compiled import PATHS
-from tests.contract.test_fused import _random_state
+from tests.contract.test_step import random_state as _random_state
 from tests.golden.test_golden import _LOCKSTEP, _OFFLINE
 from tfl_mav.accel import native
 from tfl_mav.build import law_config, model_params
-from tfl_mav.control.path.kernelgen import KERNEL_GLOBALS, compile_source
+from tfl_mav.control.path.kernelgen import compile_source
 from tfl_mav.control.path.paths import build_path
-from tfl_mav.control.tfl.fused import GLOBALS
-from tfl_mav.control.tfl.fused_native import CORE_ARGS
 from tfl_mav.control.tfl.law import TFLController
 from tfl_mav.harness.golden import LOCKSTEP_CASES, OFFLINE_CASES, fly_lockstep, fly_offline_case
 from tfl_mav.model.state import State
@@ -45,7 +43,8 @@ _OPS = [
     "_tan(a)", "_exp(a)", "_log(a)", "_atan(a)", "_tanh(a)", "_pow(a, b)", "abs(a)",
     "a if a < b else b", "1.0 if a <= b <= 2.0 else 0.0", "(-a) * b + a - b",
     "1.0 if not (a > b or a == 0.5) else 0.0", "1.0 if _isfinite(a) and a != b else 0.0",
-    "_atan2(a, b)", "_copysign(a, b)", "_acos(a)", "_hypot(a, b)",
+    "_atan2(a, b)", "_copysign(a, b)", "_acos(a)", "_hypot(a, b)", "_asin(a)",
+    "_remainder(a, b)",
 ]
 _OPS_SOURCE = "def ops(k, a, b):\n    r = 0.0\n" + "".join(
     f"    if k == {i}:\n        r = {op}\n" for i, op in enumerate(_OPS)) + "    return (r,)\n"
@@ -86,7 +85,8 @@ def _same_bits(a, b) -> bool:
 def ops():
     py = compile_source("ops", _OPS_SOURCE, {"_isfinite": math.isfinite, "_atan2": math.atan2,
                                              "_copysign": math.copysign, "_acos": math.acos,
-                                             "_hypot": math.hypot})
+                                             "_hypot": math.hypot, "_asin": math.asin,
+                                             "_remainder": math.remainder})
     return py, native.build(_OPS_SOURCE)
 
 
@@ -180,7 +180,7 @@ def _pair(path, monkeypatch):
     py = _controllers(path)
     monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
     c = _controllers(path)
-    assert c._fused is not py._fused and c._fused.__globals__["_core"] is not None
+    assert py.core == "python" and c.core == "compiled"
     return py, c
 
 
@@ -211,36 +211,43 @@ def test_compiled_core_flies_the_python_cores_bits_on_random_states(name, monkey
             assert repr(py.update(st)) == repr(c.update(st))
 
 
-def test_the_pure_core_in_python_is_the_tick_it_replaces(monkeypatch):
-    """``fused_core`` run as Python (no C at all) and the calling tick fly the Python tick's
-    outputs: the layout of the core (reads in, one call, writes out) is itself exact."""
+def _leaves(x):
+    if isinstance(x, (tuple, list)):
+        for v in x:
+            yield from _leaves(v)
+    else:
+        yield x
+
+
+def test_the_lowered_step_run_as_python_is_the_step(monkeypatch):
+    """What the seam's front end makes of the step (calls inlined, loops unrolled, tuples
+    scalar-replaced), run as Python with no C at all, gives the step's bits: the lowering
+    itself is exact, before the translation to C."""
+    from tfl_mav.accel import frontend
+    from tfl_mav.accel.values import _INTRINSICS
+
     monkeypatch.setenv("TFL_MAV_NATIVE", "off")
-    sc = load_scenario("paper")
-    path = build_path("paper", {})
-    py, layout = (TFLController(model_params(sc), path, law_config(sc), 0.001)
-                  for _ in range(2))
-    source = _core_source(layout)
-    core = compile_source("fused_core", source, {**KERNEL_GLOBALS, **GLOBALS})
-    assert core.__code__.co_varnames[:len(CORE_ARGS)] == CORE_ARGS
-    layout._fused = _fused(layout).with_core(core)[0]
+    law = _controllers(build_path("paper", {}))
+    example = (law.params, law.state, law._inputs((0.0,) * 3, (0.0,) * 3, (1.0, 0.0, 0.0, 0.0),
+                                                  (0.0,) * 3, *law._free, 0.0, 0.0, 0.0))
+    namespace = {name: fn for fn, name in _INTRINSICS.items()} | {"_inf": math.inf,
+                                                                   "_nan": math.nan}
+    exec(compile(frontend.lower(law._step, example), "<lowered tfl_step>", "exec"), namespace)
+    lowered = namespace["tfl_step"]
     rng = random.Random(11)
     for trial in range(30):
         rotor = (0, 0, 2, 3)[trial % 4]
-        for ctrl in (py, layout):
-            ctrl.set_attack(rotor, 1.0 if rotor else 0.0)
+        law.set_attack(rotor, 1.0 if rotor else 0.0)
         st = _random_state(rng, PATHS["paper"][2])
         for _ in range(3):
-            assert repr(py.update(st)) == repr(layout.update(st))
-
-
-def _fused(ctl: TFLController):
-    from tfl_mav.control.tfl.fused import build_fused
-    return build_fused(ctl.model, ctl.tracker.kernels, dt_s=ctl.dt, mass_est=ctl.mass_est,
-                       dob=ctl.dob)
-
-
-def _core_source(ctl: TFLController) -> str:
-    return _fused(ctl).core_source
+            u = law._inputs(tuple(st.position_m), tuple(st.velocity_mps),
+                            tuple(st.quaternion_wxyz), tuple(st.body_rates_radps), *law._free,
+                            0.3, 1.0, 0.0)
+            want = law._step(law.params, law.state, u)
+            got = lowered(law.params, law.state, u)
+            assert [_bits(float(x)) for x in _leaves(got)] == \
+                [_bits(float(x)) for x in _leaves(want)]
+            law.update(st)
 
 
 @pytest.mark.parametrize("name", sorted(OFFLINE_CASES))
@@ -268,16 +275,16 @@ def test_auto_switches_to_the_compiled_core_mid_flight_without_changing_a_bit(
     py = _controllers(path)
     monkeypatch.setenv("TFL_MAV_NATIVE", "auto")
     c = _controllers(path)
-    python_tick = c._fused
+    assert c._core is None
     rng = random.Random(3)
     st = _random_state(rng, PATHS["paper"][2])
     deadline = time.monotonic() + 120.0     # a compile of ~1 s, on a loaded 2-core box
     ticks_before = 0
-    while c._fused is python_tick and time.monotonic() < deadline:
+    while c._core is None and time.monotonic() < deadline:
         assert repr(py.update(st)) == repr(c.update(st))
         ticks_before += 1
         time.sleep(0.001)
-    assert c._fused is not python_tick, "the background build never completed"
+    assert c._core is not None, "the background build never completed"
     assert ticks_before > 0
     for _ in range(50):
         assert repr(py.update(st)) == repr(c.update(st))
@@ -294,7 +301,7 @@ def test_no_compiler_leaves_the_python_core_flying_with_one_warning(monkeypatch,
     with caplog.at_level(logging.WARNING, logger="tfl_mav.accel.native"):
         a = _controllers(path)
         b = _controllers(path)
-    assert "_core" not in a._fused.__globals__ and "_core" not in b._fused.__globals__
+    assert a._core is None and b._core is None and a.core == "python"
     warnings = [r for r in caplog.records if "no C compiler" in r.getMessage()]
     assert len(warnings) == 1
 

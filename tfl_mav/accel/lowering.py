@@ -9,6 +9,7 @@ from typing import Any
 
 from tfl_mav.accel.ctranslate import NativeError
 from tfl_mav.accel.values import (
+    _INT_OPS,
     _INTRINSICS,
     Frame,
     Tup,
@@ -162,6 +163,9 @@ class Lowerer:
             a, b = self.value(f, e.left, cond), self.value(f, e.right, cond)
             if isinstance(a, Tup) or isinstance(b, Tup):
                 return _tuple_op(a, e.op, b, _Lazy(e))
+            if all(isinstance(x, ast.Constant) and type(x.value) is int for x in (a, b)) \
+                    and type(e.op) in _INT_OPS:     # an unrolled loop's index: i % 2
+                return ast.Constant(_int(ast.BinOp(a, e.op, b), _Lazy(e)))
             return ast.BinOp(a, e.op, b)
         if isinstance(e, ast.UnaryOp):
             return ast.UnaryOp(e.op, self.num(f, e.operand, cond))
@@ -180,8 +184,8 @@ class Lowerer:
             rights = [self.num(f, c, cond or k > 0) for k, c in enumerate(e.comparators)]
             if all(isinstance(x, ast.Constant) and type(x.value) is int
                    for x in (left, *rights)):          # indices of an unrolled loop
-                return ast.Constant(int(eval(compile(ast.Expression(ast.Compare(
-                    left, e.ops, rights)), "<index>", "eval"))))
+                return ast.Constant(int(eval(compile(ast.fix_missing_locations(
+                    ast.Expression(ast.Compare(left, e.ops, rights))), "<index>", "eval"))))
             return ast.Compare(left, e.ops, rights)
         if isinstance(e, ast.BoolOp):
             return ast.BoolOp(e.op, [self.num(f, v, cond or k > 0)

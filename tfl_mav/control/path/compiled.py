@@ -50,10 +50,6 @@ class PathKernels:
     sigma2: Kernel
     sigma5: Kernel
     s4: Kernel
-    # What was traced, to trace again into a larger function (:mod:`fused`):
-    # trace_sigma(λ symbols, order) → σ's coefficients j-major; trace_s(x, y, z rows) → s4.
-    trace_sigma: Callable[[list[Sym], int], list[Any]] | None = None
-    trace_s: Callable[[list[Sym], list[Sym], list[Sym]], list[Any]] | None = None
 
     @property
     def build_s(self) -> float:
@@ -107,8 +103,7 @@ def compile_path(path: Path, *, inline: bool = True) -> PathKernels:
                            inline=inline),
             compile_kernel(f"sigma5_{name}", [["lam"]], lambda lam: trace_sigma(lam, 5),
                            inline=inline),
-            compile_kernel(f"s4_{name}", Y_NAMES, trace_s, inline=inline),
-            trace_sigma, trace_s)
+            compile_kernel(f"s4_{name}", Y_NAMES, trace_s, inline=inline))
     except (TraceError, ValueError, ZeroDivisionError, OverflowError, TypeError,
             AttributeError) as exc:
         raise TraceError(f"path kind {path.kind!r} cannot be compiled: {exc}") from exc

@@ -52,7 +52,7 @@ from tfl_mav.control.path.series import (
     tan_like_series,
 )
 
-__all__ = ["RAW", "TRACE_LIB", "Sym", "TJet", "Tape", "TraceError"]
+__all__ = ["TRACE_LIB", "Sym", "TJet", "Tape", "TraceError"]
 
 
 class TraceError(ValueError):
@@ -73,7 +73,6 @@ def _lit(x: Any) -> str:
     return f"({v!r})" if v < 0.0 or (v == 0.0 and math.copysign(1.0, v) < 0.0) else repr(v)
 
 
-RAW = "\x00"   # marks a hand-written statement among a tape's lines
 
 
 class Tape:
@@ -88,11 +87,6 @@ class Tape:
 
     def input(self, name: str) -> Sym:
         return Sym(self, name)
-
-    def raw(self, text: str) -> None:
-        """A hand-written statement (indented, may span lines) at this point of the code:
-        control flow around the traced operations (:func:`kernelgen.trace_block`)."""
-        self.lines.append(RAW + text)
 
     def emit(self, expr: str) -> Sym:
         """The symbol holding ``expr``: recorded once, reused when met again."""

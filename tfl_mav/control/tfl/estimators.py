@@ -3,16 +3,19 @@
 Measured in a prototype (controller issue): with the paper's 2 % mass / 10 % inertia error
 the plain law sits 6–7 cm off the path or crashes. Two estimators remove the two biases:
 
-* the mass estimator (:func:`mass_update`) — the mass error biases α and the speed. Newton's law along the
-  thrust direction, m (a + g i3) = u_f b3 − k_t v, is regressed with the acceleration taken
-  from the velocity through a first-order filter (τ ≈ 0.2 s) and the regressor passed
-  through the *same* filter, so both sides carry the same lag; the ratio is low-passed
-  (τ ≈ 1 s) and clamped to a band around the nominal model.
-* the rate disturbance observer (:func:`dob_update`) — the inertia error (and anything else: unmodelled
-  torques, a wrong attack estimate) shows up as a mismatch between the measured ṗ, q̇ and
-  the model's prediction for the torque actually applied. A fast (τ ≈ 4 ms) filtered
-  difference estimates it; the law subtracts it from its p/q acceleration demand (INDI-like).
-  A slower filter lags the ~60 rad/s yaw spin under attack by tens of degrees and crashes.
+* the mass estimator (:func:`mass_update`) — the mass error biases α and the speed.
+  Newton's law along the thrust direction, m (a + g i3) = u_f b3 − k_t v, is regressed with
+  the acceleration taken from the velocity through a first-order filter (τ ≈ 0.2 s) and the
+  regressor passed through the *same* filter, so both sides carry the same lag; the ratio
+  is low-passed (τ ≈ 1 s) and clamped to a band around the nominal model.
+* the rate disturbance observer (:func:`dob_update`) — the inertia error (and anything
+  else: unmodelled torques, a wrong attack estimate) shows up as a mismatch between the
+  measured ṗ, q̇ and the model's prediction for the torque actually applied. A fast
+  (τ ≈ 4 ms) filtered difference estimates it; the law subtracts it from its p/q
+  acceleration demand (INDI-like). A slower filter lags the ~60 rad/s yaw spin under attack
+  by tens of degrees and crashes.
+
+Both are explicit state and a pure update, called from the law's step.
 """
 
 from __future__ import annotations

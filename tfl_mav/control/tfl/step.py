@@ -193,6 +193,12 @@ def _pick(values: tuple[float, ...], k: float) -> float:
         values[2] if k == 2.0 else values[3]))
 
 
+def _permuted(values: V4, perm: V4) -> V4:
+    """(values[perm[0]], …, values[perm[3]])."""
+    return (_pick(values, perm[0]), _pick(values, perm[1]), _pick(values, perm[2]),
+            _pick(values, perm[3]))
+
+
 def _sigma2(a0: tuple[float]) -> tuple[float, ...]:
     """σ, σ', σ''/2 at λ (9 floats): the path's kernel, linked in by :func:`linked`."""
     raise NotImplementedError("the TFL step flies on a path: tfl_step of step.linked(kernels)")
@@ -319,7 +325,7 @@ def project(p: TFLParams, ps: PathState, rows: tuple[Any, ...], u: TFLInputs
                 jac = (a[10:13], a[13:16], (k * c1x, k * c1y, k * c1z))
         else:
             code = VO_NO_ROOT
-    if code == VO_NONFINITE or code == VO_FAILED or code == VO_NO_ROOT:
+    if code != VO_OK and code != VO_MARGIN:     # no closest point to speak of
         lam_out, distance = math.nan, math.nan
     return (code, xi1, xi2, eta, jac, lam_out, distance, margin), ps
 
@@ -329,16 +335,15 @@ def predict(p: TFLParams, fr: Frame, delivered: V4, rates: V3) -> tuple[float, f
     (N) at the canonical rates (p, q, r): what the observer compares the next tick with."""
     pc, qc, rc = rates
     ix, iy, iz = fr.ixyz
-    return rate_prediction(_pick(delivered, fr.perm[0]), _pick(delivered, fr.perm[1]),
-                           _pick(delivered, fr.perm[2]), _pick(delivered, fr.perm[3]),
-                           pc, qc, rc, ix, iy, iz, p.k_r, p.arm_m)
+    d0, d1, d2, d3 = _permuted(delivered, fr.perm)
+    return rate_prediction(d0, d1, d2, d3, pc, qc, rc, ix, iy, iz, p.k_r, p.arm_m)
 
 
 def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: tuple[Any, ...],
             vo: tuple[Any, ...], ps: PathState) -> tuple[TFLState, TFLOutputs]:
     """The rest of the tick from what :func:`observe` saw and the virtual output ``vo``
     (:func:`project`'s, or the reference tracker's packed the same way)."""
-    psi, r2, b1, b2, b3, rates, mass_s, dob_s, mass, rows = seen
+    psi, r2, b1, b2, b3, rates, mass_s, dob_s, mass, _rows = seen
     code, xi1, xi2, eta, jac, lam, distance, margin = vo
     pc, qc, rc = rates
     fr = u.frame
@@ -379,15 +384,11 @@ def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: tuple[Any, ...],
     a_n = u.attack_n
     psi_ref = s.psi_ref if s.has_psi_ref else psi
     if fr.attacked:
-        perm = fr.perm
-        lo = tuple(_pick(u.lo_n, perm[i]) for i in range(4))
-        hi = tuple(_pick(u.hi_n, perm[i]) for i in range(4))
+        lo, hi = _permuted(u.lo_n, fr.perm), _permuted(u.hi_n, fr.perm)   # canonical order
         tau_r = attacked_tau_r(uf, tau_p, a_n, arm, d)
         raw_c = allocate_attacked(uf, tau_q, tau_r, a_n, arm, d, math.inf, (_ZERO4, _INF4))
         f_c = allocate_attacked(uf, tau_q, tau_r, a_n, arm, d, fmax, (lo, hi))
-        inv = fr.inv_perm
-        raw = tuple(_pick(raw_c, inv[j]) for j in range(4))
-        f = tuple(_pick(f_c, inv[j]) for j in range(4))
+        raw, f = _permuted(raw_c, fr.inv_perm), _permuted(f_c, fr.inv_perm)  # physical
     else:
         tau_r = yaw_tau_r(r2, psi, psi_ref, pc, qc, rc, qdot, p.k_yaw, fr.ixyz, p.k_r)
         raw = allocate_nominal(uf, tau_p, tau_q, tau_r, arm, d, math.inf, (_ZERO4, _INF4))
@@ -396,7 +397,8 @@ def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: tuple[Any, ...],
     f, sat = saturate(f, raw, s.last_out, fmax)
     if fr.attacked:
         p1 = fr.perm[1]
-        f = tuple(a_n if p1 == j else f[j] for j in range(4))
+        f = (a_n if p1 == 0.0 else f[0], a_n if p1 == 1.0 else f[1], a_n if p1 == 2.0 else f[2],
+             a_n if p1 == 3.0 else f[3])
     sat_any = 1.0 if sat[0] or sat[1] or sat[2] or sat[3] else 0.0
     applied_uf = f[0] + f[1] + f[2] + f[3]
     pred = predict(p, fr, f, rates)
@@ -416,7 +418,7 @@ def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: tuple[Any, ...],
         settled = settled + dt if math.hypot(xi1[0], xi2[0]) < p.settle_alpha else 0.0
         if settled >= p.settle_time_s:
             fine = 1.0
-    wp, wq, wr = u.body_rates_radps
+    wp, _wq, wr = u.body_rates_radps
     state = TFLState(x13, x14, mass_s, dob_s, 1.0, pred, f, 1.0, psi_ref, fine, settled, ps)
     out = TFLOutputs(
         f, fr.attacked, (1.0 if sat[0] else 0.0, 1.0 if sat[1] else 0.0,
