@@ -1,12 +1,12 @@
 """Generated float code compiled to machine code with the system C compiler.
 
-The law's fused tick (:mod:`fused`) is Python: ~1 000 float operations a tick, each a
-bytecode dispatch and a float object. Its arithmetic as one pure function
-(:mod:`fused_native`) is *translated from that very Python source* into C
-(:mod:`ctranslate`), built here with ``cc`` into a CPython extension and cached, as CasADi
-and acados build their generated code. The translation keeps every operation, operand and
-order: IEEE-754 ``+ − × ÷`` and ``sqrt`` are correctly rounded in both languages, the other
-math functions are the same libm's (CPython's ``math`` calls them too), and the build
+The law's step (:func:`tfl_mav.control.tfl.step.tfl_step`) is Python: ~1 000 float
+operations a tick, each a bytecode dispatch and a float object. Lowered by the front end
+(:mod:`frontend`) into one straight-line function, it is *translated from that very Python
+source* into C (:mod:`ctranslate`), built here with ``cc`` into a CPython extension and
+cached, as CasADi and acados build their generated code. The translation keeps every
+operation, operand and order: IEEE-754 ``+ − × ÷`` and ``sqrt`` are correctly rounded in
+both languages, the other math functions are the same libm's (CPython's ``math`` calls them too), and the build
 forbids what would change a bit (``-ffp-contract=off``: no fused multiply-add;
 ``-fno-builtin``: libm calls stay calls, no ``pow(x, 2) → x·x``; no ``-ffast-math``). So the
 compiled core returns the Python core's floats bit for bit (tests/contract/test_native.py checks it

@@ -8,7 +8,7 @@ the same order.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from typing import Any
 
 __all__ = ["attacked_tau_r", "b0_inverse", "cofactors", "cramer", "linear_rhs", "output_rows",
@@ -17,12 +17,11 @@ __all__ = ["attacked_tau_r", "b0_inverse", "cofactors", "cramer", "linear_rhs", 
 V3 = Sequence[Any]
 
 
-def rotation(q: V3, sqrt: Callable[[Any], Any]) -> tuple[Any, ...]:
+def rotation(q: V3) -> tuple[Any, ...]:
     """R(q) row by row (9 values) of the quaternion (w, x, y, z), normalised first: the same
-    operations as :func:`tfl_mav.model.geometry.rotation_rows` (the step-by-step law's), to
-    trace."""
+    operations as :func:`tfl_mav.model.geometry.rotation_rows`, as one flat tuple."""
     w, x, y, z = q
-    n = sqrt(w * w + x * x + y * y + z * z)
+    n = math.sqrt(w * w + x * x + y * y + z * z)
     w, x, y, z = w / n, x / n, y / n, z / n
     return (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
             2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
@@ -72,15 +71,15 @@ def linear_rhs(xi1: V3, xi2: V3, eta: V3, kx: V3, ke: V3, speed: Any
     return v_xi1 - xi1[4], v_xi2 - xi2[4], v_eta - eta[4]
 
 
-def cofactors(A: Sequence[V3], sqrt: Callable[[Any], Any]) -> tuple[Any, ...]:
+def cofactors(A: Sequence[V3]) -> tuple[Any, ...]:
     """(co0, co1, co2, det, row-norm product) of a 3×3 matrix, for Cramer's rule."""
     (a, b_, c), (d, e, f), (g, h, i) = A
     co0 = e * i - f * h
     co1 = f * g - d * i
     co2 = d * h - e * g
     det = a * co0 + b_ * co1 + c * co2
-    norms = (sqrt(a * a + b_ * b_ + c * c) * sqrt(d * d + e * e + f * f)
-             * sqrt(g * g + h * h + i * i))
+    norms = (math.sqrt(a * a + b_ * b_ + c * c) * math.sqrt(d * d + e * e + f * f)
+             * math.sqrt(g * g + h * h + i * i))
     return co0, co1, co2, det, norms
 
 
@@ -98,7 +97,7 @@ def solve3(A: Sequence[Sequence[float]], b: Sequence[float]
            ) -> tuple[tuple[float, float, float], float]:
     """Solve a 3×3 system by Cramer's rule; returns (x, |det| relative to the row norms),
     x = 0 when that is below 1e-12."""
-    co0, co1, co2, det, norms = cofactors(A, math.sqrt)
+    co0, co1, co2, det, norms = cofactors(A)
     rel = abs(det) / norms if norms > 0 else 0.0
     x = (0.0, 0.0, 0.0)
     if not rel < 1e-12:

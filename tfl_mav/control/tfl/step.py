@@ -226,7 +226,7 @@ def observe(p: TFLParams, s: TFLState, u: TFLInputs) -> tuple[Any, ...]:
     the estimators after this tick, the mass used and the output's Taylor rows (x, y, z,
     each (y, ẏ, ÿ/2, y⃛/6, a₀/24), eqs. (3), (5), (9))."""
     fr = u.frame
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rotation(u.quaternion_wxyz, math.sqrt)
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rotation(u.quaternion_wxyz)
     psi = math.atan2(r10, r00)
     m1, s1, m2, s2 = fr.m1, fr.s1, fr.m2, fr.s2
     b1 = (s1 * (r00 if m1 == 0.0 else r01), s1 * (r10 if m1 == 0.0 else r11),
