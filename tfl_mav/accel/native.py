@@ -8,8 +8,8 @@ cached, as CasADi and acados build their generated code. The translation keeps e
 operation, operand and order: IEEE-754 ``+ − × ÷`` and ``sqrt`` are correctly rounded in
 both languages, the other math functions are the same libm's (CPython's ``math`` calls them
 too), and the build forbids what would change a bit (``-ffp-contract=off``: no fused
-multiply-add; ``-fno-builtin``: libm calls stay calls, no ``pow(x, 2) → x·x``; no ``-ffast-
-math``). So the compiled core returns the Python core's floats bit for bit
+multiply-add; ``-fno-builtin``: libm calls stay calls, no ``pow(x, 2) → x·x``; no
+``-ffast-math``). So the compiled core returns the Python core's floats bit for bit
 (tests/contract/test_native.py checks it on random states and whole flights) — every number,
 that is: a NaN's sign and payload, which IEEE 754 leaves unspecified, may differ (a compiler
 may swap a commutative operation's operands).
