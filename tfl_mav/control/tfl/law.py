@@ -131,13 +131,18 @@ def initial_state(model: ModelParams) -> TFLState:
                     PathState(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, (0.0,) * 18))
 
 
+_NESTED = {TFLState._fields.index(name): kind for name, kind in (
+    ("mass", step.MassState), ("dob", step.DobState), ("path", PathState))}
+_X13, _X14, _MASS, _FINE, _PATH = (TFLState._fields.index(n)
+                                   for n in ("x13", "x14", "mass", "fine", "path"))
+_MASS_KG = step.MassState._fields.index("mass_kg")
+
+
 def as_state(s: Any) -> TFLState:
     """A state the compiled step returned (plain nested tuples) as the NamedTuples."""
     if type(s) is TFLState:
         return s
-    x13, x14, mass, dob, has_pred, pred, last_out, has_psi, psi_ref, fine, settled, ps = s
-    return TFLState(x13, x14, step.MassState(*mass), step.DobState(*dob), has_pred, pred,
-                    last_out, has_psi, psi_ref, fine, settled, PathState(*ps))
+    return TFLState(*(_NESTED[i](*x) if i in _NESTED else x for i, x in enumerate(s)))
 
 
 class TFLController:
@@ -219,7 +224,7 @@ class TFLController:
     @property
     def x13(self) -> float:
         """u_f (N), the dynamic extension's first state (eq. (9))."""
-        return float(self.state[0])
+        return float(self.state[_X13])
 
     @x13.setter
     def x13(self, value: float) -> None:
@@ -228,7 +233,7 @@ class TFLController:
     @property
     def x14(self) -> float:
         """u̇_f (N/s), the dynamic extension's second state (eq. (9))."""
-        return float(self.state[1])
+        return float(self.state[_X14])
 
     @x14.setter
     def x14(self, value: float) -> None:
@@ -237,12 +242,12 @@ class TFLController:
     @property
     def mass_kg(self) -> float:
         """The mass the law flies with (kg): the estimate when the estimator runs."""
-        return float(self.state[2][1])
+        return float(self.state[_MASS][_MASS_KG])
 
     @property
     def fine(self) -> bool:
         """True once the law has switched to the fine ξ, η poles."""
-        return bool(self.state[9])
+        return bool(self.state[_FINE])
 
     @property
     def k_xi(self) -> tuple[float, ...]:
@@ -259,7 +264,7 @@ class TFLController:
         """The path parameter of the closest point (None before the first projection)."""
         if self._linked_for is not self.tracker:
             return self.tracker.lam
-        ps = self.state[11]
+        ps = self.state[_PATH]
         return float(ps[1]) if ps[0] else None
 
     # ------------------------------------------------------------------ configuration
@@ -315,7 +320,7 @@ class TFLController:
         trk = self.tracker
         if self._linked_for is trk:
             lam_start, ok, failed = 0.0, 0.0, 0.0
-            if not st[11][0]:               # no λ yet: a global search first
+            if not st[_PATH][0]:            # no λ yet: a global search first
                 try:
                     lam_start, found = trk._newton(y, trk._global_lam(y))
                     ok = 1.0 if found else 0.0
