@@ -157,11 +157,10 @@ class TFLController:
     def __init__(self, model: ModelParams, path: Path, cfg: LawConfig, dt_s: float, *,
                  compiled_path: bool = True) -> None:
         self.model = model
-        self.cfg = cfg
-        self.dt = dt_s
+        self._dt = dt_s
         self.tracker: PathTracker
         self.tracker, self.path_eval = make_tracker(path, compiled_path)
-        self.params = law_params(model, cfg, dt_s, self.tracker.min_tube_margin)
+        self.cfg = cfg              # and the step's constants (``params``) with it
         self.state: Any = initial_state(model)
         self.attacked_rotor = 0
         self.attack_estimate_n = 0.0
@@ -210,6 +209,28 @@ class TFLController:
                          lam_start, ok, failed)
 
     # ------------------------------------------------------------------ the state
+    @property
+    def cfg(self) -> LawConfig:
+        """The gains and switches; setting it (the flight computer's flyable speed) remakes
+        the step's constants."""
+        return self._cfg
+
+    @cfg.setter
+    def cfg(self, cfg: LawConfig) -> None:
+        self._cfg = cfg
+        self.params = law_params(self.model, cfg, self._dt, self.tracker.min_tube_margin)
+
+    @property
+    def dt(self) -> float:
+        """The control period (s) the next tick integrates over; setting it (states were
+        skipped: the real gap) changes the step's ``dt_s``."""
+        return self._dt
+
+    @dt.setter
+    def dt(self, dt_s: float) -> None:
+        self._dt = dt_s
+        self.params = self.params._replace(dt_s=float(dt_s))
+
     @property
     def core(self) -> str:
         """What flies the law's arithmetic: ``compiled`` (the seam's build of the step),
