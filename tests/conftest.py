@@ -19,11 +19,13 @@ from tfl_mav.harness.ports import free_udp_port
 from tfl_mav.harness.processes import Proc, start_sim
 from tfl_mav.link.transport import Address
 
-# The suite flies the law's Python core (the compiled one gives the same bits, and building
-# one per distinct scenario would cost the suite minutes): tests/contract/test_native.py turns it on
-# where it is under test; `TFL_MAV_NATIVE=sync python -m pytest` flies everything compiled.
-# Set at import, so that every `tfl-mav` subprocess inherits it.
-os.environ.setdefault("TFL_MAV_NATIVE", "off")
+# The suite flies the compiled cores, as a user's Linux machine does: each pure step (the
+# law's, the safe law's, the detector's, the simulator's) is built once per session and per
+# path kind, into the session's own cache, before the flight that needs it. Their Python
+# forms are held to them bit for bit by tests/contract (test_native, test_accel, test_step);
+# `TFL_MAV_NATIVE=off python -m pytest` flies everything in Python. Set at import, so that
+# every `tfl-mav` subprocess inherits it.
+os.environ.setdefault("TFL_MAV_NATIVE", "sync")
 
 SimFactory = Callable[..., tuple[Proc, int]]
 PilotFactory = Callable[..., Pilot]

@@ -18,7 +18,7 @@ from tests.contract.test_compiled import PATHS, _normwise
 from tfl_mav.build import law_config, model_params
 from tfl_mav.control.path.paths import build_path
 from tfl_mav.control.tfl import step
-from tfl_mav.control.tfl.law import TFLController
+from tfl_mav.control.tfl.law import TFLController, as_state
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
 from tfl_mav.scenario import load_scenario
@@ -130,7 +130,7 @@ def test_the_step_is_pure():
     rng = random.Random(2)
     for _ in range(5):
         law.update(random_state(rng, y0))
-    s = step.TFLState(*law.state) if type(law.state) is not step.TFLState else law.state
+    s = as_state(law.state)
     u = step.TFLInputs((2.5, 0.2, 4.5), (0.1, 0.2, 0.0), (1.0, 0.0, 0.0, 0.0), (0.1, 0.2, 9.0),
                        law._frame, 1.2, *law._free, 0.0, 0.0, 0.0)
     before = repr(s)
