@@ -144,11 +144,13 @@ def rk4_stepper(p: RigidBodyParams, compiled: bool = True) -> Rk4Step:
         return python
     _attach()
     plain = float
+    constants = tuple(p)    # a plain tuple: the core reads its items in place (a NamedTuple,
+    #                         a tuple subclass, it would copy into a list every call)
 
     def step(x: Sequence[float], wrench: Sequence[float], h: float) -> Sequence[float]:
         core = _compiled["core"]
         if core is not None and type(x[0]) is plain:
-            r = core(p, x, wrench, h)
+            r = core(constants, x, wrench, h)
             if r is not None:
                 return r  # type: ignore[no-any-return]
         return python(x, wrench, h)
