@@ -107,9 +107,11 @@ def rk4_step(p: RigidBodyParams, x: Sequence[float], wrench: Sequence[float],
     """One classical RK4 step of length ``h`` s of the 13-float state ``x`` with the body
     wrench held; q renormalised.
 
-    Renormalising once per step keeps |q| = 1 to rounding error (RK4 alone drifts by
-    O(h⁵) per step, which adds up over a million steps). The simulator flies this function
-    compiled (:func:`rk4_stepper`), which does its operations in its order: the same bits.
+    The stages are :func:`derivative` at x, x + (h/2)·k1, x + (h/2)·k2 and x + h·k3, and
+    x + (h/6)·(k1 + 2 k2 + 2 k3 + k4) combines them. Renormalising once per step keeps
+    |q| = 1 to rounding error (RK4 alone drifts by O(h⁵) per step, which adds up over a
+    million steps). The simulator flies this function compiled (:func:`rk4_stepper`), which
+    does its operations in its order: the same bits.
     """
     hh = 0.5 * h
     k1 = derivative(p, x, wrench)
@@ -127,6 +129,7 @@ Rk4Step = Callable[[Sequence[float], Sequence[float], float], Sequence[float]]
 
 # The compiled rk4_step, once built: one for every airframe (its constants are an argument).
 _compiled: dict[str, Any] = {"core": None}
+# The arguments' shapes, which the lowering reads (their values are not folded in).
 _EXAMPLE = (RigidBodyParams(1.0, (1.0, 1.0, 1.0), 1.0, 1.0, 1.0, 1.0, 1.0), (0.0,) * 13,
             (0.0,) * 4, 1.0)
 
@@ -144,8 +147,9 @@ def rk4_stepper(p: RigidBodyParams, compiled: bool = True) -> Rk4Step:
         return python
     _attach()
     plain = float
-    constants = tuple(p)    # a plain tuple: the core reads its items in place (a NamedTuple,
-    #                         a tuple subclass, it would copy into a list every call)
+    # A plain tuple: the core reads its items in place (a NamedTuple, a tuple subclass, it
+    # would copy into a list on every call).
+    constants = tuple(p)
 
     def step(x: Sequence[float], wrench: Sequence[float], h: float) -> Sequence[float]:
         core = _compiled["core"]
@@ -159,6 +163,8 @@ def rk4_stepper(p: RigidBodyParams, compiled: bool = True) -> Rk4Step:
 
 
 def _attach() -> None:
+    """The compiled rk4_step into ``_compiled``: now if it is built, else when a background
+    build completes (``auto``)."""
     if _compiled["core"] is not None:
         return
 
