@@ -18,7 +18,10 @@ import time
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
+from tests.contract.test_accel import _bits as _tuple_bits
 from tests.contract.test_compiled import PATHS
 from tests.contract.test_step import random_state as _random_state
 from tests.golden.test_golden import _LOCKSTEP, _OFFLINE
@@ -30,6 +33,8 @@ from tfl_mav.control.tfl.law import TFLController
 from tfl_mav.harness.golden import LOCKSTEP_CASES, OFFLINE_CASES, fly_lockstep, fly_offline_case
 from tfl_mav.model.state import State
 from tfl_mav.scenario import load_scenario
+from tfl_mav.sim import physics
+from tfl_mav.sim.physics import RigidBodyParams, rk4_step, rk4_stepper
 
 # Where a compiler is expected (Linux: CI and every user machine we build for, or
 # TFL_MAV_EXPECT_COMPILER=1), a missing one fails these contract tests instead of skipping
@@ -354,32 +359,67 @@ def test_detector_compiled_step_gives_the_python_steps_verdicts(tau_s, monkeypat
     assert repr(plain(py.state)) == repr(plain(c.state))
 
 
-def test_rk4_step_compiled_is_the_python_step_bit_for_bit(monkeypatch):
-    """tfl_mav.sim.physics_native: the simulator's RK4 step compiled, on random states and wrenches
-    (repr: -0.0 and 0.0 differ), and a diverging state still takes the Python path (which
-    raises for the simulator's numpy fallback)."""
-    from tfl_mav.sim.physics import RigidBodyParams, rk4_stepper
+_STATE = st.one_of(st.floats(-5.0, 5.0), st.floats(allow_nan=True, allow_infinity=True))
+_AIRFRAME = st.builds(
+    RigidBodyParams, st.floats(0.0, 50.0), st.tuples(*[st.floats(0.0, 1.0)] * 3),
+    st.floats(0.05, 1.0), st.floats(0.0, 0.1), st.floats(0.0, 1.0), st.floats(0.0, 0.1),
+    st.floats(0.0, 20.0))
 
+
+@pytest.fixture(scope="module")
+def rk4_core():
+    return native.build_function(rk4_step, physics._EXAMPLE)
+
+
+@settings(max_examples=500, deadline=None)
+@given(p=_AIRFRAME, x=st.tuples(*[_STATE] * 13),
+       wrench=st.tuples(st.floats(0.0, 40.0), *[st.floats(-1.0, 1.0)] * 3),
+       h=st.one_of(st.sampled_from([1e-3, 5e-4, 1e-2]), st.floats(0.0, 0.1)))
+def test_the_compiled_rk4_step_is_the_python_one_bit_for_bit(rk4_core, p, x, wrench, h):
+    """physics.rk4_step compiled through the seam (one build for every airframe: the
+    constants are an argument) gives the Python step's bits, on any airframe, state and
+    wrench; where the Python step raises (a zero mass, inertia or quaternion norm, ``**``
+    overflowing) it declines with None."""
+    try:
+        want = rk4_step(p, x, wrench, h)
+    except (ZeroDivisionError, OverflowError):
+        want = None
+    got = rk4_core(p, x, wrench, h)
+    if want is None:
+        assert got is None
+    else:
+        assert got is not None and _tuple_bits(got) == _tuple_bits(want)
+
+
+def test_the_simulators_rk4_step_flies_compiled_and_python_decides_otherwise(monkeypatch):
+    """The simulator's step (physics.rk4_stepper) runs the compiled rk4_step once it is
+    built — one core for every airframe — and gives the Python step's bits (repr: -0.0 and
+    0.0 differ); a diverging state still takes the Python path (which raises for the
+    simulator's numpy fallback), and so does a state of numpy scalars."""
     monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
-    p = RigidBodyParams(mass_kg=1.2, inertia_kgm2=(0.011, 0.013, 0.021), k_t=0.05,
-                        k_r=0.00275, gravity_mps2=9.81, arm_m=0.2656, drag_thrust_ratio_m=0.02)
-    py, c = rk4_stepper(p, compiled=False), rk4_stepper(p)
-    assert c.__globals__["_core"] is not None
     rng = random.Random(4)
-    for _ in range(5000):
-        x = [rng.uniform(-5, 5) for _ in range(13)]
-        w = (rng.uniform(0, 30), rng.gauss(0, 1), rng.gauss(0, 1), rng.gauss(0, 0.1),
-             rng.choice([1e-3, 5e-4, 1e-2]))
-        a, b = py(x, *w), c(x, *w)
-        assert type(b) is list and repr(a) == repr(b)
+    cores = set()
+    for mass, inertia in ((1.2, (0.011, 0.013, 0.021)), (0.6, (0.002, 0.0021, 0.004))):
+        p = RigidBodyParams(mass_kg=mass, inertia_kgm2=inertia, k_t=0.05, k_r=0.00275,
+                            gravity_mps2=9.81, arm_m=0.2656, drag_thrust_ratio_m=0.02)
+        py, c = rk4_stepper(p, compiled=False), rk4_stepper(p)
+        assert physics._compiled["core"] is not None
+        cores.add(id(physics._compiled["core"]))
+        for _ in range(2000):
+            x = [rng.uniform(-5, 5) for _ in range(13)]
+            w = (rng.uniform(0, 30), rng.gauss(0, 1), rng.gauss(0, 1), rng.gauss(0, 0.1))
+            h = rng.choice([1e-3, 5e-4, 1e-2])
+            assert repr(py(x, w, h)) == repr(c(x, w, h))
+    assert len(cores) == 1
     huge = [0.0] * 6 + [1e160, 0.0, 0.0, 0.0] + [0.0] * 3     # |q|² overflows
     with pytest.raises(OverflowError):
-        py(huge, 10.0, 0.0, 0.0, 0.0, 1e-3)
+        py(huge, (10.0, 0.0, 0.0, 0.0), 1e-3)
     with pytest.raises(OverflowError):
-        c(huge, 10.0, 0.0, 0.0, 0.0, 1e-3)
+        c(huge, (10.0, 0.0, 0.0, 0.0), 1e-3)
     scalars = [np.float64(v) for v in x]
     with np.errstate(all="ignore"):
-        assert repr(py(scalars, *w)) == repr(c(scalars, *w))   # numpy scalars: Python's
+        b = c(scalars, w, h)
+        assert type(b[0]) is np.float64 and repr(py(scalars, w, h)) == repr(b)
 
 
 @pytest.mark.slow

@@ -284,6 +284,7 @@ def test_the_state_is_plain_floats_and_a_diverging_one_ends_the_run(scenario):
     sim.step_control_period()
     assert all(type(c) is float for c in sim.state_vector)
     assert all(type(c) is float for c in sim.measured_floats.quaternion_wxyz)
-    sim._x[6:10] = [0.0, 0.0, 0.0, 0.0]      # |q| = 0: floats raise ZeroDivisionError
+    x = sim._x
+    sim._x = (*x[:6], 0.0, 0.0, 0.0, 0.0, *x[10:])    # |q| = 0: floats raise ZeroDivisionError
     sim.step_control_period()
     assert "non-finite" in sim.crash_reason()

@@ -19,21 +19,25 @@ more than the arithmetic, and the simulator must run many times faster than real
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any, NamedTuple
 
 import numpy as np
 
+from tfl_mav.accel import native
 from tfl_mav.model.airframe import mix
 from tfl_mav.model.geometry import rotation_from_quaternion
 
-__all__ = ["RigidBodyParams", "RigidBodyState", "Rk4Step", "mix", "rk4_step", "rk4_stepper"]
+__all__ = ["RigidBodyParams", "RigidBodyState", "Rk4Step", "derivative", "mix",
+           "rk4_step", "rk4_stepper"]
 
 
-@dataclass(frozen=True)
-class RigidBodyParams:
-    """Physical constants of the airframe (SI)."""
+class RigidBodyParams(NamedTuple):
+    """Physical constants of the airframe (SI): a tuple of floats, so that the one compiled
+    RK4 takes them as an argument (one build serves every airframe)."""
 
     mass_kg: float
     inertia_kgm2: tuple[float, float, float]
@@ -68,8 +72,10 @@ class RigidBodyState:
         return rotation_from_quaternion(self.quaternion_wxyz)
 
 
-def derivative(p: RigidBodyParams, x: Sequence[float], wrench: Sequence[float]) -> list[float]:
-    """ẋ of the 13-float state [x_q, v_q, q, Ω] for body wrench (u_f, τ_p, τ_q, τ_r)."""
+def derivative(p: RigidBodyParams, x: Sequence[float], wrench: Sequence[float]
+               ) -> tuple[float, ...]:
+    """ẋ of the 13-float state [x_q, v_q, q, Ω] for body wrench (u_f, τ_p, τ_q, τ_r):
+    eq. (3) with the quaternion kinematics above in place of the Euler chart."""
     _, _, _, vx, vy, vz, qw, qx, qy, qz, wp, wq, wr = x
     uf, tp, tq, tr = wrench
     m = p.mass_kg
@@ -81,7 +87,7 @@ def derivative(p: RigidBodyParams, x: Sequence[float], wrench: Sequence[float]) 
     a = uf / m
     kt = p.k_t / m
     kr = p.k_r
-    return [
+    return (
         vx, vy, vz,
         a * b3x - kt * vx,
         a * b3y - kt * vy,
@@ -93,142 +99,78 @@ def derivative(p: RigidBodyParams, x: Sequence[float], wrench: Sequence[float]) 
         (tp - kr * wp - (iz - iy) * wq * wr) / ix,
         (tq - kr * wq - (ix - iz) * wp * wr) / iy,
         (tr - kr * wr - (iy - ix) * wp * wq) / iz,
-    ]
+    )
 
 
 def rk4_step(p: RigidBodyParams, x: Sequence[float], wrench: Sequence[float],
-             h: float) -> list[float]:
-    """One classical RK4 step of length ``h`` s with the wrench held; renormalises q.
+             h: float) -> tuple[float, ...]:
+    """One classical RK4 step of length ``h`` s of the 13-float state ``x`` with the body
+    wrench held; q renormalised.
 
-    Convenience form of :func:`rk4_stepper` (which a hot loop builds once and keeps; this
-    one runs the Python step, as it builds a stepper per call).
+    The stages are :func:`derivative` at x, x + (h/2)·k1, x + (h/2)·k2 and x + h·k3, and
+    x + (h/6)·(k1 + 2 k2 + 2 k3 + k4) combines them. Renormalising once per step keeps
+    |q| = 1 to rounding error (RK4 alone drifts by O(h⁵) per step, which adds up over a
+    million steps). The simulator flies this function compiled (:func:`rk4_stepper`), which
+    does its operations in its order: the same bits.
     """
-    uf, tp, tq, tr = wrench
-    return rk4_stepper(p, compiled=False)(x, uf, tp, tq, tr, h)
+    hh = 0.5 * h
+    k1 = derivative(p, x, wrench)
+    k2 = derivative(p, [x[i] + hh * k1[i] for i in range(13)], wrench)
+    k3 = derivative(p, [x[i] + hh * k2[i] for i in range(13)], wrench)
+    k4 = derivative(p, [x[i] + h * k3[i] for i in range(13)], wrench)
+    h6 = h / 6.0
+    px, py, pz, vx, vy, vz, qw, qx, qy, qz, wp, wq, wr = [
+        x[i] + h6 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) for i in range(13)]
+    n = math.sqrt(qw ** 2 + qx ** 2 + qy ** 2 + qz ** 2)
+    return (px, py, pz, vx, vy, vz, qw / n, qx / n, qy / n, qz / n, wp, wq, wr)
 
 
-Rk4Step = Callable[[Sequence[float], float, float, float, float, float], list[float]]
+Rk4Step = Callable[[Sequence[float], Sequence[float], float], Sequence[float]]
+
+# The compiled rk4_step, once built: one for every airframe (its constants are an argument).
+_compiled: dict[str, Any] = {"core": None}
+# The arguments' shapes, which the lowering reads (their values are not folded in).
+_EXAMPLE = (RigidBodyParams(1.0, (1.0, 1.0, 1.0), 1.0, 1.0, 1.0, 1.0, 1.0), (0.0,) * 13,
+            (0.0,) * 4, 1.0)
 
 
 def rk4_stepper(p: RigidBodyParams, compiled: bool = True) -> Rk4Step:
-    """``step(x, u_f, τ_p, τ_q, τ_r, h)``: one classical RK4 step of the 13-float state ``x``
-    with the body wrench held over ``h`` s, q renormalised; a new list.
+    """``step(x, wrench, h)``: :func:`rk4_step` of the airframe ``p``, compiled
+    (:func:`tfl_mav.accel.native.obtain_function`) once it is built (this process, the
+    cache, ``TFL_MAV_NATIVE=sync``; ``auto``: a background build, switched to when ready —
+    the same bits, so the switch is invisible). On a state that is not plain floats (a
+    numpy-scalar state on the diverging path), or where the Python step would raise (the
+    compiled one then returns None), the Python step runs and decides. ``compiled``
+    False, or ``TFL_MAV_NATIVE=off``: the Python step alone."""
+    python = functools.partial(rk4_step, p)
+    if not compiled or native.mode() == "off":
+        return python
+    _attach()
+    plain = float
+    # A plain tuple: the core reads its items in place (a NamedTuple, a tuple subclass, it
+    # would copy into a list on every call).
+    constants = tuple(p)
 
-    Renormalising once per step keeps |q| = 1 to rounding error (RK4 alone drifts by
-    O(h⁵) per step, which adds up over a million steps). Written out on plain floats, the
-    four stages inlined and the airframe constants bound once (the simulator's hot loop: a
-    call per stage and a tuple per stage cost as much as the arithmetic). Each expression
-    is :func:`derivative`'s, in the same order, and the stages combine as the vector form of
-    RK4 does, so the result is the same to the bit. ``compiled``: the same step compiled to C
-    where a compiler is (:mod:`physics_native`: the same bits again); False: this Python.
-    """
-    m = p.mass_kg
-    ix, iy, iz = p.inertia_kgm2
-    kt = p.k_t / m
-    kr = p.k_r
-    g = p.gravity_mps2
-    jyz, jzx, jxy = iz - iy, ix - iz, iy - ix
+    def step(x: Sequence[float], wrench: Sequence[float], h: float) -> Sequence[float]:
+        core = _compiled["core"]
+        if core is not None and type(x[0]) is plain:
+            r = core(constants, x, wrench, h)
+            if r is not None:
+                return r  # type: ignore[no-any-return]
+        return python(x, wrench, h)
 
-    def step(x: Sequence[float], uf: float, tp: float, tq: float, tr: float,
-             h: float) -> list[float]:
-        px, py, pz, vx, vy, vz, qw, qx, qy, qz, wp, wq, wr = x
-        a = uf / m
-        hh = 0.5 * h
-        # k1 = f(x)
-        a1x = a * (2.0 * (qx * qz + qw * qy)) - kt * vx
-        a1y = a * (2.0 * (qy * qz - qw * qx)) - kt * vy
-        a1z = a * (1.0 - 2.0 * (qx * qx + qy * qy)) - g - kt * vz
-        d1w = 0.5 * (-qx * wp - qy * wq - qz * wr)
-        d1x = 0.5 * (qw * wp + qy * wr - qz * wq)
-        d1y = 0.5 * (qw * wq + qz * wp - qx * wr)
-        d1z = 0.5 * (qw * wr + qx * wq - qy * wp)
-        e1p = (tp - kr * wp - jyz * wq * wr) / ix
-        e1q = (tq - kr * wq - jzx * wp * wr) / iy
-        e1r = (tr - kr * wr - jxy * wp * wq) / iz
-        # k2 = f(x + hh·k1)
-        vx2 = vx + hh * a1x
-        vy2 = vy + hh * a1y
-        vz2 = vz + hh * a1z
-        qw2 = qw + hh * d1w
-        qx2 = qx + hh * d1x
-        qy2 = qy + hh * d1y
-        qz2 = qz + hh * d1z
-        wp2 = wp + hh * e1p
-        wq2 = wq + hh * e1q
-        wr2 = wr + hh * e1r
-        a2x = a * (2.0 * (qx2 * qz2 + qw2 * qy2)) - kt * vx2
-        a2y = a * (2.0 * (qy2 * qz2 - qw2 * qx2)) - kt * vy2
-        a2z = a * (1.0 - 2.0 * (qx2 * qx2 + qy2 * qy2)) - g - kt * vz2
-        d2w = 0.5 * (-qx2 * wp2 - qy2 * wq2 - qz2 * wr2)
-        d2x = 0.5 * (qw2 * wp2 + qy2 * wr2 - qz2 * wq2)
-        d2y = 0.5 * (qw2 * wq2 + qz2 * wp2 - qx2 * wr2)
-        d2z = 0.5 * (qw2 * wr2 + qx2 * wq2 - qy2 * wp2)
-        e2p = (tp - kr * wp2 - jyz * wq2 * wr2) / ix
-        e2q = (tq - kr * wq2 - jzx * wp2 * wr2) / iy
-        e2r = (tr - kr * wr2 - jxy * wp2 * wq2) / iz
-        # k3 = f(x + hh·k2)
-        vx3 = vx + hh * a2x
-        vy3 = vy + hh * a2y
-        vz3 = vz + hh * a2z
-        qw3 = qw + hh * d2w
-        qx3 = qx + hh * d2x
-        qy3 = qy + hh * d2y
-        qz3 = qz + hh * d2z
-        wp3 = wp + hh * e2p
-        wq3 = wq + hh * e2q
-        wr3 = wr + hh * e2r
-        a3x = a * (2.0 * (qx3 * qz3 + qw3 * qy3)) - kt * vx3
-        a3y = a * (2.0 * (qy3 * qz3 - qw3 * qx3)) - kt * vy3
-        a3z = a * (1.0 - 2.0 * (qx3 * qx3 + qy3 * qy3)) - g - kt * vz3
-        d3w = 0.5 * (-qx3 * wp3 - qy3 * wq3 - qz3 * wr3)
-        d3x = 0.5 * (qw3 * wp3 + qy3 * wr3 - qz3 * wq3)
-        d3y = 0.5 * (qw3 * wq3 + qz3 * wp3 - qx3 * wr3)
-        d3z = 0.5 * (qw3 * wr3 + qx3 * wq3 - qy3 * wp3)
-        e3p = (tp - kr * wp3 - jyz * wq3 * wr3) / ix
-        e3q = (tq - kr * wq3 - jzx * wp3 * wr3) / iy
-        e3r = (tr - kr * wr3 - jxy * wp3 * wq3) / iz
-        # k4 = f(x + h·k3)
-        vx4 = vx + h * a3x
-        vy4 = vy + h * a3y
-        vz4 = vz + h * a3z
-        qw4 = qw + h * d3w
-        qx4 = qx + h * d3x
-        qy4 = qy + h * d3y
-        qz4 = qz + h * d3z
-        wp4 = wp + h * e3p
-        wq4 = wq + h * e3q
-        wr4 = wr + h * e3r
-        a4x = a * (2.0 * (qx4 * qz4 + qw4 * qy4)) - kt * vx4
-        a4y = a * (2.0 * (qy4 * qz4 - qw4 * qx4)) - kt * vy4
-        a4z = a * (1.0 - 2.0 * (qx4 * qx4 + qy4 * qy4)) - g - kt * vz4
-        d4w = 0.5 * (-qx4 * wp4 - qy4 * wq4 - qz4 * wr4)
-        d4x = 0.5 * (qw4 * wp4 + qy4 * wr4 - qz4 * wq4)
-        d4y = 0.5 * (qw4 * wq4 + qz4 * wp4 - qx4 * wr4)
-        d4z = 0.5 * (qw4 * wr4 + qx4 * wq4 - qy4 * wp4)
-        e4p = (tp - kr * wp4 - jyz * wq4 * wr4) / ix
-        e4q = (tq - kr * wq4 - jzx * wp4 * wr4) / iy
-        e4r = (tr - kr * wr4 - jxy * wp4 * wq4) / iz
-        h6 = h / 6.0
-        # position: its derivative at each stage is that stage's velocity
-        npx = px + h6 * (vx + 2.0 * vx2 + 2.0 * vx3 + vx4)
-        npy = py + h6 * (vy + 2.0 * vy2 + 2.0 * vy3 + vy4)
-        npz = pz + h6 * (vz + 2.0 * vz2 + 2.0 * vz3 + vz4)
-        nvx = vx + h6 * (a1x + 2.0 * a2x + 2.0 * a3x + a4x)
-        nvy = vy + h6 * (a1y + 2.0 * a2y + 2.0 * a3y + a4y)
-        nvz = vz + h6 * (a1z + 2.0 * a2z + 2.0 * a3z + a4z)
-        nqw = qw + h6 * (d1w + 2.0 * d2w + 2.0 * d3w + d4w)
-        nqx = qx + h6 * (d1x + 2.0 * d2x + 2.0 * d3x + d4x)
-        nqy = qy + h6 * (d1y + 2.0 * d2y + 2.0 * d3y + d4y)
-        nqz = qz + h6 * (d1z + 2.0 * d2z + 2.0 * d3z + d4z)
-        nwp = wp + h6 * (e1p + 2.0 * e2p + 2.0 * e3p + e4p)
-        nwq = wq + h6 * (e1q + 2.0 * e2q + 2.0 * e3q + e4q)
-        nwr = wr + h6 * (e1r + 2.0 * e2r + 2.0 * e3r + e4r)
-        n = math.sqrt(nqw ** 2 + nqx ** 2 + nqy ** 2 + nqz ** 2)
-        return [npx, npy, npz, nvx, nvy, nvz, nqw / n, nqx / n, nqy / n, nqz / n,
-                nwp, nwq, nwr]
+    return step
 
-    if not compiled:
-        return step
-    from tfl_mav.sim.physics_native import stepper  # the same step compiled (tfl_mav.accel.native)
 
-    return stepper(step)
+def _attach() -> None:
+    """The compiled rk4_step into ``_compiled``: now if it is built, else when a background
+    build completes (``auto``)."""
+    if _compiled["core"] is not None:
+        return
+
+    def ready(core: Any) -> None:
+        _compiled["core"] = core
+
+    core = native.obtain_function(rk4_step, _EXAMPLE, ready)
+    if core is not None:
+        ready(core)

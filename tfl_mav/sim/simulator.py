@@ -23,13 +23,13 @@ from tfl_mav.sim.physics import RigidBodyParams, RigidBodyState, Rk4Step, rk4_st
 
 __all__ = ["Simulator"]
 
-def _step_numpy_scalars(step: Rk4Step, x: list[float], uf: float, tp: float, tq: float,
-                        tr: float, h: float) -> list[float]:
+def _step_numpy_scalars(step: Rk4Step, x: Sequence[float], wrench: Sequence[float],
+                        h: float) -> Sequence[float]:
     """The step on numpy scalars, for a diverging state only: where Python floats raise
     (``**`` overflowing, a zero quaternion norm), numpy gives inf/NaN (with a warning), so
     the run ends as :meth:`Simulator.crash_reason` says instead of with an exception."""
     with np.errstate(all="ignore"):
-        return step([np.float64(c) for c in x], uf, tp, tq, tr, h)
+        return step([np.float64(c) for c in x], wrench, h)
 
 
 _round = float.__round__     # round() without its per-call lookup of __round__
@@ -172,12 +172,12 @@ class Simulator:
                 att = NO_ATTACK
             mean = motors.step(targets, h)
             f1, f2, f3, f4 = mean
-            uf, tp, tq, tr = f1 + f2 + f3 + f4, ell * (f4 - f2), ell * (f3 - f1), \
-                d * (f1 - f2 + f3 - f4)
+            wrench = (f1 + f2 + f3 + f4, ell * (f4 - f2), ell * (f3 - f1),
+                      d * (f1 - f2 + f3 - f4))
             try:
-                x = step(x, uf, tp, tq, tr, h)
+                x = step(x, wrench, h)
             except (OverflowError, ZeroDivisionError):
-                x = _step_numpy_scalars(step, x, uf, tp, tq, tr, h)
+                x = _step_numpy_scalars(step, x, wrench, h)
             n += 1
         self.attack = att
         self._mean_thrust_n = mean
