@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from tfl_mav.sim.power import PowerModel, power_step, power_step_source
+from tfl_mav.sim.power import EXAMPLE, PowerModel, power_step
 
 D_M, K_F = 0.016, 8.0e-6       # paper scenario: drag/thrust ratio, thrust coefficient
 HOVER_N = 1.1 * 9.81 / 4
@@ -58,7 +58,7 @@ def test_power_step_compiled_is_the_python_step_bit_for_bit():
     import random
 
     from tfl_mav.accel import native
-    core = native.build(power_step_source())
+    core = native.build_function(power_step, EXAMPLE)
     rng = random.Random(7)
     special = [0.0, -0.0, 1e-300, -1.0, math.nan, math.inf, 1e308]
 

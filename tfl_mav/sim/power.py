@@ -16,10 +16,7 @@ hover for the paper's 1.1 kg vehicle.
 
 from __future__ import annotations
 
-import ast
-import inspect
 import math
-import textwrap
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
@@ -101,9 +98,8 @@ def power_step(omega_radps, consumed_mah, temps_c, voltage_v, torque_coeff,  # t
                efficiency, idle_a, mah_per_a, decay, ambient_c, heating_c_per_a,
                capacity_mah, empty_v, full_v, r_int_ohm):
     """One :meth:`PowerModel.step` on numbers: → (terminal voltage V, currents A,
-    consumed mAh, temperatures °C, remaining %). Written in the form
-    :mod:`tfl_mav.accel.ctranslate` compiles (numbers and unpacked sequences in, float code,
-    nested tuples out); max() of two floats as the conditional it is (NaN included)."""
+    consumed mAh, temperatures °C, remaining %); max() of two floats as the conditional it
+    is (NaN included). A pure function: the seam compiles it (:data:`EXAMPLE`)."""
     w1, w2, w3, w4 = omega_radps
     q1, q2, q3, q4 = consumed_mah
     t1, t2, t3, t4 = temps_c
@@ -139,12 +135,8 @@ def power_step(omega_radps, consumed_mah, temps_c, voltage_v, torque_coeff,  # t
 _native: dict[str, Any] = {"core": None}
 
 
-def power_step_source() -> str:
-    """:func:`power_step`'s source as :mod:`tfl_mav.accel.native` compiles it (no docstring)."""
-    fn = ast.parse(textwrap.dedent(inspect.getsource(power_step))).body[0]
-    assert isinstance(fn, ast.FunctionDef)
-    fn.body = fn.body[1:]                     # the docstring (not float code)
-    return ast.unparse(fn) + "\n"
+#: Arguments shaped as :meth:`PowerModel.step` passes them (what the seam lowers for).
+EXAMPLE = ((0.0,) * 4, (0.0,) * 4, (0.0,) * 4) + (0.0,) * 12
 
 
 def _load_native() -> None:
@@ -154,7 +146,7 @@ def _load_native() -> None:
     def ready(core: Any) -> None:
         _native["core"] = core
 
-    core = native.obtain(power_step_source(), ready)
+    core = native.obtain_function(power_step, EXAMPLE, ready)
     if core is not None:
         ready(core)
 
