@@ -203,7 +203,7 @@ class _C:
             return
         s = self.fresh()
         fail = "".join(f"Py_DECREF({h}); " for h in (s, *held))
-        out.append(f"{ind}PyObject *{s} = PySequence_Fast({obj}, \"\");")
+        out.append(f"{ind}PyObject *{s} = tfl_fast({obj});")
         out.append(f"{ind}if ({s} == NULL) {{ PyErr_Clear(); {release}goto bail; }}")
         out.append(f"{ind}if (PySequence_Fast_GET_SIZE({s}) != {n}) {{ {fail}goto bail; }}")
         for k, elt in enumerate(target.elts):
@@ -336,16 +336,29 @@ tfl_hypot(double a, double b, double *out)
     return 0;
 }
 
-/* n floats from a tuple or list, a 1-D float64 buffer (a numpy array) or any sequence of
-   numbers; nonzero (no exception set) when it is none of those or holds another count. */
+/* A tuple (a NamedTuple too: its items are a tuple's) as it is, any other sequence through
+   PySequence_Fast (a new reference; NULL with an exception set if it is none). */
+static PyObject *
+tfl_fast(PyObject *o)
+{
+    if (PyTuple_Check(o)) {
+        Py_INCREF(o);
+        return o;
+    }
+    return PySequence_Fast(o, "");
+}
+
+/* n floats from a tuple (a NamedTuple too) or list, a 1-D float64 buffer (a numpy array) or
+   any sequence of numbers; nonzero (no exception set) when it is none of those or holds
+   another count. */
 static int
 tfl_unpack(PyObject *o, double *out, Py_ssize_t n)
 {
-    if (PyTuple_CheckExact(o) || PyList_CheckExact(o)) {
+    if (PyTuple_Check(o) || PyList_CheckExact(o)) {
         if (Py_SIZE(o) != n)
             return -1;
-        PyObject **items = PyTuple_CheckExact(o) ? ((PyTupleObject *)o)->ob_item
-                                                 : ((PyListObject *)o)->ob_item;
+        PyObject **items = PyTuple_Check(o) ? ((PyTupleObject *)o)->ob_item
+                                            : ((PyListObject *)o)->ob_item;
         for (Py_ssize_t k = 0; k < n; k++) {
             PyObject *x = items[k];
             out[k] = PyFloat_CheckExact(x) ? PyFloat_AS_DOUBLE(x) : PyFloat_AsDouble(x);
