@@ -36,7 +36,7 @@ from tfl_mav.accel.ctranslate import NativeError
 from tfl_mav.accel.lowering import Lowerer
 from tfl_mav.accel.values import Frame, Tup, _source
 
-__all__ = ["Lowered", "Tup", "lower", "lower_files", "shape_key"]
+__all__ = ["Lowered", "Tup", "lower", "lower_files", "relinked", "shape_key"]
 
 
 def _entry_shape(x: Any, what: str) -> Any:
@@ -118,3 +118,23 @@ def _target(v: Any) -> ast.expr:
 def _tuple(v: Any) -> ast.expr:
     return ast.Tuple([_tuple(x) for x in v.items], ast.Load()) if isinstance(v, Tup) else v
 
+
+def relinked(namespace: dict[str, Any], **names: Any) -> dict[str, Any]:
+    """A module's namespace (its ``globals()``) with ``names`` bound to other objects — a
+    path's generated kernels — and every function defined in it rebound to the copy: the
+    same code, calling those objects; one copy per set of objects, kept. The front end then
+    inlines what the functions call there (the generated code included)."""
+    key = (namespace["__name__"], tuple(sorted(names.items())))
+    ns = _RELINKED.get(key)
+    if ns is None:
+        ns = dict(namespace)
+        ns.update(names)
+        module = namespace["__name__"]
+        for name, fn in list(ns.items()):
+            if isinstance(fn, types.FunctionType) and fn.__module__ == module:
+                ns[name] = types.FunctionType(fn.__code__, ns, name, fn.__defaults__)
+        _RELINKED[key] = ns
+    return ns
+
+
+_RELINKED: dict[tuple[Any, ...], dict[str, Any]] = {}

@@ -1,15 +1,14 @@
 """The path tracker the law flies: the reference computation, compiled once per path.
 
-:class:`CompiledPathTracker` does exactly what :class:`tracker.PathTracker` does — the same
-warm-started Newton projection on σ's degree-5 Taylor polynomial (§V (13)), the same
-implicit differentiation for π's derivatives, α = s(y) along the position's Taylor series
-(§V (8), (14)) and the Jacobian rows Dφ (§V (15)) — but every piece of arithmetic runs as
-straight-line float code that :mod:`jetcode` generated at start-up by tracing the
-reference functions (σ, s and :func:`tracker.pi_rates`). The projection is Newton on σ
-itself, warm-started from the last λ, rather than Newton on a degree-5 expansion that is
-then re-expanded (the reference's two expansions and polynomial Newton per tick): the same
-root to rounding, at a third of the cost. tests/contract/test_compiled.py holds the two trackers to
-≤ 1e-9 relative on random states for every path kind.
+:func:`compile_path` traces a path's code (σ, s) and :func:`tracker.pi_rates` once at
+start-up into straight-line float kernels (:mod:`jetcode`, :mod:`kernelgen`): σ, σ', σ''/2
+at λ; σ's degree-5 expansion; α = s(y) to order 4 and its gradients along the position's
+Taylor rows (§V (8), (14), (15)); π's rates. :class:`CompiledPathTracker` holds the state of
+:func:`projection.project` on those kernels — Newton on σ itself, warm-started from the last
+λ, rather than Newton on a degree-5 expansion that is then re-expanded (the reference's two
+expansions and polynomial Newton per tick): the same root to rounding, at a third of the
+cost. tests/contract/test_compiled.py holds it to :class:`tracker.PathTracker` to ≤ 1e-9
+relative on random states for every path kind.
 
 Start-up: tracing and compiling takes a few milliseconds per path (``build_s``); the
 path-independent kernels are made once per process.
@@ -19,13 +18,15 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from tfl_mav.control.path import projection
 from tfl_mav.control.path.jetcode import TRACE_LIB, Sym, TJet, TraceError
 from tfl_mav.control.path.kernelgen import Kernel, compile_kernel
 from tfl_mav.control.path.paths import Path
+from tfl_mav.control.path.projection import PATH_START, VO_OK, lost_reason
 from tfl_mav.control.path.tracker import (
     MIN_TUBE_MARGIN,
     PathTracker,
@@ -40,7 +41,6 @@ _AXES = "xyz"
 C_NAMES = [f"c{j}{a}" for j in range(6) for a in _AXES]          # σ⁽ʲ⁾/j!, j-major
 Y_NAMES = [[f"{a}{k}" for k in range(5)] for a in _AXES]          # position Taylor rows
 _FACT = (1.0, 1.0, 2.0, 6.0, 24.0)                                 # as Jet.derivatives
-_NEWTON_ITERS = 20
 
 
 @dataclass(frozen=True)
@@ -130,112 +130,59 @@ def _pi_kernel(inline: bool = True) -> Kernel:
                           inline=inline)
 
 
-def _arc(cp: Sequence[Any], cn: Sequence[Any], delta: Any,
-         sqrt: Callable[[Any], Any] = math.sqrt) -> Any:
-    """∫|σ'| dλ over [λ, λ + δ] by Simpson's rule: |σ'| at both ends from the expansions
-    ``cp`` (at λ) and ``cn`` (at λ + δ), at the middle from ``cp``'s polynomial."""
-    h = 0.5 * delta
-    mx = cp[3] + h * (2.0 * cp[6] + h * (3.0 * cp[9] + h * (4.0 * cp[12] + h * 5.0 * cp[15])))
-    my = cp[4] + h * (2.0 * cp[7] + h * (3.0 * cp[10] + h * (4.0 * cp[13] + h * 5.0 * cp[16])))
-    mz = cp[5] + h * (2.0 * cp[8] + h * (3.0 * cp[11] + h * (4.0 * cp[14] + h * 5.0 * cp[17])))
-    return delta / 6.0 * (sqrt(cp[3] * cp[3] + cp[4] * cp[4] + cp[5] * cp[5])
-                          + 4.0 * sqrt(mx * mx + my * my + mz * mz)
-                          + sqrt(cn[3] * cn[3] + cn[4] * cn[4] + cn[5] * cn[5]))
-
-
 class CompiledPathTracker(PathTracker):
-    """:class:`PathTracker` with every per-tick computation compiled (see module doc)."""
+    """:class:`PathTracker` with every per-tick computation compiled: the holder of
+    :func:`projection.project`'s state on this path's kernels (see module doc)."""
 
     def __init__(self, path: Path, kernels: PathKernels | None = None, *,
                  min_tube_margin: float = MIN_TUBE_MARGIN) -> None:
+        self.state = PATH_START
         super().__init__(path, min_tube_margin=min_tube_margin)
         self.kernels = kernels if kernels is not None else compile_path(path)
-        self._sigma2 = self.kernels.sigma2.fn
-        self._sigma5 = self.kernels.sigma5.fn
-        self._s4 = self.kernels.s4.fn
-        self._pi = _pi_kernel().fn
-        self._expansion: tuple[float, tuple[float, ...]] | None = None   # (λ, σ5(λ))
-        self._lam_prev: float | None = None       # the λ before, for the warm start
+        k = self.kernels
+        self._step = projection.linked(k.sigma2.fn, k.sigma5.fn, k.s4.fn,
+                                          _pi_kernel().fn)["project"]
+        self.failure = ""       # the path's last error, in words (VO_FAILED)
 
-    def _project_compiled(self, y0: tuple[float, float, float]) -> tuple[float, ...] | None:
-        """Move λ to the closest point of ``y0`` (eq. (13)); σ's coefficients there.
+    @property   # type: ignore[override]
+    def lam(self) -> float | None:
+        """The path parameter of the closest point (None: none yet)."""
+        return self.state.lam if self.state.has_lam else None
 
-        Newton on g(λ) = ⟨y − σ(λ), σ'(λ)⟩ with the compiled σ, σ', σ'' (a few dozen
-        operations a step), warm-started from the last two λ. As in the reference, the
-        projection is lost when g' ≥ 0 (not a closest point) or the root is more than 0.05
-        from the warm start. A step below 1e-9 leaves an error ~ step² (quadratic
-        convergence): the root to rounding. π advances by Simpson's rule on |σ'|.
-        """
-        lam0 = self.lam
-        assert lam0 is not None
-        prev = self._expansion
-        # Warm start extrapolated from the last two solutions: saves a Newton step.
-        fresh = prev is not None and prev[0] == lam0   # λ not moved from outside
-        lam = 2.0 * lam0 - self._lam_prev if fresh and self._lam_prev is not None else lam0
-        yx, yy, yz = y0
-        sigma2 = self._sigma2
-        for _ in range(_NEWTON_ITERS):
-            c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = sigma2((lam,))
-            ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
-            dg = 2.0 * (ex * c2x + ey * c2y + ez * c2z) - (c1x * c1x + c1y * c1y + c1z * c1z)
-            if not dg < 0.0:
-                return None
-            step = -(ex * c1x + ey * c1y + ez * c1z) / dg
-            lam += step
-            if not abs(lam - lam0) <= 0.05:
-                return None
-            if abs(step) < 1e-9:
-                break
-        else:
-            return None
-        cp = prev[1] if fresh else self._sigma5((lam0,))
-        c = self._sigma5((lam,))
-        self._arc_m += _arc(cp, c, lam - lam0)
-        self._lam_prev = lam0
-        self.lam = lam
-        self._expansion = (lam, c)
-        return c
+    @lam.setter
+    def lam(self, value: float | None) -> None:
+        self.state = (self.state._replace(has_lam=0.0) if value is None
+                      else self.state._replace(has_lam=1.0, lam=float(value)))
+
+    def start(self, y0: Sequence[float]) -> tuple[float, float, float]:
+        """A global search for the closest point of ``y0`` (m), for a state without one:
+        (λ, converged 1/0, the path raised 1/0 — :attr:`failure` says what)."""
+        try:
+            lam, ok = self._newton(y0, self._global_lam(y0))
+        except (ValueError, ZeroDivisionError, OverflowError) as exc:
+            self.failure = str(exc)
+            return 0.0, 0.0, 1.0
+        return lam, 1.0 if ok else 0.0, 0.0
 
     def virtual_output(self, taylor: Sequence[Sequence[float]]) -> VirtualOutput:
         """(α, π) derivatives and Dφ along the position's Taylor rows (x, y, z), each
         (y, ẏ, ÿ/2, y⃛/6, y⁽⁴⁾/24) in the paper frame (m)."""
-        tx, ty, tz = taylor
-        y0 = (tx[0], ty[0], tz[0])
-        if not math.isfinite(sum(tx) + sum(ty) + sum(tz)):
-            return self._lost_vo(y0, "non-finite state")
+        rows = tuple(tuple(r) for r in taylor)
+        lam_start, ok, failed = 0.0, 0.0, 0.0
+        if not self.state.has_lam and math.isfinite(sum(rows[0]) + sum(rows[1])
+                                                    + sum(rows[2])):
+            lam_start, ok, failed = self.start((rows[0][0], rows[1][0], rows[2][0]))
+        args = (self.min_tube_margin, self.state, rows, lam_start, ok)
         try:
-            if self.lam is None:
-                lam, ok = self._newton(y0, self._global_lam(y0))
-                if not ok or not math.isfinite(lam):
-                    return self._lost_vo(y0, "closest-point search did not converge")
-                self.lam = self._arc_lam = lam
-            c = self._project_compiled(y0)
-            if c is None:
-                return self._lost_vo(y0, "closest-point search did not converge")
-            e0x, e0y, e0z = y0[0] - c[0], y0[1] - c[1], y0[2] - c[2]
-            c1x, c1y, c1z = c[3], c[4], c[5]
-            s1sq = c1x ** 2 + c1y ** 2 + c1z ** 2
-            slope = -s1sq + 2.0 * (e0x * c[6] + e0y * c[7] + e0z * c[8])
-            margin = -slope / s1sq if s1sq > 0.0 else 0.0
-            distance = math.sqrt(e0x ** 2 + e0y ** 2 + e0z ** 2)
-            if margin < self.min_tube_margin:
-                return self._lost_vo(
-                    y0, f"distance {distance:.3f} m near the radius of curvature "
-                        f"(projection margin {margin:.2f})", self.lam, distance)
-            p1, p2, p3, p4 = self._pi(c, tx, ty, tz, (slope,))
-            a = self._s4(tx, ty, tz)
+            vo, self.state = self._step(*args, failed)
         except (ValueError, ZeroDivisionError, OverflowError) as exc:
-            return self._lost_vo(y0, f"path evaluation failed: {exc}")
-        k = math.sqrt(s1sq) / -slope
-        return VirtualOutput(a[0:5], a[5:10], (self._arc_m, p1, p2, p3, p4),
-                             (a[10:13], a[13:16], (k * c1x, k * c1y, k * c1z)),
-                             self.lam, distance, True)
-
-    def _lost_vo(self, y0: Sequence[float], reason: str, lam: float = math.nan,
-                 distance: float = math.nan) -> VirtualOutput:
-        zero = (0.0, 0.0, 0.0, 0.0, 0.0)
-        ident = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
-        return VirtualOutput(zero, zero, zero, ident, lam, distance, False, reason)
+            self.failure = str(exc)
+            vo, self.state = self._step(*args, 1.0)
+        code, xi1, xi2, eta, jac, lam, distance, margin = vo
+        if code != VO_OK:
+            return VirtualOutput(xi1, xi2, eta, jac, lam, distance, False,
+                                 lost_reason(code, distance, margin, self.failure))
+        return VirtualOutput(xi1, xi2, eta, jac, lam, distance, True)
 
 
 def make_tracker(path: Path, compiled: bool = True) -> tuple[PathTracker, str]:

@@ -14,9 +14,9 @@ flies otherwise. :mod:`recovery` says what the law does and why.
 from __future__ import annotations
 
 import math
-import types
 from typing import Any, NamedTuple
 
+from tfl_mav.accel.frontend import relinked
 from tfl_mav.control.safe.lost_rotor import lost_rotor_step
 
 __all__ = ["MAX_INTEGRAL_G", "MAX_TILT_RAD", "MAX_VERTICAL_G", "POS_OMEGA", "SafeParams",
@@ -192,15 +192,4 @@ def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
 def linked(sigma2: Any) -> dict[str, Any]:
     """This module's functions with ``_sigma2`` the path's kernel (``sigma2((λ,))`` → σ, σ',
     σ''/2: nine floats): one namespace per kernel, the same code."""
-    ns = _LINKED.get(sigma2)
-    if ns is None:
-        ns = dict(globals())
-        ns["_sigma2"] = sigma2
-        for name, fn in list(ns.items()):
-            if isinstance(fn, types.FunctionType) and fn.__module__ == __name__:
-                ns[name] = types.FunctionType(fn.__code__, ns, name, fn.__defaults__)
-        _LINKED[sigma2] = ns
-    return ns
-
-
-_LINKED: dict[Any, dict[str, Any]] = {}
+    return relinked(globals(), _sigma2=sigma2)

@@ -43,25 +43,12 @@ from tfl_mav.control.actuators import MotorLagInverter
 from tfl_mav.control.allocation import RotorFrame, canonical_frame
 from tfl_mav.control.path.compiled import CompiledPathTracker, _pi_kernel, make_tracker
 from tfl_mav.control.path.paths import Path
+from tfl_mav.control.path.projection import PATH_START, VO_OK, PathState, lost_reason
 from tfl_mav.control.path.tracker import PathTracker
 from tfl_mav.control.tfl import step
 from tfl_mav.control.tfl.estimators import DOB_START, mass_model, mass_start
 from tfl_mav.control.tfl.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
-from tfl_mav.control.tfl.step import (
-    R_COND,
-    R_THRUST,
-    R_TUBE,
-    VO_FAILED,
-    VO_MARGIN,
-    VO_NO_ROOT,
-    VO_NONFINITE,
-    VO_OK,
-    Frame,
-    PathState,
-    TFLInputs,
-    TFLParams,
-    TFLState,
-)
+from tfl_mav.control.tfl.step import R_COND, R_THRUST, R_TUBE, Frame, TFLInputs, TFLParams, TFLState
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
 
@@ -127,8 +114,7 @@ def initial_state(model: ModelParams) -> TFLState:
     """The law before its first tick: u_f at the model's hover thrust, nothing learnt."""
     hover = model.mass_kg * model.gravity_mps2
     return TFLState(hover, 0.0, mass_start(float(model.mass_kg)), DOB_START, 0.0, (0.0, 0.0),
-                    (hover / 4.0,) * 4, 0.0, 0.0, 0.0, 0.0,
-                    PathState(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, (0.0,) * 18))
+                    (hover / 4.0,) * 4, 0.0, 0.0, 0.0, 0.0, PATH_START)
 
 
 _NESTED = {TFLState._fields.index(name): kind for name, kind in (
@@ -342,11 +328,8 @@ class TFLController:
         if self._linked_for is trk:
             lam_start, ok, failed = 0.0, 0.0, 0.0
             if not st[_PATH][0]:            # no λ yet: a global search first
-                try:
-                    lam_start, found = trk._newton(y, trk._global_lam(y))
-                    ok = 1.0 if found else 0.0
-                except _PATH_ERRORS as exc:
-                    failed, self._failure = 1.0, str(exc)
+                lam_start, ok, failed = trk.start(y)
+                self._failure = trk.failure
             u = TFLInputs(y, v, quat, rates, self._frame, self.attack_estimate_n, lo, hi,
                           lam_start, ok, failed)
             core = self._core
@@ -416,17 +399,8 @@ class TFLController:
                      uf: float, cond: float) -> str:
         """Why the law fell back, in words."""
         if reason == R_TUBE:
-            if code == VO_NONFINITE:
-                why = "non-finite state"
-            elif code == VO_NO_ROOT:
-                why = "closest-point search did not converge"
-            elif code == VO_MARGIN:
-                why = (f"distance {distance:.3f} m near the radius of curvature "
-                       f"(projection margin {margin:.2f})")
-            elif code == VO_FAILED:
-                why = f"path evaluation failed: {self._failure}"
-            else:
-                why = self._vo_reason
+            why = (self._vo_reason if code == _VO_REFERENCE
+                   else lost_reason(code, distance, margin, self._failure))
             return f"left the projection tube: {why}"
         if reason == R_THRUST:
             return f"total thrust {uf:.2f} N too small: D(x) singular"

@@ -8,9 +8,9 @@ In the order the paper builds the law:
    the canonical frame of the attacked rotor (:mod:`~tfl_mav.control.allocation`); the
    estimators (:mod:`estimators`) fed with what was applied; the Taylor rows of the output
    y = x_q from the model with the dynamic extension x13 = u_f, x14 = u̇_f (eqs. (3), (5), (9)).
-2. :func:`project` — the virtual output along those rows: the closest path point (Newton on
-   ⟨y − σ(λ), σ'(λ)⟩ = 0, eq. (13)), π's rates, α = s(y) and Dφ (eqs. (8), (14), (15)), on the
-   path's generated kernels (``_sigma2``, ``_sigma5``, ``_s4``, ``_pi``, linked in per path by
+2. :func:`~tfl_mav.control.path.projection.project` — the virtual output along those rows:
+   the closest path point (Newton on ⟨y − σ(λ), σ'(λ)⟩ = 0, eq. (13)), π's rates, α = s(y)
+   and Dφ (eqs. (8), (14), (15)), on the path's generated kernels (linked in per path by
    :func:`linked`).
 3. :func:`command` — the ξ, η controllers (eqs. (23), (24)), the decoupling solve (eq. (21)),
    the torques (eq. (3)), the allocation (eqs. (4), (6); yaw as internal dynamics, eq. (18),
@@ -28,11 +28,12 @@ and this very Python flies wherever it is not built.
 from __future__ import annotations
 
 import math
-import types
 from typing import Any, NamedTuple
 
+from tfl_mav.accel.frontend import relinked
 from tfl_mav.control.allocation import allocate_attacked, allocate_nominal
-from tfl_mav.control.path.compiled import _arc
+from tfl_mav.control.path import projection
+from tfl_mav.control.path.projection import VO_OK, PathState, project
 from tfl_mav.control.tfl.estimators import (
     DobState,
     MassModel,
@@ -53,23 +54,17 @@ from tfl_mav.control.tfl.law_math import (
     yaw_tau_r,
 )
 
-__all__ = ["NEWTON_ITERS", "R_COND", "R_NONE", "R_NONFINITE", "R_THRUST", "R_TUBE", "VO_FAILED",
-           "VO_MARGIN", "VO_NONFINITE", "VO_NO_ROOT", "VO_OK", "Frame", "PathState",
-           "TFLInputs", "TFLOutputs", "TFLParams", "TFLState", "command", "linked", "observe",
-           "predict", "project", "tfl_step"]
-
-NEWTON_ITERS = 20       # Newton steps of the projection before it counts as lost
+__all__ = ["R_COND", "R_NONE", "R_NONFINITE", "R_THRUST", "R_TUBE", "Frame", "TFLInputs",
+           "TFLOutputs", "TFLParams", "TFLState", "command", "linked", "observe", "predict",
+           "tfl_step"]
 
 # Why the law fell back (``TFLOutputs.reason``).
 R_NONE, R_TUBE, R_THRUST, R_COND, R_NONFINITE = 0.0, 1.0, 2.0, 3.0, 4.0
-# What the projection found (``TFLOutputs.vo_code``).
-VO_OK, VO_NONFINITE, VO_NO_ROOT, VO_MARGIN, VO_FAILED = 0.0, 1.0, 2.0, 3.0, 4.0
 
 V3 = tuple[float, float, float]
 V4 = tuple[float, float, float, float]
 _INF4 = (math.inf, math.inf, math.inf, math.inf)
 _ZERO4 = (0.0, 0.0, 0.0, 0.0)
-_ZERO5 = (0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 class TFLParams(NamedTuple):
@@ -115,20 +110,6 @@ class Frame(NamedTuple):
     perm: V4                    # the physical rotor (0-3) of canonical rotor i
     inv_perm: V4                # the canonical rotor of physical rotor j
     mu_den: float               # 2 I_x d' (μ2 = −p/I_z − l r/(2 I_x d), eq. (18))
-
-
-class PathState(NamedTuple):
-    """What the projection remembers: λ, the last two λ (the warm start), π, and σ's degree-5
-    expansion at λ."""
-
-    has_lam: float
-    lam: float
-    has_lam_prev: float
-    lam_prev: float
-    arc_m: float                # π: the arc length from the first projection (m)
-    has_expansion: float        # 1.0: ``expansion`` is σ's at ``expansion_lam``
-    expansion_lam: float
-    expansion: tuple[float, ...]    # σ⁽ʲ⁾/j!, j = 0…5, x y z each (18)
 
 
 class TFLState(NamedTuple):
@@ -199,28 +180,6 @@ def _permuted(values: V4, perm: V4) -> V4:
             _pick(values, perm[3]))
 
 
-def _sigma2(a0: tuple[float]) -> tuple[float, ...]:
-    """σ, σ', σ''/2 at λ (9 floats): the path's kernel, linked in by :func:`linked`."""
-    raise NotImplementedError("the TFL step flies on a path: tfl_step of step.linked(kernels)")
-
-
-def _sigma5(a0: tuple[float]) -> tuple[float, ...]:
-    """σ⁽ʲ⁾/j! at λ, j = 0…5 (18 floats): the path's kernel, linked in by :func:`linked`."""
-    raise NotImplementedError("the TFL step flies on a path: tfl_step of step.linked(kernels)")
-
-
-def _s4(a0: tuple[float, ...], a1: tuple[float, ...], a2: tuple[float, ...]
-        ) -> tuple[float, ...]:
-    """α1, α2 to order 4 and their gradients along the position's rows: linked in."""
-    raise NotImplementedError("the TFL step flies on a path: tfl_step of step.linked(kernels)")
-
-
-def _pi(a0: tuple[float, ...], a1: tuple[float, ...], a2: tuple[float, ...],
-        a3: tuple[float, ...], a4: tuple[float]) -> tuple[float, ...]:
-    """π̇ … π⁽⁴⁾: the tracker's kernel, linked in."""
-    raise NotImplementedError("the TFL step flies on a path: tfl_step of step.linked(kernels)")
-
-
 def observe(p: TFLParams, s: TFLState, u: TFLInputs) -> tuple[Any, ...]:
     """The state seen by the law: ψ, R's last row, the canonical b1, b2, b3 and (p, q, r),
     the estimators after this tick, the mass used and the output's Taylor rows (x, y, z,
@@ -252,82 +211,6 @@ def observe(p: TFLParams, s: TFLState, u: TFLInputs) -> tuple[Any, ...]:
     rows = output_rows(u.position_m, v, b1, b2, b3, pc, qc, rc, s.x13, s.x14, mass, p.k_t,
                        p.gravity_mps2)
     return psi, (r20, r21, r22), b1, b2, b3, (pc, qc, rc), mass_s, dob_s, mass, rows
-
-
-def project(p: TFLParams, ps: PathState, rows: tuple[Any, ...], u: TFLInputs
-            ) -> tuple[Any, ...]:
-    """The virtual output along the position's Taylor ``rows`` (what
-    :class:`~tfl_mav.control.path.compiled.CompiledPathTracker` computes): (VO_* code, ξ1, ξ2,
-    η rows to order 4, the Jacobian rows Dφ (eq. (15)), λ, distance m, margin) and the
-    projection's state after it.
-
-    Newton on g(λ) = ⟨y − σ(λ), σ'(λ)⟩ from the last λ extrapolated by the one before; lost
-    when g' ≥ 0, the root is more than 0.05 from the start, or no step falls below 1e-9 in
-    NEWTON_ITERS. π advances by Simpson's rule on |σ'|."""
-    tx, ty, tz = rows
-    yx, yy, yz = tx[0], ty[0], tz[0]
-    code = VO_OK
-    xi1 = xi2 = eta = _ZERO5
-    jac = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
-    lam_out, distance, margin = math.nan, math.nan, 0.0
-    has_lam, lam0 = ps.has_lam, ps.lam
-    if not math.isfinite((tx[0] + tx[1] + tx[2] + tx[3] + tx[4])
-                         + (ty[0] + ty[1] + ty[2] + ty[3] + ty[4])
-                         + (tz[0] + tz[1] + tz[2] + tz[3] + tz[4])):
-        code = VO_NONFINITE
-    elif u.path_failed:
-        code = VO_FAILED
-    elif not has_lam:
-        if u.lam_start_ok and math.isfinite(u.lam_start):
-            has_lam, lam0 = 1.0, u.lam_start
-        else:
-            code = VO_NO_ROOT
-    ps = PathState(has_lam, lam0, ps.has_lam_prev, ps.lam_prev, ps.arc_m, ps.has_expansion,
-                   ps.expansion_lam, ps.expansion)
-    if code == VO_OK:
-        fresh = ps.has_expansion and ps.expansion_lam == lam0   # λ not moved from outside
-        lam = 2.0 * lam0 - ps.lam_prev if fresh and ps.has_lam_prev else lam0
-        found = 0.0
-        for _ in range(NEWTON_ITERS):
-            c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = _sigma2((lam,))
-            ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
-            dg = 2.0 * (ex * c2x + ey * c2y + ez * c2z) - (c1x * c1x + c1y * c1y + c1z * c1z)
-            if not dg < 0.0:
-                break
-            step = -(ex * c1x + ey * c1y + ez * c1z) / dg
-            lam += step
-            if not abs(lam - lam0) <= 0.05:
-                break
-            if abs(step) < 1e-9:
-                found = 1.0
-                break
-        if found:
-            cp = ps.expansion
-            if not fresh:
-                cp = _sigma5((lam0,))
-            c = _sigma5((lam,))
-            ps = PathState(1.0, lam, 1.0, lam0, ps.arc_m + _arc(cp, c, lam - lam0, math.sqrt),
-                           1.0, lam, c)
-            lam_out = lam
-            e0x, e0y, e0z = yx - c[0], yy - c[1], yz - c[2]
-            c1x, c1y, c1z = c[3], c[4], c[5]
-            s1sq = c1x ** 2 + c1y ** 2 + c1z ** 2
-            slope = -s1sq + 2.0 * (e0x * c[6] + e0y * c[7] + e0z * c[8])
-            margin = -slope / s1sq if s1sq > 0.0 else 0.0
-            distance = math.sqrt(e0x ** 2 + e0y ** 2 + e0z ** 2)
-            if margin < p.tube_min:
-                code = VO_MARGIN
-            else:
-                p1, p2, p3, p4 = _pi(c, tx, ty, tz, (slope,))
-                a = _s4(tx, ty, tz)
-                k = math.sqrt(s1sq) / -slope
-                xi1, xi2, eta = a[0:5], a[5:10], (ps.arc_m, p1, p2, p3, p4)
-                jac = (a[10:13], a[13:16], (k * c1x, k * c1y, k * c1z))
-        else:
-            code = VO_NO_ROOT
-    if code != VO_OK and code != VO_MARGIN:     # no closest point to speak of
-        lam_out, distance = math.nan, math.nan
-    return (code, xi1, xi2, eta, jac, lam_out, distance, margin), ps
 
 
 def predict(p: TFLParams, fr: Frame, delivered: V4, rates: V3) -> tuple[float, float]:
@@ -433,24 +316,14 @@ def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: tuple[Any, ...],
 def tfl_step(p: TFLParams, s: TFLState, u: TFLInputs) -> tuple[TFLState, TFLOutputs]:
     """One control period of the law (module doc): the new state and the decision."""
     seen = observe(p, s, u)
-    vo, ps = project(p, s.path, seen[9], u)
+    vo, ps = project(p.tube_min, s.path, seen[9], u.lam_start, u.lam_start_ok, u.path_failed)
     return command(p, s, u, seen, vo, ps)
 
 
 def linked(sigma2: Any, sigma5: Any, s4: Any, pi: Any) -> dict[str, Any]:
-    """This module's functions with the path's kernels linked in (σ, σ', σ''/2; σ's
-    degree-5 expansion; α and Dφ along the rows; π's rates): one namespace per kernel set,
-    the same code."""
-    key = (sigma2, sigma5, s4, pi)
-    ns = _LINKED.get(key)
-    if ns is None:
-        ns = dict(globals())
-        ns.update(_sigma2=sigma2, _sigma5=sigma5, _s4=s4, _pi=pi)
-        for name, fn in list(ns.items()):
-            if isinstance(fn, types.FunctionType) and fn.__module__ == __name__:
-                ns[name] = types.FunctionType(fn.__code__, ns, name, fn.__defaults__)
-        _LINKED[key] = ns
-    return ns
-
-
-_LINKED: dict[Any, dict[str, Any]] = {}
+    """This module's functions with :func:`~tfl_mav.control.path.projection.project` on the
+    path's kernels (:func:`projection.linked`): one namespace per kernel set, the same code.
+    The kernels are named here too, so that a lowering of the step is keyed on them."""
+    projected = projection.linked(sigma2, sigma5, s4, pi)["project"]
+    return relinked(globals(), project=projected, _sigma2=sigma2, _sigma5=sigma5, _s4=s4,
+                    _pi=pi)

@@ -1,0 +1,188 @@
+"""The virtual output along the position (paper §V), as explicit state and one pure step.
+
+:func:`project` is what the law needs of the path at one instant, on the path's generated
+kernels (σ, σ', σ''/2; σ's degree-5 expansion; α = s(y) and its gradients along the
+position's Taylor rows; π's rates — :mod:`compiled`, linked in per path by :func:`linked`):
+
+* the closest point (eq. (13)): Newton on g(λ) = ⟨y − σ(λ), σ'(λ)⟩ with the exact σ, σ',
+  σ'', from the last λ extrapolated by the one before; lost when g' ≥ 0 (not a closest
+  point), when the root is more than 0.05 from the start, or when no step falls below 1e-9
+  in NEWTON_ITERS (a step below 1e-9 leaves an error ~ step²: the root to rounding);
+* π, the arc length of the closest point, advanced by Simpson's rule on |σ'| (:func:`arc`);
+* the projection's margin −∂g/∂λ / |σ'|², which vanishes where the distance to the path
+  reaches the radius of curvature: below ``tube_min`` the tube is left before the
+  derivatives blow up;
+* α's and π's derivatives to order 4 and the Jacobian rows Dφ (eqs. (8), (14), (15)).
+
+It is the reference computation of :class:`tracker.PathTracker` (the jets) done in
+straight-line float code: tests/contract/test_compiled.py holds the two to ≤ 1e-9 relative.
+:class:`compiled.CompiledPathTracker` holds its state; the law's step
+(:func:`tfl_mav.control.tfl.step.tfl_step`) calls it within its one pure step, so the
+accelerator seam compiles it with the kernels inlined.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
+
+from tfl_mav.accel.frontend import relinked
+
+__all__ = ["NEWTON_ITERS", "PATH_START", "VO_FAILED", "VO_MARGIN", "VO_NONFINITE", "VO_NO_ROOT",
+           "VO_OK", "PathState", "arc", "linked", "lost_reason", "project"]
+
+NEWTON_ITERS = 20       # Newton steps of the projection before it counts as lost
+
+# What the projection found (the first item of :func:`project`'s output).
+VO_OK, VO_NONFINITE, VO_NO_ROOT, VO_MARGIN, VO_FAILED = 0.0, 1.0, 2.0, 3.0, 4.0
+
+_ZERO5 = (0.0, 0.0, 0.0, 0.0, 0.0)
+_IDENTITY = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
+
+
+class PathState(NamedTuple):
+    """What the projection remembers: λ, the last two λ (the warm start), π, and σ's degree-5
+    expansion at λ."""
+
+    has_lam: float
+    lam: float
+    has_lam_prev: float
+    lam_prev: float
+    arc_m: float                # π: the arc length from the first projection (m)
+    has_expansion: float        # 1.0: ``expansion`` is σ's at ``expansion_lam``
+    expansion_lam: float
+    expansion: tuple[float, ...]    # σ⁽ʲ⁾/j!, j = 0…5, x y z each (18)
+
+
+PATH_START = PathState(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, (0.0,) * 18)
+
+
+def _sigma2(a0: tuple[float]) -> tuple[float, ...]:
+    """σ, σ', σ''/2 at λ (9 floats): the path's kernel, linked in by :func:`linked`."""
+    raise NotImplementedError("project flies on a path: projection.linked(kernels)")
+
+
+def _sigma5(a0: tuple[float]) -> tuple[float, ...]:
+    """σ⁽ʲ⁾/j! at λ, j = 0…5 (18 floats): the path's kernel, linked in by :func:`linked`."""
+    raise NotImplementedError("project flies on a path: projection.linked(kernels)")
+
+
+def _s4(a0: tuple[float, ...], a1: tuple[float, ...], a2: tuple[float, ...]
+        ) -> tuple[float, ...]:
+    """α1, α2 to order 4 and their gradients along the position's rows: linked in."""
+    raise NotImplementedError("project flies on a path: projection.linked(kernels)")
+
+
+def _pi(a0: tuple[float, ...], a1: tuple[float, ...], a2: tuple[float, ...],
+        a3: tuple[float, ...], a4: tuple[float]) -> tuple[float, ...]:
+    """π̇ … π⁽⁴⁾: the tracker's kernel, linked in."""
+    raise NotImplementedError("project flies on a path: projection.linked(kernels)")
+
+
+def arc(cp: Sequence[Any], cn: Sequence[Any], delta: Any,
+        sqrt: Callable[[Any], Any] = math.sqrt) -> Any:
+    """∫|σ'| dλ over [λ, λ + δ] by Simpson's rule: |σ'| at both ends from the expansions
+    ``cp`` (at λ) and ``cn`` (at λ + δ), at the middle from ``cp``'s polynomial."""
+    h = 0.5 * delta
+    mx = cp[3] + h * (2.0 * cp[6] + h * (3.0 * cp[9] + h * (4.0 * cp[12] + h * 5.0 * cp[15])))
+    my = cp[4] + h * (2.0 * cp[7] + h * (3.0 * cp[10] + h * (4.0 * cp[13] + h * 5.0 * cp[16])))
+    mz = cp[5] + h * (2.0 * cp[8] + h * (3.0 * cp[11] + h * (4.0 * cp[14] + h * 5.0 * cp[17])))
+    return delta / 6.0 * (sqrt(cp[3] * cp[3] + cp[4] * cp[4] + cp[5] * cp[5])
+                          + 4.0 * sqrt(mx * mx + my * my + mz * mz)
+                          + sqrt(cn[3] * cn[3] + cn[4] * cn[4] + cn[5] * cn[5]))
+
+
+def project(tube_min: float, ps: PathState, rows: tuple[Any, ...], lam_start: float,
+            lam_start_ok: float, path_failed: float) -> tuple[tuple[Any, ...], PathState]:
+    """The virtual output along the position's Taylor ``rows`` (x, y, z, each (y, ẏ, ÿ/2,
+    y⃛/6, y⁽⁴⁾/24), m): ((VO_* code, ξ1, ξ2, η rows to order 4, the Jacobian rows Dφ
+    (eq. (15)), λ, distance m, margin), the state after it).
+
+    ``lam_start``/``lam_start_ok``: a global search's λ for a state without one (the
+    holder's, :meth:`compiled.CompiledPathTracker.start`); ``path_failed``: evaluating the
+    path raised (VO_FAILED, nothing moves). Lost (any code but VO_OK): ξ, η zero, Dφ the
+    identity; λ and the distance NaN unless the closest point was found (VO_MARGIN)."""
+    tx, ty, tz = rows
+    yx, yy, yz = tx[0], ty[0], tz[0]
+    code = VO_OK
+    xi1 = xi2 = eta = _ZERO5
+    jac = _IDENTITY
+    lam_out, distance, margin = math.nan, math.nan, 0.0
+    has_lam, lam0 = ps.has_lam, ps.lam
+    if not math.isfinite((tx[0] + tx[1] + tx[2] + tx[3] + tx[4])
+                         + (ty[0] + ty[1] + ty[2] + ty[3] + ty[4])
+                         + (tz[0] + tz[1] + tz[2] + tz[3] + tz[4])):
+        code = VO_NONFINITE
+    elif path_failed:
+        code = VO_FAILED
+    elif not has_lam:
+        if lam_start_ok and math.isfinite(lam_start):
+            has_lam, lam0 = 1.0, lam_start
+        else:
+            code = VO_NO_ROOT
+    ps = PathState(has_lam, lam0, ps.has_lam_prev, ps.lam_prev, ps.arc_m, ps.has_expansion,
+                   ps.expansion_lam, ps.expansion)
+    if code == VO_OK:
+        fresh = ps.has_expansion and ps.expansion_lam == lam0   # λ not moved from outside
+        lam = 2.0 * lam0 - ps.lam_prev if fresh and ps.has_lam_prev else lam0
+        found = 0.0
+        for _ in range(NEWTON_ITERS):
+            c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = _sigma2((lam,))
+            ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
+            dg = 2.0 * (ex * c2x + ey * c2y + ez * c2z) - (c1x * c1x + c1y * c1y + c1z * c1z)
+            if not dg < 0.0:
+                break
+            step = -(ex * c1x + ey * c1y + ez * c1z) / dg
+            lam += step
+            if not abs(lam - lam0) <= 0.05:
+                break
+            if abs(step) < 1e-9:
+                found = 1.0
+                break
+        if found:
+            cp = ps.expansion
+            if not fresh:
+                cp = _sigma5((lam0,))
+            c = _sigma5((lam,))
+            ps = PathState(1.0, lam, 1.0, lam0, ps.arc_m + arc(cp, c, lam - lam0, math.sqrt),
+                           1.0, lam, c)
+            lam_out = lam
+            e0x, e0y, e0z = yx - c[0], yy - c[1], yz - c[2]
+            c1x, c1y, c1z = c[3], c[4], c[5]
+            s1sq = c1x ** 2 + c1y ** 2 + c1z ** 2
+            slope = -s1sq + 2.0 * (e0x * c[6] + e0y * c[7] + e0z * c[8])
+            margin = -slope / s1sq if s1sq > 0.0 else 0.0
+            distance = math.sqrt(e0x ** 2 + e0y ** 2 + e0z ** 2)
+            if margin < tube_min:
+                code = VO_MARGIN
+            else:
+                p1, p2, p3, p4 = _pi(c, tx, ty, tz, (slope,))
+                a = _s4(tx, ty, tz)
+                k = math.sqrt(s1sq) / -slope
+                xi1, xi2, eta = a[0:5], a[5:10], (ps.arc_m, p1, p2, p3, p4)
+                jac = (a[10:13], a[13:16], (k * c1x, k * c1y, k * c1z))
+        else:
+            code = VO_NO_ROOT
+    if code != VO_OK and code != VO_MARGIN:     # no closest point to speak of
+        lam_out, distance = math.nan, math.nan
+    return (code, xi1, xi2, eta, jac, lam_out, distance, margin), ps
+
+
+def lost_reason(code: float, distance_m: float, margin: float, failure: str) -> str:
+    """Why the projection was lost (a VO_* code other than VO_OK), in words; ``failure``: the
+    path's own error (VO_FAILED)."""
+    if code == VO_NONFINITE:
+        return "non-finite state"
+    if code == VO_MARGIN:
+        return (f"distance {distance_m:.3f} m near the radius of curvature "
+                f"(projection margin {margin:.2f})")
+    if code == VO_FAILED:
+        return f"path evaluation failed: {failure}"
+    return "closest-point search did not converge"
+
+
+def linked(sigma2: Any, sigma5: Any, s4: Any, pi: Any) -> dict[str, Any]:
+    """This module's functions on one path's kernels (σ, σ', σ''/2; σ's degree-5 expansion;
+    α and Dφ along the rows; π's rates): one namespace per kernel set, the same code."""
+    return relinked(globals(), _sigma2=sigma2, _sigma5=sigma5, _s4=s4, _pi=pi)
