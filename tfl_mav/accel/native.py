@@ -116,7 +116,8 @@ def _translator() -> str:
     """The translator's own source, hashed: a changed translation is a new cache entry."""
     here = Path(__file__).parent
     text = Path(ctranslate.__file__).read_bytes() + b"".join(
-        (here / name).read_bytes() for name in ("frontend.py", "lowering.py", "values.py"))
+        (here / name).read_bytes() for name in ("cruntime.py", "frontend.py", "lowering.py",
+                                                  "values.py"))
     return hashlib.sha256(text).hexdigest()[:16]
 
 
