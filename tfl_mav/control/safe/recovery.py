@@ -31,11 +31,13 @@ flown with a PD on (−h2, h1) through both torques and a yaw-rate damper.
 
 The outer loop is a PID on position towards a target: the closest point of the path with
 its velocity (speed × tangent) and centripetal acceleration, or a held point (altitude hold,
-velocity zero). Its poles are a triple one at −ω_p (ω_p = 1.25 rad/s): k_p = 3ω_p², k_d = 3ω_p,
+velocity zero). Its poles are a triple one at −ω_p (ω_p = 2 rad/s): k_p = 3ω_p², k_d = 3ω_p,
 k_i = ω_p³. The integral is what makes the law precise: the steady forces it does not model
 (the model's mass error Δm g, drag, the spinning attitude loop's bias) are a constant
 acceleration demand, which a PD alone leaves as an offset Δm g/k_p (0.10 m at 5 % mass
-error) and the integral removes. It is bounded (±``MAX_INTEGRAL_G`` g) and frozen while the
+error) and the integral removes. ω_p = 2 rad/s (it was 1.25) is what hands the vehicle back
+to TFL within millimetres after a zero-attack stretch; softer, the safe law leaves tens of
+millimetres for TFL to converge from after every hand-back. It is bounded (±``MAX_INTEGRAL_G`` g) and frozen while the
 demand is limited or the allocation cannot make it (anti-windup, :meth:`_integrate`). The
 wanted acceleration is limited to a 30° tilt and
 ±0.5 g vertically: a safe law does not chase the path hard.
