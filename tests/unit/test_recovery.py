@@ -201,7 +201,8 @@ def test_restarted_controller_takes_over_a_falling_vehicle_without_a_flip(t_off,
     (it flipped 0.8 s after such a take-over, "thrust axis points down"): the recovery law
     takes it on the first tick, never tilts past its own 30° limit, and stops the fall
     within the altitude hold's peak excursion (the linear loop's, or the stopping distance at
-    its 0.5 g cap) + 20 % for the levelling transient. Cut 0.10 s (0.9 m/s): TFL takes over directly."""
+    its 0.5 g cap) + 20 % for the levelling transient. Cut 0.10 s (0.9 m/s): TFL takes
+    over directly."""
     modes, tilts, heights, start, crash = _restart(t_off)
     assert crash is None, crash
     assert modes[0] is mode

@@ -37,8 +37,8 @@ k_i = ω_p³. The integral is what makes the law precise: the steady forces it d
 acceleration demand, which a PD alone leaves as an offset Δm g/k_p (0.10 m at 5 % mass
 error) and the integral removes. ω_p = 2 rad/s (it was 1.25) is what hands the vehicle back
 to TFL within millimetres after a zero-attack stretch; softer, the safe law leaves tens of
-millimetres for TFL to converge from after every hand-back. It is bounded (±``MAX_INTEGRAL_G`` g) and frozen while the
-demand is limited or the allocation cannot make it (anti-windup, :meth:`_integrate`). The
+millimetres for TFL to converge from after every hand-back. It is bounded
+(±``MAX_INTEGRAL_G`` g) and frozen while the demand is limited or the allocation cannot make it (anti-windup, :meth:`_integrate`). The
 wanted acceleration is limited to a 30° tilt and
 ±0.5 g vertically: a safe law does not chase the path hard.
 
