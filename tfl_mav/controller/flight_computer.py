@@ -388,9 +388,12 @@ class FlightComputer:
         if start == Start.SAFE_HOLD:
             rec.hold(state.position_m)
         elif start == Start.SAFE_PATH:
-            if rec.hold_m is not None and rec.projector is not None:
-                rec.projector.lam = None       # a fresh global search: we may be far away
-            rec.follow_path()
+            if rec.hold_m is not None:         # after a held point: we may be far away
+                rec.follow_path(search=True)
+            elif out is not None:              # from TFL: its λ is where the vehicle is
+                rec.follow_path(out.lam)
+            else:
+                rec.follow_path(search=True)
         if start in (Start.SAFE_HOLD, Start.SAFE_PATH) and old.law == Law.TFL:
             lag = self.controller.lag_inverter
             if lag is not None:
@@ -428,6 +431,7 @@ class FlightComputer:
         # An attacked rotor is never ours to command: with one known, the safe law flies the
         # other three whichever way it was entered (a take-over of an attacked vehicle too).
         flying = self._sup
+        self.controller.track(state, self._last_safe_thrust)   # what acted over the period
         out = rec.update(state, rotor, a_n)
         dist = out.path_distance_m
         self._last_safe_thrust = out.thrust_n

@@ -24,7 +24,7 @@ __all__ = ["MAX_INTEGRAL_G", "MAX_TILT_RAD", "MAX_VERTICAL_G", "POS_OMEGA", "Saf
 
 MAX_TILT_RAD = math.radians(30.0)   # outer loop: horizontal acceleration ≤ g tan 30°
 MAX_VERTICAL_G = 0.5                # outer loop: |vertical acceleration| ≤ 0.5 g
-POS_OMEGA = 2.0  # outer-loop triple pole (rad/s)
+POS_OMEGA = 1.25  # outer-loop triple pole (rad/s)
 MAX_INTEGRAL_G = 0.2                # |integral action| ≤ 0.2 g per axis (a 20 % model error)
 TAN_MAX_TILT = math.tan(MAX_TILT_RAD)
 KP = 3.0 * POS_OMEGA * POS_OMEGA      # outer-loop PID gains: (s + ω_p)³

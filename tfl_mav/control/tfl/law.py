@@ -45,8 +45,8 @@ from tfl_mav.control.path.compiled import CompiledPathTracker, _pi_kernel, make_
 from tfl_mav.control.path.paths import Path
 from tfl_mav.control.path.projection import PATH_START, VO_OK, PathState, lost_reason
 from tfl_mav.control.path.tracker import PathTracker
-from tfl_mav.control.tfl import step
-from tfl_mav.control.tfl.estimators import DOB_START, mass_model, mass_start
+from tfl_mav.control.tfl import law_math, step
+from tfl_mav.control.tfl.estimators import DOB_START, mass_model, mass_start, mass_update
 from tfl_mav.control.tfl.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
 from tfl_mav.control.tfl.step import R_COND, R_THRUST, R_TUBE, Frame, TFLInputs, TFLParams, TFLState
 from tfl_mav.model.modes import Mode
@@ -289,14 +289,27 @@ class TFLController:
             ps = ps._replace(has_lam=1.0, lam=lam)
             if self._linked_for is not self.tracker:
                 self.tracker.lam = lam
-        # The mass estimator keeps what it learnt; its filters restart at this tick's sample
-        # (their memory is of a flight the other law flew: a stale LP(v) against today's v
-        # reads as an acceleration, and the estimate jumps by several percent).
+        # The mass estimator has kept learning while the other law flew (:meth:`track`).
         self.state = s._replace(x13=sum(thrust_n), x14=0.0, dob=DOB_START, has_pred=0.0,
-                                last_out=tuple(thrust_n), path=ps,
-                                mass=s.mass._replace(started=0.0))
+                                last_out=tuple(thrust_n), path=ps)
         if self.lag_inverter is not None:
             self.lag_inverter.reset()
+
+    def track(self, s: State, applied_n: Sequence[float]) -> None:
+        """A tick another law flew: the mass estimator learns from it as from its own
+        (:func:`~tfl_mav.control.tfl.estimators.mass_update` with the thrust that was applied
+        over the last period, N, and the measured velocity and attitude). Newton's law holds
+        whichever law commands, so at a hand-back the estimate and its filters are those of
+        the vehicle now, not of the moment the other law took over (a stale LP(v) against
+        today's v reads as an acceleration: the estimate jumped by 3 % and left a tail)."""
+        p = self.params
+        if not p.use_mass:
+            return
+        st = as_state(self.state)
+        r = law_math.rotation(_floats(s.quaternion_wxyz))
+        mass = mass_update(p.mass, st.mass, p.dt_s, _floats(s.velocity_mps),
+                           float(sum(applied_n)), (r[2], r[5], r[8]))
+        self.state = st._replace(mass=mass)
 
     def set_attack(self, rotor: int, estimate_n: float) -> None:
         """Declare rotor (1-4) attacked with the given thrust estimate (N); 0 = none.
