@@ -320,7 +320,7 @@ class FlightComputer:
                 if sup.law == Law.TFL:
                     return self._result(out.rotor_thrust_n, None, out, detection, rotor,
                                         estimate, new, events)
-            return self._fly_safe(dt, state, rotor, estimate, spread, omega, events,
+            return self._fly_safe(dt, state, rotor, estimate, spread, omega, rpm, events,
                                   detection, new)
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
             return self._failed(exc, applied_n)
@@ -419,7 +419,7 @@ class FlightComputer:
                                projector.lam if projector is not None else None)
 
     def _fly_safe(self, dt: float, state: State, rotor: int, estimate: float, spread: float,
-                  omega: list[float] | None, events: list[str],
+                  omega: list[float] | None, rpm: Sequence[float], events: list[str],
                   detection: DetectorOutput | None, new: bool) -> TickResult:
         """A tick of the safe law (recovery or lost_rotor), then the supervisor, and the
         output."""
@@ -431,8 +431,11 @@ class FlightComputer:
         # An attacked rotor is never ours to command: with one known, the safe law flies the
         # other three whichever way it was entered (a take-over of an attacked vehicle too).
         flying = self._sup
-        self.controller.track(state, self._last_safe_thrust)   # what acted over the period
-        out = rec.update(state, rotor, a_n)
+        # What acted over the last period: the thrusts the ESCs report (f = k_f ω²; with
+        # motor lag not the command, which the rotors trail).
+        k_f = self.k_f
+        self.controller.track(state, [k_f * (w * RPM_TO_RADPS) ** 2 for w in rpm])
+        out = rec.update(state, rotor, a_n, mass_kg=self.controller.mass_kg)
         dist = out.path_distance_m
         self._last_safe_thrust = out.thrust_n
         if flying.law != Law.TFL:      # a take-over this tick is judged from the next one

@@ -32,10 +32,12 @@ from typing import NamedTuple
 __all__ = ["ATTACK_START", "COMMAND_DENSITY_RAD2PS3", "AttackEstimate", "AttackParams",
            "attack_params", "attack_update"]
 
-# The attacker's speed command as a random walk: its density (rad²/s³). √(S_c) = 300 rad/s
-# per √s lets the estimate follow the paper's signal (dA/dt ≈ 0.5 N/s, dω/dt ≈ 80 rad/s²
-# at hover) with a lag of a few milliseconds, and a square wave's 4 N step within ~30 ms.
-COMMAND_DENSITY_RAD2PS3 = 300.0 ** 2
+# The attacker's speed command as a random walk: its density (rad²/s³). √(S_c) = 100 rad/s
+# per √s follows the paper's signal (dA/dt ≈ 0.5 N/s, dω/dt ≈ 80 rad/s² at hover) within a
+# few milliseconds and a square wave's 4 N step within tens of them; measured on the envelope's
+# lag × noise cases (50 ms, 100 rpm: 12 mm at 100, 78 mm at 300, 212 mm at 1000 rad/s per √s:
+# a faster filter lets the noise through to the allocation).
+COMMAND_DENSITY_RAD2PS3 = 100.0 ** 2
 
 
 class AttackParams(NamedTuple):

@@ -406,12 +406,21 @@ class RecoveryLaw:
         return gains
 
     # ------------------------------------------------------------------ the law
-    def update(self, s: State, attacked_rotor: int = 0,
-               attack_n: float = 0.0) -> RecoveryOutput:
+    def update(self, s: State, attacked_rotor: int = 0, attack_n: float = 0.0, *,
+               mass_kg: float | None = None) -> RecoveryOutput:
         """Rotor thrusts for this period; ``attacked_rotor`` 0 = four healthy rotors.
+        ``mass_kg``: the vehicle's mass as estimated now (the TFL side's estimator, which
+        learns whichever law flies); the model's otherwise. The integral then has only the
+        rest to learn — and it cannot learn where the allocation gives up (frozen: at the
+        paper path's top bend a dead rotor's spin slows with the thrust and it does), so
+        a 5 % mass error left a 0.1 m offset there (Δm g / k_p).
 
         R(q) is written out as the nine entries :func:`~tfl_mav.model.geometry.rotation_rows`
         computes."""
+        if mass_kg is not None and mass_kg != self.mass_kg and mass_kg > 0.0:
+            self.mass_kg = mass_kg
+            self._step_model = (mass_kg, *self._step_model[1:])
+            self._safe = self._safe._replace(model=self._step_model)
         if attacked_rotor:
             return self._three_rotor(s, attacked_rotor, attack_n)
         # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
