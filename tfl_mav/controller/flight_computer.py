@@ -87,6 +87,7 @@ __all__ = ["ATTACK_INFO", "TAKEOVER_TILT_RAD", "FlightComputer", "TickResult"]
 
 ATTACK_INFO = ("detector", "oracle")
 RPM_TO_RADPS = 2.0 * math.pi / 60.0   # ESC rpm → rotor speed ω (rad/s)
+MASS_TRUSTED_S = 1.0    # the safe law flies the estimated mass once it has learnt this long
 
 
 class TickResult(NamedTuple):
@@ -435,7 +436,11 @@ class FlightComputer:
         # motor lag not the command, which the rotors trail).
         k_f = self.k_f
         self.controller.track(state, [k_f * (w * RPM_TO_RADPS) ** 2 for w in rpm])
-        out = rec.update(state, rotor, a_n, mass_kg=self.controller.mass_kg)
+        # The estimated mass once it has learnt for a second (its first samples, from a
+        # restart or a fall, are what the model says better than the estimate does).
+        ctrl = self.controller
+        mass = ctrl.mass_kg if ctrl.mass_learnt_s >= MASS_TRUSTED_S else None
+        out = rec.update(state, rotor, a_n, mass_kg=mass)
         dist = out.path_distance_m
         self._last_safe_thrust = out.thrust_n
         if flying.law != Law.TFL:      # a take-over this tick is judged from the next one

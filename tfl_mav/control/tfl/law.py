@@ -255,6 +255,11 @@ class TFLController:
         return float(self.state[_MASS][_MASS_KG])
 
     @property
+    def mass_learnt_s(self) -> float:
+        """How long the mass estimator has learnt (s of ticks it took a sample from)."""
+        return float(self.state[_MASS].updates) * self._dt
+
+    @property
     def fine(self) -> bool:
         """True once the law has switched to the fine ξ, η poles."""
         return bool(self.state[_FINE])
