@@ -158,7 +158,9 @@ def _gcs_command(msg: Any) -> str:
     """The counter a ground-station command lands in (tfl_mav.sim.ground)."""
     cmd = msg.command
     if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
-        return "commands_accepted" if msg.param1 in (0.0, 1.0) else "commands_denied"
+        # always airborne: a disarm needs the force code (tfl_mav.sim.ground.FORCE_DISARM)
+        ok = msg.param1 == 1.0 or (msg.param1 == 0.0 and msg.param2 == 21196.0)
+        return "commands_accepted" if ok else "commands_denied"
     if cmd == mav.MAV_CMD_DO_SET_MODE:
         base, main = _small_int(msg.param1), _small_int(msg.param2)
         sub = _small_int(msg.param3)
