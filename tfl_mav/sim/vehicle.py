@@ -14,7 +14,9 @@ One :class:`Vehicle` owns a :class:`~tfl_mav.sim.simulator.Simulator` and two li
   (``controllers_released``) and the next qualifying sender takes the link. Everything else
   is counted and dropped by :class:`~tfl_mav.link.transport.Link`.
 * the optional **GCS port** (``gcs``): a separate socket that sends to a ground station
-  (MAVProxy, QGroundControl, mavsdk) and accepts its commands.
+  (MAVProxy, QGroundControl, mavsdk) and accepts its commands. The controller's STATUSTEXT
+  (its safety events: attack detected, safe law, handed back) is forwarded there unchanged,
+  so the GCS hears them with the controller's ids and severities.
 
 The vehicle wires the parts together and runs the flight; each part has its own module:
 
@@ -94,6 +96,7 @@ _ID_HIL_ACTUATOR_CONTROLS = mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
 # The daemon's own telemetry (tfl_mav.controller.daemon, ≤ 50 Hz): the vehicle only records it, so
 # the control link checks and counts those frames but does not decode them.
 _IGNORED_IDS = (mav.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT, mav.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY)
+_ID_STATUSTEXT = mav.MAVLINK_MSG_ID_STATUSTEXT
 _STALE = Outcome.STALE   # an Enum member through its class costs ~10× a global (3.11)
 _CONTROL_LINK_ID, _GCS_LINK_ID = 0, 1      # MAVLink signing link ids of our two ports
 _FINAL_HEARTBEATS, _FINAL_HEARTBEAT_GAP_S = 3, 0.01   # the last HEARTBEAT, sent 3 times
@@ -188,6 +191,7 @@ class Vehicle:
                                      status=self.statustext, origin=self.origin, sysid=sysid,
                                      compid=compid, held=self.held)
         self.ground.register(self.commands)
+        self.commands.routes[_ID_STATUSTEXT] = self._forward_statustext
         self.gcs = (GcsTelemetry(self.gcs_link, 1.0 / gcs_rate_hz, sim=self.sim,
                                  power=self.power, stats=self.stats, held=self.held,
                                  flight=self.flight, report=self.report, origin=self.origin,
@@ -420,6 +424,15 @@ class Vehicle:
             if route is not None:
                 route(self.control_link, msg)
         return False
+
+    def _forward_statustext(self, link: Link, msg: Any) -> None:
+        """The controller's STATUSTEXT (its safety events: attack detected, safe law
+        engaged, handed back, failsafe) on to the GCS, as PX4 forwards a companion's: the
+        frame unchanged (MAVLink routing), so the GCS sees the controller's own ids,
+        severity and signature."""
+        gcs = self.gcs_link
+        if link is self.control_link and gcs is not None and gcs.peer is not None:
+            gcs.send_raw(bytes(msg.get_msgbuf()))
 
     def gcs_periodic(self) -> None:
         gcs = self.gcs
