@@ -21,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from tfl_mav.build import scenario_path
+from tfl_mav.cli.args import duration_s
 from tfl_mav.cli.outputs import EXIT_IO, dir_problem
 from tfl_mav.controller.feasibility import check_scenario
 from tfl_mav.flightlog.metrics import DEFAULT_BOUND_M, DEFAULT_WINDOW_S
@@ -41,7 +42,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="built-in scenario name or .toml path (default: paper)")
     p.add_argument("--out", default="tfl-mav-demo", metavar="DIR",
                    help="output directory (default ./tfl-mav-demo)")
-    p.add_argument("--duration", type=float, metavar="S", help="sim seconds (default: the "
+    p.add_argument("--duration", type=duration_s, metavar="S", help="sim seconds (default: the "
                                                                 "scenario's run.duration_s)")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="settings",
                    help="override a scenario key (TOML value), repeatable")

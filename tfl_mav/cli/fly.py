@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from tfl_mav.cli.args import duration_s
 from tfl_mav.cli.outputs import file_problem
 from tfl_mav.controller.daemon import TICK_FIELDS, TICK_SCHEMA, Daemon
 from tfl_mav.controller.feasibility import check_scenario
@@ -59,7 +60,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "Open connection, ws://localhost:PORT); default off")
     p.add_argument("--realtime", action="store_true",
                    help="the vehicle runs in real time (commands not flagged lockstep)")
-    p.add_argument("--duration", type=float, metavar="S",
+    p.add_argument("--duration", type=duration_s, metavar="S",
                    help="sim seconds to fly (default: the scenario's run.duration_s)")
     p.add_argument("--state-timeout", type=float, default=0.5, metavar="S",
                    help="wall seconds without vehicle state before FAILSAFE (default 0.5)")

@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from tfl_mav.build import scenario_path
+from tfl_mav.cli.args import duration_s
 from tfl_mav.cli.outputs import EXIT_IO, dir_problem
 from tfl_mav.controller.feasibility import check_scenario
 from tfl_mav.flightlog.flight import summarize
@@ -35,7 +36,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="built-in scenario name or path to a .toml file (default: paper)")
     p.add_argument("--json", action="store_true", help="print one JSON object of metrics")
     p.add_argument("--plot", metavar="DIR", help="write the report PNGs into DIR")
-    p.add_argument("--duration", type=float, metavar="S", help="override run.duration_s")
+    p.add_argument("--duration", type=duration_s, metavar="S", help="override run.duration_s")
     p.add_argument("--attack-info", choices=("oracle", "detector"), default="oracle",
                    help="how the controller learns of the attack: told (paper's assumption, "
                         "default) or detected from ESC rpm")
