@@ -88,9 +88,12 @@ def _print_summary(sc: Scenario, m: dict) -> None:
     status = f"CRASHED: {m['crash_reason']}" if m["crashed"] else "flew the whole run"
     print(f"{sc.name}: {status} ({m['sim_time_s']:.1f} s sim in {m['wall_time_s']:.1f} s wall)")
     if m.get("final_path_distance_m") is not None:
-        print(f"  path distance: final {m['final_path_distance_m']:.2e} m, last 10 s max "
-              f"{m['max_path_distance_last_10s_m']:.2e} m, "
-              f"rms {m['rms_path_distance_last_10s_m']:.2e} m")
+        def e(x: float | None) -> str:   # None: not finite somewhere in the window
+            return f"{x:.2e} m" if x is not None else "- (not finite in the window)"
+        span = "the whole flight" if m["sim_time_s"] <= 10.0 else "the last 10 s"
+        print(f"  path distance: final {e(m['final_path_distance_m'])}; over {span} max "
+              f"{e(m['max_path_distance_last_10s_m'])}, "
+              f"rms {e(m['rms_path_distance_last_10s_m'])}")
     print(f"  rotor thrust: [{m['thrust_min_n']:.2f}, {m['thrust_max_n']:.2f}] N, saturated "
           f"{100 * m['saturated_fraction']:.1f} % of ticks; max |yaw rate| "
           f"{m['max_yaw_rate_radps']:.1f} rad/s")
