@@ -74,6 +74,9 @@ def run(args: argparse.Namespace) -> int:
         files = write_report(log, Path(args.plot), title=sc.name)
         metrics["plots"] = [str(f) for f in files]
     if args.json:
+        for _t, text in log.events:   # said on stderr too: --json prints no events
+            if text.startswith("attack.signal"):
+                print(f"tfl-mav offline: warning: {text}", file=sys.stderr)
         print(json.dumps(metrics, indent=2))
     else:
         # What the flight computer said during the flight (law switches, detections), in

@@ -191,6 +191,7 @@ class Vehicle:
                                      status=self.statustext, origin=self.origin, sysid=sysid,
                                      compid=compid, held=self.held)
         self.ground.register(self.commands)
+        self.sim.attacker.on_nonfinite = self._attack_nonfinite
         self.commands.routes[_ID_STATUSTEXT] = self._forward_statustext
         self.gcs = (GcsTelemetry(self.gcs_link, 1.0 / gcs_rate_hz, sim=self.sim,
                                  power=self.power, stats=self.stats, held=self.held,
@@ -424,6 +425,10 @@ class Vehicle:
             if route is not None:
                 route(self.control_link, msg)
         return False
+
+    def _attack_nonfinite(self, _t_s: float, text: str) -> None:
+        """The attack expression left its domain mid-flight: said once, not flown silently."""
+        self.status(mav.MAV_SEVERITY_WARNING, text)
 
     def _forward_statustext(self, link: Link, msg: Any) -> None:
         """The controller's STATUSTEXT (its safety events: attack detected, safe law
