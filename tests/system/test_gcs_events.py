@@ -116,3 +116,42 @@ def test_vehicle_statustext_chunks_match_the_reassembler() -> None:
         # 400 = 8 full chunks, no room for a terminator: cut or not, it cannot say; "…"
         assert out == [text if n < 400 else text[:400] + "…"], n
         assert r.flush() == []
+
+
+def test_an_attack_expression_leaving_its_domain_is_said_to_the_gcs() -> None:
+    """``sqrt(0.05 - t)`` has no value after 0.05 s: the vehicle flies on (rotor 2 at 0 N;
+    open-loop hover here, so only 10 ms more) and says so once, with the time, by
+    STATUSTEXT."""
+    from tfl_mav.harness.pilot import Pilot, hover_fraction
+
+    sc = load_scenario("paper").replace(**{"attack.signal": "sqrt(0.05 - t)"})
+    gcs = Link.listen(LOOPBACK, src_system=255, src_component=190)
+    vehicle = Vehicle(sc, listen=LOOPBACK, gcs=gcs.local_address)
+    thread = threading.Thread(target=vehicle.run, args=(0.2,), daemon=True)
+    thread.start()
+    pilot = Pilot(vehicle.listen_address)
+    texts: list[tuple[int, str]] = []
+    whole = Reassembler()
+    try:
+        pilot.hello()
+        u = hover_fraction(sc)
+        pilot.fly(60, lambda _o, _e: [u] * 4, timeout_s=10.0)
+        deadline = time.monotonic() + 3.0
+        while time.monotonic() < deadline and not any("attack.signal" in t for _, t in texts):
+            for m in gcs.recv(0.05):
+                if m.get_type() == "STATUSTEXT":       # chunks: whole texts
+                    texts += [(m.severity, t) for t in whole.add(
+                        m.get_srcComponent(), m.text, m.id, m.chunk_seq)]
+    finally:
+        vehicle.stop()
+        thread.join(5.0)
+        vehicle.close()
+        pilot.close()
+        gcs.close()
+    said = [(sev, t) for sev, t in texts if t.startswith("attack.signal")]
+    assert said, texts
+    assert said[0][0] == mav.MAV_SEVERITY_WARNING
+    assert said[0][1].startswith("attack.signal 'sqrt(0.05 - t)' is not finite (nan) at "
+                                 "t = 0.05")
+    assert vehicle.sim.attacker.nonfinite_from_s is not None
+    assert 0.05 < vehicle.sim.attacker.nonfinite_from_s <= 0.052
