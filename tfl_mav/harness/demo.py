@@ -115,6 +115,9 @@ def _group_alive(pgid: int) -> bool:
 
 
 _PEER_GRACE_S = 2.0   # after one child ended normally, the other has this long to follow
+# A child whose peer is alive but silent (hung, stopped) this long ends by itself (exit 3):
+# far above any pause of a healthy lockstep peer, well inside the demo's 15 s promise
+_CHILD_PEER_TIMEOUT_S = 10.0
 
 
 def _exit_text(code: int) -> str:
@@ -225,7 +228,8 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
     with _Children() as children:
         sim = children.start(
             [*_cli(), "sim", name, "--listen", "127.0.0.1:0", "--gcs", "none",
-             "--legacy-ports", "--duration", str(duration), "--mcap", str(run_mcap), *shared,
+             "--legacy-ports", "--duration", str(duration), "--mcap", str(run_mcap),
+             "--peer-timeout", str(_CHILD_PEER_TIMEOUT_S), *shared,
              *(["--foxglove", foxglove] if foxglove else [])],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=pre)
         port = _await_port(sim)
@@ -233,7 +237,7 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
         fly = children.start(
             [*_cli(), "fly", name, "--vehicle", f"127.0.0.1:{port}", "--duration",
              str(duration), "--mcap", str(ctl_mcap), "--summary-json", str(fly_json),
-             "--progress", *shared],
+             "--progress", "--peer-timeout", str(_CHILD_PEER_TIMEOUT_S), *shared],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=pre)
         fly_err = _Drain(fly.stderr, lambda stream: _follow(stream, duration, progress))
         died = _supervise(children, sim, fly, time.monotonic())

@@ -116,7 +116,8 @@ class Vehicle:
                  key: bytes | None = None, on_frame: FrameHook | None = None,
                  on_truth: Callable[[Simulator], None] | None = None,
                  on_status: Callable[[int, str], None] | None = None,
-                 on_frames: Callable[..., None] | None = None) -> None:
+                 on_frames: Callable[..., None] | None = None,
+                 peer_timeout_s: float | None = None) -> None:
         """Bind the sockets (raises :class:`~tfl_mav.link.transport.LinkError`) and build the sim.
 
         ``listen``: control port to bind (port 0 = ephemeral, see :attr:`listen_address`).
@@ -128,13 +129,18 @@ class Vehicle:
         ``gcs_rate_hz``: GCS telemetry rate, at most
         50 Hz. ``key``: 32-byte MAVLink 2 signing secret for both ports, or None (unsigned).
         ``on_status(severity, text)`` sees every STATUSTEXT the vehicle sends.
+        ``peer_timeout_s``: end the flight (:attr:`ExitStatus.PEER_LOST`) when the
+        controller has sent no command for this many wall seconds; None (default) waits
+        for a restarted controller.
         ``on_frames(direction, raws, msgs, time_s)``: beside ``on_frame``, a datagram's
         per-tick frames in one call (e.g. ``RecorderProcess.on_frames``: one hand-off item
         a datagram, not one a frame).
         """
         for name, value in (("lockstep_timeout_s", lockstep_timeout_s),
                             ("command_timeout_s", command_timeout_s),
-                            ("resend_interval_s", resend_interval_s)):
+                            ("resend_interval_s", resend_interval_s),
+                            ("peer_timeout_s", 1.0 if peer_timeout_s is None
+                             else peer_timeout_s)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name}: must be a positive number of seconds, got {value}")
         if not (math.isfinite(gcs_rate_hz) and 0 < gcs_rate_hz <= 50):
@@ -198,8 +204,9 @@ class Vehicle:
                                  flight=self.flight, report=self.report, origin=self.origin,
                                  sim_time=not realtime)
                     if self.gcs_link is not None else None)
-        self.clock: Clock = (RealtimeClock(self, command_timeout_s) if realtime
-                             else LockstepClock(self, lockstep_timeout_s, resend_interval_s))
+        self.clock: Clock = (RealtimeClock(self, command_timeout_s, peer_timeout_s) if realtime
+                             else LockstepClock(self, lockstep_timeout_s, resend_interval_s,
+                                                peer_timeout_s))
         # The run's phase.
         self._stop = threading.Event()
         self._external_stop: threading.Event | None = None
