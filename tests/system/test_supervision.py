@@ -130,3 +130,33 @@ def test_a_killed_vehicle_leaves_no_recorder_traceback(tmp_path):
                 os.killpg(p.pid, signal.SIGKILL)
     time.sleep(0.2)
     assert "Traceback" not in sim.stderr(), sim.stderr()
+
+
+@pytest.mark.parametrize("victim", ["fly", "sim"])
+def test_standalone_peer_timeout_ends_the_survivor_with_exit_3(victim):
+    """``--peer-timeout 2`` (lockstep): the survivor of a SIGKILLed peer ends 2 s later
+    (plus a poll), with exit 3 and a line that says why."""
+    from tfl_mav.harness.processes import Proc, start_sim
+
+    sim, port = start_sim(["--gcs", "none", "--duration", "60", "--peer-timeout", "2"],
+                          new_session=True)
+    fly = Proc(["fly", "paper", "--vehicle", f"127.0.0.1:{port}", "--duration", "60",
+                "--peer-timeout", "2"], new_session=True)
+    dead, survivor = (fly, sim) if victim == "fly" else (sim, fly)
+    try:
+        sim.wait_for(r"connected: flight starts", 60)
+        time.sleep(1.0)
+        t_kill = dead.kill()
+        code = survivor.wait(20)
+        took = time.monotonic() - t_kill
+    finally:
+        for p in (fly, sim):
+            p.close()
+            with contextlib.suppress(ProcessLookupError):
+                os.killpg(p.pid, signal.SIGKILL)
+    assert code == 3, survivor.text()
+    assert 2.0 <= took < 2.0 + 5.0        # the timeout, then a clean stop on a busy machine
+    said = ("the controller went silent: no HIL_ACTUATOR_CONTROLS for" if victim == "fly"
+            else "vehicle silent for 2 s (gone)")
+    assert said in survivor.text()
+    assert "Traceback" not in survivor.text()
