@@ -17,7 +17,7 @@ claims the link's own identity is never accepted.
 
 Run (from the repository root, atheris from PyPI)::
 
-    python fuzz/link_receive.py -runs=1000000 -max_len=600 fuzz/corpus   # fuzz
+    python fuzz/link_receive.py -runs=1000000 -max_len=600 -len_control=0 fuzz/corpus
     python fuzz/link_receive.py --replay fuzz/corpus                     # replay, no atheris
     coverage run --source=tfl_mav/link fuzz/link_receive.py --replay fuzz/corpus
     coverage report
