@@ -46,14 +46,18 @@ def _path_file(tmp_path: Path, name: str, s: list[str], sigma: list[str]) -> Pat
     return f
 
 
-def test_a_path_with_a_pole_is_one_line_and_no_numpy_warning(tmp_path):
-    f = _path_file(tmp_path, "pole", ["y - 1/x", "z - 8"], ["t", "1/t", "8"])
+@pytest.mark.parametrize(("s", "sigma", "says"), [
+    (["y - 1/x", "z - 8"], ["t", "1/t", "8"], "path.sigma: not finite at t = 0 (a pole"),
+    (["y", "z - 8"], ["t*t*t", "0", "8"], "path.sigma: sigma'(t) = 0 at t = 0: not regular"),
+])
+def test_a_singular_path_is_one_line_and_no_numpy_warning(s, sigma, says, tmp_path):
+    f = _path_file(tmp_path, "singular", s, sigma)
     p = _run("offline", str(f), "--duration", "2")
     assert p.returncode == 2
     _no_traceback(p)
-    assert p.stderr.count("\n") == 1
-    assert "path.sigma: not finite at t = 0 (a pole" in p.stderr
-    assert "RuntimeWarning" not in p.stderr
+    assert p.stderr.count("\n") == 1, p.stderr
+    assert says in p.stderr
+    assert "RuntimeWarning" not in p.stderr and "> 0.00 N" not in p.stderr
 
 
 @pytest.mark.slow

@@ -147,9 +147,13 @@ def check_scenario(sc: Scenario) -> list[str]:
     v = sc.vehicle
     mg = v.mass_kg * v.gravity_mps2
     try:
-        d = path_demand(sc)
+        with np.errstate(all="ignore"):    # said below in words, never as numpy warnings
+            d = path_demand(sc)
     except Exception as exc:  # a bad path is reported by the path check itself
         return [f"path: cannot evaluate its demand ({exc})"]
+    if not all(math.isfinite(x) for x in (d.min_thrust_n, d.max_thrust_n, d.max_tilt_rad)):
+        return ["path: its demand (curvature, thrust) is not finite somewhere on its t range: "
+                "check path.sigma there; no feasibility figures"]
     if d.min_thrust_n <= 0.0:
         out.append(f"path at {sc.path.speed_mps:g} m/s needs {-d.min_vertical_mps2:.1f} m/s^2 "
                    f"downward at its top bend (> g = {v.gravity_mps2:g}): rotors cannot pull, "
