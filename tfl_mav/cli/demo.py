@@ -10,9 +10,9 @@ object). Exit code 0 when the flight converged (path distance within --bound ove
 usage errors, 3 when the output directory is not writable, a process failed to start or
 one of the two died (the other is stopped within seconds), 130/143 when interrupted
 (SIGINT/SIGTERM: both children are stopped, never orphaned). A --duration shorter than
-the scenario's run.duration_s is a quick look: its convergence is shown, not judged (the
-paper flight needs about 11 s to converge), so it exits 0 without a crash, with the right
-rotor found and no false alarm.
+the scenario's run.duration_s is a quick look: a convergence it has not reached yet is
+shown, not judged (the paper flight needs about 11 s to converge), so it exits 0 without a
+crash, with the right rotor found and no false alarm.
 """
 
 from __future__ import annotations
@@ -100,14 +100,14 @@ def run(args: argparse.Namespace) -> int:
     except RuntimeError as exc:
         print(f"tfl-mav demo: {exc}", file=sys.stderr)
         return 3
-    if _quick_look(summary, scenario.run.duration_s) and not summary["crashed"]:
+    if (_quick_look(summary, scenario.run.duration_s) and not summary["crashed"]
+            and not summary.get("converged")):
         summary["quick_look"] = True
         summary["converged"] = None   # not judged: see --help
         summary["convergence"] = (
             f"quick look, {summary['sim_time_s']:g} s of the scenario's "
             f"{scenario.run.duration_s:g} s: convergence not judged ("
-            + summary["convergence"].replace("not converged: ", "").replace("converged ", "")
-            + ")")
+            + summary["convergence"].replace("not converged: ", "") + ")")
         (Path(args.out) / "summary.json").write_text(json.dumps(summary, indent=2))
     if args.json:
         print(json.dumps(summary, indent=2))
