@@ -28,14 +28,14 @@ leaves ``crash-*`` with the input, as libFuzzer does.
 
 from __future__ import annotations
 
-import hashlib
 import os
 import struct
 import sys
+import time
 from pathlib import Path
 
-from tfl_mav.link.dialect import mav, new_mavlink
-from tfl_mav.link.signing import Signing
+from tfl_mav.link.dialect import mav
+from tfl_mav.link.signing import Signing, mavlink_timestamp, signature48
 from tfl_mav.link.statustext import Reassembler
 from tfl_mav.link.transport import Link
 
@@ -45,6 +45,8 @@ OWN = (1, 1)                            # the link's identity: the vehicle's
 _VEHICLE_SKIM = (mav.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT, mav.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY)
 _KNOWN_IDS = sorted(mav.mavlink_map)
 _texts = Reassembler()
+_stamp = [0]                            # the harness's last signing timestamp
+
 
 def _link(mode: int) -> Link:
     signing = Signing(KEY) if mode in (3, 4) else None
@@ -53,7 +55,9 @@ def _link(mode: int) -> Link:
                        peer=PEER if settled else None, peer_sysid=42 if settled else None,
                        signing=signing, skim_ids=_VEHICLE_SKIM if mode == 2 else ())
 
+
 _LINKS: dict[int, Link] = {}
+
 
 def _framed(data: bytes, signer: Signing | None) -> bytes:
     """A frame around fuzzed bytes: msgid from the input, payload the rest, right CRC,
@@ -70,13 +74,12 @@ def _framed(data: bytes, signer: Signing | None) -> bytes:
     frame = header + payload + struct.pack("<H", crc)
     if signer is None:
         return frame
-    packer = new_mavlink(42, 191)
-    signer.configure_packer(packer, 0)
-    signer.own.discard((42, 191))       # the harness signs as the peer, not as the link
-    sig = packer.signing
-    signed = frame + bytes([0]) + sig.timestamp.to_bytes(6, "little")
+    # signed as the peer would: link id 0, a timestamp newer than the last one (verify
+    # then advance), the MAVLink 2 signature over key ‖ frame ‖ link id ‖ timestamp
+    _stamp[0] = max(_stamp[0] + 1, mavlink_timestamp(time.time()))
+    signed = frame + bytes([0]) + _stamp[0].to_bytes(6, "little")
+    return signed + signature48(KEY, signed)
 
-    return signed + hashlib.sha256(KEY + signed).digest()[:6]
 
 def one_input(data: bytes) -> None:
     if not data:
@@ -107,6 +110,7 @@ def one_input(data: bytes) -> None:
         link.close()
         del _LINKS[mode]
 
+
 def _replay(paths: list[str]) -> int:
     n = 0
     for p in paths:
@@ -116,6 +120,7 @@ def _replay(paths: list[str]) -> int:
             n += 1
     print(f"replayed {n} inputs, no failure", file=sys.stderr)
     return 0
+
 
 def main() -> int:
     if len(sys.argv) > 1 and sys.argv[1] == "--replay":
@@ -133,6 +138,7 @@ def main() -> int:
     atheris.Setup(sys.argv, one_input)
     atheris.Fuzz()
     return 0
+
 
 if __name__ == "__main__":
     sys.exit(main())
