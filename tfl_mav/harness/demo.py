@@ -114,7 +114,9 @@ def _group_alive(pgid: int) -> bool:
     return True
 
 
-_PEER_GRACE_S = 2.0   # after one child ended normally, the other has this long to follow
+# After one child ended as a flight ends (0 flown, 1 crashed), the other has this long to
+# follow (it reads the goodbye at once, then finishes its files) before it is stopped
+_PEER_GRACE_S = 5.0
 # A child whose peer is alive but silent (hung, stopped) this long ends by itself (exit 3):
 # far above any pause of a healthy lockstep peer, well inside the demo's 15 s promise
 _CHILD_PEER_TIMEOUT_S = 10.0
@@ -132,11 +134,12 @@ def _exit_text(code: int) -> str:
 
 def _supervise(children: _Children, sim: subprocess.Popen[str],
                fly: subprocess.Popen[str], t0: float) -> str | None:
-    """Wait until both children have ended; None if they ended as a flight ends, else one
-    line saying which died how. Either ending first is watched (every 0.1 s): one killed
-    by a signal or failing (exit other than 0 flown or 1 crashed) has its peer stopped at
-    once; one that ended normally has its peer stopped if it has not followed within
-    :data:`_PEER_GRACE_S` (lockstep peers would otherwise wait for a restart forever)."""
+    """Wait until both children have ended; None if the flight ended as flights end, else
+    one line saying which died how. Either ending first is watched (every 0.1 s): one
+    killed by a signal or failing (exit other than 0 flown or 1 crashed) has its peer
+    stopped at once (SIGTERM: a clean stop) and is reported; one that ended normally has
+    its peer stopped if it has not followed within :data:`_PEER_GRACE_S` (lockstep peers
+    would otherwise wait for a restart forever), and the flight is reported as flown."""
     names = {id(sim): "the vehicle (tfl-mav sim)", id(fly): "the controller (tfl-mav fly)"}
     first: tuple[subprocess.Popen[str], float] | None = None
     while True:
@@ -154,15 +157,18 @@ def _supervise(children: _Children, sim: subprocess.Popen[str],
             ended, when = first
             other = fly if ended is sim else sim
             code = ended.returncode
-            if code not in (0, 1) or time.monotonic() - when > _PEER_GRACE_S:
+            died = code not in (0, 1)
+            if died or time.monotonic() - when > _PEER_GRACE_S:
                 other.terminate()             # a clean stop: its files are finished
                 try:
                     other.wait(timeout=children.GRACE_S)
                 except subprocess.TimeoutExpired:
                     other.kill()
                     other.wait(timeout=10)
+                if not died:
+                    return None               # flown; the other only lingered
                 return (f"{names[id(ended)]} ended ({_exit_text(code)}) "
-                        f"{when - t0:.1f} s after the start; "
+                        f"{when - t0:.1f} s into the run; "
                         f"{names[id(other)].split(' (')[0]} was stopped")
         time.sleep(0.1)
     # Both ended by themselves: a failure of either is still a failure to report.
