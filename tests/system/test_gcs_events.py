@@ -57,7 +57,7 @@ def test_controller_safety_events_reach_the_gcs_with_their_severity(tmp_path) ->
            if (sysid, comp) == (1, mav.MAV_COMP_ID_ONBOARD_COMPUTER)]
     attack = [(sev, text) for sev, text in ctl if text.startswith("ATTACK on rotor 2")]
     assert attack, texts
-    assert attack[0][0] == mav.MAV_SEVERITY_WARNING
+    assert attack[0][0] == mav.MAV_SEVERITY_CRITICAL        # a failure detected (PX4)
     # the vehicle's own texts still come from the vehicle's ids
     assert any(comp == 1 and "simulation ended" in text for _, comp, _, text in texts)
 

@@ -347,7 +347,8 @@ class Daemon(Intake):
             return True
         thrust, out, det, rotor, estimate_n, new, _, events = res
         if new:
-            self._event("warning", f"ATTACK on rotor {rotor} detected at "
+            # CRITICAL, as PX4 says a failure it detected (a rotor lost is one)
+            self._event("critical", f"ATTACK on rotor {rotor} detected at "
                                    f"t={t:.3f} s; attacked law engaged")
         if events:
             for text in events:              # law switches, in words
