@@ -39,6 +39,10 @@ __all__ = [
 ]
 
 
+MAX_ESC_RPM = 65535
+"""The largest rotor speed ESC_TELEMETRY_1_TO_4 can report (its rpm field is uint16)."""
+
+
 class ScenarioError(ValueError):
     """A scenario is malformed; ``key`` is the dotted key at fault (``vehicle.mass_kg``)."""
 
@@ -61,19 +65,22 @@ def _f(default: Any, unit: str = "", *, lo: float | None = None, hi: float | Non
 class VehicleConfig:
     """The true vehicle (the plant). Paper §VI values; d, k_t, k_r are the paper's unstated ones."""
 
-    mass_kg: float = _f(1.1, "kg", lo=0.0, lo_open=True)
+    mass_kg: float = _f(1.1, "kg", lo=0.0, lo_open=True, hi=1000.0)
     inertia_kgm2: tuple[float, float, float] = _f(
-        (0.0020066, 0.0020038, 0.0013323), "kg m^2", lo=0.0, lo_open=True, length=3,
+        (0.0020066, 0.0020038, 0.0013323), "kg m^2", lo=0.0, lo_open=True, hi=1000.0, length=3,
         doc="diagonal of J in body axes (Ix, Iy, Iz)")
-    arm_m: float = _f(0.2656, "m", lo=0.0, lo_open=True, doc="rotor distance from the CG, l")
-    drag_thrust_ratio_m: float = _f(0.016, "m", lo=0.0, lo_open=True, doc="d in the mixer")
-    k_t: float = _f(0.05, "N s/m", lo=0.0, doc="translational drag")
-    k_r: float = _f(2.75e-3, "N m s/rad", lo=0.0, doc="rotational drag")
-    thrust_max_n: float = _f(8.0, "N", lo=0.0, lo_open=True, doc="per-rotor thrust limit")
-    k_f: float = _f(8.0e-6, "N/(rad/s)^2", lo=0.0, lo_open=True, doc="f = k_f w^2")
+    arm_m: float = _f(0.2656, "m", lo=0.0, lo_open=True, hi=10.0,
+                      doc="rotor distance from the CG, l")
+    drag_thrust_ratio_m: float = _f(0.016, "m", lo=0.0, lo_open=True, hi=1.0,
+                                    doc="d in the mixer")
+    k_t: float = _f(0.05, "N s/m", lo=0.0, hi=1000.0, doc="translational drag")
+    k_r: float = _f(2.75e-3, "N m s/rad", lo=0.0, hi=100.0, doc="rotational drag")
+    thrust_max_n: float = _f(8.0, "N", lo=0.0, lo_open=True, hi=10000.0,
+                             doc="per-rotor thrust limit")
+    k_f: float = _f(8.0e-6, "N/(rad/s)^2", lo=0.0, lo_open=True, hi=1.0, doc="f = k_f w^2")
     motor_time_constant_s: float = _f(0.0, "s", lo=0.0, hi=1.0, doc="lag on w; 0 = none")
     rpm_noise_std: float = _f(0.0, "rpm", lo=0.0, hi=1000.0, doc="ESC rpm measurement noise")
-    gravity_mps2: float = _f(9.81, "m/s^2", lo=0.0, lo_open=True)
+    gravity_mps2: float = _f(9.81, "m/s^2", lo=0.0, lo_open=True, hi=100.0)
 
     @property
     def omega_max_radps(self) -> float:
@@ -251,10 +258,14 @@ def _check_number(key: str, value: Any, meta: dict[str, Any], integer: bool) -> 
         raise ScenarioError(key, f"must be finite, got {value!r}")
     lo, hi, unit = meta["lo"], meta["hi"], meta["unit"]
     u = f" {unit}" if unit else ""
-    if lo is not None and (value <= lo if meta["lo_open"] else value < lo):
-        rel = ">" if meta["lo_open"] else ">="
-        raise ScenarioError(key, f"must be {rel} {lo}{u}, got {value!r}")
-    if hi is not None and value > hi:
+    too_low = lo is not None and (value <= lo if meta["lo_open"] else value < lo)
+    if too_low or (hi is not None and value > hi):
+        if lo is not None and hi is not None:   # say the whole accepted range
+            raise ScenarioError(key, f"must be in {'(' if meta['lo_open'] else '['}{lo:g}, "
+                                     f"{hi:g}]{u}, got {value!r}")
+        if too_low:
+            rel = ">" if meta["lo_open"] else ">="
+            raise ScenarioError(key, f"must be {rel} {lo}{u}, got {value!r}")
         raise ScenarioError(key, f"must be <= {hi}{u}, got {value!r}")
     return int(value) if integer else float(value)
 
@@ -312,6 +323,18 @@ def _cross_check(name: str, sec: Any) -> None:
                             f"must be 'auto', 'tfl' or 'safe', got {sec.supervisor!r}")
     if isinstance(sec, AttackConfig):
         _check_signal(f"{name}.signal", sec.signal)
+    if isinstance(sec, VehicleConfig):
+        # Full thrust must be a rotor speed ESC_TELEMETRY_1_TO_4 can carry (rpm is uint16):
+        # beyond it the controller reads a clamped rpm, i.e. a wrong thrust, on every rotor
+        # near full throttle (the detector then flags the wrong rotor).
+        rpm_max = sec.omega_max_radps * 60.0 / (2.0 * math.pi)
+        if rpm_max > MAX_ESC_RPM:
+            f_ok = sec.k_f * (MAX_ESC_RPM * 2.0 * math.pi / 60.0) ** 2
+            raise ScenarioError(f"{name}.thrust_max_n",
+                                f"{sec.thrust_max_n:g} N needs {rpm_max:.0f} rpm with k_f = "
+                                f"{sec.k_f:g}, beyond the {MAX_ESC_RPM} rpm ESC telemetry "
+                                f"carries: must be in (0, {f_ok:.4g}] N for this k_f "
+                                f"(or raise {name}.k_f)")
 
 
 def _check_signal(key: str, signal: str) -> None:

@@ -347,7 +347,8 @@ class Daemon(Intake):
             return True
         thrust, out, det, rotor, estimate_n, new, _, events = res
         if new:
-            self._event("warning", f"ATTACK on rotor {rotor} detected at "
+            # CRITICAL, as PX4 says a failure it detected (a rotor lost is one)
+            self._event("critical", f"ATTACK on rotor {rotor} detected at "
                                    f"t={t:.3f} s; attacked law engaged")
         if events:
             for text in events:              # law switches, in words
@@ -486,7 +487,11 @@ class Daemon(Intake):
             return
         severity = {"info": mav.MAV_SEVERITY_INFO, "warning": mav.MAV_SEVERITY_WARNING,
                     "critical": mav.MAV_SEVERITY_CRITICAL}.get(level, mav.MAV_SEVERITY_INFO)
-        self._statustext_id = (self._statustext_id % 0xFFFF) + 1
-        for seq, chunk in enumerate(split_statustext(text)):   # whole, in MAVLink 2 chunks
-            self.link.send(mav.MAVLink_statustext_message(severity, chunk,
-                                                          self._statustext_id, seq))
+        chunks = split_statustext(text)
+        # id 0: a text that fits one STATUSTEXT is whole as it is (MAVLink 2); a chunk id
+        # on a full 50-character text would leave a receiver waiting for a next chunk
+        text_id = 0
+        if len(chunks) > 1:
+            text_id = self._statustext_id = (self._statustext_id % 0xFFFF) + 1
+        for seq, chunk in enumerate(chunks):   # whole, in MAVLink 2 chunks
+            self.link.send(mav.MAVLink_statustext_message(severity, chunk, text_id, seq))

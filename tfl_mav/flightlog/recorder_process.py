@@ -106,12 +106,13 @@ def _child_loop(conn: Connection, results: Connection, path: str | None,
         while True:
             try:
                 data = conn.recv_bytes()
-            except EOFError:            # the parent is gone: finish the file anyway
-                break
+            except (EOFError, OSError):  # the parent is gone (killed mid-message: OSError
+                break                    # "end of file during message"): finish the file
             if not handle_batch(rec, data, now):
                 break
             if rec.error and not reported:
-                results.send(("error", rec.error))
+                with contextlib.suppress(OSError):   # a parent gone hears nothing
+                    results.send(("error", rec.error))
                 reported = True
     finally:
         rec.close()

@@ -70,6 +70,8 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
     else:
         fc = flight_software
     sim = Simulator(sc, attack_signal=attack_signal)
+    # the attack expression leaving its domain mid-flight is said (an event), not silent
+    sim.attacker.on_nonfinite = lambda t_s, text: log.events.append((t_s, text))
     v = sc.vehicle
     log = FlightLog(thrust_max_n=v.thrust_max_n, attack_rotor=sc.attack.rotor,
                     attack_start_s=sc.attack.start_s if sc.attack.rotor else math.nan)

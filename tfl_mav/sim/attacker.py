@@ -56,6 +56,14 @@ class Attacker:
         self._stuck_n: float | None = None
         self._expr: Expr | None = None
         self._custom: AttackSignal | None = None
+        # Sim time (s) the signal first gave no finite value (an expression outside its
+        # domain: sqrt(5 - t) after 5 s, log(t - 1) before 1 s), or None; from then on a
+        # non-finite value holds the rotor at 0 N (recorded: raw NaN, clamped).
+        self.nonfinite_from_s: float | None = None
+        self.on_nonfinite: Callable[[float, str], None] | None = None
+        self._said = False     # on_nonfinite was called
+        """``on_nonfinite(t_s, text)``: called once, at the first non-finite value, with a
+        sentence saying what happened and when (the vehicle sends it as STATUSTEXT)."""
         if self.signal not in ("paper", "constant", "step", "ramp", "sine", "stuck", "off"):
             self._expr = compile_expr(self.signal, ("t", "tau", "x", "y", "z"),
                                       field="attack.signal")
@@ -109,11 +117,24 @@ class Attacker:
             return NO_ATTACK
         raw = self._raw(t_s, position_m, last_command_n)
         if not math.isfinite(raw):
+            if not self._said:
+                self._first_nonfinite(t_s, raw)
             return AttackSample(self.rotor, math.nan, 0.0, True)
         fmax = self.thrust_max_n    # min(max(raw, 0), f_max) for a finite raw, without calls
         applied = raw if 0.0 <= raw <= fmax else (0.0 if raw < 0.0 else fmax)
         # tuple.__new__: the NamedTuple's generated __new__ is a Python call (every step)
         return _new(AttackSample, (self.rotor, raw, applied, applied != raw))
+
+    def _first_nonfinite(self, t_s: float, raw: float) -> None:
+        if self.nonfinite_from_s is None:
+            self.nonfinite_from_s = t_s
+        t_s = self.nonfinite_from_s
+        if self.on_nonfinite is not None:
+            self._said = True
+            what = f"{self.signal!r}" if self.signal != CUSTOM_SIGNAL else "the signal function"
+            self.on_nonfinite(t_s, f"attack.signal {what} is not finite ({raw}) at t = "
+                                   f"{t_s:.3f} s: rotor {self.rotor} gets 0 N while it is "
+                                   "(the attacker's value is clamped to [0, f_max])")
 
     def _raw(self, t: float, pos: Sequence[float], last_command_n: float) -> float:
         c = self.cfg

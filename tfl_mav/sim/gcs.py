@@ -23,7 +23,7 @@ attacked rotor's rpm) at ``gcs_rate_hz`` (≤ 50 Hz, one datagram each time), HE
 1 Hz with ``HOME_POSITION``. A new message for the GCS goes in :meth:`GcsTelemetry.messages`.
 
 **STATUSTEXT** (:class:`StatusText`): every one goes to both peers that are known (ASCII;
-longer than 50 characters → MAVLink 2 chunks with a shared ``id``); repeats of one reason
+longer than 50 characters → MAVLink 2 chunks with a shared ``id``, at most 8); repeats of one reason
 can be rate-limited to one a second (wall), with the count of those suppressed.
 """
 
@@ -37,6 +37,7 @@ from typing import Any
 
 from tfl_mav.link.codec import UNSENT, lite_class
 from tfl_mav.link.dialect import mav
+from tfl_mav.link.statustext import split as split_statustext
 from tfl_mav.link.transport import Link
 from tfl_mav.model.frames import odometry_from_paper
 from tfl_mav.model.geometry import rotation_rows
@@ -49,8 +50,6 @@ from tfl_mav.sim.state_report import StateReport
 __all__ = ["FlightStatus", "GcsTelemetry", "Origin", "StatusText", "home_position"]
 
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
-_STATUSTEXT_LEN = 50
-_STATUSTEXT_MAX_CHUNKS = 4
 _STATUS_MIN_INTERVAL_S = 1.0   # per-reason rate limit of repeated STATUSTEXTs (wall time)
 # What the simulator models (tfl_mav.sim.simulator: rates, attitude, mocap position;
 # tfl_mav.sim.motors;
@@ -183,16 +182,15 @@ class StatusText:
                     link.send(msg)
 
     def messages(self, severity: int, text: str) -> list[Any]:
-        """``text`` as STATUSTEXT messages: one, or up to 4 chunks sharing a fresh ``id``."""
-        data = text.replace("°", " deg").encode("ascii", errors="replace")
-        n = _STATUSTEXT_LEN
-        if len(data) <= n:
-            return [mav.MAVLink_statustext_message(severity, data, 0, 0)]
-        data = data[:n * _STATUSTEXT_MAX_CHUNKS]
+        """``text`` as STATUSTEXT messages: one with ``id`` 0 (up to 50 characters,
+        exactly 50 included: no terminator needed), or the chunks of
+        :func:`tfl_mav.link.statustext.split` sharing a fresh ``id`` (a full last chunk
+        gets its empty terminator; the receivers' :class:`~tfl_mav.link.statustext.
+        Reassembler` takes the same chunk limit)."""
+        chunks = split_statustext(text.replace("°", " deg"))
+        if len(chunks) == 1:
+            return [mav.MAVLink_statustext_message(severity, chunks[0], 0, 0)]
         self._chunk_id = self._chunk_id % 0xFFFF + 1
-        chunks = [data[i:i + n] for i in range(0, len(data), n)]
-        if len(chunks[-1]) == n and len(chunks) < _STATUSTEXT_MAX_CHUNKS:
-            chunks.append(b"")   # a full last chunk needs an empty terminator (MAVLink spec)
         return [mav.MAVLink_statustext_message(severity, c, self._chunk_id, i)
                 for i, c in enumerate(chunks)]
 
