@@ -32,6 +32,7 @@ __all__ = [
     "ScenarioError",
     "SensorConfig",
     "VehicleConfig",
+    "WindConfig",
     "apply_overrides",
     "builtin_scenarios",
     "load_scenario",
@@ -74,6 +75,22 @@ class VehicleConfig:
     motor_time_constant_s: float = _f(0.0, "s", lo=0.0, hi=1.0, doc="lag on w; 0 = none")
     rpm_noise_std: float = _f(0.0, "rpm", lo=0.0, hi=1000.0, doc="ESC rpm measurement noise")
     gravity_mps2: float = _f(9.81, "m/s^2", lo=0.0, lo_open=True)
+    # Rotor aerodynamics in moving air (tfl_mav.sim.physics.RotorAeroParams). The defaults
+    # are RotorPy's AscTec Hummingbird (rotorpy/vehicles/hummingbird_params.py: k_d 1.19e-4,
+    # k_z 2.32e-4, k_h 3.39e-3, c_D 0.5e-2/0.5e-2/1e-2, k_eta 5.57e-6, arm 0.17 m) scaled to
+    # this airframe: rotors of the same family with k_f/k_eta = 1.436 have a radius
+    # (k_f/k_eta)^1/4 as large, so k_d, k_z (∝ ρ A R) scale by (k_f/k_eta)^3/4 = 1.312 and
+    # k_h (∝ ρ A) by (k_f/k_eta)^1/2 = 1.198; the frame's drag by its area, (0.2656/0.17)².
+    rotor_aero: bool = _f(False, doc="rotor drag, inflow, lift and frame drag (off: paper)")
+    rotor_drag_coeff: float = _f(1.56e-4, "N/((rad/s)(m/s))", lo=0.0,
+                                 doc="k_d: H-force per rotor speed and in-plane airspeed")
+    rotor_inflow_coeff: float = _f(3.04e-4, "N/((rad/s)(m/s))", lo=0.0,
+                                   doc="k_z: induced-inflow drag along the rotor axis")
+    translational_lift_coeff: float = _f(4.06e-3, "N/(m/s)^2", lo=0.0,
+                                         doc="k_h: thrust gained per in-plane airspeed squared")
+    parasitic_drag_coeff: tuple[float, float, float] = _f(
+        (1.22e-2, 1.22e-2, 2.44e-2), "N/(m/s)^2", lo=0.0, length=3,
+        doc="frame drag c_D along b1, b2, b3")
 
     @property
     def omega_max_radps(self) -> float:
@@ -160,6 +177,31 @@ class SensorConfig:
                                  doc="measured rates clip at ± this (34.9 = 2000 deg/s); 0 = off")
 
 
+TURBULENCE_LEVELS = ("none", "light", "moderate", "severe")
+
+
+@dataclass(frozen=True)
+class WindConfig:
+    """The air the vehicle flies in, paper frame (z up), m/s: a mean wind, Dryden turbulence
+    (MIL-F-8785C / MIL-HDBK-1797 low-altitude scales and intensities, seeded by ``run.seed``)
+    and one discrete 1 − cos gust (``tfl_mav.sim.wind``). Every aerodynamic force acts on the
+    velocity relative to this air."""
+
+    mean_mps: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "m/s", length=3, lo=-50.0,
+                                              hi=50.0, doc="mean wind, paper frame")
+    turbulence: str = _f("none", doc="none | light | moderate | severe (Dryden)")
+    gust_mps: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "m/s", length=3, lo=-50.0,
+                                              hi=50.0, doc="1 - cos gust: peak air velocity")
+    gust_start_s: float = _f(0.0, "s", lo=0.0)
+    gust_duration_s: float = _f(0.0, "s", lo=0.0, hi=3600.0, doc="0 = no gust")
+
+    @property
+    def active(self) -> bool:
+        """Whether the air moves at all (still air keeps the still-air physics step)."""
+        return (any(c != 0.0 for c in self.mean_mps) or self.turbulence != "none"
+                or (self.gust_duration_s > 0.0 and any(c != 0.0 for c in self.gust_mps)))
+
+
 @dataclass(frozen=True)
 class RunConfig:
     """Run length, rates and seed."""
@@ -196,6 +238,7 @@ class Scenario:
     sensors: SensorConfig = field(default_factory=SensorConfig)
     run: RunConfig = field(default_factory=RunConfig)
     detector: DetectorConfig = field(default_factory=DetectorConfig)
+    wind: WindConfig = field(default_factory=WindConfig)
     source: str = "<defaults>"
 
     def replace(self, **sections: Any) -> Scenario:
@@ -236,6 +279,7 @@ _SECTIONS: dict[str, type] = {
     "sensors": SensorConfig,
     "run": RunConfig,
     "detector": DetectorConfig,
+    "wind": WindConfig,
 }
 
 
@@ -307,6 +351,9 @@ def _cross_check(name: str, sec: Any) -> None:
         raise ScenarioError(f"{name}.law", f"must be 'paper' or 'robust', got {sec.law!r}")
     if isinstance(sec, AttackConfig):
         _check_signal(f"{name}.signal", sec.signal)
+    if isinstance(sec, WindConfig) and sec.turbulence not in TURBULENCE_LEVELS:
+        raise ScenarioError(f"{name}.turbulence", f"must be one of "
+                            f"{', '.join(TURBULENCE_LEVELS)}, got {sec.turbulence!r}")
 
 
 def _check_signal(key: str, signal: str) -> None:

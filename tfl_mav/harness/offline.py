@@ -25,6 +25,7 @@ from tfl_mav.flightlog.flight import FlightLog
 from tfl_mav.scenario import Scenario
 from tfl_mav.sim.attacker import AttackSignal
 from tfl_mav.sim.simulator import Simulator
+from tfl_mav.sim.wind import WindField
 
 __all__ = ["DETECTION_EVENT", "detections", "fly_offline"]
 
@@ -180,6 +181,12 @@ def _fill(log: FlightLog, rows: list[tuple[Any, ...]], sim: Simulator, *,
             ("saturated", np.fromiter(cols[8], float, n)),
             ("mode", np.fromiter(cols[9], float, n))):
         data[key] = np.ascontiguousarray(value, dtype=float)
+    if sim.wind is not None:
+        # The air does not depend on the flight: the same field replayed at the ticks' steps
+        # (no per-tick cost), the wind each tick's true state met.
+        sc = sim.scenario
+        air = WindField(sc.wind, sc.run.seed, sim.physics_dt_s)
+        data["wind_mps"] = air.series(np.arange(n) * sim.steps_per_control)
 
 
 def _matrix(rows: tuple[Sequence[float], ...], width: int) -> np.ndarray:
