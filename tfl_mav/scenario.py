@@ -24,6 +24,7 @@ from tfl_mav.control.detect.detector import DetectorConfig
 
 __all__ = [
     "AttackConfig",
+    "AttackPhase",
     "ControllerConfig",
     "InitialConfig",
     "PathConfig",
@@ -113,6 +114,59 @@ ATTACK_SIGNALS = ("paper", "constant", "step", "ramp", "sine", "stuck", "off")
 
 
 @dataclass(frozen=True)
+class AttackPhase:
+    """One phase of an attack schedule (``[[attack.phases]]``): from ``start_s`` the attacker
+    holds ``rotor`` (1-4; 0 = lets go) with ``signal`` (as ``attack.signal``; ``tau`` restarts
+    at the phase's start). The signals' own keys (``value_n``, ``rate_nps``, …) are the
+    section's."""
+
+    rotor: int
+    signal: str
+    start_s: float
+
+
+_PHASE_KEYS = ("rotor", "signal", "start_s")
+
+
+def _phases(value: Any, key: str = "attack.phases") -> tuple[AttackPhase, ...]:
+    """``[[attack.phases]]`` checked (each key, start times increasing) into phases."""
+    if isinstance(value, tuple) and all(isinstance(p, AttackPhase) for p in value):
+        return value
+    if not isinstance(value, (list, tuple)):
+        raise ScenarioError(key, f"must be a list of tables ([[attack.phases]]), got "
+                                 f"{type(value).__name__}")
+    out = []
+    for i, table in enumerate(value):
+        at = f"{key}[{i}]"
+        if isinstance(table, AttackPhase):
+            table = dataclasses.asdict(table)
+        if not isinstance(table, dict):
+            raise ScenarioError(at, f"must be a table with {', '.join(_PHASE_KEYS)}, "
+                                    f"got {table!r}")
+        unknown = sorted(set(table) - set(_PHASE_KEYS))
+        if unknown:
+            raise ScenarioError(f"{at}.{unknown[0]}", f"unknown key (known keys: "
+                                                      f"{', '.join(_PHASE_KEYS)})")
+        missing = [k for k in _PHASE_KEYS if k not in table and k != "signal"]
+        if missing:
+            raise ScenarioError(f"{at}.{missing[0]}", "missing (every phase says which rotor "
+                                                      "from when)")
+        rotor = _check_number(f"{at}.rotor", table["rotor"],
+                              {"lo": 0, "hi": 4, "lo_open": False, "unit": ""}, True)
+        start = _check_number(f"{at}.start_s", table["start_s"],
+                              {"lo": 0.0, "hi": None, "lo_open": False, "unit": "s"}, False)
+        signal = table.get("signal", "paper")
+        if not isinstance(signal, str):
+            raise ScenarioError(f"{at}.signal", f"must be a string, got {signal!r}")
+        _check_signal(f"{at}.signal", signal)
+        if out and start <= out[-1].start_s:
+            raise ScenarioError(f"{at}.start_s", f"must be after the previous phase's "
+                                                 f"({out[-1].start_s:g} s), got {start:g}")
+        out.append(AttackPhase(int(rotor), signal, float(start)))
+    return tuple(out)
+
+
+@dataclass(frozen=True)
 class AttackConfig:
     """Which rotor the attacker seizes, from when, and the thrust it forces.
 
@@ -132,6 +186,19 @@ class AttackConfig:
     amplitude_n: float = _f(1.0, "N", doc="sine amplitude")
     frequency_hz: float = _f(0.5, "Hz", lo=0.0, doc="sine frequency")
     offset_n: float = _f(2.0, "N", doc="sine offset")
+    phases: tuple[AttackPhase, ...] = _f(
+        (), doc="[[attack.phases]] (rotor, signal, start_s): an attacker that moves between "
+                "rotors; when given, it replaces rotor/start_s/signal")
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "phases", _phases(self.phases))
+
+    @property
+    def first_rotor(self) -> int:
+        """The first rotor attacked (the schedule's first phase that holds one)."""
+        if self.phases:
+            return next((p.rotor for p in self.phases if p.rotor), 0)
+        return self.rotor
 
 
 @dataclass(frozen=True)

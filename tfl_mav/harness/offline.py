@@ -27,11 +27,15 @@ from tfl_mav.sim.attacker import AttackSignal
 from tfl_mav.sim.simulator import Simulator
 from tfl_mav.sim.wind import WindField
 
-__all__ = ["DETECTION_EVENT", "detections", "fly_offline"]
+__all__ = ["ATTACK_MOVE_EVENT", "ATTACK_RELEASE_EVENT", "DETECTION_EVENT", "detections",
+           "fly_offline"]
 
 # The event a detector alarm leaves in ``FlightLog.events`` (rotor 1-4, sim time in s).
 DETECTION_EVENT = "attack detected on rotor {rotor}"
 _DETECTION_RE = re.compile(r"^attack detected on rotor (\d)$")
+# The events an attack schedule ([[attack.phases]]) leaves: where the attacker went, when.
+ATTACK_MOVE_EVENT = "attacker seizes rotor {rotor}"
+ATTACK_RELEASE_EVENT = "attacker lets go"
 
 
 def detections(log: FlightLog) -> list[tuple[float, int]]:
@@ -72,8 +76,10 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
         fc = flight_software
     sim = Simulator(sc, attack_signal=attack_signal)
     v = sc.vehicle
-    log = FlightLog(thrust_max_n=v.thrust_max_n, attack_rotor=sc.attack.rotor,
-                    attack_start_s=sc.attack.start_s if sc.attack.rotor else math.nan)
+    first = sim.attacker.moves[0] if sim.attacker.moves else (sc.attack.start_s,
+                                                               sc.attack.rotor)
+    log = FlightLog(thrust_max_n=v.thrust_max_n, attack_rotor=sc.attack.first_rotor,
+                    attack_start_s=first[0] if sc.attack.first_rotor else math.nan)
     log.path_points_m = (ctrl.tracker.path if ctrl is not None
                          else scenario_path(sc)).sample(400)
     duration = sc.run.duration_s if duration_s is None else duration_s
@@ -126,6 +132,11 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
                 progress(sim.time_s, duration)
                 next_progress += 1.0
         _fill(log, rows, sim, detector=attack_info == "detector")
+        if sc.attack.phases:      # the schedule's moves, among the detector's verdicts
+            end_s = sim.time_s
+            log.events.extend((t, ATTACK_MOVE_EVENT.format(rotor=r) if r else ATTACK_RELEASE_EVENT)
+                              for t, r in sim.attacker.moves if t <= end_s)
+            log.events.sort(key=lambda e: e[0])
     finally:
         if gc_was_enabled:
             gc.enable()
