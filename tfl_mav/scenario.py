@@ -242,9 +242,19 @@ class SensorConfig:
     rate_noise_std_radps: float = _f(0.0, "rad/s", lo=0.0)
     gyro_range_radps: float = _f(0.0, "rad/s", lo=0.0, hi=1000.0,
                                  doc="measured rates clip at ± this (34.9 = 2000 deg/s); 0 = off")
+    model: str = _f("ideal", doc="'ideal' (the state + the noise above) or 'realistic' (IMU, "
+                                 "GPS, baro, mag fused onboard by an error-state EKF)")
+    gps_hz: float = _f(10.0, "Hz", lo=1.0, hi=50.0, doc="realistic: GPS fix rate")
+    gps_latency_s: float = _f(0.1, "s", lo=0.0, hi=1.0, doc="realistic: fix delivered this late")
+    gps_position_noise_std_m: float = _f(0.02, "m", lo=0.0, lo_open=True, hi=10.0,
+                                         doc="realistic: horizontal (vertical 1.5x); "
+                                             "0.02 = RTK")
+    gps_velocity_noise_std_mps: float = _f(0.05, "m/s", lo=0.0, lo_open=True, hi=5.0,
+                                           doc="realistic: GPS velocity noise")
 
 
 TURBULENCE_LEVELS = ("none", "light", "moderate", "severe")
+SENSOR_MODELS = ("ideal", "realistic")
 
 
 @dataclass(frozen=True)
@@ -418,6 +428,9 @@ def _cross_check(name: str, sec: Any) -> None:
         raise ScenarioError(f"{name}.law", f"must be 'paper' or 'robust', got {sec.law!r}")
     if isinstance(sec, AttackConfig):
         _check_signal(f"{name}.signal", sec.signal)
+    if isinstance(sec, SensorConfig) and sec.model not in SENSOR_MODELS:
+        raise ScenarioError(f"{name}.model", f"must be one of {', '.join(SENSOR_MODELS)}, "
+                                             f"got {sec.model!r}")
     if isinstance(sec, WindConfig) and sec.turbulence not in TURBULENCE_LEVELS:
         raise ScenarioError(f"{name}.turbulence", f"must be one of "
                             f"{', '.join(TURBULENCE_LEVELS)}, got {sec.turbulence!r}")

@@ -18,6 +18,7 @@ from tfl_mav.model.geometry import euler_to_quaternion, quaternion_multiply
 from tfl_mav.model.state import State
 from tfl_mav.scenario import Scenario
 from tfl_mav.sim.attacker import NO_ATTACK, Attacker, AttackSample, AttackSignal
+from tfl_mav.sim.estimator import EKF_COVARIANCE_HZ, ErrorStateEkf, EstimatorOutput
 from tfl_mav.sim.motors import RADPS_TO_RPM, MotorBank
 from tfl_mav.sim.physics import (
     RigidBodyParams,
@@ -27,6 +28,7 @@ from tfl_mav.sim.physics import (
     rk4_air_stepper,
     rk4_stepper,
 )
+from tfl_mav.sim.sensors import SensorSuite
 from tfl_mav.sim.wind import WindField
 
 __all__ = ["Simulator"]
@@ -110,6 +112,19 @@ class Simulator:
                                     1.0 / v.k_f) if v.rotor_aero else RotorAeroParams())
             self._rk4_air = rk4_air_stepper(self.params, aero)
             self.step_control_period = self._step_control_period_air  # type: ignore[method-assign]
+        # Realistic sensors: IMU, GPS, baro and mag fused onboard; the controller receives
+        # the estimate (the truth never leaves the vehicle).
+        self.sensors: SensorSuite | None = None
+        self.estimate: EstimatorOutput | None = None
+        self.estimator: ErrorStateEkf | None = None
+        if sens.model == "realistic":
+            self.sensors = SensorSuite(sens, scenario.run.seed, v.gravity_mps2)
+            self.estimator = ErrorStateEkf(self._x, v.gravity_mps2, self.sensors.noise,
+                                           sens.gps_position_noise_std_m,
+                                           sens.gps_velocity_noise_std_mps,
+                                           cov_every=max(1, round(scenario.run.control_hz
+                                                                  / EKF_COVARIANCE_HZ)))
+            self._measure = self._measure_estimated  # type: ignore[method-assign]
         self._measure()
 
     # ------------------------------------------------------------------ time and commands
@@ -318,6 +333,24 @@ class Simulator:
         self._parts = (tuple(pos), tuple(vel), tuple(q), tuple(w))
         self._measured_floats: State | None = None    # built from _parts on first read
         self._measured: State | None = None
+
+    def _measure_estimated(self) -> None:
+        """The realistic sensors sampled now and fused (:mod:`tfl_mav.sim.estimator`): the
+        measured state is the estimate; the ESC rpm are measured as in :meth:`_measure`."""
+        Simulator._measure(self)
+        suite, ekf = self.sensors, self.estimator
+        assert suite is not None and ekf is not None
+        imu, fixes, baro, mag = suite.sample(self.time_s, self._x)
+        ekf.predict(imu)
+        if mag is not None:
+            ekf.fuse_mag(mag)
+        if baro is not None:
+            ekf.fuse_baro(baro)
+        for fix in fixes:
+            ekf.fuse_gps(fix)
+        est = self.estimate = ekf.output()
+        self._parts = (est.position_m, est.velocity_mps, est.quaternion_wxyz,
+                       est.body_rates_radps)
 
     # ------------------------------------------------------------------ outputs
     @property
