@@ -61,3 +61,60 @@ def test_seeded_wind_replays_the_flight_bit_for_bit():
     c = fly_offline(sc.replace(**{"run.seed": 1}))
     assert not np.array_equal(a["wind_mps"], c["wind_mps"])
     assert a["wind_mps"].shape == (len(a["t_s"]), 3)
+
+
+@pytest.mark.slow
+def test_realistic_vehicle_sends_the_estimate_and_its_raw_sensors_over_mavlink():
+    """ODOMETRY carries the onboard estimate with its covariance (GPS_INS); the GCS gets
+    HIGHRES_IMU and GPS_RAW_INT beside ATTITUDE and LOCAL_POSITION_NED."""
+    import math
+    import os
+    import threading
+
+    os.environ.setdefault("MAVLINK20", "1")
+    from pymavlink import mavutil
+
+    from tfl_mav.harness.pilot import Pilot, hover_fraction
+    from tfl_mav.harness.ports import LOOPBACK
+    from tfl_mav.link.dialect import mav
+    from tfl_mav.sim.vehicle import Vehicle
+
+    mavutil.set_dialect("ardupilotmega")
+    sc = load_scenario("paper").replace(**{"attack.rotor": 0, "sensors.model": "realistic"})
+    gcs = mavutil.mavlink_connection("udpin:127.0.0.1:0", source_system=255,
+                                     source_component=190)
+    vehicle = Vehicle(sc, listen=LOOPBACK, gcs=gcs.port.getsockname())
+    thread = threading.Thread(target=vehicle.run, args=(math.inf,), daemon=True)
+    thread.start()
+    pilot = Pilot(vehicle.listen_address)
+    try:
+        gcs.wait_heartbeat(timeout=5.0)
+        pilot.hello()
+        u = hover_fraction(sc)
+        odometry = []
+        pilot.fly(300, lambda o, _e: odometry.append(o) or [u] * 4, timeout_s=5.0)
+        o = odometry[-1]
+        assert o.estimator_type == mav.MAV_ESTIMATOR_TYPE_GPS_INS
+        assert 0.0 < o.pose_covariance[0] < 0.1 ** 2          # σ < 10 cm, NED north
+        assert 0.0 < o.velocity_covariance[0]
+        seen = {}
+        deadline = 200
+        while len(seen) < 4 and deadline:
+            deadline -= 1
+            m = gcs.recv_match(blocking=True, timeout=0.1)
+            if m is not None and m.get_type() in ("HIGHRES_IMU", "GPS_RAW_INT", "ATTITUDE",
+                                                  "LOCAL_POSITION_NED"):
+                seen[m.get_type()] = m
+            if len(seen) < 4:
+                pilot.fly(20, lambda _o, _e: [u] * 4, timeout_s=5.0)
+        imu, gps = seen["HIGHRES_IMU"], seen["GPS_RAW_INT"]
+        assert imu.zacc == pytest.approx(-9.81, abs=0.5)      # FRD: hover specific force up
+        assert abs(imu.xgyro) < 0.1 and imu.fields_updated
+        assert gps.fix_type == 6 and gps.satellites_visible > 0 and gps.h_acc == 20
+        assert abs(seen["LOCAL_POSITION_NED"].z + 0.5) < 0.2   # the estimate, near 0.5 m up
+    finally:
+        vehicle.stop()
+        thread.join(5.0)
+        vehicle.close()
+        pilot.close()
+        gcs.close()
