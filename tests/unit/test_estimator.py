@@ -82,3 +82,23 @@ def test_realistic_sensors_replay_bit_for_bit():
     b, _ = _hover(0.5, **{"run.seed": 5})
     assert a.measured_floats == b.measured_floats
     assert a.state_vector == b.state_vector
+
+
+def test_a_filter_that_refuses_the_gps_resets_to_it():
+    """Fixes 1 m away (far outside the gate): refused five times in a row, then position
+    and velocity are reset to the GPS, as EKF2 does after its timeout."""
+    from tfl_mav.sim.estimator import GPS_RESET_AFTER, ErrorStateEkf
+    from tfl_mav.sim.sensors import ImuNoise, ImuSample
+
+    x0 = [0.0, 0.0, 5.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    ekf = ErrorStateEkf(x0, G, ImuNoise(), 0.02, 0.05)
+    still = ((0.0, 0.0, G), (0.0, 0.0, 0.0))
+    for k in range(1, 100 * GPS_RESET_AFTER + 1):
+        ekf.predict(ImuSample(k * 1e-3, *still))
+        if k % 100 == 0:
+            ekf.fuse_gps(GpsSample(k * 1e-3, (1.0, 0.0, 5.0), (0.0, 0.0, 0.0)))
+            if k < 100 * GPS_RESET_AFTER:
+                assert ekf.resets == 0 and abs(ekf.p[0]) < 0.01
+    assert ekf.resets == 1
+    assert ekf.p[0] == pytest.approx(1.0, abs=1e-6)
+    assert ekf.output().position_var_m2[0] == pytest.approx(0.02 ** 2)

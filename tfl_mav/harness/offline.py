@@ -22,6 +22,7 @@ import numpy as np
 from tfl_mav.build import scenario_path
 from tfl_mav.controller.flight_computer import FlightComputer
 from tfl_mav.flightlog.flight import FlightLog
+from tfl_mav.flightlog.pathdist import path_distances
 from tfl_mav.scenario import Scenario
 from tfl_mav.sim.attacker import AttackSignal
 from tfl_mav.sim.simulator import Simulator
@@ -192,6 +193,13 @@ def _fill(log: FlightLog, rows: list[tuple[Any, ...]], sim: Simulator, *,
             ("saturated", np.fromiter(cols[8], float, n)),
             ("mode", np.fromiter(cols[9], float, n))):
         data[key] = np.ascontiguousarray(value, dtype=float)
+    if sim.estimator is not None:
+        # The controller flew on the onboard estimate: its distance is the estimate's. The
+        # log's is the truth's (as a flight log's /sim/truth/path_distance), the
+        # controller's kept beside it.
+        data["path_distance_estimated_m"] = data["path_distance_m"]
+        data["path_distance_m"] = np.asarray(
+            path_distances(scenario_path(sim.scenario), x[:, 0:3].tolist()), dtype=float)
     if sim.wind is not None:
         # The air does not depend on the flight: the same field replayed at the ticks' steps
         # (no per-tick cost), the wind each tick's true state met.

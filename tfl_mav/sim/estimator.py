@@ -21,6 +21,10 @@ Error state, 15: δp, δv, δθ (a local rotation, q ← q ⊗ q{δθ}), δb_a, 
   fix is compared with the estimate *of its own instant* (a ring buffer of the nominal
   state), and the correction is applied now — the error treated as constant over the delay,
   which holds while the delay (0.1 s) is short against the error's time constants (seconds).
+* **Reset**: :data:`GPS_RESET_AFTER` fixes in a row refused by the gate (on any axis: a
+  refused axis is left to drift) reset position and
+  velocity to the GPS (EKF2's reset after its GPS timeout), so a filter that has become
+  overconfident cannot drift away from the fixes for good.
 
 :meth:`ErrorStateEkf.output` is what the vehicle sends as ODOMETRY: the estimate of now
 (position, velocity, attitude, the bias-corrected gyro rate) and its covariance.
@@ -37,9 +41,10 @@ import numpy as np
 
 from tfl_mav.sim.sensors import MAG_FIELD_ENU, GpsSample, ImuNoise, ImuSample
 
-__all__ = ["EKF_COVARIANCE_HZ", "GATE_SIGMA", "ErrorStateEkf", "EstimatorOutput"]
+__all__ = ["EKF_COVARIANCE_HZ", "GATE_SIGMA", "GPS_RESET_AFTER", "ErrorStateEkf", "EstimatorOutput"]
 
 GATE_SIGMA = 5.0
+GPS_RESET_AFTER = 5             # consecutive fixes refused (any axis; 0.5 s at 10 Hz): reset
 EKF_COVARIANCE_HZ = 100.0       # the covariance's rate, EKF2's (the IMU's: the control tick's)
 _HISTORY_S = 1.0
 
@@ -127,6 +132,8 @@ class ErrorStateEkf:
         self._iv, self._it, self._iba, self._ibg = 3 + idx, 6 + idx, 9 + idx, 12 + idx
         self._last_t: float | None = None
         self._history: deque[tuple[float, np.ndarray, np.ndarray]] = deque()
+        self._gps_refused = 0                # consecutive fixes the gate refused whole
+        self.resets = 0                      # position/velocity resets to the GPS
         self.rejected = 0                    # measurements the gate refused
         self.fused = 0
         self._variances()
@@ -290,7 +297,27 @@ class ErrorStateEkf:
                 break
         innovation = np.array([fix.position_m[i] - p_then[i] for i in range(3)]
                               + [fix.velocity_mps[i] - v_then[i] for i in range(3)])
-        return self._fuse(self._h_gps, innovation, self._r_gps)
+        refused_before = self.rejected
+        fused = self._fuse(self._h_gps, innovation, self._r_gps)
+        if self.rejected == refused_before:
+            self._gps_refused = 0
+            return fused
+        self._gps_refused += 1       # a fix refused in part: its refused axes drift
+        if self._gps_refused >= GPS_RESET_AFTER:
+            # The filter has talked itself out of the GPS (overconfident, drifting): as
+            # EKF2 does after its timeout, reset position and velocity to the fix (carried
+            # to now by the estimate's own motion since) with the fix's uncertainty.
+            self.p = [self.p[i] + innovation[i] for i in range(3)]
+            self.v = [self.v[i] + innovation[3 + i] for i in range(3)]
+            pm = self.P.copy()
+            pm[0:6, :] = 0.0
+            pm[:, 0:6] = 0.0
+            pm[0:6, 0:6] = self._r_gps
+            self.P = pm
+            self._variances()
+            self._gps_refused = 0
+            self.resets += 1
+        return fused
 
     def fuse_baro(self, altitude_m: float) -> bool:
         return self._fuse(self._h_baro, np.array([altitude_m - self.p[2]]), self._r_baro)
