@@ -56,9 +56,16 @@ def scenario_path(sc: Scenario) -> Path:
             from None
 
 
-def build_controller(sc: Scenario) -> TFLController:
-    return TFLController(model_params(sc), scenario_path(sc), law_config(sc),
-                         sc.run.control_dt_s)
+def build_controller(sc: Scenario, *, speed_mps: float | None = None) -> TFLController:
+    """The scenario's TFL law; ``speed_mps``: the path speed to fly when it is not the
+    scenario's (the highest feasible one). With motor lag the law's inverse filters the ESC
+    noise the detector assumes."""
+    cfg = law_config(sc)
+    if speed_mps is not None and speed_mps != cfg.speed_mps:
+        cfg = dataclasses.replace(cfg, speed_mps=speed_mps)
+    ctrl = TFLController(model_params(sc), scenario_path(sc), cfg, sc.run.control_dt_s,
+                         rpm_noise_std=detector_config(sc).rpm_noise_std)
+    return ctrl
 
 
 def detector_config(sc: Scenario) -> DetectorConfig:

@@ -217,6 +217,8 @@ class ControllerConfig:
     model_mass_scale: float = _f(1.02, lo=0.5, hi=2.0, doc="model mass = scale * true mass")
     model_inertia_scale: float = _f(1.1, lo=0.5, hi=2.0, doc="model J = scale * true J")
     law: str = _f("robust", doc="'paper' (plain law) or 'robust' (estimators + gain switch)")
+    supervisor: str = _f("auto", doc="which law flies: 'auto' (TFL where it holds the path, "
+                                     "the safe law where it cannot), 'tfl' or 'safe' alone")
     xi_pole: float = _f(-2.5, "1/s", hi=0.0, lo_open=False, doc="repeated pole of the xi chain")
     eta_pole: float = _f(-2.0, "1/s", hi=0.0, doc="repeated pole of the eta chain")
     xi_pole_fine: float = _f(-4.0, "1/s", hi=0.0, doc="robust: xi pole after settling")
@@ -426,6 +428,9 @@ def _cross_check(name: str, sec: Any) -> None:
                                 f"control_hz, got {sec.physics_hz:g}/{sec.control_hz:g}")
     if isinstance(sec, ControllerConfig) and sec.law not in ("paper", "robust"):
         raise ScenarioError(f"{name}.law", f"must be 'paper' or 'robust', got {sec.law!r}")
+    if isinstance(sec, ControllerConfig) and sec.supervisor not in ("auto", "tfl", "safe"):
+        raise ScenarioError(f"{name}.supervisor",
+                            f"must be 'auto', 'tfl' or 'safe', got {sec.supervisor!r}")
     if isinstance(sec, AttackConfig):
         _check_signal(f"{name}.signal", sec.signal)
     if isinstance(sec, SensorConfig) and sec.model not in SENSOR_MODELS:

@@ -23,7 +23,7 @@ from typing import Any
 from tfl_mav.build import scenario_path
 from tfl_mav.cli.outputs import EXIT_IO, dir_problem
 from tfl_mav.controller.feasibility import check_scenario
-from tfl_mav.flightlog.metrics import DEFAULT_BOUND_M, DEFAULT_WINDOW_S
+from tfl_mav.flightlog.metrics import DEFAULT_BOUND_M, DEFAULT_WINDOW_S, law_text
 from tfl_mav.harness.demo import run_demo
 from tfl_mav.link.signing import load_key
 from tfl_mav.scenario import ScenarioError, apply_overrides, load_scenario
@@ -131,6 +131,9 @@ def _print_summary(m: dict[str, Any]) -> None:
               f"{m['false_alarms']}")
     else:
         print(f"  attack: none detected; false alarms {m['false_alarms']}")
+    laws = law_text(m)
+    if laws:
+        print(f"  laws: {laws}")
     print(f"  rotor thrust [{m['thrust_min_n']:.2f}, {m['thrust_max_n']:.2f}] N, saturated "
           f"{100 * m['saturated_fraction']:.2f} % of ticks; max |yaw rate| "
           f"{m['max_yaw_rate_radps']:.1f} rad/s")

@@ -10,7 +10,7 @@ u_f = 2A + f1 + f3 with f1, f3 ∈ [0, f_max]. Hence
   smallest component along b3 — at the top of a bend curving down — must be ≥ 2A: the
   attack must stay below u_min / 2, and u_min > 0 for any vehicle (a rotor cannot push);
 * the TFL attacked law makes τ_p ∈ [−lA, l(f_max − A)]: near A = 0 of one sign only. Where
-  it keeps asking for the other (:mod:`tfl_mav.control.safe.authority`), the reduced-attitude
+  it keeps asking for the other (:mod:`tfl_mav.controller.supervisor`), the reduced-attitude
   law flies (:mod:`tfl_mav.control.safe.recovery`).
 
 :func:`path_demand` computes the path's required acceleration from σ(λ) at the scenario's
