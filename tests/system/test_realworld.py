@@ -118,3 +118,15 @@ def test_realistic_vehicle_sends_the_estimate_and_its_raw_sensors_over_mavlink()
         vehicle.close()
         pilot.close()
         gcs.close()
+
+
+def test_builtin_realistic_scenario_is_everything_at_once():
+    sc = load_scenario("realistic")
+    assert sc.vehicle.rotor_aero and sc.sensors.model == "realistic"
+    assert sc.wind.turbulence == "light" and sc.wind.mean_mps == (2.0, 0.0, 0.0)
+    assert sc.attack == load_scenario("paper").attack and sc.path == load_scenario("paper").path
+    log = fly_offline(sc.replace(**{"run.duration_s": 1.0}))
+    assert not log.crashed
+    # the log's distance is the truth's; the controller's, from its estimate, beside it
+    assert log["path_distance_m"].shape == log.data["path_distance_estimated_m"].shape
+    assert not np.array_equal(log["path_distance_m"], log.data["path_distance_estimated_m"])
