@@ -130,3 +130,19 @@ def test_builtin_realistic_scenario_is_everything_at_once():
     # the log's distance is the truth's; the controller's, from its estimate, beside it
     assert log["path_distance_m"].shape == log.data["path_distance_estimated_m"].shape
     assert not np.array_equal(log["path_distance_m"], log.data["path_distance_estimated_m"])
+
+
+def test_api_flies_wind_and_a_moving_attacker_from_settings():
+    """The public API takes the new keys as --set does; the detector follows the attacker."""
+    from tfl_mav.api import Environment
+
+    env = Environment("paper", settings=[
+        "wind.mean_mps=[2.0, 0.0, 0.0]", "wind.turbulence=light", "attack.value_n=1.5",
+        "attack.phases=[{rotor = 2, start_s = 0.5, signal = 'constant'},"
+        " {rotor = 3, start_s = 2.0, signal = 'constant'}]"])
+    assert env.scenario.wind.active and len(env.scenario.attack.phases) == 2
+    flight = env.fly(3.0)
+    assert not flight.crashed
+    t, rotor = flight.t_s, flight.detected_rotor
+    assert set(rotor[(t > 0.6) & (t < 2.0)]) == {2}
+    assert rotor[-1] == 3
