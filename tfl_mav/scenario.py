@@ -92,6 +92,9 @@ class VehicleConfig:
     parasitic_drag_coeff: tuple[float, float, float] = _f(
         (1.22e-2, 1.22e-2, 2.44e-2), "N/(m/s)^2", lo=0.0, length=3,
         doc="frame drag c_D along b1, b2, b3")
+    rotor_inertia_kgm2: float = _f(0.0, "kg m^2", lo=0.0, hi=0.01,
+                                   doc="J_r of each rotor (with rotor_aero: spin-up reaction "
+                                       "and gyroscopic torque); 0 = off; OS4's is 6e-5")
 
     @property
     def omega_max_radps(self) -> float:

@@ -165,7 +165,8 @@ def test_rotor_drag_is_rotor_speed_times_in_plane_airspeed():
 
 
 def test_compiled_air_step_is_the_python_step():
-    aero = RotorAeroParams(1.56e-4, 3.04e-4, 4.06e-3, (1.22e-2, 1.22e-2, 2.44e-2), 1 / 8e-6)
+    aero = RotorAeroParams(1.56e-4, 3.04e-4, 4.06e-3, (1.22e-2, 1.22e-2, 2.44e-2), 1 / 8e-6,
+                           6e-5)
     step = rk4_air_stepper(PARAMS, aero)
     rng = np.random.default_rng(3)
     for _ in range(50):
@@ -203,3 +204,40 @@ def test_rotor_aero_is_off_in_the_paper_scenario():
     sc = load_scenario("paper")
     assert sc.vehicle.rotor_aero is False
     assert not hasattr(Simulator(sc), "_rk4_air")
+
+
+def test_rotor_momentum_gives_the_gyroscopic_torque():
+    hover = PARAMS.mass_kg * G
+    k_f, jr = 8e-6, 6e-5
+    f_13, f_24 = 2.4, 3.0                        # rotors 2, 4 faster: h_r along +b3
+    aero = RotorAeroParams(0.0, 0.0, 0.0, (0.0, 0.0, 0.0), 1.0 / k_f, jr)
+    air = (0.0, 0.0, 0.0, f_13, f_24, f_13, f_24)
+    x = _state(rates=(1.0, 0.0, 0.0))
+    with_h = derivative_air(PARAMS, aero, x, (hover, 0, 0, 0), air)
+    without = derivative_air(PARAMS, aero._replace(rotor_inertia_kgm2=0.0), x,
+                             (hover, 0, 0, 0), air)
+    h_r = jr * 2 * (math.sqrt(f_24 / k_f) - math.sqrt(f_13 / k_f))
+    # −Ω × h_r b3 with Ω = (1, 0, 0): (0, h_r, 0)
+    assert with_h[11] - without[11] == pytest.approx(h_r / PARAMS.inertia_kgm2[1])
+    assert with_h[10] == without[10] and with_h[12] == without[12]
+
+
+def test_spinning_rotors_up_turns_the_body_the_other_way():
+    """J_r ω̇ about b3: rotors 1, 3 (spinning about −b3) sped up push the body's yaw rate
+    positive on top of their drag's reaction, by J_r Σ±Δω / I_z over the step."""
+    base = load_scenario("paper").replace(**{"attack.rotor": 0, "vehicle.rotor_aero": True,
+                                             "initial.position_m": [0.0, 0.0, 5.0]})
+    hover = base.vehicle.mass_kg * G / 4
+    cmd = [hover + 0.5, hover - 0.5, hover + 0.5, hover - 0.5]
+    r = []
+    for jr in (6e-5, 0.0):
+        sim = Simulator(base.replace(**{"vehicle.rotor_inertia_kgm2": jr}))
+        w0 = list(sim.motors.omega_radps)
+        sim.set_command(cmd)
+        sim.step_control_period()
+        w1 = sim.motors.omega_radps
+        r.append(sim.state_vector[12])
+    dw = [b - a for a, b in zip(w0, w1, strict=True)]
+    expected = 6e-5 * (dw[0] - dw[1] + dw[2] - dw[3]) / base.vehicle.inertia_kgm2[2]
+    assert expected > 0
+    assert r[0] - r[1] == pytest.approx(expected, rel=0.02)

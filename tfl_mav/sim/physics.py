@@ -70,13 +70,18 @@ class RotorAeroParams(NamedTuple):
         ΔT_i = k_h (u_ix² + u_iy²) along b3             translational lift
 
     and on the frame D = −|u| (c_Dx u_x, c_Dy u_y, c_Dz u_z) (parasitic drag), the rotors'
-    forces also acting as moments r_i × F_i about the CG."""
+    forces also acting as moments r_i × F_i about the CG; and the rotors' angular momentum
+    h_r b3, h_r = J_r (−ω₁ + ω₂ − ω₃ + ω₄) (rotors 1, 3 spin about −b3: their drag reacts
+    +d f), turning with the body: the gyroscopic torque −Ω × h_r b3. (The reaction to a
+    rotor's spin-up, J_r (ω̇₁ − ω̇₂ + ω̇₃ − ω̇₄) about b3, comes in with the wrench: the
+    simulator has ω̇ from the motors.)"""
 
     rotor_drag_kgprad: float = 0.0          # k_d, N/(rad/s · m/s)
     induced_inflow_kgprad: float = 0.0      # k_z, N/(rad/s · m/s)
     translational_lift_kgpm: float = 0.0    # k_h, N/(m/s)²
     parasitic_drag_kgpm: tuple[float, float, float] = (0.0, 0.0, 0.0)   # c_D, N/(m/s)², body
     inv_k_f: float = 0.0                    # 1/k_f, (rad/s)²/N: ω_i = √(f_i / k_f)
+    rotor_inertia_kgm2: float = 0.0         # J_r, each rotor about its axis
 
 
 @dataclass
@@ -166,7 +171,7 @@ def derivative_air(p: RigidBodyParams, a: RotorAeroParams, x: Sequence[float],
     _, _, _, vx, vy, vz, qw, qx, qy, qz, wp, wq, wr = x
     uf, tp, tq, tr = wrench
     windx, windy, windz, f1, f2, f3, f4 = air
-    kd, kz, kh, cd, inv_kf = a
+    kd, kz, kh, cd, inv_kf, jr = a
     cdx, cdy, cdz = cd
     m = p.mass_kg
     ix, iy, iz = p.inertia_kgm2
@@ -209,8 +214,9 @@ def derivative_air(p: RigidBodyParams, a: RotorAeroParams, x: Sequence[float],
     fbx = h1x + h2x + h3x + h4x - speed * cdx * ub      # aerodynamic force, body
     fby = h1y + h2y + h3y + h4y - speed * cdy * vb
     fbz = h1z + h2z + h3z + h4z - speed * cdz * wb
-    mx = ell * (h4z - h2z)                               # Σ r_i × F_i
-    my = ell * (h3z - h1z)
+    hr = jr * (o2 + o4 - o1 - o3)                        # the rotors' angular momentum, b3
+    mx = ell * (h4z - h2z) - wq * hr                     # Σ r_i × F_i − Ω × h_r b3
+    my = ell * (h3z - h1z) + wp * hr
     mz = ell * (h1y - h3y + h2x - h4x)
     a_ = uf / m
     kt = p.k_t / m
@@ -257,7 +263,7 @@ _compiled: dict[str, Any] = {"core": None}
 _EXAMPLE = (RigidBodyParams(1.0, (1.0, 1.0, 1.0), 1.0, 1.0, 1.0, 1.0, 1.0), (0.0,) * 13,
             (0.0,) * 4, 1.0)
 _compiled_air: dict[str, Any] = {"core": None}
-_EXAMPLE_AIR = (_EXAMPLE[0], RotorAeroParams(1.0, 1.0, 1.0, (1.0, 1.0, 1.0), 1.0),
+_EXAMPLE_AIR = (_EXAMPLE[0], RotorAeroParams(1.0, 1.0, 1.0, (1.0, 1.0, 1.0), 1.0, 1.0),
                 (0.0,) * 13, (0.0,) * 4, (0.0,) * 7, 1.0)
 
 
@@ -320,7 +326,7 @@ def rk4_air_stepper(p: RigidBodyParams, a: RotorAeroParams, compiled: bool = Tru
             ready(core)
     plain = float
     constants = tuple(p)
-    aero = (a[0], a[1], a[2], tuple(a[3]), a[4])
+    aero = (a[0], a[1], a[2], tuple(a[3]), a[4], a[5])
 
     def step(x: Sequence[float], wrench: Sequence[float], air: Sequence[float],
              h: float) -> Sequence[float]:

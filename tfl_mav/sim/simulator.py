@@ -109,7 +109,10 @@ class Simulator:
         if self.wind is not None or v.rotor_aero:
             aero = (RotorAeroParams(v.rotor_drag_coeff, v.rotor_inflow_coeff,
                                     v.translational_lift_coeff, v.parasitic_drag_coeff,
-                                    1.0 / v.k_f) if v.rotor_aero else RotorAeroParams())
+                                    1.0 / v.k_f, v.rotor_inertia_kgm2)
+                    if v.rotor_aero else RotorAeroParams())
+            # the reaction to the rotors' spin-up, J_r ω̇ about b3 (through the wrench)
+            self._spin_up_kgm2 = v.rotor_inertia_kgm2 if v.rotor_aero else 0.0
             self._rk4_air = rk4_air_stepper(self.params, aero)
             self.step_control_period = self._step_control_period_air  # type: ignore[method-assign]
         # Realistic sensors: IMU, GPS, baro and mag fused onboard; the controller receives
@@ -233,6 +236,7 @@ class Simulator:
         step = self._rk4_air
         wind_at = self.wind.at if self.wind is not None else None
         wind = self.wind_mps
+        jr = self._spin_up_kgm2
         ell, d = self._arm_m, self._drag_m
         commands = self.rotor_commands_n
         omega_for_thrust = motors.omega_for_thrust
@@ -252,10 +256,14 @@ class Simulator:
                     targets[att.rotor - 1] = omega_for_thrust(att.applied_n)
             else:
                 att = NO_ATTACK
+            w1, w2, w3, w4 = motors.omega_radps
             mean = motors.step(targets, h)
             f1, f2, f3, f4 = mean
-            wrench = (f1 + f2 + f3 + f4, ell * (f4 - f2), ell * (f3 - f1),
-                      d * (f1 - f2 + f3 - f4))
+            tr = d * (f1 - f2 + f3 - f4)
+            if jr:
+                n1, n2, n3, n4 = motors.omega_radps
+                tr += jr * ((n1 - w1) - (n2 - w2) + (n3 - w3) - (n4 - w4)) / h
+            wrench = (f1 + f2 + f3 + f4, ell * (f4 - f2), ell * (f3 - f1), tr)
             if wind_at is not None:
                 wind = wind_at(n)
             air = (wind[0], wind[1], wind[2], f1, f2, f3, f4)
