@@ -167,6 +167,7 @@ class FlightComputer:
                                             self.speed_mps, a_handback_n=A_HANDBACK_N)
         self._sup: SupervisorState = initial_state(mode)
         self._last_safe_thrust: Sequence[float] = [mp.mass_kg * mp.gravity_mps2 / 4.0] * 4
+        self._delivered: list[float] | None = None   # the safe law's last tick's thrusts (N)
         self._climbing = False         # said: the attack is more than the weight allows
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
         self._probe_high_n = min(self._hover_share_n + 1.5, self.thrust_max_n)
@@ -198,7 +199,6 @@ class FlightComputer:
                              or self.controller.lag_inverter is not None)
         self.internal_errors = 0   # ticks a law raised (held the last command)
         self._last_t: float | None = None
-        self._last_tfl: ControlOutput | None = None
 
     @property
     def law_name(self) -> str:
@@ -314,14 +314,14 @@ class FlightComputer:
                                                 state, first=True),
                                    state, events, estimate, rotor, None)
             if sup.law == Law.TFL:
+                self._delivered = None
                 out = ctrl.update(state, omega, dt_s=dt_s)
-                self._last_tfl = out
                 sup = self._decide(self._inputs(dt, rotor, estimate, spread, out, math.nan,
                                                 state), state, events, estimate, rotor, out)
                 if sup.law == Law.TFL:
                     return self._result(out.rotor_thrust_n, None, out, detection, rotor,
                                         estimate, new, events)
-            return self._fly_safe(dt, state, rotor, estimate, spread, omega, rpm, events,
+            return self._fly_safe(dt, state, rotor, estimate, spread, omega, events,
                                   detection, new)
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
             return self._failed(exc, applied_n)
@@ -420,7 +420,7 @@ class FlightComputer:
                                projector.lam if projector is not None else None)
 
     def _fly_safe(self, dt: float, state: State, rotor: int, estimate: float, spread: float,
-                  omega: list[float] | None, rpm: Sequence[float], events: list[str],
+                  omega: list[float] | None, events: list[str],
                   detection: DetectorOutput | None, new: bool) -> TickResult:
         """A tick of the safe law (recovery or lost_rotor), then the supervisor, and the
         output."""
@@ -432,13 +432,11 @@ class FlightComputer:
         # An attacked rotor is never ours to command: with one known, the safe law flies the
         # other three whichever way it was entered (a take-over of an attacked vehicle too).
         flying = self._sup
-        # What acted over the last period: the thrusts the ESCs report (f = k_f ω²; with
-        # motor lag not the command, which the rotors trail).
-        k_f = self.k_f
-        self.controller.track(state, [k_f * (w * RPM_TO_RADPS) ** 2 for w in rpm])
+        ctrl = self.controller
+        if self._delivered is not None:   # the last tick was this law's: TFL's estimator
+            ctrl.track(state, self._delivered)   # learns from what acted over it
         # The estimated mass once it has learnt for a second (its first samples, from a
         # restart or a fall, are what the model says better than the estimate does).
-        ctrl = self.controller
         mass = ctrl.mass_kg if ctrl.mass_learnt_s >= MASS_TRUSTED_S else None
         out = rec.update(state, rotor, a_n, mass_kg=mass)
         dist = out.path_distance_m
@@ -447,13 +445,20 @@ class FlightComputer:
             self._decide(self._inputs(dt, rotor, estimate, spread, None, dist, state), state,
                          events, estimate, rotor, None)
         thrust = out.thrust_n
-        lag = self.controller.lag_inverter
+        # What the rotors deliver over the coming period (N): the demand, or with motor lag
+        # the lag model's mean for the command sent (the attacked rotor: its estimate) —
+        # what TFL's own step feeds its estimator with; never the ESC's noisy sample.
+        delivered = list(thrust)
+        lag = ctrl.lag_inverter
         if lag is not None:     # the motor-lag inverse, as the TFL law flies it
             lag.reachable(omega)
-            command = lag.invert(thrust).command_n
+            inv = lag.invert(thrust)
+            command, delivered = inv.command_n, list(inv.expected_mean_n)
             if rotor:
                 command[rotor - 1] = thrust[rotor - 1]   # not ours to command
+                delivered[rotor - 1] = thrust[rotor - 1]
             thrust = command
+        self._delivered = delivered if self._sup.law != Law.TFL else None
         # the output; after a hand-back this tick is still the safe law's
         mode = _LOST_ROTOR if rotor else _RECOVERY
         deg = out.tilt_error_rad * _RAD_TO_DEG

@@ -122,6 +122,7 @@ _NESTED = {TFLState._fields.index(name): kind for name, kind in (
 _X13, _X14, _MASS, _FINE, _PATH = (TFLState._fields.index(n)
                                    for n in ("x13", "x14", "mass", "fine", "path"))
 _MASS_KG = step.MassState._fields.index("mass_kg")
+_MASS_UPDATES = step.MassState._fields.index("updates")
 
 
 def as_state(s: Any) -> TFLState:
@@ -257,7 +258,7 @@ class TFLController:
     @property
     def mass_learnt_s(self) -> float:
         """How long the mass estimator has learnt (s of ticks it took a sample from)."""
-        return float(self.state[_MASS].updates) * self._dt
+        return float(self.state[_MASS][_MASS_UPDATES]) * self._dt
 
     @property
     def fine(self) -> bool:
