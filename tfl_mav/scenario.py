@@ -24,6 +24,7 @@ from tfl_mav.control.detect.detector import DetectorConfig
 
 __all__ = [
     "AttackConfig",
+    "AttackPhase",
     "ControllerConfig",
     "InitialConfig",
     "PathConfig",
@@ -32,6 +33,7 @@ __all__ = [
     "ScenarioError",
     "SensorConfig",
     "VehicleConfig",
+    "WindConfig",
     "apply_overrides",
     "builtin_scenarios",
     "load_scenario",
@@ -81,6 +83,25 @@ class VehicleConfig:
     motor_time_constant_s: float = _f(0.0, "s", lo=0.0, hi=1.0, doc="lag on w; 0 = none")
     rpm_noise_std: float = _f(0.0, "rpm", lo=0.0, hi=1000.0, doc="ESC rpm measurement noise")
     gravity_mps2: float = _f(9.81, "m/s^2", lo=0.0, lo_open=True, hi=100.0)
+    # Rotor aerodynamics in moving air (tfl_mav.sim.physics.RotorAeroParams). The defaults
+    # are RotorPy's AscTec Hummingbird (rotorpy/vehicles/hummingbird_params.py: k_d 1.19e-4,
+    # k_z 2.32e-4, k_h 3.39e-3, c_D 0.5e-2/0.5e-2/1e-2, k_eta 5.57e-6, arm 0.17 m) scaled to
+    # this airframe: rotors of the same family with k_f/k_eta = 1.436 have a radius
+    # (k_f/k_eta)^1/4 as large, so k_d, k_z (∝ ρ A R) scale by (k_f/k_eta)^3/4 = 1.312 and
+    # k_h (∝ ρ A) by (k_f/k_eta)^1/2 = 1.198; the frame's drag by its area, (0.2656/0.17)².
+    rotor_aero: bool = _f(False, doc="rotor drag, inflow, lift and frame drag (off: paper)")
+    rotor_drag_coeff: float = _f(1.56e-4, "N/((rad/s)(m/s))", lo=0.0,
+                                 doc="k_d: H-force per rotor speed and in-plane airspeed")
+    rotor_inflow_coeff: float = _f(3.04e-4, "N/((rad/s)(m/s))", lo=0.0,
+                                   doc="k_z: induced-inflow drag along the rotor axis")
+    translational_lift_coeff: float = _f(4.06e-3, "N/(m/s)^2", lo=0.0,
+                                         doc="k_h: thrust gained per in-plane airspeed squared")
+    parasitic_drag_coeff: tuple[float, float, float] = _f(
+        (1.22e-2, 1.22e-2, 2.44e-2), "N/(m/s)^2", lo=0.0, length=3,
+        doc="frame drag c_D along b1, b2, b3")
+    rotor_inertia_kgm2: float = _f(0.0, "kg m^2", lo=0.0, hi=0.01,
+                                   doc="J_r of each rotor (with rotor_aero: spin-up reaction "
+                                       "and gyroscopic torque); 0 = off; OS4's is 6e-5")
 
     @property
     def omega_max_radps(self) -> float:
@@ -103,6 +124,59 @@ ATTACK_SIGNALS = ("paper", "constant", "step", "ramp", "sine", "stuck", "off")
 
 
 @dataclass(frozen=True)
+class AttackPhase:
+    """One phase of an attack schedule (``[[attack.phases]]``): from ``start_s`` the attacker
+    holds ``rotor`` (1-4; 0 = lets go) with ``signal`` (as ``attack.signal``; ``tau`` restarts
+    at the phase's start). The signals' own keys (``value_n``, ``rate_nps``, …) are the
+    section's."""
+
+    rotor: int
+    signal: str
+    start_s: float
+
+
+_PHASE_KEYS = ("rotor", "signal", "start_s")
+
+
+def _phases(value: Any, key: str = "attack.phases") -> tuple[AttackPhase, ...]:
+    """``[[attack.phases]]`` checked (each key, start times increasing) into phases."""
+    if isinstance(value, tuple) and all(isinstance(p, AttackPhase) for p in value):
+        return value
+    if not isinstance(value, (list, tuple)):
+        raise ScenarioError(key, f"must be a list of tables ([[attack.phases]]), got "
+                                 f"{type(value).__name__}")
+    out = []
+    for i, table in enumerate(value):
+        at = f"{key}[{i}]"
+        if isinstance(table, AttackPhase):
+            table = dataclasses.asdict(table)
+        if not isinstance(table, dict):
+            raise ScenarioError(at, f"must be a table with {', '.join(_PHASE_KEYS)}, "
+                                    f"got {table!r}")
+        unknown = sorted(set(table) - set(_PHASE_KEYS))
+        if unknown:
+            raise ScenarioError(f"{at}.{unknown[0]}", f"unknown key (known keys: "
+                                                      f"{', '.join(_PHASE_KEYS)})")
+        missing = [k for k in _PHASE_KEYS if k not in table and k != "signal"]
+        if missing:
+            raise ScenarioError(f"{at}.{missing[0]}", "missing (every phase says which rotor "
+                                                      "from when)")
+        rotor = _check_number(f"{at}.rotor", table["rotor"],
+                              {"lo": 0, "hi": 4, "lo_open": False, "unit": ""}, True)
+        start = _check_number(f"{at}.start_s", table["start_s"],
+                              {"lo": 0.0, "hi": None, "lo_open": False, "unit": "s"}, False)
+        signal = table.get("signal", "paper")
+        if not isinstance(signal, str):
+            raise ScenarioError(f"{at}.signal", f"must be a string, got {signal!r}")
+        _check_signal(f"{at}.signal", signal)
+        if out and start <= out[-1].start_s:
+            raise ScenarioError(f"{at}.start_s", f"must be after the previous phase's "
+                                                 f"({out[-1].start_s:g} s), got {start:g}")
+        out.append(AttackPhase(int(rotor), signal, float(start)))
+    return tuple(out)
+
+
+@dataclass(frozen=True)
 class AttackConfig:
     """Which rotor the attacker seizes, from when, and the thrust it forces.
 
@@ -122,6 +196,19 @@ class AttackConfig:
     amplitude_n: float = _f(1.0, "N", doc="sine amplitude")
     frequency_hz: float = _f(0.5, "Hz", lo=0.0, doc="sine frequency")
     offset_n: float = _f(2.0, "N", doc="sine offset")
+    phases: tuple[AttackPhase, ...] = _f(
+        (), doc="[[attack.phases]] (rotor, signal, start_s): an attacker that moves between "
+                "rotors; when given, it replaces rotor/start_s/signal")
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "phases", _phases(self.phases))
+
+    @property
+    def first_rotor(self) -> int:
+        """The first rotor attacked (the schedule's first phase that holds one)."""
+        if self.phases:
+            return next((p.rotor for p in self.phases if p.rotor), 0)
+        return self.rotor
 
 
 @dataclass(frozen=True)
@@ -167,6 +254,41 @@ class SensorConfig:
     rate_noise_std_radps: float = _f(0.0, "rad/s", lo=0.0)
     gyro_range_radps: float = _f(0.0, "rad/s", lo=0.0, hi=1000.0,
                                  doc="measured rates clip at ± this (34.9 = 2000 deg/s); 0 = off")
+    model: str = _f("ideal", doc="'ideal' (the state + the noise above) or 'realistic' (IMU, "
+                                 "GPS, baro, mag fused onboard by an error-state EKF)")
+    gps_hz: float = _f(10.0, "Hz", lo=1.0, hi=50.0, doc="realistic: GPS fix rate")
+    gps_latency_s: float = _f(0.1, "s", lo=0.0, hi=1.0, doc="realistic: fix delivered this late")
+    gps_position_noise_std_m: float = _f(0.02, "m", lo=0.0, lo_open=True, hi=10.0,
+                                         doc="realistic: horizontal (vertical 1.5x); "
+                                             "0.02 = RTK")
+    gps_velocity_noise_std_mps: float = _f(0.05, "m/s", lo=0.0, lo_open=True, hi=5.0,
+                                           doc="realistic: GPS velocity noise")
+
+
+TURBULENCE_LEVELS = ("none", "light", "moderate", "severe")
+SENSOR_MODELS = ("ideal", "realistic")
+
+
+@dataclass(frozen=True)
+class WindConfig:
+    """The air the vehicle flies in, paper frame (z up), m/s: a mean wind, Dryden turbulence
+    (MIL-F-8785C / MIL-HDBK-1797 low-altitude scales and intensities, seeded by ``run.seed``)
+    and one discrete 1 − cos gust (``tfl_mav.sim.wind``). Every aerodynamic force acts on the
+    velocity relative to this air."""
+
+    mean_mps: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "m/s", length=3, lo=-50.0,
+                                              hi=50.0, doc="mean wind, paper frame")
+    turbulence: str = _f("none", doc="none | light | moderate | severe (Dryden)")
+    gust_mps: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "m/s", length=3, lo=-50.0,
+                                              hi=50.0, doc="1 - cos gust: peak air velocity")
+    gust_start_s: float = _f(0.0, "s", lo=0.0)
+    gust_duration_s: float = _f(0.0, "s", lo=0.0, hi=3600.0, doc="0 = no gust")
+
+    @property
+    def active(self) -> bool:
+        """Whether the air moves at all (still air keeps the still-air physics step)."""
+        return (any(c != 0.0 for c in self.mean_mps) or self.turbulence != "none"
+                or (self.gust_duration_s > 0.0 and any(c != 0.0 for c in self.gust_mps)))
 
 
 @dataclass(frozen=True)
@@ -205,6 +327,7 @@ class Scenario:
     sensors: SensorConfig = field(default_factory=SensorConfig)
     run: RunConfig = field(default_factory=RunConfig)
     detector: DetectorConfig = field(default_factory=DetectorConfig)
+    wind: WindConfig = field(default_factory=WindConfig)
     source: str = "<defaults>"
 
     def replace(self, **sections: Any) -> Scenario:
@@ -245,6 +368,7 @@ _SECTIONS: dict[str, type] = {
     "sensors": SensorConfig,
     "run": RunConfig,
     "detector": DetectorConfig,
+    "wind": WindConfig,
 }
 
 
@@ -335,6 +459,12 @@ def _cross_check(name: str, sec: Any) -> None:
                                 f"{sec.k_f:g}, beyond the {MAX_ESC_RPM} rpm ESC telemetry "
                                 f"carries: must be in (0, {f_ok:.4g}] N for this k_f "
                                 f"(or raise {name}.k_f)")
+    if isinstance(sec, SensorConfig) and sec.model not in SENSOR_MODELS:
+        raise ScenarioError(f"{name}.model", f"must be one of {', '.join(SENSOR_MODELS)}, "
+                                             f"got {sec.model!r}")
+    if isinstance(sec, WindConfig) and sec.turbulence not in TURBULENCE_LEVELS:
+        raise ScenarioError(f"{name}.turbulence", f"must be one of "
+                            f"{', '.join(TURBULENCE_LEVELS)}, got {sec.turbulence!r}")
 
 
 def _check_signal(key: str, signal: str) -> None:

@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 from tfl_mav.expr import Expr, compile_expr
-from tfl_mav.scenario import AttackConfig
+from tfl_mav.scenario import AttackConfig, AttackPhase
 
 __all__ = ["FAILURE_TYPES", "NO_ATTACK", "AttackSample", "Attacker"]
 
@@ -64,9 +64,37 @@ class Attacker:
         self._said = False     # on_nonfinite was called
         """``on_nonfinite(t_s, text)``: called once, at the first non-finite value, with a
         sentence saying what happened and when (the vehicle sends it as STATUSTEXT)."""
-        if self.signal not in ("paper", "constant", "step", "ramp", "sine", "stuck", "off"):
-            self._expr = compile_expr(self.signal, ("t", "tau", "x", "y", "z"),
+        # The schedule ([[attack.phases]]): the phases still to come, and when the next one
+        # starts (∞: none, so the running attack's only extra cost is one comparison).
+        self._phases = list(cfg.phases)
+        self._next_start_s = math.inf
+        self.moves: list[tuple[float, int]] = []     # (start s, rotor 0-4) of every phase
+        if self._phases:
+            self._enter_phase(self._phases.pop(0))
+        else:
+            self._set_signal(self.signal)
+
+    def _set_signal(self, signal: str) -> None:
+        self.signal = signal
+        self._expr = None
+        if signal not in ("paper", "constant", "step", "ramp", "sine", "stuck", "off"):
+            self._expr = compile_expr(signal, ("t", "tau", "x", "y", "z"),
                                       field="attack.signal")
+
+    def _enter_phase(self, phase: AttackPhase) -> None:
+        """Make ``phase`` the attack (pending until its start), and the next one due. A
+        phase that lets go (rotor 0) makes the following phase pending at once: nothing is
+        attacked until it starts."""
+        self.moves.append((phase.start_s, phase.rotor))
+        self._stuck_n = None
+        while phase.rotor == 0 and self._phases:
+            phase = self._phases.pop(0)
+            self.moves.append((phase.start_s, phase.rotor))
+        self.rotor = phase.rotor
+        self.start_s = phase.start_s
+        if self._custom is None:
+            self._set_signal(phase.signal)
+        self._next_start_s = self._phases[0].start_s if self._phases else math.inf
 
     def use_signal(self, signal: AttackSignal | None) -> None:
         """Drive the seized rotor with ``signal(t_s, x)`` instead of the scenario's signal
@@ -105,7 +133,7 @@ class Attacker:
         elif kind == "drift":
             self.signal = "ramp"
         else:
-            self.signal = self.cfg.signal if self.cfg.signal != "off" else "paper"
+            self._set_signal(self.cfg.signal if self.cfg.signal != "off" else "paper")
 
     def sample(self, t_s: float, position_m: Sequence[float],
                last_command_n: float) -> AttackSample:
@@ -115,6 +143,10 @@ class Attacker:
         simulator passes its whole true state (13 floats), which a function signal reads."""
         if self.rotor == 0 or t_s < self.start_s:     # not active (inlined: every step)
             return NO_ATTACK
+        if t_s >= self._next_start_s:                 # the schedule's next phase is due
+            self._enter_phase(self._phases.pop(0))
+            if self.rotor == 0 or t_s < self.start_s:
+                return NO_ATTACK
         raw = self._raw(t_s, position_m, last_command_n)
         if not math.isfinite(raw):
             if not self._said:
