@@ -66,7 +66,7 @@ def test_phases_from_toml_shaped_data_and_back():
 @pytest.mark.parametrize(("phases", "key", "words"), [
     ([{"rotor": 2, "start_s": 3.0}, {"rotor": 1, "start_s": 1.0}], "attack.phases[1].start_s",
      "after the previous phase"),
-    ([{"rotor": 7, "start_s": 0.0}], "attack.phases[0].rotor", "<= 4"),
+    ([{"rotor": 7, "start_s": 0.0}], "attack.phases[0].rotor", "[0, 4]"),
     ([{"rotor": 1}], "attack.phases[0].start_s", "missing"),
     ([{"rotor": 1, "start_s": 0.0, "signal": "t +"}], "attack.phases[0].signal", ""),
     ([{"rotor": 1, "start_s": 0.0, "when": 1}], "attack.phases[0].when", "unknown key"),
