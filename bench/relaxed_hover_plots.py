@@ -1,6 +1,7 @@
 """The figures of docs/relaxed-hover.md: the relaxed-hover equilibria of the paper airframe
 with one rotor pinned at f_stuck, their existence under model errors, and the eigenvalues
-of the linearised rotational dynamics.
+of the linearised rotational dynamics (open loop, and the reduced attitude with the spin
+law's LQR).
 
     python bench/relaxed_hover_plots.py [--out docs/img]
 
@@ -20,7 +21,9 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from tfl_mav.control.safe.lqr import dlqr, zoh
 from tfl_mav.control.spin import equilibrium as eqm
+from tfl_mav.control.spin.law import LQR_Q, LQR_R
 from tfl_mav.scenario import load_scenario
 
 ERRORS = [(1.0, 1.0), (0.95, 0.8), (0.95, 1.2), (1.05, 0.8), (1.05, 1.2)]
@@ -89,23 +92,33 @@ def main() -> None:
     fig.tight_layout()
     fig.savefig(out / "relaxed-hover-existence.png", dpi=110)
 
-    # 3. eigenvalues of the open loop (rotor forces held), 5 states (p, q, r, n_x, n_y)
-    fig, ax = plt.subplots(figsize=(7, 4.5))
+    # 3. eigenvalues: open loop (forces held, 5 states p, q, r, n_x, n_y) and the reduced
+    # attitude (p, q, n_x, n_y) with the spin law's LQR (1 kHz zero-order hold)
+    fig, ax = plt.subplots(1, 2, figsize=(11, 4.5))
     print("\neigenvalues at 8 N (1/s): open loop, 5 states:")
+    dt = 0.001
     for f in fs:
         e = eqm.solve(nominal, float(f), symmetric=True)
+        col = plt.cm.viridis((f - fs[0]) / np.ptp(fs))
         lam = eqm.spin_eigenvalues(nominal, e)
-        ax.plot(lam.real, lam.imag, "o", ms=4, color=plt.cm.viridis((f - fs[0]) / np.ptp(fs)))
+        ax[0].plot(lam.real, lam.imag, "o", ms=4, color=col)
+        a, b = eqm.reduced_model(nominal.inertia_kgm2, nominal.k_r, e.rates_radps, e.axis)
+        ad, bd = zoh(a, b, dt)
+        k = dlqr(ad, bd, np.diag(LQR_Q), np.diag(LQR_R))
+        s_cl = np.log(np.linalg.eigvals(ad - bd @ k).astype(complex)) / dt
+        ax[1].plot(s_cl.real, s_cl.imag, "o", ms=4, color=col)
         if f == fs[-1]:
             print(np.round(lam, 3))
-    ax.set_title("open loop (rotor forces held): nutation damped,\n"
-                 "axis mode on the imaginary axis at ±iΩ")
-    ax.set_xlabel("Re λ (1/s)")
-    ax.set_ylabel("Im λ (1/s)")
-    ax.axvline(0.0, color="k", lw=0.6)
+            print("closed loop (reduced attitude, LQR):", np.round(s_cl, 2))
+    ax[0].set_title("open loop (rotor forces held): nutation damped,\n"
+                    "axis mode on the imaginary axis at ±iΩ")
+    ax[1].set_title("reduced attitude with the spin law's LQR")
+    for a_ in ax:
+        a_.set_xlabel("Re λ (1/s)")
+        a_.set_ylabel("Im λ (1/s)")
+        a_.axvline(0.0, color="k", lw=0.6)
     sm = plt.cm.ScalarMappable(cmap="viridis", norm=plt.Normalize(fs[0], fs[-1]))
     fig.colorbar(sm, ax=ax, label="f_stuck (N)")
-    fig.tight_layout()
     fig.savefig(out / "relaxed-hover-eigenvalues.png", dpi=110)
     print(f"\nfigures in {out}/")
 
