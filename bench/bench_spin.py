@@ -55,7 +55,8 @@ def main() -> None:
         t0 = time.perf_counter()
         f = fly_spin(sc, takeover_s=40.0)
         print(f"paper attack, 120 s, take-over 40 s: crashed={f.crashed} {f.crash_reason} "
-              f"max distance after 45 s = {f.max_distance_after(45.0):.3f} m, "
+              f"max distance after the take-over = {f.max_distance_after(40.0):.3f} m, "
+              f"after 45 s = {f.max_distance_after(45.0):.3f} m, "
               f"Ω = {f.spin_radps:.1f} rad/s ({time.perf_counter() - t0:.1f} s wall)")
         return
     out = Path(args.out)

@@ -20,13 +20,14 @@ def _scenario(name: str, rotor: int, signal: str, mass: float, inertia: float, l
 
 @pytest.mark.slow
 @pytest.mark.parametrize(("name", "rotor", "signal", "mass", "inertia", "lag_s", "takeover_s"), [
-    ("paper", 2, "8", 0.98, 0.9, 0.02, 5.1),     # entry 0.1 s after the attack began
-    ("circle", 3, "7", 1.02, 1.1, 0.02, 5.0),    # another rotor: the canonical relabelling
+    ("paper", 2, "5.5", 0.98, 0.9, 0.02, 5.1),   # entry 0.1 s after the attack began; the
+    #                                              slow spin that once sank (docs/relaxed-hover.md)
+    ("circle", 3, "8", 1.02, 1.1, 0.02, 5.0),    # another rotor: the canonical relabelling
 ])
 def test_a_rotor_pinned_high_is_flown(name: str, rotor: int, signal: str, mass: float,
                                       inertia: float, lag_s: float, takeover_s: float) -> None:
     """No crash, never more than 2 m from the path after the take-over (the issue's limit;
-    measured ≤ 0.46 m over 45 s in the bench), and the vehicle spins in the relaxed hover
+    measured ≤ 0.49 m over 45 s in the bench), and the vehicle spins in the relaxed hover
     the law predicts: its rate about the body z axis within 15 % of the equilibrium's
     (the model's mass and inertia are off, so the true hover is not the model's)."""
     sc = _scenario(name, rotor, signal, mass, inertia, lag_s)

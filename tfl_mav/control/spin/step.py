@@ -8,7 +8,9 @@ outputs)`` in plain Python over NamedTuples of floats. In order:
    (:mod:`~tfl_mav.control.allocation`): R' = R rotᵀ, ω' = rot ω.
 2. **Outer loop** (position of the mean). A PID on the position error towards the target
    (the path's closest point, its velocity and centripetal acceleration) gives the wanted
-   acceleration a; the translational drag k_t v is fed forward. The mean thrust of a
+   acceleration a; the translational drag k_t v is fed forward. The position and velocity
+   fed back are the *mean*'s: the circle the cone drives (velocity (a_y, −a_x)/Ω_z about the
+   offset −a/Ω_z², a the horizontal thrust acceleration) is removed first. The mean thrust of a
    relaxed hover is f_Σ n̄_z along the spin axis (the cone averages out over a revolution),
    so the *spin axis* is steered along n_des = (a + g e3)/|a + g e3| and the mean vertical
    force W = m |a + g e3| sets f_Σ = W / n̄_z.
@@ -40,9 +42,21 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-__all__ = ["RHO_MAX", "RHO_STEPS", "RHO_TILT", "ROW_HEAD", "TABLE_WIDTH", "SpinInputs",
-           "SpinOutputs", "SpinParams", "SpinState", "spin_step"]
+__all__ = [
+    "RHO_MAX",
+    "RHO_STEPS",
+    "RHO_TILT",
+    "ROW_HEAD",
+    "SPIN_MEAN_RADPS",
+    "TABLE_WIDTH",
+    "SpinInputs",
+    "SpinOutputs",
+    "SpinParams",
+    "SpinState",
+    "spin_step",
+]
 
+SPIN_MEAN_RADPS = 5.0   # above this spin the cone's circle is removed from the feedback
 RHO_MAX = 1.5           # the schedule spans ρ ∈ [0, RHO_MAX]
 RHO_STEPS = 15          # gains at ρ = 0, 0.1, …, RHO_MAX
 RHO_TILT = 0.6          # ρ₀: below it the reference axis tilts in as (ρ/ρ₀)²
@@ -82,6 +96,7 @@ class SpinState(NamedTuple):
 
     integral_ms: tuple[float, float, float]    # ∫ position error (m s, inertial)
     rho: float                                  # the spin-up fraction last tick
+    total_n: float = 0.0                        # f_Σ commanded last tick (N)
 
 
 class SpinInputs(NamedTuple):
@@ -151,6 +166,20 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     # --- 2. outer loop: the wanted acceleration of the mean (inertial)
     px, py, pz = inputs.position_m
     vx, vy, vz = inputs.velocity_mps
+    # The mean, not the cone's circle: the horizontal thrust a = (f_Σ/m) (b3x, b3y) turns at
+    # the spin Ω_z = (R ω)_z, so the centre of mass runs v_c = (a_y, −a_x)/Ω_z about
+    # x_c = −a/Ω_z² (ȧ = Ω e3 × a). Fed back, that circle is synchronous with the body: in
+    # the body it is a constant bias of the axis the attitude loop holds (0.35 m/s of v_c
+    # at 6 N tilts the wanted axis ~0.1 rad), which widens the cone, drops the vertical force
+    # and slows the spin further. Removed before the PID.
+    spin_i = R[2][0] * wp + R[2][1] * wq + R[2][2] * wr
+    if spin_i > SPIN_MEAN_RADPS or spin_i < -SPIN_MEAN_RADPS:
+        acc = state.total_n / m
+        ahx, ahy = acc * R[0][2], acc * R[1][2]
+        inv = 1.0 / spin_i
+        vx, vy = vx - ahy * inv, vy + ahx * inv
+        inv2 = inv * inv
+        px, py = px + ahx * inv2, py + ahy * inv2
     tx, ty, tz = inputs.target_m
     tvx, tvy, tvz = inputs.target_velocity_mps
     tax, tay, taz = inputs.target_accel_mps2
@@ -242,6 +271,6 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
         iy_ = _clip(iy_ + ey * p.dt_s, -top_i, top_i)
         iz_ = _clip(iz_ + ez * p.dt_s, -top_i, top_i)
     err = math.acos(_clip(nx * rx + ny * ry + nz * rz, -1.0, 1.0))
-    return (SpinState((ix_, iy_, iz_), rho),
+    return (SpinState((ix_, iy_, iz_), rho, f1 + f2 + f3 + f4),
             SpinOutputs((out[0], out[1], out[2], out[3]), exists, spin, row[12], row[13],
                         row[14], rho, err, clipped))
