@@ -16,6 +16,8 @@ import dataclasses
 
 from tfl_mav.control.detect.detector import AttackDetector, DetectorConfig
 from tfl_mav.control.path.paths import Path, build_path
+from tfl_mav.control.spin.law import build as build_spin_law
+from tfl_mav.control.spin.step import SpinParams
 from tfl_mav.control.tfl.law import LawConfig, ModelParams, TFLController
 from tfl_mav.scenario import Scenario, ScenarioError
 
@@ -79,3 +81,12 @@ def build_detector(sc: Scenario) -> AttackDetector:
     v = sc.vehicle
     return AttackDetector(v.k_f, v.thrust_max_n, v.motor_time_constant_s, sc.run.control_dt_s,
                           detector_config(sc))
+
+
+def spin_params_for(sc: Scenario, rotor: int | None = None) -> SpinParams:
+    """The spin law for scenario ``sc``: its attacked rotor, the controller's model (mass and
+    inertia scales), its motor lag model and its control period."""
+    v, c = sc.vehicle, sc.controller
+    return build_spin_law(v, rotor or sc.attack.rotor, sc.run.control_dt_s,
+                 mass_scale=c.model_mass_scale, inertia_scale=c.model_inertia_scale,
+                 motor_time_constant_s=c.motor_time_constant_scale * v.motor_time_constant_s)

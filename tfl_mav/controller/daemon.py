@@ -198,7 +198,10 @@ class Daemon(Intake):
         sc = self.scenario
         if self._software_factory is not None:
             return self._software_factory(sc)
-        warm = FlightComputer(sc)
+        # Real time: the spin law's table (1.6 s of computing) is made on a thread, never
+        # in a tick; lockstep: in the tick that first needs it (the vehicle waits).
+        build = "async" if self.realtime else "sync"
+        warm = FlightComputer(sc, spin_build=build)
         ini = sc.initial
         state = State(tuple(ini.position_m), tuple(ini.velocity_mps),
                       tuple(euler_to_quaternion(*ini.euler_rad).tolist()),
@@ -206,7 +209,7 @@ class Daemon(Intake):
         hover = sc.vehicle.mass_kg * sc.vehicle.gravity_mps2 / 4.0
         rpm = math.sqrt(hover / sc.vehicle.k_f) * 60.0 / (2.0 * math.pi)
         warm.step(0.0, state, [rpm] * 4, [hover] * 4)
-        fc = FlightComputer(sc)
+        fc = FlightComputer(sc, spin_build=build)
         # Everything built so far (modules, path kernels, the safe law's gain schedule) lives
         # for the whole flight: freeze it out of the collector, so a full collection in
         # flight walks only what the flight allocates (they were the only ticks over

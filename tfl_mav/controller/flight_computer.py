@@ -43,6 +43,7 @@ to [0, f_max] and a NaN becomes 0 N.
 from __future__ import annotations
 
 import math
+import threading
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -54,6 +55,7 @@ from tfl_mav.build import (
     detector_config,
     model_params,
     scenario_path,
+    spin_params_for,
 )
 from tfl_mav.control.detect.attack_estimate import (
     ATTACK_START,
@@ -65,6 +67,8 @@ from tfl_mav.control.detect.detector import AttackDetector, DetectorOutput
 from tfl_mav.control.safe.recovery import RecoveryLaw
 from tfl_mav.control.safe.takeover import A_HANDBACK_N, TAKEOVER_TILT_RAD, tilt_rad
 from tfl_mav.control.safe.takeover import floats as _floats
+from tfl_mav.control.spin.law import initial_state as spin_initial_state
+from tfl_mav.control.spin.step import SpinInputs, SpinParams, SpinState, spin_step
 from tfl_mav.control.state_filter import StateFilter, YawRateModel
 from tfl_mav.control.tfl.law import ControlOutput, TFLController
 from tfl_mav.controller.feasibility import feasible_speed_mps, path_demand
@@ -87,6 +91,11 @@ __all__ = ["ATTACK_INFO", "TAKEOVER_TILT_RAD", "FlightComputer", "TickResult"]
 
 ATTACK_INFO = ("detector", "oracle")
 RPM_TO_RADPS = 2.0 * math.pi / 60.0   # ESC rpm → rotor speed ω (rad/s)
+# The spin laws built in this process, by (vehicle, controller, period, rotor): a sweep flies
+# thousands of flights of a few airframes.
+_SPIN_LAWS: dict[tuple[object, ...], SpinParams] = {}
+_SPIN_BUILDING: set[tuple[object, ...]] = set()
+_SPIN_LOCK = threading.Lock()
 MASS_TRUSTED_S = 1.0    # the safe law flies the estimated mass once it has learnt this long
 
 
@@ -132,10 +141,14 @@ class FlightComputer:
     """Detector + TFL law for one flight of one scenario. See the module docstring."""
 
     def __init__(self, scenario: Scenario, *, attack_info: str = "detector",
-                 design_gains: bool = True) -> None:
+                 design_gains: bool = True, spin_build: str = "sync") -> None:
         """``design_gains``: design the safe law's whole LQR gain schedule now (a real-time
         flight never designs one mid-air), or False: a block at a time when first met
-        (offline: no deadline; the same gains, a fraction of the start-up)."""
+        (offline: no deadline; the same gains, a fraction of the start-up). ``spin_build``:
+        how the spin law's table is made when first needed, "sync" (deterministic) or
+        "async" (a real-time flight: on a thread, the safe law flies until it is ready)."""
+        if spin_build not in ("sync", "async"):
+            raise ValueError(f"spin_build: must be 'sync' or 'async', got {spin_build!r}")
         if attack_info not in ATTACK_INFO:
             raise ValueError(f"attack_info: must be one of {', '.join(ATTACK_INFO)}, "
                              f"got {attack_info!r}")
@@ -168,6 +181,11 @@ class FlightComputer:
         self._sup: SupervisorState = initial_state(mode)
         self._last_safe_thrust: Sequence[float] = [mp.mass_kg * mp.gravity_mps2 / 4.0] * 4
         self._delivered: list[float] | None = None   # the safe law's last tick's thrusts (N)
+        # The spin law for a rotor pinned above m g/2 (control/spin): built when needed.
+        self.spin_enabled = True
+        self.spin_build = spin_build
+        self._spin_state: SpinState | None = None
+        self._said_no_spin = False
         self._climbing = False         # said: the attack is more than the weight allows
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
         self._probe_high_n = min(self._hover_share_n + 1.5, self.thrust_max_n)
@@ -321,6 +339,9 @@ class FlightComputer:
                 if sup.law == Law.TFL:
                     return self._result(out.rotor_thrust_n, None, out, detection, rotor,
                                         estimate, new, events)
+            if sup.law == Law.SPIN:
+                return self._fly_spin(dt, state, rotor, estimate, spread, rpm, events,
+                                      detection, new)
             return self._fly_safe(dt, state, rotor, estimate, spread, omega, events,
                                   detection, new)
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
@@ -372,7 +393,82 @@ class FlightComputer:
             dt, rotor, estimate, spread, tfl_flew,
             tfl_flew and out.mode is not _FALLBACK, demand, safe_distance_m,
             tilt_rad(state.quaternion_wxyz), _hypot(p, q), _sqrt(vx * vx + vy * vy + vz * vz),
-            self._distance_to_path(state) if first else math.nan)
+            self._distance_to_path(state) if first else math.nan,
+            self._spin_ready(rotor, estimate))
+
+    def _spin_ready(self, rotor: int, estimate: float) -> bool:
+        """The spin law is built for ``rotor`` (its table is made once the attack comes
+        within 1 N of m g/2: 1.6 s of computing, so not for every attack). ``spin_build``
+        "sync" builds it there and then (offline, lockstep: no deadline, deterministic);
+        "async" on a background thread, used once ready (real time: no tick waits)."""
+        if not rotor or self.supervisor.mode != 0 or not self.spin_enabled:
+            return False
+        key = self._spin_key(rotor)
+        if key in _SPIN_LAWS:
+            return True
+        if not 2.0 * estimate > self._weight_n - 2.0:
+            return False
+        if self.spin_build == "sync":
+            _SPIN_LAWS[key] = spin_params_for(self.scenario, rotor)
+            return True
+        with _SPIN_LOCK:
+            if key not in _SPIN_BUILDING:
+                _SPIN_BUILDING.add(key)
+                sc = self.scenario
+                threading.Thread(target=lambda: _SPIN_LAWS.__setitem__(
+                    key, spin_params_for(sc, rotor)), name="tfl-mav-spin-law",
+                    daemon=True).start()
+        return False
+
+    def _spin_key(self, rotor: int) -> tuple[object, ...]:
+        sc = self.scenario
+        return (repr(sc.vehicle), repr(sc.controller), sc.run.control_dt_s, rotor)
+
+    def _fly_spin(self, dt: float, state: State, rotor: int, estimate: float, spread: float,
+                  rpm: Sequence[float], events: list[str], detection: DetectorOutput | None,
+                  new: bool) -> TickResult:
+        """A tick of the spin law (:func:`~tfl_mav.control.spin.step.spin_step`): the mean
+        axis steered towards the closest path point moving at the path speed, the pinned
+        rotor's thrust read from its rpm; then the supervisor, and the output."""
+        params = _SPIN_LAWS[self._spin_key(rotor)]
+        y = _floats(state.position_m)
+        rates = tuple(_floats(state.body_rates_radps))
+        w = rpm[rotor - 1] * RPM_TO_RADPS
+        stuck = self.k_f * w * w
+        if self._spin_state is None:
+            self._spin_state = spin_initial_state(params, rates, stuck)
+        proj = self.recovery.projector
+        found = proj.project(y) if proj is not None else None
+        if found is None:
+            point, tangent, curvature, dist = tuple(y), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), _NAN
+        else:
+            point, tangent, curvature, dist = found
+        sp = self.speed_mps
+        inputs = SpinInputs(tuple(y), tuple(_floats(state.velocity_mps)),
+                            tuple(_floats(state.quaternion_wxyz)), rates, stuck, tuple(point),
+                            (sp * tangent[0], sp * tangent[1], sp * tangent[2]),
+                            (sp * sp * curvature[0], sp * sp * curvature[1],
+                             sp * sp * curvature[2]))
+        self._spin_state, out = spin_step(params, self._spin_state, inputs)
+        if not out.exists and not self._said_no_spin:
+            self._said_no_spin = True
+            events.append(f"spin: no relaxed hover holds m g with rotor {rotor} at "
+                          f"{stuck:.2f} N: flying the closest spin, "
+                          f"{out.vertical_excess_mps2:+.2f} m/s^2 of climb (+) or sink (-) "
+                          "left over")
+        thrust = list(out.thrusts_n)
+        self._delivered = None
+        self._last_safe_thrust = thrust
+        self._decide(self._inputs(dt, rotor, estimate, spread, None, dist, state), state,
+                     events, estimate, rotor, None)
+        if self._sup.law != Law.SPIN:
+            self._spin_state = None
+        law = ControlOutput(
+            list(thrust), Mode.SPIN, [out.clipped != 0.0] * 4, _ZERO_XI, _ZERO4, _ZERO2, dist,
+            _NAN, _NAN, sum(thrust), self.controller.mass_kg, _ZERO2, False,
+            f"spin: {out.spin_radps:.0f} rad/s, cone {math.degrees(out.cone_rad):.0f} deg",
+            tuple(thrust))
+        return self._result(thrust, None, law, detection, rotor, estimate, new, events)
 
     def _decide(self, inputs: SupervisorInputs, state: State, events: list[str],
                 estimate: float, rotor: int, out: ControlOutput | None) -> SupervisorState:

@@ -41,6 +41,10 @@ The rules, and the physics that sizes them (canonical frame of the attacked roto
   attack to one round trip per change of the attack.
 * **The first tick**: a state TFL is not known to converge from (tilted, moving fast,
   rolling, beyond the region of attraction) goes to the safe law holding its altitude.
+* **A rotor pinned high** (A − 2σ_A above m g/2 by ``spin_margin_n`` for ``spin_hold_s``):
+  no attitude hold exists (the opposite rotor must match A, so u_f ≥ 2A > m g); the spin law
+  (:mod:`tfl_mav.control.spin`, relaxed hover about a tilted axis) takes it from the safe law
+  once its table is built, and gives it back when A + 2σ_A falls below m g/2 by the margin.
 * **Modes**: ``"auto"`` flies the rules above; ``"tfl"`` flies the TFL law alone (no
   take-over at all: for research and comparison); ``"safe"`` flies the safe law alone.
 
@@ -66,6 +70,7 @@ class Law(IntEnum):
     TFL = 0          # the TFL law: nominal (four rotors) or attacked (three, yaw internal)
     RECOVERY = 1     # the safe reduced-attitude law, levelling and holding or flying back
     LOST_ROTOR = 2   # the safe reduced-attitude law on three rotors, spinning
+    SPIN = 3         # the spin law (relaxed hover about a tilted axis): a rotor pinned high
 
 
 class Why(IntEnum):
@@ -81,6 +86,8 @@ class Why(IntEnum):
     HANDBACK = 7         # TFL can hold the path again
     FOLLOW = 8           # the safe law stops holding a point and flies back to the path
     ONLY_SAFE = 9        # mode "safe": the safe law flies everything
+    PINNED_HIGH = 10     # A > m g/2 with margin: only a spinning hover keeps the altitude
+    RELENTED = 11        # the pinned rotor came down below m g/2: the safe law again
 
 
 class Start(IntEnum):
@@ -90,6 +97,7 @@ class Start(IntEnum):
     SAFE_HOLD = 1        # the safe law holds the position where it took over
     SAFE_PATH = 2        # the safe law flies the path from where it is
     TFL_RESUME = 3       # TFL resumes bumpless from the safe law's last command
+    SPIN = 4             # the spin law starts from the vehicle's rates and the pinned thrust
 
 
 class SupervisorParams(NamedTuple):
@@ -111,6 +119,8 @@ class SupervisorParams(NamedTuple):
     takeover_rate_radps: float
     takeover_speed_mps: float
     handback_tilt_rad: float  # the calmer attitude a hand-back needs
+    spin_margin_n: float      # the spin law flies while A ± 2σ stays this far above m g/2
+    spin_hold_s: float        # … held this long before a change (s)
 
 
 class SupervisorState(NamedTuple):
@@ -129,6 +139,8 @@ class SupervisorState(NamedTuple):
     tfl_s: float              # time flown by each law
     recovery_s: float
     lost_rotor_s: float
+    spin_s: float = 0.0
+    high_s: float = 0.0       # time the attack has been pinned above m g/2 with margin
 
 
 class SupervisorInputs(NamedTuple):
@@ -146,6 +158,7 @@ class SupervisorInputs(NamedTuple):
     pq_radps: float             # |(p, q)|
     speed_mps: float            # |v|
     path_distance_m: float      # first tick only: distance to the path (m; NaN: unknown)
+    spin_ready: bool = False    # the spin law is built for the attacked rotor
 
 
 _EPS_N = 1e-6   # a demand within this of a bound is at that bound (N)
@@ -156,7 +169,8 @@ def supervisor_params(mode: str, weight_n: float, thrust_max_n: float, speed_mps
                       persist_window_s: float = 1.0, persist_share: float = 0.8,
                       a_takeover_n: float = 0.35, a_handback_n: float = 0.6,
                       handback_s: float = 0.5, hold_before_path_s: float = 1.0,
-                      roa_m: float = 4.0) -> SupervisorParams:
+                      roa_m: float = 4.0, spin_margin_n: float = 0.25,
+                      spin_hold_s: float = 0.2) -> SupervisorParams:
     """The constants for a vehicle of weight ``weight_n`` flying a path at ``speed_mps``.
 
     TFL is started from hover in every scenario; the take-over limits are those with a
@@ -177,14 +191,14 @@ def supervisor_params(mode: str, weight_n: float, thrust_max_n: float, speed_mps
         SUPERVISOR_MODES.index(mode), weight_n, thrust_max_n, window_s, lost_share,
         persist_window_s, persist_share, a_takeover_n, a_handback_n, handback_s,
         hold_before_path_s, roa_m, math.radians(30.0), 2.0, max(0.5, 2.0 * speed_mps),
-        math.radians(20.0))
+        math.radians(20.0), spin_margin_n, spin_hold_s)
 
 
 def initial_state(mode: str = "auto") -> SupervisorState:
     """Before the first tick: TFL flies (the safe law in mode ``"safe"``)."""
     law = Law.LOST_ROTOR if mode == "safe" else Law.TFL
     return SupervisorState(int(law), False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0, 0, 0.0, 0.0,
-                           0.0)
+                           0.0, 0.0)
 
 
 def _leak(share: float, hit: bool, k: float) -> float:
@@ -203,7 +217,7 @@ def _switch(p: SupervisorParams, s: SupervisorState, law: Law, why: Why, start: 
     changed = law != s.law
     return (s._replace(law=int(law), holding=holding, since_s=0.0, good_s=0.0,
                        floor_share=0.0, ceiling_share=0.0, top_share=0.0,
-                       persist_share=0.0,
+                       persist_share=0.0, high_s=0.0,
                        switches=s.switches + (1 if changed else 0)),
             (int(law), int(why), int(start)))
 
@@ -217,14 +231,17 @@ def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
     dt = u.dt_s if u.dt_s > 0.0 else 0.0
     # The time flown by the law that flew this tick.
     tfl_s, rec_s, lost_s = s.tfl_s, s.recovery_s, s.lost_rotor_s
+    spin_s = s.spin_s
     if s.law == Law.TFL:
         tfl_s += dt
     elif s.law == Law.RECOVERY:
         rec_s += dt
+    elif s.law == Law.SPIN:
+        spin_s += dt
     else:
         lost_s += dt
     s = s._replace(ticks=s.ticks + 1, since_s=s.since_s + dt, tfl_s=tfl_s, recovery_s=rec_s,
-                   lost_rotor_s=lost_s)
+                   lost_rotor_s=lost_s, spin_s=spin_s)
     stay = (s.law, int(Why.STAY), int(Start.NONE))
     if p.mode == 1:                       # "tfl": the TFL law alone
         return s, stay
@@ -273,6 +290,23 @@ def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
         if ceiling_share > p.lost_share:
             return _switch(p, s, Law.LOST_ROTOR, Why.CEILING, Start.SAFE_PATH, False)
         return s, stay
+    half = p.weight_n / 2.0
+    if s.law == Law.SPIN:
+        # Back to the safe law once the pinned rotor has come down (or let go) for a while.
+        down = not known or a + 2.0 * sigma < half - p.spin_margin_n
+        good = s.good_s + dt if down else 0.0
+        s = s._replace(good_s=good)
+        if good >= p.spin_hold_s:
+            law = Law.LOST_ROTOR if u.rotor else Law.RECOVERY
+            return _switch(p, s, law, Why.RELENTED, Start.SAFE_PATH, False)
+        return s, stay
+    # A safe law flies; with the rotor pinned above m g/2 the spin law takes it, if built.
+    if known and u.spin_ready and not s.holding:
+        high = a - 2.0 * sigma > half + p.spin_margin_n
+        high_s = s.high_s + dt if high else 0.0
+        s = s._replace(high_s=high_s)
+        if high_s >= p.spin_hold_s:
+            return _switch(p, s, Law.SPIN, Why.PINNED_HIGH, Start.SPIN, False)
     # A safe law flies.
     if p.mode == 0 and s.holding and s.since_s >= p.hold_before_path_s \
             and not _not_benign(p, u):
@@ -318,6 +352,12 @@ def describe(why: int, law: int, *, rotor: int, attack_n: float, inputs: Supervi
                 "the path)")
     if why == Why.FOLLOW:
         return "recovery: level and calm: flying back to the path"
+    if why == Why.PINNED_HIGH:
+        return (f"spin: rotor {rotor} pinned at {a_text}, above m g/2: no attitude hold "
+                "exists; relaxed hover about a tilted axis, the mean axis steered along the path")
+    if why == Why.RELENTED:
+        return (f"{Law(law).name.lower()}: rotor {rotor} down to {a_text}: the spin ends, "
+                "reduced-attitude law")
     if why == Why.ONLY_SAFE:
         return f"{Law(law).name.lower()}: the safe law alone (controller.supervisor = safe)"
     return ""

@@ -143,8 +143,9 @@ def detection_from_alarms(alarms: Sequence[tuple[float, int]], attack_rotor: int
 # The flight log's mode (tfl_mav.model.modes.Mode) → the law that flew: TFL (nominal,
 # attacked, and its own fallback damping), the safe law (recovery, lost_rotor), or nothing
 # (failsafe: the daemon had no state).
-_LAW_OF_MODE = {0: "tfl", 1: "tfl", 2: "tfl", 3: "failsafe", 4: "recovery", 5: "lost_rotor"}
-LAWS = ("tfl", "recovery", "lost_rotor", "failsafe")
+_LAW_OF_MODE = {0: "tfl", 1: "tfl", 2: "tfl", 3: "failsafe", 4: "recovery", 5: "lost_rotor",
+                6: "spin"}
+LAWS = ("tfl", "recovery", "lost_rotor", "spin", "failsafe")
 
 
 def detection_events(t_s: Sequence[float], detected_rotor: Sequence[int]
@@ -169,7 +170,8 @@ def detection_events(t_s: Sequence[float], detected_rotor: Sequence[int]
 def law_report(t_s: Sequence[float] | np.ndarray, mode: Sequence[float] | np.ndarray,
                detected_rotor: Sequence[int] | None = None) -> dict[str, Any]:
     """Which law flew, from the per-tick mode: the time in each law (s), the share of the
-    flight the safe law flew, the number of switches between TFL and the safe law, and —
+    flight a law other than TFL flew (the safe law, the spin law), the number of switches
+    between TFL, the safe law and the spin law, and —
     with the controller's detections — every detection and release (time s, rotor).
 
     Each tick counts for the period until the next one (the last: the median period)."""
@@ -189,11 +191,14 @@ def law_report(t_s: Sequence[float] | np.ndarray, mode: Sequence[float] | np.nda
     for code, law in _LAW_OF_MODE.items():
         times[law] += float(np.sum(dt[codes == code]))
     total = sum(times.values())
-    safe = np.isin(codes[known], (4, 5))
-    switches = int(np.count_nonzero(safe[1:] != safe[:-1])) if len(safe) > 1 else 0
+    # The law flying, by tick: TFL 0, the safe law 1 (four or three rotors: one law), the
+    # spin law 2; a failsafe tick (no state) keeps the law before it.
+    group = np.select([codes <= 2, (codes == 4) | (codes == 5), codes == 6], [0, 1, 2], -1)
+    group = group[group >= 0]
+    switches = int(np.count_nonzero(group[1:] != group[:-1])) if len(group) > 1 else 0
     out["time_in_law_s"] = {k: round(v, 6) for k, v in times.items()}
-    out["safe_law_fraction"] = ((times["recovery"] + times["lost_rotor"]) / total
-                                if total > 0 else None)
+    out["safe_law_fraction"] = ((times["recovery"] + times["lost_rotor"] + times["spin"])
+                                / total if total > 0 else None)
     out["law_switches"] = switches
     if detected_rotor is not None and len(detected_rotor) >= n:
         det, rel = detection_events(t, list(detected_rotor)[:n])

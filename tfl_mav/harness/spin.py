@@ -15,9 +15,9 @@ from typing import NamedTuple
 
 import numpy as np
 
-from tfl_mav.build import scenario_path
+from tfl_mav.build import scenario_path, spin_params_for
 from tfl_mav.control.safe.recovery import PathProjector
-from tfl_mav.control.spin.law import build, initial_state
+from tfl_mav.control.spin.law import initial_state
 from tfl_mav.control.spin.step import SpinInputs, SpinParams, spin_step
 from tfl_mav.controller.flight_computer import FlightComputer
 from tfl_mav.scenario import Scenario
@@ -50,15 +50,6 @@ class SpinFlight(NamedTuple):
             return math.inf
         sel = self.t_s >= t0_s
         return float(self.distance_m[sel].max()) if sel.any() else math.nan
-
-
-def spin_params_for(sc: Scenario, rotor: int | None = None) -> SpinParams:
-    """The spin law for scenario ``sc``: its attacked rotor, the controller's model (mass and
-    inertia scales), its motor lag model and its control period."""
-    v, c = sc.vehicle, sc.controller
-    return build(v, rotor or sc.attack.rotor, sc.run.control_dt_s,
-                 mass_scale=c.model_mass_scale, inertia_scale=c.model_inertia_scale,
-                 motor_time_constant_s=c.motor_time_constant_scale * v.motor_time_constant_s)
 
 
 def fly_spin(sc: Scenario, *, takeover_s: float = 5.0, duration_s: float | None = None,
