@@ -147,12 +147,3 @@ def test_bad_params_are_refused():
         supervisor_params("both", W, FMAX, 0.5)
     with pytest.raises(ValueError):
         supervisor_params("auto", W, FMAX, 0.5, a_takeover_n=1.0, a_handback_n=0.5)
-
-
-def test_tfl_leaving_its_attitude_envelope_is_taken_over(p):
-    s, d = fly(p, initial_state(), inputs(a=2.0, pq_radps=1.5, tilt_rad=0.3), 1.0)
-    assert s.law == Law.TFL
-    _, d = supervise(p, s, inputs(a=2.0, pq_radps=6.0))
-    assert d == (Law.LOST_ROTOR, Why.UNSAFE, Start.SAFE_HOLD)
-    _, d = supervise(p, s, inputs(a=2.0, tilt_rad=math.radians(40.0)))
-    assert d[1] == Why.UNSAFE

@@ -41,9 +41,6 @@ The rules, and the physics that sizes them (canonical frame of the attacked roto
   attack to one round trip per change of the attack.
 * **The first tick**: a state TFL is not known to converge from (tilted, moving fast,
   rolling, beyond the region of attraction) goes to the safe law holding its altitude.
-* **TFL leaves its attitude envelope** (tilt > 35° or |(p, q)| > 4 rad/s while it flies; every
-  envelope flight stays within 8° and 2.2 rad/s): the safe law levels and holds, whatever the
-  cause (an estimate that wandered, aerodynamics the law does not model).
 * **A rotor pinned high** (A − 2σ_A above m g/2 by ``spin_margin_n`` for ``spin_hold_s``):
   no attitude hold exists (the opposite rotor must match A, so u_f ≥ 2A > m g); the spin law
   (:mod:`tfl_mav.control.spin`, relaxed hover about a tilted axis) takes it from the safe law
@@ -88,7 +85,6 @@ class Why(IntEnum):
     HOPELESS = 6         # 2A > m g: no law keeps the altitude
     HANDBACK = 7         # TFL can hold the path again
     FOLLOW = 8           # the safe law stops holding a point and flies back to the path
-    UNSAFE = 12          # TFL flew the attitude out of its envelope: tilt or roll/pitch rate
     ONLY_SAFE = 9        # mode "safe": the safe law flies everything
     PINNED_HIGH = 10     # A > m g/2 with margin: only a spinning hover keeps the altitude
     RELENTED = 11        # the pinned rotor came down below m g/2: the safe law again
@@ -123,8 +119,6 @@ class SupervisorParams(NamedTuple):
     takeover_rate_radps: float
     takeover_speed_mps: float
     handback_tilt_rad: float  # the calmer attitude a hand-back needs
-    unsafe_tilt_rad: float    # TFL is taken over beyond these in flight (tilt, |(p, q)|)
-    unsafe_rate_radps: float
     spin_margin_n: float      # the spin law flies while A ± 2σ stays this far above m g/2
     spin_hold_s: float        # … held this long before a change (s)
 
@@ -197,7 +191,7 @@ def supervisor_params(mode: str, weight_n: float, thrust_max_n: float, speed_mps
         SUPERVISOR_MODES.index(mode), weight_n, thrust_max_n, window_s, lost_share,
         persist_window_s, persist_share, a_takeover_n, a_handback_n, handback_s,
         hold_before_path_s, roa_m, math.radians(30.0), 2.0, max(0.5, 2.0 * speed_mps),
-        math.radians(20.0), math.radians(35.0), 4.0, spin_margin_n, spin_hold_s)
+        math.radians(20.0), spin_margin_n, spin_hold_s)
 
 
 def initial_state(mode: str = "auto") -> SupervisorState:
@@ -268,10 +262,6 @@ def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
         if u.tfl_flew and not u.tfl_answer:
             law = Law.LOST_ROTOR if u.rotor else Law.RECOVERY
             return _switch(p, s, law, Why.NO_ANSWER, Start.SAFE_HOLD, True)
-        if u.tfl_flew and not (u.tilt_rad <= p.unsafe_tilt_rad
-                               and u.pq_radps <= p.unsafe_rate_radps):
-            law = Law.LOST_ROTOR if u.rotor else Law.RECOVERY
-            return _switch(p, s, law, Why.UNSAFE, Start.SAFE_HOLD, True)
         if not u.rotor or not u.tfl_flew:
             return s, stay
         if known and 2.0 * a > p.weight_n:
@@ -357,10 +347,6 @@ def describe(why: int, law: int, *, rotor: int, attack_n: float, inputs: Supervi
     if why in (Why.CEILING, Why.HOPELESS):
         return (f"lost_rotor: rotor {rotor} at {a_text}: more than the three others can "
                 "balance (pinned at their limits); keeping attitude, cannot hold the path")
-    if why == Why.UNSAFE:
-        return (f"{Law(law).name.lower()}: TFL left its attitude envelope (tilt "
-                f"{math.degrees(inputs.tilt_rad):.0f} deg, |(p, q)| {inputs.pq_radps:.1f} rad/s); "
-                "level, hold altitude")
     if why == Why.HANDBACK:
         return (f"tfl: handed back after {since_s:.1f} s ({distance_m * 1000:.0f} mm from "
                 "the path)")
