@@ -19,15 +19,16 @@ from tfl_mav.controller.supervisor import (
 DT = 0.001
 W = 1.1 * 9.81          # the paper vehicle's weight (N)
 FMAX = 8.0
-CALM = dict(tilt_rad=0.05, pq_radps=0.1, speed_mps=0.5, path_distance_m=math.nan)
-
-
 def inputs(*, rotor=2, a=1.0, sigma=0.0, flew=True, answer=True, opposite=2.0,
-           sides=(3.0, 3.0), safe_distance=0.001, **state):
+           sides=(3.0, 3.0), safe_distance=0.001, tilt_rad=0.05, pq_radps=0.1,
+           speed_mps=0.5, path_distance_m=math.nan):
     # physical order for rotor 2 attacked: opposite = rotor 4, sides = rotors 1 and 3
     demand = (sides[0], a, sides[1], opposite)
-    return SupervisorInputs(DT, rotor, a, sigma, flew, answer, demand, safe_distance,
-                            **{**CALM, **state})
+    # a state of that tilt (about the body x axis), roll rate and speed
+    quat = (math.cos(tilt_rad / 2.0), math.sin(tilt_rad / 2.0), 0.0, 0.0) \
+        if math.isfinite(tilt_rad) else (math.nan,) * 4
+    return SupervisorInputs(DT, rotor, a, sigma, flew, answer, demand, safe_distance, quat,
+                            (pq_radps, 0.0, 30.0), (speed_mps, 0.0, 0.0), path_distance_m)
 
 
 def fly(p, s, u, seconds):
@@ -115,6 +116,8 @@ def test_a_first_state_tfl_does_not_start_from_is_taken_over(p):
     _, d = supervise(p, initial_state(), inputs(flew=False, path_distance_m=5.0))
     assert d[1] == Why.START_BEYOND_ROA
     _, d = supervise(p, initial_state(), inputs(flew=False, speed_mps=math.nan))
+    assert d[1] == Why.START_NOT_BENIGN
+    _, d = supervise(p, initial_state(), inputs(flew=False, tilt_rad=math.nan))
     assert d[1] == Why.START_NOT_BENIGN
 
 

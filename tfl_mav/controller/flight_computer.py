@@ -65,7 +65,7 @@ from tfl_mav.control.detect.attack_estimate import (
 )
 from tfl_mav.control.detect.detector import AttackDetector, DetectorOutput
 from tfl_mav.control.safe.recovery import RecoveryLaw
-from tfl_mav.control.safe.takeover import A_HANDBACK_N, TAKEOVER_TILT_RAD, tilt_rad
+from tfl_mav.control.safe.takeover import A_HANDBACK_N, TAKEOVER_TILT_RAD
 from tfl_mav.control.safe.takeover import floats as _floats
 from tfl_mav.control.spin.law import initial_state as spin_initial_state
 from tfl_mav.control.spin.step import SpinInputs, SpinParams, SpinState, spin_step
@@ -307,10 +307,8 @@ class FlightComputer:
             # law reads it only with motor lag (TFLController.update), so nothing else needs it.
             omega = [r * RPM_TO_RADPS for r in rpm] if self._needs_omega else None
             estimate, spread = self._estimate(rotor, estimate, rpm, detection)
-            if rotor:
-                ctrl.set_attack(rotor, estimate)
-            elif ctrl.attacked_rotor:
-                ctrl.set_attack(0, 0.0)
+            if rotor != ctrl.attacked_rotor:     # the allocation changes; the estimate
+                ctrl.set_attack(rotor, estimate if rotor else 0.0)   # goes with every tick
             last = self._last_t
             if last is None:
                 dt = ctrl.dt
@@ -334,7 +332,8 @@ class FlightComputer:
                                    state, events, estimate, rotor, None)
             if sup.law == Law.TFL:
                 self._delivered = None
-                out = ctrl.update(state, omega, dt_s=dt_s)
+                out = ctrl.update(state, omega, dt_s=dt_s,
+                                  attack_n=estimate if rotor else None)
                 sup = self._decide(self._inputs(dt, rotor, estimate, spread, out, math.nan,
                                                 state), state, events, estimate, rotor, out)
                 if sup.law == Law.TFL:
@@ -386,16 +385,14 @@ class FlightComputer:
                 out: ControlOutput | None, safe_distance_m: float, state: State, *,
                 first: bool = False) -> SupervisorInputs:
         """What the supervisor is told this tick (:class:`SupervisorInputs`)."""
-        p, q, _ = _floats(state.body_rates_radps)
-        vx, vy, vz = _floats(state.velocity_mps)
         tfl_flew = out is not None
         demand = (out.demand_n if tfl_flew and out.demand_n else _ZERO4)
         # SupervisorInputs' fields in order, built as the tuple it is (every tick).
         return _new(SupervisorInputs, (
             dt, rotor, estimate, spread, tfl_flew,
             tfl_flew and out.mode is not _FALLBACK, demand, safe_distance_m,
-            tilt_rad(state.quaternion_wxyz), _hypot(p, q), _sqrt(vx * vx + vy * vy + vz * vz),
-            self._distance_to_path(state) if first else math.nan,
+            _floats(state.quaternion_wxyz), _floats(state.body_rates_radps),
+            _floats(state.velocity_mps), self._distance_to_path(state) if first else math.nan,
             self._spin_ready(rotor, estimate)))
 
     def _spin_ready(self, rotor: int, estimate: float) -> bool:

@@ -57,9 +57,20 @@ import math
 from enum import IntEnum
 from typing import NamedTuple
 
-__all__ = ["SUPERVISOR_MODES", "Law", "Start", "SupervisorInputs", "SupervisorParams",
-           "SupervisorState", "Why", "describe", "initial_state", "supervise",
-           "supervisor_params"]
+__all__ = [
+    "SUPERVISOR_MODES",
+    "Law",
+    "Start",
+    "SupervisorInputs",
+    "SupervisorParams",
+    "SupervisorState",
+    "Why",
+    "attitude",
+    "describe",
+    "initial_state",
+    "supervise",
+    "supervisor_params",
+]
 
 SUPERVISOR_MODES = ("auto", "tfl", "safe")
 
@@ -154,9 +165,9 @@ class SupervisorInputs(NamedTuple):
     tfl_answer: bool            # … and found an answer (no fallback)
     demand_n: tuple[float, float, float, float]   # TFL's unbounded rotor demand (N, physical)
     safe_distance_m: float      # the safe law's distance to the path (m; NaN: holding)
-    tilt_rad: float             # angle of b3 from the vertical
-    pq_radps: float             # |(p, q)|
-    speed_mps: float            # |v|
+    quaternion_wxyz: tuple[float, float, float, float]   # attitude (body FLU → paper frame)
+    body_rates_radps: tuple[float, float, float]         # (p, q, r)
+    velocity_mps: tuple[float, float, float]             # paper frame
     path_distance_m: float      # first tick only: distance to the path (m; NaN: unknown)
     spin_ready: bool = False    # the spin law is built for the attacked rotor
 
@@ -209,10 +220,27 @@ def _leak(share: float, hit: bool, k: float) -> float:
     return share + k * ((1.0 if hit else 0.0) - share)
 
 
+def attitude(u: SupervisorInputs) -> tuple[float, float, float]:
+    """(tilt of b3 from the vertical rad, |(p, q)| rad/s, |v| m/s) of the inputs' state:
+    computed only where a rule reads them (not on the attacked TFL tick)."""
+    w, x, y, z = u.quaternion_wxyz
+    n = math.sqrt(w * w + x * x + y * y + z * z)     # R₂₂ of the normalised quaternion
+    if n > 0.0:
+        x, y = x / n, y / n
+        r22 = 1 - 2 * (x * x + y * y)
+        tilt = math.acos(max(-1.0, min(1.0, r22))) if r22 == r22 else math.nan
+    else:
+        tilt = math.nan
+    p, q, _ = u.body_rates_radps
+    vx, vy, vz = u.velocity_mps
+    return tilt, math.hypot(p, q), math.sqrt(vx * vx + vy * vy + vz * vz)
+
+
 def _not_benign(p: SupervisorParams, u: SupervisorInputs) -> bool:
     """A state TFL is not started from (or a NaN in it)."""
-    return not (u.tilt_rad <= p.takeover_tilt_rad and u.pq_radps <= p.takeover_rate_radps
-                and u.speed_mps <= p.takeover_speed_mps)
+    tilt, pq, speed = attitude(u)
+    return not (tilt <= p.takeover_tilt_rad and pq <= p.takeover_rate_radps
+                and speed <= p.takeover_speed_mps)
 
 
 def _switch(p: SupervisorParams, s: SupervisorState, law: Law, why: Why, start: Start,
@@ -342,7 +370,8 @@ def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
     if known and u.spin_ready and not s.holding:
         high = a - 2.0 * sigma > half + p.spin_margin_n
         high_s = s.high_s + dt if high else 0.0
-        s = s._replace(high_s=high_s)
+        if high_s != s.high_s:
+            s = s._replace(high_s=high_s)
         if high_s >= p.spin_hold_s:
             return _switch(p, s, Law.SPIN, Why.PINNED_HIGH, Start.SPIN, False)
     # A safe law flies.
@@ -355,11 +384,14 @@ def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
         s = s._replace(law=int(law))
     two_sided = not u.rotor or (known and a - 2.0 * sigma > p.a_handback_n
                                 and a + 2.0 * sigma < p.weight_n / 2.0 - p.a_handback_n)
-    ok = (two_sided and not s.holding and u.safe_distance_m < p.roa_m
-          and u.tilt_rad <= p.handback_tilt_rad and u.pq_radps <= p.takeover_rate_radps
-          and not _not_benign(p, u))
+    ok = two_sided and not s.holding and u.safe_distance_m < p.roa_m
+    if ok:
+        tilt, pq, _speed = attitude(u)
+        ok = (tilt <= p.handback_tilt_rad and pq <= p.takeover_rate_radps
+              and not _not_benign(p, u))
     good = s.good_s + dt if ok else 0.0
-    s = s._replace(good_s=good)
+    if good != s.good_s:
+        s = s._replace(good_s=good)
     if good >= p.handback_s:
         return _switch(p, s, Law.TFL, Why.HANDBACK, Start.TFL_RESUME, False)
     return s, (s.law, _STAY, _NONE)
@@ -371,9 +403,10 @@ def describe(why: int, law: int, *, rotor: int, attack_n: float, inputs: Supervi
     a_text = f"{attack_n:.2f} N" if math.isfinite(attack_n) else "unknown thrust"
     opposite = (rotor + 1) % 4 + 1 if rotor else 0
     if why == Why.START_NOT_BENIGN:
-        return (f"recovery: take-over: tilted {math.degrees(inputs.tilt_rad):.0f} deg, "
-                f"|v| {inputs.speed_mps:.1f} m/s, |(p, q)| {inputs.pq_radps:.1f} rad/s: "
-                "beyond what TFL starts from; level, hold altitude")
+        tilt, pq, speed = attitude(inputs)
+        return (f"recovery: take-over: tilted {math.degrees(tilt):.0f} deg, |v| {speed:.1f} "
+                f"m/s, |(p, q)| {pq:.1f} rad/s: beyond what TFL starts from; level, hold "
+                "altitude")
     if why == Why.START_BEYOND_ROA:
         return (f"recovery: take-over: {inputs.path_distance_m:.1f} m from the path "
                 "(beyond TFL's region of attraction); level, hold altitude")

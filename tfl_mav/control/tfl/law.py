@@ -45,7 +45,7 @@ from tfl_mav.control.path.compiled import CompiledPathTracker, _pi_kernel, make_
 from tfl_mav.control.path.paths import Path
 from tfl_mav.control.path.projection import PATH_START, VO_OK, PathState, lost_reason
 from tfl_mav.control.path.tracker import PathTracker
-from tfl_mav.control.tfl import law_math, step
+from tfl_mav.control.tfl import step
 from tfl_mav.control.tfl.estimators import DOB_START, mass_model, mass_start, mass_update
 from tfl_mav.control.tfl.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
 from tfl_mav.control.tfl.step import R_COND, R_THRUST, R_TUBE, Frame, TFLInputs, TFLParams, TFLState
@@ -56,6 +56,7 @@ __all__ = ["ControlOutput", "LawConfig", "ModelParams", "TFLController", "chain_
 
 _NOMINAL, _ATTACKED, _FALLBACK = Mode.NOMINAL, Mode.ATTACKED, Mode.FALLBACK  # enum lookups
 _new_output = tuple.__new__   # ControlOutput from its fields in order, no keyword parsing
+_new_tuple = tuple.__new__
 _ndarray = np.ndarray
 _VO_REFERENCE = -1.0          # the reference tracker's own reason (its text)
 _PATH_ERRORS = (ValueError, ZeroDivisionError, OverflowError)
@@ -312,10 +313,14 @@ class TFLController:
         if not p.use_mass:
             return
         st = as_state(self.state)
-        r = law_math.rotation(_floats(s.quaternion_wxyz))
+        # b3, R's last column, by the operations law_math.rotation computes it with
+        w, x, y, z = _floats(s.quaternion_wxyz)
+        n = math.sqrt(w * w + x * x + y * y + z * z)
+        w, x, y, z = w / n, x / n, y / n, z / n
+        b3 = (2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y))
         mass = mass_update(p.mass, st.mass, p.dt_s, _floats(s.velocity_mps),
-                           float(sum(applied_n)), (r[2], r[5], r[8]))
-        self.state = st._replace(mass=mass)
+                           float(sum(applied_n)), b3)
+        self.state = _new_tuple(TFLState, (*st[:_MASS], mass, *st[_MASS + 1:]))
 
     def set_attack(self, rotor: int, estimate_n: float) -> None:
         """Declare rotor (1-4) attacked with the given thrust estimate (N); 0 = none.
@@ -340,11 +345,17 @@ class TFLController:
 
     # ------------------------------------------------------------------ the law
     def update(self, s: State, rotor_speed_radps: Sequence[float] | None = None, *,
-               dt_s: float | None = None) -> ControlOutput:
+               dt_s: float | None = None, attack_n: float | None = None) -> ControlOutput:
         """Compute the rotor thrusts (N) for this control period from the measured state
         and, with motor lag, the measured rotor speeds ω (rad/s, from ESC rpm). ``dt_s``:
         the real time since the last tick when it is not one control period (a real-time
-        daemon skipped states): the law's internal states integrate over it."""
+        daemon skipped states): the law's internal states integrate over it. ``attack_n``:
+        the attacked rotor's thrust estimate this tick (N; the rotor is :meth:`set_attack`'s),
+        clamped to [0, f_max], a NaN keeping the last one."""
+        if attack_n is not None and self.cfg.aware_of_attack and attack_n == attack_n:
+            fmax = self.model.thrust_max_n
+            self.attack_estimate_n = (fmax if attack_n > fmax else
+                                      (0.0 if attack_n < 0.0 else float(attack_n)))
         if dt_s is not None and dt_s != self._dt:
             period = self._dt
             self.dt = dt_s
