@@ -54,6 +54,13 @@ CHUNK_BYTES = 1 << 20
 ``flush_interval_s``). 4 MiB compressed no better on a flight's messages (same MiB per
 flight-minute in bench/recorder_replay.py), and a file cut short loses less with small ones."""
 
+FLUSH_SIM_NS = 500_000_000
+"""Sim time between flushes, whatever the wall clock does: a lockstep flight runs several
+times faster than real time, and a file cut short (its writer killed) should lose at most
+~0.5 s of *flight*, not ``flush_interval_s`` × the speed-up. The latched copy of the path
+is only re-written on the wall-clock flush (it is large, and a viewer needs it per wall
+second, not per flight second)."""
+
 WRITE_PIECE_BYTES = 32 * 1024
 """The largest single write to the MCAP file. Why: the kernel here does not preempt
 a task inside a system call (``PREEMPT_NONE``, the usual server setting), so a recorder
@@ -211,6 +218,7 @@ class McapOutput:
                 self._close_file()
                 raise RecorderError(str(exc)) from None
         self._next_flush = time.monotonic() + flush_interval_s
+        self._next_flush_sim_ns = FLUSH_SIM_NS
         self._stop = threading.Event()
         self._flusher = threading.Thread(target=self._flush_loop, name="mcap-flush",
                                          daemon=True)
@@ -355,6 +363,8 @@ class McapOutput:
                 self.stats.messages += 1
             if time.monotonic() >= self._next_flush:
                 self._flush()
+            elif self._sim_ns >= self._next_flush_sim_ns:
+                self._flush(wall=False)
         except Exception as exc:
             self._failed(exc)
 
@@ -371,6 +381,8 @@ class McapOutput:
                 self.stats.messages += len(items)
             if time.monotonic() >= self._next_flush:
                 self._flush()
+            elif self._sim_ns >= self._next_flush_sim_ns:
+                self._flush(wall=False)
         except Exception as exc:
             self._failed(exc)
 
@@ -389,15 +401,19 @@ class McapOutput:
                 self.stats.messages += len(items)
             if time.monotonic() >= self._next_flush:
                 self._flush()
+            elif self._sim_ns >= self._next_flush_sim_ns:
+                self._flush(wall=False)
         except Exception as exc:
             self._failed(exc)
 
-    def _flush(self) -> None:
-        """Finish the chunk in progress (with a fresh copy of the path) and flush the file."""
+    def _flush(self, wall: bool = True) -> None:
+        """Finish the chunk in progress and flush the file; ``wall``: the wall-clock flush,
+        which also writes a fresh copy of the latched message (the path)."""
         with self._lock:
+            self._next_flush_sim_ns = self._sim_ns + FLUSH_SIM_NS
             if not self._open or self._pending == 0:
                 return
-            if self._latched is not None:
+            if wall and self._latched is not None:
                 emit, data = self._latched
                 emit(data, self._now_ns())
                 self.stats.messages += 1
@@ -405,7 +421,8 @@ class McapOutput:
                 self._writer.flush()
             self._pending = 0
             self.stats.flushes += 1
-            self._next_flush = time.monotonic() + self._interval_s
+            if wall:
+                self._next_flush = time.monotonic() + self._interval_s
 
     def _flush_loop(self) -> None:
         """Background flush for when the loop goes quiet (no writes, nothing flushes)."""
