@@ -23,6 +23,8 @@ from __future__ import annotations
 import atexit
 import contextlib
 import math
+import os
+import re
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -117,6 +119,23 @@ class _File:
         self._f.close()
 
 
+_OS_ERROR = re.compile(r"os error (\d+)")
+
+
+def error_reason(exc: BaseException) -> str:
+    """A write error in words a user reads: the OS's own text (``No space left on
+    device``) for an ``OSError``, or for an error the SDK's Rust writer raises with the OS
+    error number in its text; else the exception's type and first line."""
+    text = getattr(exc, "strerror", None)
+    if text:
+        return str(text)
+    m = _OS_ERROR.search(str(exc))
+    if m:
+        return os.strerror(int(m.group(1)))
+    first = (str(exc).strip().splitlines() or [""])[0][:120]
+    return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
+
+
 class RecorderError(OSError):
     """The recording cannot start (path not writable); the message names the path."""
 
@@ -164,6 +183,9 @@ class McapOutput:
         self.clock = clock
         self.stats = RecorderStats()
         self.error: str | None = None
+        self.repair: dict[str, Any] | None = None    # a failed file's repair (mcaprepair)
+        self.error_reason = ""
+        self._error_head = ""
         self.last_bad_input: str | None = None
         self._interval_s = flush_interval_s
         self._channels: dict[str, Any] = {}      # topic → its channel's log(data, ns)
@@ -270,6 +292,28 @@ class McapOutput:
                 if self.error is None:
                     self._failed(exc)
             self._file = None
+            if self.error is not None and self.file_path is not None:
+                self._repair()
+
+    def _repair(self) -> None:
+        """A file whose writing failed (disk full) has no summary: make what was written
+        readable in place (:mod:`~tfl_mav.flightlog.mcaprepair`, read back to prove it)."""
+        from tfl_mav.flightlog.mcaprepair import repair
+
+        try:
+            rep = repair(self.file_path, f"writing failed: {self.error_reason}").as_dict()
+        except OSError as exc:
+            rep = {"readable": False, "error": exc.strerror or str(exc)}
+        self.repair = rep
+        if rep.get("readable"):
+            last = rep.get("last_sim_time_s")
+            self.error = self._error_head + (
+                f"; what was written reads (repaired, ends at sim t = {last:.3f} s)"
+                if last is not None else "; what was written reads (repaired)")
+        else:
+            self.error = self._error_head + (
+                f"; the file could not be repaired ({rep.get('error')}): "
+                f"`tfl-mav inspect {self.file_path} --recover OUT.mcap` saves what reads")
 
     def metadata(self, name: str, values: Mapping[str, str]) -> None:
         """A named MCAP metadata record (e.g. the scenario), strings only."""
@@ -440,7 +484,8 @@ class McapOutput:
         self._open = False
         self.stats.write_errors += 1
         self.stats.dropped += 1
-        reason = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
-        self.error = (f"MCAP write to {self.file_path} failed ({reason}); recording stopped, "
-                      "the flight goes on; the file reads up to its last complete chunk "
-                      "(tfl-mav inspect FILE --recover OUT)")
+        self.error_reason = error_reason(exc)
+        self._error_head = (f"MCAP write to {self.file_path} failed ({self.error_reason}); "
+                            "recording stopped, the flight goes on")
+        self.error = (self._error_head + "; the file reads up to its last complete chunk "
+                      f"(`tfl-mav inspect {self.file_path} --recover OUT.mcap`)")

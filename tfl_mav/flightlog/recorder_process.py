@@ -161,7 +161,8 @@ def _child_loop(conn: Connection, results: Connection, path: str | None,
                 "last_sim_time_s": f"{rec.sim_time_s:.6f}"})
         rec.close()
         with contextlib.suppress(OSError):
-            results.send(("done", rec.error, rec.last_bad_input, rec.stats.as_dict()))
+            results.send(("done", rec.error, rec.last_bad_input, rec.stats.as_dict(),
+                          rec.repair))
 
 
 def handle_batch(rec: Recorder, data: bytes, now: list[float]) -> bool:
@@ -246,6 +247,7 @@ class RecorderProcess:
         self._lost_lock = threading.Lock()
         self._lost_seen = False                  # the child died before finishing the file
         self._repair: dict[str, Any] | None = None
+        self._write_failed = False               # the child reported a write error
         self.clock = clock
         self.stats = RecorderStats()
         self.last_bad_input: str | None = None
@@ -560,9 +562,12 @@ class RecorderProcess:
             return False
         if reply[0] == "error":
             self._error = reply[1]
+            self._write_failed = True
         elif reply[0] == "done":
-            _, error, bad, stats = reply
-            self._error = self._error or error
+            _, error, bad, stats, repair = reply
+            if repair is not None:
+                self._repair = repair
+            self._error = error if self._write_failed and error else (self._error or error)
             self.last_bad_input = bad
             dropped = self.stats.dropped
             self.stats = RecorderStats(**stats)
