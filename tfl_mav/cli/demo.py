@@ -134,5 +134,8 @@ def _print_summary(m: dict[str, Any]) -> None:
     print(f"  rotor thrust [{m['thrust_min_n']:.2f}, {m['thrust_max_n']:.2f}] N, saturated "
           f"{100 * m['saturated_fraction']:.2f} % of ticks; max |yaw rate| "
           f"{m['max_yaw_rate_radps']:.1f} rad/s")
+    for cut in m.get("log_cut_short") or ():
+        at = f" at t = {cut['at_s']:.3f} s" if cut.get("at_s") is not None else ""
+        print(f"  LOG CUT SHORT: {cut['file']}{at} ({cut['reason']})")
     print(f"  MAVLink: {m['messages_sent']} frames sent, {m['messages_logged']} logged; "
           f"files in {m['out_dir']}/ (run.mcap, ctl.mcap, summary.json, *.png)")

@@ -131,6 +131,20 @@ class LogReader:
                              rec.data, sc)
 
 
+    def message_counts(self) -> dict[str, int] | None:
+        """Messages per topic from a finished file's summary statistics (None: not a
+        finished file, or no statistics), without reading the messages."""
+        summary = self._summary()
+        stats = summary.statistics if summary is not None else None
+        if stats is None:
+            return None
+        out: dict[str, int] = {}
+        for cid, n in stats.channel_message_counts.items():
+            ch = summary.channels.get(cid)
+            if ch is not None:
+                out[ch.topic] = out.get(ch.topic, 0) + n
+        return out
+
     def read_metadata(self) -> list[Metadata]:
         """The file's metadata records: all of a finished file's (its summary indexes them,
         wherever they are), else those before the first message (a stream stops there)."""

@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from tfl_mav.build import scenario_path
+from tfl_mav.cli.outputs import write_text_atomic
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.flightlog.from_mcap import flight_log_from_mcap
 from tfl_mav.flightlog.logread import raw_frames
@@ -137,8 +138,12 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
     say = _Say(progress)
     say.line(f"  flight: {duration:g} s of sim time in {wall:.1f} s wall")
     if not fly_json.exists() and not interrupted:
-        raise RuntimeError(f"the controller did not finish (exit {fly_code}):\n{fly_err}")
-    fly_summary = json.loads(fly_json.read_text()) if fly_json.exists() else {}
+        last = (fly_err.strip().splitlines() or ["no word on stderr"])[-1]
+        raise RuntimeError(f"the controller did not finish (exit {fly_code}): {last}")
+    try:        # written atomically (whole or not at all); unreadable: said, not raised
+        fly_summary = json.loads(fly_json.read_text()) if fly_json.exists() else {}
+    except (OSError, ValueError):
+        fly_summary = {}
     t1 = time.perf_counter()
     size_mib = sum(f.stat().st_size for f in (run_mcap, ctl_mcap) if f.exists()) / 2**20
     say.start(f"  report: reading run.mcap and ctl.mcap ({size_mib:.0f} MiB) ...")
@@ -163,12 +168,20 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
         say.start("  plots: drawing the six PNGs ...")
         from tfl_mav.flightlog.plots import write_report
 
-        m["plots"] = [str(p) for p in write_report(log, out, title=scenario.name)]
+        try:
+            m["plots"] = [str(p) for p in write_report(log, out, title=scenario.name)]
+        except OSError as exc:
+            raise RuntimeError(f"cannot write the plots in {out}: "
+                               f"{exc.strerror or exc}") from None
         phases["plots"] = round(time.perf_counter() - t2, 3)
         say.end(f" {phases['plots']:.1f} s")
     m["phase_wall_s"] = phases         # what the user waited for, phase by phase
     m["total_wall_s"] = round(time.perf_counter() - t0, 3)
-    (out / "summary.json").write_text(json.dumps(m, indent=2))
+    try:
+        write_text_atomic(out / "summary.json", json.dumps(m, indent=2))
+    except OSError as exc:
+        raise RuntimeError(f"cannot write {out / 'summary.json'}: "
+                           f"{exc.strerror or exc}") from None
     return m
 
 
