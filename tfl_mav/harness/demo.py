@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 
 from tfl_mav.build import scenario_path
-from tfl_mav.cli.outputs import write_text_atomic
+from tfl_mav.flightlog.atomic import write_text_atomic
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.flightlog.from_mcap import flight_log_from_mcap
 from tfl_mav.flightlog.logread import raw_frames
