@@ -148,10 +148,19 @@ class LogReader:
     def read_metadata(self) -> list[Metadata]:
         """The file's metadata records: all of a finished file's (its summary indexes them,
         wherever they are), else those before the first message (a stream stops there)."""
-        if self._summary() is None:
-            for rec in self.records():
-                if isinstance(rec, Message):
-                    break
+        try:
+            with open(self.path, "rb") as f:
+                reader = make_reader(f)
+                if reader.get_summary() is not None:
+                    self.metadata = list(reader.iter_metadata())
+                    return self.metadata
+        except OSError as exc:
+            raise OSError(f"cannot read MCAP file {self.path}: {exc.strerror}") from None
+        except (McapError, ValueError, struct.error, EOFError, IndexError, KeyError):
+            pass                 # not a finished file: stream it
+        for rec in self.records():
+            if isinstance(rec, Message):
+                break
         return self.metadata
 
     def _summary(self) -> Any:

@@ -136,6 +136,34 @@ def error_reason(exc: BaseException) -> str:
     return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
 
 
+_SDK_QUIET = False
+
+
+def _quiet_sdk() -> None:
+    """The SDK's own log at errors only, once per process, before its first sink: a failing
+    write is reported once by :class:`McapOutput` in words (:func:`error_reason`), not also
+    as the writer's raw ``McapError(Io(...))`` warning on stderr. ``foxglove.set_log_level``
+    also configures the root logger (``logging.basicConfig``, at that level): the root
+    logger is put back as it was, so the program's own warnings still show."""
+    global _SDK_QUIET
+    if _SDK_QUIET:
+        return
+    _SDK_QUIET = True
+    import logging
+
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
+    try:
+        foxglove.set_log_level("ERROR")
+    except Exception:       # an SDK without it: its default stays
+        return
+    finally:
+        for h in list(root.handlers):
+            if h not in handlers:
+                root.removeHandler(h)
+        root.setLevel(level)
+
+
 class RecorderError(OSError):
     """The recording cannot start (path not writable); the message names the path."""
 
@@ -194,6 +222,7 @@ class McapOutput:
         self._open = True           # accepting messages
         self._closed = False
         self._lock = threading.RLock()
+        _quiet_sdk()
         self._context = foxglove.Context()     # this recorder's channels and sinks only
         self._live = None
         self._file: _File | None = None

@@ -25,6 +25,7 @@ exit code 0 when the file reads, 3 when it does not.
 
 from __future__ import annotations
 
+import errno
 import io
 import json
 import os
@@ -100,6 +101,8 @@ class _Scan:
     start_ns: int | None = None
     end_ns: int = 0
     last: dict[int, bytes] = field(default_factory=dict)      # channel → last message data
+    chunk_counts: list[dict[int, int]] = field(default_factory=list)    # per chunk index
+    chunk_last: list[dict[int, bytes]] = field(default_factory=list)
     complete: bool = False             # the footer is there
     stop: str | None = None
 
@@ -184,6 +187,8 @@ def _scan(f: Any, size: int) -> _Scan:
                     compressed_size=len(chunk.data), uncompressed_size=chunk.uncompressed_size)
                 chunk_channels[at] = set(seen)
                 scan.chunk_indexes.append(pending)
+                scan.chunk_counts.append(counts)
+                scan.chunk_last.append(last)
             elif op == Opcode.MESSAGE_INDEX and pending is not None:
                 cid = struct.unpack_from("<H", body)[0]
                 pending.message_index_offsets[cid] = at
@@ -209,7 +214,7 @@ def _scan(f: Any, size: int) -> _Scan:
             scan.stop = f"record at byte {at} does not read ({type(exc).__name__}: {exc})"
             if op == Opcode.CHUNK and scan.chunk_indexes and \
                     scan.chunk_indexes[-1].chunk_start_offset == at:
-                scan.chunk_indexes.pop()
+                _drop_last_chunk(scan)
             break
         if op != Opcode.MESSAGE_INDEX and op != Opcode.CHUNK:
             pending = None
@@ -224,6 +229,27 @@ def _scan(f: Any, size: int) -> _Scan:
     if scan.end == 0:
         scan.end = at
     return scan
+
+
+def _drop_last_chunk(scan: _Scan) -> int:
+    """Forget the last chunk (and what follows it); returns where the data now ends."""
+    index = scan.chunk_indexes.pop()
+    counts = scan.chunk_counts.pop()
+    scan.chunk_last.pop()
+    for cid, k in counts.items():
+        scan.counts[cid] -= k
+        if not scan.counts[cid]:
+            del scan.counts[cid]
+    end = index.chunk_start_offset
+    scan.metadata_indexes = [m for m in scan.metadata_indexes if m.offset < end]
+    kept = [c for c, n in zip(scan.chunk_indexes, scan.chunk_counts, strict=True) if n]
+    scan.start_ns = min((c.message_start_time for c in kept), default=None)
+    scan.end_ns = max((c.message_end_time for c in kept), default=0)
+    scan.last = {}
+    for last in scan.chunk_last:
+        scan.last.update(last)
+    scan.end = end
+    return end
 
 
 def _last_sim_time(scan: _Scan) -> float | None:
@@ -249,9 +275,8 @@ def _summary(scan: _Scan, start: int, marker: Metadata) -> bytes:
     """Metadata marker + Data End + summary + footer + magic, to go at byte ``start``."""
     rb = RecordBuilder()
     marker.write(rb)
-    marker_len = rb.count
-    scan.metadata_indexes.append(MetadataIndex(offset=start, length=marker_len,
-                                               name=marker.name))
+    metadata_indexes = [*scan.metadata_indexes,
+                        MetadataIndex(offset=start, length=rb.count, name=marker.name)]
     DataEnd(data_section_crc=0).write(rb)
     summary_start = start + rb.count
     groups: list[SummaryOffset] = []
@@ -270,11 +295,11 @@ def _summary(scan: _Scan, start: int, marker: Metadata) -> bytes:
     group(Opcode.STATISTICS, [Statistics(
         message_count=sum(scan.counts.values()), schema_count=len(scan.schemas),
         channel_count=len(scan.channels), attachment_count=0,
-        metadata_count=len(scan.metadata_indexes), chunk_count=len(scan.chunk_indexes),
+        metadata_count=len(metadata_indexes), chunk_count=len(scan.chunk_indexes),
         message_start_time=scan.start_ns or 0, message_end_time=scan.end_ns,
         channel_message_counts=dict(scan.counts))])
     group(Opcode.CHUNK_INDEX, scan.chunk_indexes)
-    group(Opcode.METADATA_INDEX, scan.metadata_indexes)
+    group(Opcode.METADATA_INDEX, metadata_indexes)
     offsets_start = summary_start + sb.count
     for g in groups:
         g.write(sb)
@@ -284,21 +309,39 @@ def _summary(scan: _Scan, start: int, marker: Metadata) -> bytes:
                      crc)
     Footer(summary_start=summary_start, summary_offset_start=offsets_start,
            summary_crc=crc).write(sb)
-    return rb.end() + sb.end() + MAGIC
+    return rb.end() + summary + sb.end() + MAGIC
+
+
+def _write_at(fd: int, at: int, data: bytes) -> None:
+    view = memoryview(data)
+    while view:
+        n = os.pwrite(fd, view, at)
+        view, at = view[n:], at + n
 
 
 def read_back(path: str | Path) -> tuple[int, str | None]:
     """Every message of ``path`` through ``mcap.reader.make_reader`` (the summary, every
-    chunk, CRCs checked): (count, None) or (count so far, why it failed)."""
+    chunk, CRCs checked), and the summary's statistics and chunk indexes checked against
+    what was read: (count, None) or (count so far, why it failed)."""
     from mcap.reader import make_reader
 
     n = 0
     try:
         with open(path, "rb") as f:
-            for _ in make_reader(f, validate_crcs=True).iter_messages(log_time_order=False):
+            reader = make_reader(f, validate_crcs=True)
+            summary = reader.get_summary()
+            for _ in reader.iter_messages(log_time_order=False):
                 n += 1
     except Exception as exc:
         return n, f"{type(exc).__name__}: {exc}"
+    # the summary must be the file's: it indexes every chunk and counts every message
+    if summary is None or summary.statistics is None:
+        return n, "no summary statistics"
+    if summary.statistics.message_count != n:
+        return n, (f"the summary counts {summary.statistics.message_count} messages, "
+                   f"{n} read")
+    if n and not summary.chunk_indexes:
+        return n, "no chunk index"
     return n, None
 
 
@@ -307,7 +350,7 @@ def repair(path: str | Path, reason: str = "the recording process died") -> Repa
     file (``error`` says what is wrong), OSError if it cannot be opened for writing."""
     p = Path(path)
     out = Repair(str(p), reason=reason)
-    with open(p, "r+b") as f:
+    with open(p, "r+b", buffering=0) as f:
         size = os.fstat(f.fileno()).st_size
         scan = _scan(f, size)
         out.error = scan.stop
@@ -322,18 +365,35 @@ def repair(path: str | Path, reason: str = "the recording process died") -> Repa
         if scan.end < 8 + 9:           # not even a header: nothing to save
             out.error = out.error or "no MCAP header"
             return out
-        marker = Metadata(name=CUT_METADATA, metadata={
-            "complete": "false", "reason": reason,
-            "last_log_time_ns": str(scan.end_ns),
-            "last_sim_time_s": "" if out.last_sim_time_s is None
-            else f"{out.last_sim_time_s:.6f}",
-            "cut_bytes": str(size - scan.end), "repaired_by": "tfl-mav mcaprepair"})
-        tail = _summary(scan, scan.end, marker)
-        f.truncate(scan.end)
-        f.seek(scan.end)
-        f.write(tail)
-        f.flush()
-        os.fsync(f.fileno())
+        size_cut = size - scan.end
+        while True:
+            marker = Metadata(name=CUT_METADATA, metadata={
+                "complete": "false", "reason": reason,
+                "last_log_time_ns": str(scan.end_ns),
+                "last_sim_time_s": "" if out.last_sim_time_s is None
+                else f"{out.last_sim_time_s:.6f}",
+                "cut_bytes": str(size - scan.end), "repaired_by": "tfl-mav mcaprepair"})
+            tail = _summary(scan, scan.end, marker)
+            f.truncate(scan.end)
+            try:
+                _write_at(f.fileno(), scan.end, tail)
+                os.fsync(f.fileno())
+                break
+            except OSError as exc:
+                # a full disk (or a file-size limit): the summary needs room the cut
+                # freed too little of; give up the newest chunks until it fits
+                if exc.errno not in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT) or \
+                        not scan.chunk_indexes:
+                    f.truncate(scan.end)
+                    raise
+                _drop_last_chunk(scan)
+                out.last_sim_time_s = _last_sim_time(scan)
+        out.messages = sum(scan.counts.values())
+        out.chunks = len(scan.chunk_indexes)
+        out.last_log_time_ns = scan.end_ns or None
+        if size - scan.end > size_cut:
+            out.error = (f"{out.error}; {size - scan.end - size_cut} more bytes given up to "
+                         "fit the summary on a full disk")
     out.repaired = True
     out.kept_bytes = scan.end
     out.cut_bytes = size - scan.end
