@@ -316,37 +316,23 @@ def _stream_flight(run_path: str | Path, scenario: Scenario,
         emit(*pending)
     if block:
         cols.add(block)
-    a = cols.finish()
-    n = len(a)
-    t = a[:, 0]
-    pos = a[:, 1:4]
-    th = a[:, 14:18]
+    data = log.data
+    data.update(cols.finish())
+    n = len(data["t_s"])
     v = scenario.vehicle
     ell, d = v.arm_m, v.drag_thrust_ratio_m
+    th = data["thrust_true_n"]
     f1, f2, f3, f4 = th[:, 0], th[:, 1], th[:, 2], th[:, 3]
-    data = log.data
-    data["t_s"] = np.ascontiguousarray(t)
-    data["position_m"] = np.ascontiguousarray(pos)
-    data["velocity_mps"] = np.ascontiguousarray(a[:, 4:7])
-    data["body_rates_radps"] = np.ascontiguousarray(a[:, 11:14])
-    data["yaw_rad"] = np.ascontiguousarray(a[:, 19])
     # the true distance of every sample, as a tracker evaluating each in turn gives it
-    data["path_distance_m"] = np.asarray(path_distances(path, pos), dtype=float) if n \
-        else np.zeros(0)
-    data["thrust_cmd_n"] = np.ascontiguousarray(a[:, 20:24])
+    data["path_distance_m"] = np.asarray(path_distances(path, data["position_m"]),
+                                         dtype=float) if n else np.zeros(0)
     data["thrust_req_n"] = np.zeros(0)
-    data["thrust_true_n"] = np.ascontiguousarray(th)
-    data["attack_true_n"] = np.ascontiguousarray(a[:, 18])
-    data["attack_estimate_n"] = np.ascontiguousarray(a[:, 24])
     data["uf_n"] = f1 + f2 + f3 + f4                 # eq. (4), as mix() sums it
     data["torque_nm"] = np.stack((ell * (f4 - f2), ell * (f3 - f1),
                                   d * (f1 - f2 + f3 - f4)), axis=1) if n \
         else np.zeros((0, 3))
-    data["saturated"] = np.ascontiguousarray(a[:, 25])
-    data["mode"] = np.ascontiguousarray(a[:, 26])
-    detected = a[:, 27].astype(int)
-    del a, t, pos, th, f1, f2, f3, f4
-    cols.clear()
+    detected = data.pop("detected_rotor").astype(int)
+    del th, f1, f2, f3, f4
     if n == 0:                  # the shapes an empty log has when read whole
         for k in SERIES:
             data[k] = np.asarray([], dtype=float)
@@ -391,47 +377,44 @@ def _cuts(run_path: str | Path, reader: LogReader, last_t_s: float | None,
     return out or None
 
 
+_LAYOUT = (("t_s", 0, 1), ("position_m", 1, 4), ("velocity_mps", 4, 7),
+           ("body_rates_radps", 11, 14), ("thrust_true_n", 14, 18), ("attack_true_n", 18, 19),
+           ("yaw_rad", 19, 20), ("thrust_cmd_n", 20, 24), ("attack_estimate_n", 24, 25),
+           ("saturated", 25, 26), ("mode", 26, 27), ("detected_rotor", 27, 28))
+"""Where each series sits in a sample row of :func:`_stream_flight` (truth: t, position,
+velocity, quaternion (7:11, used for yaw only), rates, thrusts, applied attack; then yaw,
+command, estimate, saturated, mode, detected rotor)."""
+
+
 class _Columns:
-    """Samples (rows of floats) gathered block by block into one array: written in place
-    into an array of the known final size (``capacity``, from the file's summary), else
-    kept as blocks and joined at the end."""
+    """Sample rows gathered block by block straight into one array a series (each C
+    contiguous, as :class:`FlightLog` holds them): sized from the file's summary
+    (``capacity``) when known, else grown by doubling, one series at a time."""
 
     def __init__(self, capacity: int | None) -> None:
-        self._array: np.ndarray | None = None
-        self._capacity = capacity
+        self._cap = capacity or 0
         self._n = 0
-        self._blocks: list[np.ndarray] = []
+        self._arrays = {name: np.empty((self._cap, hi - lo) if hi - lo > 1 else self._cap)
+                        for name, lo, hi in _LAYOUT}
 
     def add(self, rows: list[tuple[float, ...]]) -> None:
         b = np.array(rows, dtype=float)
-        if self._capacity is not None and self._array is None:
-            self._array = np.empty((self._capacity, b.shape[1]))
-        if self._array is not None and self._n + len(b) <= len(self._array):
-            self._array[self._n:self._n + len(b)] = b
-        else:
-            if self._array is not None:          # more samples than the summary said
-                self._blocks.append(self._array[:self._n])
-                self._array = None
-                self._capacity = None
-            self._blocks.append(b)
-        self._n += len(b)
+        n, m = self._n, len(b)
+        if n + m > self._cap:
+            self._cap = max(2 * self._cap, n + m, 4 * _BLOCK)
+            for name, arr in self._arrays.items():
+                grown = np.empty((self._cap, *arr.shape[1:]))
+                grown[:n] = arr[:n]
+                self._arrays[name] = grown
+        for name, lo, hi in _LAYOUT:
+            self._arrays[name][n:n + m] = b[:, lo:hi] if hi - lo > 1 else b[:, lo]
+        self._n = n + m
 
-    def finish(self) -> np.ndarray:
-        if self._array is not None:
-            return self._array[:self._n]
-        if not self._blocks:
-            return np.zeros((0, _WIDTH))
-        out = np.concatenate(self._blocks) if len(self._blocks) > 1 else self._blocks[0]
-        self._blocks = [out]
+    def finish(self) -> dict[str, np.ndarray]:
+        """The series, ``len`` samples each (views of the arrays: no copy)."""
+        out = {name: arr[:self._n] for name, arr in self._arrays.items()}
+        self._arrays = {}
         return out
-
-    def clear(self) -> None:
-        self._array = None
-        self._blocks = []
-
-
-_WIDTH = 28                     # truth (19) + yaw + command (4) + estimate, saturated,
-                                # mode, detected rotor
 
 
 def log_metadata(path: str | Path) -> dict[str, dict[str, str]]:

@@ -312,11 +312,23 @@ def _summary(scan: _Scan, start: int, marker: Metadata) -> bytes:
     return rb.end() + summary + sb.end() + MAGIC
 
 
+class _ShortWriteError(Exception):
+    def __init__(self, errno_: int, written: int) -> None:
+        super().__init__(os.strerror(errno_))
+        self.errno, self.written = errno_, written
+
+
 def _write_at(fd: int, at: int, data: bytes) -> None:
+    """All of ``data`` at byte ``at``; :class:`_ShortWriteError` (the errno and how much was
+    written) if the disk refuses the rest."""
     view = memoryview(data)
+    written = 0
     while view:
-        n = os.pwrite(fd, view, at)
-        view, at = view[n:], at + n
+        try:
+            n = os.pwrite(fd, view, at)
+        except OSError as exc:
+            raise _ShortWriteError(exc.errno or 0, written) from None
+        view, at, written = view[n:], at + n, written + n
 
 
 def read_back(path: str | Path) -> tuple[int, str | None]:
@@ -366,6 +378,8 @@ def repair(path: str | Path, reason: str = "the recording process died") -> Repa
             out.error = out.error or "no MCAP header"
             return out
         size_cut = size - scan.end
+        lowest = scan.end            # the file is intact up to here
+        capacity: int | None = None  # the largest file a full disk allows, once known
         while True:
             marker = Metadata(name=CUT_METADATA, metadata={
                 "complete": "false", "reason": reason,
@@ -374,20 +388,33 @@ def repair(path: str | Path, reason: str = "the recording process died") -> Repa
                 else f"{out.last_sim_time_s:.6f}",
                 "cut_bytes": str(size - scan.end), "repaired_by": "tfl-mav mcaprepair"})
             tail = _summary(scan, scan.end, marker)
+            if capacity is not None and scan.end + len(tail) > capacity:
+                # a full disk: the summary needs more room than the cut freed; give up
+                # the newest chunks (bookkeeping only, nothing cut yet) until it fits
+                if not scan.chunk_indexes:
+                    # no room for even the smallest summary: keep every chunk that reads
+                    # (a stream reader still reads them: tfl-mav inspect, --recover)
+                    f.truncate(lowest)
+                    out.kept_bytes, out.cut_bytes = lowest, size - lowest
+                    out.error = (f"no room for a summary (disk full): the file reads as a "
+                                 f"stream up to byte {lowest} (`tfl-mav inspect {p} "
+                                 "--recover OUT.mcap`)")
+                    return out
+                _drop_last_chunk(scan)
+                out.last_sim_time_s = _last_sim_time(scan)
+                continue
             f.truncate(scan.end)
+            lowest = min(lowest, scan.end)
             try:
                 _write_at(f.fileno(), scan.end, tail)
                 os.fsync(f.fileno())
                 break
-            except OSError as exc:
-                # a full disk (or a file-size limit): the summary needs room the cut
-                # freed too little of; give up the newest chunks until it fits
-                if exc.errno not in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT) or \
-                        not scan.chunk_indexes:
-                    f.truncate(scan.end)
-                    raise
-                _drop_last_chunk(scan)
-                out.last_sim_time_s = _last_sim_time(scan)
+            except _ShortWriteError as exc:
+                f.truncate(scan.end)
+                if exc.errno not in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
+                    raise OSError(exc.errno, os.strerror(exc.errno)) from None
+                room = scan.end + exc.written - 4096     # a block's margin
+                capacity = room if capacity is None else min(capacity, room)
         out.messages = sum(scan.counts.values())
         out.chunks = len(scan.chunk_indexes)
         out.last_log_time_ns = scan.end_ns or None
