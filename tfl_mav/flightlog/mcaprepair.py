@@ -60,6 +60,11 @@ CUT_METADATA = "recording"
 (``complete`` = ``false``, ``reason``, ``last_log_time_ns``, ``last_sim_time_s``); a file
 closed normally has none."""
 
+MIN_KEPT = 0.9
+"""On a full disk, the newest chunks are given up to make room for the summary only while
+this share of the messages stays; else the file is left without one (a stream reader
+still reads it all) rather than readable by every reader but nearly empty."""
+
 _HEAD = struct.Struct("<BQ")                 # opcode, record length
 _MSG = struct.Struct("<HIQQ")                # channel id, sequence, log time, publish time
 _TIMED_TOPICS = ("/sim/truth/state", "/controller/state")   # records that carry t_s
@@ -379,6 +384,7 @@ def repair(path: str | Path, reason: str = "the recording process died") -> Repa
             return out
         size_cut = size - scan.end
         lowest = scan.end            # the file is intact up to here
+        natural_messages = sum(scan.counts.values())
         capacity: int | None = None  # the largest file a full disk allows, once known
         while True:
             marker = Metadata(name=CUT_METADATA, metadata={
@@ -391,10 +397,14 @@ def repair(path: str | Path, reason: str = "the recording process died") -> Repa
             if capacity is not None and scan.end + len(tail) > capacity:
                 # a full disk: the summary needs more room than the cut freed; give up
                 # the newest chunks (bookkeeping only, nothing cut yet) until it fits
-                if not scan.chunk_indexes:
-                    # no room for even the smallest summary: keep every chunk that reads
-                    # (a stream reader still reads them: tfl-mav inspect, --recover)
+                if not scan.chunk_indexes or (
+                        sum(scan.counts.values()) - sum(scan.chunk_counts[-1].values())
+                        < MIN_KEPT * natural_messages):
+                    # no room for a summary without giving up much of what was written:
+                    # keep every chunk that reads (a stream reader still reads them:
+                    # tfl-mav inspect, --recover)
                     f.truncate(lowest)
+                    out.messages = natural_messages
                     out.kept_bytes, out.cut_bytes = lowest, size - lowest
                     out.error = (f"no room for a summary (disk full): the file reads as a "
                                  f"stream up to byte {lowest} (`tfl-mav inspect {p} "
@@ -413,7 +423,7 @@ def repair(path: str | Path, reason: str = "the recording process died") -> Repa
                 f.truncate(scan.end)
                 if exc.errno not in (errno.ENOSPC, errno.EFBIG, errno.EDQUOT):
                     raise OSError(exc.errno, os.strerror(exc.errno)) from None
-                room = scan.end + exc.written - 4096     # a block's margin
+                room = scan.end + exc.written - 512     # a margin for the file system
                 capacity = room if capacity is None else min(capacity, room)
         out.messages = sum(scan.counts.values())
         out.chunks = len(scan.chunk_indexes)
