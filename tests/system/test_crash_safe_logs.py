@@ -306,15 +306,17 @@ def _mount_tmpfs(where: Path, size: str) -> bool:
 
 @pytest.mark.slow
 def test_fly_on_a_full_disk_exits_3_with_one_line_and_keeps_what_it_wrote(tmp_path):
-    """A real full disk (a 1 MiB tmpfs): ctl.mcap fills it, then --summary-json cannot be
-    written. fly exits 3 (link or file error, as --help says), one line on it, no
-    traceback, no 0-byte JSON, and ctl.mcap reads with make_reader."""
+    """A real full disk (a 2 MiB tmpfs). First ctl.mcap fills it: the recording stops, the
+    flight goes on, the file is repaired and reads with make_reader, fly exits 3 (link or
+    file error, as --help says) with one line on it. Then the disk is full before the
+    flight and only --summary-json goes there: exit 3, one line, no 0-byte JSON, no
+    temporary file left. Never a traceback or the writer's raw error text."""
     disk = tmp_path / "disk"
-    if not _mount_tmpfs(disk, "1m"):
+    if not _mount_tmpfs(disk, "2m"):
         pytest.skip("needs root to mount a tmpfs")
     try:
         run, ctl, fly_json = tmp_path / "run.mcap", disk / "ctl.mcap", disk / "fly.json"
-        sim, fly = _pair(tmp_path, 3.0, run, ctl, fly_json)
+        sim, fly = _pair(tmp_path, 8.0, run, ctl, fly_json)
         try:
             code = fly.wait(120)
             sim.wait(120)
@@ -325,11 +327,34 @@ def test_fly_on_a_full_disk_exits_3_with_one_line_and_keeps_what_it_wrote(tmp_pa
         assert code == 3, err[-2000:]
         assert "Traceback" not in err and "os error" not in err
         last = err.splitlines()[-1]
-        assert last.startswith("tfl-mav fly: --summary-json") and "No space left" in last
-        assert not fly_json.exists()
-        assert [p.name for p in disk.iterdir()] == ["ctl.mcap"]   # no temporary left
+        assert last.startswith(("tfl-mav fly: --mcap", "tfl-mav fly: --summary-json")), last
         n, read_error = read_back(ctl)
-        assert read_error is None and n > 100
+        assert read_error is None and n > 1000
         assert cut_short(log_metadata(ctl))["reason"].startswith("writing failed")
+        if fly_json.exists():       # written (the repair freed room): whole, and says so
+            rec = json.loads(fly_json.read_text())["recording"]
+            assert rec["write_error"] and rec["readable"] and not rec["complete"]
+
+        for f in disk.iterdir():
+            f.unlink()
+        filler = disk / "filler"
+        with open(filler, "wb") as fh, pytest.raises(OSError):
+            while True:             # the disk full to the last byte
+                fh.write(b"\0" * 65536)
+                fh.flush()
+        sim, fly = _pair(tmp_path, 2.0, tmp_path / "run2.mcap", tmp_path / "ctl2.mcap",
+                         fly_json)
+        try:
+            code = fly.wait(120)
+            sim.wait(120)
+        finally:
+            sim.close()
+            fly.close()
+        err = fly.stderr()
+        assert code == 3, err[-2000:]
+        assert "Traceback" not in err
+        last = err.splitlines()[-1]
+        assert last.startswith("tfl-mav fly: --summary-json") and "No space left" in last
+        assert sorted(p.name for p in disk.iterdir()) == ["filler"]   # no JSON, no temp
     finally:
         subprocess.run(["umount", str(disk)], check=False)

@@ -198,6 +198,11 @@ def run(args: argparse.Namespace) -> int:
               f"{result.stats.failsafes} failsafes, rejected "
               f"{sum(v for k, v in result.stats.link.items() if k not in _OK_COUNTERS)}"
               + _degraded(result.stats), file=sys.stderr)
+    recording = summary.get("recording") or {}
+    if not io_error and recording.get("write_error"):   # a full disk: a file error
+        io_error = (f"{prog}: --mcap {args.mcap}: the recording stopped on a write error; "
+                    + ("what was written reads" if recording.get("readable")
+                       else "`tfl-mav inspect --recover` saves what reads"))
     if io_error:
         print(io_error, file=sys.stderr)
         return EXIT_IO

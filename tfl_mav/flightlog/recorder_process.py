@@ -349,7 +349,8 @@ class RecorderProcess:
     @property
     def recording(self) -> dict[str, Any] | None:
         """How the file ended, for a run's summary (None without a file): ``path``,
-        ``complete`` (the child finished it after the last call), ``readable`` (by any MCAP
+        ``complete`` (the child finished it after the last call), ``write_error`` (the
+        recording stopped because a write failed: a full disk), ``readable`` (by any MCAP
         reader: True for a finished file, else the repair's read-back), and for a file cut
         short ``reason``, ``last_sim_time_s`` (where it now ends) and the ``repair``'s
         figures. Final after :meth:`close`."""
@@ -357,7 +358,8 @@ class RecorderProcess:
             return None
         out: dict[str, Any] = {"path": str(self.file_path),
                                "complete": self._done and not self._lost_seen
-                               and self._error is None}
+                               and self._error is None,
+                               "write_error": self._write_failed}
         rep = self._repair
         if out["complete"]:
             out["readable"] = True
