@@ -384,6 +384,12 @@ def _format(r: dict[str, Any]) -> str:
     if not r["complete"]:
         lines.append(f"  NOT FINISHED (read up to: {r['read_error'] or 'end of file'}); "
                      "`--recover OUT` writes a valid copy")
+    cut = r.get("cut_short")
+    if cut is not None:
+        at = cut.get("last_sim_time_s")
+        lines.append("  CUT SHORT: the recording ended before the flight"
+                     + (f", at sim t = {float(at):.3f} s" if at else "")
+                     + f" ({cut.get('reason', 'no reason recorded')})")
     fr = r["frames"]
     lines.append(f"  MAVLink frames: rx {fr['rx']} (rejected {fr['rx_rejected']}), "
                  f"tx {fr['tx']}")
