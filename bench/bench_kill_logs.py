@@ -212,7 +212,7 @@ def main() -> int:
     parser.add_argument("--n", type=int, default=20, help="kills per process (default 20)")
     parser.add_argument("--duration", type=float, default=8.0,
                         help="sim seconds per flight (default 8)")
-    parser.add_argument("--window", type=float, default=1.6,
+    parser.add_argument("--window", type=float, default=2.4,
                         help="kill within this many wall seconds of the flight's start")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--targets", default=",".join(TARGETS))

@@ -358,3 +358,30 @@ def test_fly_on_a_full_disk_exits_3_with_one_line_and_keeps_what_it_wrote(tmp_pa
         assert sorted(p.name for p in disk.iterdir()) == ["filler"]   # no JSON, no temp
     finally:
         subprocess.run(["umount", str(disk)], check=False)
+
+
+_DIES_STARTING = textwrap.dedent("""
+    import os, threading, time
+    from tfl_mav.flightlog.recorder_process import RecorderProcess
+
+    if __name__ == "__main__":
+        threading.Timer(0.05, lambda: os._exit(0)).start()   # gone while the child starts
+        RecorderProcess({path!r}, timeline="sim")
+        time.sleep(60)
+""")
+
+
+@pytest.mark.slow
+def test_a_flight_process_killed_while_its_recorder_starts_leaves_no_traceback(tmp_path):
+    path = tmp_path / "run.mcap"
+    script = tmp_path / "parent.py"
+    script.write_text(_DIES_STARTING.format(path=str(path)))
+    with open(tmp_path / "stderr", "w") as err:
+        subprocess.run([sys.executable, str(script)], stderr=err, timeout=60, cwd=REPO)
+    deadline = time.monotonic() + 30.0
+    while read_back(path)[1] is not None:       # the orphaned child finishes the file
+        assert time.monotonic() < deadline, read_back(path)
+        time.sleep(0.1)
+    time.sleep(0.5)                             # and exits, having said all it says
+    assert "Traceback" not in (tmp_path / "stderr").read_text()
+    assert cut_short(log_metadata(path))["reason"].startswith("the flight process ended")

@@ -135,22 +135,27 @@ def _child_loop(conn: Connection, results: Connection, path: str | None,
     try:
         rec = Recorder(path, clock=lambda: now[0], **kwargs)
     except (OSError, ValueError) as exc:
-        results.send(("fail", isinstance(exc, OSError), str(exc)))
+        with contextlib.suppress(OSError):      # a parent already gone hears nothing
+            results.send(("fail", isinstance(exc, OSError), str(exc)))
         return
-    results.send(("ok",))
     reported = False
     orphaned = False
     try:
-        while True:
+        try:
+            results.send(("ok",))
+        except OSError:                 # the parent died while this child started
+            orphaned = True
+        while not orphaned:
             try:
                 data = conn.recv_bytes()
-            except EOFError:            # the parent is gone: finish the file anyway
-                orphaned = True
+            except (EOFError, OSError):     # the parent is gone (perhaps mid-message):
+                orphaned = True             # finish the file anyway
                 break
             if not handle_batch(rec, data, now):
                 break
             if rec.error and not reported:
-                results.send(("error", rec.error))
+                with contextlib.suppress(OSError):
+                    results.send(("error", rec.error))
                 reported = True
     finally:
         if orphaned:        # the file ends where the flight's process did: say so in it
