@@ -208,8 +208,7 @@ def _one_flight(args: argparse.Namespace, scenario: Scenario, listen: Address,
             recorder.close()
             if recorder.error:   # the flight went on (flight before logging); say so
                 print(f"{prog}: --mcap {mcap}: recording stopped early: "
-                      f"{recorder.error}; the file holds what was flushed "
-                      "(`tfl-mav inspect --recover` makes it whole)", file=sys.stderr)
+                      f"{recorder.error}", file=sys.stderr)
 
 
 def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
