@@ -39,7 +39,7 @@ from tfl_mav.flightlog.from_mcap import (
     truth_parts,
 )
 from tfl_mav.flightlog.logread import LogReader, recover
-from tfl_mav.flightlog.mcaprepair import cut_short
+from tfl_mav.flightlog.mcaprepair import cut_short, read_back
 from tfl_mav.flightlog.metrics import converged, detection, saturated_fraction
 from tfl_mav.flightlog.polyline import Polyline
 from tfl_mav.flightlog.protos import frames_fields
@@ -67,7 +67,13 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.recover:
             n, err = recover(args.mcap, args.recover)
-            msg = f"recovered {n} messages into {args.recover}"
+            # proved by reading it back with the standard reader, not by our own word
+            n_back, bad = read_back(args.recover)
+            if bad is not None or n_back != n:
+                print(f"tfl-mav inspect: --recover {args.recover}: the copy does not read "
+                      f"back ({bad or f'{n_back} of {n} messages'})", file=sys.stderr)
+                return 3
+            msg = f"recovered {n} messages into {args.recover} (read back whole)"
             msg += f" (input ends early: {err})" if err else " (input was complete)"
             print(msg, file=sys.stderr if args.json else sys.stdout)
         report = inspect_log(args.mcap)
