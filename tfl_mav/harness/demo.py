@@ -236,6 +236,9 @@ def _follow(fly: subprocess.Popen[str], duration: float, show: bool) -> str:
                 drawn = tty
         else:
             other.append(line)
+            if show and "recording cut short" in line:   # said at once, not at the end
+                print(("\n" if drawn else "") + line.rstrip(), file=sys.stderr, flush=True)
+                drawn = False
     if drawn:
         print(file=sys.stderr)
     return "".join(other)
