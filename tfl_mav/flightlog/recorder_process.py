@@ -22,7 +22,8 @@ child reads end-of-file and *finishes* the file. Queued calls reach the child wi
 and SIGTERM so a Ctrl-C or ``kill`` of the process group still lets the parent close it.
 It runs at a lower priority than the flight (:mod:`~tfl_mav.flightlog.child_priority`).
 
-Backpressure: if the queue grows past ``batch_max`` × 8 calls (the sender thread starved),
+Backpressure: if the queue grows past ``batch_max`` × :data:`BACKLOG_BATCHES` calls (the
+sender thread starved),
 the flight thread sends inline; if the child falls behind, the pipe fills and the flight
 process waits. Not in real time (``realtime=True``): there the flight thread only ever
 appends, and past ``batch_max`` × 64 queued calls drops them (counted in ``dropped``) — a
@@ -69,6 +70,13 @@ lockstep flight's backpressure makes it wait ~10 ms; a child starved by other pr
 waits seconds), and an idle child is promoted (:mod:`~tfl_mav.flightlog.child_priority`)."""
 _POLL_MS = 50                   # how often a waiting send reports how long it has waited
 
+
+BACKLOG_BATCHES = 2
+"""Calls queued in the flight process (in batches of ``batch_max``) before its own thread
+sends them: what a SIGKILL of the flight process can lose besides a batch being written.
+At ~3 calls a tick, 2 × 512 calls are ~0.35 s of a flight (8 lost up to 1.4 s when a
+loaded machine starved the sender thread); an idle sender sends ~100 calls every
+``batch_s``, so the flight thread sends only when starved."""
 
 _REPAIR_TIMEOUT_S = 600.0      # a repair reads the whole file: ~1 min for a 1 GB log
 
@@ -258,7 +266,7 @@ class RecorderProcess:
         self.last_bad_input: str | None = None
         self._error: str | None = None
         self._batch_s = batch_s
-        self._backlog_max = 8 * batch_max
+        self._backlog_max = BACKLOG_BATCHES * batch_max
         # Real time: the flight thread never waits for the child; past this many
         # queued calls (seconds of a 1 kHz flight) new ones are dropped and counted.
         self._realtime_max = 64 * batch_max if realtime else 0
@@ -357,8 +365,8 @@ class RecorderProcess:
         ``complete`` (the child finished it after the last call), ``write_error`` (the
         recording stopped because a write failed: a full disk), ``readable`` (by any MCAP
         reader: True for a finished file, else the repair's read-back), and for a file cut
-        short ``reason``, ``last_sim_time_s`` (where it now ends) and the ``repair``'s
-        figures. Final after :meth:`close`."""
+        short ``reason``, ``last_sim_time_s`` (where it now ends), ``died_at_sim_s`` (sim
+        time of the last call the child took, if it died) and the ``repair``'s figures. Final after :meth:`close`."""
         if self.file_path is None:
             return None
         out: dict[str, Any] = {"path": str(self.file_path),
@@ -370,6 +378,8 @@ class RecorderProcess:
             out["readable"] = True
             return out
         out["reason"] = self._error or "unknown"
+        if self._lost_seen:     # where the flight was when its recorder died
+            out["died_at_sim_s"] = self._sent_sim_s
         if rep is not None:
             out.update(readable=bool(rep.get("readable")),
                        last_sim_time_s=rep.get("last_sim_time_s"),
