@@ -199,7 +199,8 @@ def one_run(target: str, delay_s: float, duration_s: float, tmp: Path) -> dict[s
         says = meta_cut is not None
     return {"target": target, "delay_s": round(delay_s, 3), "exit_codes": codes,
             "run": run, "ctl": ctl, "kill_sim_time_s": t_kill_sim, "kill_time_from": how,
-            "lost_s": lost, "lost_by_progress_s": lost_progress, "said_after_s": said_s, "summary_recording": recording,
+            "lost_s": lost, "lost_by_progress_s": lost_progress, "said_after_s": said_s,
+            "summary_recording": recording,
             "file_says_cut": meta_cut, "says_so": says}
 
 
@@ -252,12 +253,14 @@ def main() -> int:
         unreadable = sum((not r["run"]["readable"]) + (not r["ctl"]["readable"]) for r in rs)
         lost = [r["lost_s"] for r in rs if r["lost_s"] is not None]
         said = [r["said_after_s"] for r in rs if r["said_after_s"] is not None]
+        by_progress = [r["lost_by_progress_s"] for r in rs
+                       if r["lost_by_progress_s"] is not None]
         print(f"  {target:13s} {len(rs):4d} {unreadable:10d} "
               f"{_fmt(max(lost) if lost else None):>10s} "
               f"{_fmt(statistics.median(lost) if lost else None):>13s} "
               f"{sum(r['says_so'] for r in rs):4d}/{len(rs):<2d} "
               f"{_fmt(max(said) if said else None):>16s} "
-              f"{_fmt(max(lp) if (lp := [r['lost_by_progress_s'] for r in rs if r['lost_by_progress_s'] is not None]) else None):>27s}")
+              f"{_fmt(max(by_progress) if by_progress else None):>27s}")
     if args.json:
         Path(args.json).write_text(json.dumps(runs, indent=2))
     return 0

@@ -366,7 +366,8 @@ class RecorderProcess:
         recording stopped because a write failed: a full disk), ``readable`` (by any MCAP
         reader: True for a finished file, else the repair's read-back), and for a file cut
         short ``reason``, ``last_sim_time_s`` (where it now ends), ``died_at_sim_s`` (sim
-        time of the last call the child took, if it died) and the ``repair``'s figures. Final after :meth:`close`."""
+        time of the last call the child took, if it died) and the ``repair``'s figures.
+        Final after :meth:`close`."""
         if self.file_path is None:
             return None
         out: dict[str, Any] = {"path": str(self.file_path),
