@@ -154,6 +154,8 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
     log.duration_s = duration
     log.interrupted = interrupted
     m = summarize(log)
+    if len(log["t_s"]) == 0:      # no sample (a log cut before the flight): no number
+        m.update({k: None for k in _NUMBERS if k not in m}, wall_time_s=round(wall, 3))
     m.update(flight_verdict(log, bound_m=bound_m, window_s=window_s))
     if interrupted:
         m["signal"] = signal.Signals(children.signals[0]).name
@@ -183,6 +185,11 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
         raise RuntimeError(f"cannot write {out / 'summary.json'}: "
                            f"{exc.strerror or exc}") from None
     return m
+
+
+_NUMBERS = ("final_path_distance_m", "max_path_distance_last_10s_m",
+            "rms_path_distance_last_10s_m", "thrust_min_n", "thrust_max_n",
+            "saturated_fraction", "max_yaw_rate_radps", "detected_rotor", "false_alarms")
 
 
 class _Say:
