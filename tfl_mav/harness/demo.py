@@ -161,6 +161,9 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
         m["signal"] = signal.Signals(children.signals[0]).name
     m.update(_detection_extras(scenario, m, log))
     m.update(_traffic_metrics(run_mcap, ctl_mcap, fly_summary))
+    if m.get("log_cut_short") and fly_summary.get("sim_time_s") is not None:
+        # the flight went on past the end of its log: flown is the controller's account
+        m["log_sim_time_s"], m["sim_time_s"] = m["sim_time_s"], fly_summary["sim_time_s"]
     m["real_time_factor"] = round(m["sim_time_s"] / wall, 2) if wall else None
     m["out_dir"] = str(out)
     phases = {"flight": round(wall, 3), "report": round(time.perf_counter() - t1, 3)}
