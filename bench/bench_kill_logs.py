@@ -3,9 +3,9 @@ much is lost, and does the run say so?
 
 A lockstep flight as ``tfl-mav demo`` flies it: ``tfl-mav sim --mcap run.mcap --json`` and
 ``tfl-mav fly --mcap ctl.mcap --summary-json --progress``, each recording in a child
-process (``RecorderProcess``). At a random moment of the flight (uniform over its first
-``--window`` wall seconds after the first progress line) one of four processes gets
-SIGKILL:
+process (``RecorderProcess``). At a random moment of the flight (a random whole sim second
+between 1 and the duration − 2, as the fly's progress line for it arrives, then a random
+0 to ``--window`` wall seconds more) one of four processes gets SIGKILL:
 
 * ``sim`` or ``fly`` (the flight process): its recorder child reads end-of-file and
   finishes the file, marking it cut short (``recording`` metadata). The survivor is
@@ -120,8 +120,10 @@ def _wait_gone(pid: int | None, timeout_s: float) -> bool:
     return False
 
 
-def one_run(target: str, delay_s: float, duration_s: float, tmp: Path) -> dict[str, Any]:
-    """Fly, SIGKILL ``target`` ``delay_s`` wall seconds after the first progress line."""
+def one_run(target: str, at_s: int, delay_s: float, duration_s: float,
+            tmp: Path) -> dict[str, Any]:
+    """Fly, SIGKILL ``target`` ``delay_s`` wall seconds after the progress line of sim
+    second ``at_s``."""
     run_mcap, ctl_mcap = tmp / "run.mcap", tmp / "ctl.mcap"
     sim_json, fly_json = tmp / "sim.json", tmp / "fly.json"
     for f in (run_mcap, ctl_mcap, sim_json, fly_json):
@@ -135,8 +137,8 @@ def one_run(target: str, delay_s: float, duration_s: float, tmp: Path) -> dict[s
         fly = Proc(["fly", "paper", "--vehicle", f"127.0.0.1:{m.group(2)}", "--mcap",
                     str(ctl_mcap), "--summary-json", str(fly_json), "--progress", *common],
                    new_session=True)
-        t_start, _ = fly.wait_for(_PROGRESS, 60.0)
-        time.sleep(max(0.0, t_start + delay_s - time.monotonic()))
+        t_line, _ = fly.wait_for(rf"^progress {at_s}\.", 120.0)
+        time.sleep(max(0.0, t_line + delay_s - time.monotonic()))
         parent = sim if target.startswith("sim") else fly
         victim = recorder_child(parent.pid) if target.endswith("recorder") else parent.pid
         children = {p.pid: recorder_child(p.pid) for p in (sim, fly)}
@@ -197,7 +199,8 @@ def one_run(target: str, delay_s: float, duration_s: float, tmp: Path) -> dict[s
                 and recording.get("complete") is False)
     else:
         says = meta_cut is not None
-    return {"target": target, "delay_s": round(delay_s, 3), "exit_codes": codes,
+    return {"target": target, "at_s": at_s, "delay_s": round(delay_s, 3),
+            "exit_codes": codes,
             "run": run, "ctl": ctl, "kill_sim_time_s": t_kill_sim, "kill_time_from": how,
             "lost_s": lost, "lost_by_progress_s": lost_progress, "said_after_s": said_s,
             "summary_recording": recording,
@@ -221,8 +224,9 @@ def main() -> int:
     parser.add_argument("--n", type=int, default=20, help="kills per process (default 20)")
     parser.add_argument("--duration", type=float, default=8.0,
                         help="sim seconds per flight (default 8)")
-    parser.add_argument("--window", type=float, default=2.4,
-                        help="kill within this many wall seconds of the flight's start")
+    parser.add_argument("--window", type=float, default=0.25,
+                        help="kill up to this many wall seconds after a sim second's "
+                             "progress line (default 0.25)")
     parser.add_argument("--seed", type=int, default=1)
     parser.add_argument("--targets", default=",".join(TARGETS))
     parser.add_argument("--json", metavar="FILE", help="also write every run as JSON")
@@ -233,7 +237,9 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         for i in range(args.n):
             for target in targets:
-                r = one_run(target, rng.uniform(0.05, args.window), args.duration, Path(tmp))
+                at = rng.randrange(1, max(2, int(args.duration) - 1))
+                r = one_run(target, at, rng.uniform(0.0, args.window), args.duration,
+                            Path(tmp))
                 runs.append(r)
                 print(f"  {i + 1:2d} {target:13s} " + (
                     r.get("skipped") or
