@@ -50,6 +50,7 @@ from tfl_mav.controller.software import (
     software_name,
     tick_result,
 )
+from tfl_mav.flightlog.metrics import detection_events, law_report
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
 from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
@@ -167,6 +168,10 @@ class FlightArrays:
     detection_time_s: float
     events: tuple[tuple[float, str], ...] = ()
     log: Any = field(default=None, repr=False)   # the FlightLog behind it (summaries, plots)
+    time_in_law_s: dict[str, float] = field(default_factory=dict)   # tfl, recovery, …
+    law_switches: int = 0                  # switches between TFL and the safe law
+    detections: tuple[tuple[float, int], ...] = ()   # every detection (time s, rotor 1-4)
+    releases: tuple[tuple[float, int], ...] = ()     # every release (time s, rotor 1-4)
 
     @property
     def failed(self) -> bool:
@@ -310,9 +315,11 @@ def _arrays(log: Any, sc: Scenario, name: str, failure: str | None) -> FlightArr
     detected = (np.asarray(log.detected_rotor, dtype=int) if log.detected_rotor is not None
                 and len(log.detected_rotor) == n else np.zeros(n, dtype=int))
     position = series("position_m", 3)
-    det_times = [t for t, text in log.events if text.startswith("attack detected on rotor")]
+    t = series("t_s", 1)
+    laws = law_report(t, series("mode", 1), detected if n else None)
+    detections, releases = detection_events(t, detected)
     return FlightArrays(
-        t_s=series("t_s", 1), position_m=position, quaternion_wxyz=series("quaternion_wxyz", 4),
+        t_s=t, position_m=position, quaternion_wxyz=series("quaternion_wxyz", 4),
         velocity_mps=series("velocity_mps", 3), body_rates_radps=series("body_rates_radps", 3),
         thrust_cmd_n=series("thrust_cmd_n", 4), thrust_true_n=series("thrust_true_n", 4),
         attack_true_n=series("attack_true_n", 1), mode=series("mode", 1).astype(int),
@@ -321,5 +328,7 @@ def _arrays(log: Any, sc: Scenario, name: str, failure: str | None) -> FlightArr
         crash_reason=log.crash_reason, failure_reason=failure, software=name,
         attack_rotor=sc.attack.rotor,
         attack_start_s=sc.attack.start_s if sc.attack.rotor else math.nan,
-        detection_time_s=det_times[0] if det_times else math.nan,
-        events=tuple(log.events), log=log)
+        detection_time_s=detections[0][0] if detections else math.nan,
+        events=tuple(log.events), log=log, time_in_law_s=laws["time_in_law_s"],
+        law_switches=laws["law_switches"], detections=tuple(detections),
+        releases=tuple(releases))

@@ -16,6 +16,8 @@ import dataclasses
 
 from tfl_mav.control.detect.detector import AttackDetector, DetectorConfig
 from tfl_mav.control.path.paths import Path, build_path
+from tfl_mav.control.spin.law import build as build_spin_law
+from tfl_mav.control.spin.step import SpinParams
 from tfl_mav.control.tfl.law import LawConfig, ModelParams, TFLController
 from tfl_mav.scenario import Scenario, ScenarioError
 
@@ -56,9 +58,16 @@ def scenario_path(sc: Scenario) -> Path:
             from None
 
 
-def build_controller(sc: Scenario) -> TFLController:
-    return TFLController(model_params(sc), scenario_path(sc), law_config(sc),
-                         sc.run.control_dt_s)
+def build_controller(sc: Scenario, *, speed_mps: float | None = None) -> TFLController:
+    """The scenario's TFL law; ``speed_mps``: the path speed to fly when it is not the
+    scenario's (the highest feasible one). With motor lag the law's inverse filters the ESC
+    noise the detector assumes."""
+    cfg = law_config(sc)
+    if speed_mps is not None and speed_mps != cfg.speed_mps:
+        cfg = dataclasses.replace(cfg, speed_mps=speed_mps)
+    ctrl = TFLController(model_params(sc), scenario_path(sc), cfg, sc.run.control_dt_s,
+                         rpm_noise_std=detector_config(sc).rpm_noise_std)
+    return ctrl
 
 
 def detector_config(sc: Scenario) -> DetectorConfig:
@@ -72,3 +81,12 @@ def build_detector(sc: Scenario) -> AttackDetector:
     v = sc.vehicle
     return AttackDetector(v.k_f, v.thrust_max_n, v.motor_time_constant_s, sc.run.control_dt_s,
                           detector_config(sc))
+
+
+def spin_params_for(sc: Scenario, rotor: int | None = None) -> SpinParams:
+    """The spin law for scenario ``sc``: its attacked rotor, the controller's model (mass and
+    inertia scales), its motor lag model and its control period."""
+    v, c = sc.vehicle, sc.controller
+    return build_spin_law(v, rotor or sc.attack.rotor, sc.run.control_dt_s,
+                 mass_scale=c.model_mass_scale, inertia_scale=c.model_inertia_scale,
+                 motor_time_constant_s=c.motor_time_constant_scale * v.motor_time_constant_s)

@@ -24,6 +24,7 @@ from tfl_mav.control.detect.detector import DetectorConfig
 
 __all__ = [
     "AttackConfig",
+    "AttackPhase",
     "ControllerConfig",
     "InitialConfig",
     "PathConfig",
@@ -32,11 +33,16 @@ __all__ = [
     "ScenarioError",
     "SensorConfig",
     "VehicleConfig",
+    "WindConfig",
     "apply_overrides",
     "builtin_scenarios",
     "load_scenario",
     "scenario_from_dict",
 ]
+
+
+MAX_ESC_RPM = 65535
+"""The largest rotor speed ESC_TELEMETRY_1_TO_4 can report (its rpm field is uint16)."""
 
 
 class ScenarioError(ValueError):
@@ -61,19 +67,41 @@ def _f(default: Any, unit: str = "", *, lo: float | None = None, hi: float | Non
 class VehicleConfig:
     """The true vehicle (the plant). Paper §VI values; d, k_t, k_r are the paper's unstated ones."""
 
-    mass_kg: float = _f(1.1, "kg", lo=0.0, lo_open=True)
+    mass_kg: float = _f(1.1, "kg", lo=0.0, lo_open=True, hi=1000.0)
     inertia_kgm2: tuple[float, float, float] = _f(
-        (0.0020066, 0.0020038, 0.0013323), "kg m^2", lo=0.0, lo_open=True, length=3,
+        (0.0020066, 0.0020038, 0.0013323), "kg m^2", lo=0.0, lo_open=True, hi=1000.0, length=3,
         doc="diagonal of J in body axes (Ix, Iy, Iz)")
-    arm_m: float = _f(0.2656, "m", lo=0.0, lo_open=True, doc="rotor distance from the CG, l")
-    drag_thrust_ratio_m: float = _f(0.016, "m", lo=0.0, lo_open=True, doc="d in the mixer")
-    k_t: float = _f(0.05, "N s/m", lo=0.0, doc="translational drag")
-    k_r: float = _f(2.75e-3, "N m s/rad", lo=0.0, doc="rotational drag")
-    thrust_max_n: float = _f(8.0, "N", lo=0.0, lo_open=True, doc="per-rotor thrust limit")
-    k_f: float = _f(8.0e-6, "N/(rad/s)^2", lo=0.0, lo_open=True, doc="f = k_f w^2")
+    arm_m: float = _f(0.2656, "m", lo=0.0, lo_open=True, hi=10.0,
+                      doc="rotor distance from the CG, l")
+    drag_thrust_ratio_m: float = _f(0.016, "m", lo=0.0, lo_open=True, hi=1.0,
+                                    doc="d in the mixer")
+    k_t: float = _f(0.05, "N s/m", lo=0.0, hi=1000.0, doc="translational drag")
+    k_r: float = _f(2.75e-3, "N m s/rad", lo=0.0, hi=100.0, doc="rotational drag")
+    thrust_max_n: float = _f(8.0, "N", lo=0.0, lo_open=True, hi=10000.0,
+                             doc="per-rotor thrust limit")
+    k_f: float = _f(8.0e-6, "N/(rad/s)^2", lo=0.0, lo_open=True, hi=1.0, doc="f = k_f w^2")
     motor_time_constant_s: float = _f(0.0, "s", lo=0.0, hi=1.0, doc="lag on w; 0 = none")
     rpm_noise_std: float = _f(0.0, "rpm", lo=0.0, hi=1000.0, doc="ESC rpm measurement noise")
-    gravity_mps2: float = _f(9.81, "m/s^2", lo=0.0, lo_open=True)
+    gravity_mps2: float = _f(9.81, "m/s^2", lo=0.0, lo_open=True, hi=100.0)
+    # Rotor aerodynamics in moving air (tfl_mav.sim.physics.RotorAeroParams). The defaults
+    # are RotorPy's AscTec Hummingbird (rotorpy/vehicles/hummingbird_params.py: k_d 1.19e-4,
+    # k_z 2.32e-4, k_h 3.39e-3, c_D 0.5e-2/0.5e-2/1e-2, k_eta 5.57e-6, arm 0.17 m) scaled to
+    # this airframe: rotors of the same family with k_f/k_eta = 1.436 have a radius
+    # (k_f/k_eta)^1/4 as large, so k_d, k_z (∝ ρ A R) scale by (k_f/k_eta)^3/4 = 1.312 and
+    # k_h (∝ ρ A) by (k_f/k_eta)^1/2 = 1.198; the frame's drag by its area, (0.2656/0.17)².
+    rotor_aero: bool = _f(False, doc="rotor drag, inflow, lift and frame drag (off: paper)")
+    rotor_drag_coeff: float = _f(1.56e-4, "N/((rad/s)(m/s))", lo=0.0,
+                                 doc="k_d: H-force per rotor speed and in-plane airspeed")
+    rotor_inflow_coeff: float = _f(3.04e-4, "N/((rad/s)(m/s))", lo=0.0,
+                                   doc="k_z: induced-inflow drag along the rotor axis")
+    translational_lift_coeff: float = _f(4.06e-3, "N/(m/s)^2", lo=0.0,
+                                         doc="k_h: thrust gained per in-plane airspeed squared")
+    parasitic_drag_coeff: tuple[float, float, float] = _f(
+        (1.22e-2, 1.22e-2, 2.44e-2), "N/(m/s)^2", lo=0.0, length=3,
+        doc="frame drag c_D along b1, b2, b3")
+    rotor_inertia_kgm2: float = _f(0.0, "kg m^2", lo=0.0, hi=0.01,
+                                   doc="J_r of each rotor (with rotor_aero: spin-up reaction "
+                                       "and gyroscopic torque); 0 = off; OS4's is 6e-5")
 
     @property
     def omega_max_radps(self) -> float:
@@ -96,6 +124,59 @@ ATTACK_SIGNALS = ("paper", "constant", "step", "ramp", "sine", "stuck", "off")
 
 
 @dataclass(frozen=True)
+class AttackPhase:
+    """One phase of an attack schedule (``[[attack.phases]]``): from ``start_s`` the attacker
+    holds ``rotor`` (1-4; 0 = lets go) with ``signal`` (as ``attack.signal``; ``tau`` restarts
+    at the phase's start). The signals' own keys (``value_n``, ``rate_nps``, …) are the
+    section's."""
+
+    rotor: int
+    signal: str
+    start_s: float
+
+
+_PHASE_KEYS = ("rotor", "signal", "start_s")
+
+
+def _phases(value: Any, key: str = "attack.phases") -> tuple[AttackPhase, ...]:
+    """``[[attack.phases]]`` checked (each key, start times increasing) into phases."""
+    if isinstance(value, tuple) and all(isinstance(p, AttackPhase) for p in value):
+        return value
+    if not isinstance(value, (list, tuple)):
+        raise ScenarioError(key, f"must be a list of tables ([[attack.phases]]), got "
+                                 f"{type(value).__name__}")
+    out = []
+    for i, table in enumerate(value):
+        at = f"{key}[{i}]"
+        if isinstance(table, AttackPhase):
+            table = dataclasses.asdict(table)
+        if not isinstance(table, dict):
+            raise ScenarioError(at, f"must be a table with {', '.join(_PHASE_KEYS)}, "
+                                    f"got {table!r}")
+        unknown = sorted(set(table) - set(_PHASE_KEYS))
+        if unknown:
+            raise ScenarioError(f"{at}.{unknown[0]}", f"unknown key (known keys: "
+                                                      f"{', '.join(_PHASE_KEYS)})")
+        missing = [k for k in _PHASE_KEYS if k not in table and k != "signal"]
+        if missing:
+            raise ScenarioError(f"{at}.{missing[0]}", "missing (every phase says which rotor "
+                                                      "from when)")
+        rotor = _check_number(f"{at}.rotor", table["rotor"],
+                              {"lo": 0, "hi": 4, "lo_open": False, "unit": ""}, True)
+        start = _check_number(f"{at}.start_s", table["start_s"],
+                              {"lo": 0.0, "hi": None, "lo_open": False, "unit": "s"}, False)
+        signal = table.get("signal", "paper")
+        if not isinstance(signal, str):
+            raise ScenarioError(f"{at}.signal", f"must be a string, got {signal!r}")
+        _check_signal(f"{at}.signal", signal)
+        if out and start <= out[-1].start_s:
+            raise ScenarioError(f"{at}.start_s", f"must be after the previous phase's "
+                                                 f"({out[-1].start_s:g} s), got {start:g}")
+        out.append(AttackPhase(int(rotor), signal, float(start)))
+    return tuple(out)
+
+
+@dataclass(frozen=True)
 class AttackConfig:
     """Which rotor the attacker seizes, from when, and the thrust it forces.
 
@@ -115,6 +196,19 @@ class AttackConfig:
     amplitude_n: float = _f(1.0, "N", doc="sine amplitude")
     frequency_hz: float = _f(0.5, "Hz", lo=0.0, doc="sine frequency")
     offset_n: float = _f(2.0, "N", doc="sine offset")
+    phases: tuple[AttackPhase, ...] = _f(
+        (), doc="[[attack.phases]] (rotor, signal, start_s): an attacker that moves between "
+                "rotors; when given, it replaces rotor/start_s/signal")
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "phases", _phases(self.phases))
+
+    @property
+    def first_rotor(self) -> int:
+        """The first rotor attacked (the schedule's first phase that holds one)."""
+        if self.phases:
+            return next((p.rotor for p in self.phases if p.rotor), 0)
+        return self.rotor
 
 
 @dataclass(frozen=True)
@@ -133,6 +227,8 @@ class ControllerConfig:
     model_mass_scale: float = _f(1.02, lo=0.5, hi=2.0, doc="model mass = scale * true mass")
     model_inertia_scale: float = _f(1.1, lo=0.5, hi=2.0, doc="model J = scale * true J")
     law: str = _f("robust", doc="'paper' (plain law) or 'robust' (estimators + gain switch)")
+    supervisor: str = _f("auto", doc="which law flies: 'auto' (TFL where it holds the path, "
+                                     "the safe law where it cannot), 'tfl' or 'safe' alone")
     xi_pole: float = _f(-2.5, "1/s", hi=0.0, lo_open=False, doc="repeated pole of the xi chain")
     eta_pole: float = _f(-2.0, "1/s", hi=0.0, doc="repeated pole of the eta chain")
     xi_pole_fine: float = _f(-4.0, "1/s", hi=0.0, doc="robust: xi pole after settling")
@@ -158,6 +254,41 @@ class SensorConfig:
     rate_noise_std_radps: float = _f(0.0, "rad/s", lo=0.0)
     gyro_range_radps: float = _f(0.0, "rad/s", lo=0.0, hi=1000.0,
                                  doc="measured rates clip at ± this (34.9 = 2000 deg/s); 0 = off")
+    model: str = _f("ideal", doc="'ideal' (the state + the noise above) or 'realistic' (IMU, "
+                                 "GPS, baro, mag fused onboard by an error-state EKF)")
+    gps_hz: float = _f(10.0, "Hz", lo=1.0, hi=50.0, doc="realistic: GPS fix rate")
+    gps_latency_s: float = _f(0.1, "s", lo=0.0, hi=1.0, doc="realistic: fix delivered this late")
+    gps_position_noise_std_m: float = _f(0.02, "m", lo=0.0, lo_open=True, hi=10.0,
+                                         doc="realistic: horizontal (vertical 1.5x); "
+                                             "0.02 = RTK")
+    gps_velocity_noise_std_mps: float = _f(0.05, "m/s", lo=0.0, lo_open=True, hi=5.0,
+                                           doc="realistic: GPS velocity noise")
+
+
+TURBULENCE_LEVELS = ("none", "light", "moderate", "severe")
+SENSOR_MODELS = ("ideal", "realistic")
+
+
+@dataclass(frozen=True)
+class WindConfig:
+    """The air the vehicle flies in, paper frame (z up), m/s: a mean wind, Dryden turbulence
+    (MIL-F-8785C / MIL-HDBK-1797 low-altitude scales and intensities, seeded by ``run.seed``)
+    and one discrete 1 − cos gust (``tfl_mav.sim.wind``). Every aerodynamic force acts on the
+    velocity relative to this air."""
+
+    mean_mps: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "m/s", length=3, lo=-50.0,
+                                              hi=50.0, doc="mean wind, paper frame")
+    turbulence: str = _f("none", doc="none | light | moderate | severe (Dryden)")
+    gust_mps: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "m/s", length=3, lo=-50.0,
+                                              hi=50.0, doc="1 - cos gust: peak air velocity")
+    gust_start_s: float = _f(0.0, "s", lo=0.0)
+    gust_duration_s: float = _f(0.0, "s", lo=0.0, hi=3600.0, doc="0 = no gust")
+
+    @property
+    def active(self) -> bool:
+        """Whether the air moves at all (still air keeps the still-air physics step)."""
+        return (any(c != 0.0 for c in self.mean_mps) or self.turbulence != "none"
+                or (self.gust_duration_s > 0.0 and any(c != 0.0 for c in self.gust_mps)))
 
 
 @dataclass(frozen=True)
@@ -196,6 +327,7 @@ class Scenario:
     sensors: SensorConfig = field(default_factory=SensorConfig)
     run: RunConfig = field(default_factory=RunConfig)
     detector: DetectorConfig = field(default_factory=DetectorConfig)
+    wind: WindConfig = field(default_factory=WindConfig)
     source: str = "<defaults>"
 
     def replace(self, **sections: Any) -> Scenario:
@@ -236,6 +368,7 @@ _SECTIONS: dict[str, type] = {
     "sensors": SensorConfig,
     "run": RunConfig,
     "detector": DetectorConfig,
+    "wind": WindConfig,
 }
 
 
@@ -249,10 +382,14 @@ def _check_number(key: str, value: Any, meta: dict[str, Any], integer: bool) -> 
         raise ScenarioError(key, f"must be finite, got {value!r}")
     lo, hi, unit = meta["lo"], meta["hi"], meta["unit"]
     u = f" {unit}" if unit else ""
-    if lo is not None and (value <= lo if meta["lo_open"] else value < lo):
-        rel = ">" if meta["lo_open"] else ">="
-        raise ScenarioError(key, f"must be {rel} {lo}{u}, got {value!r}")
-    if hi is not None and value > hi:
+    too_low = lo is not None and (value <= lo if meta["lo_open"] else value < lo)
+    if too_low or (hi is not None and value > hi):
+        if lo is not None and hi is not None:   # say the whole accepted range
+            raise ScenarioError(key, f"must be in {'(' if meta['lo_open'] else '['}{lo:g}, "
+                                     f"{hi:g}]{u}, got {value!r}")
+        if too_low:
+            rel = ">" if meta["lo_open"] else ">="
+            raise ScenarioError(key, f"must be {rel} {lo}{u}, got {value!r}")
         raise ScenarioError(key, f"must be <= {hi}{u}, got {value!r}")
     return int(value) if integer else float(value)
 
@@ -305,8 +442,29 @@ def _cross_check(name: str, sec: Any) -> None:
                                 f"control_hz, got {sec.physics_hz:g}/{sec.control_hz:g}")
     if isinstance(sec, ControllerConfig) and sec.law not in ("paper", "robust"):
         raise ScenarioError(f"{name}.law", f"must be 'paper' or 'robust', got {sec.law!r}")
+    if isinstance(sec, ControllerConfig) and sec.supervisor not in ("auto", "tfl", "safe"):
+        raise ScenarioError(f"{name}.supervisor",
+                            f"must be 'auto', 'tfl' or 'safe', got {sec.supervisor!r}")
     if isinstance(sec, AttackConfig):
         _check_signal(f"{name}.signal", sec.signal)
+    if isinstance(sec, VehicleConfig):
+        # Full thrust must be a rotor speed ESC_TELEMETRY_1_TO_4 can carry (rpm is uint16):
+        # beyond it the controller reads a clamped rpm, i.e. a wrong thrust, on every rotor
+        # near full throttle (the detector then flags the wrong rotor).
+        rpm_max = sec.omega_max_radps * 60.0 / (2.0 * math.pi)
+        if rpm_max > MAX_ESC_RPM:
+            f_ok = sec.k_f * (MAX_ESC_RPM * 2.0 * math.pi / 60.0) ** 2
+            raise ScenarioError(f"{name}.thrust_max_n",
+                                f"{sec.thrust_max_n:g} N needs {rpm_max:.0f} rpm with k_f = "
+                                f"{sec.k_f:g}, beyond the {MAX_ESC_RPM} rpm ESC telemetry "
+                                f"carries: must be in (0, {f_ok:.4g}] N for this k_f "
+                                f"(or raise {name}.k_f)")
+    if isinstance(sec, SensorConfig) and sec.model not in SENSOR_MODELS:
+        raise ScenarioError(f"{name}.model", f"must be one of {', '.join(SENSOR_MODELS)}, "
+                                             f"got {sec.model!r}")
+    if isinstance(sec, WindConfig) and sec.turbulence not in TURBULENCE_LEVELS:
+        raise ScenarioError(f"{name}.turbulence", f"must be one of "
+                            f"{', '.join(TURBULENCE_LEVELS)}, got {sec.turbulence!r}")
 
 
 def _check_signal(key: str, signal: str) -> None:

@@ -30,7 +30,9 @@ def test_demo_inspect_and_report_agree_exactly(tmp_path):
     out = tmp_path / "demo"
     demo = subprocess.run([*CLI, "demo", "paper", "--duration", "2", "--out", str(out),
                            "--no-plots", "--json"], capture_output=True, text=True, timeout=300)
-    assert demo.returncode == 1, demo.stderr   # 2 s is too short to converge within 2 cm
+    # 2 s is too short to converge within 2 cm: a quick look, convergence shown, not
+    # judged (exit 0); the verdict keys are still the log's, as inspect and report say
+    assert demo.returncode == 0, demo.stderr
     d = json.loads(demo.stdout)
     run = cli_json("inspect", str(out / "run.mcap"), "--json")["flight"]
     rep = cli_json("report", str(out / "run.mcap"), "--out", str(tmp_path / "rep"), "--json")

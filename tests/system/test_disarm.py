@@ -68,7 +68,7 @@ def test_disarm_from_a_gcs_raises_no_alarm_and_keeps_the_detection(tmp_path):
     try:
         _sim_time_reached(gcs, DISARM_S)
         gcs.mav.command_long_send(1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0,
-                                  0, 0, 0, 0, 0, 0, 0)
+                                  0, 21196, 0, 0, 0, 0, 0)     # forced: it is in the air
         _sim_time_reached(gcs, ARM_S)
         gcs.mav.command_long_send(1, 1, mav.MAV_CMD_COMPONENT_ARM_DISARM, 0,
                                   1, 0, 0, 0, 0, 0, 0)

@@ -214,7 +214,9 @@ def test_disarm_from_the_gcs_is_a_kill_switch_and_arm_releases_it(gcs_flight):
     f = gcs_flight()
     pilot = f.start_pilot()
     f.recv("HEARTBEAT", lambda m: m.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
-    assert f.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 0).result == mav.MAV_RESULT_ACCEPTED
+    # in the air a disarm needs PX4's force code (param2 = 21196)
+    assert f.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196).result == \
+        mav.MAV_RESULT_ACCEPTED
     # No motor lag in this scenario: the next tick's ESC report reads 0 rpm on all rotors,
     # although the pilot keeps commanding hover with the armed bit set.
     f.recv("HEARTBEAT", lambda m: not m.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
@@ -224,6 +226,24 @@ def test_disarm_from_the_gcs_is_a_kill_switch_and_arm_releases_it(gcs_flight):
     f.recv("ESC_TELEMETRY_1_TO_4", lambda m: min(m.rpm) > 0)
     f.recv("HEARTBEAT", lambda m: m.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
     assert pilot.link.stats.rx_frames > 0
+
+
+def test_disarm_in_the_air_without_the_force_code_is_denied_and_says_why(gcs_flight):
+    """PX4's rule: MAV_CMD_COMPONENT_ARM_DISARM 0 in flight is refused unless param2 =
+    21196; the GCS gets COMMAND_ACK DENIED and a STATUSTEXT saying why and how."""
+    f = gcs_flight()
+    f.start_pilot()
+    f.recv("HEARTBEAT", lambda m: m.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
+    for param2 in (0.0, 21195.0, 21196.5):
+        ack = f.command(mav.MAV_CMD_COMPONENT_ARM_DISARM, 0, param2)
+        assert ack.result == mav.MAV_RESULT_DENIED
+    text = f.text_seen("param2 = 21196 forces it")
+    assert "disarm denied: in the air" in text
+    assert f.vehicle.flight.killed is False
+    # the motors never stopped: every ESC report after the refusals still turns
+    f.recv("ESC_TELEMETRY_1_TO_4", lambda m: min(m.rpm) > 0)
+    f.recv("HEARTBEAT", lambda m: m.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
+    assert f.vehicle.stats.commands_denied == 3
 
 
 def test_signed_vehicle_ignores_an_unsigned_disarm(gcs_flight):

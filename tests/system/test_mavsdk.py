@@ -2,7 +2,8 @@
 
 What a mavsdk user sees on the GCS port of ``tfl-mav sim``: the mode as OFFBOARD, the armed
 state, a global position and home at the origin, the scenario's parameters, an empty
-mission, and disarm/arm honoured. Real time, so the disarmed vehicle falls at 1 g of wall
+mission, a disarm in the air denied as PX4 does, kill (the forced disarm) and arm
+honoured. Real time, so the disarmed vehicle falls at 1 g of wall
 time (from 200 m it has ~6 s) while mavsdk, whose timeouts are in wall time, looks on.
 """
 
@@ -21,7 +22,7 @@ from tfl_mav.scenario import load_scenario
 from tfl_mav.sim.gcs import Origin
 
 mavsdk = pytest.importorskip("mavsdk")
-from mavsdk.plugins.action import Action  # noqa: E402
+from mavsdk.plugins.action import Action, ActionError  # noqa: E402
 from mavsdk.plugins.mission_raw import MissionRaw  # noqa: E402
 from mavsdk.plugins.param import Param  # noqa: E402
 from mavsdk.plugins.telemetry import FlightMode, Telemetry  # noqa: E402
@@ -71,7 +72,11 @@ def test_mavsdk_sees_an_offboard_vehicle_it_can_disarm():
             (origin.lat_deg, origin.alt_m), abs=1e-3)
         assert Param(system).get_param_float("V_MASS_KG") == pytest.approx(1.1, rel=1e-6)
         assert len(MissionRaw(system).download_mission()) == 0
-        action.disarm()
+        with pytest.raises(ActionError) as denied:   # in the air: PX4 denies a disarm
+            action.disarm()
+        assert "COMMAND_DENIED" in str(denied.value)
+        assert tel.armed()
+        action.kill()          # MAVSDK's kill: ARM_DISARM 0 with the force code 21196
         time.sleep(1.2)
         assert not tel.armed()
         action.arm()

@@ -71,7 +71,9 @@ def test_other_paths_converge_under_attack(name):
 
 
 def test_baseline_that_ignores_the_attack_crashes():
-    _, m = _fly("paper", **{"controller.aware_of_attack": False, "run.duration_s": 5.0})
+    # the law alone (no supervisor to take over from it): the paper's point
+    _, m = _fly("paper", **{"controller.aware_of_attack": False, "run.duration_s": 5.0,
+                            "controller.supervisor": "tfl"})
     assert m["crashed"]
 
 

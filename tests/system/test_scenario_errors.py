@@ -77,6 +77,15 @@ def _bad_values(f: dataclasses.Field) -> list[tuple[str, Any]]:
         return ([("scalar", 1.0), ("too short", good[:-1]), ("too long", [*good, 0.0]),
                  ("string element", ["x", *good[1:]])]
                 + [(f"element {label}", [v, *good[1:]]) for label, v in numbers])
+    if kind == "tuple" and f.name == "phases":      # [[attack.phases]]: a list of tables
+        return [("string", "x"), ("number", 3), ("table", {"rotor": 1}),
+                ("not a table", [3]), ("rotor above 4", [{"rotor": 5, "start_s": 0.0}]),
+                ("float rotor", [{"rotor": 1.5, "start_s": 0.0}]),
+                ("no start", [{"rotor": 1}]), ("nan start", [{"rotor": 1, "start_s": math.nan}]),
+                ("unknown key", [{"rotor": 1, "start_s": 0.0, "value": 2.0}]),
+                ("bad signal", [{"rotor": 1, "start_s": 0.0, "signal": "__import__('os')"}]),
+                ("starts not increasing", [{"rotor": 1, "start_s": 2.0},
+                                           {"rotor": 2, "start_s": 2.0}])]
     pytest.fail(f"{f.name}: a field of type {kind} the loader does not know how to check")
     return []
 

@@ -33,7 +33,10 @@ def flight(tmp_path_factory: pytest.TempPathFactory) -> Path:
     done = subprocess.run([*CLI, "demo", "paper", "--duration", str(DURATION_S), "--out",
                            str(out), "--no-plots", "--json"], capture_output=True, text=True,
                           timeout=300)
-    assert done.returncode == 1, done.stderr      # 1 s is too short to converge
+    # 1 s is too short to converge: a quick look, convergence not judged (exit 0)
+    assert done.returncode == 0, done.stderr
+    summary = json.loads(done.stdout)
+    assert summary["converged"] is False and "not judged" in summary["quick_look"]
     return out
 
 

@@ -116,7 +116,7 @@ def test_scenario_detector_section_is_validated_and_built():
     assert det.tau_s == pytest.approx(0.022)
     assert build_detector(sc.replace(**{"detector.rpm_noise_std": 40.0})) \
         .config.rpm_noise_std == 40.0
-    with pytest.raises(ScenarioError, match=r"detector\.min_ticks: must be >= 1"):
+    with pytest.raises(ScenarioError, match=r"detector\.min_ticks: must be in \[1, 1000\] ticks"):
         scenario_from_dict({"detector": {"min_ticks": 0}})
     with pytest.raises(ScenarioError, match=r"detector\.cusum_h: unknown key"):
         scenario_from_dict({"detector": {"cusum_h": 3.0}})

@@ -30,15 +30,18 @@ ALLOWED: dict[str, set[str]] = {
     "control.tfl": {"model", "accel", "control", "control.path", "shared"},
     "control.safe": {"model", "accel", "control", "control.path", "control.tfl", "shared"},
     "control.detect": {"model", "accel", "control", "shared"},
+    # the spin law designs its gains with the safe law's numpy LQR (control.safe.lqr)
+    "control.spin": {"model", "accel", "control", "control.safe", "shared"},
     "sim": {"model", "accel", "link", "shared"},
     # a finished flight's reader rebuilds the scenario's path (flightlog.from_mcap)
     "flightlog": {"model", "accel", "link", "control.path", "shared", "build"},
     "controller": {"model", "accel", "link", "flightlog", "control", "control.path",
-                   "control.tfl", "control.safe", "control.detect", "shared", "build"},
+                   "control.tfl", "control.safe", "control.detect", "control.spin", "shared",
+                   "build"},
     # campaigns fly a user's controller through the public API (tfl_mav.api, comparison)
     "harness": {"model", "accel", "link", "flightlog", "sim", "controller", "control",
-                "control.path", "control.tfl", "control.safe", "control.detect", "shared",
-                "build", "top", "baselines"},
+                "control.path", "control.tfl", "control.safe", "control.detect",
+                "control.spin", "shared", "build", "top", "baselines"},
 }
 
 

@@ -363,8 +363,12 @@ def lowered(fn: Callable[..., Any], example: Sequence[Any]) -> str:
     linked = sorted(_file_hash(g.__code__.co_filename) for g in getattr(fn, "__globals__", {})
                     .values() if isinstance(g, types.FunctionType)
                     and g.__code__.co_filename.startswith("<"))
-    name = hashlib.sha256(f"{_translator()}|{fn.__module__}.{fn.__qualname__}|{key[1]}|"
-                          f"{linked}".encode()).hexdigest()[:20]
+    # The function's own file is part of the name: two checkouts share one cache, and an
+    # entry validated against the other checkout's files (unchanged there) is that tree's
+    # lowering, not this one's.
+    name = hashlib.sha256(f"{_translator()}|{fn.__module__}.{fn.__qualname__}|"
+                          f"{fn.__code__.co_filename}|{key[1]}|{linked}".encode()
+                          ).hexdigest()[:20]
     path = cache_dir() / f"_tflf_{name}.json"
     try:
         entry = json.loads(path.read_text())

@@ -10,6 +10,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from tfl_mav.cli.args import duration_s
 from tfl_mav.cli.outputs import EXIT_IO, dir_problem
 from tfl_mav.scenario import ScenarioError, apply_overrides, load_scenario
 
@@ -29,7 +30,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "(default: tfl,se3,cascade)")
     p.add_argument("--seeds", type=int, default=1, metavar="N",
                    help="fly seeds run.seed, run.seed+1, ... (N of them; default 1)")
-    p.add_argument("--duration", type=float, metavar="S", help="override run.duration_s")
+    p.add_argument("--duration", type=duration_s, metavar="S", help="override run.duration_s")
     p.add_argument("--on-path", type=float, default=0.05, metavar="M",
                    help="'on the path' means within M metres (default 0.05)")
     p.add_argument("--out", default="tfl-mav-compare", metavar="DIR",

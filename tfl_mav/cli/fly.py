@@ -19,6 +19,7 @@ import time
 from collections.abc import Callable
 from typing import Any
 
+from tfl_mav.cli.args import duration_s
 from tfl_mav.cli.outputs import EXIT_IO, file_problem, write_text_atomic
 from tfl_mav.controller.daemon import TICK_FIELDS, TICK_SCHEMA, Daemon
 from tfl_mav.controller.feasibility import check_scenario
@@ -36,7 +37,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "ODOMETRY + ESC_TELEMETRY_1_TO_4 in, HIL_ACTUATOR_CONTROLS out. The "
                     "attack is found from ESC rpm; nobody tells the controller.",
         epilog="exit codes: 0 run over, 1 vehicle crashed, 2 usage/scenario error, "
-               "3 link/file error (or, --realtime, the vehicle went silent for 10 s), "
+               "3 link/file error (or the vehicle went silent for --peer-timeout), "
                "130/143 interrupted (after a clean shutdown)")
     p.add_argument("scenario", nargs="?", default="paper",
                    help="built-in scenario name or .toml path (default: paper); must match "
@@ -59,8 +60,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                         "Open connection, ws://localhost:PORT); default off")
     p.add_argument("--realtime", action="store_true",
                    help="the vehicle runs in real time (commands not flagged lockstep)")
-    p.add_argument("--duration", type=float, metavar="S",
+    p.add_argument("--duration", type=duration_s, metavar="S",
                    help="sim seconds to fly (default: the scenario's run.duration_s)")
+    p.add_argument("--peer-timeout", type=float, metavar="S",
+                   help="after the flight started, end it (exit 3) when no vehicle state has "
+                        "come for S wall seconds (default: 10 with --realtime; in lockstep "
+                        "wait for a restarted vehicle however long; 0 = never)")
     p.add_argument("--state-timeout", type=float, default=0.5, metavar="S",
                    help="wall seconds without vehicle state before FAILSAFE (default 0.5)")
     p.add_argument("--controller", metavar="MODULE:NAME",
@@ -86,6 +91,10 @@ def run(args: argparse.Namespace) -> int:
         bind = (parse_address(args.bind, "--bind") if args.bind
                 else None if args.vehicle else ("127.0.0.1", 14540))
         key = load_key(args.key_file) if args.key_file else None
+        pt = args.peer_timeout
+        if pt is not None and not (pt == 0 or (math.isfinite(pt) and pt > args.state_timeout)):
+            raise ValueError(f"--peer-timeout: must be 0 (never) or more than --state-timeout "
+                             f"({args.state_timeout:g} s), got {pt}")
         live = None
         if args.foxglove:
             from tfl_mav.flightlog.live import parse_live_address
@@ -138,7 +147,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         daemon = Daemon(scenario, vehicle=vehicle, bind=bind, realtime=args.realtime,
                         state_timeout_s=args.state_timeout, key=key,
-                        silence_end_s=_SILENCE_END_S if args.realtime else None,
+                        silence_end_s=_silence_end_s(args),
                         on_tick=_tick_hook(recorder, args.progress, on_tick),
                         on_event=on_event,
                         hold_start=hold_start if recorder is not None else None,
@@ -438,6 +447,13 @@ class StartingRecorder:
 
 
 _SILENCE_END_S = 10.0   # real time: no state this long after the flight started = vehicle gone
+
+
+def _silence_end_s(args: argparse.Namespace) -> float | None:
+    """--peer-timeout as the daemon's ``silence_end_s`` (None: wait for ever)."""
+    if args.peer_timeout is None:
+        return _SILENCE_END_S if args.realtime else None
+    return args.peer_timeout or None
 _OK_COUNTERS = {"rx_datagrams", "rx_bytes", "rx_frames", "tx_frames", "tx_bytes"}
 
 

@@ -358,6 +358,10 @@ _UNITS = (("_radps", "rad/s"), ("_mps", "m/s"), ("_kg", "kg"), ("_hz", "Hz"), ("
 def _value(key: str, v: Any) -> tuple[str, str]:
     """(label, text) of one summary field: the unit moved from the name to the value, a
     distance below a metre in mm (µm below a millimetre), a fraction in %."""
+    if isinstance(v, dict):                 # time in each law (s)
+        return key.removesuffix("_s"), ", ".join(f"{k} {x:.3f} s" for k, x in v.items() if x)
+    if isinstance(v, list):                 # detections, releases: (time s, rotor)
+        return key, ", ".join(f"rotor {r} at {t:.3f} s" for t, r in v) or "none"
     if isinstance(v, bool) or not isinstance(v, float):
         return key, "-" if v is None else str(v)
     if key.endswith("_fraction"):

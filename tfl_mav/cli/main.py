@@ -1,16 +1,22 @@
 """The ``tfl-mav`` command: one entry point, one subcommand per job.
 
 Exit codes (all subcommands): 0 success; 1 the flight failed (vehicle crashed, or a check
-did not pass); 2 usage or scenario error; 3 link or I/O error (port in use, unwritable file).
+did not pass); 2 usage or scenario error; 3 link or I/O error (port in use, unwritable file,
+a peer process died); 130/143 interrupted (SIGINT/SIGTERM); 141 the reader of the output
+went away (``tfl-mav inspect run.mcap | head``: as a process killed by SIGPIPE, silent).
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import os
+import signal
 import sys
 
 from tfl_mav import __version__
+
+EXIT_BROKEN_PIPE = 128 + signal.SIGPIPE
 
 # Command → the module that adds it. Each module has add_parser(subparsers) and its own run
 # function. Only the invoked command's module is imported (each pulls in what its command
@@ -39,7 +45,9 @@ def build_parser(command: str | None = None) -> argparse.ArgumentParser:
         description="Fly a quadrotor along a 3-D path while an attacker controls one rotor: "
                     "a MAVLink SITL vehicle, the TFL offboard controller, and tools around a "
                     "flight. Start with `tfl-mav demo`.",
-        epilog="Exit codes: 0 ok, 1 flight failed, 2 usage/scenario error, 3 link/I-O error.")
+        epilog="Exit codes: 0 ok, 1 flight failed, 2 usage/scenario error, 3 link/I-O error "
+               "(or a peer process died), 130/143 interrupted (SIGINT/SIGTERM), 141 the "
+               "output's reader went away (| head).")
     parser.add_argument("--version", action="version", version=f"tfl-mav {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     names = [SUBCOMMANDS[command]] if command in SUBCOMMANDS else SUBCOMMANDS.values()
@@ -67,6 +75,13 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("tfl-mav: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:
+        # The reader closed the pipe (`| head`): nothing to say, and nothing may be said at
+        # exit either (the interpreter's last flush of stdout would fail again), so stdout
+        # goes to /dev/null (the Python docs' recipe, "Note on SIGPIPE").
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        return EXIT_BROKEN_PIPE
 
 
 if __name__ == "__main__":

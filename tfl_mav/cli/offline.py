@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 
 from tfl_mav.build import scenario_path
+from tfl_mav.cli.args import duration_s
 from tfl_mav.cli.outputs import EXIT_IO, dir_problem
 from tfl_mav.controller.feasibility import check_scenario
 from tfl_mav.flightlog.flight import summarize
@@ -35,7 +36,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="built-in scenario name or path to a .toml file (default: paper)")
     p.add_argument("--json", action="store_true", help="print one JSON object of metrics")
     p.add_argument("--plot", metavar="DIR", help="write the report PNGs into DIR")
-    p.add_argument("--duration", type=float, metavar="S", help="override run.duration_s")
+    p.add_argument("--duration", type=duration_s, metavar="S", help="override run.duration_s")
     p.add_argument("--attack-info", choices=("oracle", "detector"), default="oracle",
                    help="how the controller learns of the attack: told (paper's assumption, "
                         "default) or detected from ESC rpm")
@@ -73,6 +74,9 @@ def run(args: argparse.Namespace) -> int:
         files = write_report(log, Path(args.plot), title=sc.name)
         metrics["plots"] = [str(f) for f in files]
     if args.json:
+        for _t, text in log.events:   # said on stderr too: --json prints no events
+            if text.startswith("attack.signal"):
+                print(f"tfl-mav offline: warning: {text}", file=sys.stderr)
         print(json.dumps(metrics, indent=2))
     else:
         # What the flight computer said during the flight (law switches, detections), in
@@ -87,9 +91,12 @@ def _print_summary(sc: Scenario, m: dict) -> None:
     status = f"CRASHED: {m['crash_reason']}" if m["crashed"] else "flew the whole run"
     print(f"{sc.name}: {status} ({m['sim_time_s']:.1f} s sim in {m['wall_time_s']:.1f} s wall)")
     if m.get("final_path_distance_m") is not None:
-        print(f"  path distance: final {m['final_path_distance_m']:.2e} m, last 10 s max "
-              f"{m['max_path_distance_last_10s_m']:.2e} m, "
-              f"rms {m['rms_path_distance_last_10s_m']:.2e} m")
+        def e(x: float | None) -> str:   # None: not finite somewhere in the window
+            return f"{x:.2e} m" if x is not None else "- (not finite in the window)"
+        span = "the whole flight" if m["sim_time_s"] <= 10.0 else "the last 10 s"
+        print(f"  path distance: final {e(m['final_path_distance_m'])}; over {span} max "
+              f"{e(m['max_path_distance_last_10s_m'])}, "
+              f"rms {e(m['rms_path_distance_last_10s_m'])}")
     print(f"  rotor thrust: [{m['thrust_min_n']:.2f}, {m['thrust_max_n']:.2f}] N, saturated "
           f"{100 * m['saturated_fraction']:.1f} % of ticks; max |yaw rate| "
           f"{m['max_yaw_rate_radps']:.1f} rad/s")

@@ -32,7 +32,8 @@ EXIT_CODES = {
     EXIT_CRASHED: "the vehicle crashed (the reason is printed and sent as STATUSTEXT)",
     EXIT_USAGE: "usage or scenario error (bad option, bad --set, unknown scenario, "
                 "unusable --key-file)",
-    EXIT_LINK: "link or I/O error (port in use, unresolvable address, MCAP file not writable)",
+    EXIT_LINK: "link or I/O error (port in use, unresolvable address, MCAP file not writable,"
+               " the controller silent for --peer-timeout)",
     EXIT_SIGINT: "interrupted by SIGINT (Ctrl-C), after a clean shutdown",
     EXIT_SIGTERM: "terminated by SIGTERM, after a clean shutdown",
 }
@@ -107,6 +108,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                    help="lockstep: wall seconds without a reply before resending the state "
                         "(default 0.005: a lost datagram costs milliseconds; a spurious resend "
                         "is answered with the same command, never a second step)")
+    p.add_argument("--peer-timeout", type=float, metavar="S",
+                   help="end the flight (exit 3) when the controller has sent no command for "
+                        "S wall seconds (default: wait for a restarted controller however "
+                        "long; in real time the motors are cut after --command-timeout "
+                        "anyway)")
     p.add_argument("--command-timeout", type=float, default=0.25, metavar="S",
                    help="real time: wall seconds without a valid command before the motors "
                         "are cut (default 0.25)")
@@ -233,7 +239,8 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
             key=key, on_frame=recorder.on_frame if recorder is not None else None,
             on_truth=truth_hook(recorder) if recorder is not None else None,
             on_status=on_status,
-            on_frames=recorder.on_frames if recorder is not None else None)
+            on_frames=recorder.on_frames if recorder is not None else None,
+            peer_timeout_s=args.peer_timeout)
     except LinkError as exc:
         print(f"{prog}: {exc}", file=sys.stderr)
         return EXIT_LINK
@@ -282,6 +289,8 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
         code = EXIT_CRASHED
     elif result.status is ExitStatus.STOPPED:
         code = EXIT_SIGTERM if received and received[-1] == signal.SIGTERM else EXIT_SIGINT
+    elif result.status is ExitStatus.PEER_LOST:
+        code = EXIT_LINK
     else:
         code = EXIT_OK
     if args.json:

@@ -198,7 +198,10 @@ class Daemon(Intake):
         sc = self.scenario
         if self._software_factory is not None:
             return self._software_factory(sc)
-        warm = FlightComputer(sc)
+        # Real time: the spin law's table (1.6 s of computing) is made on a thread, never
+        # in a tick; lockstep: in the tick that first needs it (the vehicle waits).
+        build = "async" if self.realtime else "sync"
+        warm = FlightComputer(sc, spin_build=build)
         ini = sc.initial
         state = State(tuple(ini.position_m), tuple(ini.velocity_mps),
                       tuple(euler_to_quaternion(*ini.euler_rad).tolist()),
@@ -206,7 +209,7 @@ class Daemon(Intake):
         hover = sc.vehicle.mass_kg * sc.vehicle.gravity_mps2 / 4.0
         rpm = math.sqrt(hover / sc.vehicle.k_f) * 60.0 / (2.0 * math.pi)
         warm.step(0.0, state, [rpm] * 4, [hover] * 4)
-        fc = FlightComputer(sc)
+        fc = FlightComputer(sc, spin_build=build)
         # Everything built so far (modules, path kernels, the safe law's gain schedule) lives
         # for the whole flight: freeze it out of the collector, so a full collection in
         # flight walks only what the flight allocates (they were the only ticks over
@@ -347,7 +350,8 @@ class Daemon(Intake):
             return True
         thrust, out, det, rotor, estimate_n, new, _, events = res
         if new:
-            self._event("warning", f"ATTACK on rotor {rotor} detected at "
+            # CRITICAL, as PX4 says a failure it detected (a rotor lost is one)
+            self._event("critical", f"ATTACK on rotor {rotor} detected at "
                                    f"t={t:.3f} s; attacked law engaged")
         if events:
             for text in events:              # law switches, in words
@@ -486,7 +490,11 @@ class Daemon(Intake):
             return
         severity = {"info": mav.MAV_SEVERITY_INFO, "warning": mav.MAV_SEVERITY_WARNING,
                     "critical": mav.MAV_SEVERITY_CRITICAL}.get(level, mav.MAV_SEVERITY_INFO)
-        self._statustext_id = (self._statustext_id % 0xFFFF) + 1
-        for seq, chunk in enumerate(split_statustext(text)):   # whole, in MAVLink 2 chunks
-            self.link.send(mav.MAVLink_statustext_message(severity, chunk,
-                                                          self._statustext_id, seq))
+        chunks = split_statustext(text)
+        # id 0: a text that fits one STATUSTEXT is whole as it is (MAVLink 2); a chunk id
+        # on a full 50-character text would leave a receiver waiting for a next chunk
+        text_id = 0
+        if len(chunks) > 1:
+            text_id = self._statustext_id = (self._statustext_id % 0xFFFF) + 1
+        for seq, chunk in enumerate(chunks):   # whole, in MAVLink 2 chunks
+            self.link.send(mav.MAVLink_statustext_message(severity, chunk, text_id, seq))

@@ -18,6 +18,7 @@ Bad input is counted in :class:`~tfl_mav.controller.daemon_io.DaemonStats` and n
 from __future__ import annotations
 
 import math
+import time
 from collections.abc import Callable
 from typing import Any
 
@@ -107,7 +108,8 @@ class Intake:
             # characters ends it): printed once, and the end of a flight is read from all
             # of it, so the log holds all of it too
             for text in self._texts.add(msg.get_srcComponent(), msg.text,
-                                        getattr(msg, "id", 0), getattr(msg, "chunk_seq", 0)):
+                                        getattr(msg, "id", 0), getattr(msg, "chunk_seq", 0),
+                                        time.monotonic()):
                 self._event("info", f"vehicle: {text}", send=False)
                 if self.stats.ticks > 0 and not self._vehicle_done:
                     if text.startswith("crashed:"):

@@ -10,7 +10,7 @@ u_f = 2A + f1 + f3 with f1, f3 ∈ [0, f_max]. Hence
   smallest component along b3 — at the top of a bend curving down — must be ≥ 2A: the
   attack must stay below u_min / 2, and u_min > 0 for any vehicle (a rotor cannot push);
 * the TFL attacked law makes τ_p ∈ [−lA, l(f_max − A)]: near A = 0 of one sign only. Where
-  it keeps asking for the other (:mod:`tfl_mav.control.safe.authority`), the reduced-attitude
+  it keeps asking for the other (:mod:`tfl_mav.controller.supervisor`), the reduced-attitude
   law flies (:mod:`tfl_mav.control.safe.recovery`).
 
 :func:`path_demand` computes the path's required acceleration from σ(λ) at the scenario's
@@ -147,9 +147,13 @@ def check_scenario(sc: Scenario) -> list[str]:
     v = sc.vehicle
     mg = v.mass_kg * v.gravity_mps2
     try:
-        d = path_demand(sc)
+        with np.errstate(all="ignore"):    # said below in words, never as numpy warnings
+            d = path_demand(sc)
     except Exception as exc:  # a bad path is reported by the path check itself
         return [f"path: cannot evaluate its demand ({exc})"]
+    if not all(math.isfinite(x) for x in (d.min_thrust_n, d.max_thrust_n, d.max_tilt_rad)):
+        return ["path: its demand (curvature, thrust) is not finite somewhere on its t range: "
+                "check path.sigma there; no feasibility figures"]
     if d.min_thrust_n <= 0.0:
         out.append(f"path at {sc.path.speed_mps:g} m/s needs {-d.min_vertical_mps2:.1f} m/s^2 "
                    f"downward at its top bend (> g = {v.gravity_mps2:g}): rotors cannot pull, "
@@ -174,4 +178,43 @@ def check_scenario(sc: Scenario) -> list[str]:
             out.append(f"attack on rotor {sc.attack.rotor} down to {a_lo:.2f} N: near 0 N the "
                        "TFL law can roll one way only; where it needs the other way for "
                        f"long, the reduced-attitude law flies (spinning at ~{spin:.0f} rad/s)")
+    out += unread_attack_keys(sc)
+    return out
+
+
+# The [attack] keys each built-in signal reads (tfl_mav.sim.attacker.Attacker._raw). A GCS's
+# MAV_CMD_INJECT_FAILURE DRIFT flies "ramp" whatever the scenario's signal, so rate_nps and
+# initial_n are read then too: a warning, not an error.
+SIGNAL_KEYS: dict[str, frozenset[str]] = {
+    "constant": frozenset({"value_n"}),
+    "step": frozenset({"value_n", "initial_n", "step_after_s"}),
+    "ramp": frozenset({"initial_n", "rate_nps"}),
+    "sine": frozenset({"amplitude_n", "frequency_hz", "offset_n"}),
+}
+_SIGNAL_ONLY_KEYS = frozenset().union(*SIGNAL_KEYS.values())
+
+
+def unread_attack_keys(sc: Scenario) -> list[str]:
+    """Warnings for [attack] keys set away from their defaults that the scenario's signal
+    never reads (``--set attack.rate_nps=0`` with the ``paper`` signal would otherwise be
+    flown as if it had been taken)."""
+    import dataclasses
+
+    from tfl_mav.scenario import AttackConfig
+
+    a = sc.attack
+    if a.rotor == 0:
+        return []
+    read = SIGNAL_KEYS.get(a.signal, frozenset())
+    defaults = AttackConfig()
+    out = []
+    for f in dataclasses.fields(a):
+        name = f.name
+        if name in _SIGNAL_ONLY_KEYS and name not in read \
+                and getattr(a, name) != getattr(defaults, name):
+            users = [sig for sig, keys in SIGNAL_KEYS.items() if name in keys]
+            out.append(f"attack.{name} = {getattr(a, name):g} is not read by attack.signal "
+                       f"{a.signal!r} (only by {', '.join(users)}"
+                       + (", and a GCS's DRIFT failure injection" if name in
+                          SIGNAL_KEYS["ramp"] else "") + "): it has no effect on this flight")
     return out

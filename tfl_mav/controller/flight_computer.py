@@ -15,30 +15,19 @@ How the computer learns of the attack (``attack_info``):
   (:meth:`FlightComputer.tell_attack`), and its thrust is read from its measured speed,
   f = k_f ω² (§VI).
 
-Which law flies (:mod:`tfl_mav.control.safe.recovery` says why a second law exists):
+Which law flies is the supervisor's decision (:mod:`tfl_mav.controller.supervisor`, a pure
+step with the rules and the physics that sizes them; ``controller.supervisor`` = ``auto``,
+``tfl`` or ``safe``): **TFL** (``nominal``/``attacked``) wherever it holds the path, the
+three-rotor **lost_rotor** law where the attacked rotor leaves TFL no roll torque of one sign
+and that lasts (a dead rotor, a long zero-attack stretch) or the attack is more than the others
+balance, the four-rotor **recovery** law for a first state TFL is not started from or a tick
+TFL has no answer for (:mod:`tfl_mav.control.safe.recovery` says why a second law exists). The
+hand-back is bumpless: TFL's dynamic extension starts at the thrust applied, its path parameter
+at the safe law's, its estimators keep what they learnt (their filters restart).
 
-* **TFL** (``nominal``/``attacked``) wherever it has the authority it asks for. With an
-  attacked rotor that is decided in the moment, from the law's own command
-  (:mod:`tfl_mav.control.safe.authority`): while the rotor opposite the attacked one is pinned at
-  0 or f_max on more than half of the last 0.2 s, the τ_p the law counts on is not made,
-  and the vehicle goes to
-* **lost_rotor** (reduced attitude on three rotors, spinning), which never asks for τ_p. It
-  hands back once the attacked rotor's thrust leaves TFL a two-sided τ_p again
-  (``A_HANDBACK_N`` < A < m g/2 − ``A_HANDBACK_N``) for ``HANDBACK_S``, the attitude is calm
-  and the vehicle is within TFL's region of attraction (``ROA_DIST_M`` of the path: in the
-  paper scenario TFL converges from 3.85 m at t = 0). The TFL law then takes over bumpless
-  (its dynamic extension starts at the thrust applied).
-* **recovery** (reduced attitude on four rotors) on the first tick when the state is not
-  benign (:mod:`~tfl_mav.control.safe.takeover`; a controller restarted mid-flight: tilt > 30°,
-  |v| > max(0.5, 2 × speed) m/s or |(p, q)| > 2 rad/s; a yaw spin alone is TFL's internal
-  dynamics and is flown), and whenever the TFL law has no valid answer (left the projection
-  tube, D(x) singular). It levels the vehicle and holds the altitude where it took over,
-  then flies back to the path and hands back under the same conditions. The limits are
-  those the TFL law is started from in every scenario (hover, still) with a margin. Speed
-  especially: a vehicle whose motors were cut for 0.18 s (a restarted daemon) falls level
-  at 1.65 m/s; taken over by TFL at the paper path's lowest bend it flips 0.8 s later — the
-  same state flown from t = 0 by a fresh flight computer flips identically, so it is the
-  law's region of attraction, not a leftover of the old flight.
+The attacked rotor's thrust goes to the laws through a Kalman filter over its measured speed
+when the ESCs are noisy (:mod:`tfl_mav.control.detect.attack_estimate`), with its uncertainty
+to the supervisor.
 
 Before the law: with sensor noise in the scenario the state is filtered with the
 model (:mod:`tfl_mav.control.state_filter`; noise-free flights skip it); a yaw rate at the
@@ -53,8 +42,8 @@ to [0, f_max] and a NaN becomes 0 N.
 
 from __future__ import annotations
 
-import dataclasses
 import math
+import threading
 from collections.abc import Sequence
 from typing import NamedTuple
 
@@ -66,15 +55,34 @@ from tfl_mav.build import (
     detector_config,
     model_params,
     scenario_path,
+    spin_params_for,
+)
+from tfl_mav.control.detect.attack_estimate import (
+    ATTACK_START,
+    AttackParams,
+    attack_params,
+    attack_update,
 )
 from tfl_mav.control.detect.detector import AttackDetector, DetectorOutput
-from tfl_mav.control.safe.authority import AuthorityMonitor
-from tfl_mav.control.safe.recovery import RecoveryLaw, RecoveryOutput
-from tfl_mav.control.safe.takeover import A_HANDBACK_N, TAKEOVER_TILT_RAD, calm_fail, not_benign
+from tfl_mav.control.safe.recovery import RecoveryLaw
+from tfl_mav.control.safe.takeover import A_HANDBACK_N, TAKEOVER_TILT_RAD, tilt_rad
 from tfl_mav.control.safe.takeover import floats as _floats
+from tfl_mav.control.spin.law import initial_state as spin_initial_state
+from tfl_mav.control.spin.step import SpinInputs, SpinParams, SpinState, spin_step
 from tfl_mav.control.state_filter import StateFilter, YawRateModel
 from tfl_mav.control.tfl.law import ControlOutput, TFLController
 from tfl_mav.controller.feasibility import feasible_speed_mps, path_demand
+from tfl_mav.controller.supervisor import (
+    Law,
+    Start,
+    SupervisorInputs,
+    SupervisorState,
+    Why,
+    describe,
+    initial_state,
+    supervise,
+    supervisor_params,
+)
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
 from tfl_mav.scenario import Scenario
@@ -83,10 +91,12 @@ __all__ = ["ATTACK_INFO", "TAKEOVER_TILT_RAD", "FlightComputer", "TickResult"]
 
 ATTACK_INFO = ("detector", "oracle")
 RPM_TO_RADPS = 2.0 * math.pi / 60.0   # ESC rpm → rotor speed ω (rad/s)
-
-HANDBACK_S = 0.5       # conditions for handing back must hold this long
-ROA_DIST_M = 4.0       # TFL's region of attraction: it converges from this far off the path
-HOLD_BEFORE_PATH_S = 1.0  # take-over / lost path: level and hold this long, then fly back
+# The spin laws built in this process, by (vehicle, controller, period, rotor): a sweep flies
+# thousands of flights of a few airframes.
+_SPIN_LAWS: dict[tuple[object, ...], SpinParams] = {}
+_SPIN_BUILDING: set[tuple[object, ...]] = set()
+_SPIN_LOCK = threading.Lock()
+MASS_TRUSTED_S = 1.0    # the safe law flies the estimated mass once it has learnt this long
 
 
 class TickResult(NamedTuple):
@@ -131,16 +141,22 @@ class FlightComputer:
     """Detector + TFL law for one flight of one scenario. See the module docstring."""
 
     def __init__(self, scenario: Scenario, *, attack_info: str = "detector",
-                 design_gains: bool = True) -> None:
+                 design_gains: bool = True, spin_build: str = "sync") -> None:
         """``design_gains``: design the safe law's whole LQR gain schedule now (a real-time
         flight never designs one mid-air), or False: a block at a time when first met
-        (offline: no deadline; the same gains, a fraction of the start-up)."""
+        (offline: no deadline; the same gains, a fraction of the start-up). ``spin_build``:
+        how the spin law's table is made when first needed, "sync" (deterministic) or
+        "async" (a real-time flight: on a thread, the safe law flies until it is ready)."""
+        if spin_build not in ("sync", "async"):
+            raise ValueError(f"spin_build: must be 'sync' or 'async', got {spin_build!r}")
         if attack_info not in ATTACK_INFO:
             raise ValueError(f"attack_info: must be one of {', '.join(ATTACK_INFO)}, "
                              f"got {attack_info!r}")
         self.scenario = scenario
         self.attack_info = attack_info
-        self.controller: TFLController = build_controller(scenario)
+        self._pending_events: list[str] = []
+        self.speed_mps = self._flyable_speed(scenario)
+        self.controller: TFLController = build_controller(scenario, speed_mps=self.speed_mps)
         self.detector: AttackDetector | None = (build_detector(scenario)
                                                 if attack_info == "detector" else None)
         self.thrust_max_n = scenario.vehicle.thrust_max_n
@@ -149,11 +165,6 @@ class FlightComputer:
         self.detected_rotor = 0
         self.detection_time_s = math.nan
         mp = model_params(scenario)
-        self._pending_events: list[str] = []
-        self.speed_mps = self._flyable_speed(scenario)
-        if self.speed_mps != scenario.path.speed_mps:
-            self.controller.cfg = dataclasses.replace(self.controller.cfg,
-                                                      speed_mps=self.speed_mps)
         self.recovery = RecoveryLaw(mp.mass_kg, mp.inertia_kgm2, mp.arm_m,
                                     mp.drag_thrust_ratio_m, mp.k_t, mp.k_r, mp.thrust_max_n,
                                     mp.gravity_mps2, scenario.run.control_dt_s,
@@ -162,15 +173,30 @@ class FlightComputer:
                                     compiled_path=self.controller.path_eval == "compiled",
                                     design_gains=design_gains,
                                     motor_time_constant_s=mp.motor_time_constant_s)
-        self.authority = AuthorityMonitor(mp.thrust_max_n)
-        # Above this attack the three others cannot balance it at hover (f₄ = A, f₁ + f₃ ≥ 0).
         self._weight_n = mp.mass_kg * mp.gravity_mps2
-        self._a_high_n = self._weight_n / 2.0 - A_HANDBACK_N
+        # Which law flies: the supervisor's constants and state (supervisor.py).
+        mode = scenario.controller.supervisor
+        self.supervisor = supervisor_params(mode, self._weight_n, mp.thrust_max_n,
+                                            self.speed_mps, a_handback_n=A_HANDBACK_N)
+        self._sup: SupervisorState = initial_state(mode)
+        self._last_safe_thrust: Sequence[float] = [mp.mass_kg * mp.gravity_mps2 / 4.0] * 4
+        self._delivered: list[float] | None = None   # the safe law's last tick's thrusts (N)
+        # The spin law for a rotor pinned above m g/2 (control/spin): built when needed.
+        self.spin_enabled = True
+        self.spin_build = spin_build
+        self._spin_state: SpinState | None = None
+        self._said_no_spin = False
         self._climbing = False         # said: the attack is more than the weight allows
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
         self._probe_high_n = min(self._hover_share_n + 1.5, self.thrust_max_n)
-        if self.controller.lag_inverter is not None:   # ESC noise: filter ω (actuators)
-            self.controller.lag_inverter.set_rpm_noise(detector_config(scenario).rpm_noise_std)
+        # The attacked rotor's thrust through a filter when the ESCs are noisy
+        # (attack_estimate); a noise-free speed is the thrust itself.
+        rpm_std = detector_config(scenario).rpm_noise_std
+        self.attack_filter: AttackParams | None = (
+            attack_params(mp.k_f, mp.thrust_max_n, mp.motor_time_constant_s,
+                          scenario.run.control_dt_s, rpm_std) if rpm_std > 0.0 else None)
+        self._attack_state = ATTACK_START
+        self._attack_rotor = 0
         sens = scenario.sensors
         trans = sens.position_noise_std_m > 0.0 or sens.velocity_noise_std_mps > 0.0
         rot = sens.rate_noise_std_radps > 0.0
@@ -189,14 +215,22 @@ class FlightComputer:
                           if sens.gyro_range_radps > 0.0 else None)
         self._needs_omega = (self.state_filter is not None or self.yaw_model is not None
                              or self.controller.lag_inverter is not None)
-        self.law_name = "tfl"          # "tfl" | "recovery" | "lost_rotor"
-        self.switches = 0
-        self._ticks = 0
         self.internal_errors = 0   # ticks a law raised (held the last command)
-        self._since_s = 0.0            # time in the current safe law
-        self._good_s = 0.0             # time the hand-back conditions have held
         self._last_t: float | None = None
-        self._last_tfl: ControlOutput | None = None
+
+    @property
+    def law_name(self) -> str:
+        """The law flying: "tfl" | "recovery" | "lost_rotor"."""
+        return Law(self._sup.law).name.lower()
+
+    @property
+    def supervisor_state(self) -> SupervisorState:
+        """The supervisor's state: the law flying, switches, the time in each law."""
+        return self._sup
+
+    @property
+    def switches(self) -> int:
+        return self._sup.switches
 
     @property
     def yaw_rate_substituted_ticks(self) -> int:
@@ -234,13 +268,15 @@ class FlightComputer:
         the time since the last tick when it is not one control period (a real-time daemon
         that skipped states): the law's internal states integrate over it.
 
+        The tick composes pure steps: the detector and the attack estimate, the law the
+        supervisor chose, the supervisor (:func:`~tfl_mav.controller.supervisor.supervise`),
+        and — on a take-over — the safe law on this very tick.
+
         A numerical failure inside a law (an input no flight produces: the fuzzer finds
         them) never escapes: the tick holds the applied command, in mode FALLBACK, and says
         why — the daemon's loop must not die.
         """
         try:
-            # Runs every tick: attribute look-ups hoisted, the NaN/range tests written as
-            # comparisons (False for NaN), the decisions and their order exactly as in words.
             ctrl = self.controller
             if type(rpm) is np.ndarray:          # the simulator's: floats are 3-5× cheaper
                 rpm = rpm.tolist()
@@ -253,7 +289,6 @@ class FlightComputer:
             if detector is not None:
                 detection = detector.update(t_s, rpm, applied_n)
                 if detection.released:
-                    ctrl.set_attack(0, 0.0)
                     self.detected_rotor = 0
                     events.append("rotor obeys its commands again: attack over, four-rotor law")
                 rotor = detection.detected_rotor
@@ -263,19 +298,18 @@ class FlightComputer:
                         new = True
                         self.detected_rotor = rotor
                         self.detection_time_s = detection.detection_time_s
-                    if rotor == ctrl.attacked_rotor and 0.0 <= estimate <= ctrl.model.thrust_max_n \
-                            and ctrl.cfg.aware_of_attack:
-                        ctrl.attack_estimate_n = estimate   # set_attack's every-tick case
-                    else:
-                        ctrl.set_attack(rotor, estimate)
             elif self._told_rotor:
                 rotor = self._told_rotor
                 w = rpm[rotor - 1] * RPM_TO_RADPS
                 estimate = self.k_f * w * w
-                ctrl.set_attack(rotor, estimate)
             # ω (rad/s) for the state filter, the yaw-rate model and the law's lag inverse; the
             # law reads it only with motor lag (TFLController.update), so nothing else needs it.
             omega = [r * RPM_TO_RADPS for r in rpm] if self._needs_omega else None
+            estimate, spread = self._estimate(rotor, estimate, rpm, detection)
+            if rotor:
+                ctrl.set_attack(rotor, estimate)
+            elif ctrl.attacked_rotor:
+                ctrl.set_attack(0, 0.0)
             last = self._last_t
             if last is None:
                 dt = ctrl.dt
@@ -291,33 +325,46 @@ class FlightComputer:
                 state = self.state_filter.update(state, [k_f * w * w for w in omega], dt)
             if self.yaw_model is not None:
                 state = self.yaw_model.update(state, omega, dt, events)
-            if self._ticks == 0:
+            sup = self._sup
+            if sup.ticks == 0:
                 events[:0] = self._pending_events
-                why = not_benign(state, rotor, self.speed_mps) or self._beyond_roa(state)
-                if why:
-                    self._enter("recovery", state, f"take-over: {why}", events, hold=True)
-            self._ticks += 1
-            if self.law_name == "tfl":
-                if dt_s is None:
-                    out = ctrl.update(state, omega)
-                else:   # states were skipped: integrate the law's states over the real gap
-                    period = ctrl.dt
-                    ctrl.dt = dt_s
-                    try:
-                        out = ctrl.update(state, omega)
-                    finally:
-                        ctrl.dt = period
-                self._last_tfl = out
-                if out.mode is _FALLBACK:
-                    self._enter("recovery", state, f"TFL: {out.reason}; level, hold altitude",
-                                events, hold=True)
-                elif not ctrl.attacked_rotor or not self._authority_lost(out, dt, estimate,
-                                                                         state, events):
+                sup = self._decide(self._inputs(0.0, rotor, estimate, spread, None, math.nan,
+                                                state, first=True),
+                                   state, events, estimate, rotor, None)
+            if sup.law == Law.TFL:
+                self._delivered = None
+                out = ctrl.update(state, omega, dt_s=dt_s)
+                sup = self._decide(self._inputs(dt, rotor, estimate, spread, out, math.nan,
+                                                state), state, events, estimate, rotor, out)
+                if sup.law == Law.TFL:
                     return self._result(out.rotor_thrust_n, None, out, detection, rotor,
                                         estimate, new, events)
-            return self._fly_safe(dt, state, rotor, estimate, omega, events, detection, new)
+            if sup.law == Law.SPIN:
+                return self._fly_spin(dt, state, rotor, estimate, spread, rpm, events,
+                                      detection, new)
+            return self._fly_safe(dt, state, rotor, estimate, spread, omega, events,
+                                  detection, new)
         except (ArithmeticError, ValueError, np.linalg.LinAlgError) as exc:
             return self._failed(exc, applied_n)
+
+    def _estimate(self, rotor: int, raw_n: float, rpm: Sequence[float],
+                  detection: DetectorOutput | None) -> tuple[float, float]:
+        """The attacked rotor's thrust A (N) for the laws and its standard deviation σ_A (N)
+        (:mod:`~tfl_mav.control.detect.attack_estimate`): the filter over the rotor's
+        measured speed with the motor-lag model and the ESC noise; without noise the
+        measured speed is the truth (σ_A = 0) and A = k_f ω²."""
+        est = self.attack_filter
+        if est is None:
+            return raw_n, 0.0
+        if not rotor or not math.isfinite(raw_n):
+            self._attack_state = ATTACK_START
+            return raw_n, 0.0
+        w = rpm[rotor - 1] * RPM_TO_RADPS
+        if self._attack_rotor != rotor:
+            self._attack_rotor = rotor
+            self._attack_state = ATTACK_START
+        self._attack_state, a_n, std_n = attack_update(est, self._attack_state, w)
+        return a_n, std_n
 
     def _failed(self, exc: BaseException, applied_n: Sequence[float]) -> TickResult:
         """A law raised: hold the applied command, in mode FALLBACK, and say why."""
@@ -331,109 +378,193 @@ class FlightComputer:
             xi=(zero4, zero4), eta=zero4, mu=(0.0, 0.0), path_distance_m=math.nan,
             lam=math.nan, cond_d=math.nan, thrust_n=sum(hold),
             mass_estimate_kg=self.controller.mass_kg, disturbance_radps2=(0.0, 0.0),
-            fine_gains=False, reason=why)
+            fine_gains=False, reason=why, demand_n=tuple(hold))
         return TickResult(hold, out, None, 0, math.nan, False, list(hold), (why,))
 
-    # ------------------------------------------------------------------ switching
-    def _authority_lost(self, out: ControlOutput, dt: float, estimate: float, state: State,
-                        events: list[str]) -> bool:
-        """Feed the attacked law's command to the authority monitor; on a loss, switch to
-        the lost-rotor law (this tick is already its) and say why. True when switched."""
-        rotor = self.controller.attacked_rotor
-        opposite = (rotor + 1) % 4         # physical index of the rotor opposite ``rotor``
-        f = out.rotor_thrust_n
-        mon = self.authority
-        # Over any horizon: f₄ = A and f₁ + f₃ ≥ 0 make u_f ≥ 2A, more than the weight once
-        # A > m g/2, and the vehicle flips within 0.1 s at A = f_max. Lost now, not on average.
-        hopeless = 2.0 * estimate > self._weight_n
-        if not mon.update(f[opposite], f[rotor % 4], f[(rotor + 2) % 4], dt) \
-                and not hopeless:
+    def _inputs(self, dt: float, rotor: int, estimate: float, spread: float,
+                out: ControlOutput | None, safe_distance_m: float, state: State, *,
+                first: bool = False) -> SupervisorInputs:
+        """What the supervisor is told this tick (:class:`SupervisorInputs`)."""
+        p, q, _ = _floats(state.body_rates_radps)
+        vx, vy, vz = _floats(state.velocity_mps)
+        tfl_flew = out is not None
+        demand = (out.demand_n if tfl_flew and out.demand_n else _ZERO4)
+        return SupervisorInputs(
+            dt, rotor, estimate, spread, tfl_flew,
+            tfl_flew and out.mode is not _FALLBACK, demand, safe_distance_m,
+            tilt_rad(state.quaternion_wxyz), _hypot(p, q), _sqrt(vx * vx + vy * vy + vz * vz),
+            self._distance_to_path(state) if first else math.nan,
+            self._spin_ready(rotor, estimate))
+
+    def _spin_ready(self, rotor: int, estimate: float) -> bool:
+        """The spin law is built for ``rotor`` (its table is made once the attack comes
+        within 1 N of m g/2: 1.6 s of computing, so not for every attack). ``spin_build``
+        "sync" builds it there and then (offline, lockstep: no deadline, deterministic);
+        "async" on a background thread, used once ready (real time: no tick waits)."""
+        if not rotor or self.supervisor.mode != 0 or not self.spin_enabled:
             return False
-        a_text = f"{estimate:.2f} N" if math.isfinite(estimate) else "unknown thrust"
-        if hopeless or mon.bound == "ceiling":
-            why = (f"rotor {rotor} at {a_text}: more than the three others can balance "
-                   "(pinned at their limits); keeping attitude, cannot hold the path")
-        else:
-            why = (f"rotor {rotor} at {a_text}: rotor {opposite + 1} pinned at 0 N, no roll "
-                   "authority; reduced-attitude law")
-        self._enter("lost_rotor", state, why, events, hold=False)
-        return True
+        key = self._spin_key(rotor)
+        if key in _SPIN_LAWS:
+            return True
+        if not 2.0 * estimate > self._weight_n - 2.0:
+            return False
+        if self.spin_build == "sync":
+            _SPIN_LAWS[key] = spin_params_for(self.scenario, rotor)
+            return True
+        with _SPIN_LOCK:
+            if key not in _SPIN_BUILDING:
+                _SPIN_BUILDING.add(key)
+                sc = self.scenario
+                threading.Thread(target=lambda: _SPIN_LAWS.__setitem__(
+                    key, spin_params_for(sc, rotor)), name="tfl-mav-spin-law",
+                    daemon=True).start()
+        return False
 
-    def _enter(self, law: str, state: State, why: str, events: list[str], *,
-               hold: bool) -> None:
-        if self.law_name != law:
-            self.switches += 1
-            events.append(f"{law}: {why}")
-        self.law_name = law
-        self._since_s = 0.0
-        self._good_s = 0.0
+    def _spin_key(self, rotor: int) -> tuple[object, ...]:
+        sc = self.scenario
+        return (repr(sc.vehicle), repr(sc.controller), sc.run.control_dt_s, rotor)
+
+    def _fly_spin(self, dt: float, state: State, rotor: int, estimate: float, spread: float,
+                  rpm: Sequence[float], events: list[str], detection: DetectorOutput | None,
+                  new: bool) -> TickResult:
+        """A tick of the spin law (:func:`~tfl_mav.control.spin.step.spin_step`): the mean
+        axis steered towards the closest path point moving at the path speed, the pinned
+        rotor's thrust read from its rpm; then the supervisor, and the output."""
+        params = _SPIN_LAWS[self._spin_key(rotor)]
+        y = _floats(state.position_m)
+        rates = tuple(_floats(state.body_rates_radps))
+        w = rpm[rotor - 1] * RPM_TO_RADPS
+        stuck = self.k_f * w * w
+        if self._spin_state is None:
+            self._spin_state = spin_initial_state(params, rates, stuck)
+        proj = self.recovery.projector
+        found = proj.project(y) if proj is not None else None
+        if found is None:
+            point, tangent, curvature, dist = tuple(y), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), _NAN
+        else:
+            point, tangent, curvature, dist = found
+        sp = self.speed_mps
+        inputs = SpinInputs(tuple(y), tuple(_floats(state.velocity_mps)),
+                            tuple(_floats(state.quaternion_wxyz)), rates, stuck, tuple(point),
+                            (sp * tangent[0], sp * tangent[1], sp * tangent[2]),
+                            (sp * sp * curvature[0], sp * sp * curvature[1],
+                             sp * sp * curvature[2]))
+        self._spin_state, out = spin_step(params, self._spin_state, inputs)
+        if not out.exists and not self._said_no_spin:
+            self._said_no_spin = True
+            events.append(f"spin: no relaxed hover holds m g with rotor {rotor} at "
+                          f"{stuck:.2f} N: flying the closest spin, "
+                          f"{out.vertical_excess_mps2:+.2f} m/s^2 of climb (+) or sink (-) "
+                          "left over")
+        thrust = list(out.thrusts_n)
+        self._delivered = None
+        self._last_safe_thrust = thrust
+        self._decide(self._inputs(dt, rotor, estimate, spread, None, dist, state), state,
+                     events, estimate, rotor, None)
+        if self._sup.law != Law.SPIN:
+            self._spin_state = None
+        law = ControlOutput(
+            list(thrust), Mode.SPIN, [out.clipped != 0.0] * 4, _ZERO_XI, _ZERO4, _ZERO2, dist,
+            _NAN, _NAN, sum(thrust), self.controller.mass_kg, _ZERO2, False,
+            f"spin: {out.spin_radps:.0f} rad/s, cone {math.degrees(out.cone_rad):.0f} deg",
+            tuple(thrust))
+        return self._result(thrust, None, law, detection, rotor, estimate, new, events)
+
+    def _decide(self, inputs: SupervisorInputs, state: State, events: list[str],
+                estimate: float, rotor: int, out: ControlOutput | None) -> SupervisorState:
+        """One supervisor step; start the law it chose as it says; the words for it."""
+        old = self._sup
+        self._sup, (law, why, start) = supervise(self.supervisor, old, inputs)
+        if why != Why.STAY:
+            distance = inputs.safe_distance_m
+            text = describe(why, law, rotor=rotor, attack_n=estimate, inputs=inputs,
+                            since_s=old.since_s + inputs.dt_s, distance_m=distance)
+            if text and (law != old.law or why == Why.FOLLOW):
+                events.append(text)
         rec = self.recovery
-        if hold:
+        if start == Start.SAFE_HOLD:
             rec.hold(state.position_m)
-        else:
-            rec.follow_path()
-        lag = self.controller.lag_inverter
-        if lag is not None:
-            lag.reset()            # the old law's demand is not a trend of this one's
+        elif start == Start.SAFE_PATH:
+            if rec.hold_m is not None:         # after a held point: we may be far away
+                rec.follow_path(search=True)
+            elif out is not None:              # from TFL: its λ is where the vehicle is
+                rec.follow_path(out.lam)
+            else:
+                rec.follow_path(search=True)
+        if start in (Start.SAFE_HOLD, Start.SAFE_PATH) and old.law == Law.TFL:
+            lag = self.controller.lag_inverter
+            if lag is not None:
+                lag.reset()            # the old law's demand is not a trend of this one's
+        elif start == Start.TFL_RESUME:
+            self._resume_tfl()
+        return self._sup
 
-    def _fly_safe(self, dt: float, state: State, rotor: int, estimate: float,
+    def _distance_to_path(self, state: State) -> float:
+        """The distance (m) from ``state`` to the path (a global search), NaN without one."""
+        proj = self.recovery.projector
+        if proj is None:
+            return math.nan
+        found = proj.project(_floats(state.position_m))
+        proj.lam = None          # the safe law, if it flies, searches afresh
+        return found[3] if found is not None else math.nan
+
+    def _resume_tfl(self) -> None:
+        """Back to TFL, bumpless: its dynamic extension starts at the thrust now applied,
+        its path parameter at the safe law's, its estimators keep what they learnt."""
+        projector = self.recovery.projector
+        self.controller.resume(self._last_safe_thrust,
+                               projector.lam if projector is not None else None)
+
+    def _fly_safe(self, dt: float, state: State, rotor: int, estimate: float, spread: float,
                   omega: list[float] | None, events: list[str],
                   detection: DetectorOutput | None, new: bool) -> TickResult:
-        """A tick of the safe law (recovery or lost_rotor), its hand-back test and its
+        """A tick of the safe law (recovery or lost_rotor), then the supervisor, and the
         output."""
         rec = self.recovery
-        self._since_s += dt
-        if rec.hold_m is not None and self._since_s >= HOLD_BEFORE_PATH_S \
-                and not not_benign(state, rotor, self.speed_mps) and rec.projector is not None:
-            rec.projector.lam = None          # a fresh global search: we may be far away
-            rec.follow_path()
         finite = _isfinite(estimate)
         a_n = estimate if rotor and finite else 0.0
-        lost = self.law_name == "lost_rotor"
         if rotor and finite and (2.0 * estimate > self._weight_n) is not self._climbing:
             self._say_if_climbing(rotor, estimate, events)
         # An attacked rotor is never ours to command: with one known, the safe law flies the
         # other three whichever way it was entered (a take-over of an attacked vehicle too).
-        out = rec.update(state, rotor, a_n)
+        flying = self._sup
+        ctrl = self.controller
+        if self._delivered is not None:   # the last tick was this law's: TFL's estimator
+            ctrl.track(state, self._delivered)   # learns from what acted over it
+        # The estimated mass once it has learnt for a second (its first samples, from a
+        # restart or a fall, are what the model says better than the estimate does).
+        mass = ctrl.mass_kg if ctrl.mass_learnt_s >= MASS_TRUSTED_S else None
+        out = rec.update(state, rotor, a_n, mass_kg=mass)
         dist = out.path_distance_m
-        # Cheapest tests first: with a dead rotor the attack test fails every tick.
-        ok = ((not rotor or (finite and A_HANDBACK_N < estimate < self._a_high_n))
-              and rec.hold_m is None and dist < ROA_DIST_M
-              and not calm_fail(state) and not not_benign(state, rotor, self.speed_mps))
-        self._good_s = self._good_s + dt if ok else 0.0
-        if self._good_s >= HANDBACK_S:
-            self._hand_back(state, out, events)
+        self._last_safe_thrust = out.thrust_n
+        if flying.law != Law.TFL:      # a take-over this tick is judged from the next one
+            self._decide(self._inputs(dt, rotor, estimate, spread, None, dist, state), state,
+                         events, estimate, rotor, None)
         thrust = out.thrust_n
-        lag = self.controller.lag_inverter
+        # What the rotors deliver over the coming period (N): the demand, or with motor lag
+        # the lag model's mean for the command sent (the attacked rotor: its estimate) —
+        # what TFL's own step feeds its estimator with; never the ESC's noisy sample.
+        delivered = list(thrust)
+        lag = ctrl.lag_inverter
         if lag is not None:     # the motor-lag inverse, as the TFL law flies it
             lag.reachable(omega)
-            command = lag.invert(thrust).command_n
+            inv = lag.invert(thrust)
+            command, delivered = inv.command_n, list(inv.expected_mean_n)
             if rotor:
                 command[rotor - 1] = thrust[rotor - 1]   # not ours to command
+                delivered[rotor - 1] = thrust[rotor - 1]
             thrust = command
-        # the output; after a hand-back this tick is still the safe law's, in mode recovery
-        mode = _LOST_ROTOR if lost else _RECOVERY
+        self._delivered = delivered if self._sup.law != Law.TFL else None
+        # the output; after a hand-back this tick is still the safe law's
+        mode = _LOST_ROTOR if rotor else _RECOVERY
         deg = out.tilt_error_rad * _RAD_TO_DEG
         reason = (_TILT_TEXT[mode][round(deg)] if 0.0 <= deg <= 180.0
                   else f"{_MODE_TEXT[mode]}: tilt error {deg:.0f} deg")
-        law = ControlOutput(   # positional: the fields in order (rotor_thrust_n … reason)
+        law = ControlOutput(   # positional: the fields in order (rotor_thrust_n … demand_n)
             list(thrust), mode, list(out.clamped), _ZERO_XI, _ZERO4, _ZERO2, dist, _NAN, _NAN,
-            out.uf_n, self.controller.mass_kg, _ZERO2, False, reason)
+            out.uf_n, self.controller.mass_kg, _ZERO2, False, reason, tuple(out.requested_n))
         return self._result(thrust, out.requested_n, law, detection, rotor, estimate, new,
                             events)
-
-    def _beyond_roa(self, state: State) -> str:
-        """Why ``state`` is too far from the path for the TFL law ('' if it is not): farther
-        than ``ROA_DIST_M``, where it is not known to converge (from 4.6 m off the paper
-        path at hover it flips within 1.2 s, attack or none)."""
-        proj = self.recovery.projector
-        if proj is None:
-            return ""
-        found = proj.project(_floats(state.position_m))
-        proj.lam = None          # the safe law, if it flies, searches afresh
-        if found is None or not found[3] > ROA_DIST_M:
-            return ""
-        return f"{found[3]:.1f} m from the path (TFL converges from {ROA_DIST_M:g} m)"
 
     def _say_if_climbing(self, rotor: int, estimate: float, events: list[str]) -> None:
         """Say it when the attack makes the vehicle climb whatever the others do (and when
@@ -449,17 +580,6 @@ class FlightComputer:
             self._climbing = False
             events.append(f"lost_rotor: rotor {rotor} at {estimate:.2f} N: the vehicle can "
                           "hold its altitude again")
-
-    def _hand_back(self, state: State, out: RecoveryOutput, events: list[str]) -> None:
-        """Back to TFL, bumpless: its dynamic extension starts at the thrust now applied."""
-        ctrl = self.controller
-        events.append(f"tfl: handed back after {self._since_s:.1f} s "
-                      f"({out.path_distance_m * 1000:.0f} mm from the path)")
-        self.law_name = "tfl"
-        self.switches += 1
-        self.authority.reset()
-        projector = self.recovery.projector
-        ctrl.resume(out.thrust_n, projector.lam if projector is not None else None)
 
     def _result(self, thrust: Sequence[float], requested: Sequence[float] | None,
                 out: ControlOutput, detection: DetectorOutput | None, rotor: int,

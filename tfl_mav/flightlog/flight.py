@@ -122,6 +122,7 @@ def summarize(log: FlightLog) -> dict[str, Any]:
         "attack_max_n": f(np.max(attacked[active])) if np.any(active) else None,
         "max_yaw_rate_radps": float(np.max(np.abs(rates[:, 2]))),
         "fallback_fraction": float(np.mean(log["mode"] == int(Mode.FALLBACK))),
+        **metrics.law_report(t, log["mode"], log.detected_rotor),
         "wall_time_s": round(log.wall_time_s, 3),
         "real_time_factor": round(float(t[-1]) / log.wall_time_s, 2) if log.wall_time_s else None,
         **metrics.flight_verdict(log),

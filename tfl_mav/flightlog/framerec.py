@@ -197,7 +197,8 @@ class FrameRecorder(McapOutput):
             sysid, compid = raw[5], raw[6]
             direction = "tx" if tx else "rx"
             for text in self._texts.add((sysid, compid, direction), fields["text"],
-                                        fields.get("id", 0), fields.get("chunk_seq", 0)):
+                                        fields.get("id", 0), fields.get("chunk_seq", 0),
+                                        log_ns * 1e-9):
                 out.append((self._fg_channel("/log", "foxglove.Log"),
                             fg.log_entry(log_ns, fg.mav_severity_to_level(fields["severity"]),
                                          self._with_time(text),

@@ -30,8 +30,19 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["DEFAULT_BOUND_M", "DEFAULT_WINDOW_S", "Convergence", "converged", "detection",
-           "detection_from_alarms", "flight_verdict", "saturated_fraction"]
+__all__ = [
+    "DEFAULT_BOUND_M",
+    "DEFAULT_WINDOW_S",
+    "Convergence",
+    "converged",
+    "detection",
+    "detection_events",
+    "detection_from_alarms",
+    "flight_verdict",
+    "law_report",
+    "law_text",
+    "saturated_fraction",
+]
 
 DEFAULT_WINDOW_S = 10.0
 DEFAULT_BOUND_M = 0.02
@@ -129,6 +140,91 @@ def detection_from_alarms(alarms: Sequence[tuple[float, int]], attack_rotor: int
         "false_alarms": false_alarms,
         "missed_detection": bool(attack_rotor) and first is None,
     }
+
+
+# The flight log's mode (tfl_mav.model.modes.Mode) → the law that flew: TFL (nominal,
+# attacked, and its own fallback damping), the safe law (recovery, lost_rotor), or nothing
+# (failsafe: the daemon had no state).
+_LAW_OF_MODE = {0: "tfl", 1: "tfl", 2: "tfl", 3: "failsafe", 4: "recovery", 5: "lost_rotor",
+                6: "spin"}
+LAWS = ("tfl", "recovery", "lost_rotor", "spin", "failsafe")
+
+
+def detection_events(t_s: Sequence[float], detected_rotor: Sequence[int]
+                     ) -> tuple[list[tuple[float, int]], list[tuple[float, int]]]:
+    """Every detection and every release of the controller's per-tick ``detected_rotor``
+    (0 = none), as (time s, rotor 1-4): a change from a to b releases a (if any) and
+    detects b (if any)."""
+    detections: list[tuple[float, int]] = []
+    releases: list[tuple[float, int]] = []
+    prev = 0
+    for t, r in zip(t_s, detected_rotor, strict=True):
+        r = int(r or 0)
+        if r != prev:
+            if prev:
+                releases.append((float(t), prev))
+            if r:
+                detections.append((float(t), r))
+        prev = r
+    return detections, releases
+
+
+def law_report(t_s: Sequence[float] | np.ndarray, mode: Sequence[float] | np.ndarray,
+               detected_rotor: Sequence[int] | None = None) -> dict[str, Any]:
+    """Which law flew, from the per-tick mode: the time in each law (s), the share of the
+    flight a law other than TFL flew (the safe law, the spin law), the number of switches
+    between TFL, the safe law and the spin law, and —
+    with the controller's detections — every detection and release (time s, rotor).
+
+    Each tick counts for the period until the next one (the last: the median period)."""
+    t = np.asarray(t_s, dtype=float)
+    m = np.asarray(mode, dtype=float)
+    n = min(len(t), len(m))
+    t, m = t[:n], m[:n]
+    out: dict[str, Any] = {}
+    if n == 0:
+        return {"time_in_law_s": dict.fromkeys(LAWS, 0.0), "safe_law_fraction": None,
+                "law_switches": 0}
+    dt = np.diff(t)
+    dt = np.append(dt, _median(dt) if len(dt) else 0.0)
+    known = np.isfinite(m)
+    codes = np.where(known, m, -1).astype(int)
+    times = dict.fromkeys(LAWS, 0.0)
+    for code, law in _LAW_OF_MODE.items():
+        times[law] += float(np.sum(dt[codes == code]))
+    total = sum(times.values())
+    # The law flying, by tick: TFL 0, the safe law 1 (four or three rotors: one law), the
+    # spin law 2; a failsafe tick (no state) keeps the law before it.
+    group = np.select([codes <= 2, (codes == 4) | (codes == 5), codes == 6], [0, 1, 2], -1)
+    group = group[group >= 0]
+    switches = int(np.count_nonzero(group[1:] != group[:-1])) if len(group) > 1 else 0
+    out["time_in_law_s"] = {k: round(v, 6) for k, v in times.items()}
+    out["safe_law_fraction"] = ((times["recovery"] + times["lost_rotor"] + times["spin"])
+                                / total if total > 0 else None)
+    out["law_switches"] = switches
+    if detected_rotor is not None and len(detected_rotor) >= n:
+        det, rel = detection_events(t, list(detected_rotor)[:n])
+        out["detections"] = [[round(a, 6), b] for a, b in det]
+        out["releases"] = [[round(a, 6), b] for a, b in rel]
+    return out
+
+
+def law_text(m: dict[str, Any]) -> str:
+    """A summary's law report in one line: time in each law, switches, detections and
+    releases ('' when the summary has none)."""
+    times = m.get("time_in_law_s")
+    if not times:
+        return ""
+    parts = [f"{law} {times[law]:.1f} s" for law in LAWS if times.get(law)]
+    text = ", ".join(parts) or "none"
+    text += f"; {m.get('law_switches', 0)} switches"
+    for key, word in (("detections", "detected"), ("releases", "released")):
+        events = m.get(key) or []
+        if events:
+            shown = ", ".join(f"rotor {r} at {t:.2f} s" for t, r in events[:4])
+            more = f" (+{len(events) - 4} more)" if len(events) > 4 else ""
+            text += f"; {word} {shown}{more}"
+    return text
 
 
 def saturated_fraction(flags: Sequence[float] | np.ndarray) -> float | None:

@@ -7,8 +7,10 @@ then rebuilds the flight from the logs and returns the summary dict.
 
 from __future__ import annotations
 
+import contextlib
 import json
 import math
+import os
 import re
 import signal
 import subprocess
@@ -29,7 +31,7 @@ from tfl_mav.flightlog.metrics import DEFAULT_BOUND_M, DEFAULT_WINDOW_S, flight_
 from tfl_mav.harness.processes import raise_priority
 from tfl_mav.scenario import apply_overrides, load_scenario
 
-__all__ = ["run_demo"]
+__all__ = ["DemoError", "run_demo"]
 
 _LISTEN_RE = re.compile(r"listening on ([\d.]+):(\d+)")
 _PROGRESS_RE = re.compile(r"^progress ([\d.]+) ([\d.]+) (\S+)")
@@ -39,13 +41,19 @@ def _cli() -> list[str]:
     return [sys.executable, "-m", "tfl_mav.cli"]
 
 
+class DemoError(RuntimeError):
+    """The demo cannot give a flight report (a process did not start, died, or failed);
+    the message is one line that says what happened and where the files are."""
+
+
 class _Children:
     """The demo's child processes, stopped whatever happens to the demo.
 
     Each child runs in its own session (so a terminal's Ctrl-C reaches only the demo, which
     decides); SIGINT/SIGTERM to the demo, from a terminal or to its PID alone, are forwarded
     as SIGTERM (a clean stop: MCAP files finished), and :meth:`reap` waits a grace period
-    and then SIGKILLs whatever is left. No orphan either way.
+    and then SIGKILLs whatever is left, the children's own children (the recorders) too:
+    their process groups are waited for until empty. No orphan either way.
     """
 
     GRACE_S = 10.0
@@ -89,6 +97,116 @@ class _Children:
             except subprocess.TimeoutExpired:
                 p.kill()
                 p.wait(timeout=10)
+        # A child's recorder finishes its file after the child is gone (it reads
+        # end-of-file), in the child's process group: wait for the group to empty, then
+        # kill what is left, so nothing outlives the demo.
+        for p in self.procs:
+            while _group_alive(p.pid) and time.monotonic() < deadline:
+                time.sleep(0.05)
+            with contextlib.suppress(ProcessLookupError, PermissionError):
+                os.killpg(p.pid, signal.SIGKILL)
+
+
+def _group_alive(pgid: int) -> bool:
+    try:
+        os.killpg(pgid, 0)
+    except (ProcessLookupError, PermissionError):
+        return False
+    return True
+
+
+# After one child ended as a flight ends (0 flown, 1 crashed), the other has this long to
+# follow (it reads the goodbye at once, then finishes its files) before it is stopped
+_PEER_GRACE_S = 5.0
+# A child whose peer is alive but silent (hung, stopped) this long ends by itself (exit 3):
+# far above any pause of a healthy lockstep peer, well inside the demo's 15 s promise
+_CHILD_PEER_TIMEOUT_S = 10.0
+
+
+def _exit_text(code: int) -> str:
+    """How a child ended, in words: "exit 3" or "killed by SIGKILL"."""
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exit {code}"
+
+
+def _supervise(children: _Children, sim: subprocess.Popen[str],
+               fly: subprocess.Popen[str], t0: float) -> str | None:
+    """Wait until both children have ended; None if the flight ended as flights end, else
+    one line saying which died how. Either ending first is watched (every 0.1 s): one
+    killed by a signal or failing (exit other than 0 flown or 1 crashed) has its peer
+    stopped at once (SIGTERM: a clean stop) and is reported; one that ended normally has
+    its peer stopped if it has not followed within :data:`_PEER_GRACE_S` (lockstep peers
+    would otherwise wait for a restart forever), and the flight is reported as flown."""
+    names = {id(sim): "the vehicle (tfl-mav sim)", id(fly): "the controller (tfl-mav fly)"}
+    first: tuple[subprocess.Popen[str], float] | None = None
+    while True:
+        if children.signals:
+            return None                       # interrupted: the caller says so
+        codes = sim.poll(), fly.poll()
+        if None not in codes:
+            break
+        if first is None:
+            for p, code in zip((sim, fly), codes, strict=True):
+                if code is not None:
+                    first = (p, time.monotonic())
+                    break
+        if first is not None:
+            ended, when = first
+            other = fly if ended is sim else sim
+            code = ended.returncode
+            died = code not in (0, 1)
+            if died or time.monotonic() - when > _PEER_GRACE_S:
+                other.terminate()             # a clean stop: its files are finished
+                try:
+                    other.wait(timeout=children.GRACE_S)
+                except subprocess.TimeoutExpired:
+                    other.kill()
+                    other.wait(timeout=10)
+                if not died:
+                    return None               # flown; the other only lingered
+                return (f"{names[id(ended)]} ended ({_exit_text(code)}) "
+                        f"{when - t0:.1f} s into the run; "
+                        f"{names[id(other)].split(' (')[0]} was stopped")
+        time.sleep(0.1)
+    # Both ended by themselves: a failure of either is still a failure to report.
+    for p in (sim, fly):
+        if p.returncode not in (0, 1):
+            return f"{names[id(p)]} ended ({_exit_text(p.returncode)})"
+    return None
+
+
+class _Drain:
+    """Read a child's pipe to its end on a thread (a full pipe would stall the child)."""
+
+    def __init__(self, stream: Any, handle: Any = None, echo: bool = False) -> None:
+        self.lines: list[str] = []
+        self._handle = handle
+        self._echo = echo           # show a "recording cut short" line when it comes
+        self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
+        self._thread.start()
+
+    def _read(self, stream: Any) -> None:
+        if self._handle is not None:
+            self.lines.append(self._handle(stream))
+            return
+        for line in stream:
+            self.lines.append(line)
+            if self._echo and "recording cut short" in line:
+                print(("\n" if sys.stderr.isatty() else "") + line.rstrip(), file=sys.stderr,
+                      flush=True)
+
+    def text(self, timeout_s: float = 5.0) -> str:
+        self._thread.join(timeout_s)
+        return "".join(self.lines)
+
+
+def _last_line(text: str) -> str:
+    lines = [line.strip() for line in text.splitlines() if line.strip()]
+    return lines[-1] if lines else "no output"
 
 
 def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
@@ -121,35 +239,39 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
     with _Children() as children:
         sim = children.start(
             [*_cli(), "sim", name, "--listen", "127.0.0.1:0", "--gcs", "none",
-             "--legacy-ports", "--duration", str(duration), "--mcap", str(run_mcap), *shared,
+             "--legacy-ports", "--duration", str(duration), "--mcap", str(run_mcap),
+             "--peer-timeout", str(_CHILD_PEER_TIMEOUT_S), *shared,
              *(["--foxglove", foxglove] if foxglove else [])],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=pre)
         port = _await_port(sim)
+        sim_out, sim_err = _Drain(sim.stdout), _Drain(sim.stderr, echo=progress)
         fly = children.start(
             [*_cli(), "fly", name, "--vehicle", f"127.0.0.1:{port}", "--duration",
              str(duration), "--mcap", str(ctl_mcap), "--summary-json", str(fly_json),
-             "--progress", *shared],
+             "--progress", "--peer-timeout", str(_CHILD_PEER_TIMEOUT_S), *shared],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, preexec_fn=pre)
-        fly_err = _follow(fly, duration, progress)
-        fly_code = fly.wait(timeout=60)
-        sim_out, sim_err = sim.communicate(timeout=60)
+        fly_err = _Drain(fly.stderr, lambda stream: _follow(stream, duration, progress))
+        died = _supervise(children, sim, fly, time.monotonic())
     interrupted = bool(children.signals)
     wall = time.perf_counter() - t0
+    if died is not None and not interrupted:
+        raise DemoError(f"{died}: no flight report; what was recorded is in {out}/")
     say = _Say(progress)
     say.line(f"  flight: {duration:g} s of sim time in {wall:.1f} s wall")
     if not fly_json.exists() and not interrupted:
-        last = (fly_err.strip().splitlines() or ["no word on stderr"])[-1]
-        raise RuntimeError(f"the controller did not finish (exit {fly_code}): {last}")
-    try:        # written atomically (whole or not at all); unreadable: said, not raised
+        raise DemoError(f"the controller did not finish (exit {fly.returncode}): "
+                        f"{_last_line(fly_err.text())}")
+    try:
         fly_summary = json.loads(fly_json.read_text()) if fly_json.exists() else {}
-    except (OSError, ValueError):
-        fly_summary = {}
+    except (OSError, ValueError) as exc:
+        raise DemoError(f"{fly_json}: unreadable controller summary ({exc})") from None
+    sim_out_text, sim_err_text = sim_out.text(), sim_err.text()
     t1 = time.perf_counter()
     size_mib = sum(f.stat().st_size for f in (run_mcap, ctl_mcap) if f.exists()) / 2**20
     say.start(f"  report: reading run.mcap and ctl.mcap ({size_mib:.0f} MiB) ...")
     log = flight_log_from_mcap(run_mcap, scenario, ctl_mcap)
     log.crashed = sim.returncode == 1
-    log.crash_reason = _crash_reason(sim_out + sim_err) if log.crashed else ""
+    log.crash_reason = _crash_reason(sim_out_text + sim_err_text) if log.crashed else ""
     log.wall_time_s = wall
     log.duration_s = duration
     log.interrupted = interrupted
@@ -176,7 +298,7 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
         try:
             m["plots"] = [str(p) for p in write_report(log, out, title=scenario.name)]
         except OSError as exc:
-            raise RuntimeError(f"cannot write the plots in {out}: "
+            raise DemoError(f"cannot write the plots in {out}: "
                                f"{exc.strerror or exc}") from None
         phases["plots"] = round(time.perf_counter() - t2, 3)
         say.end(f" {phases['plots']:.1f} s")
@@ -185,7 +307,7 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
     try:
         write_text_atomic(out / "summary.json", json.dumps(m, indent=2))
     except OSError as exc:
-        raise RuntimeError(f"cannot write {out / 'summary.json'}: "
+        raise DemoError(f"cannot write {out / 'summary.json'}: "
                            f"{exc.strerror or exc}") from None
     return m
 
@@ -226,16 +348,16 @@ def _await_port(sim: subprocess.Popen[str]) -> int:
         if match := _LISTEN_RE.search(line):
             return int(match.group(2))
     err = sim.stderr.read() if sim.stderr and sim.poll() is not None else ""
-    raise RuntimeError("the simulator did not start: " + "".join(lines) + err)
+    raise DemoError("the simulator did not start: " + _last_line("".join(lines) + err))
 
 
-def _follow(fly: subprocess.Popen[str], duration: float, show: bool) -> str:
-    """Render the controller's progress lines; return its other stderr text."""
-    assert fly.stderr is not None
+def _follow(stream: Any, duration: float, show: bool) -> str:
+    """Render the controller's progress lines (its stderr ``stream``); return its other
+    stderr text."""
     other = []
     tty = sys.stderr.isatty()    # a terminal: one bar redrawn; a file or pipe: a line each 5 s
     drawn = False
-    for line in fly.stderr:
+    for line in stream:
         if match := _PROGRESS_RE.match(line):
             t, total, dist = float(match.group(1)), float(match.group(2)), float(match.group(3))
             if show and (tty or round(t) % 5 == 0):

@@ -22,15 +22,21 @@ import numpy as np
 from tfl_mav.build import scenario_path
 from tfl_mav.controller.flight_computer import FlightComputer
 from tfl_mav.flightlog.flight import FlightLog
+from tfl_mav.flightlog.pathdist import path_distances
 from tfl_mav.scenario import Scenario
 from tfl_mav.sim.attacker import AttackSignal
 from tfl_mav.sim.simulator import Simulator
+from tfl_mav.sim.wind import WindField
 
-__all__ = ["DETECTION_EVENT", "detections", "fly_offline"]
+__all__ = ["ATTACK_MOVE_EVENT", "ATTACK_RELEASE_EVENT", "DETECTION_EVENT", "detections",
+           "fly_offline"]
 
 # The event a detector alarm leaves in ``FlightLog.events`` (rotor 1-4, sim time in s).
 DETECTION_EVENT = "attack detected on rotor {rotor}"
 _DETECTION_RE = re.compile(r"^attack detected on rotor (\d)$")
+# The events an attack schedule ([[attack.phases]]) leaves: where the attacker went, when.
+ATTACK_MOVE_EVENT = "attacker seizes rotor {rotor}"
+ATTACK_RELEASE_EVENT = "attacker lets go"
 
 
 def detections(log: FlightLog) -> list[tuple[float, int]]:
@@ -70,9 +76,13 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
     else:
         fc = flight_software
     sim = Simulator(sc, attack_signal=attack_signal)
+    # the attack expression leaving its domain mid-flight is said (an event), not silent
+    sim.attacker.on_nonfinite = lambda t_s, text: log.events.append((t_s, text))
     v = sc.vehicle
-    log = FlightLog(thrust_max_n=v.thrust_max_n, attack_rotor=sc.attack.rotor,
-                    attack_start_s=sc.attack.start_s if sc.attack.rotor else math.nan)
+    first = sim.attacker.moves[0] if sim.attacker.moves else (sc.attack.start_s,
+                                                               sc.attack.rotor)
+    log = FlightLog(thrust_max_n=v.thrust_max_n, attack_rotor=sc.attack.first_rotor,
+                    attack_start_s=first[0] if sc.attack.first_rotor else math.nan)
     log.path_points_m = (ctrl.tracker.path if ctrl is not None
                          else scenario_path(sc)).sample(400)
     duration = sc.run.duration_s if duration_s is None else duration_s
@@ -125,6 +135,11 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
                 progress(sim.time_s, duration)
                 next_progress += 1.0
         _fill(log, rows, sim, detector=attack_info == "detector")
+        if sc.attack.phases:      # the schedule's moves, among the detector's verdicts
+            end_s = sim.time_s
+            log.events.extend((t, ATTACK_MOVE_EVENT.format(rotor=r) if r else ATTACK_RELEASE_EVENT)
+                              for t, r in sim.attacker.moves if t <= end_s)
+            log.events.sort(key=lambda e: e[0])
     finally:
         if gc_was_enabled:
             gc.enable()
@@ -180,6 +195,19 @@ def _fill(log: FlightLog, rows: list[tuple[Any, ...]], sim: Simulator, *,
             ("saturated", np.fromiter(cols[8], float, n)),
             ("mode", np.fromiter(cols[9], float, n))):
         data[key] = np.ascontiguousarray(value, dtype=float)
+    if sim.estimator is not None:
+        # The controller flew on the onboard estimate: its distance is the estimate's. The
+        # log's is the truth's (as a flight log's /sim/truth/path_distance), the
+        # controller's kept beside it.
+        data["path_distance_estimated_m"] = data["path_distance_m"]
+        data["path_distance_m"] = np.asarray(
+            path_distances(scenario_path(sim.scenario), x[:, 0:3].tolist()), dtype=float)
+    if sim.wind is not None:
+        # The air does not depend on the flight: the same field replayed at the ticks' steps
+        # (no per-tick cost), the wind each tick's true state met.
+        sc = sim.scenario
+        air = WindField(sc.wind, sc.run.seed, sim.physics_dt_s)
+        data["wind_mps"] = air.series(np.arange(n) * sim.steps_per_control)
 
 
 def _matrix(rows: tuple[Sequence[float], ...], width: int) -> np.ndarray:

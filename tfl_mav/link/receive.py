@@ -79,6 +79,7 @@ class Receiver:
     admit: Any
     skim_ids: frozenset[int]
     parser: Any
+    own_identity: tuple[int, int]
 
     def _init_receiver(self) -> None:
         # on_frames(direction, raws, msgs, time_s): when set (beside on_frame), the frames
@@ -168,6 +169,11 @@ class Receiver:
         now = None                   # the hook's receipt time: one clock read a datagram
         peer_sysid = self.peer_sysid
         if peer_sysid is not None and self.signing is None and self.peer is not None:
+            # a peer sharing our sysid (a companion computer's): our own compid is a
+            # reflection, left to the general loop (-1 matches no compid byte)
+            own_sysid, own_compid = self.own_identity
+            if own_sysid != peer_sysid:
+                own_compid = -1
             # The settled link's per-tick frames (unsigned, hot, from the peer's sysid): the
             # checks below in the general loop's order, fewer of them. Anything else (a
             # failed check included) leaves this loop at the frame's start, untouched, and
@@ -186,7 +192,7 @@ class Receiver:
                 if end > n:
                     break
                 layout = hot(data[i + 7] | data[i + 8] << 8 | data[i + 9] << 16)
-                if layout is None or data[i + 5] != peer_sysid:
+                if layout is None or data[i + 5] != peer_sysid or data[i + 6] == own_compid:
                     break
                 lite, crc_extra, size, unpack, unpack_from = layout
                 pend = end - _CRC_LEN
@@ -222,6 +228,7 @@ class Receiver:
         st = self.stats
         on_frame = self.on_frame
         signing = self.signing
+        own_sysid, own_compid = self.own_identity
         hot = _HOT.get
         crc16 = _crc16
         while i < n:
@@ -243,6 +250,12 @@ class Receiver:
                 return
             raw = data[i:end]            # the whole datagram itself if one frame
             i = end
+            if raw[5] == own_sysid and raw[6] == own_compid:
+                # Our own identity: our frame sent back. First, so that it can never pin
+                # the peer or its sysid, signed or not (our signed frames verify: the key
+                # is ours, and they travel in clear for anyone to reflect).
+                self._reject("reflected", raw)
+                continue
             if signing is not None:
                 reason = signing.verify(raw)
                 if reason is not None:

@@ -23,6 +23,9 @@ Policy (docs/SIGNING.md says the same for users):
   one, the daemon ends its run on a POWEROFF/EMERGENCY one, and the first one pins the
   peer).
 * Per stream (sysid, compid, link_id) only strictly newer timestamps are accepted.
+* A frame claiming our own (sysid, compid) is refused (``reflected``): replay state is kept
+  only for streams we *receive*, so without this rule our own signed frames, which anyone
+  can capture (signing does not encrypt), would verify when sent back to us.
 * A timestamp more than ``window_s`` (default 60 s) ahead of our clock is refused, and so
   is a new stream's first timestamp more than ``window_s`` behind it (the spec's one-minute
   rule). The spec bounds only the past; bounding the future too means a peer whose clock
@@ -160,6 +163,9 @@ class Signing:
         self.window = round(window_s * TIMESTAMP_UNITS_PER_S)
         self.clock = clock
         self.streams: dict[tuple[int, int, int], int] = {}
+        # (sysid, compid) of every packer we sign for: a frame claiming one of them is our
+        # own, sent back (it verifies: our key signed it), never a peer's
+        self.own: set[tuple[int, int]] = set()
 
     def now(self) -> int:
         """The current MAVLink timestamp by ``clock``."""
@@ -169,13 +175,17 @@ class Signing:
     def verify(self, frame: bytes | bytearray) -> str | None:
         """Check one complete MAVLink 2 frame: None if accepted (and its stream advanced),
         else the reason, named as the :class:`~tfl_mav.link.transport.LinkStats` counter:
-        ``unsigned``, ``bad_signature``, ``bad_timestamp`` (beyond the window) or
-        ``replayed`` (not newer than the stream's last accepted timestamp).
+        ``unsigned``, ``bad_signature``, ``bad_timestamp`` (beyond the window),
+        ``replayed`` (not newer than the stream's last accepted timestamp) or ``reflected``
+        (it claims the (sysid, compid) of a packer this instance signs for: our own frame
+        sent back, which verifies because our key signed it).
 
         Nothing is stored unless the signature verifies (verify, then advance).
         """
         if not frame[2] & _IFLAG_SIGNED:
             return "unsigned"
+        if (frame[5], frame[6]) in self.own:
+            return "reflected"
         expected = hashlib.sha256(self._key + frame[:-6]).digest()[:6]
         if not hmac.compare_digest(expected, bytes(frame[-6:])):
             return "bad_signature"
@@ -201,6 +211,7 @@ class Signing:
         :meth:`stamp` before each pack so the timestamp keeps up with the clock."""
         if not 0 <= link_id <= 255:
             raise ValueError(f"link_id: must be 0-255, got {link_id}")
+        self.own.add((packer.srcSystem, packer.srcComponent))
         sig = packer.signing
         sig.secret_key = self._key
         sig.link_id = link_id

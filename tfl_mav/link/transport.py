@@ -10,6 +10,12 @@ retries behind one object):
   peer, except by :meth:`Link.send_to` (e.g. telling a refused sender why). Once the
   peer's system id is known (from its first HEARTBEAT, or pinned), frames
   with another sysid are dropped too (``wrong_sysid``).
+* **Never itself.** A frame that claims this link's own (sysid, compid) is our own traffic
+  sent back (a loop, or an attacker reflecting it: our frames travel in clear, so a
+  reflected frame even carries a valid signature). It is dropped and counted
+  (``reflected``) before anything else looks at it, so it can neither pin the peer nor its
+  system id (ArduPilot's ``MAVLink_routing::check_and_forward`` does not process such a
+  "loopback of our own messages" either).
 * **MAVLink 2 only.** Frames with the MAVLink 1 magic (0xFE) are rejected and counted
   (``mavlink1``): accepting them would let anyone downgrade a signed link to an unsigned
   one later.
@@ -107,6 +113,7 @@ class LinkStats:
     foreign: int = 0            # datagram from an address that is not the peer
     wrong_sysid: int = 0        # from the peer's address, but another system id
     no_peer: int = 0            # listening, peer not learned yet, and not a HEARTBEAT
+    reflected: int = 0          # claims our own (sysid, compid): our own frame sent back
     refused_peer: int = 0       # HEARTBEAT from a would-be peer that ``admit`` refused
     # local trouble
     recv_errors: int = 0
@@ -115,7 +122,8 @@ class LinkStats:
 
     _REJECTIONS = ("garbage", "mavlink1", "truncated", "bad_flags", "bad_crc",
                    "bad_signature", "unsigned", "replayed", "bad_timestamp", "malformed",
-                   "unknown_id", "foreign", "wrong_sysid", "no_peer", "refused_peer")
+                   "unknown_id", "foreign", "wrong_sysid", "no_peer", "refused_peer",
+                   "reflected")
 
     @property
     def rejected(self) -> int:
@@ -205,6 +213,7 @@ class Link(Receiver):
         """
         sock.setblocking(True)
         self._sock = sock
+        self.own_identity = (src_system, src_component)
         self.packer = new_mavlink(src_system, src_component)
         self.parser = new_mavlink(src_system, src_component)
         self.peer: Address | None = peer

@@ -20,6 +20,8 @@ class Mode(IntEnum):
                     # unknown state, or the TFL law lost the path (level, hold altitude)
     LOST_ROTOR = 5  # the reduced-attitude law on three rotors (relaxed hover, spinning):
                     # the attack is where the TFL attacked law has no authority (A ≈ 0)
+    SPIN = 6        # the spin law: relaxed hover about a tilted axis with the attacked
+                    # rotor pinned above m g/2 (no attitude hold exists there)
 
     def __str__(self) -> str:
         return self.name.lower()

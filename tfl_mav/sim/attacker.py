@@ -14,7 +14,7 @@ from collections.abc import Callable, Sequence
 from typing import NamedTuple
 
 from tfl_mav.expr import Expr, compile_expr
-from tfl_mav.scenario import AttackConfig
+from tfl_mav.scenario import AttackConfig, AttackPhase
 
 __all__ = ["FAILURE_TYPES", "NO_ATTACK", "AttackSample", "Attacker"]
 
@@ -56,9 +56,45 @@ class Attacker:
         self._stuck_n: float | None = None
         self._expr: Expr | None = None
         self._custom: AttackSignal | None = None
-        if self.signal not in ("paper", "constant", "step", "ramp", "sine", "stuck", "off"):
-            self._expr = compile_expr(self.signal, ("t", "tau", "x", "y", "z"),
+        # Sim time (s) the signal first gave no finite value (an expression outside its
+        # domain: sqrt(5 - t) after 5 s, log(t - 1) before 1 s), or None; from then on a
+        # non-finite value holds the rotor at 0 N (recorded: raw NaN, clamped).
+        self.nonfinite_from_s: float | None = None
+        self.on_nonfinite: Callable[[float, str], None] | None = None
+        self._said = False     # on_nonfinite was called
+        """``on_nonfinite(t_s, text)``: called once, at the first non-finite value, with a
+        sentence saying what happened and when (the vehicle sends it as STATUSTEXT)."""
+        # The schedule ([[attack.phases]]): the phases still to come, and when the next one
+        # starts (∞: none, so the running attack's only extra cost is one comparison).
+        self._phases = list(cfg.phases)
+        self._next_start_s = math.inf
+        self.moves: list[tuple[float, int]] = []     # (start s, rotor 0-4) of every phase
+        if self._phases:
+            self._enter_phase(self._phases.pop(0))
+        else:
+            self._set_signal(self.signal)
+
+    def _set_signal(self, signal: str) -> None:
+        self.signal = signal
+        self._expr = None
+        if signal not in ("paper", "constant", "step", "ramp", "sine", "stuck", "off"):
+            self._expr = compile_expr(signal, ("t", "tau", "x", "y", "z"),
                                       field="attack.signal")
+
+    def _enter_phase(self, phase: AttackPhase) -> None:
+        """Make ``phase`` the attack (pending until its start), and the next one due. A
+        phase that lets go (rotor 0) makes the following phase pending at once: nothing is
+        attacked until it starts."""
+        self.moves.append((phase.start_s, phase.rotor))
+        self._stuck_n = None
+        while phase.rotor == 0 and self._phases:
+            phase = self._phases.pop(0)
+            self.moves.append((phase.start_s, phase.rotor))
+        self.rotor = phase.rotor
+        self.start_s = phase.start_s
+        if self._custom is None:
+            self._set_signal(phase.signal)
+        self._next_start_s = self._phases[0].start_s if self._phases else math.inf
 
     def use_signal(self, signal: AttackSignal | None) -> None:
         """Drive the seized rotor with ``signal(t_s, x)`` instead of the scenario's signal
@@ -97,7 +133,7 @@ class Attacker:
         elif kind == "drift":
             self.signal = "ramp"
         else:
-            self.signal = self.cfg.signal if self.cfg.signal != "off" else "paper"
+            self._set_signal(self.cfg.signal if self.cfg.signal != "off" else "paper")
 
     def sample(self, t_s: float, position_m: Sequence[float],
                last_command_n: float) -> AttackSample:
@@ -107,13 +143,30 @@ class Attacker:
         simulator passes its whole true state (13 floats), which a function signal reads."""
         if self.rotor == 0 or t_s < self.start_s:     # not active (inlined: every step)
             return NO_ATTACK
+        if t_s >= self._next_start_s:                 # the schedule's next phase is due
+            self._enter_phase(self._phases.pop(0))
+            if self.rotor == 0 or t_s < self.start_s:
+                return NO_ATTACK
         raw = self._raw(t_s, position_m, last_command_n)
         if not math.isfinite(raw):
+            if not self._said:
+                self._first_nonfinite(t_s, raw)
             return AttackSample(self.rotor, math.nan, 0.0, True)
         fmax = self.thrust_max_n    # min(max(raw, 0), f_max) for a finite raw, without calls
         applied = raw if 0.0 <= raw <= fmax else (0.0 if raw < 0.0 else fmax)
         # tuple.__new__: the NamedTuple's generated __new__ is a Python call (every step)
         return _new(AttackSample, (self.rotor, raw, applied, applied != raw))
+
+    def _first_nonfinite(self, t_s: float, raw: float) -> None:
+        if self.nonfinite_from_s is None:
+            self.nonfinite_from_s = t_s
+        t_s = self.nonfinite_from_s
+        if self.on_nonfinite is not None:
+            self._said = True
+            what = f"{self.signal!r}" if self.signal != CUSTOM_SIGNAL else "the signal function"
+            self.on_nonfinite(t_s, f"attack.signal {what} is not finite ({raw}) at t = "
+                                   f"{t_s:.3f} s: rotor {self.rotor} gets 0 N while it is "
+                                   "(the attacker's value is clamped to [0, f_max])")
 
     def _raw(self, t: float, pos: Sequence[float], last_command_n: float) -> float:
         c = self.cfg

@@ -156,9 +156,14 @@ class Clock(Protocol):
 class LockstepClock:
     """Sim time advances only when the controller has answered the current tick."""
 
-    def __init__(self, vehicle: Paced, timeout_s: float, resend_s: float = 0.005) -> None:
+    def __init__(self, vehicle: Paced, timeout_s: float, resend_s: float = 0.005,
+                 peer_timeout_s: float | None = None) -> None:
         self.vehicle = vehicle
         self.timeout_s = timeout_s   # wall seconds without a reply before reporting it
+        # wall seconds without a reply before the run ends (PEER_LOST); None: wait for a
+        # restarted controller however long it takes
+        self.peer_timeout_s = peer_timeout_s
+        self.lost = ""               # why the run ended PEER_LOST
         self.resend_s = min(resend_s, timeout_s)   # wall seconds before the first resend
         self.resend_max_s = min(RESEND_SPAN * resend_s, timeout_s)   # ... the later ones
         self._next_gcs_s = 0.0       # wall time the GCS port is next read
@@ -186,6 +191,8 @@ class LockstepClock:
             while True:
                 gcs_periodic()
                 if not await_reply(sim._time_usec):   # time_usec without the property call
+                    if self.lost:
+                        return ExitStatus.PEER_LOST, self.lost
                     return ExitStatus.STOPPED, "stopped on request"
                 # --- critical path: reply consumed → next state sent
                 crash = step()
@@ -212,6 +219,7 @@ class LockstepClock:
         ctl = v.control_link
         dispatch = v.dispatch
         now = _monotonic()
+        since = now
         deadline = now + self.timeout_s
         interval = self.resend_s
         resend_at = now + interval
@@ -234,6 +242,11 @@ class LockstepClock:
             now = _monotonic()
             if v.stopped():
                 return False
+            peer_timeout = self.peer_timeout_s
+            if peer_timeout is not None and now - since > peer_timeout:
+                self.lost = (f"no HIL_ACTUATOR_CONTROLS for {now - since:.1f} s (over "
+                             f"--peer-timeout {peer_timeout:g} s): the controller is gone")
+                return False
             if now >= deadline:
                 v.stats.lockstep_timeouts += 1
                 v.status(mav.MAV_SEVERITY_WARNING,
@@ -254,9 +267,11 @@ class LockstepClock:
 class RealtimeClock:
     """Sim time follows the wall clock; the latest valid command is held."""
 
-    def __init__(self, vehicle: Paced, command_timeout_s: float) -> None:
+    def __init__(self, vehicle: Paced, command_timeout_s: float,
+                 peer_timeout_s: float | None = None) -> None:
         self.vehicle = vehicle
         self.command_timeout_s = command_timeout_s   # wall seconds of silence → motors cut
+        self.peer_timeout_s = peer_timeout_s         # ... → the run ends (None: never)
 
     def run(self, n_ticks: float) -> tuple[ExitStatus, str]:
         v = self.vehicle
@@ -291,6 +306,11 @@ class RealtimeClock:
                 v.wait(min(WAIT_SLICE_S, target - now))
             if not held.motors_cut and now - held.since_s > self.command_timeout_s:
                 v.cut_motors(now - held.since_s, self.command_timeout_s)
+            if held.motors_cut and self.peer_timeout_s is not None \
+                    and now - held.since_s > self.peer_timeout_s:
+                return ExitStatus.PEER_LOST, (
+                    f"no valid HIL_ACTUATOR_CONTROLS for {now - held.since_s:.1f} s (over "
+                    f"--peer-timeout {self.peer_timeout_s:g} s): the controller is gone")
             stats.held_age.add(sim.time_usec - held.time_usec)
             crash = v.step()
             if crash is not None:

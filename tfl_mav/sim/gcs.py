@@ -23,7 +23,7 @@ attacked rotor's rpm) at ``gcs_rate_hz`` (≤ 50 Hz, one datagram each time), HE
 1 Hz with ``HOME_POSITION``. A new message for the GCS goes in :meth:`GcsTelemetry.messages`.
 
 **STATUSTEXT** (:class:`StatusText`): every one goes to both peers that are known (ASCII;
-longer than 50 characters → MAVLink 2 chunks with a shared ``id``); repeats of one reason
+longer than 50 characters → MAVLink 2 chunks with a shared ``id``, at most 8); repeats of one reason
 can be rate-limited to one a second (wall), with the count of those suppressed.
 """
 
@@ -37,6 +37,7 @@ from typing import Any
 
 from tfl_mav.link.codec import UNSENT, lite_class
 from tfl_mav.link.dialect import mav
+from tfl_mav.link.statustext import split as split_statustext
 from tfl_mav.link.transport import Link
 from tfl_mav.model.frames import odometry_from_paper
 from tfl_mav.model.geometry import rotation_rows
@@ -46,11 +47,10 @@ from tfl_mav.sim.results import VehicleStats
 from tfl_mav.sim.simulator import Simulator
 from tfl_mav.sim.state_report import StateReport
 
-__all__ = ["FlightStatus", "GcsTelemetry", "Origin", "StatusText", "home_position"]
+__all__ = ["FlightStatus", "GcsTelemetry", "Origin", "StatusText", "home_position",
+           "sensor_messages"]
 
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
-_STATUSTEXT_LEN = 50
-_STATUSTEXT_MAX_CHUNKS = 4
 _STATUS_MIN_INTERVAL_S = 1.0   # per-reason rate limit of repeated STATUSTEXTs (wall time)
 # What the simulator models (tfl_mav.sim.simulator: rates, attitude, mocap position;
 # tfl_mav.sim.motors;
@@ -183,16 +183,15 @@ class StatusText:
                     link.send(msg)
 
     def messages(self, severity: int, text: str) -> list[Any]:
-        """``text`` as STATUSTEXT messages: one, or up to 4 chunks sharing a fresh ``id``."""
-        data = text.replace("°", " deg").encode("ascii", errors="replace")
-        n = _STATUSTEXT_LEN
-        if len(data) <= n:
-            return [mav.MAVLink_statustext_message(severity, data, 0, 0)]
-        data = data[:n * _STATUSTEXT_MAX_CHUNKS]
+        """``text`` as STATUSTEXT messages: one with ``id`` 0 (up to 50 characters,
+        exactly 50 included: no terminator needed), or the chunks of
+        :func:`tfl_mav.link.statustext.split` sharing a fresh ``id`` (a full last chunk
+        gets its empty terminator; the receivers' :class:`~tfl_mav.link.statustext.
+        Reassembler` takes the same chunk limit)."""
+        chunks = split_statustext(text.replace("°", " deg"))
+        if len(chunks) == 1:
+            return [mav.MAVLink_statustext_message(severity, chunks[0], 0, 0)]
         self._chunk_id = self._chunk_id % 0xFFFF + 1
-        chunks = [data[i:i + n] for i in range(0, len(data), n)]
-        if len(chunks[-1]) == n and len(chunks) < _STATUSTEXT_MAX_CHUNKS:
-            chunks.append(b"")   # a full last chunk needs an empty terminator (MAVLink spec)
         return [mav.MAVLink_statustext_message(severity, c, self._chunk_id, i)
                 for i, c in enumerate(chunks)]
 
@@ -310,7 +309,54 @@ class GcsTelemetry:
         esc = self.report.esc
         if esc is not None:
             msgs.append(esc)   # this tick's ESC_TELEMETRY_1_TO_4: rpm
+        if sim.sensors is not None:   # realistic sensors: what they measured, as PX4 sends
+            msgs.extend(sensor_messages(sim, self.origin))
         return msgs
+
+
+# ISA at sea level: the barometer's altitude as the pressure a GCS shows
+_P0_HPA, _T0_K, _LAPSE_KPM, _BARO_EXP = 1013.25, 288.15, 0.0065, 5.25588
+_HIGHRES_FIELDS = 0b1_1101_1111_1111     # acc, gyro, mag xyz, abs pressure, alt, temperature
+_GPS_FIX_RTK_FIXED = 6
+_GPS_FIX_3D = 3
+
+
+def sensor_messages(sim: Simulator, origin: Origin) -> list[Any]:
+    """HIGHRES_IMU (the last IMU sample, magnetometer and barometer, body FRD) and
+    GPS_RAW_INT (the last fix delivered) of the realistic sensors
+    (:mod:`tfl_mav.sim.sensors`): a GCS's raw sensor view beside the estimate's ATTITUDE and
+    LOCAL_POSITION_NED."""
+    suite = sim.sensors
+    assert suite is not None
+    out: list[Any] = []
+    imu = suite.last_imu
+    if imu is not None:
+        ax, ay, az = imu.accel_mps2
+        gx, gy, gz = imu.gyro_radps
+        mx, my, mz = suite.last_mag
+        alt = suite.last_baro_m
+        pressure = _P0_HPA * (1.0 - _LAPSE_KPM * alt / _T0_K) ** _BARO_EXP \
+            if math.isfinite(alt) else 0.0
+        # FLU → FRD: y and z change sign
+        out.append(mav.MAVLink_highres_imu_message(
+            round(imu.time_s * 1e6), ax, -ay, -az, gx, -gy, -gz,
+            mx, -my, -mz, pressure, 0.0, alt if math.isfinite(alt) else 0.0, 15.0,
+            _HIGHRES_FIELDS, 0))
+    fix = suite.last_gps
+    if fix is not None:
+        e, n, u = fix.position_m
+        ve, vn, _vu = fix.velocity_mps
+        lat, lon, alt_m = origin.global_of(n, e, -u)
+        h_acc = sim.scenario.sensors.gps_position_noise_std_m
+        rtk = h_acc <= 0.05
+        out.append(mav.MAVLink_gps_raw_int_message(
+            round(fix.time_s * 1e6), _GPS_FIX_RTK_FIXED if rtk else _GPS_FIX_3D,
+            round(lat * 1e7), round(lon * 1e7), round(alt_m * 1000.0),
+            70, 100, min(65534, round(math.hypot(vn, ve) * 100.0)),
+            round(math.degrees(math.atan2(ve, vn)) * 100.0) % 36000, 20,
+            round(alt_m * 1000.0), round(h_acc * 1000.0), round(1.5 * h_acc * 1000.0),
+            round(sim.scenario.sensors.gps_velocity_noise_std_mps * 1000.0), 0, 0))
+    return out
 
 
 def _euler_zyx(rows: list[list[float]]) -> tuple[float, float, float]:

@@ -12,8 +12,13 @@ a STATUSTEXT naming it.
 
 **Arm/disarm** (``MAV_CMD_COMPONENT_ARM_DISARM``): disarm is the kill switch: the motors
 are commanded to zero thrust at once and stay off, whatever the controller sends, until a
-GCS arms again (then the controller's armed bit decides, as before). Honoured at any time;
-on a signed vehicle only signed commands reach here (:mod:`tfl_mav.link.signing`).
+GCS arms again (then the controller's armed bit decides, as before). PX4's rule for a
+disarm in the air applies: it is DENIED (with a STATUSTEXT saying why and how to force it)
+unless ``param2`` is the force code 21196 (PX4 Commander: "Disarming denied: not landed";
+one stray disarm flips a flying quadrotor in ~0.1 s). The simulated vehicle has no ground
+contact: it is airborne from the start (the scenario's initial position) and its run ends
+when it reaches the ground, so here every disarm is one in the air. On a signed vehicle
+only signed commands reach here (:mod:`tfl_mav.link.signing`).
 
 **Parameters** are read-only: ``PARAM_REQUEST_LIST``/``PARAM_REQUEST_READ`` answer the
 scenario's ``[vehicle]`` and ``[attack]`` numbers (``V_``/``A_`` + the key, upper case, at
@@ -49,10 +54,12 @@ from tfl_mav.sim.gcs import (
 from tfl_mav.sim.results import VehicleStats
 from tfl_mav.sim.simulator import Simulator
 
-__all__ = ["GroundCommands", "scenario_parameters"]
+__all__ = ["FORCE_DISARM", "GroundCommands", "scenario_parameters"]
 
 _REAL32 = mav.MAV_PARAM_TYPE_REAL32
 _PARAM_ID_LEN = 16
+FORCE_DISARM = 21196.0
+"""MAV_CMD_COMPONENT_ARM_DISARM.param2 that forces a disarm in the air (PX4, ArduPilot)."""
 
 
 def scenario_parameters(scenario: Scenario) -> list[tuple[str, float]]:
@@ -119,9 +126,18 @@ class GroundCommands:
 
     # ------------------------------------------------------------------ arm / disarm
     def arm_disarm(self, link: Link, msg: Any) -> None:
-        """param1 1 = arm, 0 = disarm (the kill switch: motors off now, latched)."""
+        """param1 1 = arm, 0 = disarm (the kill switch: motors off now, latched); in the
+        air a disarm needs param2 = 21196 (:data:`FORCE_DISARM`)."""
         flight = self.flight
-        if msg.param1 == 0.0:
+        if msg.param1 == 0.0 and msg.param2 != FORCE_DISARM:
+            self.stats.commands_denied += 1
+            self._ack(link, msg, mav.MAV_RESULT_DENIED)
+            altitude_m = self.sim.state_vector[2]
+            self.status.send(mav.MAV_SEVERITY_CRITICAL,
+                             f"disarm denied: in the air ({altitude_m:.2f} m above ground, "
+                             f"t = {self.sim.time_s:.3f} s), it would fall; param2 = 21196 "
+                             "forces it (motors off at once)", key="disarm")
+        elif msg.param1 == 0.0:
             flight.killed = True
             self.held.killed = True      # what the motors hold from now: zero
             self.sim.set_command([0.0, 0.0, 0.0, 0.0])

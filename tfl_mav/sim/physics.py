@@ -31,8 +31,20 @@ from tfl_mav.accel import native
 from tfl_mav.model.airframe import mix
 from tfl_mav.model.geometry import rotation_from_quaternion
 
-__all__ = ["RigidBodyParams", "RigidBodyState", "Rk4Step", "derivative", "mix",
-           "rk4_step", "rk4_stepper"]
+__all__ = [
+    "RigidBodyParams",
+    "RigidBodyState",
+    "Rk4AirStep",
+    "Rk4Step",
+    "RotorAeroParams",
+    "derivative",
+    "derivative_air",
+    "mix",
+    "rk4_air_step",
+    "rk4_air_stepper",
+    "rk4_step",
+    "rk4_stepper",
+]
 
 
 class RigidBodyParams(NamedTuple):
@@ -46,6 +58,30 @@ class RigidBodyParams(NamedTuple):
     k_t: float
     k_r: float
     gravity_mps2: float = 9.81
+
+
+class RotorAeroParams(NamedTuple):
+    """Rotor and frame aerodynamics in moving air (RotorPy's ``Multirotor.compute_body_wrench``;
+    all zero: only the paper's linear drag k_t, on the air-relative velocity). Per rotor i,
+    with ω_i its speed (rad/s) and u_i its air-relative velocity in body axes (the body's
+    airspeed plus Ω × r_i):
+
+        H_i = −ω_i (k_d u_ix, k_d u_iy, k_z u_iz)      rotor drag (H-force) and induced inflow
+        ΔT_i = k_h (u_ix² + u_iy²) along b3             translational lift
+
+    and on the frame D = −|u| (c_Dx u_x, c_Dy u_y, c_Dz u_z) (parasitic drag), the rotors'
+    forces also acting as moments r_i × F_i about the CG; and the rotors' angular momentum
+    h_r b3, h_r = J_r (−ω₁ + ω₂ − ω₃ + ω₄) (rotors 1, 3 spin about −b3: their drag reacts
+    +d f), turning with the body: the gyroscopic torque −Ω × h_r b3. (The reaction to a
+    rotor's spin-up, J_r (ω̇₁ − ω̇₂ + ω̇₃ − ω̇₄) about b3, comes in with the wrench: the
+    simulator has ω̇ from the motors.)"""
+
+    rotor_drag_kgprad: float = 0.0          # k_d, N/(rad/s · m/s)
+    induced_inflow_kgprad: float = 0.0      # k_z, N/(rad/s · m/s)
+    translational_lift_kgpm: float = 0.0    # k_h, N/(m/s)²
+    parasitic_drag_kgpm: tuple[float, float, float] = (0.0, 0.0, 0.0)   # c_D, N/(m/s)², body
+    inv_k_f: float = 0.0                    # 1/k_f, (rad/s)²/N: ω_i = √(f_i / k_f)
+    rotor_inertia_kgm2: float = 0.0         # J_r, each rotor about its axis
 
 
 @dataclass
@@ -125,13 +161,110 @@ def rk4_step(p: RigidBodyParams, x: Sequence[float], wrench: Sequence[float],
     return (px, py, pz, vx, vy, vz, qw / n, qx / n, qy / n, qz / n, wp, wq, wr)
 
 
+def derivative_air(p: RigidBodyParams, a: RotorAeroParams, x: Sequence[float],
+                   wrench: Sequence[float], air: Sequence[float]) -> tuple[float, ...]:
+    """:func:`derivative` in moving air: the drag acts on the air-relative velocity
+    v_q − w, and the rotor/frame aerodynamics of ``a`` (:class:`RotorAeroParams`) are added.
+    ``air`` = (w_x, w_y, w_z, f_1, f_2, f_3, f_4): the wind (m/s, paper frame) and the
+    rotors' thrusts (N), from which their speeds. Rotor i sits at r_i (eq. (4)'s "+" layout:
+    (l, 0, 0), (0, −l, 0), (−l, 0, 0), (0, l, 0) in FLU)."""
+    _, _, _, vx, vy, vz, qw, qx, qy, qz, wp, wq, wr = x
+    uf, tp, tq, tr = wrench
+    windx, windy, windz, f1, f2, f3, f4 = air
+    kd, kz, kh, cd, inv_kf, jr = a
+    cdx, cdy, cdz = cd
+    m = p.mass_kg
+    ix, iy, iz = p.inertia_kgm2
+    ell = p.arm_m
+    # R(q), body → inertial, by columns b1, b2, b3
+    r11 = 1.0 - 2.0 * (qy * qy + qz * qz)
+    r21 = 2.0 * (qx * qy + qw * qz)
+    r31 = 2.0 * (qx * qz - qw * qy)
+    r12 = 2.0 * (qx * qy - qw * qz)
+    r22 = 1.0 - 2.0 * (qx * qx + qz * qz)
+    r32 = 2.0 * (qy * qz + qw * qx)
+    r13 = 2.0 * (qx * qz + qw * qy)
+    r23 = 2.0 * (qy * qz - qw * qx)
+    r33 = 1.0 - 2.0 * (qx * qx + qy * qy)
+    ax = vx - windx          # air-relative velocity, inertial
+    ay = vy - windy
+    az = vz - windz
+    ub = r11 * ax + r21 * ay + r31 * az      # Rᵀ (v − w): the body's airspeed, FLU
+    vb = r12 * ax + r22 * ay + r32 * az
+    wb = r13 * ax + r23 * ay + r33 * az
+    o1 = math.sqrt(f1 * inv_kf)
+    o2 = math.sqrt(f2 * inv_kf)
+    o3 = math.sqrt(f3 * inv_kf)
+    o4 = math.sqrt(f4 * inv_kf)
+    # each rotor's airspeed: ub + Ω × r_i
+    lp, lq, lr = ell * wp, ell * wq, ell * wr
+    u1x, u1y, u1z = ub, vb + lr, wb - lq
+    u2x, u2y, u2z = ub + lr, vb, wb - lp
+    u3x, u3y, u3z = ub, vb - lr, wb + lq
+    u4x, u4y, u4z = ub - lr, vb, wb + lp
+    h1x, h1y = -o1 * kd * u1x, -o1 * kd * u1y
+    h2x, h2y = -o2 * kd * u2x, -o2 * kd * u2y
+    h3x, h3y = -o3 * kd * u3x, -o3 * kd * u3y
+    h4x, h4y = -o4 * kd * u4x, -o4 * kd * u4y
+    h1z = -o1 * kz * u1z + kh * (u1x * u1x + u1y * u1y)
+    h2z = -o2 * kz * u2z + kh * (u2x * u2x + u2y * u2y)
+    h3z = -o3 * kz * u3z + kh * (u3x * u3x + u3y * u3y)
+    h4z = -o4 * kz * u4z + kh * (u4x * u4x + u4y * u4y)
+    speed = math.sqrt(ub * ub + vb * vb + wb * wb)
+    fbx = h1x + h2x + h3x + h4x - speed * cdx * ub      # aerodynamic force, body
+    fby = h1y + h2y + h3y + h4y - speed * cdy * vb
+    fbz = h1z + h2z + h3z + h4z - speed * cdz * wb
+    hr = jr * (o2 + o4 - o1 - o3)                        # the rotors' angular momentum, b3
+    mx = ell * (h4z - h2z) - wq * hr                     # Σ r_i × F_i − Ω × h_r b3
+    my = ell * (h3z - h1z) + wp * hr
+    mz = ell * (h1y - h3y + h2x - h4x)
+    a_ = uf / m
+    kt = p.k_t / m
+    kr = p.k_r
+    return (
+        vx, vy, vz,
+        a_ * r13 - kt * ax + (r11 * fbx + r12 * fby + r13 * fbz) / m,
+        a_ * r23 - kt * ay + (r21 * fbx + r22 * fby + r23 * fbz) / m,
+        a_ * r33 - p.gravity_mps2 - kt * az + (r31 * fbx + r32 * fby + r33 * fbz) / m,
+        0.5 * (-qx * wp - qy * wq - qz * wr),
+        0.5 * (qw * wp + qy * wr - qz * wq),
+        0.5 * (qw * wq + qz * wp - qx * wr),
+        0.5 * (qw * wr + qx * wq - qy * wp),
+        (tp + mx - kr * wp - (iz - iy) * wq * wr) / ix,
+        (tq + my - kr * wq - (ix - iz) * wp * wr) / iy,
+        (tr + mz - kr * wr - (iy - ix) * wp * wq) / iz,
+    )
+
+
+def rk4_air_step(p: RigidBodyParams, a: RotorAeroParams, x: Sequence[float],
+                 wrench: Sequence[float], air: Sequence[float], h: float
+                 ) -> tuple[float, ...]:
+    """:func:`rk4_step` over :func:`derivative_air`: the wind and rotor thrusts ``air`` held
+    over the step as the wrench is."""
+    hh = 0.5 * h
+    k1 = derivative_air(p, a, x, wrench, air)
+    k2 = derivative_air(p, a, [x[i] + hh * k1[i] for i in range(13)], wrench, air)
+    k3 = derivative_air(p, a, [x[i] + hh * k2[i] for i in range(13)], wrench, air)
+    k4 = derivative_air(p, a, [x[i] + h * k3[i] for i in range(13)], wrench, air)
+    h6 = h / 6.0
+    px, py, pz, vx, vy, vz, qw, qx, qy, qz, wp, wq, wr = [
+        x[i] + h6 * (k1[i] + 2.0 * k2[i] + 2.0 * k3[i] + k4[i]) for i in range(13)]
+    n = math.sqrt(qw ** 2 + qx ** 2 + qy ** 2 + qz ** 2)
+    return (px, py, pz, vx, vy, vz, qw / n, qx / n, qy / n, qz / n, wp, wq, wr)
+
+
 Rk4Step = Callable[[Sequence[float], Sequence[float], float], Sequence[float]]
+Rk4AirStep = Callable[[Sequence[float], Sequence[float], Sequence[float], float],
+                      Sequence[float]]
 
 # The compiled rk4_step, once built: one for every airframe (its constants are an argument).
 _compiled: dict[str, Any] = {"core": None}
 # The arguments' shapes, which the lowering reads (their values are not folded in).
 _EXAMPLE = (RigidBodyParams(1.0, (1.0, 1.0, 1.0), 1.0, 1.0, 1.0, 1.0, 1.0), (0.0,) * 13,
             (0.0,) * 4, 1.0)
+_compiled_air: dict[str, Any] = {"core": None}
+_EXAMPLE_AIR = (_EXAMPLE[0], RotorAeroParams(1.0, 1.0, 1.0, (1.0, 1.0, 1.0), 1.0, 1.0),
+                (0.0,) * 13, (0.0,) * 4, (0.0,) * 7, 1.0)
 
 
 def rk4_stepper(p: RigidBodyParams, compiled: bool = True) -> Rk4Step:
@@ -174,3 +307,34 @@ def _attach() -> None:
     core = native.obtain_function(rk4_step, _EXAMPLE, ready)
     if core is not None:
         ready(core)
+
+
+def rk4_air_stepper(p: RigidBodyParams, a: RotorAeroParams, compiled: bool = True
+                    ) -> Rk4AirStep:
+    """``step(x, wrench, air, h)``: :func:`rk4_air_step` of the airframe ``p`` and its
+    aerodynamics ``a``, compiled as :func:`rk4_stepper` compiles :func:`rk4_step` (the same
+    fallbacks to the Python step)."""
+    python = functools.partial(rk4_air_step, p, a)
+    if not compiled or native.mode() == "off":
+        return python
+    if _compiled_air["core"] is None:
+        def ready(core: Any) -> None:
+            _compiled_air["core"] = core
+
+        core = native.obtain_function(rk4_air_step, _EXAMPLE_AIR, ready)
+        if core is not None:
+            ready(core)
+    plain = float
+    constants = tuple(p)
+    aero = (a[0], a[1], a[2], tuple(a[3]), a[4], a[5])
+
+    def step(x: Sequence[float], wrench: Sequence[float], air: Sequence[float],
+             h: float) -> Sequence[float]:
+        core = _compiled_air["core"]
+        if core is not None and type(x[0]) is plain:
+            r = core(constants, aero, x, wrench, air, h)
+            if r is not None:
+                return r  # type: ignore[no-any-return]
+        return python(x, wrench, air, h)
+
+    return step

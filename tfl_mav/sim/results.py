@@ -71,6 +71,7 @@ class ExitStatus(Enum):
     COMPLETED = "ran for the requested duration"
     CRASHED = "the vehicle crashed"
     STOPPED = "stopped on request"
+    PEER_LOST = "the controller went silent"
 
 
 @dataclass(frozen=True)

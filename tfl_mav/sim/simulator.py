@@ -18,8 +18,18 @@ from tfl_mav.model.geometry import euler_to_quaternion, quaternion_multiply
 from tfl_mav.model.state import State
 from tfl_mav.scenario import Scenario
 from tfl_mav.sim.attacker import NO_ATTACK, Attacker, AttackSample, AttackSignal
+from tfl_mav.sim.estimator import EKF_COVARIANCE_HZ, ErrorStateEkf, EstimatorOutput
 from tfl_mav.sim.motors import RADPS_TO_RPM, MotorBank
-from tfl_mav.sim.physics import RigidBodyParams, RigidBodyState, Rk4Step, rk4_stepper
+from tfl_mav.sim.physics import (
+    RigidBodyParams,
+    RigidBodyState,
+    Rk4Step,
+    RotorAeroParams,
+    rk4_air_stepper,
+    rk4_stepper,
+)
+from tfl_mav.sim.sensors import SensorSuite
+from tfl_mav.sim.wind import WindField
 
 __all__ = ["Simulator"]
 
@@ -89,6 +99,35 @@ class Simulator:
         self._rng = np.random.default_rng(scenario.run.seed) if self._noise_scales else None
         self._mean_thrust_n = self.motors.thrust_n
         self._gyro_range_radps = scenario.sensors.gyro_range_radps
+        # Moving air or rotor aerodynamics: the air step (physics.rk4_air_step). Still air
+        # with the paper's drag keeps the still-air step, untouched.
+        self.wind: WindField | None = (WindField(scenario.wind, scenario.run.seed,
+                                                 self.physics_dt_s)
+                                       if scenario.wind.active else None)
+        self.wind_mps: tuple[float, float, float] = (
+            self.wind.at(0) if self.wind is not None else (0.0, 0.0, 0.0))
+        if self.wind is not None or v.rotor_aero:
+            aero = (RotorAeroParams(v.rotor_drag_coeff, v.rotor_inflow_coeff,
+                                    v.translational_lift_coeff, v.parasitic_drag_coeff,
+                                    1.0 / v.k_f, v.rotor_inertia_kgm2)
+                    if v.rotor_aero else RotorAeroParams())
+            # the reaction to the rotors' spin-up, J_r ω̇ about b3 (through the wrench)
+            self._spin_up_kgm2 = v.rotor_inertia_kgm2 if v.rotor_aero else 0.0
+            self._rk4_air = rk4_air_stepper(self.params, aero)
+            self.step_control_period = self._step_control_period_air  # type: ignore[method-assign]
+        # Realistic sensors: IMU, GPS, baro and mag fused onboard; the controller receives
+        # the estimate (the truth never leaves the vehicle).
+        self.sensors: SensorSuite | None = None
+        self.estimate: EstimatorOutput | None = None
+        self.estimator: ErrorStateEkf | None = None
+        if sens.model == "realistic":
+            self.sensors = SensorSuite(sens, scenario.run.seed, v.gravity_mps2)
+            self.estimator = ErrorStateEkf(self._x, v.gravity_mps2, self.sensors.noise,
+                                           sens.gps_position_noise_std_m,
+                                           sens.gps_velocity_noise_std_mps,
+                                           cov_every=max(1, round(scenario.run.control_hz
+                                                                  / EKF_COVARIANCE_HZ)))
+            self._measure = self._measure_estimated  # type: ignore[method-assign]
         self._measure()
 
     # ------------------------------------------------------------------ time and commands
@@ -187,6 +226,62 @@ class Simulator:
         self.tick += 1
         self._measure()
 
+    def _step_control_period_air(self) -> None:
+        """:meth:`step_control_period` in moving air: the same attack, motors and mixer,
+        then the air step with the wind at the step's start (:class:`WindField`) and the
+        rotors' thrusts."""
+        h = self.physics_dt_s
+        motors = self.motors
+        attacker = self.attacker
+        step = self._rk4_air
+        wind_at = self.wind.at if self.wind is not None else None
+        wind = self.wind_mps
+        jr = self._spin_up_kgm2
+        ell, d = self._arm_m, self._drag_m
+        commands = self.rotor_commands_n
+        omega_for_thrust = motors.omega_for_thrust
+        held = motors.omegas_for_thrusts(commands)
+        x = self._x
+        n = self.physics_steps
+        att = NO_ATTACK
+        mean = self._mean_thrust_n
+        for _ in range(self.steps_per_control):
+            rotor = attacker.rotor
+            t = n * h
+            targets = held
+            if rotor and t >= attacker.start_s:
+                att = attacker.sample(t, x, commands[rotor - 1])
+                if att.rotor:
+                    targets = held.copy()
+                    targets[att.rotor - 1] = omega_for_thrust(att.applied_n)
+            else:
+                att = NO_ATTACK
+            w1, w2, w3, w4 = motors.omega_radps
+            mean = motors.step(targets, h)
+            f1, f2, f3, f4 = mean
+            tr = d * (f1 - f2 + f3 - f4)
+            if jr:
+                n1, n2, n3, n4 = motors.omega_radps
+                tr += jr * ((n1 - w1) - (n2 - w2) + (n3 - w3) - (n4 - w4)) / h
+            wrench = (f1 + f2 + f3 + f4, ell * (f4 - f2), ell * (f3 - f1), tr)
+            if wind_at is not None:
+                wind = wind_at(n)
+            air = (wind[0], wind[1], wind[2], f1, f2, f3, f4)
+            try:
+                x = step(x, wrench, air, h)
+            except (OverflowError, ZeroDivisionError, ValueError):
+                with np.errstate(all="ignore"):
+                    x = step([np.float64(c) for c in x], wrench, air, h)
+            n += 1
+        self.attack = att
+        self._mean_thrust_n = mean
+        self.physics_steps = n
+        self._x = x
+        self.wind_mps = wind_at(n) if wind_at is not None else wind
+        self._time_usec = _round(n * 1_000_000 / self._physics_hz)
+        self.tick += 1
+        self._measure()
+
     def _measure(self) -> None:
         """Sample the sensors once per control tick (so repeated reads agree).
 
@@ -246,6 +341,24 @@ class Simulator:
         self._parts = (tuple(pos), tuple(vel), tuple(q), tuple(w))
         self._measured_floats: State | None = None    # built from _parts on first read
         self._measured: State | None = None
+
+    def _measure_estimated(self) -> None:
+        """The realistic sensors sampled now and fused (:mod:`tfl_mav.sim.estimator`): the
+        measured state is the estimate; the ESC rpm are measured as in :meth:`_measure`."""
+        Simulator._measure(self)
+        suite, ekf = self.sensors, self.estimator
+        assert suite is not None and ekf is not None
+        imu, fixes, baro, mag = suite.sample(self.time_s, self._x)
+        ekf.predict(imu)
+        if mag is not None:
+            ekf.fuse_mag(mag)
+        if baro is not None:
+            ekf.fuse_baro(baro)
+        for fix in fixes:
+            ekf.fuse_gps(fix)
+        est = self.estimate = ekf.output()
+        self._parts = (est.position_m, est.velocity_mps, est.quaternion_wxyz,
+                       est.body_rates_radps)
 
     # ------------------------------------------------------------------ outputs
     @property

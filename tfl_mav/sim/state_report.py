@@ -33,6 +33,7 @@ from tfl_mav.link.codec import Prepacked, prepacked_class, trim
 from tfl_mav.link.dialect import mav
 from tfl_mav.model.frames import MAV_FRAME_BODY_FRD, MAV_FRAME_LOCAL_NED
 from tfl_mav.scenario import SensorConfig
+from tfl_mav.sim.estimator import EstimatorOutput
 from tfl_mav.sim.power import PowerModel
 from tfl_mav.sim.simulator import Simulator
 
@@ -43,6 +44,7 @@ _COV_DIAGONAL = (0, 6, 11, 15, 18, 20)
 _ACTIVE = 0b1111          # ACTUATOR_OUTPUT_STATUS.active: outputs 1-4 in use
 _PAD28 = (0.0,) * 28     # ACTUATOR_OUTPUT_STATUS.actuator[4..31]
 _MOCAP = mav.MAV_ESTIMATOR_TYPE_MOCAP
+_GPS_INS = mav.MAV_ESTIMATOR_TYPE_GPS_INS
 _SQRT1_2 = math.sqrt(0.5)
 _new = tuple.__new__
 _trim = trim
@@ -115,8 +117,13 @@ class StateReport:
         s = _SQRT1_2
         head = (sim._time_usec, py, px, -pz, s * (w + z), s * (x + y), s * (x - y), s * (w - z),
                 vb1, -vb2, -vb3, p, -q, -r)
-        odometry = _new(_Odometry, (_odometry_head(*head) + self._odometry_tail_bytes, head,
-                                    self._odometry_tail))
+        if sim.estimate is None:
+            odometry = _new(_Odometry, (_odometry_head(*head) + self._odometry_tail_bytes,
+                                        head, self._odometry_tail))
+        else:   # the onboard estimator's: its covariance, GPS_INS, this tick
+            tail = _estimate_tail(sim.estimate, (w, x, y, z))
+            odometry = _new(_Odometry, (_odometry_head(*head) + _odometry_tail(*tail), head,
+                                        tail))
         volts, (i1, i2, i3, i4), (q1, q2, q3, q4), (t1, t2, t3, t4), _ = self.power.sample
         r1, r2, r3, r4 = sim._rpm     # measured_rpm_floats
         self._esc_count = n = (self._esc_count + 1) & 0xFFFF
@@ -163,4 +170,31 @@ def _covariance(stds: tuple[float, ...]) -> list[float]:
     cov = [0.0] * 21
     for index, std in zip(_COV_DIAGONAL, stds, strict=True):
         cov[index] = std * std
+    return cov
+
+
+def _estimate_tail(est: EstimatorOutput, q: tuple[float, float, float, float]
+                   ) -> tuple[Any, ...]:
+    """ODOMETRY's tail from the onboard estimate: the pose covariance (NED position: the
+    paper frame's y, x, z variances; attitude FRD: its δθ about b1, b2, b3) and the twist
+    covariance (body-FRD velocity: diag(Rᵀ Σ R) of the inertial variances; rates), frames,
+    estimator GPS_INS."""
+    w, x, y, z = q
+    vx, vy, vz = est.velocity_var_m2ps2
+    rows = ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+            (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+            (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))
+    body = [rows[0][i] ** 2 * vx + rows[1][i] ** 2 * vy + rows[2][i] ** 2 * vz
+            for i in range(3)]
+    px, py, pz = est.position_var_m2
+    pose = _covariance_var((py, px, pz, *est.attitude_var_rad2))
+    twist = _covariance_var((*body, *est.rate_var_rad2ps2))
+    return (*pose, *twist, MAV_FRAME_LOCAL_NED, MAV_FRAME_BODY_FRD, 0, _GPS_INS, 100)
+
+
+def _covariance_var(variances: tuple[float, ...]) -> list[float]:
+    """ODOMETRY covariance array with these variances on the diagonal."""
+    cov = [0.0] * 21
+    for index, var in zip(_COV_DIAGONAL, variances, strict=True):
+        cov[index] = var
     return cov

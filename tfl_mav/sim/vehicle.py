@@ -14,7 +14,9 @@ One :class:`Vehicle` owns a :class:`~tfl_mav.sim.simulator.Simulator` and two li
   (``controllers_released``) and the next qualifying sender takes the link. Everything else
   is counted and dropped by :class:`~tfl_mav.link.transport.Link`.
 * the optional **GCS port** (``gcs``): a separate socket that sends to a ground station
-  (MAVProxy, QGroundControl, mavsdk) and accepts its commands.
+  (MAVProxy, QGroundControl, mavsdk) and accepts its commands. The controller's STATUSTEXT
+  (its safety events: attack detected, safe law, handed back) is forwarded there unchanged,
+  so the GCS hears them with the controller's ids and severities.
 
 The vehicle wires the parts together and runs the flight; each part has its own module:
 
@@ -94,6 +96,7 @@ _ID_HIL_ACTUATOR_CONTROLS = mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS
 # The daemon's own telemetry (tfl_mav.controller.daemon, ≤ 50 Hz): the vehicle only records it, so
 # the control link checks and counts those frames but does not decode them.
 _IGNORED_IDS = (mav.MAVLINK_MSG_ID_NAMED_VALUE_FLOAT, mav.MAVLINK_MSG_ID_DEBUG_FLOAT_ARRAY)
+_ID_STATUSTEXT = mav.MAVLINK_MSG_ID_STATUSTEXT
 _STALE = Outcome.STALE   # an Enum member through its class costs ~10× a global (3.11)
 _CONTROL_LINK_ID, _GCS_LINK_ID = 0, 1      # MAVLink signing link ids of our two ports
 _FINAL_HEARTBEATS, _FINAL_HEARTBEAT_GAP_S = 3, 0.01   # the last HEARTBEAT, sent 3 times
@@ -113,7 +116,8 @@ class Vehicle:
                  key: bytes | None = None, on_frame: FrameHook | None = None,
                  on_truth: Callable[[Simulator], None] | None = None,
                  on_status: Callable[[int, str], None] | None = None,
-                 on_frames: Callable[..., None] | None = None) -> None:
+                 on_frames: Callable[..., None] | None = None,
+                 peer_timeout_s: float | None = None) -> None:
         """Bind the sockets (raises :class:`~tfl_mav.link.transport.LinkError`) and build the sim.
 
         ``listen``: control port to bind (port 0 = ephemeral, see :attr:`listen_address`).
@@ -125,13 +129,18 @@ class Vehicle:
         ``gcs_rate_hz``: GCS telemetry rate, at most
         50 Hz. ``key``: 32-byte MAVLink 2 signing secret for both ports, or None (unsigned).
         ``on_status(severity, text)`` sees every STATUSTEXT the vehicle sends.
+        ``peer_timeout_s``: end the flight (:attr:`ExitStatus.PEER_LOST`) when the
+        controller has sent no command for this many wall seconds; None (default) waits
+        for a restarted controller.
         ``on_frames(direction, raws, msgs, time_s)``: beside ``on_frame``, a datagram's
         per-tick frames in one call (e.g. ``RecorderProcess.on_frames``: one hand-off item
         a datagram, not one a frame).
         """
         for name, value in (("lockstep_timeout_s", lockstep_timeout_s),
                             ("command_timeout_s", command_timeout_s),
-                            ("resend_interval_s", resend_interval_s)):
+                            ("resend_interval_s", resend_interval_s),
+                            ("peer_timeout_s", 1.0 if peer_timeout_s is None
+                             else peer_timeout_s)):
             if not (math.isfinite(value) and value > 0):
                 raise ValueError(f"{name}: must be a positive number of seconds, got {value}")
         if not (math.isfinite(gcs_rate_hz) and 0 < gcs_rate_hz <= 50):
@@ -188,13 +197,16 @@ class Vehicle:
                                      status=self.statustext, origin=self.origin, sysid=sysid,
                                      compid=compid, held=self.held)
         self.ground.register(self.commands)
+        self.sim.attacker.on_nonfinite = self._attack_nonfinite
+        self.commands.routes[_ID_STATUSTEXT] = self._forward_statustext
         self.gcs = (GcsTelemetry(self.gcs_link, 1.0 / gcs_rate_hz, sim=self.sim,
                                  power=self.power, stats=self.stats, held=self.held,
                                  flight=self.flight, report=self.report, origin=self.origin,
                                  sim_time=not realtime)
                     if self.gcs_link is not None else None)
-        self.clock: Clock = (RealtimeClock(self, command_timeout_s) if realtime
-                             else LockstepClock(self, lockstep_timeout_s, resend_interval_s))
+        self.clock: Clock = (RealtimeClock(self, command_timeout_s, peer_timeout_s) if realtime
+                             else LockstepClock(self, lockstep_timeout_s, resend_interval_s,
+                                                peer_timeout_s))
         # The run's phase.
         self._stop = threading.Event()
         self._external_stop: threading.Event | None = None
@@ -420,6 +432,19 @@ class Vehicle:
             if route is not None:
                 route(self.control_link, msg)
         return False
+
+    def _attack_nonfinite(self, _t_s: float, text: str) -> None:
+        """The attack expression left its domain mid-flight: said once, not flown silently."""
+        self.status(mav.MAV_SEVERITY_WARNING, text)
+
+    def _forward_statustext(self, link: Link, msg: Any) -> None:
+        """The controller's STATUSTEXT (its safety events: attack detected, safe law
+        engaged, handed back, failsafe) on to the GCS, as PX4 forwards a companion's: the
+        frame unchanged (MAVLink routing), so the GCS sees the controller's own ids,
+        severity and signature."""
+        gcs = self.gcs_link
+        if link is self.control_link and gcs is not None and gcs.peer is not None:
+            gcs.send_raw(bytes(msg.get_msgbuf()))
 
     def gcs_periodic(self) -> None:
         gcs = self.gcs

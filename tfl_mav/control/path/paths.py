@@ -232,9 +232,44 @@ def _like(value: Any, arg: Any) -> Any:
     return value
 
 
+_GRID_N = 4001   # the grid of t the path's demand is read on (controller.feasibility)
+
+
 def _check_path(path: Path, n: int = 64) -> None:
     """Say what is wrong with a user path instead of letting the law fail later."""
     lo, hi = path.lam_range
+    # σ must be finite on the whole search range, end points included: a pole (``1/t``)
+    # or a function outside its domain (``log(t)``, ``sqrt(t)``) at a t the projection or
+    # the feasibility check reads would otherwise come out as NaN far from here.
+    grid = np.linspace(lo, hi, _GRID_N)
+    with np.errstate(all="ignore"):
+        try:
+            pts = np.array([np.asarray(_like(c, grid), dtype=float) + 0.0 * grid
+                            for c in path.sigma(grid)])
+        except (ValueError, ZeroDivisionError, OverflowError, TypeError) as exc:
+            raise PathError("path.sigma", f"cannot evaluate on t in [{lo:g}, {hi:g}]: "
+                                          f"{exc}") from None
+    bad = ~np.all(np.isfinite(pts), axis=0)
+    if np.any(bad):
+        t_bad = float(grid[np.argmax(bad)])
+        raise PathError("path.sigma", f"not finite at t = {t_bad:.4g} (a pole, or log/sqrt "
+                                      f"of a negative number); choose path.t_range within "
+                                      f"the domain (now [{lo:g}, {hi:g}])")
+    # ... and regular there: a σ' = 0 at a grid point (t**3 at 0) has no tangent, and the
+    # path's demand (curvature) there is 0/0
+    h = 1e-4
+    with np.errstate(all="ignore"):
+        ahead = np.array([np.asarray(_like(c, grid), dtype=float) + 0.0 * grid
+                          for c in path.sigma(grid + h)])
+        behind = np.array([np.asarray(_like(c, grid), dtype=float) + 0.0 * grid
+                           for c in path.sigma(grid - h)])
+    speed = np.linalg.norm((ahead - behind) / (2 * h), axis=0)
+    stalled = ~(speed > 1e-6)
+    if np.any(stalled):
+        t_bad = float(grid[np.argmax(stalled)])
+        raise PathError("path.sigma", f"sigma'(t) = 0 at t = {t_bad:.4g}: not regular (no "
+                                      "tangent there); reparametrise or choose path.t_range "
+                                      "without it")
     scale = 1.0
     for i in range(n):
         lam = lo + (hi - lo) * (i + 0.5) / n

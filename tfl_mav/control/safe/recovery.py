@@ -35,10 +35,14 @@ velocity zero). Its poles are a triple one at −ω_p (ω_p = 1.25 rad/s): k_p =
 k_i = ω_p³. The integral is what makes the law precise: the steady forces it does not model
 (the model's mass error Δm g, drag, the spinning attitude loop's bias) are a constant
 acceleration demand, which a PD alone leaves as an offset Δm g/k_p (0.10 m at 5 % mass
-error) and the integral removes. It is bounded (±``MAX_INTEGRAL_G`` g) and frozen while the
-demand is limited or the allocation cannot make it (anti-windup, :meth:`_integrate`). The
-wanted acceleration is limited to a 30° tilt and
-±0.5 g vertically: a safe law does not chase the path hard.
+error) and the integral removes. A stiffer loop (ω_p = 2 rad/s) hands the vehicle back to TFL
+within ~10 mm after the paper's zero-attack stretch instead of ~50 mm, but costs a dead
+rotor with motor lag or a 250 Hz loop 3-6× its precision (the spinning attitude loop's
+bandwidth) and loses a 5 N constant attack (measured with `tfl-mav envelope`); a stiffness
+scheduled on the position error rings near the path (a dead rotor, exact model: 24 mm). The
+integral is bounded (±``MAX_INTEGRAL_G`` g) and frozen while the demand is limited or the
+allocation cannot make it (anti-windup, :meth:`_integrate`). The wanted acceleration is
+limited to a 30° tilt and ±0.5 g vertically: a safe law does not chase the path hard.
 
 Thrust requests are feasible by construction: the three-rotor allocation gives up τ_p (the
 opposite rotor within [0, f_max]) before τ_q, and τ_q before u_f, so what the law asks for
@@ -329,8 +333,17 @@ class RecoveryLaw:
         """Hold this point (altitude hold, velocity zero) instead of the path."""
         self.hold_m = [float(c) for c in position_m]
 
-    def follow_path(self) -> None:
+    def follow_path(self, lam: float | None = None, *, search: bool = False) -> None:
+        """Fly the path (no held point). ``lam``: start the closest-point search at this
+        path parameter (the law that flew until now: its λ is the vehicle's); ``search``: a
+        fresh global search instead (the vehicle may be anywhere after a held point). Left
+        alone, λ is the one this law last flew with — seconds ago, perhaps another bend."""
         self.hold_m = None
+        if self.projector is not None:
+            if search:
+                self.projector.lam = None
+            elif lam is not None and math.isfinite(lam):
+                self.projector.lam = float(lam)
 
     def _accel_demand(self, y: Sequence[float], v: Sequence[float]
                       ) -> tuple[float, float, float, float]:
@@ -393,12 +406,21 @@ class RecoveryLaw:
         return gains
 
     # ------------------------------------------------------------------ the law
-    def update(self, s: State, attacked_rotor: int = 0,
-               attack_n: float = 0.0) -> RecoveryOutput:
+    def update(self, s: State, attacked_rotor: int = 0, attack_n: float = 0.0, *,
+               mass_kg: float | None = None) -> RecoveryOutput:
         """Rotor thrusts for this period; ``attacked_rotor`` 0 = four healthy rotors.
+        ``mass_kg``: the vehicle's mass as estimated now (the TFL side's estimator, which
+        learns whichever law flies); the model's otherwise. The integral then has only the
+        rest to learn — and it cannot learn where the allocation gives up (frozen: at the
+        paper path's top bend a dead rotor's spin slows with the thrust and it does), so
+        a 5 % mass error left a 0.1 m offset there (Δm g / k_p).
 
         R(q) is written out as the nine entries :func:`~tfl_mav.model.geometry.rotation_rows`
         computes."""
+        if mass_kg is not None and mass_kg != self.mass_kg and mass_kg > 0.0:
+            self.mass_kg = mass_kg
+            self._step_model = (mass_kg, *self._step_model[1:])
+            self._safe = self._safe._replace(model=self._step_model)
         if attacked_rotor:
             return self._three_rotor(s, attacked_rotor, attack_n)
         # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.

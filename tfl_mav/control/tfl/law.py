@@ -45,8 +45,8 @@ from tfl_mav.control.path.compiled import CompiledPathTracker, _pi_kernel, make_
 from tfl_mav.control.path.paths import Path
 from tfl_mav.control.path.projection import PATH_START, VO_OK, PathState, lost_reason
 from tfl_mav.control.path.tracker import PathTracker
-from tfl_mav.control.tfl import step
-from tfl_mav.control.tfl.estimators import DOB_START, mass_model, mass_start
+from tfl_mav.control.tfl import law_math, step
+from tfl_mav.control.tfl.estimators import DOB_START, mass_model, mass_start, mass_update
 from tfl_mav.control.tfl.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
 from tfl_mav.control.tfl.step import R_COND, R_THRUST, R_TUBE, Frame, TFLInputs, TFLParams, TFLState
 from tfl_mav.model.modes import Mode
@@ -122,6 +122,7 @@ _NESTED = {TFLState._fields.index(name): kind for name, kind in (
 _X13, _X14, _MASS, _FINE, _PATH = (TFLState._fields.index(n)
                                    for n in ("x13", "x14", "mass", "fine", "path"))
 _MASS_KG = step.MassState._fields.index("mass_kg")
+_MASS_UPDATES = step.MassState._fields.index("updates")
 
 
 def as_state(s: Any) -> TFLState:
@@ -141,7 +142,8 @@ class TFLController:
     """
 
     def __init__(self, model: ModelParams, path: Path, cfg: LawConfig, dt_s: float, *,
-                 compiled_path: bool = True) -> None:
+                 compiled_path: bool = True, rpm_noise_std: float = 0.0) -> None:
+        """``rpm_noise_std``: the ESC noise (rpm) the motor-lag inverse filters (with lag)."""
         self.model = model
         self._dt = dt_s
         self.tracker: PathTracker
@@ -159,6 +161,8 @@ class TFLController:
         self.lag_inverter = (MotorLagInverter(model.k_f, model.thrust_max_n,
                                               model.motor_time_constant_s, dt_s)
                              if model.motor_time_constant_s > 0.0 else None)
+        if self.lag_inverter is not None and rpm_noise_std > 0.0:
+            self.lag_inverter.set_rpm_noise(rpm_noise_std)
         fmax = float(model.thrust_max_n)
         self._free = ((0.0, 0.0, 0.0, 0.0), (fmax, fmax, fmax, fmax))
         self._failure = ""          # the last path evaluation error (VO_FAILED's words)
@@ -252,6 +256,11 @@ class TFLController:
         return float(self.state[_MASS][_MASS_KG])
 
     @property
+    def mass_learnt_s(self) -> float:
+        """How long the mass estimator has learnt (s of ticks it took a sample from)."""
+        return float(self.state[_MASS][_MASS_UPDATES]) * self._dt
+
+    @property
     def fine(self) -> bool:
         """True once the law has switched to the fine ξ, η poles."""
         return bool(self.state[_FINE])
@@ -286,10 +295,27 @@ class TFLController:
             ps = ps._replace(has_lam=1.0, lam=lam)
             if self._linked_for is not self.tracker:
                 self.tracker.lam = lam
+        # The mass estimator has kept learning while the other law flew (:meth:`track`).
         self.state = s._replace(x13=sum(thrust_n), x14=0.0, dob=DOB_START, has_pred=0.0,
                                 last_out=tuple(thrust_n), path=ps)
         if self.lag_inverter is not None:
             self.lag_inverter.reset()
+
+    def track(self, s: State, applied_n: Sequence[float]) -> None:
+        """A tick another law flew: the mass estimator learns from it as from its own
+        (:func:`~tfl_mav.control.tfl.estimators.mass_update` with the thrust that was applied
+        over the last period, N, and the measured velocity and attitude). Newton's law holds
+        whichever law commands, so at a hand-back the estimate and its filters are those of
+        the vehicle now, not of the moment the other law took over (a stale LP(v) against
+        today's v reads as an acceleration: the estimate jumped by 3 % and left a tail)."""
+        p = self.params
+        if not p.use_mass:
+            return
+        st = as_state(self.state)
+        r = law_math.rotation(_floats(s.quaternion_wxyz))
+        mass = mass_update(p.mass, st.mass, p.dt_s, _floats(s.velocity_mps),
+                           float(sum(applied_n)), (r[2], r[5], r[8]))
+        self.state = st._replace(mass=mass)
 
     def set_attack(self, rotor: int, estimate_n: float) -> None:
         """Declare rotor (1-4) attacked with the given thrust estimate (N); 0 = none.
@@ -313,10 +339,19 @@ class TFLController:
         self.attack_estimate_n = float(estimate_n)
 
     # ------------------------------------------------------------------ the law
-    def update(self, s: State,
-               rotor_speed_radps: Sequence[float] | None = None) -> ControlOutput:
+    def update(self, s: State, rotor_speed_radps: Sequence[float] | None = None, *,
+               dt_s: float | None = None) -> ControlOutput:
         """Compute the rotor thrusts (N) for this control period from the measured state
-        and, with motor lag, the measured rotor speeds ω (rad/s, from ESC rpm)."""
+        and, with motor lag, the measured rotor speeds ω (rad/s, from ESC rpm). ``dt_s``:
+        the real time since the last tick when it is not one control period (a real-time
+        daemon skipped states): the law's internal states integrate over it."""
+        if dt_s is not None and dt_s != self._dt:
+            period = self._dt
+            self.dt = dt_s
+            try:
+                return self.update(s, rotor_speed_radps)
+            finally:
+                self.dt = period
         self.ticks += 1
         # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
         y, v, quat, rates = (_floats(s.position_m), _floats(s.velocity_mps),
@@ -345,7 +380,7 @@ class TFLController:
             r = self._reference_tick(as_state(st), y, v, quat, rates, lo, hi)
         new, out = r
         f, attacked, sat, xi, eta, mu, distance, lam, cond, uf, mass, dob, fine, reason, \
-            code, margin, canon_rates, sat_any = out
+            code, margin, canon_rates, sat_any, demand = out
         if sat_any:
             self.saturation_count += 1
         command = list(f)
@@ -363,7 +398,7 @@ class TFLController:
         # named tuple costs more than a microsecond a tick).
         return _new_output(ControlOutput, (
             command, mode, [sat[0] != 0.0, sat[1] != 0.0, sat[2] != 0.0, sat[3] != 0.0],
-            xi, eta, mu, distance, lam, cond, uf, mass, dob, fine != 0.0, text))
+            xi, eta, mu, distance, lam, cond, uf, mass, dob, fine != 0.0, text, demand))
 
     def _reference_tick(self, st: TFLState, y: Any, v: Any, quat: Any, rates: Any, lo: Any,
                         hi: Any) -> tuple[Any, Any]:

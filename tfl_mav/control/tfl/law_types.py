@@ -73,6 +73,8 @@ class ControlOutput(NamedTuple):
     disturbance_radps2: tuple[float, float]
     fine_gains: bool
     reason: str = ""                     # why a fallback was taken
+    demand_n: tuple[float, ...] = ()     # the unbounded allocation the law asked for (N,
+                                         # physical; before the lag inverse and [0, f_max])
 
 
 def chain_gains(pole: float, order: int) -> tuple[float, ...]:

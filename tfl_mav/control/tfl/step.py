@@ -166,6 +166,7 @@ class TFLOutputs(NamedTuple):
     margin: float               # the projection's margin (VO_MARGIN's)
     rates: V3                   # canonical (p, q, r) rad/s: :func:`predict`'s
     saturated_any: float
+    demand_n: V4                # the unbounded allocation (N, physical): what the law asks
 
 
 def _pick(values: tuple[float, ...], k: float) -> float:
@@ -309,7 +310,7 @@ def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: tuple[Any, ...],
         ((xi1[0], xi1[1], xi1[2], xi1[3]), (xi2[0], xi2[1], xi2[2], xi2[3])),
         (eta[0], eta[1], eta[2], eta[3]), (psi, -wp / p.iz_kgm2 - arm * wr / fr.mu_den),
         distance, lam, cond, uf, mass, (dob_s.d_p, dob_s.d_q), fine, reason, code, margin,
-        rates, sat_any)
+        rates, sat_any, (raw[0], raw[1], raw[2], raw[3]))
     return state, out
 
 

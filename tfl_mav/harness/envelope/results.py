@@ -58,6 +58,7 @@ class CaseResult:
     wall_time_s: float | None = None            # not written to the files (not deterministic)
     base: str = ""
     settings: tuple[str, ...] = ()
+    law_switches: int | None = None             # switches between TFL and the safe law
 
     def to_json(self) -> dict[str, Any]:
         d = asdict(self)

@@ -74,7 +74,8 @@ def _to_result(case: Case, m: dict[str, Any], log: Any) -> CaseResult:
         false_alarms=m.get("false_alarms"), mode_fraction=mode_fractions(log["mode"]),
         thrust_req_min_n=m.get("thrust_min_n"), thrust_req_max_n=m.get("thrust_max_n"),
         sim_time_s=m.get("sim_time_s"), reason=m.get("crash_reason") or "",
-        wall_time_s=m.get("wall_time_s"), base=case.base, settings=case.settings)
+        wall_time_s=m.get("wall_time_s"), base=case.base, settings=case.settings,
+        law_switches=m.get("law_switches"))
 
 
 def fly_case(case: Case) -> CaseResult:

@@ -16,8 +16,8 @@ the counters' change over the batch is exactly what the batch caused.
 **Accounting, exactly.** :class:`LinkModel` is a reference model of the framing rules that
 ``tfl_mav/link/transport.py`` documents (MAVLink 2 only, one datagram at a time, nothing
 carried over, reasons ``garbage``/``mavlink1``/``truncated``/``bad_flags``/``bad_crc``/
-``malformed``/``unknown_id``/``wrong_sysid``); it checks the CRC itself and asks pymavlink
-only to unpack payloads. :class:`VehicleModel` and :class:`DaemonModel` add what each
+``malformed``/``unknown_id``/``wrong_sysid``/``reflected``); it checks the CRC itself and
+asks pymavlink only to unpack payloads. :class:`VehicleModel` and :class:`DaemonModel` add what each
 endpoint does with an accepted message (stale/rejected controls, commands not for us,
 denied, unsupported; bad/good states, ESC reports, ticks, ignored messages). Per batch the
 predicted counters must equal the endpoint's counters; ``mismatches`` lists every batch

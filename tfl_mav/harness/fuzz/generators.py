@@ -324,6 +324,10 @@ class DaemonGen(_Gen):
                     mav.MAVLink_hil_actuator_controls_message(
                         self.fuzz_time(), [self.nasty() for _ in range(16)], 128, 1),
                     mav.MAVLink_command_long_message(1, 0, 420, 0, *[self.nasty()] * 7),
+                    # used by the daemon (the held command), counted nowhere
+                    mav.MAVLink_actuator_output_status_message(
+                        self.fuzz_time(), rng.randrange(2**32),
+                        [self.nasty() for _ in range(32)]),
                 ))))
             elif category not in ("oversize", "bad_controls", "extreme_state"):
                 raise ValueError(f"unknown category {category!r}")

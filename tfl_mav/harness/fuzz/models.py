@@ -25,8 +25,9 @@ class LinkModel:
     datagrams from the (already known) peer address: a list of outcomes per datagram, each
     a reason string or an accepted, decoded message."""
 
-    def __init__(self, peer_sysid: int) -> None:
+    def __init__(self, peer_sysid: int, own: tuple[int, int]) -> None:
         self.peer_sysid = peer_sysid
+        self.own = own               # the endpoint's own (sysid, compid): a reflection
         self._unpacker = new_mavlink(255, 0)
 
     def outcomes(self, data: bytes) -> list[Any]:
@@ -50,7 +51,8 @@ class LinkModel:
                 break
             raw = data[i:end]
             i = end
-            out.append(self._frame(raw, incompat))
+            out.append("reflected" if (raw[5], raw[6]) == self.own
+                       else self._frame(raw, incompat))
         return out
 
     def _frame(self, raw: bytes, incompat: int) -> Any:
@@ -96,7 +98,7 @@ class VehicleModel(_EndpointModel):
     lockstep while it awaits ``awaited_usec`` (set to -1 once the tick is completed)."""
 
     def __init__(self, sysid: int = 1, compid: int = 1) -> None:
-        self.link = LinkModel(FUZZER_SYSID)
+        self.link = LinkModel(FUZZER_SYSID, (sysid, compid))
         self.sysid, self.compid = sysid, compid
         self.awaited_usec = 0
         self.applied_usec = -1    # time_usec of the newest applied controls (held command)
@@ -156,7 +158,9 @@ def _gcs_command(msg: Any) -> str:
     """The counter a ground-station command lands in (tfl_mav.sim.ground)."""
     cmd = msg.command
     if cmd == mav.MAV_CMD_COMPONENT_ARM_DISARM:
-        return "commands_accepted" if msg.param1 in (0.0, 1.0) else "commands_denied"
+        # always airborne: a disarm needs the force code (tfl_mav.sim.ground.FORCE_DISARM)
+        ok = msg.param1 == 1.0 or (msg.param1 == 0.0 and msg.param2 == 21196.0)
+        return "commands_accepted" if ok else "commands_denied"
     if cmd == mav.MAV_CMD_DO_SET_MODE:
         base, main = _small_int(msg.param1), _small_int(msg.param2)
         sub = _small_int(msg.param3)
@@ -186,7 +190,7 @@ class DaemonModel(_EndpointModel):
         from tfl_mav.controller import daemon
         from tfl_mav.model.frames import paper_from_odometry
 
-        self.link = LinkModel(VEHICLE_SYSID)
+        self.link = LinkModel(VEHICLE_SYSID, (1, mav.MAV_COMP_ID_ONBOARD_COMPUTER))
         self._paper = paper_from_odometry
         self._ahead = round(daemon._AHEAD_S * 1e6)
         self._back = round(daemon._BACKSTEP_S * 1e6)
@@ -252,5 +256,8 @@ class DaemonModel(_EndpointModel):
         elif mid == mav.MAVLINK_MSG_ID_HEARTBEAT:
             if msg.system_status in (mav.MAV_STATE_POWEROFF, mav.MAV_STATE_EMERGENCY):
                 c["ends_run"] += 1
-        elif mid != mav.MAVLINK_MSG_ID_STATUSTEXT:
+        elif mid not in (mav.MAVLINK_MSG_ID_STATUSTEXT,
+                         mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS):
+            # ACTUATOR_OUTPUT_STATUS is used (the held command of the next complete state,
+            # tfl_mav.controller.daemon_intake), not counted anywhere
             c["ignored_messages"] += 1

@@ -11,7 +11,7 @@ from tfl_mav.link.dialect import mav
 
 # Link-level rejection reasons, as named in LinkStats.
 LINK_REASONS = ("garbage", "mavlink1", "truncated", "bad_flags", "bad_crc", "bad_signature",
-                "malformed", "unknown_id", "foreign", "wrong_sysid", "no_peer")
+                "malformed", "unknown_id", "foreign", "wrong_sysid", "no_peer", "reflected")
 VEHICLE_REJECTS = ("rejected_controls", "stale_controls", "duplicate_controls",
                    "commands_not_for_us", "commands_denied", "commands_unsupported")
 VEHICLE_ACCEPTS = ("controls_applied", "commands_accepted")

@@ -1,0 +1,99 @@
+"""The spin law's flights (docs/relaxed-hover.md, "Flights"): a rotor pinned at 7 or 8 N
+from t = 5 s on the paper path (rotor 2) and on the circle (rotor 3), with the controller's
+model off by +2 %/+10 % or −2 %/−10 % (mass/inertia), with ideal rotors and with a 20 ms
+motor lag. The flight computer flies until the take-over, the spin law after it
+(tfl_mav.harness.spin.fly_spin). Prints one line a flight and writes the figure:
+
+    python bench/bench_spin.py [--duration 45] [--takeover 5.0] [--out docs/img]
+
+(16 flights, ~2 min on one core.) ``--paper120`` flies instead the paper scenario's own
+attack, 0.1 t + sin z, for 120 s with the spin law taking over at 40 s (where the signal
+passes m g/2).
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import time
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from tfl_mav.harness.spin import fly_spin
+from tfl_mav.scenario import load_scenario
+
+ERRORS = {"+2%/+10%": (1.02, 1.1), "-2%/-10%": (0.98, 0.9)}
+
+
+def case(name: str, signal: float, err: str, lag_s: float, duration: float,
+         attack_start_s: float = 5.0):
+    ms, js = ERRORS[err]
+    sc = load_scenario(name).replace(**{
+        "attack.signal": f"{signal:g}", "attack.start_s": attack_start_s,
+        "controller.model_mass_scale": ms, "controller.model_inertia_scale": js,
+        "vehicle.motor_time_constant_s": lag_s, "run.duration_s": duration})
+    if name == "circle":
+        sc = sc.replace(**{"attack.rotor": 3})
+    return sc
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--duration", type=float, default=45.0, help="flight length (s)")
+    ap.add_argument("--takeover", type=float, default=5.0, help="spin law from (s)")
+    ap.add_argument("--out", default="docs/img", help="directory of the figure")
+    ap.add_argument("--paper120", action="store_true",
+                    help="the paper attack 0.1 t + sin z over 120 s, take-over at 40 s")
+    args = ap.parse_args()
+    if args.paper120:
+        sc = load_scenario("paper").replace(**{"run.duration_s": 120.0})
+        t0 = time.perf_counter()
+        f = fly_spin(sc, takeover_s=40.0)
+        print(f"paper attack, 120 s, take-over 40 s: crashed={f.crashed} {f.crash_reason} "
+              f"max distance after the take-over = {f.max_distance_after(40.0):.3f} m, "
+              f"after 45 s = {f.max_distance_after(45.0):.3f} m, "
+              f"Ω = {f.spin_radps:.1f} rad/s ({time.perf_counter() - t0:.1f} s wall)")
+        return
+    out = Path(args.out)
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), sharey=True)
+    print("path    rotor  f_stuck  model error  lag    crashed  max dist after take-over (m)"
+          "  after +5 s  Ω (rad/s)  wall s")
+    worst = 0.0
+    for k, (name, signal, err, lag) in enumerate(itertools.product(
+            ("paper", "circle"), (7.0, 8.0), ERRORS, (0.0, 0.02))):
+        sc = case(name, signal, err, lag, args.duration)
+        t0 = time.perf_counter()
+        f = fly_spin(sc, takeover_s=args.takeover)
+        wall = time.perf_counter() - t0
+        d0 = f.max_distance_after(args.takeover)
+        d5 = f.max_distance_after(args.takeover + 5.0)
+        worst = max(worst, d0)
+        print(f"{name:7s} {sc.attack.rotor:5d}  {signal:5.1f} N  {err:11s}  {lag * 1000:3.0f} ms"
+              f"  {f.crashed!s:7s}  {d0:8.3f}                      {d5:8.3f}    "
+              f"{f.spin_radps:7.1f}  {wall:5.1f}")
+        ax = axes[0 if name == "paper" else 1]
+        sel = f.t_s >= args.takeover - 1.0
+        ax.semilogy(f.t_s[sel], np.maximum(f.distance_m[sel], 1e-4), lw=0.8,
+                    label=f"{signal:g} N, {err}, {lag * 1000:.0f} ms", color=f"C{k % 8}")
+    for ax, title in zip(axes, ("paper path, rotor 2 pinned", "circle, rotor 3 pinned"),
+                         strict=True):
+        ax.axhline(2.0, color="k", lw=0.8)
+        ax.axvline(args.takeover, color="grey", lw=0.6, ls="--")
+        ax.set_title(title)
+        ax.set_xlabel("t (s)")
+    axes[0].set_ylabel("distance to the path (m)")
+    axes[1].legend(fontsize=7, ncol=2)
+    fig.suptitle("Spin law from the take-over (dashed): the limit 2 m drawn")
+    fig.tight_layout()
+    fig.savefig(out / "relaxed-hover-flights.png", dpi=110)
+    print(f"worst distance after the take-over: {worst:.3f} m; "
+          f"figure {out}/relaxed-hover-flights.png")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,276 @@
+"""The spin law: a rotor pinned high, flown in relaxed hover, as explicit state and one pure
+step (docs/relaxed-hover.md).
+
+:func:`spin_step` is one control period: ``spin_step(params, state, inputs) -> (state,
+outputs)`` in plain Python over NamedTuples of floats. In order:
+
+1. **Canonical frame.** The body is relabelled so that the attacked rotor is rotor 2
+   (:mod:`~tfl_mav.control.allocation`): R' = R rotᵀ, ω' = rot ω.
+2. **Outer loop** (position of the mean). A PID on the position error towards the target
+   (the path's closest point, its velocity and centripetal acceleration) gives the wanted
+   acceleration a; the translational drag k_t v is fed forward. The position and velocity
+   fed back are the *mean*'s: the circle the cone drives (velocity (a_y, −a_x)/Ω_z about the
+   offset −a/Ω_z², a the horizontal thrust acceleration) is removed first. The mean thrust of a
+   relaxed hover is f_Σ n̄_z along the spin axis (the cone averages out over a revolution),
+   so the *spin axis* is steered along n_des = (a + g e3)/|a + g e3| and the mean vertical
+   force W = m |a + g e3| sets f_Σ = W / n̄_z.
+3. **Equilibrium at the measured f_stuck.** The relaxed hover (f1..f4, ω̄ = Ω n̄) is read from
+   a table over f_stuck (:mod:`equilibrium`, solved before the flight), linearly
+   interpolated. If no equilibrium holds m g the table holds the spin that comes closest
+   (the least climb or descent) and ``exists`` is 0.
+4. **Spin schedule.** ρ = ω'_z / ω̄_z ∈ [0, ρ_max] is the spin relative to the equilibrium's.
+   The reference rate is ω_ref = ρ Ω̄ n_ref and the torques k_r ω_ref + ω_ref × J ω_ref are
+   fed forward: they balance the axis n_ref at that spin (E1), so every ρ is a
+   quasi-equilibrium. With n_ref = n̄ these are true equilibria for other mean vertical
+   forces: a faster spin needs less f1 + f3 to hold its drag (E1, yaw) and more torque
+   from f4 (E1, roll), so f_Σ falls with ρ — the outer loop's vertical force sets the spin,
+   which settles within I_z/k_r ≈ 0.5 s. Below ρ₀ (the spin-up, ~0.2 s at 8 N) the axis tilts
+   from b3 to n̄ as θ = θ̄ (ρ/ρ₀)², so a slow spin is not asked for a torque only a fast one
+   can balance. The vertical force is kept where ρ stays in the range the rotors can hold
+   (W_lo … W_hi of the table).
+5. **Reduced attitude.** Mueller & D'Andrea's LQR on (p, q, n_x, n_y) − reference, the
+   vertical n = R'ᵀ n_des seen in the body, gains scheduled on ρ (designed on the
+   zero-order-hold model at the control period before the flight).
+6. **Allocation.** f4 = f2 + τ_p/l, f1 + f3 = f_Σ − f2 − f4, f3 − f1 = τ_q/l with f2 the
+   *measured* thrust of the attacked rotor; clipped to [0, f_max] giving up the vertical
+   force before τ_q and τ_q before τ_p (τ_p holds the spin's tilt: losing it topples the
+   axis). Yaw is left free: the spin is the yaw.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import NamedTuple
+
+__all__ = [
+    "RHO_MAX",
+    "RHO_STEPS",
+    "RHO_TILT",
+    "ROW_HEAD",
+    "SPIN_MEAN_RADPS",
+    "TABLE_WIDTH",
+    "SpinInputs",
+    "SpinOutputs",
+    "SpinParams",
+    "SpinState",
+    "spin_step",
+]
+
+SPIN_MEAN_RADPS = 5.0   # above this spin the cone's circle is removed from the feedback
+RHO_MAX = 1.5           # the schedule spans ρ ∈ [0, RHO_MAX]
+RHO_STEPS = 15          # gains at ρ = 0, 0.1, …, RHO_MAX
+RHO_TILT = 0.6          # ρ₀: below it the reference axis tilts in as (ρ/ρ₀)²
+# One table row per f_stuck: f_stuck, exists, f4̄, f̄1 + f̄3, ω̄ (3), n̄ (3), Ω, f̄_Σ, cone θ̄,
+# circle radius, vertical acceleration left over (m/s², 0 where it exists), margin, the
+# mean vertical forces W_lo, W_hi (N) the spin holds with every rotor in range, then the
+# LQR gains K (2×4, row-major) at ρ = 0, …, RHO_MAX.
+ROW_HEAD = 18
+TABLE_WIDTH = ROW_HEAD + 8 * (RHO_STEPS + 1)
+
+
+class SpinParams(NamedTuple):
+    """The spin law's constants (SI); ``table`` from :func:`tfl_mav.control.spin.law.build`."""
+
+    mass_kg: float              # the controller's model of the mass
+    inertia_kgm2: tuple[float, float, float]    # model (I_x', I_y', I_z), canonical axes
+    arm_m: float
+    drag_m: float               # d' (canonical sign)
+    k_r: float
+    k_t: float
+    gravity_mps2: float
+    thrust_max_n: float
+    dt_s: float                 # control period: the integral's step
+    rot: tuple[float, ...]      # body → canonical body, 9 floats row-major
+    perm: tuple[float, float, float, float]  # canonical rotor i is physical rotor perm[i] (0-based)
+    kp: float                   # outer loop (1/s², 1/s, 1/s³)
+    kd: float
+    ki: float
+    max_tilt_tan: float         # |a_horizontal| ≤ g tan(max tilt)
+    max_vertical_mps2: float    # |a_vertical| ≤ this
+    integral_top_ms: float      # |∫e| ≤ this per axis (m s)
+    table: tuple[tuple[float, ...], ...]        # rows by increasing f_stuck, TABLE_WIDTH each
+
+
+class SpinState(NamedTuple):
+    """What the spin law remembers between ticks."""
+
+    integral_ms: tuple[float, float, float]    # ∫ position error (m s, inertial)
+    rho: float                                  # the spin-up fraction last tick
+    total_n: float = 0.0                        # f_Σ commanded last tick (N)
+
+
+class SpinInputs(NamedTuple):
+    """One tick's measurements and reference (paper frame: inertial ENU z up, body FLU)."""
+
+    position_m: tuple[float, float, float]
+    velocity_mps: tuple[float, float, float]
+    quaternion_wxyz: tuple[float, float, float, float]   # body FLU → inertial
+    body_rates_radps: tuple[float, float, float]
+    stuck_thrust_n: float                       # measured thrust of the attacked rotor
+    target_m: tuple[float, float, float]        # where the mean should be (path point)
+    target_velocity_mps: tuple[float, float, float]
+    target_accel_mps2: tuple[float, float, float]
+
+
+class SpinOutputs(NamedTuple):
+    """The rotor thrusts and what a supervisor needs to judge the spin."""
+
+    thrusts_n: tuple[float, float, float, float]    # physical rotors 1-4 (N); the attacked
+    #                                                  one is its measured thrust
+    exists: float            # 1.0: a relaxed hover holds m g at this f_stuck, else 0.0
+    spin_radps: float        # Ω of the equilibrium (signed, about n̄)
+    cone_rad: float          # θ̄: thrust axis to the spin axis
+    drift_m: float           # radius of the circle the centre of mass runs about its mean
+    vertical_excess_mps2: float  # where none exists: the least climb (+) / sink (−) left
+    rho: float               # spin fraction ω'_z/ω̄_z ∈ [0, RHO_MAX]
+    axis_error_rad: float    # angle between the spin-axis reference and n_des, in the body
+    clipped: float           # 1.0 if the allocation gave something up
+
+
+def _row(table: tuple[tuple[float, ...], ...], f: float) -> tuple[float, ...]:
+    """The table interpolated linearly at f_stuck ``f`` (clamped to its range)."""
+    n = len(table)
+    if f <= table[0][0]:
+        return table[0]
+    if f >= table[n - 1][0]:
+        return table[n - 1]
+    i = 0
+    while table[i + 1][0] < f:
+        i += 1
+    a, b = table[i], table[i + 1]
+    w = (f - a[0]) / (b[0] - a[0])
+    return tuple([x + w * (y - x) for x, y in zip(a, b, strict=True)])
+
+
+def _clip(x: float, lo: float, hi: float) -> float:
+    return lo if x < lo else (hi if x > hi else x)
+
+
+def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
+              ) -> tuple[SpinState, SpinOutputs]:
+    """One control period of the spin law (see the module docstring)."""
+    p = params
+    g = p.gravity_mps2
+    m = p.mass_kg
+    ix, iy, iz = p.inertia_kgm2
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = p.rot
+    # --- 1. the attitude, canonical: R' = R rotᵀ, ω' = rot ω
+    qw, qx, qy, qz = inputs.quaternion_wxyz
+    R = ((1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)),
+         (2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)),
+         (2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)))
+    wp, wq, wr = inputs.body_rates_radps
+    w0 = r00 * wp + r01 * wq + r02 * wr
+    w1 = r10 * wp + r11 * wq + r12 * wr
+    w2 = r20 * wp + r21 * wq + r22 * wr
+    # --- 2. outer loop: the wanted acceleration of the mean (inertial)
+    px, py, pz = inputs.position_m
+    vx, vy, vz = inputs.velocity_mps
+    # The mean, not the cone's circle: the horizontal thrust a = (f_Σ/m) (b3x, b3y) turns at
+    # the spin Ω_z = (R ω)_z, so the centre of mass runs v_c = (a_y, −a_x)/Ω_z about
+    # x_c = −a/Ω_z² (ȧ = Ω e3 × a). Fed back, that circle is synchronous with the body: in
+    # the body it is a constant bias of the axis the attitude loop holds (0.35 m/s of v_c
+    # at 6 N tilts the wanted axis ~0.1 rad), which widens the cone, drops the vertical force
+    # and slows the spin further. Removed before the PID.
+    spin_i = R[2][0] * wp + R[2][1] * wq + R[2][2] * wr
+    if spin_i > SPIN_MEAN_RADPS or spin_i < -SPIN_MEAN_RADPS:
+        acc = state.total_n / m
+        ahx, ahy = acc * R[0][2], acc * R[1][2]
+        inv = 1.0 / spin_i
+        vx, vy = vx - ahy * inv, vy + ahx * inv
+        inv2 = inv * inv
+        px, py = px + ahx * inv2, py + ahy * inv2
+    tx, ty, tz = inputs.target_m
+    tvx, tvy, tvz = inputs.target_velocity_mps
+    tax, tay, taz = inputs.target_accel_mps2
+    ex, ey, ez = tx - px, ty - py, tz - pz
+    ix_, iy_, iz_ = state.integral_ms
+    kt = p.k_t / m
+    ax = p.kp * ex + p.kd * (tvx - vx) + p.ki * ix_ + tax + kt * vx
+    ay = p.kp * ey + p.kd * (tvy - vy) + p.ki * iy_ + tay + kt * vy
+    az = p.kp * ez + p.kd * (tvz - vz) + p.ki * iz_ + taz + kt * vz
+    limited = 0.0
+    top = g * p.max_tilt_tan
+    h = math.sqrt(ax * ax + ay * ay)
+    if h > top:
+        ax, ay, limited = ax * top / h, ay * top / h, 1.0
+    vtop = p.max_vertical_mps2
+    if az > vtop or az < -vtop:
+        az, limited = _clip(az, -vtop, vtop), 1.0
+    fx, fy, fz = m * ax, m * ay, m * (az + g)
+    weight = math.sqrt(fx * fx + fy * fy + fz * fz)
+    ndx, ndy, ndz = fx / weight, fy / weight, fz / weight
+    f2 = inputs.stuck_thrust_n
+    row = _row(p.table, f2)
+    if weight < row[16] or weight > row[17]:    # keep the spin where the rotors hold it
+        weight, limited = _clip(weight, row[16], row[17]), 1.0
+    # n_des in the canonical body: rot Rᵀ n_des
+    bx = R[0][0] * ndx + R[1][0] * ndy + R[2][0] * ndz
+    by = R[0][1] * ndx + R[1][1] * ndy + R[2][1] * ndz
+    bz = R[0][2] * ndx + R[1][2] * ndy + R[2][2] * ndz
+    nx = r00 * bx + r01 * by + r02 * bz
+    ny = r10 * bx + r11 * by + r12 * bz
+    nz = r20 * bx + r21 * by + r22 * bz
+    # --- 3. the equilibrium at the measured f_stuck (row, read above)
+    exists = row[1]
+    wbz = row[6]
+    nbx, nby, nbz = row[7], row[8], row[9]
+    spin = row[10]
+    # --- 4. the spin schedule: ρ and the reference (rate ρ Ω̄ n_ref, axis tilted in below ρ₀)
+    rho = _clip(w2 / wbz, 0.0, RHO_MAX) if wbz != 0.0 else 1.0
+    cone = math.acos(_clip(nbz, -1.0, 1.0))
+    horiz = math.sqrt(nbx * nbx + nby * nby)
+    ramp = rho / RHO_TILT
+    th = cone * (ramp * ramp if ramp < 1.0 else 1.0)
+    s_th = math.sin(th)
+    ux, uy = (nbx / horiz, nby / horiz) if horiz > 0.0 else (0.0, 0.0)
+    rx, ry, rz = s_th * ux, s_th * uy, math.cos(th)
+    om = rho * spin
+    orx, ory, orz = om * rx, om * ry, om * rz
+    # the torques that balance this reference (E1), x and y
+    tff_p = p.k_r * orx + (iz - iy) * ory * orz
+    tff_q = p.k_r * ory + (ix - iz) * orx * orz
+    # --- 5. reduced-attitude LQR, gains at ρ
+    k = rho * (RHO_STEPS / RHO_MAX)
+    j = int(k)
+    j = RHO_STEPS - 1 if j >= RHO_STEPS else j
+    wgt = k - j
+    base = ROW_HEAD + 8 * j
+    K = [row[base + i] + wgt * (row[base + 8 + i] - row[base + i]) for i in range(8)]
+    dp, dq, dnx, dny = w0 - orx, w1 - ory, nx - rx, ny - ry
+    tau_p = tff_p - (K[0] * dp + K[1] * dq + K[2] * dnx + K[3] * dny)
+    tau_q = tff_q - (K[4] * dp + K[5] * dq + K[6] * dnx + K[7] * dny)
+    # --- 6. allocation (canonical), f2 the measured thrust of the attacked rotor
+    ell, fmax = p.arm_m, p.thrust_max_n
+    clipped = 0.0
+    f4 = f2 + tau_p / ell
+    if f4 < 0.0 or f4 > fmax:
+        f4, clipped = _clip(f4, 0.0, fmax), 1.0
+    total = weight / (rz if rz > 0.3 else 0.3)
+    s13 = total - f2 - f4
+    half = 0.5 * tau_q / ell
+    ah = abs(half)
+    if ah > fmax:   # τ_q beyond what a pair can make at all: keep its sign
+        half, ah, clipped = math.copysign(fmax, half), fmax, 1.0
+    lo, hi = 2.0 * ah, 2.0 * (fmax - ah)
+    if lo > hi:     # τ_q so large no sum carries it: give up τ_q to the middle
+        half = math.copysign(0.5 * fmax, half)
+        lo = hi = fmax
+        clipped = 1.0
+    if s13 < lo or s13 > hi:
+        s13, clipped = _clip(s13, lo, hi), 1.0
+    f1, f3 = 0.5 * s13 - half, 0.5 * s13 + half
+    can = (f1, f2, f3, f4)
+    out = [0.0, 0.0, 0.0, 0.0]
+    for i in range(4):
+        out[int(p.perm[i])] = can[i]
+    # --- the integral (anti-windup: frozen while the demand is limited or clipped)
+    if limited == 0.0 and clipped == 0.0:
+        top_i = p.integral_top_ms
+        ix_ = _clip(ix_ + ex * p.dt_s, -top_i, top_i)
+        iy_ = _clip(iy_ + ey * p.dt_s, -top_i, top_i)
+        iz_ = _clip(iz_ + ez * p.dt_s, -top_i, top_i)
+    err = math.acos(_clip(nx * rx + ny * ry + nz * rz, -1.0, 1.0))
+    return (SpinState((ix_, iy_, iz_), rho, f1 + f2 + f3 + f4),
+            SpinOutputs((out[0], out[1], out[2], out[3]), exists, spin, row[12], row[13],
+                        row[14], rho, err, clipped))
