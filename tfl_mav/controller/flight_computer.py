@@ -185,6 +185,7 @@ class FlightComputer:
         self.spin_enabled = True
         self.spin_build = spin_build
         self._spin_state: SpinState | None = None
+        self._spin_laws: dict[int, SpinParams] = {}   # by attacked rotor, once built
         self._said_no_spin = False
         self._climbing = False         # said: the attack is more than the weight allows
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
@@ -389,12 +390,13 @@ class FlightComputer:
         vx, vy, vz = _floats(state.velocity_mps)
         tfl_flew = out is not None
         demand = (out.demand_n if tfl_flew and out.demand_n else _ZERO4)
-        return SupervisorInputs(
+        # SupervisorInputs' fields in order, built as the tuple it is (every tick).
+        return _new(SupervisorInputs, (
             dt, rotor, estimate, spread, tfl_flew,
             tfl_flew and out.mode is not _FALLBACK, demand, safe_distance_m,
             tilt_rad(state.quaternion_wxyz), _hypot(p, q), _sqrt(vx * vx + vy * vy + vz * vz),
             self._distance_to_path(state) if first else math.nan,
-            self._spin_ready(rotor, estimate))
+            self._spin_ready(rotor, estimate)))
 
     def _spin_ready(self, rotor: int, estimate: float) -> bool:
         """The spin law is built for ``rotor`` (its table is made once the attack comes
@@ -403,13 +405,16 @@ class FlightComputer:
         "async" on a background thread, used once ready (real time: no tick waits)."""
         if not rotor or self.supervisor.mode != 0 or not self.spin_enabled:
             return False
-        key = self._spin_key(rotor)
-        if key in _SPIN_LAWS:
+        if rotor in self._spin_laws:
             return True
         if not 2.0 * estimate > self._weight_n - 2.0:
             return False
+        key = self._spin_key(rotor)
+        if key in _SPIN_LAWS:
+            self._spin_laws[rotor] = _SPIN_LAWS[key]
+            return True
         if self.spin_build == "sync":
-            _SPIN_LAWS[key] = spin_params_for(self.scenario, rotor)
+            _SPIN_LAWS[key] = self._spin_laws[rotor] = spin_params_for(self.scenario, rotor)
             return True
         with _SPIN_LOCK:
             if key not in _SPIN_BUILDING:
@@ -430,7 +435,7 @@ class FlightComputer:
         """A tick of the spin law (:func:`~tfl_mav.control.spin.step.spin_step`): the mean
         axis steered towards the closest path point moving at the path speed, the pinned
         rotor's thrust read from its rpm; then the supervisor, and the output."""
-        params = _SPIN_LAWS[self._spin_key(rotor)]
+        params = self._spin_laws[rotor]
         y = _floats(state.position_m)
         rates = tuple(_floats(state.body_rates_radps))
         w = rpm[rotor - 1] * RPM_TO_RADPS

@@ -162,6 +162,9 @@ class SupervisorInputs(NamedTuple):
 
 
 _EPS_N = 1e-6   # a demand within this of a bound is at that bound (N)
+_new = tuple.__new__
+_TFL, _RECOVERY, _SPIN = int(Law.TFL), int(Law.RECOVERY), int(Law.SPIN)
+_STAY, _NONE = int(Why.STAY), int(Start.NONE)
 
 
 def supervisor_params(mode: str, weight_n: float, thrust_max_n: float, speed_mps: float, *,
@@ -230,19 +233,54 @@ def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
     was not what the vehicle needs)."""
     dt = u.dt_s if u.dt_s > 0.0 else 0.0
     # The time flown by the law that flew this tick.
-    tfl_s, rec_s, lost_s = s.tfl_s, s.recovery_s, s.lost_rotor_s
-    spin_s = s.spin_s
-    if s.law == Law.TFL:
+    law_now = s.law
+    tfl_s, rec_s, lost_s, spin_s = s.tfl_s, s.recovery_s, s.lost_rotor_s, s.spin_s
+    if law_now == _TFL:
         tfl_s += dt
-    elif s.law == Law.RECOVERY:
+    elif law_now == _RECOVERY:
         rec_s += dt
-    elif s.law == Law.SPIN:
+    elif law_now == _SPIN:
         spin_s += dt
     else:
         lost_s += dt
-    s = s._replace(ticks=s.ticks + 1, since_s=s.since_s + dt, tfl_s=tfl_s, recovery_s=rec_s,
+    ticks, since = s.ticks + 1, s.since_s + dt
+    stay = (law_now, _STAY, _NONE)
+    if law_now == _TFL and ticks > 1 and p.mode == 0 and u.tfl_flew and u.tfl_answer \
+            and u.rotor:
+        # The tick that runs a thousand times a second: TFL flies an attacked vehicle. One
+        # state built, positionally (a named tuple's _replace costs microseconds).
+        a = u.attack_n
+        sigma = u.attack_std_n if u.attack_std_n > 0.0 else 0.0
+        known = math.isfinite(a)
+        if not (known and 2.0 * a > p.weight_n):
+            i = u.rotor - 1                   # physical index of the attacked rotor
+            d = u.demand_n
+            opposite, side1, side3 = d[(i + 2) % 4], d[(i + 1) % 4], d[(i + 3) % 4]
+            # The demand is bounded below by 0 (the allocation's), not above, and not by
+            # the lag's reach: f₄ at 0 is τ_p ≥ −lA asked for more.
+            top = p.thrust_max_n - _EPS_N
+            ceiling = opposite >= top or side1 <= _EPS_N or side3 <= _EPS_N
+            floor = opposite <= _EPS_N
+            thrust_top = side1 >= top or side3 >= top
+            k = dt / p.window_s
+            k = k if k < 1.0 else 1.0
+            kl = dt / p.persist_window_s
+            kl = kl if kl < 1.0 else 1.0
+            fs = s.floor_share + k * ((1.0 if floor else 0.0) - s.floor_share)
+            cs = s.ceiling_share + k * ((1.0 if ceiling else 0.0) - s.ceiling_share)
+            ts = s.top_share + k * ((1.0 if thrust_top else 0.0) - s.top_share)
+            ps = s.persist_share + kl * ((1.0 if floor else 0.0) - s.persist_share)
+            s = _new(SupervisorState, (law_now, s.holding, since, s.good_s, fs, cs, ts, ps,
+                                       ticks, s.switches, tfl_s, rec_s, lost_s, spin_s,
+                                       s.high_s))
+            small = not known or a + 2.0 * sigma < p.a_takeover_n
+            if (fs > p.lost_share and small) or ps > p.persist_share or ts > p.lost_share:
+                return _switch(p, s, Law.LOST_ROTOR, Why.FLOOR, Start.SAFE_PATH, False)
+            if cs > p.lost_share:
+                return _switch(p, s, Law.LOST_ROTOR, Why.CEILING, Start.SAFE_PATH, False)
+            return s, stay
+    s = s._replace(ticks=ticks, since_s=since, tfl_s=tfl_s, recovery_s=rec_s,
                    lost_rotor_s=lost_s, spin_s=spin_s)
-    stay = (s.law, int(Why.STAY), int(Start.NONE))
     if p.mode == 1:                       # "tfl": the TFL law alone
         return s, stay
     if p.mode == 2:                       # "safe": the safe law alone, never TFL
@@ -324,7 +362,7 @@ def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
     s = s._replace(good_s=good)
     if good >= p.handback_s:
         return _switch(p, s, Law.TFL, Why.HANDBACK, Start.TFL_RESUME, False)
-    return s, (s.law, int(Why.STAY), int(Start.NONE))
+    return s, (s.law, _STAY, _NONE)
 
 
 def describe(why: int, law: int, *, rotor: int, attack_n: float, inputs: SupervisorInputs,
