@@ -591,18 +591,19 @@ def test_recorder_process_finishes_the_file_when_the_flight_process_is_killed(tm
     # Lost: the calls the flight process had not yet written to the pipe when killed (what
     # is in the pipe still reaches the child). Idle that is batch_s = 10 ms of calls. When
     # the child (niced, on a loaded machine) cannot keep up, the queue grows to its bound,
-    # 8 × batch_max calls (+1: then the flight thread sends itself and waits), while the
-    # sender thread may hold as many popped and half-written to a full pipe: at most
-    # 2 × (8 × batch_max + 1) calls, 2 a tick (a frame, a truth). Seen at load 10:
-    # 320-880 ticks; the old bound of 0.31 s of wall time held only while the child kept up.
+    # BACKLOG_BATCHES × batch_max calls (+1: then the flight thread sends itself and
+    # waits), while the sender thread may hold as many popped and half-written to a full
+    # pipe: at most 2 × (BACKLOG_BATCHES × batch_max + 1) calls, 2 a tick (a frame, a
+    # truth). Seen at load 10 with 8 batches: 320-880 ticks.
     with open(path, "rb") as f:
         ticks = [round(_decode(sc, ch, m.data)[1]["t_s"] * 1000) for sc, ch, m
                  in make_reader(f).iter_messages(topics=["/sim/truth/state"])]
     t_last, k_last = _last_tick(path)
-    from tfl_mav.flightlog.recorder_process import RecorderProcess
+    from tfl_mav.flightlog.recorder_process import BACKLOG_BATCHES, RecorderProcess
 
     batch_max = inspect.signature(RecorderProcess).parameters["batch_max"].default
-    assert k_last - ticks[-1] <= 8 * batch_max + 1, f"lost {k_last - ticks[-1]} ticks"
+    bound = BACKLOG_BATCHES * batch_max + 1
+    assert k_last - ticks[-1] <= bound, f"lost {k_last - ticks[-1]} ticks"
     assert ticks == list(range(len(ticks)))      # nothing lost before the end
     assert t_dead >= t_last and len(ticks) > 1000
 

@@ -159,8 +159,13 @@ def _print_summary(m: dict[str, Any]) -> None:
     laws = law_text(m)
     if laws:
         print(f"  laws: {laws}")
-    print(f"  rotor thrust [{m['thrust_min_n']:.2f}, {m['thrust_max_n']:.2f}] N, saturated "
-          f"{100 * m['saturated_fraction']:.2f} % of ticks; max |yaw rate| "
-          f"{m['max_yaw_rate_radps']:.1f} rad/s")
+    if m.get("thrust_min_n") is not None:       # none: the vehicle's log holds no sample
+        sat = m.get("saturated_fraction")
+        print(f"  rotor thrust [{m['thrust_min_n']:.2f}, {m['thrust_max_n']:.2f}] N, "
+              f"saturated {'-' if sat is None else f'{100 * sat:.2f} %'} of ticks; max "
+              f"|yaw rate| {m['max_yaw_rate_radps']:.1f} rad/s")
+    for cut in m.get("log_cut_short") or ():
+        at = f" at t = {cut['at_s']:.3f} s" if cut.get("at_s") is not None else ""
+        print(f"  LOG CUT SHORT: {cut['file']}{at} ({cut['reason']})")
     print(f"  MAVLink: {m['messages_sent']} frames sent, {m['messages_logged']} logged; "
           f"files in {m['out_dir']}/ (run.mcap, ctl.mcap, summary.json, *.png)")

@@ -20,7 +20,7 @@ from collections.abc import Callable
 from typing import Any
 
 from tfl_mav.cli.args import duration_s
-from tfl_mav.cli.outputs import file_problem
+from tfl_mav.cli.outputs import EXIT_IO, file_problem, write_text_atomic
 from tfl_mav.controller.daemon import TICK_FIELDS, TICK_SCHEMA, Daemon
 from tfl_mav.controller.feasibility import check_scenario
 from tfl_mav.link.signing import load_key
@@ -189,9 +189,15 @@ def run(args: argparse.Namespace) -> int:
             if recorder.error:
                 print(f"{prog}: recording stopped early: {recorder.error}", file=sys.stderr)
     summary = result.as_dict()
+    if recorder is not None and recorder.recording is not None:
+        summary["recording"] = recorder.recording
+    io_error = ""
     if args.summary_json:
-        with open(args.summary_json, "w") as fh:
-            json.dump(_clean(summary), fh, indent=2)
+        try:
+            write_text_atomic(args.summary_json, json.dumps(_clean(summary), indent=2))
+        except OSError as exc:
+            io_error = (f"{prog}: --summary-json {args.summary_json}: cannot write "
+                        f"({exc.strerror or exc}); the file was left as it was")
     if not args.quiet:
         det = (f"rotor {result.detected_rotor} at {result.detection_time_s:.3f} s"
                if result.detected_rotor else "no attack detected")
@@ -201,6 +207,14 @@ def run(args: argparse.Namespace) -> int:
               f"{result.stats.failsafes} failsafes, rejected "
               f"{sum(v for k, v in result.stats.link.items() if k not in _OK_COUNTERS)}"
               + _degraded(result.stats), file=sys.stderr)
+    recording = summary.get("recording") or {}
+    if not io_error and recording.get("write_error"):   # a full disk: a file error
+        io_error = (f"{prog}: --mcap {args.mcap}: the recording stopped on a write error; "
+                    + ("what was written reads" if recording.get("readable")
+                       else "`tfl-mav inspect --recover` saves what reads"))
+    if io_error:
+        print(io_error, file=sys.stderr)
+        return EXIT_IO
     if failures:
         print(f"{prog}: {failures[0]}", file=sys.stderr)
         return 1
@@ -288,7 +302,7 @@ def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None,
                           thrust_max_n=scenario.vehicle.thrust_max_n,
                           controller_fields=TICK_FIELDS, controller_schema=TICK_SCHEMA,
                           live=live, clock=clock, realtime=realtime,
-                          timeline="wall" if realtime else "sim")
+                          timeline="wall" if realtime else "sim", prog="tfl-mav fly")
     rec.metadata("scenario", {"name": scenario.name, "role": "controller",
                               "toml": json.dumps(scenario.to_dict())})
     rec.path(path)
@@ -418,6 +432,11 @@ class StartingRecorder:
         err = self._rec.error if self._rec is not None else None
         return err or (f"{self.dropped} calls dropped while the recorder started"
                        if self.dropped else None)
+
+    @property
+    def recording(self) -> dict[str, Any] | None:
+        """How the file ended (:attr:`RecorderProcess.recording`), None if it never started."""
+        return self._rec.recording if self._rec is not None else None
 
     def close(self) -> None:
         """Wait for the start and the hand-over, then finish the file."""

@@ -24,7 +24,7 @@ import argparse
 import json
 import math
 import sys
-from collections import defaultdict
+from array import array
 from pathlib import Path
 from typing import Any
 
@@ -33,13 +33,13 @@ import numpy as np
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.flightlog.from_mcap import (
     TRUTH_TOPICS,
-    add_truth,
     load_flight,
     log_texts,
     scenario_from_log,
     truth_parts,
 )
 from tfl_mav.flightlog.logread import LogReader, recover
+from tfl_mav.flightlog.mcaprepair import cut_short, read_back
 from tfl_mav.flightlog.metrics import converged, detection, saturated_fraction
 from tfl_mav.flightlog.polyline import Polyline
 from tfl_mav.flightlog.protos import frames_fields
@@ -47,8 +47,6 @@ from tfl_mav.scenario import ScenarioError
 
 __all__ = ["add_parser", "inspect_log", "run"]
 
-_SUMMARY_TOPICS = {"/sim/truth/state", "/sim/truth/attack", "/sim/truth/thrusts",
-                   "/controller/state", "/scene/path"}
 _LAST_WINDOW_S = 10.0
 
 
@@ -69,7 +67,13 @@ def run(args: argparse.Namespace) -> int:
     try:
         if args.recover:
             n, err = recover(args.mcap, args.recover)
-            msg = f"recovered {n} messages into {args.recover}"
+            # proved by reading it back with the standard reader, not by our own word
+            n_back, bad = read_back(args.recover)
+            if bad is not None or n_back != n:
+                print(f"tfl-mav inspect: --recover {args.recover}: the copy does not read "
+                      f"back ({bad or f'{n_back} of {n} messages'})", file=sys.stderr)
+                return 3
+            msg = f"recovered {n} messages into {args.recover} (read back whole)"
             msg += f" (input ends early: {err})" if err else " (input was complete)"
             print(msg, file=sys.stderr if args.json else sys.stdout)
         report = inspect_log(args.mcap)
@@ -99,13 +103,19 @@ class _Channel:
 def inspect_log(path: str | Path) -> dict[str, Any]:
     """The ``inspect --json`` report of ``path`` (see the module docstring).
 
-    One pass over the file: every message counts for its channel; only what the summary
-    needs is decoded (the truth records, the controller's, ``/log``), and the flight is
-    rebuilt from those (:func:`~tfl_mav.flightlog.from_mcap.load_flight`, given them)."""
+    One pass over the file counts every message for its channel, holding nothing per
+    message; the flight is then rebuilt by :func:`~tfl_mav.flightlog.from_mcap.load_flight`,
+    which streams the file again (memory: the rebuilt flight's arrays, not the decoded
+    records). A log without a scenario, or a controller's, keeps only the few numbers per
+    tick its summary needs (:class:`_Compact`)."""
+    try:
+        sc = scenario_from_log(path)
+    except (ScenarioError, ValueError):
+        sc = None
     reader = LogReader(path)
     chans: dict[str, _Channel] = {}
-    series: dict[str, list[Any]] = defaultdict(list)
-    truth: dict[int, dict[str, Any]] = {}
+    compact = _Compact()
+    has_truth = False
     texts: list[str] = []
     frames = {"rx": 0, "tx": 0, "rx_rejected": 0}
     sat_hil = [0]
@@ -123,18 +133,18 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
             frames["tx" if tx else "rx"] += len(raws)
             frames["rx_rejected"] += len(refused)
         elif topic in TRUTH_TOPICS:
-            record = m.decode()
-            add_truth(truth, topic, record)
-            for part, rec in truth_parts(topic, record).items():
-                series[f"/sim/truth/{part}"].append(rec)
+            has_truth = True
+            if sc is None:              # no scenario: the summary is made from these
+                for part, rec in truth_parts(topic, m.decode()).items():
+                    compact.truth(part, rec)
         elif topic.endswith("/HIL_ACTUATOR_CONTROLS"):
             sat_hil[0] += 1
         elif topic == "/log":
             texts.append(log_texts(m.data))
         elif topic == "/scene/path":
             path_points = _path_points(m.data) or path_points
-        elif topic in _SUMMARY_TOPICS:
-            series[topic].append(m.decode())
+        elif topic == "/controller/state":
+            compact.controller(m.decode())
     if not chans and reader.error:
         raise OSError(f"{path}: not a readable MCAP file ({reader.error})")
     log_first = min((c.first_log for c in chans.values()), default=0)
@@ -158,10 +168,67 @@ def inspect_log(path: str | Path) -> dict[str, Any]:
         "channels": {topic: _channel_report(c) for topic, c in sorted(chans.items())},
         "metadata": metadata,
     }
+    cut = cut_short(metadata)
+    if cut is not None:
+        report["cut_short"] = cut
     timeline = report["metadata"].get("timeline", {})
     report["timeline"] = timeline.get("log_time", "wall")
-    report["flight"] = _flight_summary(path, series, path_points, sat_hil, truth, texts)
+    report["flight"] = _flight_summary(path, sc, has_truth, compact, path_points, sat_hil)
     return report
+
+
+class _Compact:
+    """What the summary of a log without a scenario (or a controller's log) needs, a few
+    floats a tick in flat arrays: the truth's time and position, the attack's activity,
+    the thrusts' range, the controller's distance, detection and saturation."""
+
+    def __init__(self) -> None:
+        self.state_t = array("d")
+        self.state_pos = array("d")          # x, y, z per sample (NaN: not recorded)
+        self.attack_first: tuple[int, float] | None = None    # (rotor, t) first active
+        self.attack_seen = False
+        self.applied_max: float | None = None
+        self.thrust_min: float | None = None
+        self.thrust_max: float | None = None
+        self.ctl_n = 0
+        self.ctl_last_t: float | None = None
+        self.dist = array("d")                # t, d pairs where recorded
+        self.det = array("d")                 # t, rotor pairs where recorded
+        self.sat = array("d")                 # saturated (1/0) or NaN, every record
+        self.any_sat = False
+
+    def truth(self, part: str, rec: dict[str, Any]) -> None:
+        if part == "state":
+            self.state_t.append(rec["t_s"])
+            self.state_pos.extend(rec.get("position_m", (math.nan,) * 3))
+        elif part == "attack":
+            self.attack_seen = True
+            if rec["active"]:
+                if self.attack_first is None:
+                    self.attack_first = (rec["rotor"], rec["t_s"])
+                if "applied_n" in rec:
+                    a = rec["applied_n"]
+                    self.applied_max = a if self.applied_max is None else \
+                        max(self.applied_max, a)
+        elif part == "thrusts":
+            values = rec.get("thrust_n", ())
+            if values:
+                lo, hi = min(values), max(values)
+                self.thrust_min = lo if self.thrust_min is None else min(self.thrust_min, lo)
+                self.thrust_max = hi if self.thrust_max is None else max(self.thrust_max, hi)
+
+    def controller(self, rec: dict[str, Any]) -> None:
+        self.ctl_n += 1
+        self.ctl_last_t = rec["t_s"]
+        if "path_distance_m" in rec:
+            self.dist.extend((rec["t_s"], rec["path_distance_m"]))
+        if "detected_rotor" in rec:
+            self.det.extend((rec["t_s"], rec["detected_rotor"]))
+        if "saturated" in rec:
+            self.any_sat = True
+            self.sat.append(float(bool(rec["saturated"])))
+        else:
+            self.sat.append(math.nan)
 
 
 def _frames_of(m: Any) -> tuple[list[Any], bool, list[int]]:
@@ -224,16 +291,11 @@ def _distance_stats(t: np.ndarray, d: np.ndarray, source: str) -> dict[str, Any]
     }
 
 
-def _flight_summary(path: str | Path, series: dict[str, list[Any]],
-                    path_points: list[list[float]] | None, sat_hil: list[int],
-                    truth: dict[int, dict[str, Any]], texts: list[str]) -> dict[str, Any]:
-    try:
-        sc = scenario_from_log(path)
-    except (ScenarioError, ValueError):
-        sc = None
-    state = series.get("/sim/truth/state", [])
-    if state and sc is not None:
-        log, _ = load_flight(path, sc, truth=truth, texts=texts)
+def _flight_summary(path: str | Path, sc: Any, has_truth: bool, comp: _Compact,
+                    path_points: list[list[float]] | None,
+                    sat_hil: list[int]) -> dict[str, Any]:
+    if has_truth and sc is not None:
+        log, _ = load_flight(path, sc)
         out = summarize(log)
         if not log.wall_time_s:         # not in the log: no number rather than a wrong one
             del out["wall_time_s"], out["real_time_factor"]
@@ -242,49 +304,44 @@ def _flight_summary(path: str | Path, series: dict[str, list[Any]],
         out["saturation_source"] = "/controller/state.saturated (ctl.mcap)" if has_ctl else None
         if not has_ctl:
             out["detection"] = "needs the controller's log (ctl.mcap next to this file)"
+        if log.log_cut is not None:
+            out["log_cut_short"] = log.log_cut
         return out
     out: dict[str, Any] = {}
-    ctl = series.get("/controller/state", [])
-    if state:
-        out["sim_time_s"] = state[-1]["t_s"]
-    elif ctl:
-        out["sim_time_s"] = ctl[-1]["t_s"]
-    if state and path_points is not None and len(path_points) >= 2:
-        pos = np.array([s.get("position_m", [np.nan] * 3) for s in state], dtype=float)
-        t = np.array([s["t_s"] for s in state])
+    if len(comp.state_t):
+        out["sim_time_s"] = comp.state_t[-1]
+    elif comp.ctl_n:
+        out["sim_time_s"] = comp.ctl_last_t
+    if len(comp.state_t) and path_points is not None and len(path_points) >= 2:
+        pos = np.frombuffer(comp.state_pos, dtype=float).reshape(-1, 3)
+        t = np.frombuffer(comp.state_t, dtype=float)
         ok = np.all(np.isfinite(pos), axis=1)
         d = np.full(len(pos), np.nan)
         d[ok] = Polyline(path_points).distances(pos[ok])
         out.update(_distance_stats(t, d, "truth position vs /scene/path"))
-    elif ctl and any("path_distance_m" in c for c in ctl):
-        rows = [c for c in ctl if "path_distance_m" in c]
-        t = np.array([c["t_s"] for c in rows])
-        d = np.array([c["path_distance_m"] for c in rows], dtype=float)
-        out.update(_distance_stats(t, d, "/controller/state.path_distance_m (measured)"))
+    elif len(comp.dist):
+        td = np.frombuffer(comp.dist, dtype=float).reshape(-1, 2)
+        out.update(_distance_stats(td[:, 0].copy(), td[:, 1].copy(),
+                                   "/controller/state.path_distance_m (measured)"))
     attack_rotor = sc.attack.rotor if sc is not None else None
     start = sc.attack.start_s if sc is not None and sc.attack.rotor else None
-    attack = series.get("/sim/truth/attack", [])
-    if attack and sc is None:   # no scenario: the ground truth says when and where
-        first = next((a for a in attack if a["active"]), None)
-        attack_rotor = first["rotor"] if first else 0
-        start = first["t_s"] if first else None
+    if comp.attack_seen and sc is None:   # no scenario: the ground truth says when and where
+        first = comp.attack_first
+        attack_rotor = first[0] if first else 0
+        start = first[1] if first else None
     out["attack_rotor"] = attack_rotor
     out["attack_start_s"] = start
-    applied = [a["applied_n"] for a in attack if a["active"] and "applied_n" in a]
-    out["attack_max_n"] = max(applied) if applied else None
-    thrusts = series.get("/sim/truth/thrusts", [])
-    values = [f for s in thrusts for f in s.get("thrust_n", ())]
-    out["thrust_true_min_n"] = min(values) if values else None
-    out["thrust_true_max_n"] = max(values) if values else None
-    rows = [c for c in ctl if "detected_rotor" in c]
-    if rows and attack_rotor is not None:
-        out.update(detection([c["t_s"] for c in rows], [c["detected_rotor"] for c in rows],
-                             attack_rotor, start))
-    elif rows:
+    out["attack_max_n"] = comp.applied_max
+    out["thrust_true_min_n"] = comp.thrust_min
+    out["thrust_true_max_n"] = comp.thrust_max
+    if len(comp.det) and attack_rotor is not None:
+        tr = np.frombuffer(comp.det, dtype=float).reshape(-1, 2)
+        out.update(detection(tr[:, 0].tolist(), [int(r) for r in tr[:, 1]], attack_rotor,
+                             start))
+    elif len(comp.det):
         out["detection"] = "attack unknown (no scenario metadata): not judged"
-    if any("saturated" in c for c in ctl):
-        out["saturated_fraction"] = saturated_fraction(
-            [float(bool(c["saturated"])) if "saturated" in c else math.nan for c in ctl])
+    if comp.any_sat:
+        out["saturated_fraction"] = saturated_fraction(np.frombuffer(comp.sat, dtype=float))
         out["saturation_source"] = "/controller/state.saturated"
     else:
         out["saturated_fraction"] = None
@@ -337,6 +394,12 @@ def _format(r: dict[str, Any]) -> str:
     if not r["complete"]:
         lines.append(f"  NOT FINISHED (read up to: {r['read_error'] or 'end of file'}); "
                      "`--recover OUT` writes a valid copy")
+    cut = r.get("cut_short")
+    if cut is not None:
+        at = cut.get("last_sim_time_s")
+        lines.append("  CUT SHORT: the recording ended before the flight"
+                     + (f", at sim t = {float(at):.3f} s" if at else "")
+                     + f" ({cut.get('reason', 'no reason recorded')})")
     fr = r["frames"]
     lines.append(f"  MAVLink frames: rx {fr['rx']} (rejected {fr['rx_rejected']}), "
                  f"tx {fr['tx']}")

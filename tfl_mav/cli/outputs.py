@@ -11,7 +11,9 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["EXIT_IO", "dir_problem", "file_problem"]
+from tfl_mav.flightlog.atomic import write_text_atomic
+
+__all__ = ["EXIT_IO", "dir_problem", "file_problem", "write_text_atomic"]
 
 EXIT_IO = 3
 

@@ -214,8 +214,7 @@ def _one_flight(args: argparse.Namespace, scenario: Scenario, listen: Address,
             recorder.close()
             if recorder.error:   # the flight went on (flight before logging); say so
                 print(f"{prog}: --mcap {mcap}: recording stopped early: "
-                      f"{recorder.error}; the file holds what was flushed "
-                      "(`tfl-mav inspect --recover` makes it whole)", file=sys.stderr)
+                      f"{recorder.error}", file=sys.stderr)
 
 
 def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
@@ -303,8 +302,14 @@ def _fly(args: argparse.Namespace, scenario: Scenario, listen: Address,
                   "mode": "realtime" if args.realtime else "lockstep",
                   "signed": key is not None,
                   "listen": [host, port], "stats": vehicle.stats.as_dict()}
+        if recorder is not None:
+            recorder.close()        # the file finished (or repaired) before it is reported
+            if recorder.recording is not None:
+                report["recording"] = recorder.recording
+        from tfl_mav.cli.outputs import write_text_atomic
+
         try:
-            Path(args.json).write_text(json.dumps(report, indent=2) + "\n", encoding="utf-8")
+            write_text_atomic(args.json, json.dumps(report, indent=2) + "\n")
         except OSError as exc:
             print(f"{prog}: --json: cannot write {args.json!r}: {exc.strerror}", file=sys.stderr)
             return EXIT_LINK
@@ -340,7 +345,7 @@ def _open_recorder(path: str | None, scenario: Scenario, prog: str,
     try:
         recorder = RecorderProcess(path, rotor_xy_m=rotor_xy_m(v), thrust_max_n=v.thrust_max_n,
                                    live=live, realtime=realtime,
-                                   timeline="wall" if realtime else "sim")
+                                   timeline="wall" if realtime else "sim", prog=prog)
     except RecorderError as exc:
         print(f"{prog}: {'--mcap: ' if path and 'foxglove' not in str(exc) else ''}{exc}",
               file=sys.stderr)

@@ -59,6 +59,9 @@ class FlightLog:
     duration_s: float | None = None
     interrupted: bool = False
     detected_rotor: np.ndarray | None = None
+    # The flight's logs end before the flight did (a recorder killed, a full disk): one
+    # entry a file, {"file", "role" ("vehicle"/"controller"), "at_s", "reason"}; None: whole.
+    log_cut: list[dict[str, Any]] | None = None
 
     def append(self, **sample: Any) -> None:
         for k, v in sample.items():

@@ -131,13 +131,36 @@ class LogReader:
                              rec.data, sc)
 
 
+    def message_counts(self) -> dict[str, int] | None:
+        """Messages per topic from a finished file's summary statistics (None: not a
+        finished file, or no statistics), without reading the messages."""
+        summary = self._summary()
+        stats = summary.statistics if summary is not None else None
+        if stats is None:
+            return None
+        out: dict[str, int] = {}
+        for cid, n in stats.channel_message_counts.items():
+            ch = summary.channels.get(cid)
+            if ch is not None:
+                out[ch.topic] = out.get(ch.topic, 0) + n
+        return out
+
     def read_metadata(self) -> list[Metadata]:
         """The file's metadata records: all of a finished file's (its summary indexes them,
         wherever they are), else those before the first message (a stream stops there)."""
-        if self._summary() is None:
-            for rec in self.records():
-                if isinstance(rec, Message):
-                    break
+        try:
+            with open(self.path, "rb") as f:
+                reader = make_reader(f)
+                if reader.get_summary() is not None:
+                    self.metadata = list(reader.iter_metadata())
+                    return self.metadata
+        except OSError as exc:
+            raise OSError(f"cannot read MCAP file {self.path}: {exc.strerror}") from None
+        except (McapError, ValueError, struct.error, EOFError, IndexError, KeyError):
+            pass                 # not a finished file: stream it
+        for rec in self.records():
+            if isinstance(rec, Message):
+                break
         return self.metadata
 
     def _summary(self) -> Any:

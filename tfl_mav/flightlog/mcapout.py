@@ -23,6 +23,8 @@ from __future__ import annotations
 import atexit
 import contextlib
 import math
+import os
+import re
 import threading
 import time
 from collections.abc import Callable, Mapping
@@ -53,6 +55,13 @@ CHUNK_BYTES = 1 << 20
 """Uncompressed size of a chunk (a flush ends one sooner, at least every
 ``flush_interval_s``). 4 MiB compressed no better on a flight's messages (same MiB per
 flight-minute in bench/recorder_replay.py), and a file cut short loses less with small ones."""
+
+FLUSH_SIM_NS = 500_000_000
+"""Sim time between flushes, whatever the wall clock does: a lockstep flight runs several
+times faster than real time, and a file cut short (its writer killed) should lose at most
+~0.5 s of *flight*, not ``flush_interval_s`` × the speed-up. The latched copy of the path
+is only re-written on the wall-clock flush (it is large, and a viewer needs it per wall
+second, not per flight second)."""
 
 WRITE_PIECE_BYTES = 32 * 1024
 """The largest single write to the MCAP file. Why: the kernel here does not preempt
@@ -110,6 +119,51 @@ class _File:
         self._f.close()
 
 
+_OS_ERROR = re.compile(r"os error (\d+)")
+
+
+def error_reason(exc: BaseException) -> str:
+    """A write error in words a user reads: the OS's own text (``No space left on
+    device``) for an ``OSError``, or for an error the SDK's Rust writer raises with the OS
+    error number in its text; else the exception's type and first line."""
+    text = getattr(exc, "strerror", None)
+    if text:
+        return str(text)
+    m = _OS_ERROR.search(str(exc))
+    if m:
+        return os.strerror(int(m.group(1)))
+    first = (str(exc).strip().splitlines() or [""])[0][:120]
+    return f"{type(exc).__name__}: {first}" if first else type(exc).__name__
+
+
+_SDK_QUIET = False
+
+
+def _quiet_sdk() -> None:
+    """The SDK's own log at errors only, once per process, before its first sink: a failing
+    write is reported once by :class:`McapOutput` in words (:func:`error_reason`), not also
+    as the writer's raw ``McapError(Io(...))`` warning on stderr. ``foxglove.set_log_level``
+    also configures the root logger (``logging.basicConfig``, at that level): the root
+    logger is put back as it was, so the program's own warnings still show."""
+    global _SDK_QUIET
+    if _SDK_QUIET:
+        return
+    _SDK_QUIET = True
+    import logging
+
+    root = logging.getLogger()
+    handlers, level = list(root.handlers), root.level
+    try:
+        foxglove.set_log_level("ERROR")
+    except Exception:       # an SDK without it: its default stays
+        return
+    finally:
+        for h in list(root.handlers):
+            if h not in handlers:
+                root.removeHandler(h)
+        root.setLevel(level)
+
+
 class RecorderError(OSError):
     """The recording cannot start (path not writable); the message names the path."""
 
@@ -157,6 +211,9 @@ class McapOutput:
         self.clock = clock
         self.stats = RecorderStats()
         self.error: str | None = None
+        self.repair: dict[str, Any] | None = None    # a failed file's repair (mcaprepair)
+        self.error_reason = ""
+        self._error_head = ""
         self.last_bad_input: str | None = None
         self._interval_s = flush_interval_s
         self._channels: dict[str, Any] = {}      # topic → its channel's log(data, ns)
@@ -165,6 +222,7 @@ class McapOutput:
         self._open = True           # accepting messages
         self._closed = False
         self._lock = threading.RLock()
+        _quiet_sdk()
         self._context = foxglove.Context()     # this recorder's channels and sinks only
         self._live = None
         self._file: _File | None = None
@@ -211,6 +269,7 @@ class McapOutput:
                 self._close_file()
                 raise RecorderError(str(exc)) from None
         self._next_flush = time.monotonic() + flush_interval_s
+        self._next_flush_sim_ns = FLUSH_SIM_NS
         self._stop = threading.Event()
         self._flusher = threading.Thread(target=self._flush_loop, name="mcap-flush",
                                          daemon=True)
@@ -262,6 +321,28 @@ class McapOutput:
                 if self.error is None:
                     self._failed(exc)
             self._file = None
+            if self.error is not None and self.file_path is not None:
+                self._repair()
+
+    def _repair(self) -> None:
+        """A file whose writing failed (disk full) has no summary: make what was written
+        readable in place (:mod:`~tfl_mav.flightlog.mcaprepair`, read back to prove it)."""
+        from tfl_mav.flightlog.mcaprepair import repair
+
+        try:
+            rep = repair(self.file_path, f"writing failed: {self.error_reason}").as_dict()
+        except OSError as exc:
+            rep = {"readable": False, "error": exc.strerror or str(exc)}
+        self.repair = rep
+        if rep.get("readable"):
+            last = rep.get("last_sim_time_s")
+            self.error = self._error_head + (
+                f"; what was written reads (repaired, ends at sim t = {last:.3f} s)"
+                if last is not None else "; what was written reads (repaired)")
+        else:
+            self.error = self._error_head + (
+                f"; the file could not be repaired ({rep.get('error')}): "
+                f"`tfl-mav inspect {self.file_path} --recover OUT.mcap` saves what reads")
 
     def metadata(self, name: str, values: Mapping[str, str]) -> None:
         """A named MCAP metadata record (e.g. the scenario), strings only."""
@@ -355,6 +436,8 @@ class McapOutput:
                 self.stats.messages += 1
             if time.monotonic() >= self._next_flush:
                 self._flush()
+            elif self._sim_ns >= self._next_flush_sim_ns:
+                self._flush(wall=False)
         except Exception as exc:
             self._failed(exc)
 
@@ -371,6 +454,8 @@ class McapOutput:
                 self.stats.messages += len(items)
             if time.monotonic() >= self._next_flush:
                 self._flush()
+            elif self._sim_ns >= self._next_flush_sim_ns:
+                self._flush(wall=False)
         except Exception as exc:
             self._failed(exc)
 
@@ -389,15 +474,19 @@ class McapOutput:
                 self.stats.messages += len(items)
             if time.monotonic() >= self._next_flush:
                 self._flush()
+            elif self._sim_ns >= self._next_flush_sim_ns:
+                self._flush(wall=False)
         except Exception as exc:
             self._failed(exc)
 
-    def _flush(self) -> None:
-        """Finish the chunk in progress (with a fresh copy of the path) and flush the file."""
+    def _flush(self, wall: bool = True) -> None:
+        """Finish the chunk in progress and flush the file; ``wall``: the wall-clock flush,
+        which also writes a fresh copy of the latched message (the path)."""
         with self._lock:
+            self._next_flush_sim_ns = self._sim_ns + FLUSH_SIM_NS
             if not self._open or self._pending == 0:
                 return
-            if self._latched is not None:
+            if wall and self._latched is not None:
                 emit, data = self._latched
                 emit(data, self._now_ns())
                 self.stats.messages += 1
@@ -405,7 +494,8 @@ class McapOutput:
                 self._writer.flush()
             self._pending = 0
             self.stats.flushes += 1
-            self._next_flush = time.monotonic() + self._interval_s
+            if wall:
+                self._next_flush = time.monotonic() + self._interval_s
 
     def _flush_loop(self) -> None:
         """Background flush for when the loop goes quiet (no writes, nothing flushes)."""
@@ -423,7 +513,8 @@ class McapOutput:
         self._open = False
         self.stats.write_errors += 1
         self.stats.dropped += 1
-        reason = getattr(exc, "strerror", None) or str(exc) or type(exc).__name__
-        self.error = (f"MCAP write to {self.file_path} failed ({reason}); recording stopped, "
-                      "the flight goes on; the file reads up to its last complete chunk "
-                      "(tfl-mav inspect FILE --recover OUT)")
+        self.error_reason = error_reason(exc)
+        self._error_head = (f"MCAP write to {self.file_path} failed ({self.error_reason}); "
+                            "recording stopped, the flight goes on")
+        self.error = (self._error_head + "; the file reads up to its last complete chunk "
+                      f"(`tfl-mav inspect {self.file_path} --recover OUT.mcap`)")

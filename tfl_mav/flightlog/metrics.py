@@ -9,7 +9,9 @@ agree exactly (tests/test_metrics_agree.py flies a demo and compares all three).
   10 s. *Clipping rule*: a flight shorter than twice the window is judged on its second
   half (``window = min(window_s, length / 2)``), so a short flight is never judged on its
   first metres of transient. A crashed, interrupted (shorter than its requested duration)
-  or empty flight, or one with a non-finite distance in the window, never converged.
+  or empty flight, or one with a non-finite distance in the window, never converged. A
+  flight whose vehicle log was cut short (``FlightLog.log_cut``) is not judged: the
+  verdict is False and says where the log ends and why.
 * **Detection** (:func:`detection`) from the controller's per-tick ``detected_rotor``
   (``/controller/state``): an *alarm* is a rising edge 0 → rotor. The detection is the
   first alarm at or after the attack start; a *false alarm* is an alarm before the attack
@@ -253,7 +255,18 @@ def flight_verdict(log: Any, *, bound_m: float = DEFAULT_BOUND_M,
     conv = converged(t, log["path_distance_m"], bound_m=bound_m, window_s=window_s,
                      duration_s=log.duration_s, crashed=log.crashed,
                      interrupted=log.interrupted, dt_s=dt)
+    cut = next((c for c in log.log_cut or () if c.get("role") == "vehicle"), None)
+    if cut is not None and not log.crashed:
+        # the truth stops where the log does, not where the flight did: no verdict on it
+        at = cut.get("at_s")
+        of = f" of {log.duration_s:g} s" if log.duration_s is not None else ""
+        where = f" at t = {at:.3f} s{of}" if at is not None else ""
+        conv = Convergence(False, bound_m, conv.window_s, conv.max_distance_m,
+                           f"not judged: the vehicle's log {cut['file']} was cut short"
+                           f"{where} ({cut['reason']})")
     out = {**conv.as_dict(), "convergence": conv.reason}
+    if log.log_cut:
+        out["log_cut_short"] = log.log_cut
     if log.detected_rotor is not None:
         start = log.attack_start_s if math.isfinite(log.attack_start_s) else None
         out.update(detection(t, log.detected_rotor, log.attack_rotor, start))

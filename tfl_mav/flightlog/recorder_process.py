@@ -22,7 +22,8 @@ child reads end-of-file and *finishes* the file. Queued calls reach the child wi
 and SIGTERM so a Ctrl-C or ``kill`` of the process group still lets the parent close it.
 It runs at a lower priority than the flight (:mod:`~tfl_mav.flightlog.child_priority`).
 
-Backpressure: if the queue grows past ``batch_max`` × 8 calls (the sender thread starved),
+Backpressure: if the queue grows past ``batch_max`` × :data:`BACKLOG_BATCHES` calls (the
+sender thread starved),
 the flight thread sends inline; if the child falls behind, the pipe fills and the flight
 process waits. Not in real time (``realtime=True``): there the flight thread only ever
 appends, and past ``batch_max`` × 64 queued calls drops them (counted in ``dropped``) — a
@@ -45,6 +46,8 @@ import pickle
 import select
 import signal
 import struct
+import subprocess
+import sys
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -53,6 +56,7 @@ from pathlib import Path
 from typing import Any
 
 from tfl_mav.flightlog.child_priority import NICE_INCREMENT, Priority
+from tfl_mav.flightlog.mcaprepair import CUT_METADATA
 from tfl_mav.flightlog.recorder import Recorder, RecorderError, RecorderStats
 
 __all__ = ["NICE_INCREMENT", "RecorderProcess"]
@@ -65,6 +69,47 @@ _BEHIND_S = 0.25
 lockstep flight's backpressure makes it wait ~10 ms; a child starved by other programs
 waits seconds), and an idle child is promoted (:mod:`~tfl_mav.flightlog.child_priority`)."""
 _POLL_MS = 50                   # how often a waiting send reports how long it has waited
+
+
+BACKLOG_BATCHES = 2
+"""Calls queued in the flight process (in batches of ``batch_max``) before its own thread
+sends them: what a SIGKILL of the flight process can lose besides a batch being written.
+At ~3 calls a tick, 2 × 512 calls are ~0.35 s of a flight (8 lost up to 1.4 s when a
+loaded machine starved the sender thread); an idle sender sends ~100 calls every
+``batch_s``, so the flight thread sends only when starved."""
+
+_REPAIR_TIMEOUT_S = 600.0      # a repair reads the whole file: ~1 min for a 1 GB log
+
+
+def _stderr_line(text: str) -> None:
+    with contextlib.suppress(OSError, ValueError):
+        print(text, file=sys.stderr, flush=True)
+
+
+def run_repair(path: str | Path, reason: str) -> dict[str, Any]:
+    """Repair ``path`` in place (:mod:`~tfl_mav.flightlog.mcaprepair`) in a process of
+    its own (its own session: it finishes even if the flight's process group is killed; at
+    the recorder's lower priority), and return its result (``readable`` etc.)."""
+    import json
+
+    try:
+        proc = subprocess.Popen([sys.executable, "-m", "tfl_mav.flightlog.mcaprepair",
+                                 str(path), reason], stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True, start_new_session=True)
+    except OSError as exc:
+        return {"readable": False, "error": f"repair did not start: {exc.strerror or exc}"}
+    Priority(proc.pid)          # niced; never idle: close() may wait for it
+    try:
+        out, err = proc.communicate(timeout=_REPAIR_TIMEOUT_S)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        return {"readable": False, "error": f"repair took over {_REPAIR_TIMEOUT_S:g} s"}
+    try:
+        return dict(json.loads(out.strip().splitlines()[-1]))
+    except (ValueError, IndexError):
+        tail = (err.strip().splitlines() or ["no output"])[-1]
+        return {"readable": False, "error": f"repair failed ({tail})"}
 
 
 def _plain(x: Any) -> Any:
@@ -98,26 +143,39 @@ def _child_loop(conn: Connection, results: Connection, path: str | None,
     try:
         rec = Recorder(path, clock=lambda: now[0], **kwargs)
     except (OSError, ValueError) as exc:
-        results.send(("fail", isinstance(exc, OSError), str(exc)))
+        with contextlib.suppress(OSError):      # a parent already gone hears nothing
+            results.send(("fail", isinstance(exc, OSError), str(exc)))
         return
-    results.send(("ok",))
     reported = False
+    orphaned = False
     try:
-        while True:
+        try:
+            results.send(("ok",))
+        except OSError:                 # the parent died while this child started
+            orphaned = True
+        while not orphaned:
             try:
                 data = conn.recv_bytes()
-            except (EOFError, OSError):  # the parent is gone (killed mid-message: OSError
-                break                    # "end of file during message"): finish the file
+            except (EOFError, OSError):     # the parent is gone (perhaps mid-message):
+                orphaned = True             # finish the file anyway
+                break
             if not handle_batch(rec, data, now):
                 break
             if rec.error and not reported:
-                with contextlib.suppress(OSError):   # a parent gone hears nothing
+                with contextlib.suppress(OSError):
                     results.send(("error", rec.error))
                 reported = True
     finally:
+        if orphaned:        # the file ends where the flight's process did: say so in it
+            rec.metadata(CUT_METADATA, {
+                "complete": "false",
+                "reason": "the flight process ended without closing the recording "
+                          "(killed?)",
+                "last_sim_time_s": f"{rec.sim_time_s:.6f}"})
         rec.close()
         with contextlib.suppress(OSError):
-            results.send(("done", rec.error, rec.last_bad_input, rec.stats.as_dict()))
+            results.send(("done", rec.error, rec.last_bad_input, rec.stats.as_dict(),
+                          rec.repair))
 
 
 def handle_batch(rec: Recorder, data: bytes, now: list[float]) -> bool:
@@ -193,14 +251,22 @@ class RecorderProcess:
 
     def __init__(self, path: str | Path | None, *, clock: Callable[[], float] = time.time,
                  batch_s: float = 0.01, batch_max: int = 512, realtime: bool = False,
+                 prog: str = "tfl-mav", say: Callable[[str], None] | None = None,
                  **recorder_kw: Any) -> None:
         self.file_path = Path(path) if path is not None else None
+        self._prog = prog
+        self._say = say or _stderr_line
+        self._sent_sim_s: float | None = None    # sim time of the last call sent to the child
+        self._lost_lock = threading.Lock()
+        self._lost_seen = False                  # the child died before finishing the file
+        self._repair: dict[str, Any] | None = None
+        self._write_failed = False               # the child reported a write error
         self.clock = clock
         self.stats = RecorderStats()
         self.last_bad_input: str | None = None
         self._error: str | None = None
         self._batch_s = batch_s
-        self._backlog_max = 8 * batch_max
+        self._backlog_max = BACKLOG_BATCHES * batch_max
         # Real time: the flight thread never waits for the child; past this many
         # queued calls (seconds of a 1 kHz flight) new ones are dropped and counted.
         self._realtime_max = 64 * batch_max if realtime else 0
@@ -239,6 +305,9 @@ class RecorderProcess:
         self._sender = threading.Thread(target=self._send_stale, name="mcap-batch",
                                         daemon=True)
         self._sender.start()
+        self._watcher = threading.Thread(target=self._watch, name="recorder-watch",
+                                         daemon=True)
+        self._watcher.start()
         # at exit, close before multiprocessing joins the child (which waits for our EOF)
         atexit.register(self.close)
 
@@ -281,10 +350,98 @@ class RecorderProcess:
             # A child that said "done" has finished and closed the file; a niced child on a
             # loaded machine may just be slow to exit. Only one that never said so failed.
             self._proc.kill()
+            self._proc.join(5.0)
             if not self._done:
                 self._set_error("recorder process did not finish the file in time")
+        if not self._done:
+            self._lost()                # the file was never finished: repair it now
+        self._watcher.join(_REPAIR_TIMEOUT_S)
         self._conn.close()
         self._results.close()
+
+    @property
+    def recording(self) -> dict[str, Any] | None:
+        """How the file ended, for a run's summary (None without a file): ``path``,
+        ``complete`` (the child finished it after the last call), ``write_error`` (the
+        recording stopped because a write failed: a full disk), ``readable`` (by any MCAP
+        reader: True for a finished file, else the repair's read-back), and for a file cut
+        short ``reason``, ``last_sim_time_s`` (where it now ends), ``died_at_sim_s`` (sim
+        time of the last call the child took, if it died) and the ``repair``'s figures.
+        Final after :meth:`close`."""
+        if self.file_path is None:
+            return None
+        out: dict[str, Any] = {"path": str(self.file_path),
+                               "complete": self._done and not self._lost_seen
+                               and self._error is None,
+                               "write_error": self._write_failed}
+        rep = self._repair
+        if out["complete"]:
+            out["readable"] = True
+            return out
+        out["reason"] = self._error or "unknown"
+        if self._lost_seen:     # where the flight was when its recorder died
+            out["died_at_sim_s"] = self._sent_sim_s
+        if rep is not None:
+            out.update(readable=bool(rep.get("readable")),
+                       last_sim_time_s=rep.get("last_sim_time_s"),
+                       repair={k: rep.get(k) for k in ("repaired", "messages", "kept_bytes",
+                                                       "cut_bytes", "error")})
+        else:
+            out["readable"] = self._done    # a child that finished it after a write error
+        return out
+
+    # ------------------------------------------------------------------ a child that dies
+    def _watch(self) -> None:
+        """Background: the moment the child exits before :meth:`close` asked it to, say so
+        and repair the file (:meth:`_lost`)."""
+        from multiprocessing.connection import wait
+
+        while not self._closed:
+            if wait([self._proc.sentinel], 0.2):
+                break
+        else:
+            return
+        if not self._closed:    # only close() ends the child; anything else killed it
+            self._lost()
+
+    def _lost(self) -> None:
+        """The child is gone and the file is not finished: say so at once (one line), then
+        make the file readable in place in a process of its own
+        (:mod:`~tfl_mav.flightlog.mcaprepair`, proved by reading it back), and say where it
+        now ends."""
+        with self._lost_lock:
+            if self._lost_seen:
+                return
+            self._lost_seen = True
+        self._proc.join(1.0)        # reaped: its exit code says how it ended
+        code = self._proc.exitcode
+        how = (f"killed by {signal.Signals(-code).name}" if code is not None and code < 0
+               else f"exit code {code}" if code is not None else "gone")
+        at = (f" at sim t = {self._sent_sim_s:.3f} s" if self._sent_sim_s is not None
+              else "")
+        self._alive = False
+        self._room = 0
+        self._error = f"recorder process for {self.file_path} died ({how}){at}"
+        self._say(f"{self._prog}: recording cut short: the recorder process for "
+                  f"{self.file_path or 'the live view'} died ({how}){at}; the flight goes "
+                  "on unrecorded" + ("; repairing the file" if self.file_path else ""))
+        if self.file_path is None:
+            return
+        rep = run_repair(self.file_path, f"recorder process died ({how}){at}")
+        self._repair = rep
+        if rep.get("readable"):
+            last = rep.get("last_sim_time_s")
+            self._error += (f"; the file is repaired and ends at sim t = {last:.3f} s"
+                            if last is not None else "; the file is repaired")
+            self._say(f"{self._prog}: {self.file_path}: repaired, readable by any MCAP "
+                      f"reader; it ends at "
+                      + (f"sim t = {last:.3f} s" if last is not None else "its start")
+                      + f" ({rep.get('messages', 0)} messages)")
+        else:
+            self._error += f"; the file could not be repaired ({rep.get('error')})"
+            self._say(f"{self._prog}: {self.file_path}: could not be repaired "
+                      f"({rep.get('error')}); `tfl-mav inspect {self.file_path} --recover "
+                      "OUT.mcap` saves what reads")
 
     # ------------------------------------------------------------------ the Recorder API
     # The hot calls (on_frame, on_frames, truth, controller) are one Python call each: a
@@ -389,6 +546,14 @@ class RecorderProcess:
                 _write_message(self._conn.fileno(),
                                pickle.dumps(items, protocol=pickle.HIGHEST_PROTOCOL),
                                self._behind)
+                for item in reversed(items):    # where the flight is: for a cut log's word
+                    op = item[0]
+                    if op == _TRUTH:
+                        self._sent_sim_s = item[2][0]
+                        break
+                    if op in (_CONTROLLER, _SIM_TIME):
+                        self._sent_sim_s = item[2]
+                        break
             except (OSError, ValueError, pickle.PicklingError) as exc:
                 self.stats.dropped += len(items)
                 self._set_error(f"recorder process for {self.file_path} is gone ({exc}); "
@@ -415,9 +580,12 @@ class RecorderProcess:
             return False
         if reply[0] == "error":
             self._error = reply[1]
+            self._write_failed = True
         elif reply[0] == "done":
-            _, error, bad, stats = reply
-            self._error = self._error or error
+            _, error, bad, stats, repair = reply
+            if repair is not None:
+                self._repair = repair
+            self._error = error if self._write_failed and error else (self._error or error)
             self.last_bad_input = bad
             dropped = self.stats.dropped
             self.stats = RecorderStats(**stats)

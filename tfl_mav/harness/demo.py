@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from tfl_mav.build import scenario_path
+from tfl_mav.flightlog.atomic import write_text_atomic
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.flightlog.from_mcap import flight_log_from_mcap
 from tfl_mav.flightlog.logread import raw_frames
@@ -181,9 +182,10 @@ def _supervise(children: _Children, sim: subprocess.Popen[str],
 class _Drain:
     """Read a child's pipe to its end on a thread (a full pipe would stall the child)."""
 
-    def __init__(self, stream: Any, handle: Any = None) -> None:
+    def __init__(self, stream: Any, handle: Any = None, echo: bool = False) -> None:
         self.lines: list[str] = []
         self._handle = handle
+        self._echo = echo           # show a "recording cut short" line when it comes
         self._thread = threading.Thread(target=self._read, args=(stream,), daemon=True)
         self._thread.start()
 
@@ -193,6 +195,9 @@ class _Drain:
             return
         for line in stream:
             self.lines.append(line)
+            if self._echo and "recording cut short" in line:
+                print(("\n" if sys.stderr.isatty() else "") + line.rstrip(), file=sys.stderr,
+                      flush=True)
 
     def text(self, timeout_s: float = 5.0) -> str:
         self._thread.join(timeout_s)
@@ -239,7 +244,7 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
              *(["--foxglove", foxglove] if foxglove else [])],
             stdout=subprocess.PIPE, stderr=subprocess.PIPE, preexec_fn=pre)
         port = _await_port(sim)
-        sim_out, sim_err = _Drain(sim.stdout), _Drain(sim.stderr)
+        sim_out, sim_err = _Drain(sim.stdout), _Drain(sim.stderr, echo=progress)
         fly = children.start(
             [*_cli(), "fly", name, "--vehicle", f"127.0.0.1:{port}", "--duration",
              str(duration), "--mcap", str(ctl_mcap), "--summary-json", str(fly_json),
@@ -271,11 +276,16 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
     log.duration_s = duration
     log.interrupted = interrupted
     m = summarize(log)
+    if len(log["t_s"]) == 0:      # no sample (a log cut before the flight): no number
+        m.update({k: None for k in _NUMBERS if k not in m}, wall_time_s=round(wall, 3))
     m.update(flight_verdict(log, bound_m=bound_m, window_s=window_s))
     if interrupted:
         m["signal"] = signal.Signals(children.signals[0]).name
     m.update(_detection_extras(scenario, m, log))
     m.update(_traffic_metrics(run_mcap, ctl_mcap, fly_summary))
+    if m.get("log_cut_short") and fly_summary.get("sim_time_s") is not None:
+        # the flight went on past the end of its log: flown is the controller's account
+        m["log_sim_time_s"], m["sim_time_s"] = m["sim_time_s"], fly_summary["sim_time_s"]
     m["real_time_factor"] = round(m["sim_time_s"] / wall, 2) if wall else None
     m["out_dir"] = str(out)
     phases = {"flight": round(wall, 3), "report": round(time.perf_counter() - t1, 3)}
@@ -285,13 +295,26 @@ def run_demo(name: str, out: Path, *, settings: list[str] | None = None,
         say.start("  plots: drawing the six PNGs ...")
         from tfl_mav.flightlog.plots import write_report
 
-        m["plots"] = [str(p) for p in write_report(log, out, title=scenario.name)]
+        try:
+            m["plots"] = [str(p) for p in write_report(log, out, title=scenario.name)]
+        except OSError as exc:
+            raise DemoError(f"cannot write the plots in {out}: "
+                               f"{exc.strerror or exc}") from None
         phases["plots"] = round(time.perf_counter() - t2, 3)
         say.end(f" {phases['plots']:.1f} s")
     m["phase_wall_s"] = phases         # what the user waited for, phase by phase
     m["total_wall_s"] = round(time.perf_counter() - t0, 3)
-    (out / "summary.json").write_text(json.dumps(m, indent=2))
+    try:
+        write_text_atomic(out / "summary.json", json.dumps(m, indent=2))
+    except OSError as exc:
+        raise DemoError(f"cannot write {out / 'summary.json'}: "
+                           f"{exc.strerror or exc}") from None
     return m
+
+
+_NUMBERS = ("final_path_distance_m", "max_path_distance_last_10s_m",
+            "rms_path_distance_last_10s_m", "thrust_min_n", "thrust_max_n",
+            "saturated_fraction", "max_yaw_rate_radps", "detected_rotor", "false_alarms")
 
 
 class _Say:
@@ -345,6 +368,9 @@ def _follow(stream: Any, duration: float, show: bool) -> str:
                 drawn = tty
         else:
             other.append(line)
+            if show and "recording cut short" in line:   # said at once, not at the end
+                print(("\n" if drawn else "") + line.rstrip(), file=sys.stderr, flush=True)
+                drawn = False
     if drawn:
         print(file=sys.stderr)
     return "".join(other)
