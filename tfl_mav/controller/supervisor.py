@@ -307,8 +307,9 @@ def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
             if cs > p.lost_share:
                 return _switch(p, s, Law.LOST_ROTOR, Why.CEILING, Start.SAFE_PATH, False)
             return s, stay
-    s = s._replace(ticks=ticks, since_s=since, tfl_s=tfl_s, recovery_s=rec_s,
-                   lost_rotor_s=lost_s, spin_s=spin_s)
+    s = _new(SupervisorState, (law_now, s.holding, since, s.good_s, s.floor_share,
+                               s.ceiling_share, s.top_share, s.persist_share, ticks,
+                               s.switches, tfl_s, rec_s, lost_s, spin_s, s.high_s))
     if p.mode == 1:                       # "tfl": the TFL law alone
         return s, stay
     if p.mode == 2:                       # "safe": the safe law alone, never TFL
@@ -386,9 +387,9 @@ def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
                                 and a + 2.0 * sigma < p.weight_n / 2.0 - p.a_handback_n)
     ok = two_sided and not s.holding and u.safe_distance_m < p.roa_m
     if ok:
-        tilt, pq, _speed = attitude(u)
+        tilt, pq, speed = attitude(u)
         ok = (tilt <= p.handback_tilt_rad and pq <= p.takeover_rate_radps
-              and not _not_benign(p, u))
+              and speed <= p.takeover_speed_mps)     # (the hand-back tilt is the stricter)
     good = s.good_s + dt if ok else 0.0
     if good != s.good_s:
         s = s._replace(good_s=good)

@@ -419,8 +419,9 @@ class RecoveryLaw:
         computes."""
         if mass_kg is not None and mass_kg != self.mass_kg and mass_kg > 0.0:
             self.mass_kg = mass_kg
-            self._step_model = (mass_kg, *self._step_model[1:])
-            self._safe = self._safe._replace(model=self._step_model)
+            m = self._step_model = (mass_kg, *self._step_model[1:])
+            sp = self._safe      # SafeParams with the new model, built as the tuple it is
+            self._safe = _new_output(SafeParams, (m, sp[1], sp[2], sp[3], sp[4]))
         if attacked_rotor:
             return self._three_rotor(s, attacked_rotor, attack_n)
         # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
