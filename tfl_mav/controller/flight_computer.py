@@ -190,6 +190,7 @@ class FlightComputer:
         self._climbing = False         # said: the attack is more than the weight allows
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
         self._probe_high_n = min(self._hover_share_n + 1.5, self.thrust_max_n)
+        self._probe_n = self._hover_share_n   # the attacked rotor's probe command (N)
         # The attacked rotor's thrust through a filter when the ESCs are noisy
         # (attack_estimate); a noise-free speed is the thrust itself.
         rpm_std = detector_config(scenario).rpm_noise_std
@@ -609,9 +610,17 @@ class FlightComputer:
         if rotor and self.detector is not None:
             # The attacked rotor's command is not ours to use: send it a probe away from its
             # estimate, so that a rotor the attacker lets go shows it by following (detector).
+            # The probe keeps its level while the estimate stays 0.5 N away from it: a
+            # probe that flips as the estimate crosses hover + 1 N sweeps a lagging rotor's
+            # model band over the attacker's thrust, and the detector, seeing the rotor
+            # "follow", released it (a false release, re-detected 9 ms later: 95 mm).
             est = estimate if _isfinite(estimate) else 0.0
-            hover = self._hover_share_n
-            applied[rotor - 1] = hover if abs(hover - est) > 1.0 else self._probe_high_n
+            probe = self._probe_n
+            if not abs(probe - est) > 0.5:
+                hover = self._hover_share_n
+                probe = self._probe_n = (hover if abs(hover - est) > 1.0
+                                         else self._probe_high_n)
+            applied[rotor - 1] = probe
         # TickResult(...) without its generated Python __new__ (every tick): all fields
         return _new(TickResult, (applied, out, detection, rotor, estimate, new, req,
                                  tuple(events)))
