@@ -215,11 +215,6 @@ def initial_state(mode: str = "auto") -> SupervisorState:
                            0.0, 0.0)
 
 
-def _leak(share: float, hit: bool, k: float) -> float:
-    """A first-order average of an indicator: the share of the recent window it held."""
-    return share + k * ((1.0 if hit else 0.0) - share)
-
-
 def attitude(u: SupervisorInputs) -> tuple[float, float, float]:
     """(tilt of b3 from the vertical rad, |(p, q)| rad/s, |v| m/s) of the inputs' state:
     computed only where a rule reads them (not on the attacked TFL tick)."""
@@ -253,6 +248,44 @@ def _switch(p: SupervisorParams, s: SupervisorState, law: Law, why: Why, start: 
             (int(law), int(why), int(start)))
 
 
+def _authority(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs, dt: float,
+               clock: tuple[float, int, float, float, float, float]
+               ) -> tuple[SupervisorState, tuple[int, int, int]]:
+    """TFL flies an attacked vehicle: the shares of the window its unbounded demand sat at
+    a bound, and the take-over they call for (module doc). ``clock``: the state's time
+    fields after this tick (since, ticks, tfl, recovery, lost_rotor, spin)."""
+    a = u.attack_n
+    sigma = u.attack_std_n if u.attack_std_n > 0.0 else 0.0
+    known = math.isfinite(a)
+    i = u.rotor - 1                   # physical index of the attacked rotor
+    d = u.demand_n
+    opposite, side1, side3 = d[(i + 2) % 4], d[(i + 1) % 4], d[(i + 3) % 4]
+    # The demand is bounded below by 0 (the allocation's), not above, and not by the lag's
+    # reach: f₄ at 0 is τ_p ≥ −lA asked for more.
+    top = p.thrust_max_n - _EPS_N
+    ceiling = opposite >= top or side1 <= _EPS_N or side3 <= _EPS_N
+    floor = opposite <= _EPS_N
+    thrust_top = side1 >= top or side3 >= top
+    k = dt / p.window_s
+    k = k if k < 1.0 else 1.0
+    kl = dt / p.persist_window_s
+    kl = kl if kl < 1.0 else 1.0
+    fs = s.floor_share + k * ((1.0 if floor else 0.0) - s.floor_share)
+    cs = s.ceiling_share + k * ((1.0 if ceiling else 0.0) - s.ceiling_share)
+    ts = s.top_share + k * ((1.0 if thrust_top else 0.0) - s.top_share)
+    ps = s.persist_share + kl * ((1.0 if floor else 0.0) - s.persist_share)
+    since, ticks, tfl_s, rec_s, lost_s, spin_s = clock
+    # One state built, positionally (a named tuple's _replace costs microseconds).
+    s = _new(SupervisorState, (s.law, s.holding, since, s.good_s, fs, cs, ts, ps, ticks,
+                               s.switches, tfl_s, rec_s, lost_s, spin_s, s.high_s))
+    small = not known or a + 2.0 * sigma < p.a_takeover_n
+    if (fs > p.lost_share and small) or ps > p.persist_share or ts > p.lost_share:
+        return _switch(p, s, Law.LOST_ROTOR, Why.FLOOR, Start.SAFE_PATH, False)
+    if cs > p.lost_share:
+        return _switch(p, s, Law.LOST_ROTOR, Why.CEILING, Start.SAFE_PATH, False)
+    return s, (s.law, _STAY, _NONE)
+
+
 def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
               ) -> tuple[SupervisorState, tuple[int, int, int]]:
     """One tick: the new state and the decision (law, why, start) — :class:`Law`,
@@ -274,39 +307,9 @@ def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
     ticks, since = s.ticks + 1, s.since_s + dt
     stay = (law_now, _STAY, _NONE)
     if law_now == _TFL and ticks > 1 and p.mode == 0 and u.tfl_flew and u.tfl_answer \
-            and u.rotor:
-        # The tick that runs a thousand times a second: TFL flies an attacked vehicle. One
-        # state built, positionally (a named tuple's _replace costs microseconds).
-        a = u.attack_n
-        sigma = u.attack_std_n if u.attack_std_n > 0.0 else 0.0
-        known = math.isfinite(a)
-        if not (known and 2.0 * a > p.weight_n):
-            i = u.rotor - 1                   # physical index of the attacked rotor
-            d = u.demand_n
-            opposite, side1, side3 = d[(i + 2) % 4], d[(i + 1) % 4], d[(i + 3) % 4]
-            # The demand is bounded below by 0 (the allocation's), not above, and not by
-            # the lag's reach: f₄ at 0 is τ_p ≥ −lA asked for more.
-            top = p.thrust_max_n - _EPS_N
-            ceiling = opposite >= top or side1 <= _EPS_N or side3 <= _EPS_N
-            floor = opposite <= _EPS_N
-            thrust_top = side1 >= top or side3 >= top
-            k = dt / p.window_s
-            k = k if k < 1.0 else 1.0
-            kl = dt / p.persist_window_s
-            kl = kl if kl < 1.0 else 1.0
-            fs = s.floor_share + k * ((1.0 if floor else 0.0) - s.floor_share)
-            cs = s.ceiling_share + k * ((1.0 if ceiling else 0.0) - s.ceiling_share)
-            ts = s.top_share + k * ((1.0 if thrust_top else 0.0) - s.top_share)
-            ps = s.persist_share + kl * ((1.0 if floor else 0.0) - s.persist_share)
-            s = _new(SupervisorState, (law_now, s.holding, since, s.good_s, fs, cs, ts, ps,
-                                       ticks, s.switches, tfl_s, rec_s, lost_s, spin_s,
-                                       s.high_s))
-            small = not known or a + 2.0 * sigma < p.a_takeover_n
-            if (fs > p.lost_share and small) or ps > p.persist_share or ts > p.lost_share:
-                return _switch(p, s, Law.LOST_ROTOR, Why.FLOOR, Start.SAFE_PATH, False)
-            if cs > p.lost_share:
-                return _switch(p, s, Law.LOST_ROTOR, Why.CEILING, Start.SAFE_PATH, False)
-            return s, stay
+            and u.rotor and not (2.0 * u.attack_n > p.weight_n):
+        # The tick that runs a thousand times a second: TFL flies an attacked vehicle.
+        return _authority(p, s, u, dt, (since, ticks, tfl_s, rec_s, lost_s, spin_s))
     s = _new(SupervisorState, (law_now, s.holding, since, s.good_s, s.floor_share,
                                s.ceiling_share, s.top_share, s.persist_share, ticks,
                                s.switches, tfl_s, rec_s, lost_s, spin_s, s.high_s))
@@ -333,30 +336,8 @@ def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
             return s, stay
         if known and 2.0 * a > p.weight_n:
             return _switch(p, s, Law.LOST_ROTOR, Why.HOPELESS, Start.SAFE_PATH, False)
-        i = u.rotor - 1                   # physical index of the attacked rotor
-        d = u.demand_n
-        opposite, side1, side3 = d[(i + 2) % 4], d[(i + 1) % 4], d[(i + 3) % 4]
-        # The demand is bounded below by 0 (the allocation's), not above, and not by the
-        # lag's reach: f₄ at 0 is τ_p ≥ −lA asked for more.
-        top = p.thrust_max_n - _EPS_N
-        ceiling = opposite >= top or side1 <= _EPS_N or side3 <= _EPS_N
-        floor = opposite <= _EPS_N
-        thrust_top = side1 >= top or side3 >= top
-        k = min(dt / p.window_s, 1.0)
-        kl = min(dt / p.persist_window_s, 1.0)
-        floor_share = _leak(s.floor_share, floor, k)
-        ceiling_share = _leak(s.ceiling_share, ceiling, k)
-        top_share = _leak(s.top_share, thrust_top, k)
-        persist = _leak(s.persist_share, floor, kl)
-        s = s._replace(floor_share=floor_share, ceiling_share=ceiling_share,
-                       top_share=top_share, persist_share=persist)
-        small = not known or a + 2.0 * sigma < p.a_takeover_n
-        if (floor_share > p.lost_share and small) or persist > p.persist_share \
-                or top_share > p.lost_share:
-            return _switch(p, s, Law.LOST_ROTOR, Why.FLOOR, Start.SAFE_PATH, False)
-        if ceiling_share > p.lost_share:
-            return _switch(p, s, Law.LOST_ROTOR, Why.CEILING, Start.SAFE_PATH, False)
-        return s, stay
+        return _authority(p, s, u, dt, (s.since_s, s.ticks, s.tfl_s, s.recovery_s,
+                                        s.lost_rotor_s, s.spin_s))
     half = p.weight_n / 2.0
     if s.law == Law.SPIN:
         # Back to the safe law once the pinned rotor has come down (or let go) for a while.
