@@ -93,7 +93,7 @@ def test_feasibility_flags_the_impossible_and_passes_the_paper() -> None:
     assert math.isclose(d.min_vertical_mps2, -16.0, rel_tol=1e-3)
     assert any("cannot be followed" in w for w in check_scenario(fast))
     strong = apply_overrides(paper, ["attack.signal=constant", "attack.value_n=5.0"])
-    assert any("cannot follow the path" in w for w in check_scenario(strong))
+    assert any("no attitude hold exists" in w for w in check_scenario(strong))
 
 
 @pytest.mark.slow

@@ -171,8 +171,9 @@ def check_scenario(sc: Scenario) -> list[str]:
         if a_hi > limit:
             out.append(f"attack on rotor {sc.attack.rotor} reaches {a_hi:.2f} N > "
                        f"{limit:.2f} N (half the least thrust the path needs, "
-                       f"mg/2 = {mg / 2:.2f} N): the vehicle cannot follow the path; "
-                       "the safe law keeps its attitude and climbs where it must")
+                       f"mg/2 = {mg / 2:.2f} N): no attitude hold exists there; the spin "
+                       "law flies a relaxed hover about a tilted axis (docs/relaxed-hover.md) "
+                       "and says so where no spin holds the weight either")
         if a_lo < A_HANDBACK_N:
             spin = v.drag_thrust_ratio_m * (mg - 4.0 * a_lo) / v.k_r
             out.append(f"attack on rotor {sc.attack.rotor} down to {a_lo:.2f} N: near 0 N the "
