@@ -150,3 +150,13 @@ def test_bad_params_are_refused():
         supervisor_params("both", W, FMAX, 0.5)
     with pytest.raises(ValueError):
         supervisor_params("auto", W, FMAX, 0.5, a_takeover_n=1.0, a_handback_n=0.5)
+
+
+def test_the_scenario_key_is_checked():
+    from tfl_mav.scenario import ScenarioError, scenario_from_dict
+
+    with pytest.raises(ScenarioError, match=r"controller\.supervisor: must be 'auto', 'tfl' or "
+                                            r"'safe', got 'both'"):
+        scenario_from_dict({"controller": {"supervisor": "both"}})
+    assert scenario_from_dict({"controller": {"supervisor": "safe"}}).controller.supervisor \
+        == "safe"
