@@ -187,3 +187,18 @@ def test_loading_software_by_name_says_what_is_wrong_in_one_line():
         with pytest.raises(FlightSoftwareError, match=words) as info:
             load_flight_software(spec)
         assert "\n" not in str(info.value)
+
+
+@pytest.mark.slow
+def test_flight_arrays_report_the_laws_and_every_detection_as_data():
+    from tfl_mav.api import Environment
+
+    arrays = Environment("paper").fly(duration_s=3.0)
+    times = arrays.time_in_law_s
+    assert set(times) >= {"tfl", "recovery", "lost_rotor", "spin"}
+    assert sum(times.values()) == pytest.approx(3.0, abs=2e-3)
+    # the paper's zero-attack stretch begins near 1.9 s: one take-over in 3 s
+    assert arrays.law_switches == 1 and times["lost_rotor"] > 0.5
+    assert arrays.detections and arrays.detections[0][1] == 2
+    assert arrays.detection_time_s == arrays.detections[0][0]
+    assert arrays.releases == ()
