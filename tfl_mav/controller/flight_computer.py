@@ -460,8 +460,17 @@ class FlightComputer:
                           f"{out.vertical_excess_mps2:+.2f} m/s^2 of climb (+) or sink (-) "
                           "left over")
         thrust = list(out.thrusts_n)
+        lag = self.controller.lag_inverter
+        if lag is not None:
+            omega = [r * RPM_TO_RADPS for r in rpm]
+            lag.reachable(omega)
+            command = lag.invert(thrust).command_n
+            command[rotor - 1] = thrust[rotor - 1]
+            self._last_safe_thrust = list(thrust)
+            thrust = command
+        else:
+            self._last_safe_thrust = thrust
         self._delivered = None
-        self._last_safe_thrust = thrust
         self._decide(self._inputs(dt, rotor, estimate, spread, None, dist, state), state,
                      events, estimate, rotor, None)
         if self._sup.law != Law.SPIN:
