@@ -44,7 +44,8 @@ The rules, and the physics that sizes them (canonical frame of the attacked roto
 * **A rotor pinned high** (A − 2σ_A above m g/2 by ``spin_margin_n`` for ``spin_hold_s``):
   no attitude hold exists (the opposite rotor must match A, so u_f ≥ 2A > m g); the spin law
   (:mod:`tfl_mav.control.spin`, relaxed hover about a tilted axis) takes it from the safe law
-  once its table is built, and gives it back when A + 2σ_A falls below m g/2 by the margin.
+  once its table is built, and gives it back when A + 2σ_A falls below m g/2 by
+  max(``spin_margin_n``, ``a_handback_n``): where the safe law can hand on to TFL.
 * **Modes**: ``"auto"`` flies the rules above; ``"tfl"`` flies the TFL law alone (no
   take-over at all: for research and comparison); ``"safe"`` flies the safe law alone.
 
@@ -340,8 +341,13 @@ def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
                                         s.lost_rotor_s, s.spin_s))
     half = p.weight_n / 2.0
     if s.law == Law.SPIN:
-        # Back to the safe law once the pinned rotor has come down (or let go) for a while.
-        down = not known or a + 2.0 * sigma < half - p.spin_margin_n
+        # Back to the safe law once the pinned rotor has come down (or let go) for a while,
+        # as far below m g/2 as the safe law needs to hand on to TFL (a two-sided τ_p with
+        # a_handback_n of margin): between there and m g/2 the safe law can only climb or
+        # barely hold (2A ≈ m g), while the spin still has its relaxed hover (its table spans
+        # from m g/2 − 0.5 N). Leaving at m g/2 − spin_margin_n, an attack swinging about
+        # m g/2 (the paper's 0.1 t + sin z near 55-62 s) cost a round trip of 2.7 m.
+        down = not known or a + 2.0 * sigma < half - max(p.spin_margin_n, p.a_handback_n)
         good = s.good_s + dt if down else 0.0
         s = s._replace(good_s=good)
         if good >= p.spin_hold_s:
