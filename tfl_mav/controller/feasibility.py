@@ -174,6 +174,7 @@ def check_scenario(sc: Scenario) -> list[str]:
                        f"mg/2 = {mg / 2:.2f} N): no attitude hold exists there; the spin "
                        "law flies a relaxed hover about a tilted axis (docs/relaxed-hover.md) "
                        "and says so where no spin holds the weight either")
+            out += _no_spin(sc, max(a_lo, mg / 2.0), a_hi)
         if a_lo < A_HANDBACK_N:
             spin = v.drag_thrust_ratio_m * (mg - 4.0 * a_lo) / v.k_r
             out.append(f"attack on rotor {sc.attack.rotor} down to {a_lo:.2f} N: near 0 N the "
@@ -181,6 +182,33 @@ def check_scenario(sc: Scenario) -> list[str]:
                        f"long, the reduced-attitude law flies (spinning at ~{spin:.0f} rad/s)")
     out += unread_attack_keys(sc)
     return out
+
+
+def _no_spin(sc: Scenario, lo_n: float, hi_n: float) -> list[str]:
+    """The attack's thrusts above m g/2 (every 0.5 N from ``lo_n`` to ``hi_n``) at which the
+    airframe has no relaxed hover of any vertical force, in one line with the numbers; the
+    vehicle then keeps its attitude and climbs (the spin law cannot be built)."""
+    from tfl_mav.control.spin import equilibrium
+    from tfl_mav.control.spin.law import equilibrium_or_closest
+
+    v, c = sc.vehicle, sc.controller
+    a = equilibrium.airframe_from_scenario(v, sc.attack.rotor, c.model_mass_scale,
+                                           c.model_inertia_scale)
+    missing = []
+    for f in np.unique(np.append(np.arange(lo_n, hi_n, 0.5), hi_n)):
+        try:
+            with np.errstate(all="ignore"):
+                equilibrium_or_closest(a, float(f))
+        except ValueError:
+            missing.append(float(f))
+    if not missing:
+        return []
+    mg = v.mass_kg * v.gravity_mps2
+    return [f"attack on rotor {sc.attack.rotor}: no relaxed hover exists at "
+            f"{', '.join(f'{f:.2f}' for f in missing)} N for this airframe (yaw drag "
+            f"{v.drag_thrust_ratio_m:g} m, k_r {v.k_r:g} N m s, J {list(v.inertia_kgm2)}): "
+            f"the spin law cannot fly; keeping the attitude takes >= {2 * missing[-1]:.1f} N "
+            f"against a weight of {mg:.1f} N, the vehicle climbs away"]
 
 
 # The [attack] keys each built-in signal reads (tfl_mav.sim.attacker.Attacker._raw). A GCS's

@@ -96,6 +96,19 @@ RPM_TO_RADPS = 2.0 * math.pi / 60.0   # ESC rpm → rotor speed ω (rad/s)
 _SPIN_LAWS: dict[tuple[object, ...], SpinParams] = {}
 _SPIN_BUILDING: set[tuple[object, ...]] = set()
 _SPIN_LOCK = threading.Lock()
+_NO_SPIN: dict[tuple[object, ...], str] = {}   # … and why none could be built
+
+
+def _build_spin_law(key: tuple[object, ...], sc: object, rotor: int) -> SpinParams | None:
+    """Build the spin law into the shared table; None (the reason kept) where the airframe
+    has no relaxed hover with that rotor pinned (:func:`~tfl_mav.control.spin.law.build`)."""
+    try:
+        law = spin_params_for(sc, rotor)  # type: ignore[arg-type]
+    except ValueError as exc:
+        _NO_SPIN[key] = str(exc)
+        return None
+    _SPIN_LAWS[key] = law
+    return law
 MASS_TRUSTED_S = 1.0    # the safe law flies the estimated mass once it has learnt this long
 
 
@@ -187,6 +200,8 @@ class FlightComputer:
         self._spin_state: SpinState | None = None
         self._spin_laws: dict[int, SpinParams] = {}   # by attacked rotor, once built
         self._said_no_spin = False
+        # Why no spin law can be built, by attacked rotor (said once, with the numbers).
+        self._no_spin: dict[int, str] = {}
         self._climbing = False         # said: the attack is more than the weight allows
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
         self._probe_high_n = min(self._hover_share_n + 1.5, self.thrust_max_n)
@@ -405,22 +420,30 @@ class FlightComputer:
             return False
         if rotor in self._spin_laws:
             return True
+        if rotor in self._no_spin:
+            return False
         if not 2.0 * estimate > self._weight_n - 2.0:
             return False
         key = self._spin_key(rotor)
         if key in _SPIN_LAWS:
             self._spin_laws[rotor] = _SPIN_LAWS[key]
             return True
+        if key in _NO_SPIN:
+            self._no_spin[rotor] = _NO_SPIN[key]
+            return False
         if self.spin_build == "sync":
-            _SPIN_LAWS[key] = self._spin_laws[rotor] = spin_params_for(self.scenario, rotor)
+            law = _build_spin_law(key, self.scenario, rotor)
+            if law is None:
+                self._no_spin[rotor] = _NO_SPIN[key]
+                return False
+            self._spin_laws[rotor] = law
             return True
         with _SPIN_LOCK:
             if key not in _SPIN_BUILDING:
                 _SPIN_BUILDING.add(key)
                 sc = self.scenario
-                threading.Thread(target=lambda: _SPIN_LAWS.__setitem__(
-                    key, spin_params_for(sc, rotor)), name="tfl-mav-spin-law",
-                    daemon=True).start()
+                threading.Thread(target=_build_spin_law, args=(key, sc, rotor),
+                                 name="tfl-mav-spin-law", daemon=True).start()
         return False
 
     def _spin_key(self, rotor: int) -> tuple[object, ...]:
@@ -588,6 +611,10 @@ class FlightComputer:
             events.append(f"lost_rotor: rotor {rotor} at {estimate:.2f} N: keeping the attitude "
                           f"takes {2.0 * estimate:.1f} N of thrust, more than the weight "
                           f"({w:.1f} N); the vehicle climbs away from the path")
+            if self._spin_ready(rotor, estimate) is False and rotor in self._no_spin:
+                events.append(f"spin: {self._no_spin[rotor]}; the reduced-attitude law keeps "
+                              f"the attitude and climbs at up to "
+                              f"{(2.0 * estimate - w) / w * 9.81:.1f} m/s^2")
         elif self._climbing and 2.0 * estimate < w - 2.0 * A_HANDBACK_N:
             self._climbing = False
             events.append(f"lost_rotor: rotor {rotor} at {estimate:.2f} N: the vehicle can "

@@ -138,16 +138,30 @@ def build(vehicle: object, rotor: int, dt_s: float, *, mass_scale: float = 1.0,
     attacked, the controller's model off by ``mass_scale``/``inertia_scale``, rotors of time
     constant ``motor_time_constant_s`` and control period ``dt_s``. The table spans f_stuck
     from m g/2 − 0.5 N (rounded down to 0.5 N) to f_max in 0.5 N steps
-    unless ``f_stuck_grid`` is given."""
+    unless ``f_stuck_grid`` is given. ValueError, in one line with the airframe's numbers and
+    the thrusts at which no spin of any vertical force exists, if there are any."""
     a = equilibrium.airframe_from_scenario(vehicle, rotor, mass_scale, inertia_scale)
     mg = a.mass_kg * a.gravity_mps2
     if f_stuck_grid is None:
         lo = max(0.5, math.floor(2.0 * (0.5 * mg - 0.5)) / 2.0)
         f_stuck_grid = list(np.arange(lo, a.thrust_max_n + 1e-9, 0.5))
     rows = []
+    missing = []
     for f in f_stuck_grid:
-        eq, exists, w = equilibrium_or_closest(a, float(f))
+        try:
+            eq, exists, w = equilibrium_or_closest(a, float(f))
+        except ValueError:
+            missing.append(float(f))
+            continue
         rows.append(table_row(a, eq, exists, w, dt_s, motor_time_constant_s))
+    if missing:
+        # A table with holes would be interpolated (or clamped) across them: a spin flown
+        # where none exists. The law is built for the whole band or not at all.
+        raise ValueError(
+            f"no relaxed hover with rotor {rotor} pinned at "
+            f"{', '.join(f'{f:g}' for f in missing)} N for this airframe (m = {a.mass_kg:.2f} kg, "
+            f"J = {', '.join(f'{j:.2e}' for j in a.inertia_kgm2)} kg m^2, "
+            f"yaw drag {abs(a.drag_m):.4f} m, k_r = {a.k_r:.2e} N m s): the spin law cannot fly")
     fr = canonical_frame(rotor)
     w_p = POS_OMEGA
     g = a.gravity_mps2
