@@ -7,7 +7,10 @@ Each controller flies through the public API (:class:`~tfl_mav.api.Environment`,
 (the true path distance, computed after the flight the same way for all):
 
 * crashed (and when), or failed (the software's one-line reason);
-* max and RMS path distance over the last 10 s flown;
+* max and RMS path distance over the last 10 s flown; the max over the whole flight after
+  its first 5 s and the distance at its end (how far it escaped: a vehicle that climbs away
+  from a rotor pinned above m g/2 ends hundreds of metres off, one that crashes where it
+  crashed);
 * time on path: the fraction of the *requested* duration spent within ``on_path_m`` of the
   path (a crash costs the rest of the flight);
 * the commanded thrust range (N) and the detection (rotor, time).
@@ -52,6 +55,8 @@ class Result:
     thrust_max_n: float
     detected_rotor: int
     detection_time_s: float
+    max_distance_after_5s_m: float = math.nan   # the whole flight after its first 5 s
+    final_distance_m: float = math.nan          # where it ended: the escape distance
 
     @property
     def failed(self) -> bool:
@@ -79,7 +84,13 @@ def result(controller: str, seed: int, flight: FlightArrays, duration_s: float,
         if np.any(np.isfinite(d)) else math.nan,
         time_on_path_fraction=min(on, 1.0), thrust_min_n=float(cmd.min()),
         thrust_max_n=float(cmd.max()), detected_rotor=int(flight.detected_rotor.max()),
-        detection_time_s=float(flight.detection_time_s))
+        detection_time_s=float(flight.detection_time_s),
+        max_distance_after_5s_m=_nanmax(dist[t >= 5.0]),
+        final_distance_m=float(dist[-1]) if math.isfinite(dist[-1]) else _nanmax(dist[-10:]))
+
+
+def _nanmax(x: np.ndarray) -> float:
+    return float(np.nanmax(x)) if np.any(np.isfinite(x)) else math.nan
 
 
 def check_controllers(names: Sequence[str]) -> None:
@@ -115,6 +126,7 @@ def table(results: Sequence[Result]) -> str:
     """One line per controller (over its seeds: crashes counted, the worst max, the mean
     RMS and time on path, the widest thrust range, the first detection)."""
     head = (f"{'controller':<12} {'crashed':>9} {'max 10s m':>10} {'rms 10s m':>10} "
+            f"{'max >5s m':>10} {'escape m':>9} "
             f"{'on path':>8} {'thrust N':>13} {'detection':>16}")
     lines = [head, "-" * len(head)]
     names = list(dict.fromkeys(r.controller for r in results))
@@ -131,7 +143,10 @@ def table(results: Sequence[Result]) -> str:
         det = [r for r in rs if r.detected_rotor]
         detection = (f"rotor {det[0].detected_rotor} @{det[0].detection_time_s:.3f}s"
                      if det else "none")
+        whole = max((r.max_distance_after_5s_m for r in rs), default=math.nan)
+        escape = max((r.final_distance_m for r in rs), default=math.nan)
         lines.append(f"{name:<12} {crashed:>9} {_fmt(worst):>10} {_fmt(rms):>10} "
+                     f"{_fmt(whole):>10} {_fmt(escape):>9} "
                      f"{100 * on:>7.1f}% {f'[{lo:.2f}, {hi:.2f}]':>13} {detection:>16}")
         for r in rs:
             if r.failed:
