@@ -83,10 +83,14 @@ def build_detector(sc: Scenario) -> AttackDetector:
                           detector_config(sc))
 
 
-def spin_params_for(sc: Scenario, rotor: int | None = None) -> SpinParams:
+def spin_params_for(sc: Scenario, rotor: int | None = None, *,
+                    lag_inverted: bool = True) -> SpinParams:
     """The spin law for scenario ``sc``: its attacked rotor, the controller's model (mass and
-    inertia scales), its motor lag model and its control period."""
+    inertia scales), its motor lag model and its control period. ``lag_inverted``: its
+    thrusts go through the motor-lag inverse (the flight computer's), so the gains are the
+    lag-free design; False designs them for the lag (a torque weight 1 + (Ω τ_m)²)."""
     v, c = sc.vehicle, sc.controller
+    lag = 0.0 if lag_inverted else c.motor_time_constant_scale * v.motor_time_constant_s
     return build_spin_law(v, rotor or sc.attack.rotor, sc.run.control_dt_s,
                  mass_scale=c.model_mass_scale, inertia_scale=c.model_inertia_scale,
-                 motor_time_constant_s=c.motor_time_constant_scale * v.motor_time_constant_s)
+                 motor_time_constant_s=lag)

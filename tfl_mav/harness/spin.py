@@ -56,7 +56,7 @@ def fly_spin(sc: Scenario, *, takeover_s: float = 5.0, duration_s: float | None 
              params: SpinParams | None = None) -> SpinFlight:
     """Fly ``sc`` with the flight computer (told the attacked rotor by an oracle) until
     ``takeover_s``, then with the spin law from whatever state the vehicle is in."""
-    params = params or spin_params_for(sc)
+    params = params or spin_params_for(sc, lag_inverted=False)   # flown without the inverse
     rotor = sc.attack.rotor
     sim = Simulator(sc)
     fc = FlightComputer(sc, attack_info="oracle", design_gains=False)

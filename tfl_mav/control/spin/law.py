@@ -50,8 +50,6 @@ def _schedule_point(eq: Equilibrium, rho: float) -> tuple[tuple[float, float, fl
     cone = math.acos(min(1.0, nbz))
     horiz = math.hypot(nbx, nby)
     th = cone * min(1.0, (rho / RHO_TILT) ** 2)
-    if rho > 1.0:
-        th = math.atan(math.tan(cone) / (rho * rho))
     ux, uy = (nbx / horiz, nby / horiz) if horiz > 0 else (0.0, 0.0)
     n = (math.sin(th) * ux, math.sin(th) * uy, math.cos(th))
     om = rho * eq.spin_radps

@@ -26,10 +26,8 @@ outputs)`` in plain Python over NamedTuples of floats. In order:
    from f4 (E1, roll), so f_Σ falls with ρ — the outer loop's vertical force sets the spin,
    which settles within I_z/k_r ≈ 0.5 s. Below ρ₀ (the spin-up, ~0.2 s at 8 N) the axis tilts
    from b3 to n̄ as θ = θ̄ (ρ/ρ₀)², so a slow spin is not asked for a torque only a fast one
-   can balance; above ρ = 1 the axis tilts back towards b3 as tan θ = tan θ̄/ρ² (a faster
-   spin's gyroscopic torque on n̄ grows as ρ², the pinned rotor's torque does not). The
-   vertical force is kept where ρ stays in the range the rotors can hold (W_lo … W_hi of the
-   table).
+   can balance. The vertical force is kept where ρ stays in the range the rotors can hold
+   (W_lo … W_hi of the table).
 5. **Reduced attitude.** Mueller & D'Andrea's LQR on (p, q, n_x, n_y) − reference, the
    vertical n = R'ᵀ n_des seen in the body, gains scheduled on ρ (designed on the
    zero-order-hold model at the control period before the flight).
@@ -224,12 +222,6 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     horiz = math.sqrt(nbx * nbx + nby * nby)
     ramp = rho / RHO_TILT
     th = cone * (ramp * ramp if ramp < 1.0 else 1.0)
-    if rho > 1.0:
-        # Faster than the equilibrium (an entry from the safe law's spin about b3, ~65 rad/s
-        # at A ≈ m g/2 against Ω̄ ≈ 35): the gyroscopic torque on the axis n̄ grows as ρ², more
-        # than f4 can balance, so the axis asked for is the cone the pinned rotor's torque
-        # holds at this spin, tan θ = tan θ̄/ρ² (E1, roll), down to b3 as ρ grows.
-        th = math.atan(math.tan(cone) / (rho * rho))
     s_th = math.sin(th)
     ux, uy = (nbx / horiz, nby / horiz) if horiz > 0.0 else (0.0, 0.0)
     rx, ry, rz = s_th * ux, s_th * uy, math.cos(th)
