@@ -57,8 +57,8 @@ __all__ = [
 ]
 
 SPIN_MEAN_RADPS = 5.0   # above this spin the cone's circle is removed from the feedback
-RHO_MAX = 1.5           # the schedule spans ρ ∈ [0, RHO_MAX]
-RHO_STEPS = 15          # gains at ρ = 0, 0.1, …, RHO_MAX
+RHO_MAX = 2.5           # the schedule spans ρ ∈ [0, RHO_MAX]
+RHO_STEPS = 25          # gains at ρ = 0, 0.1, …, RHO_MAX
 RHO_TILT = 0.6          # ρ₀: below it the reference axis tilts in as (ρ/ρ₀)²
 # One table row per f_stuck: f_stuck, exists, f4̄, f̄1 + f̄3, ω̄ (3), n̄ (3), Ω, f̄_Σ, cone θ̄,
 # circle radius, vertical acceleration left over (m/s², 0 where it exists), margin, the
