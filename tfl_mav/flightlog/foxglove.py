@@ -29,6 +29,7 @@ __all__ = [
     "frame_transform",
     "log_entry",
     "mav_severity_to_level",
+    "mean_thrust_entity",
     "path_scene",
     "schema",
     "stamp",
@@ -53,6 +54,7 @@ _RED_RGB = (1.0, 0.05, 0.05)
 _RED = fm.Color(r=1.0, g=0.05, b=0.05, a=1.0)
 _BODY_COLOR = fm.Color(r=0.25, g=0.25, b=0.3, a=1.0)
 _PATH_COLOR = fm.Color(r=0.1, g=0.8, b=1.0, a=1.0)
+_MEAN_COLOR = fm.Color(r=0.1, g=0.9, b=0.2, a=1.0)
 
 
 def schema(name: str) -> tuple[str, str, bytes]:
@@ -132,13 +134,54 @@ def _airframe(rotor_xy_m: Sequence[Sequence[float]]) -> _Airframe:
     return frame
 
 
+def _x_to(u: Sequence[float]) -> fm.Quaternion:
+    """The rotation taking +x to the unit vector ``u`` (the arrow primitive points along x)."""
+    ux, uy, uz = u
+    w = 1.0 + ux
+    if w < 1e-9:                       # u = −x: half a turn about z
+        return fm.Quaternion(x=0.0, y=0.0, z=1.0, w=0.0)
+    n = math.sqrt(w * w + uz * uz + uy * uy)
+    return fm.Quaternion(x=0.0, y=-uz / n, z=uy / n, w=w / n)
+
+
+def mean_thrust_entity(ns: int, position_m: Sequence[float],
+                       mean_thrust_n: Sequence[float], thrust_max_n: float
+                       ) -> fm.SceneEntity | None:
+    """The mean thrust axis in ``world``: an arrow from the vehicle along the thrust
+    averaged over the last revolutions (N, world; its length |F̄|/(2 f_max) m), labelled
+    with |F̄| and its angle from the vertical. A spinning vehicle's body sweeps a cone
+    ten times a second; this is the axis the spin law steers (n̄, the relaxed hover's mean
+    thrust). None where there is no thrust to draw."""
+    fx, fy, fz = mean_thrust_n
+    norm = math.sqrt(fx * fx + fy * fy + fz * fz)
+    if not (norm > 1e-6 and math.isfinite(norm)):
+        return None
+    u = (fx / norm, fy / norm, fz / norm)
+    length = norm / (2.0 * thrust_max_n)
+    px, py, pz = position_m
+    arrow = fm.ArrowPrimitive(pose=_pose(px, py, pz, _x_to(u)), shaft_length=0.8 * length,
+                              shaft_diameter=0.03, head_length=0.2 * length,
+                              head_diameter=0.08, color=_MEAN_COLOR)
+    tilt = math.degrees(math.acos(max(-1.0, min(1.0, u[2]))))
+    text = fm.TextPrimitive(
+        pose=_pose(px + u[0] * length, py + u[1] * length, pz + u[2] * length + 0.05),
+        billboard=True, font_size=14.0, scale_invariant=True, color=_MEAN_COLOR,
+        text=f"mean thrust {norm:.1f} N, {tilt:.0f} deg from vertical")
+    return fm.SceneEntity(timestamp=stamp(ns), frame_id=WORLD, id="mean_thrust",
+                          lifetime=_ZERO_DURATION, frame_locked=True, arrows=[arrow],
+                          texts=[text])
+
+
 def vehicle_scene(ns: int, rotor_xy_m: Sequence[Sequence[float]],
                   rotor_thrust_n: Sequence[float], thrust_max_n: float,
-                  attack_rotor: int, label: str = "attack") -> bytes:
+                  attack_rotor: int, label: str = "attack",
+                  mean_thrust: tuple[Sequence[float], Sequence[float]] | None = None) -> bytes:
     """The vehicle in ``base_link``: a body, an arm, disc and thrust arrow per rotor
     (arrow length ∝ thrust, colour by thrust fraction of ``thrust_max_n``), and the
     attacked rotor (1-based, 0 = none) drawn red with a red marker sphere and the text
-    "``label``: rotor N" (the controller's view says "detected": it knows no truth)."""
+    "``label``: rotor N" (the controller's view says "detected": it knows no truth).
+    ``mean_thrust`` = (position m, mean thrust N), both world: a second entity,
+    :func:`mean_thrust_entity`."""
     frame = _airframe(rotor_xy_m)
     arm = frame.arm
     cubes = [frame.body]
@@ -166,7 +209,12 @@ def vehicle_scene(ns: int, rotor_xy_m: Sequence[Sequence[float]],
     entity = fm.SceneEntity(timestamp=stamp(ns), frame_id=BODY, id="vehicle",
                             lifetime=_ZERO_DURATION, frame_locked=True, cubes=cubes,
                             cylinders=cylinders, arrows=arrows, spheres=spheres, texts=texts)
-    return fm.SceneUpdate(entities=[entity]).encode()
+    entities = [entity]
+    if mean_thrust is not None:
+        mean = mean_thrust_entity(ns, mean_thrust[0], mean_thrust[1], thrust_max_n)
+        if mean is not None:
+            entities.append(mean)
+    return fm.SceneUpdate(entities=entities).encode()
 
 
 def path_scene(ns: int, points_m: Sequence[Sequence[float]]) -> bytes:

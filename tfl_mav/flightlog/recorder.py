@@ -78,6 +78,12 @@ from tfl_mav.flightlog.polyline import Polyline
 __all__ = ["Recorder", "RecorderError", "RecorderStats"]
 
 _MAX_PATH_POINTS = 2000
+# The mean thrust axis's averaging time (s): a spinning vehicle (30-65 rad/s, a revolution
+# every 0.1-0.2 s) sweeps its thrust round a cone; a first-order filter over 0.3 s leaves
+# 1/√(1 + (Ω τ)²) of the cone's turning part (7 % at 50 rad/s: a 50° cone's mean drawn
+# within ~5° of its axis) and follows the mean axis's own steering (~1 rad/s) with a lag of
+# 0.3 s: what a person watching can follow.
+MEAN_THRUST_TAU_S = 0.3
 _DEFAULT_RECORD = schemas.record_schema("tfl_mav.Record", "a caller's record", {}, [])
 _PACK = {n: struct.Struct(f"<{n}d").pack for n in (1, 3, 4)}
 
@@ -164,6 +170,12 @@ class Recorder(FrameRecorder):
         self._ctl_emit: Any = None
         self._init_frames(sim_time_messages, self._scene_period_s)
         self._last_scene_t = -math.inf
+        # The thrust averaged over the last revolutions (N, world) and the sim time of its
+        # last sample: the mean thrust axis the scene draws (a first-order filter of
+        # f_Σ R e3 with MEAN_THRUST_TAU_S; updated on every truth sample, not at the
+        # scene rate, which would alias a 10 Hz spin).
+        self._mean_thrust_n: tuple[float, float, float] | None = None
+        self._mean_thrust_t = -math.inf
         self._truth_emit: Any = None
         self._polyline: Polyline | None = None
         # topic → (log, message head (plotchan.labels), number of values)
@@ -267,7 +279,29 @@ class Recorder(FrameRecorder):
                                                           protos.TRUTH_STATE)
         self._write(emit, protos.truth_state(t, pos, vel, quat, rates, thrust, rotor, applied,
                                              requested), log_ns)
+        self._average_thrust(t, quat, thrust)
         self._scene(t, log_ns, pos, quat, thrust, rotor, applied)
+
+    def _average_thrust(self, t: float, quat: Sequence[float], thrust: Sequence[float]) -> None:
+        """One sample of the mean thrust: F̄ += (1 − e^{−Δt/τ}) (f_Σ R e3 − F̄)."""
+        w, x, y, z = quat
+        n2 = w * w + x * x + y * y + z * z
+        if not (n2 > 0.0 and math.isfinite(n2)):
+            return
+        total = float(sum(thrust)) / n2        # R e3 of the unnormalised quaternion / |q|²
+        f = (2.0 * (x * z + w * y) * total, 2.0 * (y * z - w * x) * total,
+             (w * w - x * x - y * y + z * z) * total)
+        if not all(map(math.isfinite, f)):
+            return
+        last, self._mean_thrust_t = self._mean_thrust_t, t
+        mean = self._mean_thrust_n
+        if mean is None or not t > last:
+            if mean is None:
+                self._mean_thrust_n = f
+            return
+        a = 1.0 - math.exp(-(t - last) / MEAN_THRUST_TAU_S)
+        self._mean_thrust_n = (mean[0] + a * (f[0] - mean[0]), mean[1] + a * (f[1] - mean[1]),
+                               mean[2] + a * (f[2] - mean[2]))
 
     def _scene(self, t: float, log_ns: int, pos: Sequence[float], quat: Sequence[float],
                thrust: Sequence[float], rotor: int, attack_n: float) -> None:
@@ -286,7 +320,9 @@ class Recorder(FrameRecorder):
         if self._rotor_xy_m:
             items.append((self._fg_channel("/scene/vehicle", "foxglove.SceneUpdate"),
                           fg.vehicle_scene(log_ns, self._rotor_xy_m, thrust,
-                                           self._thrust_max_n, rotor)))
+                                           self._thrust_max_n, rotor,
+                                           mean_thrust=None if self._mean_thrust_n is None
+                                           else (pos, self._mean_thrust_n))))
         plots = [("/plot/truth/position_m", ("x_m", "y_m", "z_m"), pos),
                  ("/plot/truth/rotor_thrust_n", ("f1_n", "f2_n", "f3_n", "f4_n"), thrust),
                  ("/plot/truth/attack_n", ("applied_n",), (attack_n,))]
