@@ -186,29 +186,42 @@ def check_scenario(sc: Scenario) -> list[str]:
 
 def _no_spin(sc: Scenario, lo_n: float, hi_n: float) -> list[str]:
     """The attack's thrusts above m g/2 (every 0.5 N from ``lo_n`` to ``hi_n``) at which the
-    airframe has no relaxed hover of any vertical force, in one line with the numbers; the
-    vehicle then keeps its attitude and climbs (the spin law cannot be built)."""
+    airframe has no relaxed hover holding m g, in one line with the numbers: the coning
+    hover (:mod:`tfl_mav.control.spin.cone`) flies there instead."""
     from tfl_mav.control.spin import equilibrium
+    from tfl_mav.control.spin.cone import ROOM_N
     from tfl_mav.control.spin.law import equilibrium_or_closest
 
     v, c = sc.vehicle, sc.controller
     a = equilibrium.airframe_from_scenario(v, sc.attack.rotor, c.model_mass_scale,
                                            c.model_inertia_scale)
-    missing = []
+    mg = a.mass_kg * a.gravity_mps2
+    none, short = [], []
     for f in np.unique(np.append(np.arange(lo_n, hi_n, 0.5), hi_n)):
         try:
             with np.errstate(all="ignore"):
-                equilibrium_or_closest(a, float(f))
+                _, exists, w = equilibrium_or_closest(a, float(f))
         except ValueError:
-            missing.append(float(f))
-    if not missing:
-        return []
-    mg = v.mass_kg * v.gravity_mps2
-    return [f"attack on rotor {sc.attack.rotor}: no relaxed hover exists at "
-            f"{', '.join(f'{f:.2f}' for f in missing)} N for this airframe (yaw drag "
-            f"{v.drag_thrust_ratio_m:g} m, k_r {v.k_r:g} N m s, J {list(v.inertia_kgm2)}): "
-            f"the spin law cannot fly; keeping the attitude takes >= {2 * missing[-1]:.1f} N "
-            f"against a weight of {mg:.1f} N, the vehicle climbs away"]
+            none.append(float(f))
+            continue
+        if not exists:
+            short.append((float(f), (w - mg) / a.mass_kg))
+    where = (f"for this airframe (yaw drag {v.drag_thrust_ratio_m:g} m, k_r {v.k_r:g} N m s, "
+             f"J {list(v.inertia_kgm2)})")
+    out = []
+    bad = sorted([f for f, _ in short] + none)
+    if bad:
+        top = bad[-1]
+        total = 2.0 * top + ROOM_N
+        tilt = math.degrees(math.acos(min(1.0, mg / total)))
+        out.append(f"attack on rotor {sc.attack.rotor}: no relaxed hover holds the weight at "
+                   f"{', '.join(f'{f:.2f}' for f in bad)} N {where}: keeping the attitude "
+                   f"takes >= {2 * top:.1f} N against a weight of {mg:.1f} N; a coning hover "
+                   f"flies instead (the thrust, {total:.1f} N, tilted {tilt:.0f} deg so that "
+                   "its vertical part is the weight, swung round the vertical)"
+                   + ("; at f_max the opposite rotor has no roll torque of one sign left and "
+                      "it may not hold" if top >= v.thrust_max_n - 1e-9 else ""))
+    return out
 
 
 # The [attack] keys each built-in signal reads (tfl_mav.sim.attacker.Attacker._raw). A GCS's

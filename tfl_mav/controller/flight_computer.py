@@ -67,8 +67,10 @@ from tfl_mav.control.detect.detector import AttackDetector, DetectorOutput
 from tfl_mav.control.safe.recovery import RecoveryLaw
 from tfl_mav.control.safe.takeover import A_HANDBACK_N, TAKEOVER_TILT_RAD
 from tfl_mav.control.safe.takeover import floats as _floats
+from tfl_mav.control.spin.cone import ConeInputs, ConeParams, ConeState, cone_params, cone_step
 from tfl_mav.control.spin.law import initial_state as spin_initial_state
 from tfl_mav.control.spin.step import SpinInputs, SpinParams, SpinState, spin_step
+from tfl_mav.control.spin.step import row_at as spin_row
 from tfl_mav.control.state_filter import StateFilter, YawRateModel
 from tfl_mav.control.tfl.law import ControlOutput, TFLController
 from tfl_mav.controller.feasibility import feasible_speed_mps, path_demand
@@ -202,6 +204,9 @@ class FlightComputer:
         self._said_no_spin = False
         # Why no spin law can be built, by attacked rotor (said once, with the numbers).
         self._no_spin: dict[int, str] = {}
+        # The coning hover (control/spin/cone) flown where no relaxed hover holds m g.
+        self._cone_laws: dict[int, ConeParams] = {}
+        self._cone_state: ConeState | None = None
         self._climbing = False         # said: the attack is more than the weight allows
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
         self._probe_high_n = min(self._hover_share_n + 1.5, self.thrust_max_n)
@@ -418,10 +423,8 @@ class FlightComputer:
         "async" on a background thread, used once ready (real time: no tick waits)."""
         if not rotor or self.supervisor.mode != 0 or not self.spin_enabled:
             return False
-        if rotor in self._spin_laws:
+        if rotor in self._spin_laws or rotor in self._cone_laws:
             return True
-        if rotor in self._no_spin:
-            return False
         if not 2.0 * estimate > self._weight_n - 2.0:
             return False
         key = self._spin_key(rotor)
@@ -429,13 +432,11 @@ class FlightComputer:
             self._spin_laws[rotor] = _SPIN_LAWS[key]
             return True
         if key in _NO_SPIN:
-            self._no_spin[rotor] = _NO_SPIN[key]
-            return False
+            return self._cone_instead(rotor, _NO_SPIN[key])
         if self.spin_build == "sync":
             law = _build_spin_law(key, self.scenario, rotor)
             if law is None:
-                self._no_spin[rotor] = _NO_SPIN[key]
-                return False
+                return self._cone_instead(rotor, _NO_SPIN[key])
             self._spin_laws[rotor] = law
             return True
         with _SPIN_LOCK:
@@ -445,6 +446,18 @@ class FlightComputer:
                 threading.Thread(target=_build_spin_law, args=(key, sc, rotor),
                                  name="tfl-mav-spin-law", daemon=True).start()
         return False
+
+    def _cone_instead(self, rotor: int, why: str) -> bool:
+        """No spin law for ``rotor`` (``why``): the coning hover flies in its place."""
+        self._no_spin[rotor] = why
+        self._cone_laws[rotor] = self._cone_params(rotor)
+        return True
+
+    def _cone_params(self, rotor: int) -> ConeParams:
+        sc = self.scenario
+        c = sc.controller
+        return cone_params(sc.vehicle, rotor, sc.run.control_dt_s,
+                           mass_scale=c.model_mass_scale, inertia_scale=c.model_inertia_scale)
 
     def _spin_key(self, rotor: int) -> tuple[object, ...]:
         sc = self.scenario
@@ -456,13 +469,11 @@ class FlightComputer:
         """A tick of the spin law (:func:`~tfl_mav.control.spin.step.spin_step`): the mean
         axis steered towards the closest path point moving at the path speed, the pinned
         rotor's thrust read from its rpm; then the supervisor, and the output."""
-        params = self._spin_laws[rotor]
+        params = self._spin_laws.get(rotor)
         y = _floats(state.position_m)
         rates = tuple(_floats(state.body_rates_radps))
         w = rpm[rotor - 1] * RPM_TO_RADPS
         stuck = self.k_f * w * w
-        if self._spin_state is None:
-            self._spin_state = spin_initial_state(params, rates, stuck)
         proj = self.recovery.projector
         found = proj.project(y) if proj is not None else None
         if found is None:
@@ -470,19 +481,20 @@ class FlightComputer:
         else:
             point, tangent, curvature, dist = found
         sp = self.speed_mps
-        inputs = SpinInputs(tuple(y), tuple(_floats(state.velocity_mps)),
-                            tuple(_floats(state.quaternion_wxyz)), rates, stuck, tuple(point),
-                            (sp * tangent[0], sp * tangent[1], sp * tangent[2]),
-                            (sp * sp * curvature[0], sp * sp * curvature[1],
-                             sp * sp * curvature[2]))
-        self._spin_state, out = spin_step(params, self._spin_state, inputs)
-        if not out.exists and not self._said_no_spin:
-            self._said_no_spin = True
-            events.append(f"spin: no relaxed hover holds m g with rotor {rotor} at "
-                          f"{stuck:.2f} N: flying the closest spin, "
-                          f"{out.vertical_excess_mps2:+.2f} m/s^2 of climb (+) or sink (-) "
-                          "left over")
-        thrust = list(out.thrusts_n)
+        target = (tuple(point), (sp * tangent[0], sp * tangent[1], sp * tangent[2]),
+                  (sp * sp * curvature[0], sp * sp * curvature[1], sp * sp * curvature[2]))
+        if params is None or spin_row(params.table, stuck)[1] == 0.0:
+            thrust, clipped, reason = self._fly_cone(rotor, stuck, state, rates, target,
+                                                     events)
+        else:
+            if self._spin_state is None:
+                self._spin_state = spin_initial_state(params, rates, stuck)
+            inputs = SpinInputs(tuple(y), tuple(_floats(state.velocity_mps)),
+                                tuple(_floats(state.quaternion_wxyz)), rates, stuck, *target)
+            self._spin_state, out = spin_step(params, self._spin_state, inputs)
+            thrust, clipped = list(out.thrusts_n), out.clipped
+            reason = (f"spin: {out.spin_radps:.0f} rad/s, cone "
+                      f"{math.degrees(out.cone_rad):.0f} deg")
         lag = self.controller.lag_inverter
         if lag is not None:
             omega = [r * RPM_TO_RADPS for r in rpm]
@@ -498,12 +510,40 @@ class FlightComputer:
                      events, estimate, rotor, None)
         if self._sup.law != Law.SPIN:
             self._spin_state = None
+            self._cone_state = None
         law = ControlOutput(
-            list(thrust), Mode.SPIN, [out.clipped != 0.0] * 4, _ZERO_XI, _ZERO4, _ZERO2, dist,
-            _NAN, _NAN, sum(thrust), self.controller.mass_kg, _ZERO2, False,
-            f"spin: {out.spin_radps:.0f} rad/s, cone {math.degrees(out.cone_rad):.0f} deg",
+            list(thrust), Mode.SPIN, [clipped != 0.0] * 4, _ZERO_XI, _ZERO4, _ZERO2, dist,
+            _NAN, _NAN, sum(thrust), self.controller.mass_kg, _ZERO2, False, reason,
             tuple(thrust))
         return self._result(thrust, None, law, detection, rotor, estimate, new, events)
+
+    def _fly_cone(self, rotor: int, stuck: float, state: State, rates: tuple[float, ...],
+                  target: tuple[tuple[float, ...], ...], events: list[str]
+                  ) -> tuple[list[float], float, str]:
+        """A tick of the coning hover (:mod:`~tfl_mav.control.spin.cone`), flown where no
+        relaxed hover holds m g at the pinned thrust; said once, with its numbers."""
+        params = self._cone_laws.get(rotor)
+        if params is None:
+            params = self._cone_laws[rotor] = self._cone_params(rotor)
+        if self._cone_state is None:
+            self._cone_state = ConeState(0.0, (0.0, 0.0, 0.0))
+        inputs = ConeInputs(tuple(_floats(state.position_m)),
+                            tuple(_floats(state.velocity_mps)),
+                            tuple(_floats(state.quaternion_wxyz)), rates, stuck,
+                            *target)  # type: ignore[arg-type]
+        self._cone_state, out = cone_step(params, self._cone_state, inputs)
+        if not self._said_no_spin:
+            self._said_no_spin = True
+            why = self._no_spin.get(rotor, f"no relaxed hover holds m g with rotor {rotor} "
+                                           f"at {stuck:.2f} N")
+            events.append(f"spin: {why}; flying a coning hover instead: the thrust tilted "
+                          f"{math.degrees(out.tilt_rad):.0f} deg so that its vertical part "
+                          f"is the weight, swung round the vertical at "
+                          f"{abs(params.rate_radps):.0f} rad/s (a {out.drift_m:.2f} m circle "
+                          "about the path)")
+        reason = (f"spin: coning hover, tilt {math.degrees(out.tilt_rad):.0f} deg, circle "
+                  f"{out.drift_m:.2f} m")
+        return list(out.thrusts_n), out.clipped, reason
 
     def _decide(self, inputs: SupervisorInputs, state: State, events: list[str],
                 estimate: float, rotor: int, out: ControlOutput | None) -> SupervisorState:
@@ -611,10 +651,6 @@ class FlightComputer:
             events.append(f"lost_rotor: rotor {rotor} at {estimate:.2f} N: keeping the attitude "
                           f"takes {2.0 * estimate:.1f} N of thrust, more than the weight "
                           f"({w:.1f} N); the vehicle climbs away from the path")
-            if self._spin_ready(rotor, estimate) is False and rotor in self._no_spin:
-                events.append(f"spin: {self._no_spin[rotor]}; the reduced-attitude law keeps "
-                              f"the attitude and climbs at up to "
-                              f"{(2.0 * estimate - w) / w * 9.81:.1f} m/s^2")
         elif self._climbing and 2.0 * estimate < w - 2.0 * A_HANDBACK_N:
             self._climbing = False
             events.append(f"lost_rotor: rotor {rotor} at {estimate:.2f} N: the vehicle can "

@@ -113,14 +113,24 @@ def table_row(a: Airframe, eq: Equilibrium, exists: bool, weight_n: float, dt_s:
 
 def equilibrium_or_closest(a: Airframe, f_stuck: float) -> tuple[Equilibrium, bool, float]:
     """(the relaxed hover holding m g, True, m g) — or, where none exists, the spin whose
-    mean vertical force comes closest to m g (the least climb or sink), False, that force."""
+    mean vertical force comes closest to m g (the least climb or sink; inside a gap of the
+    family the nearest sink before any climb), False, that force."""
     mg = a.mass_kg * a.gravity_mps2
     eq = equilibrium.solve(a, f_stuck, symmetric=True)
     if eq is not None:
         return eq, True, mg
     lo, hi = equilibrium.vertical_range(a, f_stuck)
-    for frac in (0.98, 0.95, 0.9, 0.8):
-        w = min(max(mg, lo + (1 - frac) * (hi - lo)), lo + frac * (hi - lo))
+    if lo <= mg <= hi:
+        # m g inside the range but in a gap of the family (a slow yaw drag: the spins that
+        # hold the weight need more torque than the rotors have). The nearest spin *below*
+        # m g first: it sinks, along the path's vertical, to the ground — bounded; a spin
+        # above climbs without end (an escape), the last resort.
+        tries = [mg * k for k in (0.97, 0.94, 0.9, 0.85, 0.8, 0.7, 0.6, 0.5)]
+        tries += [mg * k for k in (1.03, 1.06, 1.1, 1.2, 1.4, 1.7)]
+    else:
+        tries = [min(max(mg, lo + (1 - frac) * (hi - lo)), lo + frac * (hi - lo))
+                 for frac in (0.98, 0.95, 0.9, 0.8)]
+    for w in tries:
         eq = equilibrium.solve(a, f_stuck, weight_n=w, symmetric=True) or equilibrium.solve(
             a, f_stuck, weight_n=w)
         if eq is not None:

@@ -53,6 +53,7 @@ __all__ = [
     "SpinOutputs",
     "SpinParams",
     "SpinState",
+    "row_at",
     "spin_step",
 ]
 
@@ -140,6 +141,12 @@ def _row(table: tuple[tuple[float, ...], ...], f: float) -> tuple[float, ...]:
     a, b = table[i], table[i + 1]
     w = (f - a[0]) / (b[0] - a[0])
     return tuple([x + w * (y - x) for x, y in zip(a, b, strict=True)])
+
+
+def row_at(table: tuple[tuple[float, ...], ...], f: float) -> tuple[float, ...]:
+    """The table's row at f_stuck ``f`` (linear in f, clamped to its range): what the law
+    flies there (``row[1]``: 1 where a relaxed hover holds m g)."""
+    return _row(table, f)
 
 
 def _clip(x: float, lo: float, hi: float) -> float:
