@@ -6,6 +6,8 @@ from __future__ import annotations
 import csv
 import subprocess
 
+import pytest
+
 from tfl_mav.harness.processes import CLI
 
 FAILING = '''
@@ -69,6 +71,7 @@ def test_a_failing_controller_is_marked_failed_and_the_others_still_fly(tmp_path
     assert flights[1]["controller"] == "se3" and flights[1]["reason"] == ""
 
 
+@pytest.mark.slow
 def test_the_pinned_high_family_shows_each_controllers_outcome(tmp_path):
     """Every case of the envelope family, one table each: TFL's spin law holds the path,
     the baselines flip; the escape distance is where each flight ended."""
