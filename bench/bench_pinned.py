@@ -1,14 +1,15 @@
 """A rotor pinned above m g/2 flown through the supervisor (the spin law): the largest
 distance to the path after the first 5 s, the attack found from rpm.
 
-    python bench/bench_pinned.py [--jobs N] [--duration S] [--family done|unseen|all]
+    python bench/bench_pinned.py [--jobs N] [--duration S] [--family done|unseen|no-spin|all]
 
 ``done``: the grid of issue "a rotor stuck at full thrust" — 7 and 8 N pinned from t = 0 on
 the paper path and on the circle, the controller's model off by +2 %/+10 % and −2 %/−10 %
 (mass/inertia), rotors without lag and with 20 ms, 40 s each; and the paper scenario's own
 attack (0.1 t + sin z, passing m g/2 near 40 s and f_max near 80 s) flown 120 s.
 ``unseen``: cases the law was not tuned on — other masses and inertias, every attacked
-rotor, the figure-8 path, 9 N on an airframe whose rotors reach 10 N.
+rotor, the figure-8 path, 9 N on an airframe whose rotors reach 10 N. ``no-spin``: an
+airframe with no relaxed hover holding the weight (the coning hover flies).
 A case passes when it does not crash and stays within 2 m of the path after 5 s.
 """
 
@@ -62,6 +63,17 @@ def _unseen() -> list[tuple[str, tuple[str, ...], float]]:
     ]
 
 
+def _no_spin() -> list[tuple[str, tuple[str, ...], float]]:
+    """An airframe with no relaxed hover holding m g (yaw drag ratio 2 mm, the paper's 16):
+    the coning hover flies; at f_max it cannot (τ_p of one sign only)."""
+    c = (PINNED, "attack.start_s=0", "vehicle.drag_thrust_ratio_m=0.002")
+    return [("circle", (*c, "attack.value_n=7"), 40.0),
+            ("circle", (*c, "attack.value_n=7.5"), 40.0),
+            ("circle", (*c, "attack.value_n=7.5", "vehicle.motor_time_constant_s=0.02"), 40.0),
+            ("paper", (*c, "attack.value_n=7.5"), 40.0),
+            ("circle", (*c, "attack.value_n=8"), 40.0)]
+
+
 def fly(case: tuple[str, tuple[str, ...], float]) -> str:
     from tfl_mav.harness.offline import fly_offline
     from tfl_mav.scenario import apply_overrides, load_scenario
@@ -84,10 +96,11 @@ def main() -> None:
     ap.add_argument("--jobs", type=int, default=2, help="flights at a time (default 2)")
     ap.add_argument("--duration", type=float, default=None,
                     help="flight length (s; default each case's own)")
-    ap.add_argument("--family", choices=("done", "unseen", "all"), default="done")
+    ap.add_argument("--family", choices=("done", "unseen", "no-spin", "all"), default="done")
     args = ap.parse_args()
     cases = ((_grid() if args.family in ("done", "all") else [])
-             + (_unseen() if args.family in ("unseen", "all") else []))
+             + (_unseen() if args.family in ("unseen", "all") else [])
+             + (_no_spin() if args.family in ("no-spin", "all") else []))
     if args.duration is not None:
         cases = [(b, s, args.duration) for b, s, _ in cases]
     print(f"| path | overrides | flown | result | within {LIMIT_M:.0f} m |")
