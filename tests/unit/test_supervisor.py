@@ -160,3 +160,24 @@ def test_the_scenario_key_is_checked():
         scenario_from_dict({"controller": {"supervisor": "both"}})
     assert scenario_from_dict({"controller": {"supervisor": "safe"}}).controller.supervisor \
         == "safe"
+
+
+def test_the_spin_ends_only_where_the_safe_law_can_hand_on_to_tfl(p):
+    """Pinned high: the spin law takes over after spin_hold_s. It gives the vehicle back only
+    once A + 2σ is below m g/2 by a_handback_n, where the safe law can hand on to TFL (a
+    two-sided τ_p); between there and m g/2 the safe law could only climb or barely hold
+    (2A ≈ m g) while the relaxed hover still exists, so the spin goes on."""
+    half = W / 2.0
+    pinned = inputs(a=7.0, flew=False)._replace(spin_ready=True)
+    s, d = fly(p, initial_state(), inputs(a=6.0, opposite=6.0), DT)     # hopeless: safe law
+    assert s.law == Law.LOST_ROTOR
+    s, d = fly(p, s, pinned, p.spin_hold_s + 0.01)
+    assert s.law == Law.SPIN and (Law.SPIN, Why.PINNED_HIGH, Start.SPIN) in d
+    # just below m g/2 (by more than spin_margin_n, less than a_handback_n): still spinning
+    between = half - 0.5 * (p.spin_margin_n + p.a_handback_n)
+    s, d = fly(p, s, pinned._replace(attack_n=between), 1.0)
+    assert s.law == Law.SPIN and all(x[1] == Why.STAY for x in d)
+    # below m g/2 − a_handback_n for spin_hold_s: the safe law again
+    s, d = fly(p, s, pinned._replace(attack_n=half - p.a_handback_n - 0.05),
+               p.spin_hold_s + 0.01)
+    assert s.law == Law.LOST_ROTOR and (Law.LOST_ROTOR, Why.RELENTED, Start.SAFE_PATH) in d
