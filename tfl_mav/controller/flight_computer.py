@@ -418,7 +418,7 @@ class FlightComputer:
 
     def _spin_ready(self, rotor: int, estimate: float) -> bool:
         """The spin law is built for ``rotor`` (its table is made once the attack comes
-        within 1 N of m g/2: 1.6 s of computing, so not for every attack). ``spin_build``
+        within 1 N of m g/2: ~3 s of computing, so not for every attack). ``spin_build``
         "sync" builds it there and then (offline, lockstep: no deadline, deterministic);
         "async" on a background thread, used once ready (real time: no tick waits)."""
         if not rotor or self.supervisor.mode != 0 or not self.spin_enabled:

@@ -2,7 +2,7 @@
 
 :func:`build` solves the relaxed hover (:mod:`equilibrium`) on a grid of f_stuck and designs
 the reduced-attitude LQR along the spin-up schedule of :mod:`step` at each, once, before the
-flight (numpy only; ~2 s). :func:`initial_state` is the state to enter with from any
+flight (numpy only; ~3 s). :func:`initial_state` is the state to enter with from any
 vehicle state: the integral empty and ρ read from the body rates, so the first tick already
 flies the schedule point the vehicle is at (bumpless: nothing in the law's state depends on
 what the previous law did).
