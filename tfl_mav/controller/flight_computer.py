@@ -566,7 +566,8 @@ class FlightComputer:
                 rec.follow_path(out.lam)
             else:
                 rec.follow_path(search=True)
-        if start in (Start.SAFE_HOLD, Start.SAFE_PATH) and old.law == Law.TFL:
+        if (start in (Start.SAFE_HOLD, Start.SAFE_PATH)
+                and old.law in (Law.TFL, Law.SPIN)) or start == Start.SPIN:
             lag = self.controller.lag_inverter
             if lag is not None:
                 lag.reset()            # the old law's demand is not a trend of this one's
