@@ -35,14 +35,17 @@ velocity zero). Its poles are a triple one at −ω_p (ω_p = 1.25 rad/s): k_p =
 k_i = ω_p³. The integral is what makes the law precise: the steady forces it does not model
 (the model's mass error Δm g, drag, the spinning attitude loop's bias) are a constant
 acceleration demand, which a PD alone leaves as an offset Δm g/k_p (0.10 m at 5 % mass
-error) and the integral removes. A stiffer loop (ω_p = 2 rad/s) hands the vehicle back to TFL
-within ~10 mm after the paper's zero-attack stretch instead of ~50 mm, but costs a dead
-rotor with motor lag or a 250 Hz loop 3-6× its precision (the spinning attitude loop's
-bandwidth) and loses a 5 N constant attack (measured with `tfl-mav envelope`); a stiffness
-scheduled on the position error rings near the path (a dead rotor, exact model: 24 mm). The
-integral is bounded (±``MAX_INTEGRAL_G`` g) and frozen while the demand is limited or the
-allocation cannot make it (anti-windup, :meth:`_integrate`). The wanted acceleration is
-limited to a 30° tilt and ±0.5 g vertically: a safe law does not chase the path hard.
+error) and the integral removes. It learns only what holds the vehicle off its target: within
+``INTEGRAL_BAND_M`` of it, or farther once the vehicle has settled (conditional
+integration, :func:`~tfl_mav.control.safe.safe_step.accel_demand`). Fed on the approach after
+a take-over a metre off the path, it banked ~0.3 m s that the loop paid back as a 0.15 m
+overshoot decaying at ω_p/3, and the paper's zero-attack stretch was handed back to TFL 40-60 mm
+off. A stiffer loop (ω_p = 2 rad/s) costs a dead rotor with motor lag or a 250 Hz loop 3-6×
+its precision (the spinning attitude loop's bandwidth); a stiffness scheduled on the position
+error rings near the path. The integral is bounded (±``MAX_INTEGRAL_G`` g) and frozen while
+the demand is limited or the allocation cannot make it (anti-windup, :meth:`_integrate`).
+The wanted acceleration is limited to a 30° tilt and ±0.5 g vertically: a safe law does not
+chase the path hard.
 
 Thrust requests are feasible by construction: the three-rotor allocation gives up τ_p (the
 opposite rotor within [0, f_max]) before τ_q, and τ_q before u_f, so what the law asks for
@@ -311,6 +314,10 @@ class RecoveryLaw:
         # between take-overs of one flight: the steady force it has learnt (the model's mass
         # error) is the same force the next time.
         self.integral_ms = [0.0, 0.0, 0.0]
+        # v − v_target low-passed and the filter's age (accel_demand's settled test); each
+        # start begins it again: a law that starts has not settled.
+        self.drift_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self.drift_age_s = 0.0
         self._pending_error_m: tuple[float, float, float] | None = None  # this tick's e
         self._integral_top_ms = MAX_INTEGRAL_G * gravity_mps2 / KI
         # The attacked tick: safe_step's pure step, on this path's σ, compiled by the seam
@@ -332,6 +339,7 @@ class RecoveryLaw:
     def hold(self, position_m: Sequence[float]) -> None:
         """Hold this point (altitude hold, velocity zero) instead of the path."""
         self.hold_m = [float(c) for c in position_m]
+        self.drift_age_s = 0.0
 
     def follow_path(self, lam: float | None = None, *, search: bool = False) -> None:
         """Fly the path (no held point). ``lam``: start the closest-point search at this
@@ -339,6 +347,7 @@ class RecoveryLaw:
         fresh global search instead (the vehicle may be anywhere after a held point). Left
         alone, λ is the one this law last flew with — seconds ago, perhaps another bend."""
         self.hold_m = None
+        self.drift_age_s = 0.0
         if self.projector is not None:
             if search:
                 self.projector.lam = None
@@ -361,10 +370,10 @@ class RecoveryLaw:
             if hold is None:
                 hold = self.hold_m = list(y)
             target = tangent = curvature = (hold[0], hold[1], hold[2])
-        a0, a1, az, e, limited = safe_step.accel_demand(
-            self._safe, target, tangent, curvature, self.integral_ms, y, v, self.g,
-            1.0 if proj is not None else 0.0)
-        self._pending_error_m = None if limited else e
+        a0, a1, az, e, integrate, self.drift_mps, self.drift_age_s = safe_step.accel_demand(
+            self._safe, target, tangent, curvature, self.integral_ms, self.drift_mps,
+            self.drift_age_s, y, v, self.g, 1.0 if proj is not None else 0.0)
+        self._pending_error_m = e if integrate else None
         return a0, a1, az, dist
 
     def _integrate(self) -> None:
@@ -465,7 +474,7 @@ class RecoveryLaw:
             proj.start(_floats(s.position_m))
         state = (proj.lam if proj is not None and proj.lam is not None else 0.0,
                  0.0 if hold is None else 1.0, _ZERO3 if hold is None else hold,
-                 self.integral_ms)
+                 self.integral_ms, self.drift_mps, self.drift_age_s)
         core = self._tick_c
         out = core(self._safe, state, (s.position_m, s.velocity_mps, s.quaternion_wxyz,
                                        rates, attack_n, self._rot6[attacked_rotor],
@@ -476,7 +485,8 @@ class RecoveryLaw:
                 _floats(s.position_m), _floats(s.velocity_mps), _floats(s.quaternion_wxyz),
                 rates, attack_n, self._rot6[attacked_rotor], self._inverse_perm[attacked_rotor],
                 gains))
-        (lam, holding, hold_m, integral), (f, tilt_err, dist, uf, clamped) = out
+        (lam, holding, hold_m, integral, self.drift_mps, self.drift_age_s), \
+            (f, tilt_err, dist, uf, clamped) = out
         if proj is not None and hold is None:
             proj.lam = lam
         if holding and hold is None:
@@ -490,6 +500,6 @@ class RecoveryLaw:
 
 _ZERO3 = (0.0, 0.0, 0.0)
 # safe_tick's arguments' shapes, for the seam's lowering.
-_STATE0 = (0.0, 0.0, _ZERO3, _ZERO3)
+_STATE0 = (0.0, 0.0, _ZERO3, _ZERO3, _ZERO3, 0.0)
 _INPUTS0 = (_ZERO3, _ZERO3, (1.0, 0.0, 0.0, 0.0), _ZERO3, 0.0, (0,) * 6, (0,) * 4,
             ((0.0,) * 4, (0.0,) * 4))

@@ -19,17 +19,22 @@ from typing import Any, NamedTuple
 from tfl_mav.accel.frontend import relinked
 from tfl_mav.control.safe.lost_rotor import lost_rotor_step
 
-__all__ = ["MAX_INTEGRAL_G", "MAX_TILT_RAD", "MAX_VERTICAL_G", "POS_OMEGA", "SafeParams",
-           "SafeState", "accel_demand", "closest_point", "integrated", "linked", "safe_tick"]
+__all__ = ["INTEGRAL_BAND_M", "MAX_INTEGRAL_G", "MAX_TILT_RAD", "MAX_VERTICAL_G", "POS_OMEGA",
+           "SETTLED_MPS", "SETTLE_TAU_S", "SafeParams", "SafeState", "accel_demand",
+           "closest_point", "integrated", "linked", "safe_tick"]
 
 MAX_TILT_RAD = math.radians(30.0)   # outer loop: horizontal acceleration ≤ g tan 30°
 MAX_VERTICAL_G = 0.5                # outer loop: |vertical acceleration| ≤ 0.5 g
 POS_OMEGA = 1.25  # outer-loop triple pole (rad/s)
 MAX_INTEGRAL_G = 0.2                # |integral action| ≤ 0.2 g per axis (a 20 % model error)
+INTEGRAL_BAND_M = 0.05              # the integral learns within this of its target (m),
+                                    # or farther once the vehicle has settled
 TAN_MAX_TILT = math.tan(MAX_TILT_RAD)
 KP = 3.0 * POS_OMEGA * POS_OMEGA      # outer-loop PID gains: (s + ω_p)³
 KD = 3.0 * POS_OMEGA
 KI = POS_OMEGA * POS_OMEGA * POS_OMEGA
+SETTLED_MPS = POS_OMEGA * INTEGRAL_BAND_M   # |v − v_target| low-passed below this (m/s) …
+SETTLE_TAU_S = 0.5                  # … over this: a spinning vehicle's wobble (≥ 5 Hz) averages out
 
 
 class SafeParams(NamedTuple):
@@ -49,6 +54,10 @@ class SafeState(NamedTuple):
     holding: float                      # 1.0: holding ``hold_m`` (told to, or the path lost)
     hold_m: tuple[float, float, float]  # the held point (m)
     integral_ms: tuple[float, float, float]     # ∫ position error (m s, inertial)
+    drift_mps: tuple[float, float, float]       # v − v_target across the path, low-passed
+                                                # over SETTLE_TAU_S (m/s)
+    drift_age_s: float                  # how long the filter has run (0: the law has just
+                                        # started: it starts at the first velocity)
 
 
 def _sigma2(a0: tuple[float]) -> tuple[float, ...]:
@@ -97,20 +106,50 @@ def closest_point(lam: float, y: tuple[float, float, float]
 
 def accel_demand(p: SafeParams, target: tuple[float, float, float],
                  tangent: tuple[float, float, float], curvature: tuple[float, float, float],
-                 integral: tuple[float, float, float], y: tuple[float, float, float],
+                 integral: tuple[float, float, float], drift: tuple[float, float, float],
+                 drift_age_s: float, y: tuple[float, float, float],
                  v: tuple[float, float, float], g: float, on_path: float
-                 ) -> tuple[float, float, float, tuple[float, float, float], float]:
+                 ) -> tuple[float, float, float, tuple[float, float, float], float,
+                            tuple[float, float, float], float]:
     """The outer loop's wanted acceleration (m/s², z up): PID towards ``target`` (the
     closest path point, with the path's speed × tangent and centripetal term when
     ``on_path``; else a held point, velocity zero), limited to MAX_TILT_RAD and
-    ±MAX_VERTICAL_G. Returns (a_x, a_y, a_z, the position error e m, limited 1/0)."""
+    ±MAX_VERTICAL_G. Returns (a_x, a_y, a_z, the position error e m, integrate 1/0, the new
+    drift m/s and its age s).
+
+    ``integrate`` says whether e may enter the integral (conditional integration): not on a
+    limited demand, and beyond INTEGRAL_BAND_M of the target only once the vehicle has
+    settled: v − v_target across the path, low-passed over SETTLE_TAU_S (``drift``, started at
+    the first tick's value when ``drift_age_s`` is 0) below SETTLED_MPS, the filter at least
+    SETTLE_TAU_S old — a vehicle at rest when a law starts is about to move, not held off.
+    An integral fed on the approach (a take-over a metre off the path) is a debt of ~0.3 m s
+    that the loop pays back as an overshoot of 0.15 m decaying at ω_p/3; a steady force (mass
+    error, drag) holds the vehicle still off its target, settled, and is learnt wherever it
+    leaves it."""
     e = (target[0] - y[0], target[1] - y[1], target[2] - y[2])
     ff = (0.0, 0.0, 0.0)
+    vt = (0.0, 0.0, 0.0)
     if on_path:
         sp = p.speed_mps
         sp2 = sp * sp
+        vt = (sp * tangent[0], sp * tangent[1], sp * tangent[2])
         ff = (KD * sp * tangent[0] + sp2 * curvature[0], KD * sp * tangent[1]
               + sp2 * curvature[1], KD * sp * tangent[2] + sp2 * curvature[2])
+    # Settled: the vehicle moves across the path (or against a held point) slower than the
+    # loop closes a band-sized error. On an approach it is not; held off by a steady force it
+    # is. Along the path it may fly faster or slower than the path speed (a tangential force
+    # against k_d: the closest point moves with it, so no error, and nothing to learn).
+    wx, wy, wz = v[0] - vt[0], v[1] - vt[1], v[2] - vt[2]
+    wt = wx * tangent[0] + wy * tangent[1] + wz * tangent[2] if on_path else 0.0
+    if on_path:
+        wx, wy, wz = wx - wt * tangent[0], wy - wt * tangent[1], wz - wt * tangent[2]
+    if drift_age_s > 0.0:
+        k = p.dt_s / SETTLE_TAU_S
+        wx, wy, wz = (drift[0] + k * (wx - drift[0]), drift[1] + k * (wy - drift[1]),
+                      drift[2] + k * (wz - drift[2]))
+    settled = (wx * wx + wy * wy + wz * wz <= SETTLED_MPS * SETTLED_MPS
+               and drift_age_s >= SETTLE_TAU_S)
+    near = e[0] * e[0] + e[1] * e[1] + e[2] * e[2] <= INTEGRAL_BAND_M * INTEGRAL_BAND_M
     a0 = KP * e[0] - KD * v[0] + ff[0] + KI * integral[0]
     a1 = KP * e[1] - KD * v[1] + ff[1] + KI * integral[1]
     a2 = KP * e[2] - KD * v[2] + ff[2] + KI * integral[2]
@@ -118,12 +157,13 @@ def accel_demand(p: SafeParams, target: tuple[float, float, float],
     az = lim if a2 > lim else (-lim if a2 < -lim else a2)
     ah = math.hypot(a0, a1)
     amax = (g + az) * TAN_MAX_TILT
-    limited = 1.0 if az != a2 else 0.0
+    limited = az != a2
     if ah > amax:
         a0 *= amax / ah
         a1 *= amax / ah
-        limited = 1.0
-    return a0, a1, az, e, limited
+        limited = True
+    integrate = 1.0 if (near or settled) and not limited else 0.0
+    return a0, a1, az, e, integrate, (wx, wy, wz), drift_age_s + p.dt_s
 
 
 def integrated(integral: tuple[float, float, float], e: tuple[float, float, float],
@@ -163,7 +203,7 @@ def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
     qw, qx, qy, qz = quat
     nq = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     q = (qw / nq, qx / nq, qy / nq, qz / nq)
-    lam, holding, hold, integral = s
+    lam, holding, hold, integral, drift, drift_age = s
     g, fmax = p.model[2], p.model[4]
     found, point, tangent, curvature, dist = 0.0, hold, hold, hold, math.nan
     if p.has_path and not holding:
@@ -175,18 +215,19 @@ def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
             hold = (y[0], y[1], y[2])
             holding = 1.0
         point = hold
-    a0, a1, a2, e, limited = accel_demand(p, point, tangent, curvature, integral, y, v, g,
-                                          found)
+    a0, a1, a2, e, integrate, drift, drift_age = accel_demand(
+        p, point, tangent, curvature, integral, drift, drift_age, y, v, g, found)
     tilt_err, uf, c0, c1, c2, c3, made, d0, d2, d3 = lost_rotor_step(
         (a0, a1, a2), (v[0], v[1], v[2]), q, rates, rot, (*gains[0], *gains[1]), p.model,
         attack_n)
-    if made and not limited:
+    if made and integrate:
         integral = integrated(integral, e, p.dt_s, p.integral_top_ms)
     canon, req = (c0, c1, c2, c3), (d0, c1, d2, d3)
     hi = fmax + 1e-9
     f = tuple(_pick(canon, inverse[j]) for j in range(4))
     clamped = tuple(0.0 if -1e-9 <= _pick(req, inverse[j]) <= hi else 1.0 for j in range(4))
-    return SafeState(lam, holding, hold, integral), (f, tilt_err, dist, uf, clamped)
+    return (SafeState(lam, holding, hold, integral, drift, drift_age),
+            (f, tilt_err, dist, uf, clamped))
 
 
 def linked(sigma2: Any) -> dict[str, Any]:
