@@ -1,13 +1,14 @@
-"""The safe law's tick with a rotor attacked, as explicit state and one pure step.
+"""The safe law's tick as explicit state and one pure step: a rotor attacked, or none.
 
 :func:`safe_tick` is :meth:`~tfl_mav.control.safe.recovery.RecoveryLaw.update` with a rotor
-attacked: the closest point of the path (:func:`closest_point`, Newton on
-⟨y − σ(λ), σ'(λ)⟩ = 0), the outer PID loop (:func:`accel_demand`), the three-rotor step
-(:func:`~tfl_mav.control.safe.lost_rotor.lost_rotor_step`) and the integral's anti-windup, in
-plain Python over tuples of floats. The path's σ kernel is linked in per path
+attacked, :func:`healthy_tick` with four healthy rotors: the closest point of the path
+(:func:`closest_point`, Newton on ⟨y − σ(λ), σ'(λ)⟩ = 0), the outer PID loop
+(:func:`accel_demand`) and its conditional integral, then the three-rotor step
+(:func:`~tfl_mav.control.safe.lost_rotor.lost_rotor_step`) or the four-rotor attitude loop
+and mixer, in plain Python over tuples of floats. The path's σ kernel is linked in per path
 (:func:`linked`: these functions with ``_sigma2`` the path's generated kernel), and the
-accelerator seam compiles the whole tick (:func:`tfl_mav.accel.native.obtain_function`) — the
-same operations in the same order, the same bits — where it is built; this very Python
+accelerator seam compiles the three-rotor tick (:func:`tfl_mav.accel.native.obtain_function`)
+— the same operations in the same order, the same bits — where it is built; this very Python
 flies otherwise. :mod:`recovery` says what the law does and why.
 """
 
@@ -17,11 +18,13 @@ import math
 from typing import Any, NamedTuple
 
 from tfl_mav.accel.frontend import relinked
-from tfl_mav.control.safe.lost_rotor import lost_rotor_step
+from tfl_mav.control.allocation import allocate_nominal
+from tfl_mav.control.safe.lost_rotor import lost_rotor_step, thrust_direction
 
-__all__ = ["INTEGRAL_BAND_M", "MAX_INTEGRAL_G", "MAX_TILT_RAD", "MAX_VERTICAL_G", "POS_OMEGA",
-           "SETTLED_MPS", "SETTLE_TAU_S", "SafeParams", "SafeState", "accel_demand",
-           "closest_point", "integrated", "linked", "safe_tick"]
+__all__ = ["ATT_KD", "ATT_KP", "INTEGRAL_BAND_M", "MAX_INTEGRAL_G", "MAX_TILT_RAD",
+           "MAX_VERTICAL_G", "POS_OMEGA", "SETTLED_MPS", "SETTLE_TAU_S", "YAW_DAMP", "SafeParams",
+           "SafeState", "accel_demand", "closest_point", "healthy_tick", "integrated", "linked",
+           "safe_tick", "target"]
 
 MAX_TILT_RAD = math.radians(30.0)   # outer loop: horizontal acceleration ≤ g tan 30°
 MAX_VERTICAL_G = 0.5                # outer loop: |vertical acceleration| ≤ 0.5 g
@@ -34,6 +37,9 @@ KP = 3.0 * POS_OMEGA * POS_OMEGA      # outer-loop PID gains: (s + ω_p)³
 KD = 3.0 * POS_OMEGA
 KI = POS_OMEGA * POS_OMEGA * POS_OMEGA
 SETTLED_MPS = POS_OMEGA * INTEGRAL_BAND_M   # |v − v_target| low-passed below this (m/s) …
+ATT_KP = 100.0                      # four healthy rotors: reduced attitude (10 rad/s)² …
+ATT_KD = 20.0                       # … critically damped
+YAW_DAMP = 2.0                      # … and r decays at 2 /s
 SETTLE_TAU_S = 0.5                  # … over this: a spinning vehicle's wobble (≥ 5 Hz) averages out
 
 
@@ -45,6 +51,8 @@ class SafeParams(NamedTuple):
     dt_s: float                 # control period (s): the integral's step
     integral_top_ms: float      # |∫e| ≤ this (m s): MAX_INTEGRAL_G g / k_i
     has_path: bool              # False: a point is held, no path to project on
+    airframe: tuple[float, float, float, float, float]  # (I_x, I_y, I_z kg m², k_r N m s,
+                                # d m): the four-rotor attitude loop's (:func:`healthy_tick`)
 
 
 class SafeState(NamedTuple):
@@ -168,8 +176,13 @@ def accel_demand(p: SafeParams, target: tuple[float, float, float],
 
 def integrated(integral: tuple[float, float, float], e: tuple[float, float, float],
                dt_s: float, top_ms: float) -> tuple[float, float, float]:
-    """∫e after one tick flown as asked (anti-windup: :meth:`RecoveryLaw._integrate`): a
-    non-finite error is left out, each axis bounded by ``top_ms``."""
+    """∫e after one tick flown as asked: the position error enters only on a tick whose
+    demand was flown as asked — neither limited by the tilt/vertical caps nor clipped by the
+    allocation (a rotor at a bound: the wanted thrust or τ_q was not made; the callers
+    decide) — and never past ``top_ms`` per axis, so a wrong integral costs at most
+    MAX_INTEGRAL_G of acceleration. An attack near m g/2 leaves the side rotors almost
+    nothing (f₁ + f₃ = u_f − 2A): an integral fed through that saturation winds up into a
+    limit cycle metres wide. A non-finite error is left out."""
     e0, e1, e2 = e
     if math.isfinite(e0 + e1 + e2):          # a finite sum: all three finite
         i0, i1, i2 = integral
@@ -178,6 +191,25 @@ def integrated(integral: tuple[float, float, float], e: tuple[float, float, floa
                     (top_ms if i1 > top_ms else (-top_ms if i1 < -top_ms else i1)),
                     (top_ms if i2 > top_ms else (-top_ms if i2 < -top_ms else i2)))
     return integral
+
+
+def target(p: SafeParams, lam: float, holding: float, hold: tuple[float, float, float],
+           y: tuple[float, float, float]) -> tuple[Any, ...]:
+    """What the outer loop flies to: (found 1/0, λ, holding 1/0, the held point, the target
+    point, unit tangent, curvature vector κN, path distance m — NaN when holding). The
+    closest path point; a held point when told to hold or when the path is lost (then
+    where the vehicle is)."""
+    found, point, tangent, curvature, dist = 0.0, hold, hold, hold, math.nan
+    if p.has_path and not holding:
+        found, lam, point, tangent, curvature, dist = closest_point(lam, y)
+        if not found:
+            dist = math.nan
+    if not found:
+        if not holding:             # no path, or it was lost: hold where the vehicle is
+            hold = (y[0], y[1], y[2])
+            holding = 1.0
+        point = hold
+    return found, lam, holding, hold, point, tangent, curvature, dist
 
 
 def _pick(values: tuple[float, ...], k: float) -> float:
@@ -205,16 +237,8 @@ def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
     q = (qw / nq, qx / nq, qy / nq, qz / nq)
     lam, holding, hold, integral, drift, drift_age = s
     g, fmax = p.model[2], p.model[4]
-    found, point, tangent, curvature, dist = 0.0, hold, hold, hold, math.nan
-    if p.has_path and not holding:
-        found, lam, point, tangent, curvature, dist = closest_point(lam, y)
-        if not found:
-            dist = math.nan
-    if not found:
-        if not holding:             # no path, or it was lost: hold where the vehicle is
-            hold = (y[0], y[1], y[2])
-            holding = 1.0
-        point = hold
+    found, lam, holding, hold, point, tangent, curvature, dist = target(p, lam, holding, hold,
+                                                                        y)
     a0, a1, a2, e, integrate, drift, drift_age = accel_demand(
         p, point, tangent, curvature, integral, drift, drift_age, y, v, g, found)
     tilt_err, uf, c0, c1, c2, c3, made, d0, d2, d3 = lost_rotor_step(
@@ -228,6 +252,41 @@ def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
     clamped = tuple(0.0 if -1e-9 <= _pick(req, inverse[j]) <= hi else 1.0 for j in range(4))
     return (SafeState(lam, holding, hold, integral, drift, drift_age),
             (f, tilt_err, dist, uf, clamped))
+
+
+def healthy_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
+                 ) -> tuple[SafeState, tuple[Any, ...]]:
+    """One tick with four healthy rotors (a take-over with no rotor attacked): the outer loop
+    as :func:`safe_tick` flies it, the reduced attitude h = Rᵀ n by a PD on (−h₂, h₁) through
+    τ_p, τ_q with the gyroscopic terms, a yaw-rate damper, and the nominal mixer (eq. (4)
+    inverted, yaw given up first, each rotor within [0, f_max]). ``inputs``: position m,
+    velocity m/s, attitude (w, x, y, z; normalised here), body rates rad/s.
+
+    Returns the new state and (the thrusts of rotors 1-4 N, tilt error rad, path distance m
+    — NaN when holding —, u_f N, clamped 1/0 per rotor: its demand left [0, f_max])."""
+    y, v, quat, rates = inputs
+    qw, qx, qy, qz = quat
+    nq = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    q = (qw / nq, qx / nq, qy / nq, qz / nq)
+    lam, holding, hold, integral, drift, drift_age = s
+    m, k_t, g, ell, fmax = p.model
+    found, lam, holding, hold, point, tangent, curvature, dist = target(p, lam, holding, hold,
+                                                                        y)
+    a0, a1, a2, e, integrate, drift, drift_age = accel_demand(
+        p, point, tangent, curvature, integral, drift, drift_age, y, v, g, found)
+    ix, iy, iz, k_r, d_m = p.airframe
+    pr, qr, rr = rates
+    tilt_err, uf, h0, h1, _h2 = thrust_direction((a0, a1, a2), v, q, m, k_t, g)
+    tau_p = ix * (ATT_KP * -h1 - ATT_KD * pr) + (iz - iy) * qr * rr + k_r * pr
+    tau_q = iy * (ATT_KP * h0 - ATT_KD * qr) + (ix - iz) * pr * rr + k_r * qr
+    tau_r = -iz * YAW_DAMP * rr + k_r * rr
+    req = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, d_m)
+    f = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, d_m, fmax)
+    clamped = tuple(0.0 if -1e-9 <= x <= fmax + 1e-9 else 1.0 for x in req)
+    if integrate and not (clamped[0] or clamped[1] or clamped[2] or clamped[3]):
+        integral = integrated(integral, e, p.dt_s, p.integral_top_ms)
+    return (SafeState(lam, holding, hold, integral, drift, drift_age),
+            (tuple(f), tilt_err, dist, uf, clamped))
 
 
 def linked(sigma2: Any) -> dict[str, Any]:
