@@ -44,6 +44,8 @@ def law_config(sc: Scenario) -> LawConfig:
         xi_pole_fine=c.xi_pole_fine, eta_pole_fine=c.eta_pole_fine, yaw_pole=c.yaw_pole,
         robust=robust, mass_estimator=c.mass_estimator, disturbance_observer=c.disturbance_observer,
         gain_switch=c.gain_switch, observer_tau_s=c.observer_tau_s,
+        translational_observer=c.translational_observer,
+        translational_observer_tau_s=c.translational_observer_tau_s,
         aware_of_attack=c.aware_of_attack)
 
 

@@ -238,6 +238,9 @@ class ControllerConfig:
     disturbance_observer: bool = _f(True, doc="robust: p/q angular acceleration observer")
     gain_switch: bool = _f(True, doc="robust: switch to the fine poles once settled")
     observer_tau_s: float = _f(0.004, "s", lo=0.0, lo_open=True, hi=1.0)
+    translational_observer: bool = _f(True, doc="robust: unmodelled-acceleration observer "
+                                                "(wind drag) fed to the xi, eta chains")
+    translational_observer_tau_s: float = _f(0.25, "s", lo=0.0, lo_open=True, hi=10.0)
     aware_of_attack: bool = _f(True, doc="False = the baseline that ignores the attack")
     motor_time_constant_scale: float = _f(1.0, lo=0.0, hi=10.0,
                                           doc="controller's tau_m = scale * true "

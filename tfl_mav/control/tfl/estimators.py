@@ -14,8 +14,18 @@ the plain law sits 6–7 cm off the path or crashes. Two estimators remove the t
   (τ ≈ 4 ms) filtered difference estimates it; the law subtracts it from its p/q
   acceleration demand (INDI-like). A slower filter lags the ~60 rad/s yaw spin under attack
   by tens of degrees and crashes.
+* the translational disturbance observer (:func:`tdob_update`) — the same construction on
+  the velocity: the measured v̇ against the model's acceleration for the thrust applied,
+  (Σf/m) b3 − g e3 − (k_t/m) v (eq. (3)). What the model does not know — the drag of a
+  wind (k_t w/m), rotor drag, a wrong attack estimate — is a slowly varying acceleration d
+  that the paper's ξ-chain cannot see: with d constant and four poles at −p the chain
+  settles at ξ = (k₂/k₀) d = 6d/p² (130 mm for a 3 m/s wind at p = 2.5). The law adds
+  the estimate to the model's ÿ (:func:`~tfl_mav.control.tfl.law_math.output_rows`), so
+  α̈ and its derivatives carry it and ξ settles at zero. Its filter is slow (τ ≈ 0.25 s):
+  it needs only the push, not the vibration, and a velocity from an estimator is a noisy
+  thing to differentiate.
 
-Both are explicit state and a pure update, called from the law's step.
+All three are explicit state and a pure update, called from the law's step.
 """
 
 from __future__ import annotations
@@ -24,8 +34,8 @@ import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
-__all__ = ["DOB_START", "DobState", "MassModel", "MassState", "clamp", "dob_step", "dob_update",
-           "mass_blend", "mass_filters", "mass_model", "mass_start", "mass_update"]
+__all__ = ["DOB_START", "TDOB_START", "DobState", "TdobState", "MassModel", "MassState", "clamp", "dob_step", "dob_update",
+           "mass_blend", "mass_filters", "mass_model", "mass_start", "mass_update", "tdob_update"]
 
 V3 = Sequence[Any]
 
@@ -151,3 +161,39 @@ def dob_update(tau_s: float, limit_radps2: float, s: DobState, dt: float, p: flo
         d_p = clamp(dob_step(d_p, p, s.prev_p, pdot_pred, dt, a), -limit_radps2, limit_radps2)
         d_q = clamp(dob_step(d_q, q, s.prev_q, qdot_pred, dt, a), -limit_radps2, limit_radps2)
     return DobState(d_p, d_q, 1.0, p, q)
+
+
+class TdobState(NamedTuple):
+    """What the translational disturbance observer remembers (paper frame, z up)."""
+
+    d_x: float          # the estimated unmodelled acceleration (m/s²)
+    d_y: float
+    d_z: float
+    has_prev: float     # 1.0: the velocity of the last tick is known
+    prev_vx: float      # the velocity of the last tick (m/s)
+    prev_vy: float
+    prev_vz: float
+
+
+TDOB_START = TdobState(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+
+
+def tdob_update(tau_s: float, limit_mps2: float, s: TdobState, dt: float, v: V3,
+                thrust_n: float, b3: V3, mass_kg: float, k_t: float, g: float) -> TdobState:
+    """Feed the velocity measured now (m/s) with the total thrust applied over the last
+    period (N), the thrust axis b3 and the model's mass (kg), drag (N s/m) and gravity:
+    the measured − modelled acceleration through a first-order filter of ``tau_s`` (the
+    rate observer's :func:`dob_step` on each axis), clamped to ±``limit_mps2``."""
+    vx, vy, vz = v
+    d_x, d_y, d_z = s.d_x, s.d_y, s.d_z
+    if s.has_prev:
+        a = dt / (tau_s + dt)
+        ufm, ktm = thrust_n / mass_kg, k_t / mass_kg
+        bx, by, bz = b3
+        d_x = clamp(dob_step(d_x, vx, s.prev_vx, ufm * bx - ktm * vx, dt, a),
+                    -limit_mps2, limit_mps2)
+        d_y = clamp(dob_step(d_y, vy, s.prev_vy, ufm * by - ktm * vy, dt, a),
+                    -limit_mps2, limit_mps2)
+        d_z = clamp(dob_step(d_z, vz, s.prev_vz, ufm * bz - ktm * vz - g, dt, a),
+                    -limit_mps2, limit_mps2)
+    return TdobState(d_x, d_y, d_z, 1.0, vx, vy, vz)

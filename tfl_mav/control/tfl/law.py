@@ -46,7 +46,13 @@ from tfl_mav.control.path.paths import Path
 from tfl_mav.control.path.projection import PATH_START, VO_OK, PathState, lost_reason
 from tfl_mav.control.path.tracker import PathTracker
 from tfl_mav.control.tfl import step
-from tfl_mav.control.tfl.estimators import DOB_START, mass_model, mass_start, mass_update
+from tfl_mav.control.tfl.estimators import (
+    DOB_START,
+    TDOB_START,
+    mass_model,
+    mass_start,
+    mass_update,
+)
 from tfl_mav.control.tfl.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
 from tfl_mav.control.tfl.step import R_COND, R_THRUST, R_TUBE, Frame, TFLInputs, TFLParams, TFLState
 from tfl_mav.model.modes import Mode
@@ -60,6 +66,9 @@ _new_tuple = tuple.__new__
 _ndarray = np.ndarray
 _VO_REFERENCE = -1.0          # the reference tracker's own reason (its text)
 _PATH_ERRORS = (ValueError, ZeroDivisionError, OverflowError)
+# The translational observer's bound per axis (m/s²): three times the rotor drag of an 8 m/s
+# wind (0.33 m/s² per m/s), far below what a sensor glitch differentiated would read.
+TDOB_LIMIT_MPS2 = 8.0
 
 
 def _floats(x: Sequence[float]) -> Sequence[float]:
@@ -80,6 +89,8 @@ def law_params(model: ModelParams, cfg: LawConfig, dt_s: float,
         float(cfg.robust and cfg.gain_switch),
         mass_model(float(model.mass_kg), g, float(model.k_t)),
         float(cfg.observer_tau_s), 500.0,
+        float(cfg.robust and cfg.translational_observer),
+        float(cfg.translational_observer_tau_s), TDOB_LIMIT_MPS2,
         chain_gains(cfg.xi_pole, 4), chain_gains(cfg.eta_pole, 3),  # type: ignore[arg-type]
         chain_gains(cfg.xi_pole_fine, 4), chain_gains(cfg.eta_pole_fine, 3),  # type: ignore[arg-type]
         chain_gains(cfg.yaw_pole, 2))  # type: ignore[arg-type]
@@ -114,12 +125,13 @@ def frame_numbers(model: ModelParams, frame: RotorFrame | None) -> Frame:
 def initial_state(model: ModelParams) -> TFLState:
     """The law before its first tick: u_f at the model's hover thrust, nothing learnt."""
     hover = model.mass_kg * model.gravity_mps2
-    return TFLState(hover, 0.0, mass_start(float(model.mass_kg)), DOB_START, 0.0, (0.0, 0.0),
-                    (hover / 4.0,) * 4, 0.0, 0.0, 0.0, 0.0, PATH_START)
+    return TFLState(hover, 0.0, mass_start(float(model.mass_kg)), DOB_START, TDOB_START, 0.0,
+                    (0.0, 0.0), (hover / 4.0,) * 4, 0.0, 0.0, 0.0, 0.0, PATH_START)
 
 
 _NESTED = {TFLState._fields.index(name): kind for name, kind in (
-    ("mass", step.MassState), ("dob", step.DobState), ("path", PathState))}
+    ("mass", step.MassState), ("dob", step.DobState), ("tdob", step.TdobState),
+    ("path", PathState))}
 _X13, _X14, _MASS, _FINE, _PATH = (TFLState._fields.index(n)
                                    for n in ("x13", "x14", "mass", "fine", "path"))
 _MASS_KG = step.MassState._fields.index("mass_kg")
@@ -297,7 +309,10 @@ class TFLController:
             if self._linked_for is not self.tracker:
                 self.tracker.lam = lam
         # The mass estimator has kept learning while the other law flew (:meth:`track`).
-        self.state = s._replace(x13=sum(thrust_n), x14=0.0, dob=DOB_START, has_pred=0.0,
+        # The translational observer keeps what it learnt (the air did not change with the
+        # law), but not the velocity of the last tick it saw, ticks ago.
+        self.state = s._replace(x13=sum(thrust_n), x14=0.0, dob=DOB_START,
+                                tdob=s.tdob._replace(has_prev=0.0), has_pred=0.0,
                                 last_out=tuple(thrust_n), path=ps)
         if self.lag_inverter is not None:
             self.lag_inverter.reset()
