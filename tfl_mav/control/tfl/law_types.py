@@ -47,7 +47,8 @@ class LawConfig:
     disturbance_observer: bool = True
     gain_switch: bool = True
     observer_tau_s: float = 0.004
-    translational_observer: bool = True     # the unmodelled acceleration fed to the ξ, η chains
+    translational_observer: bool = False    # the horizontal unmodelled acceleration fed to
+                                            # the ξ, η chains (estimators.tdob_update)
     translational_observer_tau_s: float = 0.25
     aware_of_attack: bool = True
     settle_alpha: float = 0.01      # |α| below this …

@@ -94,7 +94,7 @@ class TFLParams(NamedTuple):
     dob_limit: float            # |d| ≤ this (rad/s²)
     use_tdob: float             # 1.0: the translational disturbance observer runs
     tdob_tau_s: float           # its filter (s)
-    tdob_limit: float           # |d| ≤ this per axis (m/s²)
+    tdob_limit: float           # |d| ≤ this per horizontal axis (m/s²)
     k_xi: V4                    # ξ chain gains k₀…k₃ (eq. (23))
     k_eta: V3                   # η chain gains k₀…k₂ (eq. (24))
     k_xi_fine: V4               # the same after the switch
@@ -125,7 +125,7 @@ class TFLState(NamedTuple):
     x14: float                  # u̇_f (N/s)
     mass: MassState
     dob: DobState
-    tdob: TdobState             # the translational observer (paper frame)
+    tdob: TdobState             # the translational observer (paper frame, horizontal)
     has_pred: float             # 1.0: ``pred`` holds the model's ṗ, q̇ for the last command
     pred: tuple[float, float]   # (rad/s²)
     last_out: V4                # the thrusts the rotors deliver over the last period (N)
@@ -220,9 +220,9 @@ def observe(p: TFLParams, s: TFLState, u: TFLInputs) -> tuple[Any, ...]:
     if p.use_tdob:
         lo = s.last_out
         tdob_s = tdob_update(p.tdob_tau_s, p.tdob_limit, tdob_s, p.dt_s, v,
-                             lo[0] + lo[1] + lo[2] + lo[3], b3, mass, p.k_t, p.gravity_mps2)
+                             lo[0] + lo[1] + lo[2] + lo[3], b3, mass, p.k_t)
     rows = output_rows(u.position_m, v, b1, b2, b3, pc, qc, rc, s.x13, s.x14, mass, p.k_t,
-                       p.gravity_mps2, (tdob_s.d_x, tdob_s.d_y, tdob_s.d_z))
+                       p.gravity_mps2, (tdob_s.d_x, tdob_s.d_y, 0.0))
     return psi, (r20, r21, r22), b1, b2, b3, (pc, qc, rc), mass_s, dob_s, mass, rows, tdob_s
 
 
