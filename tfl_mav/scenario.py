@@ -242,7 +242,7 @@ class ControllerConfig:
                                      "acceleration observer (a wind's drag) fed to the xi, eta "
                                      "chains: 'on', 'off', or 'auto' (on outdoors: wind, rotor "
                                      "aerodynamics or realistic sensors)")
-    translational_observer_tau_s: float = _f(0.25, "s", lo=0.0, lo_open=True, hi=10.0)
+    translational_observer_tau_s: float = _f(0.1, "s", lo=0.0, lo_open=True, hi=10.0)
     aware_of_attack: bool = _f(True, doc="False = the baseline that ignores the attack")
     motor_time_constant_scale: float = _f(1.0, lo=0.0, hi=10.0,
                                           doc="controller's tau_m = scale * true "

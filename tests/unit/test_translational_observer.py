@@ -24,7 +24,7 @@ _M = 1.1
 _KT = 0.05
 
 
-def _feed(d_true, *, ticks, dt=1e-3, tau=0.25, v0=(0.3, -0.2, 0.1), tilt=0.05):
+def _feed(d_true, *, ticks, dt=1e-3, tau=0.25, v0=(0.3, -0.2, 0.1), tilt=0.05, vertical=0.0):
     """Run the observer on a vehicle whose acceleration is the model's plus ``d_true``
     (thrust at hover along a fixed tilted axis, drag on its own velocity): exact Euler."""
     b3 = (math.sin(tilt), 0.0, math.cos(tilt))
@@ -32,20 +32,21 @@ def _feed(d_true, *, ticks, dt=1e-3, tau=0.25, v0=(0.3, -0.2, 0.1), tilt=0.05):
     v = list(v0)
     s = TDOB_START
     for _ in range(ticks):
-        s = tdob_update(tau, 8.0, s, dt, tuple(v), thrust, b3, _M, _KT)
+        s = tdob_update(tau, 8.0, s, dt, tuple(v), thrust, b3, _M, _KT, _G, vertical)
         a = [thrust / _M * b3[i] - _KT / _M * v[i] + d_true[i] for i in range(3)]
         a[2] -= _G
         v = [v[i] + dt * a[i] for i in range(3)]
     return s
 
 
-def test_a_constant_horizontal_push_is_found_and_the_vertical_is_not_estimated():
+def test_a_constant_push_is_found_and_the_vertical_only_when_asked():
     d = (0.136, -0.05, 0.3)
     s = _feed(d, ticks=2500)            # ten time constants
     # first-order filter of a step after 10 τ: e⁻¹⁰ of the step is left
     assert s.d_x == pytest.approx(d[0], abs=1e-4)
     assert s.d_y == pytest.approx(d[1], abs=1e-4)
-    assert not hasattr(s, "d_z")        # vertically the mass estimator is the integral action
+    assert s.d_z == 0.0                 # vertically the mass estimator is the integral action
+    assert _feed(d, ticks=2500, vertical=1.0).d_z == pytest.approx(d[2], abs=1e-4)
 
 
 def test_it_follows_a_first_order_lag_of_tau():
@@ -58,7 +59,7 @@ def test_no_push_reads_as_none_and_the_bound_holds():
     # they differ by (k_t/m)·a·Δt/2, a the tilted thrust's horizontal acceleration
     a_x = _G * math.tan(0.05)
     assert abs(_feed((0.0, 0.0, 0.0), ticks=1000).d_x) < 1.5 * _KT / _M * a_x * 1e-3 / 2
-    assert _feed((50.0, -50.0, 0.0), ticks=3000)[:2] == (8.0, -8.0)
+    assert _feed((50.0, -50.0, 50.0), ticks=3000, vertical=1.0)[:3] == (8.0, -8.0, 8.0)
 
 
 def test_auto_is_on_outdoors_only_and_the_key_is_checked():
@@ -73,6 +74,9 @@ def test_auto_is_on_outdoors_only_and_the_key_is_checked():
     assert not translational_observer(windy.replace(**{"controller.translational_observer":
                                                        "off"}))
     assert translational_observer(load_scenario("realistic"))
+    # the vertical too where the rotors' inflow drag flies, not for wind alone
+    assert law_config(load_scenario("realistic")).translational_observer_vertical
+    assert not law_config(windy).translational_observer_vertical
     with pytest.raises(ScenarioError, match="translational_observer"):
         paper.replace(**{"controller.translational_observer": "yes"})
 

@@ -16,14 +16,15 @@ the plain law sits 6–7 cm off the path or crashes. Two estimators remove the t
   by tens of degrees and crashes.
 * the translational disturbance observer (:func:`tdob_update`) — the same construction on
   the velocity: the measured v̇ against the model's acceleration for the thrust applied,
-  (Σf/m) b3 − g e3 − (k_t/m) v (eq. (3)), horizontally. What the model does not know — the
-  drag of a wind (k_t w/m), rotor drag — is a slowly varying acceleration d
-  that the paper's ξ-chain cannot see: with d constant and four poles at −p the chain
-  settles at ξ = (k₂/k₀) d = 6d/p² (130 mm for a 3 m/s wind at p = 2.5). The law adds
-  the estimate to the model's ÿ (:func:`~tfl_mav.control.tfl.law_math.output_rows`), so
-  α̈ and its derivatives carry it and ξ settles at zero. Its filter is slow (τ ≈ 0.25 s):
-  it needs only the push, not the vibration, and a velocity from an estimator is a noisy
-  thing to differentiate.
+  (Σf/m) b3 − g e3 − (k_t/m) v (eq. (3)). What the model does not know — the drag of a
+  wind (k_t w/m), rotor drag — is a slowly varying acceleration d that the paper's ξ-chain
+  cannot see: with d constant and four poles at −p the chain settles at
+  ξ = (k₂/k₀) d = 6d/p² (130 mm for a 3 m/s wind at p = 2.5). The law adds the estimate
+  to the model's ÿ (:func:`~tfl_mav.control.tfl.law_math.output_rows`), so α̈ and its
+  derivatives carry it and ξ settles at zero. Horizontal only unless asked (the mass
+  estimator is the vertical's integral action); its filter (τ = 0.1 s) is ten times slower
+  than the rate observer's: it needs the push, not the vibration, and an estimator's
+  velocity is a noisy thing to differentiate.
 
 All three are explicit state and a pure update, called from the law's step.
 """
@@ -166,8 +167,9 @@ def dob_update(tau_s: float, limit_radps2: float, s: DobState, dt: float, p: flo
 class TdobState(NamedTuple):
     """What the translational disturbance observer remembers (paper frame, z up)."""
 
-    d_x: float          # the estimated unmodelled horizontal acceleration (m/s²)
+    d_x: float          # the estimated unmodelled acceleration (m/s²)
     d_y: float
+    d_z: float          # 0 unless the vertical is estimated too
     has_prev: float     # 1.0: the last tick's velocity and thrust axis are known
     prev_vx: float      # the velocity of the last tick (m/s)
     prev_vy: float
@@ -177,19 +179,23 @@ class TdobState(NamedTuple):
     prev_bz: float
 
 
-TDOB_START = TdobState(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+TDOB_START = TdobState(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 def tdob_update(tau_s: float, limit_mps2: float, s: TdobState, dt: float, v: V3,
-                thrust_n: float, b3: V3, mass_kg: float, k_t: float) -> TdobState:
+                thrust_n: float, b3: V3, mass_kg: float, k_t: float, g: float,
+                vertical: float) -> TdobState:
     """Feed the velocity measured now (m/s) with the total thrust applied over the last
     period (N), the thrust axis b3 and the model's mass (kg) and drag (N s/m): the
-    measured − modelled horizontal acceleration through a first-order filter of ``tau_s``
-    (the rate observer's :func:`dob_step` on each axis), clamped to ±``limit_mps2``.
+    measured − modelled acceleration through a first-order filter of ``tau_s`` (the rate
+    observer's :func:`dob_step` on each axis), clamped to ±``limit_mps2``; vertically only
+    when ``vertical`` is 1.0 (``d_z`` stays 0 otherwise).
 
-    Vertically the mass estimator is already the law's integral action (a steady vertical
-    force reads as a mass); an observer there too fights it through every change of the
-    attack's thrust (the envelope's attacked flights: 0.09 → 0.2 mm, 0.3 → 12 mm at 250 Hz).
+    In still air the mass estimator is the law's vertical integral action (a steady
+    vertical force reads as a mass); an observer there too fights it through every change
+    of the attack's thrust (the envelope's attacked flights: 0.09 → 0.2 mm, 0.3 → 12 mm at
+    250 Hz). The rotors' inflow drag, a vertical force that follows the climb rate, is what
+    a mass cannot stand for: there the vertical is estimated too.
 
     The velocity's difference is the mean acceleration over the period, so the model's is
     taken at the period's middle (b3 and v the means of its ends): with b3 of either end,
@@ -197,7 +203,7 @@ def tdob_update(tau_s: float, limit_mps2: float, s: TdobState, dt: float, v: V3,
     250 Hz, which the law then flies against."""
     vx, vy, vz = v
     bx, by, bz = b3
-    d_x, d_y = s.d_x, s.d_y
+    d_x, d_y, d_z = s.d_x, s.d_y, s.d_z
     if s.has_prev:
         a = dt / (tau_s + dt)
         ufm, ktm = thrust_n / mass_kg, k_t / mass_kg
@@ -207,5 +213,9 @@ def tdob_update(tau_s: float, limit_mps2: float, s: TdobState, dt: float, v: V3,
                     -limit_mps2, limit_mps2)
         d_y = clamp(dob_step(d_y, vy, s.prev_vy, ufm * mby - ktm * mvy, dt, a),
                     -limit_mps2, limit_mps2)
-    return TdobState(d_x, d_y, 1.0, vx, vy, vz, bx, by, bz)
+        if vertical:
+            mbz, mvz = 0.5 * (bz + s.prev_bz), 0.5 * (vz + s.prev_vz)
+            d_z = clamp(dob_step(d_z, vz, s.prev_vz, ufm * mbz - ktm * mvz - g, dt, a),
+                        -limit_mps2, limit_mps2)
+    return TdobState(d_x, d_y, d_z, 1.0, vx, vy, vz, bx, by, bz)
 

@@ -91,6 +91,7 @@ def law_params(model: ModelParams, cfg: LawConfig, dt_s: float,
         float(cfg.observer_tau_s), 500.0,
         float(cfg.robust and cfg.translational_observer),
         float(cfg.translational_observer_tau_s), TDOB_LIMIT_MPS2,
+        float(cfg.translational_observer_vertical),
         chain_gains(cfg.xi_pole, 4), chain_gains(cfg.eta_pole, 3),  # type: ignore[arg-type]
         chain_gains(cfg.xi_pole_fine, 4), chain_gains(cfg.eta_pole_fine, 3),  # type: ignore[arg-type]
         chain_gains(cfg.yaw_pole, 2))  # type: ignore[arg-type]

@@ -94,7 +94,8 @@ class TFLParams(NamedTuple):
     dob_limit: float            # |d| ≤ this (rad/s²)
     use_tdob: float             # 1.0: the translational disturbance observer runs
     tdob_tau_s: float           # its filter (s)
-    tdob_limit: float           # |d| ≤ this per horizontal axis (m/s²)
+    tdob_limit: float           # |d| ≤ this per axis (m/s²)
+    tdob_vertical: float        # 1.0: it estimates the vertical too
     k_xi: V4                    # ξ chain gains k₀…k₃ (eq. (23))
     k_eta: V3                   # η chain gains k₀…k₂ (eq. (24))
     k_xi_fine: V4               # the same after the switch
@@ -220,9 +221,10 @@ def observe(p: TFLParams, s: TFLState, u: TFLInputs) -> tuple[Any, ...]:
     if p.use_tdob:
         lo = s.last_out
         tdob_s = tdob_update(p.tdob_tau_s, p.tdob_limit, tdob_s, p.dt_s, v,
-                             lo[0] + lo[1] + lo[2] + lo[3], b3, mass, p.k_t)
+                             lo[0] + lo[1] + lo[2] + lo[3], b3, mass, p.k_t, p.gravity_mps2,
+                             p.tdob_vertical)
     rows = output_rows(u.position_m, v, b1, b2, b3, pc, qc, rc, s.x13, s.x14, mass, p.k_t,
-                       p.gravity_mps2, (tdob_s.d_x, tdob_s.d_y, 0.0))
+                       p.gravity_mps2, (tdob_s.d_x, tdob_s.d_y, tdob_s.d_z))
     return psi, (r20, r21, r22), b1, b2, b3, (pc, qc, rc), mass_s, dob_s, mass, rows, tdob_s
 
 
