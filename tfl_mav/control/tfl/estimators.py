@@ -35,8 +35,9 @@ import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
-__all__ = ["DOB_START", "TDOB_START", "DobState", "TdobState", "MassModel", "MassState", "clamp", "dob_step", "dob_update",
-           "mass_blend", "mass_filters", "mass_model", "mass_start", "mass_update", "tdob_update"]
+__all__ = ["DOB_START", "TDOB_START", "DobState", "MassModel", "MassState", "TdobState", "clamp",
+           "dob_step", "dob_update", "mass_blend", "mass_filters", "mass_model", "mass_start",
+           "mass_update", "tdob_update"]
 
 V3 = Sequence[Any]
 
