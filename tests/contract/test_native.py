@@ -489,8 +489,9 @@ def test_safe_law_three_rotor_step_compiled_is_the_python_step():
 def test_safe_law_attacked_tick_compiled_is_the_python_tick(held, monkeypatch):
     """RecoveryLaw's attacked tick (safe_step.safe_tick on the paper path's σ: projection,
     outer loop, three-rotor step, anti-windup) compiled against the same law flying its
-    Python step, tick by tick from random states, every rotor attacked: the same outputs and
-    the same state (λ, the integral, the held point), bit for bit."""
+    Python step, tick by tick from random states (half of them near the target, where the
+    integral learns), every rotor attacked: the same outputs and the same state (λ, the
+    integral, the held point, the drift filter), bit for bit."""
     from tfl_mav.controller.flight_computer import FlightComputer
 
     def law(mode):
@@ -507,8 +508,13 @@ def test_safe_law_attacked_tick_compiled_is_the_python_tick(held, monkeypatch):
                 lw.hold_m = list(hold) if held else None
                 lw.projector.lam = None
         q = [rng.gauss(0, 0.1) + (1.0 if k == 0 else 0.0) for k in range(4)]
-        s = State(position_m=np.array([rng.uniform(-4, 4), rng.uniform(-1, 1),
-                                       rng.uniform(2, 8)]),
+        if trial % 2:     # anywhere
+            y = [rng.uniform(-4, 4), rng.uniform(-1, 1), rng.uniform(2, 8)]
+        else:             # within the integral's band of the target, where it learns
+            x = rng.uniform(-3, 3)
+            y = (list(hold) if held else [x, math.cos(x), 8.0 - 4.0 * math.cos(x)])
+            y = [c + rng.uniform(-0.02, 0.02) for c in y]
+        s = State(position_m=np.array(y),
                   velocity_mps=np.array([rng.gauss(0, 1) for _ in range(3)]),
                   quaternion_wxyz=np.array(q),
                   body_rates_radps=np.array([rng.gauss(0, 2), rng.gauss(0, 2),
@@ -516,8 +522,9 @@ def test_safe_law_attacked_tick_compiled_is_the_python_tick(held, monkeypatch):
         rotor, attack = 1 + trial % 4, rng.choice([0.0, 0.5, 2.0, 7.0])
         a, b = py.update(s, rotor, attack), c.update(s, rotor, attack)
         assert repr(a) == repr(b), trial
-        assert repr((py.integral_ms, py.hold_m, py.projector.lam)) == \
-            repr((c.integral_ms, c.hold_m, c.projector.lam)), trial
+        assert repr((py.integral_ms, py.hold_m, py.projector.lam, py.drift_mps,
+                     py.drift_age_s)) == \
+            repr((c.integral_ms, c.hold_m, c.projector.lam, c.drift_mps, c.drift_age_s)), trial
     assert any(x != 0.0 for x in py.integral_ms)
 
 

@@ -35,14 +35,18 @@ velocity zero). Its poles are a triple one at −ω_p (ω_p = 1.25 rad/s): k_p =
 k_i = ω_p³. The integral is what makes the law precise: the steady forces it does not model
 (the model's mass error Δm g, drag, the spinning attitude loop's bias) are a constant
 acceleration demand, which a PD alone leaves as an offset Δm g/k_p (0.10 m at 5 % mass
-error) and the integral removes. A stiffer loop (ω_p = 2 rad/s) hands the vehicle back to TFL
-within ~10 mm after the paper's zero-attack stretch instead of ~50 mm, but costs a dead
-rotor with motor lag or a 250 Hz loop 3-6× its precision (the spinning attitude loop's
-bandwidth) and loses a 5 N constant attack (measured with `tfl-mav envelope`); a stiffness
-scheduled on the position error rings near the path (a dead rotor, exact model: 24 mm). The
-integral is bounded (±``MAX_INTEGRAL_G`` g) and frozen while the demand is limited or the
-allocation cannot make it (anti-windup, :meth:`_integrate`). The wanted acceleration is
-limited to a 30° tilt and ±0.5 g vertically: a safe law does not chase the path hard.
+error) and the integral removes. It learns only what holds the vehicle off its target: within
+``INTEGRAL_BAND_M`` of it, or farther once the vehicle has settled (conditional
+integration, :func:`~tfl_mav.control.safe.safe_step.accel_demand`). Fed on the approach after
+a take-over a metre off the path, it banked ~0.3 m s that the loop paid back as a 0.15 m
+overshoot decaying at ω_p/3, and the paper's zero-attack stretch was handed back to TFL 40-60 mm
+off. A stiffer loop (ω_p = 2 rad/s) costs a dead rotor with motor lag or a 250 Hz loop 3-6×
+its precision (the spinning attitude loop's bandwidth); a stiffness scheduled on the position
+error rings near the path. The integral is bounded (±``MAX_INTEGRAL_G`` g) and frozen while
+the demand is limited or the allocation cannot make it (anti-windup,
+:func:`~tfl_mav.control.safe.safe_step.integrated`).
+The wanted acceleration is limited to a 30° tilt and ±0.5 g vertically: a safe law does not
+chase the path hard.
 
 Thrust requests are feasible by construction: the three-rotor allocation gives up τ_p (the
 opposite rotor within [0, f_max]) before τ_q, and τ_q before u_f, so what the law asks for
@@ -58,12 +62,12 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from tfl_mav.accel import native
-from tfl_mav.control.allocation import RotorFrame, allocate_nominal, canonical_frame
+from tfl_mav.control.allocation import RotorFrame, canonical_frame
 from tfl_mav.control.path.compiled import PathKernels, compile_path
 from tfl_mav.control.path.jetcode import TraceError
 from tfl_mav.control.path.jets import Jet
 from tfl_mav.control.path.paths import Path
-from tfl_mav.control.safe import lost_rotor, safe_step
+from tfl_mav.control.safe import safe_step
 from tfl_mav.control.safe.lqr import dlqr, dlqr_zoh_many, zoh
 from tfl_mav.control.safe.safe_step import (
     KI,
@@ -72,6 +76,7 @@ from tfl_mav.control.safe.safe_step import (
     MAX_VERTICAL_G,
     POS_OMEGA,
     SafeParams,
+    SafeState,
 )
 from tfl_mav.model.state import State
 
@@ -79,9 +84,6 @@ __all__ = ["MAX_INTEGRAL_G", "MAX_TILT_RAD", "MAX_VERTICAL_G", "POS_OMEGA", "Pat
            "RecoveryLaw", "RecoveryOutput", "gain_schedule", "projector_sigma2",
            "reference_sigma2"]
 
-ATT_KP = 100.0                      # healthy reduced attitude: (10 rad/s)²
-ATT_KD = 20.0                       # … critically damped
-YAW_DAMP = 2.0                      # healthy: r decays at 2 /s
 # LQR weights on (h1, h2, p, q) and (τ_p, τ_q): Bryson's rule with 0.1 of h (≈ 6°),
 # 10 rad/s of p, q and 0.2 N m of τ_q; τ_p costs 100× (one-sided, only for a slow spin).
 # With motor lag the τ_q weight grows (:func:`lqr_r`).
@@ -311,14 +313,18 @@ class RecoveryLaw:
         # between take-overs of one flight: the steady force it has learnt (the model's mass
         # error) is the same force the next time.
         self.integral_ms = [0.0, 0.0, 0.0]
-        self._pending_error_m: tuple[float, float, float] | None = None  # this tick's e
+        # v − v_target low-passed and the filter's age (accel_demand's settled test); each
+        # start begins it again: a law that starts has not settled.
+        self.drift_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
+        self.drift_age_s = 0.0
         self._integral_top_ms = MAX_INTEGRAL_G * gravity_mps2 / KI
         # The attacked tick: safe_step's pure step, on this path's σ, compiled by the seam
         # where it is built (the projection's kernel must be generated code to be inlined).
         self._safe = SafeParams(self._step_model, speed_mps, dt_s, self._integral_top_ms,
-                                self.projector is not None)
-        self._tick = (self.projector.linked if self.projector is not None
-                      else vars(safe_step))["safe_tick"]
+                                self.projector is not None,
+                                (*self.inertia, float(k_r), float(drag_thrust_ratio_m)))
+        steps = self.projector.linked if self.projector is not None else vars(safe_step)
+        self._tick, self._healthy_tick = steps["safe_tick"], steps["healthy_tick"]
         self._tick_c: Callable[..., Any] | None = None
         if self.projector is None or self.projector.lowerable:
             def ready(core: Callable[..., Any]) -> None:
@@ -332,6 +338,7 @@ class RecoveryLaw:
     def hold(self, position_m: Sequence[float]) -> None:
         """Hold this point (altitude hold, velocity zero) instead of the path."""
         self.hold_m = [float(c) for c in position_m]
+        self.drift_age_s = 0.0
 
     def follow_path(self, lam: float | None = None, *, search: bool = False) -> None:
         """Fly the path (no held point). ``lam``: start the closest-point search at this
@@ -339,46 +346,12 @@ class RecoveryLaw:
         fresh global search instead (the vehicle may be anywhere after a held point). Left
         alone, λ is the one this law last flew with — seconds ago, perhaps another bend."""
         self.hold_m = None
+        self.drift_age_s = 0.0
         if self.projector is not None:
             if search:
                 self.projector.lam = None
             elif lam is not None and math.isfinite(lam):
                 self.projector.lam = float(lam)
-
-    def _accel_demand(self, y: Sequence[float], v: Sequence[float]
-                      ) -> tuple[float, float, float, float]:
-        """(a_x, a_y, a_z, path distance): the outer loop's wanted acceleration (m/s²,
-        :func:`~tfl_mav.control.safe.safe_step.accel_demand`) towards the closest path point (or
-        the held point), and the distance (NaN when holding)."""
-        dist = math.nan
-        proj = None
-        hold = self.hold_m
-        if hold is None and self.projector is not None:
-            proj = self.projector.project(y)
-        if proj is not None:
-            target, tangent, curvature, dist = proj
-        else:
-            if hold is None:
-                hold = self.hold_m = list(y)
-            target = tangent = curvature = (hold[0], hold[1], hold[2])
-        a0, a1, az, e, limited = safe_step.accel_demand(
-            self._safe, target, tangent, curvature, self.integral_ms, y, v, self.g,
-            1.0 if proj is not None else 0.0)
-        self._pending_error_m = None if limited else e
-        return a0, a1, az, dist
-
-    def _integrate(self) -> None:
-        """Anti-windup: the position error enters the integral only on a tick whose demand
-        was flown as asked — neither limited by the tilt/vertical caps nor clipped by the
-        allocation (a rotor at a bound: the wanted thrust or τ_q was not made) — and never
-        past MAX_INTEGRAL_G, so a wrong integral costs at most that much acceleration. An
-        attack near m g/2 leaves the side rotors almost nothing (f₁ + f₃ = u_f − 2A): an
-        integral fed through that saturation winds up into a limit cycle metres wide."""
-        e = self._pending_error_m
-        self._pending_error_m = None
-        if e is not None:
-            self.integral_ms = list(safe_step.integrated(
-                tuple(self.integral_ms), e, self.dt, self._integral_top_ms))
 
     # ------------------------------------------------------------------ gains
     def _lqr(self, r: float, ix: float, iy: float) -> Gains:
@@ -421,29 +394,38 @@ class RecoveryLaw:
             self.mass_kg = mass_kg
             m = self._step_model = (mass_kg, *self._step_model[1:])
             sp = self._safe      # SafeParams with the new model, built as the tuple it is
-            self._safe = _new_output(SafeParams, (m, sp[1], sp[2], sp[3], sp[4]))
+            self._safe = _new_output(SafeParams, (m, sp[1], sp[2], sp[3], sp[4], sp[5]))
         if attacked_rotor:
             return self._three_rotor(s, attacked_rotor, attack_n)
-        # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
-        qw, qx, qy, qz = _floats(s.quaternion_wxyz)
-        nq = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
-        qw, qx, qy, qz = qw / nq, qx / nq, qy / nq, qz / nq
-        y, v = _floats(s.position_m), _floats(s.velocity_mps)
-        p, q, r = _floats(s.body_rates_radps)
-        a0, a1, a2, dist = self._accel_demand(y, v)
-        ix, iy, iz = self.inertia
-        ell, fmax = self.arm_m, self.fmax
-        tilt_err, uf, h0, h1, _ = lost_rotor.thrust_direction(
-            (a0, a1, a2), v, (qw, qx, qy, qz), self.mass_kg, self.k_t, self.g)
-        tau_p = ix * (ATT_KP * -h1 - ATT_KD * p) + (iz - iy) * q * r + self.k_r * p
-        tau_q = iy * (ATT_KP * h0 - ATT_KD * q) + (ix - iz) * p * r + self.k_r * q
-        tau_r = -iz * YAW_DAMP * r + self.k_r * r
-        req = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m)
-        f = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, self.d_m, fmax)
-        clamped = tuple(not -1e-9 <= x <= fmax + 1e-9 for x in req)
-        if not any(clamped):
-            self._integrate()
-        return RecoveryOutput(f, f, tilt_err, dist, uf, clamped)  # type: ignore[arg-type]
+        out = self._healthy_tick(self._safe, self._state(s), (
+            _floats(s.position_m), _floats(s.velocity_mps), _floats(s.quaternion_wxyz),
+            _floats(s.body_rates_radps)))
+        return self._keep(out)
+
+    def _state(self, s: State) -> SafeState:
+        """The pure step's state from this law's (λ from a global search the first time)."""
+        proj, hold = self.projector, self.hold_m
+        if proj is not None and hold is None and proj.lam is None:
+            proj.start(_floats(s.position_m))
+        return _new_output(SafeState, (
+            proj.lam if proj is not None and proj.lam is not None else 0.0,
+            0.0 if hold is None else 1.0, _ZERO3 if hold is None else hold,
+            self.integral_ms, self.drift_mps, self.drift_age_s))
+
+    def _keep(self, out: tuple[Any, ...]) -> RecoveryOutput:
+        """Keep the pure step's new state as this law's; its output as a RecoveryOutput."""
+        (lam, holding, hold_m, integral, self.drift_mps, self.drift_age_s), \
+            (f, tilt_err, dist, uf, clamped) = out
+        proj = self.projector
+        if proj is not None and self.hold_m is None:
+            proj.lam = lam
+        if holding and self.hold_m is None:
+            self.hold_m = list(hold_m)
+        self.integral_ms = list(integral)
+        f = list(f)
+        c0, c1, c2, c3 = clamped
+        return _new_output(RecoveryOutput, (f, list(f), tilt_err, dist, uf,
+                                            (c0 != 0.0, c1 != 0.0, c2 != 0.0, c3 != 0.0)))
 
     def _three_rotor(self, s: State, attacked_rotor: int, attack_n: float) -> RecoveryOutput:
         """The three-rotor tick: the LQR gain for the canonical spin rate, then the pure
@@ -460,12 +442,7 @@ class RecoveryLaw:
         ix, iy = self.inertia[0], self.inertia[1]
         ixc, iyc = (iy, ix) if fr.swap_xy else (ix, iy)
         gains = self._lqr(0 + r20 * p + r21 * q + r22 * r, ixc, iyc)
-        proj, hold = self.projector, self.hold_m
-        if proj is not None and hold is None and proj.lam is None:
-            proj.start(_floats(s.position_m))
-        state = (proj.lam if proj is not None and proj.lam is not None else 0.0,
-                 0.0 if hold is None else 1.0, _ZERO3 if hold is None else hold,
-                 self.integral_ms)
+        state = self._state(s)
         core = self._tick_c
         out = core(self._safe, state, (s.position_m, s.velocity_mps, s.quaternion_wxyz,
                                        rates, attack_n, self._rot6[attacked_rotor],
@@ -476,20 +453,11 @@ class RecoveryLaw:
                 _floats(s.position_m), _floats(s.velocity_mps), _floats(s.quaternion_wxyz),
                 rates, attack_n, self._rot6[attacked_rotor], self._inverse_perm[attacked_rotor],
                 gains))
-        (lam, holding, hold_m, integral), (f, tilt_err, dist, uf, clamped) = out
-        if proj is not None and hold is None:
-            proj.lam = lam
-        if holding and hold is None:
-            self.hold_m = list(hold_m)
-        self.integral_ms = list(integral)
-        f = list(f)
-        c0, c1, c2, c3 = clamped
-        return _new_output(RecoveryOutput, (f, list(f), tilt_err, dist, uf,
-                                            (c0 != 0.0, c1 != 0.0, c2 != 0.0, c3 != 0.0)))
+        return self._keep(out)
 
 
 _ZERO3 = (0.0, 0.0, 0.0)
 # safe_tick's arguments' shapes, for the seam's lowering.
-_STATE0 = (0.0, 0.0, _ZERO3, _ZERO3)
+_STATE0 = (0.0, 0.0, _ZERO3, _ZERO3, _ZERO3, 0.0)
 _INPUTS0 = (_ZERO3, _ZERO3, (1.0, 0.0, 0.0, 0.0), _ZERO3, 0.0, (0,) * 6, (0,) * 4,
             ((0.0,) * 4, (0.0,) * 4))

@@ -1,13 +1,14 @@
-"""The safe law's tick with a rotor attacked, as explicit state and one pure step.
+"""The safe law's tick as explicit state and one pure step: a rotor attacked, or none.
 
 :func:`safe_tick` is :meth:`~tfl_mav.control.safe.recovery.RecoveryLaw.update` with a rotor
-attacked: the closest point of the path (:func:`closest_point`, Newton on
-⟨y − σ(λ), σ'(λ)⟩ = 0), the outer PID loop (:func:`accel_demand`), the three-rotor step
-(:func:`~tfl_mav.control.safe.lost_rotor.lost_rotor_step`) and the integral's anti-windup, in
-plain Python over tuples of floats. The path's σ kernel is linked in per path
+attacked, :func:`healthy_tick` with four healthy rotors: the closest point of the path
+(:func:`closest_point`, Newton on ⟨y − σ(λ), σ'(λ)⟩ = 0), the outer PID loop
+(:func:`accel_demand`) and its conditional integral, then the three-rotor step
+(:func:`~tfl_mav.control.safe.lost_rotor.lost_rotor_step`) or the four-rotor attitude loop
+and mixer, in plain Python over tuples of floats. The path's σ kernel is linked in per path
 (:func:`linked`: these functions with ``_sigma2`` the path's generated kernel), and the
-accelerator seam compiles the whole tick (:func:`tfl_mav.accel.native.obtain_function`) — the
-same operations in the same order, the same bits — where it is built; this very Python
+accelerator seam compiles the three-rotor tick (:func:`tfl_mav.accel.native.obtain_function`)
+— the same operations in the same order, the same bits — where it is built; this very Python
 flies otherwise. :mod:`recovery` says what the law does and why.
 """
 
@@ -17,19 +18,29 @@ import math
 from typing import Any, NamedTuple
 
 from tfl_mav.accel.frontend import relinked
-from tfl_mav.control.safe.lost_rotor import lost_rotor_step
+from tfl_mav.control.allocation import allocate_nominal
+from tfl_mav.control.safe.lost_rotor import lost_rotor_step, thrust_direction
 
-__all__ = ["MAX_INTEGRAL_G", "MAX_TILT_RAD", "MAX_VERTICAL_G", "POS_OMEGA", "SafeParams",
-           "SafeState", "accel_demand", "closest_point", "integrated", "linked", "safe_tick"]
+__all__ = ["ATT_KD", "ATT_KP", "INTEGRAL_BAND_M", "MAX_INTEGRAL_G", "MAX_TILT_RAD",
+           "MAX_VERTICAL_G", "POS_OMEGA", "SETTLED_MPS", "SETTLE_TAU_S", "YAW_DAMP", "SafeParams",
+           "SafeState", "accel_demand", "closest_point", "healthy_tick", "integrated", "linked",
+           "safe_tick", "target"]
 
 MAX_TILT_RAD = math.radians(30.0)   # outer loop: horizontal acceleration ≤ g tan 30°
 MAX_VERTICAL_G = 0.5                # outer loop: |vertical acceleration| ≤ 0.5 g
 POS_OMEGA = 1.25  # outer-loop triple pole (rad/s)
 MAX_INTEGRAL_G = 0.2                # |integral action| ≤ 0.2 g per axis (a 20 % model error)
+INTEGRAL_BAND_M = 0.05              # the integral learns within this of its target (m),
+                                    # or farther once the vehicle has settled
 TAN_MAX_TILT = math.tan(MAX_TILT_RAD)
 KP = 3.0 * POS_OMEGA * POS_OMEGA      # outer-loop PID gains: (s + ω_p)³
 KD = 3.0 * POS_OMEGA
 KI = POS_OMEGA * POS_OMEGA * POS_OMEGA
+SETTLED_MPS = POS_OMEGA * INTEGRAL_BAND_M   # |v − v_target| low-passed below this (m/s) …
+ATT_KP = 100.0                      # four healthy rotors: reduced attitude (10 rad/s)² …
+ATT_KD = 20.0                       # … critically damped
+YAW_DAMP = 2.0                      # … and r decays at 2 /s
+SETTLE_TAU_S = 0.5                  # … over this: a spinning vehicle's wobble (≥ 5 Hz) averages out
 
 
 class SafeParams(NamedTuple):
@@ -40,6 +51,8 @@ class SafeParams(NamedTuple):
     dt_s: float                 # control period (s): the integral's step
     integral_top_ms: float      # |∫e| ≤ this (m s): MAX_INTEGRAL_G g / k_i
     has_path: bool              # False: a point is held, no path to project on
+    airframe: tuple[float, float, float, float, float]  # (I_x, I_y, I_z kg m², k_r N m s,
+                                # d m): the four-rotor attitude loop's (:func:`healthy_tick`)
 
 
 class SafeState(NamedTuple):
@@ -49,6 +62,10 @@ class SafeState(NamedTuple):
     holding: float                      # 1.0: holding ``hold_m`` (told to, or the path lost)
     hold_m: tuple[float, float, float]  # the held point (m)
     integral_ms: tuple[float, float, float]     # ∫ position error (m s, inertial)
+    drift_mps: tuple[float, float, float]       # v − v_target across the path, low-passed
+                                                # over SETTLE_TAU_S (m/s)
+    drift_age_s: float                  # how long the filter has run (0: the law has just
+                                        # started: it starts at the first velocity)
 
 
 def _sigma2(a0: tuple[float]) -> tuple[float, ...]:
@@ -97,20 +114,50 @@ def closest_point(lam: float, y: tuple[float, float, float]
 
 def accel_demand(p: SafeParams, target: tuple[float, float, float],
                  tangent: tuple[float, float, float], curvature: tuple[float, float, float],
-                 integral: tuple[float, float, float], y: tuple[float, float, float],
+                 integral: tuple[float, float, float], drift: tuple[float, float, float],
+                 drift_age_s: float, y: tuple[float, float, float],
                  v: tuple[float, float, float], g: float, on_path: float
-                 ) -> tuple[float, float, float, tuple[float, float, float], float]:
+                 ) -> tuple[float, float, float, tuple[float, float, float], float,
+                            tuple[float, float, float], float]:
     """The outer loop's wanted acceleration (m/s², z up): PID towards ``target`` (the
     closest path point, with the path's speed × tangent and centripetal term when
     ``on_path``; else a held point, velocity zero), limited to MAX_TILT_RAD and
-    ±MAX_VERTICAL_G. Returns (a_x, a_y, a_z, the position error e m, limited 1/0)."""
+    ±MAX_VERTICAL_G. Returns (a_x, a_y, a_z, the position error e m, integrate 1/0, the new
+    drift m/s and its age s).
+
+    ``integrate`` says whether e may enter the integral (conditional integration): not on a
+    limited demand, and beyond INTEGRAL_BAND_M of the target only once the vehicle has
+    settled: v − v_target across the path, low-passed over SETTLE_TAU_S (``drift``, started at
+    the first tick's value when ``drift_age_s`` is 0) below SETTLED_MPS, the filter at least
+    SETTLE_TAU_S old — a vehicle at rest when a law starts is about to move, not held off.
+    An integral fed on the approach (a take-over a metre off the path) is a debt of ~0.3 m s
+    that the loop pays back as an overshoot of 0.15 m decaying at ω_p/3; a steady force (mass
+    error, drag) holds the vehicle still off its target, settled, and is learnt wherever it
+    leaves it."""
     e = (target[0] - y[0], target[1] - y[1], target[2] - y[2])
     ff = (0.0, 0.0, 0.0)
+    vt = (0.0, 0.0, 0.0)
     if on_path:
         sp = p.speed_mps
         sp2 = sp * sp
+        vt = (sp * tangent[0], sp * tangent[1], sp * tangent[2])
         ff = (KD * sp * tangent[0] + sp2 * curvature[0], KD * sp * tangent[1]
               + sp2 * curvature[1], KD * sp * tangent[2] + sp2 * curvature[2])
+    # Settled: the vehicle moves across the path (or against a held point) slower than the
+    # loop closes a band-sized error. On an approach it is not; held off by a steady force it
+    # is. Along the path it may fly faster or slower than the path speed (a tangential force
+    # against k_d: the closest point moves with it, so no error, and nothing to learn).
+    wx, wy, wz = v[0] - vt[0], v[1] - vt[1], v[2] - vt[2]
+    wt = wx * tangent[0] + wy * tangent[1] + wz * tangent[2] if on_path else 0.0
+    if on_path:
+        wx, wy, wz = wx - wt * tangent[0], wy - wt * tangent[1], wz - wt * tangent[2]
+    if drift_age_s > 0.0:
+        k = p.dt_s / SETTLE_TAU_S
+        wx, wy, wz = (drift[0] + k * (wx - drift[0]), drift[1] + k * (wy - drift[1]),
+                      drift[2] + k * (wz - drift[2]))
+    settled = (wx * wx + wy * wy + wz * wz <= SETTLED_MPS * SETTLED_MPS
+               and drift_age_s >= SETTLE_TAU_S)
+    near = e[0] * e[0] + e[1] * e[1] + e[2] * e[2] <= INTEGRAL_BAND_M * INTEGRAL_BAND_M
     a0 = KP * e[0] - KD * v[0] + ff[0] + KI * integral[0]
     a1 = KP * e[1] - KD * v[1] + ff[1] + KI * integral[1]
     a2 = KP * e[2] - KD * v[2] + ff[2] + KI * integral[2]
@@ -118,18 +165,24 @@ def accel_demand(p: SafeParams, target: tuple[float, float, float],
     az = lim if a2 > lim else (-lim if a2 < -lim else a2)
     ah = math.hypot(a0, a1)
     amax = (g + az) * TAN_MAX_TILT
-    limited = 1.0 if az != a2 else 0.0
+    limited = az != a2
     if ah > amax:
         a0 *= amax / ah
         a1 *= amax / ah
-        limited = 1.0
-    return a0, a1, az, e, limited
+        limited = True
+    integrate = 1.0 if (near or settled) and not limited else 0.0
+    return a0, a1, az, e, integrate, (wx, wy, wz), drift_age_s + p.dt_s
 
 
 def integrated(integral: tuple[float, float, float], e: tuple[float, float, float],
                dt_s: float, top_ms: float) -> tuple[float, float, float]:
-    """∫e after one tick flown as asked (anti-windup: :meth:`RecoveryLaw._integrate`): a
-    non-finite error is left out, each axis bounded by ``top_ms``."""
+    """∫e after one tick flown as asked: the position error enters only on a tick whose
+    demand was flown as asked — neither limited by the tilt/vertical caps nor clipped by the
+    allocation (a rotor at a bound: the wanted thrust or τ_q was not made; the callers
+    decide) — and never past ``top_ms`` per axis, so a wrong integral costs at most
+    MAX_INTEGRAL_G of acceleration. An attack near m g/2 leaves the side rotors almost
+    nothing (f₁ + f₃ = u_f − 2A): an integral fed through that saturation winds up into a
+    limit cycle metres wide. A non-finite error is left out."""
     e0, e1, e2 = e
     if math.isfinite(e0 + e1 + e2):          # a finite sum: all three finite
         i0, i1, i2 = integral
@@ -138,6 +191,25 @@ def integrated(integral: tuple[float, float, float], e: tuple[float, float, floa
                     (top_ms if i1 > top_ms else (-top_ms if i1 < -top_ms else i1)),
                     (top_ms if i2 > top_ms else (-top_ms if i2 < -top_ms else i2)))
     return integral
+
+
+def target(p: SafeParams, lam: float, holding: float, hold: tuple[float, float, float],
+           y: tuple[float, float, float]) -> tuple[Any, ...]:
+    """What the outer loop flies to: (found 1/0, λ, holding 1/0, the held point, the target
+    point, unit tangent, curvature vector κN, path distance m — NaN when holding). The
+    closest path point; a held point when told to hold or when the path is lost (then
+    where the vehicle is)."""
+    found, point, tangent, curvature, dist = 0.0, hold, hold, hold, math.nan
+    if p.has_path and not holding:
+        found, lam, point, tangent, curvature, dist = closest_point(lam, y)
+        if not found:
+            dist = math.nan
+    if not found:
+        if not holding:             # no path, or it was lost: hold where the vehicle is
+            hold = (y[0], y[1], y[2])
+            holding = 1.0
+        point = hold
+    return found, lam, holding, hold, point, tangent, curvature, dist
 
 
 def _pick(values: tuple[float, ...], k: float) -> float:
@@ -163,30 +235,58 @@ def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
     qw, qx, qy, qz = quat
     nq = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
     q = (qw / nq, qx / nq, qy / nq, qz / nq)
-    lam, holding, hold, integral = s
+    lam, holding, hold, integral, drift, drift_age = s
     g, fmax = p.model[2], p.model[4]
-    found, point, tangent, curvature, dist = 0.0, hold, hold, hold, math.nan
-    if p.has_path and not holding:
-        found, lam, point, tangent, curvature, dist = closest_point(lam, y)
-        if not found:
-            dist = math.nan
-    if not found:
-        if not holding:             # no path, or it was lost: hold where the vehicle is
-            hold = (y[0], y[1], y[2])
-            holding = 1.0
-        point = hold
-    a0, a1, a2, e, limited = accel_demand(p, point, tangent, curvature, integral, y, v, g,
-                                          found)
+    found, lam, holding, hold, point, tangent, curvature, dist = target(p, lam, holding, hold,
+                                                                        y)
+    a0, a1, a2, e, integrate, drift, drift_age = accel_demand(
+        p, point, tangent, curvature, integral, drift, drift_age, y, v, g, found)
     tilt_err, uf, c0, c1, c2, c3, made, d0, d2, d3 = lost_rotor_step(
         (a0, a1, a2), (v[0], v[1], v[2]), q, rates, rot, (*gains[0], *gains[1]), p.model,
         attack_n)
-    if made and not limited:
+    if made and integrate:
         integral = integrated(integral, e, p.dt_s, p.integral_top_ms)
     canon, req = (c0, c1, c2, c3), (d0, c1, d2, d3)
     hi = fmax + 1e-9
     f = tuple(_pick(canon, inverse[j]) for j in range(4))
     clamped = tuple(0.0 if -1e-9 <= _pick(req, inverse[j]) <= hi else 1.0 for j in range(4))
-    return SafeState(lam, holding, hold, integral), (f, tilt_err, dist, uf, clamped)
+    return (SafeState(lam, holding, hold, integral, drift, drift_age),
+            (f, tilt_err, dist, uf, clamped))
+
+
+def healthy_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
+                 ) -> tuple[SafeState, tuple[Any, ...]]:
+    """One tick with four healthy rotors (a take-over with no rotor attacked): the outer loop
+    as :func:`safe_tick` flies it, the reduced attitude h = Rᵀ n by a PD on (−h₂, h₁) through
+    τ_p, τ_q with the gyroscopic terms, a yaw-rate damper, and the nominal mixer (eq. (4)
+    inverted, yaw given up first, each rotor within [0, f_max]). ``inputs``: position m,
+    velocity m/s, attitude (w, x, y, z; normalised here), body rates rad/s.
+
+    Returns the new state and (the thrusts of rotors 1-4 N, tilt error rad, path distance m
+    — NaN when holding —, u_f N, clamped 1/0 per rotor: its demand left [0, f_max])."""
+    y, v, quat, rates = inputs
+    qw, qx, qy, qz = quat
+    nq = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    q = (qw / nq, qx / nq, qy / nq, qz / nq)
+    lam, holding, hold, integral, drift, drift_age = s
+    m, k_t, g, ell, fmax = p.model
+    found, lam, holding, hold, point, tangent, curvature, dist = target(p, lam, holding, hold,
+                                                                        y)
+    a0, a1, a2, e, integrate, drift, drift_age = accel_demand(
+        p, point, tangent, curvature, integral, drift, drift_age, y, v, g, found)
+    ix, iy, iz, k_r, d_m = p.airframe
+    pr, qr, rr = rates
+    tilt_err, uf, h0, h1, _h2 = thrust_direction((a0, a1, a2), v, q, m, k_t, g)
+    tau_p = ix * (ATT_KP * -h1 - ATT_KD * pr) + (iz - iy) * qr * rr + k_r * pr
+    tau_q = iy * (ATT_KP * h0 - ATT_KD * qr) + (ix - iz) * pr * rr + k_r * qr
+    tau_r = -iz * YAW_DAMP * rr + k_r * rr
+    req = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, d_m)
+    f = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, d_m, fmax)
+    clamped = tuple(0.0 if -1e-9 <= x <= fmax + 1e-9 else 1.0 for x in req)
+    if integrate and not (clamped[0] or clamped[1] or clamped[2] or clamped[3]):
+        integral = integrated(integral, e, p.dt_s, p.integral_top_ms)
+    return (SafeState(lam, holding, hold, integral, drift, drift_age),
+            (tuple(f), tilt_err, dist, uf, clamped))
 
 
 def linked(sigma2: Any) -> dict[str, Any]:
