@@ -44,11 +44,13 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Sequence
-from typing import NamedTuple
+import weakref
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 
+from tfl_mav.accel import native
 from tfl_mav.build import (
     build_controller,
     build_detector,
@@ -134,6 +136,8 @@ _NAN = math.nan
 _ZERO2, _ZERO4 = (0.0, 0.0), (0.0, 0.0, 0.0, 0.0)
 _ZERO_XI = (_ZERO4, _ZERO4)
 _sqrt, _acos, _hypot, _isfinite = math.sqrt, math.acos, math.hypot, math.isfinite
+_STAY, _NO_START = int(Why.STAY), int(Start.NONE)     # read every tick: plain ints
+_TFL, _SPIN = int(Law.TFL), int(Law.SPIN)
 _ndarray = np.ndarray
 
 
@@ -219,6 +223,8 @@ class FlightComputer:
                              or self.controller.lag_inverter is not None)
         self.internal_errors = 0   # ticks a law raised (held the last command)
         self._last_t: float | None = None
+        self._supervise_core: Callable[..., Any] | None = None
+        self._obtain_supervisor()
 
     @property
     def law_name(self) -> str:
@@ -331,16 +337,16 @@ class FlightComputer:
                 sup = self._decide(self._inputs(0.0, rotor, estimate, spread, None, math.nan,
                                                 state, first=True),
                                    state, events, estimate, rotor, None)
-            if sup.law == Law.TFL:
+            if sup.law == _TFL:
                 self._delivered = None
                 out = ctrl.update(state, omega, dt_s=dt_s,
                                   attack_n=estimate if rotor else None)
                 sup = self._decide(self._inputs(dt, rotor, estimate, spread, out, math.nan,
                                                 state), state, events, estimate, rotor, out)
-                if sup.law == Law.TFL:
+                if sup.law == _TFL:
                     return self._result(out.rotor_thrust_n, None, out, detection, rotor,
                                         estimate, new, events)
-            if sup.law == Law.SPIN:
+            if sup.law == _SPIN:
                 return self._fly_spin(dt, state, rotor, estimate, spread, rpm, events,
                                       detection, new)
             return self._fly_safe(dt, state, rotor, estimate, spread, omega, events,
@@ -473,17 +479,40 @@ class FlightComputer:
             tuple(thrust))
         return self._result(thrust, None, law, detection, rotor, estimate, new, events)
 
+    def _obtain_supervisor(self) -> None:
+        """The supervisor's step compiled by the seam (the same decisions, bit for bit:
+        tests/contract/test_supervisor_seam.py), used once it is built; Python until then."""
+        ref = weakref.ref(self)
+
+        def ready(core: Callable[..., Any]) -> None:
+            target = ref()
+            if target is not None:
+                target._supervise_core = core   # one reference store: atomic under the GIL
+
+        example = (self.supervisor, self._sup, _new(SupervisorInputs, (
+            0.0, 0, _NAN, 0.0, False, False, _ZERO4, _NAN, (1.0, 0.0, 0.0, 0.0),
+            (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), _NAN, False)))
+        core = native.obtain_function(supervise, example, ready)
+        if core is not None:
+            ready(core)
+
     def _decide(self, inputs: SupervisorInputs, state: State, events: list[str],
                 estimate: float, rotor: int, out: ControlOutput | None) -> SupervisorState:
         """One supervisor step; start the law it chose as it says; the words for it."""
         old = self._sup
-        self._sup, (law, why, start) = supervise(self.supervisor, old, inputs)
-        if why != Why.STAY:
+        core = self._supervise_core
+        r = core(self.supervisor, old, inputs) if core is not None else None
+        if r is None:        # not compiled yet, or declined (Python raises there): Python
+            r = supervise(self.supervisor, old, inputs)
+        self._sup, (law, why, start) = r
+        if why != _STAY:
             distance = inputs.safe_distance_m
             text = describe(why, law, rotor=rotor, attack_n=estimate, inputs=inputs,
                             since_s=old.since_s + inputs.dt_s, distance_m=distance)
             if text and (law != old.law or why == Why.FOLLOW):
                 events.append(text)
+        if start == _NO_START:
+            return self._sup
         rec = self.recovery
         if start == Start.SAFE_HOLD:
             rec.hold(state.position_m)
@@ -540,7 +569,7 @@ class FlightComputer:
         out = rec.update(state, rotor, a_n, mass_kg=mass)
         dist = out.path_distance_m
         self._last_safe_thrust = out.thrust_n
-        if flying.law != Law.TFL:      # a take-over this tick is judged from the next one
+        if flying.law != _TFL:      # a take-over this tick is judged from the next one
             self._decide(self._inputs(dt, rotor, estimate, spread, None, dist, state), state,
                          events, estimate, rotor, None)
         thrust = out.thrust_n
@@ -557,7 +586,7 @@ class FlightComputer:
                 command[rotor - 1] = thrust[rotor - 1]   # not ours to command
                 delivered[rotor - 1] = thrust[rotor - 1]
             thrust = command
-        self._delivered = delivered if self._sup.law != Law.TFL else None
+        self._delivered = delivered if self._sup.law != _TFL else None
         # the output; after a hand-back this tick is still the safe law's
         mode = _LOST_ROTOR if rotor else _RECOVERY
         deg = out.tilt_error_rad * _RAD_TO_DEG
