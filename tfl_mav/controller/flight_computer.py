@@ -313,7 +313,9 @@ class FlightComputer:
             # ω (rad/s) for the state filter, the yaw-rate model and the law's lag inverse; the
             # law reads it only with motor lag (TFLController.update), so nothing else needs it.
             omega = [r * RPM_TO_RADPS for r in rpm] if self._needs_omega else None
-            estimate, spread = self._estimate(rotor, estimate, rpm, detection)
+            spread = 0.0
+            if self.attack_filter is not None:
+                estimate, spread = self._estimate(rotor, estimate, rpm, detection)
             if rotor != ctrl.attacked_rotor:     # the allocation changes; the estimate
                 ctrl.set_attack(rotor, estimate if rotor else 0.0)   # goes with every tick
             last = self._last_t
@@ -358,8 +360,9 @@ class FlightComputer:
                   detection: DetectorOutput | None) -> tuple[float, float]:
         """The attacked rotor's thrust A (N) for the laws and its standard deviation σ_A (N)
         (:mod:`~tfl_mav.control.detect.attack_estimate`): the filter over the rotor's
-        measured speed with the motor-lag model and the ESC noise; without noise the
-        measured speed is the truth (σ_A = 0) and A = k_f ω²."""
+        measured speed with the motor-lag model and the ESC noise; without noise (no
+        filter: the tick does not call this) the measured speed is the truth (σ_A = 0)
+        and A = k_f ω²."""
         est = self.attack_filter
         if est is None:
             return raw_n, 0.0
@@ -390,17 +393,21 @@ class FlightComputer:
 
     def _inputs(self, dt: float, rotor: int, estimate: float, spread: float,
                 out: ControlOutput | None, safe_distance_m: float, state: State, *,
-                first: bool = False) -> SupervisorInputs:
-        """What the supervisor is told this tick (:class:`SupervisorInputs`)."""
-        tfl_flew = out is not None
-        demand = (out.demand_n if tfl_flew and out.demand_n else _ZERO4)
-        # SupervisorInputs' fields in order, built as the tuple it is (every tick).
-        return _new(SupervisorInputs, (
-            dt, rotor, estimate, spread, tfl_flew,
-            tfl_flew and out.mode is not _FALLBACK, demand, safe_distance_m,
-            _floats(state.quaternion_wxyz), _floats(state.body_rates_radps),
-            _floats(state.velocity_mps), self._distance_to_path(state) if first else math.nan,
-            self._spin_ready(rotor, estimate)))
+                first: bool = False) -> tuple[Any, ...]:
+        """What the supervisor is told this tick: :class:`SupervisorInputs`' fields in
+        order, as a plain tuple (the compiled step reads them by position; :meth:`_decide`
+        names them only where Python reads them). The state's vectors go as they are:
+        the step reads any sequence of floats."""
+        if out is None:
+            tfl_flew = answer = False
+            demand = _ZERO4
+        else:
+            tfl_flew, answer = True, out.mode is not _FALLBACK
+            demand = out.demand_n or _ZERO4
+        return (dt, rotor, estimate, spread, tfl_flew, answer, demand, safe_distance_m,
+                state.quaternion_wxyz, state.body_rates_radps, state.velocity_mps,
+                self._distance_to_path(state) if first else _NAN,
+                self._spin_ready(rotor, estimate) if rotor else False)
 
     def _spin_ready(self, rotor: int, estimate: float) -> bool:
         """The spin law is built for ``rotor`` (its table is made once the attack comes
@@ -481,7 +488,7 @@ class FlightComputer:
 
     def _obtain_supervisor(self) -> None:
         """The supervisor's step compiled by the seam (the same decisions, bit for bit:
-        tests/contract/test_supervisor_seam.py), used once it is built; Python until then."""
+        tests/contract/test_composition_seam.py), used once it is built; Python until then."""
         ref = weakref.ref(self)
 
         def ready(core: Callable[..., Any]) -> None:
@@ -496,16 +503,18 @@ class FlightComputer:
         if core is not None:
             ready(core)
 
-    def _decide(self, inputs: SupervisorInputs, state: State, events: list[str],
+    def _decide(self, fields: tuple[Any, ...], state: State, events: list[str],
                 estimate: float, rotor: int, out: ControlOutput | None) -> SupervisorState:
-        """One supervisor step; start the law it chose as it says; the words for it."""
+        """One supervisor step on the inputs' ``fields`` (:meth:`_inputs`); start the law it
+        chose as it says; the words for it."""
         old = self._sup
         core = self._supervise_core
-        r = core(self.supervisor, old, inputs) if core is not None else None
+        r = core(self.supervisor, old, fields) if core is not None else None
         if r is None:        # not compiled yet, or declined (Python raises there): Python
-            r = supervise(self.supervisor, old, inputs)
+            r = supervise(self.supervisor, old, _new(SupervisorInputs, fields))
         self._sup, (law, why, start) = r
         if why != _STAY:
+            inputs = _new(SupervisorInputs, fields)
             distance = inputs.safe_distance_m
             text = describe(why, law, rotor=rotor, attack_n=estimate, inputs=inputs,
                             since_s=old.since_s + inputs.dt_s, distance_m=distance)

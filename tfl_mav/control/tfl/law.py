@@ -49,6 +49,8 @@ from tfl_mav.control.tfl import step
 from tfl_mav.control.tfl.estimators import (
     DOB_START,
     TDOB_START,
+    MassModel,
+    MassState,
     mass_model,
     mass_start,
     mass_update,
@@ -146,6 +148,20 @@ def as_state(s: Any) -> TFLState:
     return TFLState(*(_NESTED[i](*x) if i in _NESTED else x for i, x in enumerate(s)))
 
 
+def mass_observe(m: MassModel, s: MassState, dt_s: float, q: Sequence[float],
+                 v: Sequence[float], thrust_n: float) -> MassState:
+    """The mass estimator fed a tick another law flew (:meth:`TFLController.track`): b3,
+    R's last column, from the attitude ``q`` (w, x, y, z) by the operations
+    law_math.rotation computes it with, then :func:`mass_update` with the velocity ``v``
+    (m/s) and the total thrust applied over the last period (N). Pure: the seam compiles
+    it."""
+    w, x, y, z = q
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    b3 = (2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y))
+    return mass_update(m, s, dt_s, v, thrust_n, b3)
+
+
 class TFLController:
     """The TFL path-following law with a dynamic extension on the total thrust.
 
@@ -185,6 +201,8 @@ class TFLController:
         self._linked_for: PathTracker | None = None
         self._step: Callable[..., Any] = step.tfl_step
         self._core: Callable[..., Any] | None = None
+        self._track_core: Callable[..., Any] | None = None
+        self._obtain_track_core()
         if type(self.tracker) is CompiledPathTracker:
             k = self.tracker.kernels
             ns = step.linked(k.sigma2.fn, k.sigma5.fn, k.s4.fn, _pi_kernel().fn)
@@ -204,6 +222,21 @@ class TFLController:
                                                          (1.0, 0.0, 0.0, 0.0), (0.0,) * 3,
                                                          *self._free, 0.0, 0.0, 0.0))
         core = native.obtain_function(self._step, example, ready)
+        if core is not None:
+            ready(core)
+
+    def _obtain_track_core(self) -> None:
+        """:func:`mass_observe` compiled by the seam, for :meth:`track`."""
+        ref = weakref.ref(self)
+
+        def ready(core: Callable[..., Any]) -> None:
+            target = ref()
+            if target is not None:
+                target._track_core = core
+
+        st = as_state(self.state)
+        example = (self.params.mass, st.mass, 0.001, (1.0, 0.0, 0.0, 0.0), (0.0,) * 3, 1.0)
+        core = native.obtain_function(mass_observe, example, ready)
         if core is not None:
             ready(core)
 
@@ -329,13 +362,11 @@ class TFLController:
         if not p.use_mass:
             return
         st = as_state(self.state)
-        # b3, R's last column, by the operations law_math.rotation computes it with
-        w, x, y, z = _floats(s.quaternion_wxyz)
-        n = math.sqrt(w * w + x * x + y * y + z * z)
-        w, x, y, z = w / n, x / n, y / n, z / n
-        b3 = (2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y))
-        mass = mass_update(p.mass, st.mass, p.dt_s, _floats(s.velocity_mps),
-                           float(sum(applied_n)), b3)
+        q, v, thrust = _floats(s.quaternion_wxyz), _floats(s.velocity_mps), float(sum(applied_n))
+        core = self._track_core
+        mass = core(p.mass, st.mass, p.dt_s, q, v, thrust) if core is not None else None
+        if mass is None:        # not compiled, or declined (Python raises there): Python
+            mass = mass_observe(p.mass, st.mass, p.dt_s, q, v, thrust)
         self.state = _new_tuple(TFLState, (*st[:_MASS], mass, *st[_MASS + 1:]))
 
     def set_attack(self, rotor: int, estimate_n: float) -> None:

@@ -1,7 +1,11 @@
-"""The supervisor compiled by the seam decides what the Python step decides, bit for bit and
-type for type (the law, the reason and the start as ints, ``holding`` a bool, the state a
-:class:`SupervisorState`), over random and edge inputs in every mode — and along chains of
-ticks, where the hysteresis timers and the window shares build up."""
+"""The steps the flight computer composes around the laws, compiled by the seam, return
+what the Python steps return, bit for bit and type for type.
+
+* The supervisor (the law, the reason and the start as ints, ``holding`` a bool, the state
+  a :class:`SupervisorState`), over random and edge inputs in every mode — and along chains
+  of ticks, where the hysteresis timers and the window shares build up.
+* The TFL law's mass estimator fed a tick another law flew
+  (:func:`~tfl_mav.control.tfl.law.mass_observe`)."""
 
 from __future__ import annotations
 
@@ -12,6 +16,8 @@ import struct
 import pytest
 
 from tfl_mav.accel import native
+from tfl_mav.control.tfl.estimators import MassState, mass_model, mass_start
+from tfl_mav.control.tfl.law import mass_observe
 from tfl_mav.controller.supervisor import (
     SupervisorInputs,
     SupervisorState,
@@ -122,3 +128,27 @@ def test_along_chains_of_ticks_the_timers_and_shares_agree(compiled, mode):
             s = want[0]
         switches += s.switches
     assert mode == "tfl" or switches > 0        # the chains reach the switching rules
+
+
+def test_the_compiled_mass_observer_is_the_python_one():
+    m = mass_model(0.75, 9.81, 0.1)
+    example = (m, mass_start(0.75), 0.001, (1.0, 0.0, 0.0, 0.0), (0.0,) * 3, 1.0)
+    compiled = native.build_function(mass_observe, example)
+    rng = random.Random(2)
+    s = mass_start(0.75)
+    for k in range(20000):
+        if k % 500 == 0:
+            s = rng.choice((mass_start(rng.uniform(0.5, 1.0)), s))
+        q = tuple(rng.gauss(0.0, 1.0) for _ in range(4)) if rng.random() < 0.97 else \
+            rng.choice(((0.0,) * 4, (math.nan, 1.0, 0.0, 0.0), (math.inf, 0.0, 0.0, 0.0)))
+        v = tuple(rng.gauss(0.0, 2.0) for _ in range(3))
+        thrust = rng.choice((rng.uniform(0.0, 20.0), 0.0, math.nan))
+        dt = rng.choice((0.001, 0.002, 0.0))
+        try:
+            want = mass_observe(m, s, dt, q, v, thrust)
+        except (ZeroDivisionError, ValueError, OverflowError):
+            want = None
+        got = compiled(m, s, dt, q, v, thrust)
+        assert (got is None) if want is None else _same(got, want), (s, dt, q, v, thrust)
+        if want is not None and type(want) is MassState and want.mass_kg == want.mass_kg:
+            s = want
