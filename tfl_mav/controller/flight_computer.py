@@ -178,6 +178,7 @@ class FlightComputer:
                                     design_gains=design_gains,
                                     motor_time_constant_s=mp.motor_time_constant_s)
         self._weight_n = mp.mass_kg * mp.gravity_mps2
+        self._spin_from_n = self._weight_n - 2.0   # 2A above it: the spin law is built
         # Which law flies: the supervisor's constants and state (supervisor.py).
         mode = scenario.controller.supervisor
         self.supervisor = supervisor_params(mode, self._weight_n, mp.thrust_max_n,
@@ -343,7 +344,7 @@ class FlightComputer:
                 self._delivered = None
                 out = ctrl.update(state, omega, dt_s=dt_s,
                                   attack_n=estimate if rotor else None)
-                sup = self._decide(self._inputs(dt, rotor, estimate, spread, out, math.nan,
+                sup = self._decide(self._inputs(dt, rotor, estimate, spread, out, _NAN,
                                                 state), state, events, estimate, rotor, out)
                 if sup.law == _TFL:
                     return self._result(out.rotor_thrust_n, None, out, detection, rotor,
@@ -414,11 +415,11 @@ class FlightComputer:
         within 1 N of m g/2: 1.6 s of computing, so not for every attack). ``spin_build``
         "sync" builds it there and then (offline, lockstep: no deadline, deterministic);
         "async" on a background thread, used once ready (real time: no tick waits)."""
-        if not rotor or self.supervisor.mode != 0 or not self.spin_enabled:
-            return False
-        if rotor in self._spin_laws:
-            return True
-        if not 2.0 * estimate > self._weight_n - 2.0:
+        if rotor in self._spin_laws:      # built: only ever for mode auto, spin enabled
+            return self.spin_enabled
+        # the attack well below m g/2 first: what an attacked TFL tick finds, cheapest
+        if not (rotor and 2.0 * estimate > self._spin_from_n) \
+                or self.supervisor.mode != 0 or not self.spin_enabled:
             return False
         key = self._spin_key(rotor)
         if key in _SPIN_LAWS:
