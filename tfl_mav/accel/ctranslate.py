@@ -14,7 +14,6 @@ same bits is said there.
 from __future__ import annotations
 
 import ast
-from collections.abc import Callable
 
 from tfl_mav.accel.cruntime import PRELUDE
 

@@ -42,7 +42,7 @@ class _Method:
 
 
 def _is_int(e: Any) -> bool:
-    return isinstance(e, ast.Constant) and type(e.value) is int or (
+    return (isinstance(e, ast.Constant) and type(e.value) is int) or (
         isinstance(e, ast.UnaryOp) and isinstance(e.op, ast.USub) and _is_int(e.operand))
 
 
