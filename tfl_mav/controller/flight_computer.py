@@ -137,6 +137,7 @@ _ZERO2, _ZERO4 = (0.0, 0.0), (0.0, 0.0, 0.0, 0.0)
 _ZERO_XI = (_ZERO4, _ZERO4)
 _sqrt, _acos, _hypot, _isfinite = math.sqrt, math.acos, math.hypot, math.isfinite
 _STAY, _NO_START = int(Why.STAY), int(Start.NONE)     # read every tick: plain ints
+_OUTPUT_DEFAULTS = tuple(ControlOutput._field_defaults[f] for f in ControlOutput._fields[15:])
 _TFL, _SPIN = int(Law.TFL), int(Law.SPIN)
 _ndarray = np.ndarray
 
@@ -575,7 +576,8 @@ class FlightComputer:
             ctrl.track(state, self._delivered)   # learns from what acted over it
         # The estimated mass once it has learnt for a second (its first samples, from a
         # restart or a fall, are what the model says better than the estimate does).
-        mass = ctrl.mass_kg if ctrl.mass_learnt_s >= MASS_TRUSTED_S else None
+        mass_kg = ctrl.mass_kg
+        mass = mass_kg if ctrl.mass_learnt_s >= MASS_TRUSTED_S else None
         out = rec.update(state, rotor, a_n, mass_kg=mass)
         dist = out.path_distance_m
         self._last_safe_thrust = out.thrust_n
@@ -602,9 +604,12 @@ class FlightComputer:
         deg = out.tilt_error_rad * _RAD_TO_DEG
         reason = (_TILT_TEXT[mode][round(deg)] if 0.0 <= deg <= 180.0
                   else f"{_MODE_TEXT[mode]}: tilt error {deg:.0f} deg")
-        law = ControlOutput(   # positional: the fields in order (rotor_thrust_n … demand_n)
+        # ControlOutput's fields in order (rotor_thrust_n … demand_n), built as the tuple it
+        # is; the fields after them, if any, at their defaults
+        law = _new(ControlOutput, (
             list(thrust), mode, list(out.clamped), _ZERO_XI, _ZERO4, _ZERO2, dist, _NAN, _NAN,
-            out.uf_n, self.controller.mass_kg, _ZERO2, False, reason, tuple(out.requested_n))
+            out.uf_n, mass_kg, _ZERO2, False, reason, tuple(out.requested_n),
+            *_OUTPUT_DEFAULTS))
         return self._result(thrust, out.requested_n, law, detection, rotor, estimate, new,
                             events)
 
