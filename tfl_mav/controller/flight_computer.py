@@ -338,15 +338,13 @@ class FlightComputer:
             sup = self._sup
             if sup.ticks == 0:
                 events[:0] = self._pending_events
-                sup = self._decide(self._inputs(0.0, rotor, estimate, spread, None, math.nan,
-                                                state, first=True),
-                                   state, events, estimate, rotor, None)
+                sup = self._decide(0.0, rotor, estimate, spread, None, _NAN, state, events,
+                                   first=True)
             if sup.law == _TFL:
                 self._delivered = None
                 out = ctrl.update(state, omega, dt_s=dt_s,
                                   attack_n=estimate if rotor else None)
-                sup = self._decide(self._inputs(dt, rotor, estimate, spread, out, _NAN,
-                                                state), state, events, estimate, rotor, out)
+                sup = self._decide(dt, rotor, estimate, spread, out, _NAN, state, events)
                 if sup.law == _TFL:
                     return self._result(out.rotor_thrust_n, None, out, detection, rotor,
                                         estimate, new, events)
@@ -392,24 +390,6 @@ class FlightComputer:
             mass_estimate_kg=self.controller.mass_kg, disturbance_radps2=(0.0, 0.0),
             fine_gains=False, reason=why, demand_n=tuple(hold))
         return TickResult(hold, out, None, 0, math.nan, False, list(hold), (why,))
-
-    def _inputs(self, dt: float, rotor: int, estimate: float, spread: float,
-                out: ControlOutput | None, safe_distance_m: float, state: State, *,
-                first: bool = False) -> tuple[Any, ...]:
-        """What the supervisor is told this tick: :class:`SupervisorInputs`' fields in
-        order, as a plain tuple (the compiled step reads them by position; :meth:`_decide`
-        names them only where Python reads them). The state's vectors go as they are:
-        the step reads any sequence of floats."""
-        if out is None:
-            tfl_flew = answer = False
-            demand = _ZERO4
-        else:
-            tfl_flew, answer = True, out.mode is not _FALLBACK
-            demand = out.demand_n or _ZERO4
-        return (dt, rotor, estimate, spread, tfl_flew, answer, demand, safe_distance_m,
-                state.quaternion_wxyz, state.body_rates_radps, state.velocity_mps,
-                self._distance_to_path(state) if first else _NAN,
-                self._spin_ready(rotor, estimate) if rotor else False)
 
     def _spin_ready(self, rotor: int, estimate: float) -> bool:
         """The spin law is built for ``rotor`` (its table is made once the attack comes
@@ -477,8 +457,7 @@ class FlightComputer:
         thrust = list(out.thrusts_n)
         self._delivered = None
         self._last_safe_thrust = thrust
-        self._decide(self._inputs(dt, rotor, estimate, spread, None, dist, state), state,
-                     events, estimate, rotor, None)
+        self._decide(dt, rotor, estimate, spread, None, dist, state, events)
         if self._sup.law != Law.SPIN:
             self._spin_state = None
         law = ControlOutput(
@@ -505,10 +484,27 @@ class FlightComputer:
         if core is not None:
             ready(core)
 
-    def _decide(self, fields: tuple[Any, ...], state: State, events: list[str],
-                estimate: float, rotor: int, out: ControlOutput | None) -> SupervisorState:
-        """One supervisor step on the inputs' ``fields`` (:meth:`_inputs`); start the law it
-        chose as it says; the words for it."""
+    def _decide(self, dt: float, rotor: int, estimate: float, spread: float,
+                out: ControlOutput | None, safe_distance_m: float, state: State,
+                events: list[str], *, first: bool = False) -> SupervisorState:
+        """One supervisor step; start the law it chose as it says; the words for it.
+
+        ``out``: the TFL law's output if it flew this tick; ``safe_distance_m``: the safe
+        law's distance to the path if it flew (NaN: not, or holding a point); ``first``: the
+        first tick (the distance to the path is searched for). What the supervisor is told
+        goes as :class:`SupervisorInputs`' fields in order, a plain tuple (the compiled step
+        reads them by position; named only where Python reads them); the state's vectors
+        as they are (the step reads any sequence of floats)."""
+        if out is None:
+            tfl_flew = answer = False
+            demand = _ZERO4
+        else:
+            tfl_flew, answer = True, out.mode is not _FALLBACK
+            demand = out.demand_n or _ZERO4
+        fields = (dt, rotor, estimate, spread, tfl_flew, answer, demand, safe_distance_m,
+                  state.quaternion_wxyz, state.body_rates_radps, state.velocity_mps,
+                  self._distance_to_path(state) if first else _NAN,
+                  self._spin_ready(rotor, estimate) if rotor else False)
         old = self._sup
         core = self._supervise_core
         r = core(self.supervisor, old, fields) if core is not None else None
@@ -582,8 +578,7 @@ class FlightComputer:
         dist = out.path_distance_m
         self._last_safe_thrust = out.thrust_n
         if flying.law != _TFL:      # a take-over this tick is judged from the next one
-            self._decide(self._inputs(dt, rotor, estimate, spread, None, dist, state), state,
-                         events, estimate, rotor, None)
+            self._decide(dt, rotor, estimate, spread, None, dist, state, events)
         thrust = out.thrust_n
         # What the rotors deliver over the coming period (N): the demand, or with motor lag
         # the lag model's mean for the command sent (the attacked rotor: its estimate) —
