@@ -12,6 +12,7 @@ from tfl_mav.accel.values import (
     _INT_OPS,
     _INTRINSICS,
     Frame,
+    Rest,
     Tup,
     _int,
     _is_none,
@@ -21,6 +22,7 @@ from tfl_mav.accel.values import (
     _own,
     _Ref,
     _retemp,
+    _returns,
     _same_shape,
     _shape,
     _simple,
@@ -140,6 +142,7 @@ class Lowerer:
         value = self.value(f, e, False)
         if f.result is None and self.depth == f.depth:
             f.result = value                    # the one return, at the end
+            f.done = True
             return
         if f.result is None:
             f.result = _zip_tup(lambda a, b: self.fresh(), value, value) \
@@ -152,6 +155,9 @@ class Lowerer:
         values = _leaves(value)
         self.out.extend(ast.Assign([ast.Name(t.id, ast.Store())], v)
                         for t, v in zip(targets, values, strict=True))
+        if f.returned is not None:
+            self.out.append(ast.Assign([ast.Name(f.returned.id, ast.Store())],
+                                       ast.Constant(1)))
 
 
     # ----- expressions --------------------------------------------------------------------
@@ -480,6 +486,18 @@ class Lowerer:
 
     # ----- statements ---------------------------------------------------------------------
     def stmt(self, f: Frame, st: ast.stmt) -> None:
+        if f.done:                  # after the function's own return: never runs
+            return
+        if isinstance(st, ast.If) and f.returned is None and _returns(st):
+            # the flag the returns in it set, read by the Rest after it
+            f.returned = self.fresh()
+            self.out.append(ast.Assign([ast.Name(f.returned.id, ast.Store())],
+                                       ast.Constant(0)))
+        if isinstance(st, Rest):
+            assert f.returned is not None
+            self.out.append(ast.If(ast.UnaryOp(ast.Not(), ast.Name(f.returned.id, ast.Load())),
+                                   self.block(f, st.body), []))
+            return
         if isinstance(st, (ast.Assign, ast.AnnAssign)) and st.value is not None:
             value = self.value(f, st.value, False)
             targets = st.targets if isinstance(st, ast.Assign) else [st.target]

@@ -179,20 +179,32 @@ def _is_none(e: ast.expr | None) -> bool:
     return e is None or (isinstance(e, ast.Constant) and e.value is None)
 
 
+class Rest(ast.stmt):
+    """The statements after an ``if`` that returns on some of its paths: they run on the
+    paths that did not return (the lowering guards them with a flag the returns set)."""
+
+    _fields = ("body",)
+
+    def __init__(self, body: list[ast.stmt]) -> None:
+        super().__init__()
+        self.body = body
+
+
 def _single_exit(fn: types.FunctionType, body: list[ast.stmt]) -> list[ast.stmt]:
-    """``body`` with each ``if`` that returns on a path made the last statement of its
-    block, the statements after it copied into the branches that fall through: every
-    ``return`` then ends a path (the lowering assigns its value to the result's locals).
-    The same statements run in the same order on every path."""
+    """``body`` with what follows each ``if`` that returns on a path made one :class:`Rest`
+    (nothing, if every path of the ``if`` returns): the same statements in the same order on
+    every path, each written once."""
     out: list[ast.stmt] = []
     for k, st in enumerate(body):
         if isinstance(st, ast.Return):
             out.append(st)
             return out                          # what follows never runs
         if isinstance(st, ast.If) and _returns(st):
+            branch = ast.If(st.test, _single_exit(fn, st.body), _single_exit(fn, st.orelse))
+            out.append(branch)
             rest = body[k + 1:]
-            out.append(ast.If(st.test, _single_exit(fn, st.body + rest),
-                              _single_exit(fn, st.orelse + rest)))
+            if rest and not (_ends(branch.body) and _ends(branch.orelse)):
+                out.append(Rest(_single_exit(fn, rest)))
             return out
         if _returns(st):
             raise NativeError(f"{fn.__qualname__}: a return inside a loop: "
@@ -208,6 +220,8 @@ def _ends(body: list[ast.stmt]) -> bool:
     last = body[-1]
     if isinstance(last, ast.Return):
         return True
+    if isinstance(last, Rest):                  # the paths that get there end in it
+        return _ends(last.body)
     return isinstance(last, ast.If) and _ends(last.body) and _ends(last.orelse)
 
 
@@ -241,6 +255,8 @@ class Frame:
         self.made: dict[tuple[str, int, int], tuple[Any, Any]] = {}     # local()'s, kept
         self.result: Any = None     # the returned value, or the locals every return sets
         self.result_named = False   # … it is locals (a return in a branch set them)
+        self.returned: ast.Name | None = None   # 1 once a return in a branch ran
+        self.done = False           # the return at the function's own level was lowered
         self.assigned = _assigned(fn, node)
 
     # ----- names ------------------------------------------------------------------------
