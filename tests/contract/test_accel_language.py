@@ -53,6 +53,19 @@ def _judge(m: Memory, x: float) -> tuple[Memory, int]:
     return m, m.code
 
 
+def _fall_through(x: float) -> tuple[float, int]:
+    """A return on one path of a branch whose other path falls through to what follows."""
+    y = x
+    if x > 0.0:
+        if x > 3.0:
+            return y, 1
+        y = y * 2.0
+    y = y + 1.0
+    if y > 2.5:
+        return y, 2
+    return y - 0.5, 3
+
+
 def _root(x: float) -> float:
     return math.sqrt(x)
 
@@ -66,7 +79,8 @@ def language(m: Memory, r: Reading, x: float) -> tuple[Memory, tuple[int, float,
     rooted = x >= 0.0 and _root(x) > 1.5            # a call on one path of the and
     m, code = _judge(m, x + opposite)
     flag = bool(first) and not big
-    return m, (code, either + first, flag or rooted)
+    y, path = _fall_through(x)
+    return m, (code + path, either + first + y, flag or rooted)
 
 
 def _bits(v):
