@@ -489,11 +489,15 @@ def _classes_init(named: list[str]) -> str:
 def translate(source: str, module: str) -> str:
     """C source of a CPython extension ``module`` whose one function is the Python
     function in ``source``: arguments that are numbers, or sequences of numbers (unpacked
-    by ``a, (b, c) = arg``, possibly nested) or None (``arg is None``); straight-line float
+    by ``a, (b, c) = arg``, possibly nested) or None (``arg is None``); straight-line
     code with ``if``, ``for _ in range(n)`` (with ``break``/``else``), conditional
-    expressions, the math calls of :mod:`jetcode` (``_sqrt``, or ``math.sqrt``) and
-    ``_atan2``, ``return None`` (→ ``None``) and a final ``return (…)`` or ``return […]`` of
-    float expressions and nested tuples of them (→ tuples or a list of floats)."""
+    expressions, ``and``/``or`` (Python's operand), ``%``, the math calls of :mod:`jetcode`
+    (``_sqrt``, or ``math.sqrt``) and ``_atan2``, ``_index`` and ``_int``, ``return None``
+    (→ ``None``) and a final ``return (…)`` or ``return […]`` of expressions and nested
+    tuples of them. Each number is held as a double; its kind (float, int, bool: the
+    arguments' from their annotations, a literal of ``f``/``i``/``b`` leaves, the rest
+    inferred) says how a result is returned, and the return annotation which tuples are
+    NamedTuples (``{"module:Class": (…)}``)."""
     tree = ast.parse(source)
     if len(tree.body) != 1 or not isinstance(tree.body[0], ast.FunctionDef):
         raise NativeError("the source must hold one function")

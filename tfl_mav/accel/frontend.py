@@ -14,15 +14,31 @@ syntax tree, never its arithmetic:
   (and ``for x in <tuple>``, and ``tuple(… for i in range(N))``) becomes ``N`` copies of the
   body with ``i`` the constant; a loop that does not read its index stays a loop;
 * **tuples scalar-replaced**: tuple literals, unpacking, ``t[k]`` and ``t.field`` with a
-  constant ``k`` (NamedTuples: the field's index), ``+`` and ``*`` of tuples, are resolved at
-  lowering into one float local per element; a sequence argument is unpacked once at entry
-  (its shape taken from an example argument).
+  constant ``k`` (NamedTuples: the field's index), ``t._replace(field=…)``,
+  ``tuple.__new__(C, items)``, ``+`` and ``*`` of tuples, are resolved at lowering into one
+  local per element; a sequence argument is unpacked once at entry (its shape taken from an
+  example argument);
+* **an index known when it runs**: ``t[i]`` with ``i`` computed (an int: ``rotors[k - 1]``)
+  picks each element by ``i`` (``_index``; an ``i`` out of range declines, as Python
+  raises);
+* **booleans, ints and IntEnum codes**: ``True``/``False`` stay booleans, an IntEnum member
+  (``Why.FLOOR``) its int, ``int(x)``/``bool(x)`` what they mean; an argument's kinds come
+  from its NamedTuple's field annotations (``law: int``, ``holding: bool``) or its own; the
+  translator returns each result as the kind Python's is (a bool a bool) and a NamedTuple
+  built in the function as its class;
+* **returns on several paths**: what follows an ``if`` that returns on some of its paths
+  runs on the others (:class:`~tfl_mav.accel.values.Rest`, guarded by a flag the returns
+  set); every return sets the result's locals;
+* **a short circuit that calls**: ``a and f(x)`` (``or``) is ``if`` statements, ``f`` called
+  only where Python calls it.
 
 Every float operation of the original stays, with its operands, in the order each value
-needs it: the compiled function returns the original's bits (tests/contract/test_accel.py). What it
-cannot lower — a call inside a conditional expression (it would run unconditionally), a
-non-constant index, a loop with ``break`` that must unroll, recursion, an early ``return``
-of a value — is a :class:`~tfl_mav.accel.ctranslate.NativeError` naming it.
+needs it: the compiled function returns the original's bits and types
+(tests/contract/test_accel.py, test_accel_language.py). What it cannot lower — a call on
+some paths of an expression that cannot be statements (a later comparison of a chain), a
+loop with ``break`` that must unroll, a return inside a loop, recursion, returns of
+different shapes, an index that is not an int — is a
+:class:`~tfl_mav.accel.ctranslate.NativeError` naming it.
 """
 
 from __future__ import annotations
