@@ -238,6 +238,11 @@ class ControllerConfig:
     disturbance_observer: bool = _f(True, doc="robust: p/q angular acceleration observer")
     gain_switch: bool = _f(True, doc="robust: switch to the fine poles once settled")
     observer_tau_s: float = _f(0.004, "s", lo=0.0, lo_open=True, hi=1.0)
+    translational_observer: str = _f("auto", doc="robust: the horizontal unmodelled-"
+                                     "acceleration observer (a wind's drag) fed to the xi, eta "
+                                     "chains: 'on', 'off', or 'auto' (on outdoors: wind, rotor "
+                                     "aerodynamics or realistic sensors)")
+    translational_observer_tau_s: float = _f(0.1, "s", lo=0.0, lo_open=True, hi=10.0)
     aware_of_attack: bool = _f(True, doc="False = the baseline that ignores the attack")
     motor_time_constant_scale: float = _f(1.0, lo=0.0, hi=10.0,
                                           doc="controller's tau_m = scale * true "
@@ -266,6 +271,7 @@ class SensorConfig:
 
 
 TURBULENCE_LEVELS = ("none", "light", "moderate", "severe")
+OBSERVER_MODES = ("auto", "on", "off")
 SENSOR_MODELS = ("ideal", "realistic")
 
 
@@ -445,6 +451,9 @@ def _cross_check(name: str, sec: Any) -> None:
     if isinstance(sec, ControllerConfig) and sec.supervisor not in ("auto", "tfl", "safe"):
         raise ScenarioError(f"{name}.supervisor",
                             f"must be 'auto', 'tfl' or 'safe', got {sec.supervisor!r}")
+    if isinstance(sec, ControllerConfig) and sec.translational_observer not in OBSERVER_MODES:
+        raise ScenarioError(f"{name}.translational_observer",
+                            f"must be 'auto', 'on' or 'off', got {sec.translational_observer!r}")
     if isinstance(sec, AttackConfig):
         _check_signal(f"{name}.signal", sec.signal)
     if isinstance(sec, VehicleConfig):

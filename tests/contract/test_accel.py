@@ -127,8 +127,8 @@ def call_in_conditional(x):
     return (_root(x) if x >= 0.0 else -1.0, (x, _root(-x)) if x < 0.0 else (0.0, 0.0))
 
 
-def call_in_and(x):
-    return (1.0 if x > 0.0 and _root(x) > 1.0 else 0.0,)
+def call_in_chain(x):
+    return (1.0 if 0.0 < x < _root(x) else 0.0,)
 
 
 def test_a_call_in_a_conditional_expression_runs_only_on_its_branch():
@@ -138,7 +138,7 @@ def test_a_call_in_a_conditional_expression_runs_only_on_its_branch():
 
 
 def variable_index(t, k):
-    return (t[k],)
+    return (t[k],)          # k a float: Python raises TypeError on every call
 
 
 def breaking_index_loop(t):
@@ -158,14 +158,22 @@ def recursion(x):
     return (_recursive(x),)
 
 
+def _in_loop(x):
+    for _ in range(3):
+        if x > 1.0:
+            return (x,)
+        x = x * 2.0
+    return (x,)
+
+
 def _early(x):
     if x > 0.0:
-        return x
+        return (x, 1.0)
     return -x
 
 
-def early_return(x):
-    return (_early(x),)
+def returns_of_two_shapes(x):
+    return _early(x)
 
 
 def shape_in_branch(x):
@@ -184,11 +192,11 @@ def tuple_in_compare(t):
 
 
 @pytest.mark.parametrize("fn, example, match", [
-    (call_in_and, (1.0,), "some paths only"),
-    (variable_index, ((1.0, 2.0), 0.0), "not a constant integer"),
+    (call_in_chain, (1.0,), "some paths only"),
     (breaking_index_loop, ((1.0, 2.0),), "cannot break"),
     (recursion, (1.0,), "recursive"),
-    (early_return, (1.0,), "end with its one return"),
+    (_in_loop, (1.0,), "a return inside a loop"),
+    (returns_of_two_shapes, (1.0,), "returns differ in shape"),
     (shape_in_branch, (1.0,), "changes shape in a branch"),
     (unknown_call, ((1.0, 2.0),), "neither a pure Python function"),
     (tuple_in_compare, ((1.0, 2.0),), "not a number here"),
@@ -198,6 +206,11 @@ def tuple_in_compare(t):
 def test_what_the_front_end_cannot_lower_is_refused_by_name(fn, example, match):
     with pytest.raises(NativeError, match=match):
         native.lower(fn, example)
+
+
+def test_a_variable_index_that_is_not_an_int_is_refused_by_name():
+    with pytest.raises(NativeError, match="a variable index must be an int"):
+        native.c_source(native.lower(variable_index, ((1.0, 2.0), 0.0)))
 
 
 def test_obtain_function_warns_and_declines_what_it_cannot_lower(monkeypatch, caplog):

@@ -59,6 +59,8 @@ def test_fixed_messages_are_the_librarys_bytes(v: list[float], rotor: int, raw: 
         attack_applied_n=v[18], attack_requested_n=v[19]).SerializeToString()
     assert protos.path_distance(v[0], v[1]) == Dist(t_s=v[0], distance_m=v[1]) \
         .SerializeToString()
+    assert protos.truth_wind(v[0], v[1:4]) == _cls(protos.TRUTH_WIND)(
+        t_s=v[0], wind_mps=v[1:4]).SerializeToString()
     raws = [raw, raw[:5], b"", raw * 2]
     refused = [1, 3] if rejected else []
     lib = Frames(frames=raws, rejected=refused)

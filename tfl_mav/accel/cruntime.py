@@ -1,6 +1,7 @@
 """The C the translated functions call (:mod:`ctranslate`): reading arguments, and CPython's
 own answers where libm's differ.
 
+* ``tfl_double``: a number argument's value (an int's or a bool's without a float made).
 * ``tfl_fast``, ``tfl_unpack``: a sequence argument's floats, read in place from a tuple (a
   NamedTuple too) or list, through the buffer of a float64 array, or through
   ``PySequence_Fast``; anything else declines (the Python then runs).
@@ -35,6 +36,47 @@ tfl_hypot(double a, double b, double *out)
     return 0;
 }
 
+/* A number's value as a double: a float's own, an int's (a bool's) without the float
+   object int.__float__ would make, anything else through __float__ (an error set if none). */
+static inline double
+tfl_double(PyObject *x)
+{
+    if (PyFloat_CheckExact(x))
+        return PyFloat_AS_DOUBLE(x);
+    if (PyLong_Check(x))
+        return PyLong_AsDouble(x);
+    return PyFloat_AsDouble(x);
+}
+
+/* The class ``qualname`` of module ``module``: a tuple subclass (a NamedTuple a result is
+   returned as), or NULL with ImportError set. */
+static PyObject *
+tfl_class(const char *module, const char *qualname)
+{
+    PyObject *obj = PyImport_ImportModule(module);
+    char part[256];
+    const char *p = qualname;
+    while (obj != NULL && *p) {
+        size_t n = strcspn(p, ".");
+        if (n >= sizeof part)
+            n = sizeof part - 1;
+        memcpy(part, p, n);
+        part[n] = 0;
+        PyObject *next = PyObject_GetAttrString(obj, part);
+        Py_DECREF(obj);
+        obj = next;
+        p += n + (p[n] == '.');
+    }
+    if (obj != NULL && !(PyType_Check(obj)
+                         && PyType_IsSubtype((PyTypeObject *)obj, &PyTuple_Type))) {
+        Py_DECREF(obj);
+        obj = NULL;
+    }
+    if (obj == NULL && !PyErr_Occurred())
+        PyErr_Format(PyExc_ImportError, "%s:%s is not a tuple class", module, qualname);
+    return obj;
+}
+
 /* A tuple (a NamedTuple too: its items are a tuple's) as it is, any other sequence through
    PySequence_Fast (a new reference; NULL with an exception set if it is none). */
 static PyObject *
@@ -60,7 +102,7 @@ tfl_unpack(PyObject *o, double *out, Py_ssize_t n)
                                             : ((PyListObject *)o)->ob_item;
         for (Py_ssize_t k = 0; k < n; k++) {
             PyObject *x = items[k];
-            out[k] = PyFloat_CheckExact(x) ? PyFloat_AS_DOUBLE(x) : PyFloat_AsDouble(x);
+            out[k] = tfl_double(x);
         }
     }
     else if (PyObject_CheckBuffer(o)) {
@@ -88,7 +130,7 @@ tfl_unpack(PyObject *o, double *out, Py_ssize_t n)
             return -1;
         }
         for (Py_ssize_t k = 0; k < n; k++)
-            out[k] = PyFloat_AsDouble(PySequence_Fast_GET_ITEM(s, k));
+            out[k] = tfl_double(PySequence_Fast_GET_ITEM(s, k));
         Py_DECREF(s);
     }
     if (PyErr_Occurred()) {

@@ -14,7 +14,6 @@ same bits is said there.
 from __future__ import annotations
 
 import ast
-from collections.abc import Callable
 
 from tfl_mav.accel.cruntime import PRELUDE
 
@@ -47,10 +46,53 @@ _UNARY = {
 class _C:
     """One function's translation: expressions to C text, checks to ``goto bail``."""
 
-    def __init__(self, objects: set[str]) -> None:
+    def __init__(self, objects: set[str], kinds: dict[str, str] | None = None) -> None:
         self.names: set[str] = set()
         self.objects = objects      # parameters kept as Python objects (sequences, None)
         self.tmp = 0
+        self.kinds: dict[str, str] = kinds or {}    # a name's kind where it is not float
+
+    def kind(self, e: ast.expr) -> str | None:
+        """What Python's value of ``e`` is: ``f`` float, ``i`` int, ``b`` bool (None: not
+        known yet, while :func:`_infer` iterates). C holds each as a double."""
+        if isinstance(e, ast.Constant):
+            return {bool: "b", int: "i"}.get(type(e.value), "f")
+        if isinstance(e, ast.Name):
+            return "f" if e.id in ("_inf", "_nan") else self.kinds.get(e.id)
+        if isinstance(e, ast.UnaryOp):
+            if isinstance(e.op, ast.Not):
+                return "b"
+            k = self.kind(e.operand)
+            return "i" if k in ("i", "b") else k
+        if isinstance(e, ast.BinOp):
+            a, b = self.kind(e.left), self.kind(e.right)
+            if a is None or b is None:
+                return None
+            if isinstance(e.op, ast.Pow):
+                n = e.right
+                return "i" if a in ("i", "b") and isinstance(n, ast.Constant) \
+                    and type(n.value) is int and n.value >= 0 else "f"
+            if isinstance(e.op, (ast.Add, ast.Sub, ast.Mult, ast.Mod)):
+                return "i" if a in ("i", "b") and b in ("i", "b") else "f"
+            return "f"
+        if isinstance(e, ast.Compare):
+            return "b"
+        if isinstance(e, ast.BoolOp):
+            return _join(*(self.kind(v) for v in e.values))
+        if isinstance(e, ast.IfExp):
+            return _join(self.kind(e.body), self.kind(e.orelse))
+        if isinstance(e, ast.Call) and isinstance(e.func, ast.Name):
+            fn = e.func.id
+            if fn == "_index":
+                return _join(*(self.kind(a) for a in e.args[1:]))
+            if fn == "_int":
+                return "i"
+            if fn in ("_isfinite", "_isnan"):
+                return "b"
+            if fn in ("abs", "_abs") and e.args:
+                k = self.kind(e.args[0])
+                return "i" if k in ("i", "b") else k
+        return "f"
 
     def fresh(self) -> str:
         self.tmp += 1
@@ -69,7 +111,9 @@ class _C:
             return e.id
         if isinstance(e, ast.Constant):
             v = e.value
-            if type(v) is bool or not isinstance(v, (int, float)):
+            if type(v) is bool:
+                return "(1.0)" if v else "(0.0)"
+            if not isinstance(v, (int, float)):
                 raise NativeError(f"constant {v!r} is not a number")
             f = float(v)
             if f != f or f in (float("inf"), float("-inf")):
@@ -78,7 +122,8 @@ class _C:
         if isinstance(e, ast.UnaryOp):
             x = self.expr(e.operand)
             if isinstance(e.op, ast.USub):
-                return f"(-{x})"
+                # an int has no −0: the int's negation of 0 is +0 (x + 0.0 makes it so)
+                return f"((-{x}) + 0.0)" if self.kind(e) == "i" else f"(-{x})"
             if isinstance(e.op, ast.UAdd):
                 return x
             if isinstance(e.op, ast.Not):
@@ -87,7 +132,15 @@ class _C:
             a, b = self.expr(e.left), self.expr(e.right)
             op = _BINOPS.get(type(e.op))
             if op is not None:
+                if self.kind(e) == "i" and not isinstance(e.op, ast.Add):
+                    return f"(({a} {op} {b}) + 0.0)"      # no −0 among ints
                 return f"({a} {op} {b})"
+            if isinstance(e.op, ast.Mod):     # CPython's float_rem: the divisor's sign
+                x, y, m = self.fresh(), self.fresh(), self.fresh()
+                zero = " + 0.0" if self.kind(e) == "i" else ""
+                return (f"({{ double {x} = {a}; double {y} = {b}; if ({y} == 0.0) goto bail;"
+                        f" double {m} = fmod({x}, {y}); if ({m}) {{ if (({y} < 0) != ({m} < 0))"
+                        f" {m} += {y}; }} else {m} = copysign(0.0, {y}); {m}{zero}; }})")
             if isinstance(e.op, ast.Div):     # ZeroDivisionError in Python
                 d = self.fresh()
                 return f"({{ double {d} = {b}; if ({d} == 0.0) goto bail; ({a}) / {d}; }})"
@@ -116,16 +169,44 @@ class _C:
                 left = r
             return "(" + " && ".join(parts) + ")"
         if isinstance(e, ast.BoolOp):
-            op = " && " if isinstance(e.op, ast.And) else " || "
-            return "(" + op.join(self.expr(v) for v in e.values) + ")"
+            # Python's value: the first operand that decides (not C's 0 or 1)
+            text = self.expr(e.values[-1])
+            for v in reversed(e.values[:-1]):
+                t = self.fresh()
+                x = self.expr(v)
+                text = (f"({{ double {t} = {x}; {t} ? {text} : {t}; }})"
+                        if isinstance(e.op, ast.And) else
+                        f"({{ double {t} = {x}; {t} ? {t} : {text}; }})")
+            return text
         if isinstance(e, ast.IfExp):
             return f"({self.expr(e.test)} ? {self.expr(e.body)} : {self.expr(e.orelse)})"
+        if isinstance(e, ast.Call) and isinstance(e.func, ast.Name) and not e.keywords \
+                and e.func.id == "_index":
+            return self._index(e)
         if isinstance(e, ast.Call) and isinstance(e.func, ast.Name) and not e.keywords:
             return self._call(e.func.id, [self.expr(a) for a in e.args])
         if isinstance(e, ast.Call) and isinstance(e.func, ast.Attribute) and not e.keywords \
                 and isinstance(e.func.value, ast.Name) and e.func.value.id == "math":
             return self._call(f"_{e.func.attr}", [self.expr(a) for a in e.args])
         raise NativeError(f"cannot translate {ast.unparse(e)!r}")
+
+    def _index(self, e: ast.Call) -> str:
+        """``_index(k, a₀, …, aₙ₋₁)``: ``(a₀, …)[k]`` — an int ``k`` in [−n, n), as Python
+        indexes; any other declines (Python raises IndexError there)."""
+        if len(e.args) < 2:
+            raise NativeError("_index needs an index and items")
+        if self.kind(e.args[0]) not in ("i", "b"):
+            raise NativeError(f"a variable index must be an int: {ast.unparse(e.args[0])!r}")
+        k, j = self.fresh(), self.fresh()
+        items = [self.expr(a) for a in e.args[1:]]
+        n = len(items)
+        pick = items[-1]
+        for m in range(n - 2, -1, -1):
+            pick = f"({j} == {m} ? {items[m]} : {pick})"
+        return (f"({{ double {k} = {self.expr(e.args[0])}; if (!(__builtin_fabs({k}) <= {n}.0))"
+                f" goto bail; long {j} = (long){k}; if ((double){j} != {k}) goto bail;"
+                f" if ({j} < 0) {j} += {n};"
+                f" if ({j} < 0 || {j} >= {n}) goto bail; {pick}; }})")
 
     def _ipow(self, x: str, n: int) -> str:
         """CPython's float ** int (floatobject.c float_pow): a NaN returned as it is, x = ±0
@@ -153,6 +234,10 @@ class _C:
             r = self.fresh()
             return (f"({{ double {r}; if (tfl_hypot({args[0]}, {args[1]}, &{r})) goto bail;"
                     f" {r}; }})")
+        if fn == "_int" and len(args) == 1:      # int(x): toward zero; NaN, ±inf raise
+            v = self.fresh()
+            return (f"({{ double {v} = {args[0]}; if (!(__builtin_fabs({v}) < 9007199254740992.0))"
+                    f" goto bail; (double)(long long){v}; }})")
         if fn == "_isfinite" and len(args) == 1:
             return f"__builtin_isfinite({args[0]})"
         if fn == "_isnan" and len(args) == 1:
@@ -214,7 +299,7 @@ class _C:
                 self.unpack(elt, item, ind, out, (s, *held))
             elif isinstance(elt, ast.Name) and elt.id not in self.objects:
                 self.names.add(elt.id)
-                out.append(f"{ind}{elt.id} = PyFloat_AsDouble({item});")
+                out.append(f"{ind}{elt.id} = tfl_double({item});")
             else:
                 raise NativeError(f"cannot unpack into {ast.unparse(elt)!r}")
         out.append(f"{ind}Py_DECREF({s});")
@@ -282,48 +367,137 @@ def _objects(fn: ast.FunctionDef) -> set[str]:
     return objs & params
 
 
+def _join(*kinds: str | None) -> str | None:
+    """The kind of a value that is one of these: theirs if they agree, else float."""
+    if any(k is None for k in kinds):
+        return None
+    return kinds[0] if all(k == kinds[0] for k in kinds) else "f"
+
+
+def _infer(fn: ast.FunctionDef, c: _C) -> None:
+    """Each local's kind (``c.kinds``): the arguments' from their annotations (a literal
+    of ``f``/``i``/``b`` leaves, the lowering's), every other name the join of what it is
+    assigned, iterated until nothing changes (a loop assigns a name from itself)."""
+    assigns: list[tuple[str, ast.expr]] = []
+    notes = {a.arg: ast.literal_eval(a.annotation) for a in fn.args.args if a.annotation}
+
+    def from_note(target: ast.expr, note: object) -> None:
+        if isinstance(target, ast.Name):
+            c.kinds[target.id] = note if isinstance(note, str) else "f"
+        elif isinstance(target, ast.Tuple) and isinstance(note, tuple) \
+                and len(note) == len(target.elts):
+            for t, n in zip(target.elts, note, strict=True):
+                from_note(t, n)
+
+    for a, note in notes.items():
+        if isinstance(note, str):
+            c.kinds[a] = note
+    for node in ast.walk(fn):
+        if isinstance(node, ast.Assign) and len(node.targets) == 1:
+            t = node.targets[0]
+            if isinstance(t, ast.Name):
+                assigns.append((t.id, node.value))
+            elif isinstance(node.value, ast.Name) and node.value.id in notes:
+                from_note(t, notes[node.value.id])
+        elif isinstance(node, ast.AugAssign) and isinstance(node.target, ast.Name):
+            assigns.append((node.target.id, ast.BinOp(ast.Name(node.target.id, ast.Load()),
+                                                      node.op, node.value)))
+    known = dict(c.kinds)           # the arguments' own, fixed
+    changed = True
+    while changed:
+        changed = False
+        for name, e in assigns:
+            k = c.kind(e)
+            if k is None or name in known:
+                continue
+            old = c.kinds.get(name)
+            new = k if old is None else _join(old, k)
+            if new != old:
+                c.kinds[name] = new         # type: ignore[assignment]
+                changed = True
+
+
 def _results(e: ast.expr, c: _C, body: list[str]) -> ast.expr:
     """``e`` with every leaf that is not a plain name computed into a new local first (in
-    ``body``, before any object is made: a leaf may still decline)."""
+    ``body``, before any object is made: a leaf may still decline). An int or bool leaf
+    must hold one (an argument annotated int given 2.5 declines here)."""
     if isinstance(e, (ast.Tuple, ast.List)):
         return type(e)([_results(x, c, body) for x in e.elts], ast.Load())
-    if isinstance(e, ast.Name):
-        return e
-    v = c.fresh()
-    body.append(f"    {v} = {c.expr(e)};")
-    c.names.add(v)
+    if isinstance(e, ast.Name) and e.id not in c.objects:
+        v = e.id
+    else:
+        v = c.fresh()
+        body.append(f"    {v} = {c.expr(e)};")
+        c.names.add(v)
+        c.kinds[v] = c.kind(e) or "f"
+    kind = c.kinds.get(v, "f")
+    if kind == "i":
+        body.append(f"    if (!(__builtin_fabs({v}) < 9007199254740992.0)"
+                    f" || {v} != (double)(long long){v}) goto bail;")
+    elif kind == "b":
+        body.append(f"    if ({v} != 0.0 && {v} != 1.0) goto bail;")
     return ast.Name(v, ast.Load())
 
 
-def _pack(e: ast.expr, names: set[str], ind: str, out: list[str], fresh: Callable[[], str]
-          ) -> str:
-    """C building the result ``e`` (a name, or a tuple or list of results); returns the
-    variable."""
-    v = fresh()
+_BOX = {"f": "PyFloat_FromDouble({0})", "i": "PyLong_FromLongLong((long long){0})",
+        "b": "PyBool_FromLong({0} != 0.0)"}
+
+
+def _pack(e: ast.expr, c: _C, ind: str, out: list[str], classes: object,
+          named: list[str]) -> str:
+    """C building the result ``e`` (a name, or a tuple or list of results; ``classes``:
+    which are NamedTuples, :func:`frontend._classes`' literal); returns the variable."""
+    v = c.fresh()
     if isinstance(e, ast.Name):
-        if e.id not in names:
+        if e.id not in c.names:
             raise NativeError(f"result {e.id!r} is never set")
-        out.append(f"{ind}PyObject *{v} = PyFloat_FromDouble({e.id});")
+        out.append(f"{ind}PyObject *{v} = {_BOX[c.kinds.get(e.id, 'f')].format(e.id)};")
         out.append(f"{ind}if ({v} == NULL) return NULL;")
         return v
     if not isinstance(e, (ast.Tuple, ast.List)):
         raise NativeError(f"a result must be a name, a tuple or a list: {ast.unparse(e)!r}")
-    kind = "Tuple" if isinstance(e, ast.Tuple) else "List"
-    items = [_pack(x, names, ind, out, fresh) for x in e.elts]
-    out.append(f"{ind}PyObject *{v} = Py{kind}_New({len(items)});")
+    cls = None
+    if isinstance(classes, dict):
+        ((cls, classes),) = classes.items()
+    subs = classes if isinstance(classes, tuple) and len(classes) == len(e.elts) \
+        else (None,) * len(e.elts)
+    items = [_pack(x, c, ind, out, sub, named) for x, sub in zip(e.elts, subs, strict=True)]
+    if cls is not None and isinstance(e, ast.Tuple):
+        if cls not in named:
+            named.append(cls)
+        t = f"((PyTypeObject *)tfl_classes[{named.index(cls)}])"
+        out.append(f"{ind}PyObject *{v} = {t}->tp_alloc({t}, {len(items)});")
+        kind = "Tuple"
+    else:
+        kind = "Tuple" if isinstance(e, ast.Tuple) else "List"
+        out.append(f"{ind}PyObject *{v} = Py{kind}_New({len(items)});")
     out.append(f"{ind}if ({v} == NULL) return NULL;")
     out.extend(f"{ind}Py{kind}_SET_ITEM({v}, {k}, {x});" for k, x in enumerate(items))
     return v
 
 
+def _classes_init(named: list[str]) -> str:
+    """C of the module's init importing the NamedTuple classes its results are."""
+    if not named:
+        return ""
+    lines = [f"    tfl_classes[{k}] = tfl_class(\"{m}\", \"{q}\");\n"
+             f"    if (tfl_classes[{k}] == NULL)\n        return NULL;"
+             for k, (m, q) in enumerate(n.split(":") for n in named)]
+    return "\n".join(lines) + "\n"
+
+
 def translate(source: str, module: str) -> str:
     """C source of a CPython extension ``module`` whose one function is the Python
     function in ``source``: arguments that are numbers, or sequences of numbers (unpacked
-    by ``a, (b, c) = arg``, possibly nested) or None (``arg is None``); straight-line float
+    by ``a, (b, c) = arg``, possibly nested) or None (``arg is None``); straight-line
     code with ``if``, ``for _ in range(n)`` (with ``break``/``else``), conditional
-    expressions, the math calls of :mod:`jetcode` (``_sqrt``, or ``math.sqrt``) and
-    ``_atan2``, ``return None`` (→ ``None``) and a final ``return (…)`` or ``return […]`` of
-    float expressions and nested tuples of them (→ tuples or a list of floats)."""
+    expressions, ``and``/``or`` (Python's operand), ``%``, the math calls of :mod:`jetcode`
+    (``_sqrt``, or ``math.sqrt``) and ``_atan2``, ``_index`` and ``_int``, ``return None``
+    (→ ``None``) and a final ``return (…)`` or ``return […]`` of expressions and nested
+    tuples of them. Each number is held as a double; its kind (float, int, bool: the
+    arguments' from their annotations, a literal of ``f``/``i``/``b`` leaves, the rest
+    inferred) says how a result is returned, and the return annotation which tuples are
+    NamedTuples (``{"module:Class": (…)}``)."""
     tree = ast.parse(source)
     if len(tree.body) != 1 or not isinstance(tree.body[0], ast.FunctionDef):
         raise NativeError("the source must hold one function")
@@ -335,15 +509,18 @@ def translate(source: str, module: str) -> str:
     objects = _objects(fn)
     c = _C(objects)
     c.names.update(a for a in args if a not in objects)
+    _infer(fn, c)
     lines: list[str] = []
     c.block(body, "    ", lines)
     shape = _results(ret.value, c, lines)
     pack: list[str] = []
-    result = _pack(shape, c.names, "    ", pack, c.fresh)
+    named: list[str] = []
+    classes = ast.literal_eval(fn.returns) if fn.returns is not None else None
+    result = _pack(shape, c, "    ", pack, classes, named)
     local = sorted(c.names - set(args))
     name = fn.name
     conv = "\n".join(f"    PyObject *{a} = args[{i}];" if a in objects else
-                     f"    double {a} = PyFloat_AsDouble(args[{i}]);"
+                     f"    double {a} = tfl_double(args[{i}]);"
                      for i, a in enumerate(args))
     decl = "".join(f"    double {v};\n" for v in local)
     return f"""/* Generated by tfl_mav.accel.native from the Python source below; do not edit.
@@ -352,6 +529,8 @@ def translate(source: str, module: str) -> str:
 #include <Python.h>
 #include <math.h>
 {PRELUDE}
+static PyObject *tfl_classes[{max(len(named), 1)}];
+
 static PyObject *
 {name}(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
 {{
@@ -390,6 +569,6 @@ PyInit_{module}(void)
     Py_DECREF(math);
     if (tfl_py_hypot == NULL)
         return NULL;
-    return PyModule_Create(&moduledef);
+{_classes_init(named)}    return PyModule_Create(&moduledef);
 }}
 """

@@ -14,15 +14,31 @@ syntax tree, never its arithmetic:
   (and ``for x in <tuple>``, and ``tuple(… for i in range(N))``) becomes ``N`` copies of the
   body with ``i`` the constant; a loop that does not read its index stays a loop;
 * **tuples scalar-replaced**: tuple literals, unpacking, ``t[k]`` and ``t.field`` with a
-  constant ``k`` (NamedTuples: the field's index), ``+`` and ``*`` of tuples, are resolved at
-  lowering into one float local per element; a sequence argument is unpacked once at entry
-  (its shape taken from an example argument).
+  constant ``k`` (NamedTuples: the field's index), ``t._replace(field=…)``,
+  ``tuple.__new__(C, items)``, ``+`` and ``*`` of tuples, are resolved at lowering into one
+  local per element; a sequence argument is unpacked once at entry (its shape taken from an
+  example argument);
+* **an index known when it runs**: ``t[i]`` with ``i`` computed (an int: ``rotors[k - 1]``)
+  picks each element by ``i`` (``_index``; an ``i`` out of range declines, as Python
+  raises);
+* **booleans, ints and IntEnum codes**: ``True``/``False`` stay booleans, an IntEnum member
+  (``Why.FLOOR``) its int, ``int(x)``/``bool(x)`` what they mean; an argument's kinds come
+  from its NamedTuple's field annotations (``law: int``, ``holding: bool``) or its own; the
+  translator returns each result as the kind Python's is (a bool a bool) and a NamedTuple
+  built in the function as its class;
+* **returns on several paths**: what follows an ``if`` that returns on some of its paths
+  runs on the others (:class:`~tfl_mav.accel.values.Rest`, guarded by a flag the returns
+  set); every return sets the result's locals;
+* **a short circuit that calls**: ``a and f(x)`` (``or``) is ``if`` statements, ``f`` called
+  only where Python calls it.
 
 Every float operation of the original stays, with its operands, in the order each value
-needs it: the compiled function returns the original's bits (tests/contract/test_accel.py). What it
-cannot lower — a call inside a conditional expression (it would run unconditionally), a
-non-constant index, a loop with ``break`` that must unroll, recursion, an early ``return``
-of a value — is a :class:`~tfl_mav.accel.ctranslate.NativeError` naming it.
+needs it: the compiled function returns the original's bits and types
+(tests/contract/test_accel.py, test_accel_language.py). What it cannot lower — a call on
+some paths of an expression that cannot be statements (a later comparison of a chain), a
+loop with ``break`` that must unroll, a return inside a loop, recursion, returns of
+different shapes, an index that is not an int — is a
+:class:`~tfl_mav.accel.ctranslate.NativeError` naming it.
 """
 
 from __future__ import annotations
@@ -34,7 +50,7 @@ from typing import Any, NamedTuple
 
 from tfl_mav.accel.ctranslate import NativeError
 from tfl_mav.accel.lowering import Lowerer
-from tfl_mav.accel.values import Frame, Tup, _source
+from tfl_mav.accel.values import Frame, Tup, _source, kind_of, named_class
 
 __all__ = ["Lowered", "Tup", "lower", "lower_files", "relinked", "shape_key"]
 
@@ -43,8 +59,41 @@ def _entry_shape(x: Any, what: str) -> Any:
     if isinstance(x, (bool, int, float)):
         return None
     if isinstance(x, (tuple, list)) and x:
-        return Tup([_entry_shape(v, what) for v in x], getattr(x, "_fields", None))
+        return Tup([_entry_shape(v, what) for v in x], getattr(x, "_fields", None),
+                   named_class(x))
     raise NativeError(f"{what}: an argument must be a number or a non-empty tuple of them")
+
+
+def _entry_kinds(x: Any, kind: str) -> Any:
+    """The kinds of an argument's numbers (``f``, ``i``, ``b``) as its annotations say:
+    a NamedTuple's fields' own, a parameter's, else float."""
+    if not isinstance(x, (tuple, list)):
+        return kind
+    fields = getattr(x, "_fields", None)
+    if fields:
+        notes = getattr(type(x), "__annotations__", {})
+        return tuple(_entry_kinds(v, kind_of(notes.get(n))) for v, n in zip(x, fields,
+                                                                           strict=True))
+    return tuple(_entry_kinds(v, kind) for v in x)
+
+
+def _floats_only(kinds: Any) -> bool:
+    return all(_floats_only(k) for k in kinds) if isinstance(kinds, tuple) else kinds == "f"
+
+
+def _classes(v: Any) -> Any:
+    """The result's NamedTuple classes, as the translator reads them: a leaf None, a
+    tuple its items', a NamedTuple ``{"module:name": (items…)}``."""
+    if not isinstance(v, Tup):
+        return None
+    items = tuple(_classes(x) for x in v.items)
+    if v.cls is not None:
+        return {f"{v.cls.__module__}:{v.cls.__qualname__}": items}
+    return items
+
+
+def _has_class(c: Any) -> bool:
+    return isinstance(c, dict) or (isinstance(c, tuple) and any(_has_class(x) for x in c))
 
 
 def lower(fn: Callable[..., Any], example: Sequence[Any]) -> str:
@@ -79,23 +128,28 @@ def lower_files(fn: Callable[..., Any], example: Sequence[Any]) -> Lowered:
     low = Lowerer()
     low.files.add(fn.__code__.co_filename)
     f = Frame(low, fn, node, "")
-    for p, x in zip(params, example, strict=True):
+    args = []
+    for a, x in zip(node.args.args, example, strict=True):
+        p = a.arg
         shape = f.shapes[p] = _entry_shape(x, f"{fn.__qualname__}({p})")
         if shape is not None:
             target = _target(f.local(p, shape))
             low.out.append(ast.Assign([target], ast.Name(p, ast.Load())))
-    *body, ret = node.body or [ast.Pass()]
-    if not isinstance(ret, ast.Return) or ret.value is None:
-        raise NativeError(f"{fn.__qualname__} must end with return (…)")
-    for st in body:
+        # The kinds of its numbers (int, bool), where they are not floats: what the
+        # translator boxes a result computed from them as.
+        kinds = _entry_kinds(x, kind_of(getattr(a.annotation, "id", None)))
+        args.append(ast.arg(p, None if _floats_only(kinds) else ast.Constant(kinds)))
+    for st in node.body:
         low.stmt(f, st)
-    result = low.expr(f, ret.value, False)
+    result = f.result
     if not isinstance(result, Tup):
         raise NativeError(f"{fn.__qualname__} must return a tuple")
     low.out.append(ast.Return(_tuple(result)))
+    classes = _classes(result)
     out = ast.FunctionDef(name=fn.__name__, args=ast.arguments(
-        posonlyargs=[], args=[ast.arg(p) for p in params], kwonlyargs=[], kw_defaults=[],
-        defaults=[]), body=low.out, decorator_list=[], lineno=1)
+        posonlyargs=[], args=args, kwonlyargs=[], kw_defaults=[], defaults=[]),
+        body=low.out, decorator_list=[], lineno=1,
+        returns=ast.parse(repr(classes), mode="eval").body if _has_class(classes) else None)
     _number(low.out)
     return Lowered(ast.unparse(ast.Module([out], [])) + "\n", low.files, low.constants)
 

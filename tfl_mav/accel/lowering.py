@@ -12,14 +12,17 @@ from tfl_mav.accel.values import (
     _INT_OPS,
     _INTRINSICS,
     Frame,
+    Rest,
     Tup,
     _int,
+    _is_none,
     _is_range,
     _Lazy,
     _leaves,
     _own,
     _Ref,
     _retemp,
+    _returns,
     _same_shape,
     _shape,
     _simple,
@@ -27,7 +30,37 @@ from tfl_mav.accel.values import (
     _tuple_op,
     _value,
     _zip_tup,
+    named_class,
 )
+
+_TUPLE_NEW = tuple.__new__
+
+
+class _Method:
+    """``t._replace`` of a NamedTuple known at lowering (called next)."""
+
+    def __init__(self, tup: Tup) -> None:
+        self.tup = tup
+
+
+def _is_int(e: Any) -> bool:
+    return (isinstance(e, ast.Constant) and type(e.value) is int) or (
+        isinstance(e, ast.UnaryOp) and isinstance(e.op, ast.USub) and _is_int(e.operand))
+
+
+def _calls(f: Frame, e: ast.expr) -> bool:
+    """``e`` calls a pure Python function (inlined: it cannot sit in an expression that
+    runs on some paths only)."""
+    for n in ast.walk(e):
+        if isinstance(n, ast.Call):
+            try:
+                fn = f.low.expr(f, n.func, True) if not isinstance(n.func, ast.Name) \
+                    or n.func.id not in f.assigned else None
+            except NativeError:
+                continue
+            if isinstance(fn, _Ref) and isinstance(fn.obj, types.FunctionType):
+                return True
+    return False
 
 
 class Lowerer:
@@ -79,11 +112,6 @@ class Lowerer:
         if len(args) > len(params) or set(kwargs) - set(params):
             raise NativeError(f"{fn.__qualname__}: wrong arguments")
         bound = dict(zip(params, args, strict=False)) | kwargs
-        *body, ret = node.body or [ast.Pass()]
-        if not isinstance(ret, ast.Return) or ret.value is None or any(
-                isinstance(n, ast.Return) for st in body for n in ast.walk(st)):
-            raise NativeError(f"{fn.__qualname__}: an inlined function must end with its "
-                              "one return of a value")
         self.n += 1
         f = Frame(self, fn, node, f"_i{self.n}_")
         for p in params:
@@ -99,11 +127,37 @@ class Lowerer:
                 f.bind(p, value)
         self.stack.append(fn)
         self.files.add(fn.__code__.co_filename)
-        for st in body:
+        for st in node.body:
             self.stmt(f, st)
-        result = self.expr(f, ret.value, False)
         self.stack.pop()
+        result = f.result
+        if f.result_named:
+            return result
         return _retemp(self, result) if isinstance(result, Tup) else self.temp(result)
+
+    def ret(self, f: Frame, e: ast.expr) -> None:
+        """``return e``: the function's value. A return on one path of a branch (the
+        others return too: :func:`~tfl_mav.accel.values._single_exit`) sets the result's
+        locals, which every other return then sets."""
+        value = self.value(f, e, False)
+        if f.result is None and self.depth == f.depth:
+            f.result = value                    # the one return, at the end
+            f.done = True
+            return
+        if f.result is None:
+            f.result = _zip_tup(lambda a, b: self.fresh(), value, value) \
+                if isinstance(value, Tup) else self.fresh()
+            f.result_named = True
+        elif not f.result_named or not _same_shape(_shape(f.result), _shape(value)):
+            raise NativeError(f"{f.fn.__qualname__}: its returns differ in shape: "
+                              f"{ast.unparse(e)!r}")
+        targets = _leaves(f.result)
+        values = _leaves(value)
+        self.out.extend(ast.Assign([ast.Name(t.id, ast.Store())], v)
+                        for t, v in zip(targets, values, strict=True))
+        if f.returned is not None:
+            self.out.append(ast.Assign([ast.Name(f.returned.id, ast.Store())],
+                                       ast.Constant(1)))
 
 
     # ----- expressions --------------------------------------------------------------------
@@ -132,12 +186,19 @@ class Lowerer:
             v = self.expr(f, e.value, cond)
             if isinstance(v, Tup) and v.fields and e.attr in v.fields:
                 return v.items[v.fields.index(e.attr)]
+            if isinstance(v, Tup) and v.fields and e.attr == "_replace":
+                return _Ref(_Method(v))
             if isinstance(v, _Ref) and isinstance(v.obj, types.ModuleType) \
                     and hasattr(v.obj, e.attr):
                 value = _value(getattr(v.obj, e.attr), _Lazy(e))
                 if not isinstance(value, _Ref):
                     self.read(v.obj.__name__, e.attr, getattr(v.obj, e.attr))
                 return value
+            if isinstance(v, _Ref) and isinstance(v.obj, type) and hasattr(v.obj, e.attr) \
+                    and isinstance(getattr(v.obj, e.attr), (int, float)):
+                member = getattr(v.obj, e.attr)      # Why.FLOOR: an IntEnum's code
+                self.read(v.obj.__module__, f"{v.obj.__qualname__}.{e.attr}", member)
+                return _value(member, _Lazy(e))
             raise NativeError(f"cannot lower {ast.unparse(e)!r}")
         if isinstance(e, ast.Subscript):
             v = self.expr(f, e.value, cond)
@@ -147,7 +208,10 @@ class Lowerer:
                 lo, hi, step = (None if x is None else _int(self.expr(f, x, cond), "a slice")
                                 for x in (e.slice.lower, e.slice.upper, e.slice.step))
                 return Tup(v.items[lo:hi:step])
-            k = _int(self.expr(f, e.slice, cond), _Lazy(e))
+            index = self.num(f, e.slice, cond)
+            if not _is_int(index):
+                return self.index(v, index, e, cond)
+            k = _int(index, _Lazy(e))
             if not -len(v.items) <= k < len(v.items):
                 raise NativeError(f"{ast.unparse(e)!r}: index {k} out of range")
             return v.items[k]
@@ -188,6 +252,8 @@ class Lowerer:
                     ast.Expression(ast.Compare(left, e.ops, rights))), "<index>", "eval"))))
             return ast.Compare(left, e.ops, rights)
         if isinstance(e, ast.BoolOp):
+            if not cond and any(_calls(f, v) for v in e.values[1:]):
+                return self.bool_op(f, e)
             return ast.BoolOp(e.op, [self.num(f, v, cond or k > 0)
                                      for k, v in enumerate(e.values)])
         if isinstance(e, ast.IfExp):
@@ -233,6 +299,56 @@ class Lowerer:
         self.out.append(ast.If(test, body_st, orelse_st))
         return names
 
+    def index(self, v: Tup, index: Any, e: ast.Subscript, cond: bool) -> Any:
+        """``t[k]`` with ``k`` known only when it runs: each element of the result picks
+        its item by ``k`` (``_index``: an int in range, as Python's indexing demands,
+        else the compiled function declines). The items are computed first, as the tuple
+        held them."""
+        items = v.items
+        if not items:
+            raise NativeError(f"{ast.unparse(e)!r}: an index into an empty tuple")
+        shape = _shape(items[0])
+        if not all(_same_shape(shape, _shape(x)) for x in items):
+            raise NativeError(f"{ast.unparse(e)!r}: a variable index into items of "
+                              "different shapes")
+        if cond:
+            if not all(_simple(x) for it in items for x in _leaves(it)):
+                raise NativeError(f"{ast.unparse(e)!r}: a variable index into computed "
+                                  "items on some paths only")
+        else:
+            index = self.temp(index)
+            items = [_retemp(self, x) if isinstance(x, Tup) else self.temp(x) for x in items]
+        leaves = [_leaves(x) for x in items]
+        picked = [ast.Call(ast.Name("_index", ast.Load()),
+                           [index, *(lv[j] for lv in leaves)], [])
+                  for j in range(len(leaves[0]))]
+        if shape is None:
+            return picked[0]
+        it = iter(picked)
+        cls = items[0].cls if all(x.cls is items[0].cls for x in items) else None
+        return _zip_tup(lambda a, b: next(it), Tup(shape.items, shape.fields, cls),
+                        Tup(shape.items, shape.fields, cls))
+
+    def bool_op(self, f: Frame, e: ast.BoolOp) -> Any:
+        """``a and f(x)`` (``or``) where a later operand calls a function: the value of
+        the first operand that decides, each later one computed only when the ones before
+        did not — Python's short circuit, as ``if`` statements."""
+        result = self.fresh()
+        self.out.append(ast.Assign([ast.Name(result.id, ast.Store())],
+                                   self.num(f, e.values[0], False)))
+        for v in e.values[1:]:
+            test: ast.expr = ast.Name(result.id, ast.Load())
+            if isinstance(e.op, ast.Or):
+                test = ast.UnaryOp(ast.Not(), test)
+            saved, self.out = self.out, []
+            self.depth += 1
+            x = self.num(f, v, False)
+            self.out.append(ast.Assign([ast.Name(result.id, ast.Store())], x))
+            self.depth -= 1
+            block, self.out = self.out, saved
+            self.out.append(ast.If(test, block, []))
+        return result
+
     def value(self, f: Frame, e: ast.expr, cond: bool) -> Any:
         v = self.expr(f, e, cond)
         if isinstance(v, _Ref):
@@ -260,6 +376,8 @@ class Lowerer:
         if not isinstance(fv, _Ref):
             raise NativeError(f"{ast.unparse(e.func)!r} is not a function: {what!r}")
         obj = fv.obj
+        if isinstance(obj, _Method):
+            return self.replace(f, obj.tup, e, cond)
         if any(isinstance(a, ast.Starred) for a in e.args):      # f(*t): t's items
             e = ast.Call(e.func, [y for a in e.args for y in (
                 [ast.Subscript(a.value, ast.Constant(k), ast.Load())
@@ -282,7 +400,16 @@ class Lowerer:
             if missing or set(items) - set(obj._fields):
                 raise NativeError(f"{what!r}: fields do not match {obj.__name__}")
             return Tup([items[n] if n in items else _value(defaults[n], n)
-                        for n in obj._fields], obj._fields)
+                        for n in obj._fields], obj._fields, named_class(obj))
+        if obj is _TUPLE_NEW and len(e.args) == 2 and not e.keywords:
+            # tuple.__new__(C, items): the NamedTuple C made without its Python __new__
+            cls = self.expr(f, e.args[0], cond)
+            items = self.tup(f, e.args[1], cond)
+            if not (isinstance(cls, _Ref) and isinstance(cls.obj, type)
+                    and hasattr(cls.obj, "_fields")
+                    and len(cls.obj._fields) == len(items.items)):
+                raise NativeError(f"{what!r}: not a NamedTuple class and its fields")
+            return Tup(list(items.items), cls.obj._fields, named_class(cls.obj))
         if e.keywords:
             raise NativeError(f"cannot lower keyword arguments: {what!r}")
         if obj in (min, max):
@@ -301,6 +428,14 @@ class Lowerer:
             return best
         if obj is float and len(e.args) == 1:
             return self.num(f, e.args[0], cond)
+        if obj is int and len(e.args) == 1:      # int(x): toward zero; x itself if an int
+            x = self.num(f, e.args[0], cond)
+            return x if _is_int(x) else ast.Call(ast.Name("_int", ast.Load()), [x], [])
+        if obj is bool and len(e.args) == 1:     # bool(x): x != 0 (a NaN is true)
+            x = self.num(f, e.args[0], cond)
+            if isinstance(x, ast.Constant):
+                return ast.Constant(bool(x.value))
+            return ast.Compare(x, [ast.NotEq()], [ast.Constant(0)])
         if obj is len and len(e.args) == 1:
             return ast.Constant(len(self.tup(f, e.args[0], cond).items))
         if obj in (tuple, list) and len(e.args) == 1:
@@ -314,6 +449,17 @@ class Lowerer:
                             [self.num(f, a, cond) for a in e.args], [])
         raise NativeError(f"{what!r}: {obj!r} is neither a pure Python function nor a math "
                           "function the translator knows")
+
+    def replace(self, f: Frame, v: Tup, e: ast.Call, cond: bool) -> Tup:
+        """``t._replace(field=value, …)`` of a NamedTuple: a new one, those fields changed."""
+        assert v.fields is not None
+        if e.args or any(k.arg not in v.fields for k in e.keywords):
+            raise NativeError(f"{ast.unparse(e)!r}: _replace takes the tuple's fields")
+        items = list(v.items)
+        for k in e.keywords:
+            assert k.arg is not None
+            items[v.fields.index(k.arg)] = self.value(f, k.value, cond)
+        return Tup(items, v.fields, v.cls)
 
     def iteration(self, f: Frame, it: ast.expr, cond: bool) -> list[Any]:
         """The values a ``for`` takes: ``range`` of constants, or a tuple's items."""
@@ -340,6 +486,18 @@ class Lowerer:
 
     # ----- statements ---------------------------------------------------------------------
     def stmt(self, f: Frame, st: ast.stmt) -> None:
+        if f.done:                  # after the function's own return: never runs
+            return
+        if isinstance(st, ast.If) and f.returned is None and _returns(st):
+            # the flag the returns in it set, read by the Rest after it
+            f.returned = self.fresh()
+            self.out.append(ast.Assign([ast.Name(f.returned.id, ast.Store())],
+                                       ast.Constant(0)))
+        if isinstance(st, Rest):
+            assert f.returned is not None
+            self.out.append(ast.If(ast.UnaryOp(ast.Not(), ast.Name(f.returned.id, ast.Load())),
+                                   self.block(f, st.body), []))
+            return
         if isinstance(st, (ast.Assign, ast.AnnAssign)) and st.value is not None:
             value = self.value(f, st.value, False)
             targets = st.targets if isinstance(st, ast.Assign) else [st.target]
@@ -365,11 +523,13 @@ class Lowerer:
         elif isinstance(st, ast.For):
             self.loop(f, st)
         elif isinstance(st, ast.Return):
-            if not (st.value is None or (isinstance(st.value, ast.Constant)
-                    and st.value.value is None)) or f.prefix:
-                raise NativeError(f"{f.fn.__qualname__}: only the last statement returns a "
-                                  f"value: {ast.unparse(st)!r}")
-            self.out.append(ast.Return(ast.Constant(None)))
+            if not _is_none(st.value):
+                self.ret(f, st.value)       # type: ignore[arg-type]
+            elif f.prefix:
+                raise NativeError(f"{f.fn.__qualname__}: an inlined function returns None: "
+                                  f"{ast.unparse(st)!r}")
+            else:                           # the decline: the caller's Python decides
+                self.out.append(ast.Return(ast.Constant(None)))
         elif isinstance(st, ast.Break):
             self.out.append(ast.Break())
         elif isinstance(st, ast.Pass) or (isinstance(st, ast.Expr) \

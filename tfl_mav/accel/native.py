@@ -394,8 +394,13 @@ def lowered(fn: Callable[..., Any], example: Sequence[Any]) -> str:
 
 
 def _constant(module: str, name: str) -> str:
-    """The repr of a module's constant now (what a kept lowering folded in)."""
-    return repr(vars(importlib.import_module(module)).get(name))
+    """The repr of a module's constant now (what a kept lowering folded in); a dotted name
+    is a class's attribute (an IntEnum member)."""
+    head, *rest = name.split(".")
+    value = vars(importlib.import_module(module)).get(head)
+    for part in rest:
+        value = getattr(value, part, None)
+    return repr(value)
 
 
 def _file_hash(path: str) -> str:

@@ -9,6 +9,7 @@ import builtins
 import inspect
 import math
 import re
+import sys
 import textwrap
 import types
 from collections.abc import Callable
@@ -35,6 +36,7 @@ class Tup:
 
     items: list[Any]
     fields: tuple[str, ...] | None = None
+    cls: type | None = None         # the NamedTuple class (returned as an instance of it)
 
 
 @dataclass
@@ -55,7 +57,7 @@ class _Lazy:
 
 
 def _shape(v: Any) -> Any:
-    return Tup([_shape(x) for x in v.items], v.fields) if isinstance(v, Tup) else None
+    return Tup([_shape(x) for x in v.items], v.fields, v.cls) if isinstance(v, Tup) else None
 
 
 def _same_shape(a: Any, b: Any) -> bool:
@@ -97,7 +99,9 @@ _INT_OPS: dict[type, Callable[[int, int], int]] = {
 def _value(obj: Any, what: object) -> Any:
     """A global's value: a number (a constant), a tuple of them, or a reference."""
     if isinstance(obj, bool):
-        return ast.Constant(int(obj))
+        return ast.Constant(obj)                # a boolean stays one (returned as bool)
+    if isinstance(obj, int) and type(obj) is not int:
+        return ast.Constant(int(obj))           # an IntEnum member: its value
     if isinstance(obj, (int, float)):
         f = float(obj)
         if f != f:
@@ -107,10 +111,30 @@ def _value(obj: Any, what: object) -> Any:
             return inf if f > 0 else ast.UnaryOp(ast.USub(), inf)
         return ast.Constant(obj)
     if isinstance(obj, (tuple, list)):
-        return Tup([_value(x, what) for x in obj], getattr(obj, "_fields", None))
+        return Tup([_value(x, what) for x in obj], getattr(obj, "_fields", None),
+                   named_class(obj))
     if isinstance(obj, (types.FunctionType, types.ModuleType, type, types.BuiltinFunctionType)):
         return _Ref(obj)
     raise NativeError(f"{what} is a {type(obj).__name__}, not a number, tuple or function")
+
+
+def named_class(x: Any) -> type | None:
+    """The NamedTuple class of ``x`` (an instance or the class), if it is one a compiled
+    function can return: a tuple subclass with fields, reachable by module and name."""
+    cls = x if isinstance(x, type) else type(x)
+    if not (issubclass(cls, tuple) and hasattr(cls, "_fields")):
+        return None
+    obj: Any = sys.modules.get(cls.__module__)
+    for part in cls.__qualname__.split("."):
+        obj = getattr(obj, part, None)
+    return cls if obj is cls else None
+
+
+def kind_of(annotation: Any) -> str:
+    """A leaf's kind from its annotation: ``i`` (int), ``b`` (bool) or ``f`` (float)."""
+    name = annotation if isinstance(annotation, str) else getattr(
+        annotation, "__forward_arg__", getattr(annotation, "__name__", ""))
+    return {"int": "i", "bool": "b"}.get(name, "f")
 
 
 def _source(fn: types.FunctionType) -> ast.FunctionDef:
@@ -140,8 +164,65 @@ def _parse(fn: types.FunctionType) -> ast.FunctionDef:
     body = node.body
     if body and isinstance(body[0], ast.Expr) and isinstance(body[0].value, ast.Constant):
         body = body[1:]                                 # the docstring
-    node.body = body
+    node.body = _single_exit(fn, body)
+    if not _ends(node.body):
+        raise NativeError(f"{fn.__qualname__} must return a value on every path")
     return node
+
+
+def _returns(st: ast.stmt) -> bool:
+    """``st`` holds a ``return`` of a value (``return None`` is the seam's decline)."""
+    return any(isinstance(n, ast.Return) and not _is_none(n.value) for n in ast.walk(st))
+
+
+def _is_none(e: ast.expr | None) -> bool:
+    return e is None or (isinstance(e, ast.Constant) and e.value is None)
+
+
+class Rest(ast.stmt):
+    """The statements after an ``if`` that returns on some of its paths: they run on the
+    paths that did not return (the lowering guards them with a flag the returns set)."""
+
+    _fields = ("body",)
+
+    def __init__(self, body: list[ast.stmt]) -> None:
+        super().__init__()
+        self.body = body
+
+
+def _single_exit(fn: types.FunctionType, body: list[ast.stmt]) -> list[ast.stmt]:
+    """``body`` with what follows each ``if`` that returns on a path made one :class:`Rest`
+    (nothing, if every path of the ``if`` returns): the same statements in the same order on
+    every path, each written once."""
+    out: list[ast.stmt] = []
+    for k, st in enumerate(body):
+        if isinstance(st, ast.Return):
+            out.append(st)
+            return out                          # what follows never runs
+        if isinstance(st, ast.If) and _returns(st):
+            branch = ast.If(st.test, _single_exit(fn, st.body), _single_exit(fn, st.orelse))
+            out.append(branch)
+            rest = body[k + 1:]
+            if rest and not (_ends(branch.body) and _ends(branch.orelse)):
+                out.append(Rest(_single_exit(fn, rest)))
+            return out
+        if _returns(st):
+            raise NativeError(f"{fn.__qualname__}: a return inside a loop: "
+                              f"{ast.unparse(st).splitlines()[0]!r}")
+        out.append(st)
+    return out
+
+
+def _ends(body: list[ast.stmt]) -> bool:
+    """Every path through ``body`` ends with a ``return`` (of a value, or the decline)."""
+    if not body:
+        return False
+    last = body[-1]
+    if isinstance(last, ast.Return):
+        return True
+    if isinstance(last, Rest):                  # the paths that get there end in it
+        return _ends(last.body)
+    return isinstance(last, ast.If) and _ends(last.body) and _ends(last.orelse)
 
 
 def _assigned(fn: types.FunctionType, node: ast.FunctionDef) -> set[str]:
@@ -172,6 +253,10 @@ class Frame:
         self.version: dict[str, int] = {}       # a name rebound with another shape: new floats
         self.depth = low.depth                  # the branches and loops it is called in
         self.made: dict[tuple[str, int, int], tuple[Any, Any]] = {}     # local()'s, kept
+        self.result: Any = None     # the returned value, or the locals every return sets
+        self.result_named = False   # … it is locals (a return in a branch set them)
+        self.returned: ast.Name | None = None   # 1 once a return in a branch ran
+        self.done = False           # the return at the function's own level was lowered
         self.assigned = _assigned(fn, node)
 
     # ----- names ------------------------------------------------------------------------
@@ -192,7 +277,7 @@ class Frame:
         def walk(s: Any, path: tuple[int, ...]) -> Any:
             if s is None:
                 return ast.Name(f"{base}__{'_'.join(map(str, path))}", ast.Load())
-            return Tup([walk(x, (*path, k)) for k, x in enumerate(s.items)], s.fields)
+            return Tup([walk(x, (*path, k)) for k, x in enumerate(s.items)], s.fields, s.cls)
         return walk(shape, ())
 
     def name(self, name: str) -> Any:
@@ -260,8 +345,8 @@ class Frame:
 
 def _retemp(low: Lowerer, v: Any, names: bool = False) -> Any:
     """``v`` with each float computed into a local now (``names``: a name copied too)."""
-    return Tup([_retemp(low, x, names) for x in v.items], v.fields) if isinstance(v, Tup) \
-        else low.temp(v, names)
+    return Tup([_retemp(low, x, names) for x in v.items], v.fields, v.cls) \
+        if isinstance(v, Tup) else low.temp(v, names)
 
 def _is_range(f: Frame, it: ast.expr) -> bool:
     return isinstance(it, ast.Call) and isinstance(it.func, ast.Name) \
@@ -294,6 +379,6 @@ def _tuple_op(a: Any, op: ast.operator, b: Any, what: object) -> Tup:
 def _zip_tup(fn: Callable[[Any, Any], Any], a: Any, b: Any) -> Any:
     if isinstance(a, Tup):
         return Tup([_zip_tup(fn, x, y) for x, y in zip(a.items, b.items, strict=True)],
-                   a.fields)
+                   a.fields, a.cls if isinstance(b, Tup) and b.cls is a.cls else None)
     return fn(a, b)
 

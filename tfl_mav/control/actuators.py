@@ -88,15 +88,15 @@ class LagParams(NamedTuple):
 class LagState(NamedTuple):
     """What the inverse remembers (physical rotor order)."""
 
-    has_prev: float         # 1.0: ``prev_demand`` is the last period's demand (N)
+    has_prev: bool          # ``prev_demand`` is the last period's demand (N)
     prev_demand: V4
-    has_model: float        # 1.0: ``omega_model`` is the model's ω at the period's end (rad/s)
+    has_model: bool         # ``omega_model`` is the model's ω at the period's end (rad/s)
     omega_model: V4
-    has_latched: float      # 1.0: ``omega`` is the ω :func:`lag_reachable` used this period
+    has_latched: bool       # ``omega`` is the ω :func:`lag_reachable` used this period
     omega: V4
 
 
-LAG_START = LagState(0.0, _ZERO4, 0.0, _ZERO4, 0.0, _ZERO4)
+LAG_START = LagState(False, _ZERO4, False, _ZERO4, False, _ZERO4)
 
 
 def lag_params(k_f: float, thrust_max_n: float, time_constant_s: float, dt_s: float, *,
@@ -157,7 +157,7 @@ def lag_reachable(p: LagParams, s: LagState, omega_meas: V4 | None
     else:
         omega = None
     if omega is None:
-        return s._replace(has_latched=0.0), [0.0] * 4, [fmax] * 4
+        return s._replace(has_latched=False), [0.0] * 4, [fmax] * 4
     e1, wmax = p.e1, p.omega_max_radps
     k = 1.0 + p.lead
     lo: list[float] = []
@@ -170,7 +170,7 @@ def lag_reachable(p: LagParams, s: LagState, omega_meas: V4 | None
             f_hi = (f_hi + p.lead * s.prev_demand[i]) / k
         lo.append(min(max(f_lo, 0.0), fmax))
         hi.append(min(max(f_hi, 0.0), fmax))
-    return s._replace(has_latched=1.0, omega=tuple(omega)), lo, hi
+    return s._replace(has_latched=True, omega=tuple(omega)), lo, hi
 
 
 def lag_invert(p: LagParams, s: LagState, demand_n: V4, omega_meas: V4 | None = None
@@ -205,7 +205,7 @@ def lag_invert(p: LagParams, s: LagState, demand_n: V4, omega_meas: V4 | None = 
         mean.append(kf * (c * c + 2.0 * c * dw * m1 + dw * dw * m2))
         clamped.append(hit)
         nxt.append(c + dw * e1)
-    state = LagState(1.0, tuple(demand_n), 1.0, tuple(nxt), 0.0, s.omega)  # type: ignore[arg-type]
+    state = LagState(True, tuple(demand_n), True, tuple(nxt), False, s.omega)  # type: ignore[arg-type]
     return state, LagInversion(cmd, mean, clamped)
 
 
@@ -232,7 +232,7 @@ class MotorLagInverter:
 
     def reset(self) -> None:
         """Forget the demand history (mode switch: the old demand is not a trend)."""
-        self.state = self.state._replace(has_prev=0.0)
+        self.state = self.state._replace(has_prev=False)
 
     def reachable(self, omega_meas_radps: Sequence[float] | None
                   ) -> tuple[list[float], list[float]]:

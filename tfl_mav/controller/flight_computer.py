@@ -44,11 +44,13 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Sequence
-from typing import NamedTuple
+import weakref
+from collections.abc import Callable, Sequence
+from typing import Any, NamedTuple
 
 import numpy as np
 
+from tfl_mav.accel import native
 from tfl_mav.build import (
     build_controller,
     build_detector,
@@ -149,6 +151,9 @@ _NAN = math.nan
 _ZERO2, _ZERO4 = (0.0, 0.0), (0.0, 0.0, 0.0, 0.0)
 _ZERO_XI = (_ZERO4, _ZERO4)
 _sqrt, _acos, _hypot, _isfinite = math.sqrt, math.acos, math.hypot, math.isfinite
+_STAY, _NO_START = int(Why.STAY), int(Start.NONE)     # read every tick: plain ints
+_OUTPUT_DEFAULTS = tuple(ControlOutput._field_defaults[f] for f in ControlOutput._fields[15:])
+_TFL, _SPIN = int(Law.TFL), int(Law.SPIN)
 _ndarray = np.ndarray
 
 
@@ -189,6 +194,7 @@ class FlightComputer:
                                     design_gains=design_gains,
                                     motor_time_constant_s=mp.motor_time_constant_s)
         self._weight_n = mp.mass_kg * mp.gravity_mps2
+        self._spin_from_n = self._weight_n - 2.0   # 2A above it: the spin law is built
         # Which law flies: the supervisor's constants and state (supervisor.py).
         mode = scenario.controller.supervisor
         self.supervisor = supervisor_params(mode, self._weight_n, mp.thrust_max_n,
@@ -239,6 +245,8 @@ class FlightComputer:
                              or self.controller.lag_inverter is not None)
         self.internal_errors = 0   # ticks a law raised (held the last command)
         self._last_t: float | None = None
+        self._supervise_core: Callable[..., Any] | None = None
+        self._obtain_supervisor()
 
     @property
     def law_name(self) -> str:
@@ -327,7 +335,9 @@ class FlightComputer:
             # ω (rad/s) for the state filter, the yaw-rate model and the law's lag inverse; the
             # law reads it only with motor lag (TFLController.update), so nothing else needs it.
             omega = [r * RPM_TO_RADPS for r in rpm] if self._needs_omega else None
-            estimate, spread = self._estimate(rotor, estimate, rpm, detection)
+            spread = 0.0
+            if self.attack_filter is not None:
+                estimate, spread = self._estimate(rotor, estimate, rpm, detection)
             if rotor != ctrl.attacked_rotor:     # the allocation changes; the estimate
                 ctrl.set_attack(rotor, estimate if rotor else 0.0)   # goes with every tick
             last = self._last_t
@@ -348,19 +358,17 @@ class FlightComputer:
             sup = self._sup
             if sup.ticks == 0:
                 events[:0] = self._pending_events
-                sup = self._decide(self._inputs(0.0, rotor, estimate, spread, None, math.nan,
-                                                state, first=True),
-                                   state, events, estimate, rotor, None)
-            if sup.law == Law.TFL:
+                sup = self._decide(0.0, rotor, estimate, spread, None, _NAN, state, events,
+                                   first=True)
+            if sup.law == _TFL:
                 self._delivered = None
                 out = ctrl.update(state, omega, dt_s=dt_s,
                                   attack_n=estimate if rotor else None)
-                sup = self._decide(self._inputs(dt, rotor, estimate, spread, out, math.nan,
-                                                state), state, events, estimate, rotor, out)
-                if sup.law == Law.TFL:
+                sup = self._decide(dt, rotor, estimate, spread, out, _NAN, state, events)
+                if sup.law == _TFL:
                     return self._result(out.rotor_thrust_n, None, out, detection, rotor,
                                         estimate, new, events)
-            if sup.law == Law.SPIN:
+            if sup.law == _SPIN:
                 return self._fly_spin(dt, state, rotor, estimate, spread, rpm, events,
                                       detection, new)
             return self._fly_safe(dt, state, rotor, estimate, spread, omega, events,
@@ -372,8 +380,9 @@ class FlightComputer:
                   detection: DetectorOutput | None) -> tuple[float, float]:
         """The attacked rotor's thrust A (N) for the laws and its standard deviation σ_A (N)
         (:mod:`~tfl_mav.control.detect.attack_estimate`): the filter over the rotor's
-        measured speed with the motor-lag model and the ESC noise; without noise the
-        measured speed is the truth (σ_A = 0) and A = k_f ω²."""
+        measured speed with the motor-lag model and the ESC noise; without noise (no
+        filter: the tick does not call this) the measured speed is the truth (σ_A = 0)
+        and A = k_f ω²."""
         est = self.attack_filter
         if est is None:
             return raw_n, 0.0
@@ -402,30 +411,16 @@ class FlightComputer:
             fine_gains=False, reason=why, demand_n=tuple(hold))
         return TickResult(hold, out, None, 0, math.nan, False, list(hold), (why,))
 
-    def _inputs(self, dt: float, rotor: int, estimate: float, spread: float,
-                out: ControlOutput | None, safe_distance_m: float, state: State, *,
-                first: bool = False) -> SupervisorInputs:
-        """What the supervisor is told this tick (:class:`SupervisorInputs`)."""
-        tfl_flew = out is not None
-        demand = (out.demand_n if tfl_flew and out.demand_n else _ZERO4)
-        # SupervisorInputs' fields in order, built as the tuple it is (every tick).
-        return _new(SupervisorInputs, (
-            dt, rotor, estimate, spread, tfl_flew,
-            tfl_flew and out.mode is not _FALLBACK, demand, safe_distance_m,
-            _floats(state.quaternion_wxyz), _floats(state.body_rates_radps),
-            _floats(state.velocity_mps), self._distance_to_path(state) if first else math.nan,
-            self._spin_ready(rotor, estimate)))
-
     def _spin_ready(self, rotor: int, estimate: float) -> bool:
         """The spin law is built for ``rotor`` (its table is made once the attack comes
         within 1 N of m g/2: ~3 s of computing, so not for every attack). ``spin_build``
         "sync" builds it there and then (offline, lockstep: no deadline, deterministic);
         "async" on a background thread, used once ready (real time: no tick waits)."""
-        if not rotor or self.supervisor.mode != 0 or not self.spin_enabled:
-            return False
-        if rotor in self._spin_laws or rotor in self._cone_laws:
-            return True
-        if not 2.0 * estimate > self._weight_n - 2.0:
+        if rotor in self._spin_laws or rotor in self._cone_laws:   # built: only ever for
+            return self.spin_enabled                               # mode auto, spin enabled
+        # the attack well below m g/2 first: what an attacked TFL tick finds, cheapest
+        if not (rotor and 2.0 * estimate > self._spin_from_n) \
+                or self.supervisor.mode != 0 or not self.spin_enabled:
             return False
         key = self._spin_key(rotor)
         if key in _SPIN_LAWS:
@@ -506,8 +501,7 @@ class FlightComputer:
         else:
             self._last_safe_thrust = thrust
         self._delivered = None
-        self._decide(self._inputs(dt, rotor, estimate, spread, None, dist, state), state,
-                     events, estimate, rotor, None)
+        self._decide(dt, rotor, estimate, spread, None, dist, state, events)
         if self._sup.law != Law.SPIN:
             self._spin_state = None
             self._cone_state = None
@@ -545,17 +539,59 @@ class FlightComputer:
                   f"{out.drift_m:.2f} m")
         return list(out.thrusts_n), out.clipped, reason
 
-    def _decide(self, inputs: SupervisorInputs, state: State, events: list[str],
-                estimate: float, rotor: int, out: ControlOutput | None) -> SupervisorState:
-        """One supervisor step; start the law it chose as it says; the words for it."""
+    def _obtain_supervisor(self) -> None:
+        """The supervisor's step compiled by the seam (the same decisions, bit for bit:
+        tests/contract/test_composition_seam.py), used once it is built; Python until then."""
+        ref = weakref.ref(self)
+
+        def ready(core: Callable[..., Any]) -> None:
+            target = ref()
+            if target is not None:
+                target._supervise_core = core   # one reference store: atomic under the GIL
+
+        example = (self.supervisor, self._sup, _new(SupervisorInputs, (
+            0.0, 0, _NAN, 0.0, False, False, _ZERO4, _NAN, (1.0, 0.0, 0.0, 0.0),
+            (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), _NAN, False)))
+        core = native.obtain_function(supervise, example, ready)
+        if core is not None:
+            ready(core)
+
+    def _decide(self, dt: float, rotor: int, estimate: float, spread: float,
+                out: ControlOutput | None, safe_distance_m: float, state: State,
+                events: list[str], *, first: bool = False) -> SupervisorState:
+        """One supervisor step; start the law it chose as it says; the words for it.
+
+        ``out``: the TFL law's output if it flew this tick; ``safe_distance_m``: the safe
+        law's distance to the path if it flew (NaN: not, or holding a point); ``first``: the
+        first tick (the distance to the path is searched for). What the supervisor is told
+        goes as :class:`SupervisorInputs`' fields in order, a plain tuple (the compiled step
+        reads them by position; named only where Python reads them); the state's vectors
+        as they are (the step reads any sequence of floats)."""
+        if out is None:
+            tfl_flew = answer = False
+            demand = _ZERO4
+        else:
+            tfl_flew, answer = True, out.mode is not _FALLBACK
+            demand = out.demand_n or _ZERO4
+        fields = (dt, rotor, estimate, spread, tfl_flew, answer, demand, safe_distance_m,
+                  state.quaternion_wxyz, state.body_rates_radps, state.velocity_mps,
+                  self._distance_to_path(state) if first else _NAN,
+                  self._spin_ready(rotor, estimate) if rotor else False)
         old = self._sup
-        self._sup, (law, why, start) = supervise(self.supervisor, old, inputs)
-        if why != Why.STAY:
+        core = self._supervise_core
+        r = core(self.supervisor, old, fields) if core is not None else None
+        if r is None:        # not compiled yet, or declined (Python raises there): Python
+            r = supervise(self.supervisor, old, _new(SupervisorInputs, fields))
+        self._sup, (law, why, start) = r
+        if why != _STAY:
+            inputs = _new(SupervisorInputs, fields)
             distance = inputs.safe_distance_m
             text = describe(why, law, rotor=rotor, attack_n=estimate, inputs=inputs,
                             since_s=old.since_s + inputs.dt_s, distance_m=distance)
             if text and (law != old.law or why == Why.FOLLOW):
                 events.append(text)
+        if start == _NO_START:
+            return self._sup
         rec = self.recovery
         if start == Start.SAFE_HOLD:
             rec.hold(state.position_m)
@@ -609,13 +645,13 @@ class FlightComputer:
             ctrl.track(state, self._delivered)   # learns from what acted over it
         # The estimated mass once it has learnt for a second (its first samples, from a
         # restart or a fall, are what the model says better than the estimate does).
-        mass = ctrl.mass_kg if ctrl.mass_learnt_s >= MASS_TRUSTED_S else None
+        mass_kg = ctrl.mass_kg
+        mass = mass_kg if ctrl.mass_learnt_s >= MASS_TRUSTED_S else None
         out = rec.update(state, rotor, a_n, mass_kg=mass)
         dist = out.path_distance_m
         self._last_safe_thrust = out.thrust_n
-        if flying.law != Law.TFL:      # a take-over this tick is judged from the next one
-            self._decide(self._inputs(dt, rotor, estimate, spread, None, dist, state), state,
-                         events, estimate, rotor, None)
+        if flying.law != _TFL:      # a take-over this tick is judged from the next one
+            self._decide(dt, rotor, estimate, spread, None, dist, state, events)
         thrust = out.thrust_n
         # What the rotors deliver over the coming period (N): the demand, or with motor lag
         # the lag model's mean for the command sent (the attacked rotor: its estimate) —
@@ -630,15 +666,18 @@ class FlightComputer:
                 command[rotor - 1] = thrust[rotor - 1]   # not ours to command
                 delivered[rotor - 1] = thrust[rotor - 1]
             thrust = command
-        self._delivered = delivered if self._sup.law != Law.TFL else None
+        self._delivered = delivered if self._sup.law != _TFL else None
         # the output; after a hand-back this tick is still the safe law's
         mode = _LOST_ROTOR if rotor else _RECOVERY
         deg = out.tilt_error_rad * _RAD_TO_DEG
         reason = (_TILT_TEXT[mode][round(deg)] if 0.0 <= deg <= 180.0
                   else f"{_MODE_TEXT[mode]}: tilt error {deg:.0f} deg")
-        law = ControlOutput(   # positional: the fields in order (rotor_thrust_n … demand_n)
+        # ControlOutput's fields in order (rotor_thrust_n … demand_n), built as the tuple it
+        # is; the fields after them, if any, at their defaults
+        law = _new(ControlOutput, (
             list(thrust), mode, list(out.clamped), _ZERO_XI, _ZERO4, _ZERO2, dist, _NAN, _NAN,
-            out.uf_n, self.controller.mass_kg, _ZERO2, False, reason, tuple(out.requested_n))
+            out.uf_n, mass_kg, _ZERO2, False, reason, tuple(out.requested_n),
+            *_OUTPUT_DEFAULTS))
         return self._result(thrust, out.requested_n, law, detection, rotor, estimate, new,
                             events)
 

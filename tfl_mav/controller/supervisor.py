@@ -50,6 +50,8 @@ The rules, and the physics that sizes them (canonical frame of the attacked roto
   take-over at all: for research and comparison); ``"safe"`` flies the safe law alone.
 
 Time in each law and the number of switches are part of the state: the honest mode report.
+The flight computer flies this step compiled by the accelerator seam (the same decisions,
+bit for bit and type for type: tests/contract/test_composition_seam.py).
 """
 
 from __future__ import annotations

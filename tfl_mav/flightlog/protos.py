@@ -36,12 +36,12 @@ from typing import Any
 
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 
-__all__ = ["FRAMES", "PATH_DISTANCE", "TRUTH_STATE",
+__all__ = ["FRAMES", "PATH_DISTANCE", "TRUTH_STATE", "TRUTH_WIND",
            "RecordEncoder", "frames", "frames_fields", "message_class", "schema", "to_dict"]
 
 PACKAGE = "tfl_mav"
-FRAMES, TRUTH_STATE, PATH_DISTANCE = (
-    f"{PACKAGE}.{n}" for n in ("MavlinkFrames", "TruthState", "PathDistance"))
+FRAMES, TRUTH_STATE, PATH_DISTANCE, TRUTH_WIND = (
+    f"{PACKAGE}.{n}" for n in ("MavlinkFrames", "TruthState", "PathDistance", "TruthWind"))
 
 _F = descriptor_pb2.FieldDescriptorProto
 _TYPES = {"double": _F.TYPE_DOUBLE, "sint64": _F.TYPE_SINT64, "uint32": _F.TYPE_UINT32,
@@ -76,6 +76,11 @@ _FIXED: dict[str, tuple[str, tuple[tuple[str, str, str], ...]]] = {
                                                      "clamped to [0, f_max]"),
                       ("attack_requested_n", "double", "what the attack signal asked for "
                                                        "(N)"))),
+    TRUTH_WIND: ("The air the simulator's vehicle flies in at one tick: the wind (mean, "
+                 "Dryden turbulence and gust) its aerodynamic forces act against", (
+                     ("t_s", "double", "sim time (s)"),
+                     ("wind_mps", "doubles", "air velocity, world frame ENU z up (m/s), "
+                                             "3 values"))),
     PATH_DISTANCE: ("Distance from the true position to the recorded path polyline", (
         ("t_s", "double", "sim time (s)"),
         ("distance_m", "double", "distance to the polyline given to Recorder.path (m)"))),
@@ -228,6 +233,14 @@ def truth_state(t: float, p: Sequence[float], v: Sequence[float], q: Sequence[fl
     return _TRUTH(0x09, t, 0x12, 24, *p, 0x1A, 24, *v, 0x22, 32, *q, 0x2A, 24, *w,
                   0x32, 32, *thrust_n, 0x38, attack_rotor, 0x41, attack_applied_n,
                   0x49, attack_requested_n)
+
+
+_WIND = struct.Struct("<BdBB3d").pack
+
+
+def truth_wind(t: float, wind_mps: Sequence[float]) -> bytes:
+    """A ``tfl_mav.TruthWind`` (one ``struct`` pack, as :func:`truth_state`)."""
+    return _WIND(0x09, t, 0x12, 24, *wind_mps)
 
 
 def path_distance(t: float, distance_m: float) -> bytes:

@@ -179,6 +179,7 @@ class Recorder(FrameRecorder):
         self._mean_thrust_t = -math.inf
         self._mean_thrust_count = -1       # scenes drawn (the first one draws the mean)
         self._truth_emit: Any = None
+        self._wind_emit: Any = None
         self._polyline: Polyline | None = None
         # topic → (log, message head (plotchan.labels), number of values)
         self._plots: dict[str, tuple[Any, bytes, int]] = {}
@@ -218,12 +219,14 @@ class Recorder(FrameRecorder):
     def truth(self, time_s: float, position_m: Sequence[float], velocity_mps: Sequence[float],
               quaternion_wxyz: Sequence[float], body_rates_radps: Sequence[float],
               rotor_thrust_n: Sequence[float], attack_rotor: int, attack_applied_n: float,
-              attack_requested_n: float) -> None:
+              attack_requested_n: float, wind_mps: Sequence[float] | None = None) -> None:
         """Simulator ground truth at sim time ``time_s`` (s), world frame ENU (z up):
         position (m), velocity (m/s), attitude quaternion body → world (w, x, y, z), body
         rates (rad/s), true rotor thrusts 1-4 (N), attacked rotor (1-4, 0 = none), applied
-        and requested attack thrust (N). Also drives ``/tf``, ``/scene/vehicle`` and
-        ``/sim/truth/path_distance`` at up to ``scene_hz``."""
+        and requested attack thrust (N); ``wind_mps``: the air's velocity (m/s, world
+        frame), written to ``/sim/truth/wind`` when given (a flight in moving air). Also
+        drives ``/tf``, ``/scene/vehicle`` and ``/sim/truth/path_distance`` at up to
+        ``scene_hz``."""
         try:                 # the usual call: plain lists of the right lengths
             v = tuple(map(float, (time_s, *position_m, *velocity_mps, *quaternion_wxyz,
                                   *body_rates_radps, *rotor_thrust_n)))
@@ -244,8 +247,25 @@ class Recorder(FrameRecorder):
             self._truth_checked(time_s, position_m, velocity_mps, quaternion_wxyz,
                                 body_rates_radps, rotor_thrust_n, attack_rotor,
                                 attack_applied_n, attack_requested_n)
+        else:
+            self._truth(t, pos, vel, quat, rates, thrust, rotor, applied, requested)
+        if wind_mps is not None:
+            self._wind(time_s, wind_mps)
+
+    def _wind(self, time_s: Any, wind_mps: Any) -> None:
+        """``/sim/truth/wind`` (``tfl_mav.TruthWind``), checked: bad input is counted."""
+        try:
+            t = float(time_s)
+            w = _floats(wind_mps, 3, "wind_mps")
+            if not math.isfinite(t):
+                raise ValueError(f"time_s: not finite ({time_s})")
+        except (TypeError, ValueError) as exc:
+            self._bad(f"truth: {exc}")
             return
-        self._truth(t, pos, vel, quat, rates, thrust, rotor, applied, requested)
+        emit = self._wind_emit
+        if emit is None:
+            emit = self._wind_emit = self._proto_channel("/sim/truth/wind", protos.TRUTH_WIND)
+        self._write(emit, protos.truth_wind(t, w), self._now_ns())
 
     def _truth_checked(self, time_s: Any, position_m: Any, velocity_mps: Any,
                        quaternion_wxyz: Any, body_rates_radps: Any, rotor_thrust_n: Any,

@@ -478,13 +478,17 @@ class RecorderProcess:
     def truth(self, time_s: float, position_m: Sequence[float], velocity_mps: Sequence[float],
               quaternion_wxyz: Sequence[float], body_rates_radps: Sequence[float],
               rotor_thrust_n: Sequence[float], attack_rotor: int, attack_applied_n: float,
-              attack_requested_n: float) -> None:
-        args = (time_s, position_m, velocity_mps, quaternion_wxyz, body_rates_radps,
-                rotor_thrust_n, attack_rotor, attack_applied_n, attack_requested_n)
+              attack_requested_n: float, wind_mps: Sequence[float] | None = None) -> None:
+        args: tuple[Any, ...] = (time_s, position_m, velocity_mps, quaternion_wxyz,
+                                 body_rates_radps, rotor_thrust_n, attack_rotor,
+                                 attack_applied_n, attack_requested_n)
+        if wind_mps is not None:
+            args = (*args, wind_mps)
         if not (type(position_m) is list and type(velocity_mps) is list
                 and type(quaternion_wxyz) is list and type(body_rates_radps) is list
                 and type(rotor_thrust_n) is list and type(attack_rotor) is int
-                and type(attack_applied_n) is float and type(attack_requested_n) is float):
+                and type(attack_applied_n) is float and type(attack_requested_n) is float
+                and type(wind_mps) in (tuple, list, type(None))):
             args = tuple(map(_plain, args))     # numpy arrays and scalars: plain values
         item = (_TRUTH, self.clock(), args)
         q = self._queue

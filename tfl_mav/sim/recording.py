@@ -91,18 +91,25 @@ class TruthSink(Protocol):
     def truth(self, time_s: float, position_m: Sequence[float], velocity_mps: Sequence[float],
               quaternion_wxyz: Sequence[float], body_rates_radps: Sequence[float],
               rotor_thrust_n: Sequence[float], attack_rotor: int, attack_applied_n: float,
-              attack_requested_n: float, /) -> None: ...
+              attack_requested_n: float, wind_mps: Sequence[float] | None = None, /
+              ) -> None: ...
 
 
 def truth_hook(recorder: TruthSink) -> Callable[[Simulator], None]:
-    """``Vehicle.on_truth`` → ``recorder.truth``: true state, rotor thrusts and attack."""
+    """``Vehicle.on_truth`` → ``recorder.truth``: true state, rotor thrusts and attack, and
+    in moving air the wind the state met (``/sim/truth/wind``)."""
 
     def on_truth(sim: Simulator) -> None:
         # the float state vector, sliced (sim.state would build five arrays a tick only to
         # turn them back into these very lists)
         x = sim.state_vector
         att = sim.attack
-        recorder.truth(sim.time_s, x[0:3], x[3:6], x[6:10], x[10:13],
-                       sim.rotor_thrusts_n, att.rotor, att.applied_n, att.raw_n)
+        if sim.wind is None:
+            recorder.truth(sim.time_s, x[0:3], x[3:6], x[6:10], x[10:13],
+                           sim.rotor_thrusts_n, att.rotor, att.applied_n, att.raw_n)
+        else:
+            recorder.truth(sim.time_s, x[0:3], x[3:6], x[6:10], x[10:13],
+                           sim.rotor_thrusts_n, att.rotor, att.applied_n, att.raw_n,
+                           sim.wind_mps)
 
     return on_truth

@@ -45,7 +45,7 @@ import math
 import weakref
 from collections.abc import Sequence
 from dataclasses import dataclass, field, fields
-from typing import Any, NamedTuple
+from typing import Any
 
 from tfl_mav.accel import native
 from tfl_mav.control.detect.detector_step import (
@@ -54,9 +54,9 @@ from tfl_mav.control.detect.detector_step import (
     RADPS_TO_RPM,
     RELEASE_TICKS,
     RPM_VALID_LIMIT,
+    DetectorOutput,
     DetectorParams,
     DetectorState,
-    RotorState,
     detector_step,
     initial_state,
     motors_driven,
@@ -123,32 +123,9 @@ def _check(key: str, value: object, meta: object, *, integer: bool) -> None:
         raise ValueError(f"{key}: must be <= {hi}, got {value!r}")
 
 
-class DetectorOutput(NamedTuple):
-    """The detector's verdict after one tick (a named tuple: made every tick, and a tuple
-    is built several times faster than a frozen dataclass)."""
-
-    detected_rotor: int                  # 0 = none, else 1-4 (latched)
-    estimate_n: float                    # attacked rotor's thrust from its rpm (N); NaN before
-    residuals_n: tuple[float, ...]       # k_f (ω_meas² − ω_model²) per rotor (N), ω_model the
-                                         # nearest speed of the lag band; for logs
-    cusum: tuple[float, ...]             # larger one-sided statistic (σ); sign + = faster
-    detection_time_s: float              # time of the alarm tick (s); NaN before
-    alarm: bool                          # True only on the tick of detection
-    rejected_samples: int = 0            # non-finite rpm/command samples and bad updates
-    released: bool = False               # True only on the tick a latched rotor was released
-
-
-_new = tuple.__new__
 _ZERO4 = (0.0,) * N_ROTORS
 # The compiled step, once built (one per process, whatever the number of detectors).
 _compiled: dict[str, Any] = {"core": None}
-
-
-def _named(state: Any) -> DetectorState:
-    """``state`` as NamedTuples (the compiled step returns plain tuples of the same
-    layout)."""
-    s = DetectorState(*state)
-    return s._replace(rotors=tuple(RotorState(*r) for r in s.rotors))
 
 
 class AttackDetector:
@@ -184,7 +161,7 @@ class AttackDetector:
                                                             N_MODELS // 2 + 1)),
             sig2, math.sqrt(sig2 + 0.0), (omega_max * RADPS_TO_RPM) ** 2, self.k, self.z_cap,
             self.h * (1.0 - _ALARM_TOL), cfg.enabled)
-        self.state: Any = initial_state()
+        self.state: DetectorState = initial_state()
         self._out = DetectorOutput(0, math.nan, _ZERO4, _ZERO4, math.nan, False)
         self._core: Any = None
         self._attach()
@@ -230,15 +207,10 @@ class AttackDetector:
         r = core(self.params, self.state, (time_s, rpm_measured, thrust_cmd_n)) \
             if core is not None else None
         if r is None:       # no compiled step, or it declined: the Python step, same state
-            state = self.state
-            r = detector_step(self.params, state if type(state) is DetectorState
-                              else _named(state), (
+            r = detector_step(self.params, self.state, (
                 float(time_s), tuple(map(float, rpm_measured)), tuple(map(float, thrust_cmd_n))))
-        self.state, (d, estimate, resid, cusum, t_detect, alarm, rejected, released) = r
-        # DetectorOutput(...) without its generated Python __new__: all eight fields
-        self._out = out = _new(DetectorOutput, (int(d), estimate, resid, cusum, t_detect,
-                                                alarm != 0.0, int(rejected), released != 0.0))
-        return out
+        self.state, self._out = r
+        return self._out
 
     def set_motors_off(self, off: bool) -> None:
         """The vehicle says whether a command drives its motors (ACTUATOR_OUTPUT_STATUS
@@ -257,14 +229,11 @@ class AttackDetector:
         return self._core is not None
 
     # The state's counts and verdict, as the detector's attributes.
-    motors_off = property(lambda self: bool(self.state[_FIELD["motors_off"]]))
-    detected_rotor = property(lambda self: int(self.state[_FIELD["detected_rotor"]]))
-    detection_time_s = property(lambda self: self.state[_FIELD["detection_time_s"]])
-    estimate_n = property(lambda self: self.state[_FIELD["estimate_n"]])
-    rejected_samples = property(lambda self: int(self.state[_FIELD["rejected"]]))
-    moves = property(lambda self: int(self.state[_FIELD["moves"]]))
-    releases = property(lambda self: int(self.state[_FIELD["releases"]]))
-    paused_ticks = property(lambda self: int(self.state[_FIELD["paused_ticks"]]))
-
-
-_FIELD = {name: k for k, name in enumerate(DetectorState._fields)}
+    motors_off = property(lambda self: self.state.motors_off)
+    detected_rotor = property(lambda self: self.state.detected_rotor)
+    detection_time_s = property(lambda self: self.state.detection_time_s)
+    estimate_n = property(lambda self: self.state.estimate_n)
+    rejected_samples = property(lambda self: self.state.rejected)
+    moves = property(lambda self: self.state.moves)
+    releases = property(lambda self: self.state.releases)
+    paused_ticks = property(lambda self: self.state.paused_ticks)

@@ -1,12 +1,13 @@
 """The attack detector's law: explicit state and one pure step (:func:`detector_step`).
 
-Plain Python over NamedTuples of floats — per-rotor helpers, loops over the rotors and the
-lag models — and the only form the law is written in: :class:`~tfl_mav.control.detect.detector.
-AttackDetector` holds the state and calls the step, compiled to C through the accelerator
-seam (:func:`tfl_mav.accel.native.obtain_function`: the helpers inlined, the loops unrolled, the
-tuples one float each — the same operations in the same order, the same bits) where it is
-built, this very function otherwise. What the law does is said in :mod:`detector`'s module
-docstring.
+Plain Python over NamedTuples — floats, the counts as ints, the flags as bools; per-rotor
+helpers, loops over the rotors and the lag models, a rotor's item read by its number — and
+the only form the law is written in: :class:`~tfl_mav.control.detect.detector.AttackDetector`
+holds the state and calls the step, compiled to C through the accelerator seam
+(:func:`tfl_mav.accel.native.obtain_function`: the helpers inlined, the loops unrolled, the
+tuples one float each — the same operations in the same order, the same bits, the same
+types) where it is built, this very function otherwise. What the law does is said in
+:mod:`detector`'s module docstring.
 """
 
 from __future__ import annotations
@@ -15,7 +16,8 @@ import math
 from typing import NamedTuple
 
 __all__ = ["BAND_PAD", "N_MODELS", "N_ROTORS", "RADPS_TO_RPM", "RELEASE_TICKS",
-           "RPM_TO_RADPS", "RPM_VALID_LIMIT", "DetectorParams", "DetectorState", "RotorState",
+           "RPM_TO_RADPS", "RPM_VALID_LIMIT", "DetectorOutput", "DetectorParams", "DetectorState",
+           "RotorState",
            "detector_step", "initial_state"]
 
 RPM_TO_RADPS = 2.0 * math.pi / 60.0
@@ -65,27 +67,42 @@ class RotorState(NamedTuple):
 
 
 class DetectorState(NamedTuple):
-    """Everything the detector remembers between ticks (floats: counts and flags too)."""
+    """Everything the detector remembers between ticks."""
 
     rotors: tuple[RotorState, ...]
     cmd_n: tuple[float, ...]        # the last valid command per rotor (N)
     last_time_s: float
-    started: float                  # 1.0 once a tick was taken
-    detected_rotor: float           # 0 = none, else 1-4 (latched)
+    started: bool                   # a tick was taken
+    detected_rotor: int             # 0 = none, else 1-4 (latched)
     detection_time_s: float         # NaN before
     estimate_n: float               # the latched rotor's thrust from its rpm (N); NaN before
-    obey: float                     # consecutive samples of the latched rotor obeying
-    rejected: float                 # non-finite rpm/command samples and bad updates
-    moves: float                    # alarms on another rotor while one was latched
-    releases: float
-    paused_ticks: float             # ticks judged nothing: the motors were not driven
-    motors_off: float               # 1.0: the vehicle says no command drives the motors
+    obey: int                       # consecutive samples of the latched rotor obeying
+    rejected: int                   # non-finite rpm/command samples and bad updates
+    moves: int                      # alarms on another rotor while one was latched
+    releases: int
+    paused_ticks: int               # ticks judged nothing: the motors were not driven
+    motors_off: bool                # the vehicle says no command drives the motors
+
+
+class DetectorOutput(NamedTuple):
+    """The detector's verdict after one tick (a named tuple: made every tick, and a tuple
+    is built several times faster than a frozen dataclass)."""
+
+    detected_rotor: int                  # 0 = none, else 1-4 (latched)
+    estimate_n: float                    # attacked rotor's thrust from its rpm (N); NaN before
+    residuals_n: tuple[float, ...]       # k_f (ω_meas² − ω_model²) per rotor (N), ω_model the
+                                         # nearest speed of the lag band; for logs
+    cusum: tuple[float, ...]             # larger one-sided statistic (σ); sign + = faster
+    detection_time_s: float              # time of the alarm tick (s); NaN before
+    alarm: bool                          # True only on the tick of detection
+    rejected_samples: int = 0            # non-finite rpm/command samples and bad updates
+    released: bool = False               # True only on the tick a latched rotor was released
 
 
 def initial_state() -> DetectorState:
     rotor = RotorState((0.0,) * N_MODELS, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
-    return DetectorState((rotor,) * N_ROTORS, (0.0,) * N_ROTORS, 0.0, 0.0, 0.0, math.nan,
-                         math.nan, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+    return DetectorState((rotor,) * N_ROTORS, (0.0,) * N_ROTORS, 0.0, False, 0, math.nan,
+                         math.nan, 0, 0, 0, 0, 0, False)
 
 
 def omega_target(p: DetectorParams, thrust_n: float) -> float:
@@ -117,7 +134,7 @@ def _rotor_instant(p: DetectorParams, rs: RotorState, rpm: float, cmd_n: float,
 
 
 def _rotor_lagged(p: DetectorParams, rs: RotorState, rpm: float, cmd_n: float, valid: bool,
-                  first: float, decay: tuple[float, ...]) -> RotorState:
+                  first: bool, decay: tuple[float, ...]) -> RotorState:
     """The band of lag models: started from the measurement on the first tick, else each
     model's lag solution with the command held (``decay``: exp(−dt/τ_j)); a valid sample
     is judged against the nearest speed of the padded band."""
@@ -140,24 +157,15 @@ def _rotor_lagged(p: DetectorParams, rs: RotorState, rpm: float, cmd_n: float, v
     return rs
 
 
-def _at(values: tuple[float, ...], rotor: float) -> float:
-    """``values[rotor - 1]`` for a rotor 1-4 (0.0 for none)."""
-    v = 0.0
-    for i in range(N_ROTORS):
-        if rotor == i + 1:
-            v = values[i]
-    return v
-
-
-def _isolate(rotors: tuple[RotorState, ...], latched: float) -> float:
+def _isolate(rotors: tuple[RotorState, ...], latched: int) -> int:
     """The rotor with the largest statistic, ties to the larger |z| then the later rotor,
     the latched one left out: ``max((max(S⁺, S⁻), |z|, i))`` over the others."""
-    best, best_abs, rotor = 0.0, 0.0, 0.0
+    best, best_abs, rotor = 0.0, 0.0, 0
     for i in range(N_ROTORS):
         r = rotors[i]
         m, a = max(r.s_hi, r.s_lo), abs(r.z)
-        if latched != i + 1 and (rotor == 0.0 or m > best or (m == best and a >= best_abs)):
-            best, best_abs, rotor = m, a, i + 1.0
+        if latched != i + 1 and (rotor == 0 or m > best or (m == best and a >= best_abs)):
+            best, best_abs, rotor = m, a, i + 1
     return rotor
 
 
@@ -170,45 +178,40 @@ def _fresh(rotors: tuple[RotorState, ...]) -> tuple[RotorState, ...]:
 def motors_driven(state: DetectorState, off: bool) -> DetectorState:
     """The state once the vehicle says whether a command drives the motors: every
     statistic from zero either way."""
-    s = DetectorState(*state)
-    return s._replace(rotors=_fresh(tuple(RotorState(*r) for r in s.rotors)), obey=0.0,
-                      motors_off=1.0 if off else 0.0)
+    return state._replace(rotors=_fresh(state.rotors), obey=0, motors_off=off)
 
 
 def detector_step(p: DetectorParams, s: DetectorState,
                   inputs: tuple[float, tuple[float, ...], tuple[float, ...]]
-                  ) -> tuple[DetectorState, tuple[float, float, tuple[float, ...],
-                                                  tuple[float, ...], float, float, float,
-                                                  float]]:
+                  ) -> tuple[DetectorState, DetectorOutput]:
     """One control tick: ``inputs`` = (time_s (s), the four ESC speeds (rpm) sampled then,
     the four thrust commands (N) applied over the period that ended then).
 
-    Returns the new state and the verdict (detected rotor, estimate_n N, residuals_n N,
-    the signed larger CUSUM statistic per rotor σ, detection_time_s, alarm 1/0, rejected
-    samples, released 1/0). A non-finite time is one ``dt_s`` after the last tick; a time not
-    after the last one rejects the whole tick (the state kept, the verdict reissued)."""
+    Returns the new state and the verdict (:class:`DetectorOutput`). A non-finite time is
+    one ``dt_s`` after the last tick; a time not after the last one rejects the whole tick
+    (the state kept, the verdict reissued)."""
     t, rpm, cmd_in = inputs
     rejected = s.rejected
     rotors, cmd, detected = s.rotors, s.cmd_n, s.detected_rotor
     estimate, detection_time, obey = s.estimate_n, s.detection_time_s, s.obey
     moves, releases, paused = s.moves, s.releases, s.paused_ticks
     last, started = s.last_time_s, s.started
-    alarm, released = 0.0, 0.0
-    take = 1.0
+    alarm, released = False, False
+    take = True
     if not math.isfinite(t):
-        rejected += 1.0
+        rejected += 1
         t = last + p.dt_s if started else 0.0
     elif started and t <= last:         # a duplicate or out-of-order sample
-        rejected += 1.0
-        take = 0.0
+        rejected += 1
+        take = False
     if take:
         lim = RPM_VALID_LIMIT
         valid = tuple(-lim <= rpm[i] <= lim for i in range(N_ROTORS))     # NaN fails too
         for i in range(N_ROTORS):
             if not valid[i]:
-                rejected += 1.0
+                rejected += 1
             if not math.isfinite(cmd_in[i]):    # the vehicle keeps the last command
-                rejected += 1.0
+                rejected += 1
         cmd = tuple(cmd_in[i] if math.isfinite(cmd_in[i]) else cmd[i] for i in range(N_ROTORS))
         if p.lagged:
             decay = (1.0,) * N_MODELS
@@ -220,36 +223,36 @@ def detector_step(p: DetectorParams, s: DetectorState,
         else:
             rotors = tuple(_rotor_instant(p, rotors[i], rpm[i], cmd[i], valid[i])
                            for i in range(N_ROTORS))
-        last, started = t, 1.0
+        last, started = t, True
         if s.motors_off:                # no evidence either way: the statistics stay at 0
-            paused += 1.0
+            paused += 1
             rotors = _fresh(rotors)
-            obey = 0.0
+            obey = 0
         elif p.enabled:
             top = max(0.0 if detected == i + 1 else max(rotors[i].s_lo, rotors[i].s_hi)
                       for i in range(N_ROTORS))
             if top >= p.h_alarm:
                 if detected:
-                    moves += 1.0                # the attacker moved
+                    moves += 1                  # the attacker moved
                 detected = _isolate(rotors, detected)
                 detection_time = t
-                obey = 0.0
+                obey = 0
                 rotors = _fresh(rotors)         # a fresh start: the old evidence is spent
-                alarm = 1.0
+                alarm = True
             elif detected:
-                z = _at(tuple(r.z for r in rotors), detected)
-                obey = obey + 1.0 if abs(z) < p.k else 0.0
+                z = rotors[detected - 1].z
+                obey = obey + 1 if abs(z) < p.k else 0
                 if obey >= RELEASE_TICKS:       # it follows its commands again
-                    releases += 1.0
-                    detected = 0.0
+                    releases += 1
+                    detected = 0
                     estimate = math.nan
                     rotors = _fresh(rotors)
-                    released = 1.0
+                    released = True
         if detected:
-            w = max(_at(tuple(r.rpm for r in rotors), detected), 0.0) * RPM_TO_RADPS
+            w = max(rotors[detected - 1].rpm, 0.0) * RPM_TO_RADPS
             estimate = min(p.k_f * w * w, p.thrust_max_n)
     state = DetectorState(rotors, cmd, last, started, detected, detection_time, estimate,
                           obey, rejected, moves, releases, paused, s.motors_off)
     cusum = tuple(r.s_hi if r.s_hi >= r.s_lo else -r.s_lo for r in rotors)
-    return state, (detected, estimate, tuple(r.resid_n for r in rotors), cusum, detection_time,
-                   alarm, rejected, released)
+    return state, DetectorOutput(detected, estimate, tuple(r.resid_n for r in rotors), cusum,
+                                 detection_time, alarm, rejected, released)

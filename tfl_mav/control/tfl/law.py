@@ -46,7 +46,15 @@ from tfl_mav.control.path.paths import Path
 from tfl_mav.control.path.projection import PATH_START, VO_OK, PathState, lost_reason
 from tfl_mav.control.path.tracker import PathTracker
 from tfl_mav.control.tfl import step
-from tfl_mav.control.tfl.estimators import DOB_START, mass_model, mass_start, mass_update
+from tfl_mav.control.tfl.estimators import (
+    DOB_START,
+    TDOB_START,
+    MassModel,
+    MassState,
+    mass_model,
+    mass_start,
+    mass_update,
+)
 from tfl_mav.control.tfl.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
 from tfl_mav.control.tfl.step import R_COND, R_THRUST, R_TUBE, Frame, TFLInputs, TFLParams, TFLState
 from tfl_mav.model.modes import Mode
@@ -60,6 +68,9 @@ _new_tuple = tuple.__new__
 _ndarray = np.ndarray
 _VO_REFERENCE = -1.0          # the reference tracker's own reason (its text)
 _PATH_ERRORS = (ValueError, ZeroDivisionError, OverflowError)
+# The translational observer's bound per axis (m/s²): three times the rotor drag of an 8 m/s
+# wind (0.33 m/s² per m/s), far below what a sensor glitch differentiated would read.
+TDOB_LIMIT_MPS2 = 8.0
 
 
 def _floats(x: Sequence[float]) -> Sequence[float]:
@@ -80,6 +91,9 @@ def law_params(model: ModelParams, cfg: LawConfig, dt_s: float,
         float(cfg.robust and cfg.gain_switch),
         mass_model(float(model.mass_kg), g, float(model.k_t)),
         float(cfg.observer_tau_s), 500.0,
+        float(cfg.robust and cfg.translational_observer),
+        float(cfg.translational_observer_tau_s), TDOB_LIMIT_MPS2,
+        float(cfg.translational_observer_vertical),
         chain_gains(cfg.xi_pole, 4), chain_gains(cfg.eta_pole, 3),  # type: ignore[arg-type]
         chain_gains(cfg.xi_pole_fine, 4), chain_gains(cfg.eta_pole_fine, 3),  # type: ignore[arg-type]
         chain_gains(cfg.yaw_pole, 2))  # type: ignore[arg-type]
@@ -114,12 +128,13 @@ def frame_numbers(model: ModelParams, frame: RotorFrame | None) -> Frame:
 def initial_state(model: ModelParams) -> TFLState:
     """The law before its first tick: u_f at the model's hover thrust, nothing learnt."""
     hover = model.mass_kg * model.gravity_mps2
-    return TFLState(hover, 0.0, mass_start(float(model.mass_kg)), DOB_START, 0.0, (0.0, 0.0),
-                    (hover / 4.0,) * 4, 0.0, 0.0, 0.0, 0.0, PATH_START)
+    return TFLState(hover, 0.0, mass_start(float(model.mass_kg)), DOB_START, TDOB_START, 0.0,
+                    (0.0, 0.0), (hover / 4.0,) * 4, 0.0, 0.0, 0.0, 0.0, PATH_START)
 
 
 _NESTED = {TFLState._fields.index(name): kind for name, kind in (
-    ("mass", step.MassState), ("dob", step.DobState), ("path", PathState))}
+    ("mass", step.MassState), ("dob", step.DobState), ("tdob", step.TdobState),
+    ("path", PathState))}
 _X13, _X14, _MASS, _FINE, _PATH = (TFLState._fields.index(n)
                                    for n in ("x13", "x14", "mass", "fine", "path"))
 _MASS_KG = step.MassState._fields.index("mass_kg")
@@ -131,6 +146,20 @@ def as_state(s: Any) -> TFLState:
     if type(s) is TFLState:
         return s
     return TFLState(*(_NESTED[i](*x) if i in _NESTED else x for i, x in enumerate(s)))
+
+
+def mass_observe(m: MassModel, s: MassState, dt_s: float, q: Sequence[float],
+                 v: Sequence[float], thrust_n: float) -> MassState:
+    """The mass estimator fed a tick another law flew (:meth:`TFLController.track`): b3,
+    R's last column, from the attitude ``q`` (w, x, y, z) by the operations
+    law_math.rotation computes it with, then :func:`mass_update` with the velocity ``v``
+    (m/s) and the total thrust applied over the last period (N). Pure: the seam compiles
+    it."""
+    w, x, y, z = q
+    n = math.sqrt(w * w + x * x + y * y + z * z)
+    w, x, y, z = w / n, x / n, y / n, z / n
+    b3 = (2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y))
+    return mass_update(m, s, dt_s, v, thrust_n, b3)
 
 
 class TFLController:
@@ -172,6 +201,8 @@ class TFLController:
         self._linked_for: PathTracker | None = None
         self._step: Callable[..., Any] = step.tfl_step
         self._core: Callable[..., Any] | None = None
+        self._track_core: Callable[..., Any] | None = None
+        self._obtain_track_core()
         if type(self.tracker) is CompiledPathTracker:
             k = self.tracker.kernels
             ns = step.linked(k.sigma2.fn, k.sigma5.fn, k.s4.fn, _pi_kernel().fn)
@@ -191,6 +222,21 @@ class TFLController:
                                                          (1.0, 0.0, 0.0, 0.0), (0.0,) * 3,
                                                          *self._free, 0.0, 0.0, 0.0))
         core = native.obtain_function(self._step, example, ready)
+        if core is not None:
+            ready(core)
+
+    def _obtain_track_core(self) -> None:
+        """:func:`mass_observe` compiled by the seam, for :meth:`track`."""
+        ref = weakref.ref(self)
+
+        def ready(core: Callable[..., Any]) -> None:
+            target = ref()
+            if target is not None:
+                target._track_core = core
+
+        st = as_state(self.state)
+        example = (self.params.mass, st.mass, 0.001, (1.0, 0.0, 0.0, 0.0), (0.0,) * 3, 1.0)
+        core = native.obtain_function(mass_observe, example, ready)
         if core is not None:
             ready(core)
 
@@ -297,7 +343,10 @@ class TFLController:
             if self._linked_for is not self.tracker:
                 self.tracker.lam = lam
         # The mass estimator has kept learning while the other law flew (:meth:`track`).
-        self.state = s._replace(x13=sum(thrust_n), x14=0.0, dob=DOB_START, has_pred=0.0,
+        # The translational observer keeps what it learnt (the air did not change with the
+        # law), but not the velocity of the last tick it saw, ticks ago.
+        self.state = s._replace(x13=sum(thrust_n), x14=0.0, dob=DOB_START,
+                                tdob=s.tdob._replace(has_prev=0.0), has_pred=0.0,
                                 last_out=tuple(thrust_n), path=ps)
         if self.lag_inverter is not None:
             self.lag_inverter.reset()
@@ -313,13 +362,11 @@ class TFLController:
         if not p.use_mass:
             return
         st = as_state(self.state)
-        # b3, R's last column, by the operations law_math.rotation computes it with
-        w, x, y, z = _floats(s.quaternion_wxyz)
-        n = math.sqrt(w * w + x * x + y * y + z * z)
-        w, x, y, z = w / n, x / n, y / n, z / n
-        b3 = (2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y))
-        mass = mass_update(p.mass, st.mass, p.dt_s, _floats(s.velocity_mps),
-                           float(sum(applied_n)), b3)
+        q, v, thrust = _floats(s.quaternion_wxyz), _floats(s.velocity_mps), float(sum(applied_n))
+        core = self._track_core
+        mass = core(p.mass, st.mass, p.dt_s, q, v, thrust) if core is not None else None
+        if mass is None:        # not compiled, or declined (Python raises there): Python
+            mass = mass_observe(p.mass, st.mass, p.dt_s, q, v, thrust)
         self.state = _new_tuple(TFLState, (*st[:_MASS], mass, *st[_MASS + 1:]))
 
     def set_attack(self, rotor: int, estimate_n: float) -> None:

@@ -29,10 +29,13 @@ def rotation(q: V3) -> tuple[Any, ...]:
 
 
 def output_rows(y: V3, v: V3, b1: V3, b2: V3, b3: V3, pc: Any, qc: Any, rc: Any, uf: Any,
-                duf: Any, mass: Any, k_t: Any, gravity: Any) -> tuple[tuple[Any, ...], ...]:
+                duf: Any, mass: Any, k_t: Any, gravity: Any, dist: V3
+                ) -> tuple[tuple[Any, ...], ...]:
     """Taylor rows (y, ẏ, ÿ/2, y⃛/6, a₀/24) of the output y = x_q (eq. (5)) from the
     model (eq. (3)) with the extension x13 = u_f, x14 = u̇_f (eq. (9)): ÿ = (u_f/m) b3
-    − g e3 − (k_t/m) ẏ, and a₀ = y⁽⁴⁾ at ü_f = ṗ = q̇ = 0 (the drift L_f⁴ of eq. (10))."""
+    − g e3 − (k_t/m) ẏ + d, and a₀ = y⁽⁴⁾ at ü_f = ṗ = q̇ = 0 (the drift L_f⁴ of
+    eq. (10)). ``dist`` is d, an unmodelled acceleration held constant over the horizon
+    (m/s², the translational observer's; zeros: the paper's model)."""
     kt = k_t / mass
     ufm = uf / mass
     dufm = duf / mass
@@ -44,9 +47,9 @@ def output_rows(y: V3, v: V3, b1: V3, b2: V3, b3: V3, pc: Any, qc: Any, rc: Any,
     b3x, b3y, b3z = b3
     vx, vy, vz = v
     # x, y, z written out (this runs every tick); the same operations as one loop.
-    yddx = ufm * b3x - kt * vx
-    yddy = ufm * b3y - kt * vy
-    yddz = ufm * b3z - kt * vz - gravity
+    yddx = ufm * b3x - kt * vx + dist[0]
+    yddy = ufm * b3y - kt * vy + dist[1]
+    yddz = ufm * b3z - kt * vz - gravity + dist[2]
     db3x = qc * b1x - pc * b2x
     db3y = qc * b1y - pc * b2y
     db3z = qc * b1z - pc * b2z

@@ -47,6 +47,10 @@ class LawConfig:
     disturbance_observer: bool = True
     gain_switch: bool = True
     observer_tau_s: float = 0.004
+    translational_observer: bool = False    # the horizontal unmodelled acceleration fed to
+                                            # the ξ, η chains (estimators.tdob_update)
+    translational_observer_tau_s: float = 0.1
+    translational_observer_vertical: bool = False   # and the vertical (else: horizontal only)
     aware_of_attack: bool = True
     settle_alpha: float = 0.01      # |α| below this …
     settle_time_s: float = 1.0      # … for this long switches to the fine poles

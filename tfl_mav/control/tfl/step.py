@@ -7,7 +7,8 @@ In the order the paper builds the law:
 1. :func:`observe` — the attitude R(q) and the body axes bᵢ = R eᵢ (eq. (1)), relabelled to
    the canonical frame of the attacked rotor (:mod:`~tfl_mav.control.allocation`); the
    estimators (:mod:`estimators`) fed with what was applied; the Taylor rows of the output
-   y = x_q from the model with the dynamic extension x13 = u_f, x14 = u̇_f (eqs. (3), (5), (9)).
+   y = x_q from the model with the dynamic extension x13 = u_f, x14 = u̇_f (eqs. (3), (5), (9))
+   plus the translational observer's unmodelled acceleration.
 2. :func:`~tfl_mav.control.path.projection.project` — the virtual output along those rows:
    the closest path point (Newton on ⟨y − σ(λ), σ'(λ)⟩ = 0, eq. (13)), π's rates, α = s(y)
    and Dφ (eqs. (8), (14), (15)), on the path's generated kernels (linked in per path by
@@ -38,8 +39,10 @@ from tfl_mav.control.tfl.estimators import (
     DobState,
     MassModel,
     MassState,
+    TdobState,
     dob_update,
     mass_update,
+    tdob_update,
 )
 from tfl_mav.control.tfl.law_math import (
     attacked_tau_r,
@@ -89,6 +92,10 @@ class TFLParams(NamedTuple):
     mass: MassModel             # the mass estimator's constants
     dob_tau_s: float            # the observer's filter (s)
     dob_limit: float            # |d| ≤ this (rad/s²)
+    use_tdob: float             # 1.0: the translational disturbance observer runs
+    tdob_tau_s: float           # its filter (s)
+    tdob_limit: float           # |d| ≤ this per axis (m/s²)
+    tdob_vertical: float        # 1.0: it estimates the vertical too
     k_xi: V4                    # ξ chain gains k₀…k₃ (eq. (23))
     k_eta: V3                   # η chain gains k₀…k₂ (eq. (24))
     k_xi_fine: V4               # the same after the switch
@@ -119,6 +126,7 @@ class TFLState(NamedTuple):
     x14: float                  # u̇_f (N/s)
     mass: MassState
     dob: DobState
+    tdob: TdobState             # the translational observer (paper frame, horizontal)
     has_pred: float             # 1.0: ``pred`` holds the model's ṗ, q̇ for the last command
     pred: tuple[float, float]   # (rad/s²)
     last_out: V4                # the thrusts the rotors deliver over the last period (N)
@@ -209,9 +217,15 @@ def observe(p: TFLParams, s: TFLState, u: TFLInputs) -> tuple[Any, ...]:
         dob_s = dob_update(p.dob_tau_s, p.dob_limit, dob_s, p.dt_s, pc, qc, s.pred[0],
                            s.pred[1])
     mass = mass_s.mass_kg
+    tdob_s = s.tdob
+    if p.use_tdob:
+        lo = s.last_out
+        tdob_s = tdob_update(p.tdob_tau_s, p.tdob_limit, tdob_s, p.dt_s, v,
+                             lo[0] + lo[1] + lo[2] + lo[3], b3, mass, p.k_t, p.gravity_mps2,
+                             p.tdob_vertical)
     rows = output_rows(u.position_m, v, b1, b2, b3, pc, qc, rc, s.x13, s.x14, mass, p.k_t,
-                       p.gravity_mps2)
-    return psi, (r20, r21, r22), b1, b2, b3, (pc, qc, rc), mass_s, dob_s, mass, rows
+                       p.gravity_mps2, (tdob_s.d_x, tdob_s.d_y, tdob_s.d_z))
+    return psi, (r20, r21, r22), b1, b2, b3, (pc, qc, rc), mass_s, dob_s, mass, rows, tdob_s
 
 
 def predict(p: TFLParams, fr: Frame, delivered: V4, rates: V3) -> tuple[float, float]:
@@ -227,7 +241,7 @@ def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: tuple[Any, ...],
             vo: tuple[Any, ...], ps: PathState) -> tuple[TFLState, TFLOutputs]:
     """The rest of the tick from what :func:`observe` saw and the virtual output ``vo``
     (:func:`project`'s, or the reference tracker's packed the same way)."""
-    psi, r2, b1, b2, b3, rates, mass_s, dob_s, mass, _rows = seen
+    psi, r2, b1, b2, b3, rates, mass_s, dob_s, mass, _rows, tdob_s = seen
     code, xi1, xi2, eta, jac, lam, distance, margin = vo
     pc, qc, rc = rates
     fr = u.frame
@@ -303,7 +317,8 @@ def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: tuple[Any, ...],
         if settled >= p.settle_time_s:
             fine = 1.0
     wp, _wq, wr = u.body_rates_radps
-    state = TFLState(x13, x14, mass_s, dob_s, 1.0, pred, f, 1.0, psi_ref, fine, settled, ps)
+    state = TFLState(x13, x14, mass_s, dob_s, tdob_s, 1.0, pred, f, 1.0, psi_ref, fine, settled,
+                     ps)
     out = TFLOutputs(
         f, fr.attacked, (1.0 if sat[0] else 0.0, 1.0 if sat[1] else 0.0,
                          1.0 if sat[2] else 0.0, 1.0 if sat[3] else 0.0),

@@ -1,0 +1,153 @@
+"""The seam's language beyond floats: booleans, IntEnum codes, NamedTuples returned as
+themselves, an index known only at run time, several returns, ``and``/``or`` that call a
+function. Compiled, a function returns what Python returns — the same bits *and* the same
+types (an int stays an int, a bool a bool, a NamedTuple its class) — or None where Python
+raises."""
+
+from __future__ import annotations
+
+import math
+import random
+import struct
+from enum import IntEnum
+from typing import NamedTuple
+
+import pytest
+
+from tfl_mav.accel import native
+from tfl_mav.accel.values import _INTRINSICS
+
+pytestmark = pytest.mark.skipif(native._compiler() is None and not native.compiler_expected(),
+                                reason="no C compiler, and none expected on this platform")
+
+
+class Code(IntEnum):
+    CALM = 0
+    HIGH = 3
+    LOW = 7
+
+
+class Memory(NamedTuple):
+    code: int
+    armed: bool
+    count: int
+    level: float
+
+
+class Reading(NamedTuple):
+    rotor: int                  # 1-4, 0: none
+    values: tuple[float, float, float, float]
+    valid: bool
+
+
+def _judge(m: Memory, x: float) -> tuple[Memory, int]:
+    """Several returns, an IntEnum's code, a bool kept."""
+    if x != x:
+        return m._replace(armed=False), int(Code.CALM)
+    if x > 2.0:
+        if m.armed:
+            return m._replace(code=int(Code.HIGH), count=m.count + 1), int(Code.HIGH)
+        return m._replace(armed=True), int(Code.CALM)
+    if x < -2.0 and m.armed:
+        return Memory(int(Code.LOW), False, m.count + 1, x), int(Code.LOW)
+    return m, m.code
+
+
+def _fall_through(x: float) -> tuple[float, int]:
+    """A return on one path of a branch whose other path falls through to what follows."""
+    y = x
+    if x > 0.0:
+        if x > 3.0:
+            return y, 1
+        y = y * 2.0
+    y = y + 1.0
+    if y > 2.5:
+        return y, 2
+    return y - 0.5, 3
+
+
+def _root(x: float) -> float:
+    return math.sqrt(x)
+
+
+def language(m: Memory, r: Reading, x: float) -> tuple[Memory, tuple[int, float, bool]]:
+    i = r.rotor - 1
+    opposite = r.values[(i + 2) % 4]               # an index known when it runs
+    first = r.values[i] if r.rotor else 0.0
+    big = r.valid and opposite > 1.0
+    either = r.rotor or x                           # Python's operand, not 0 or 1
+    rooted = x >= 0.0 and _root(x) > 1.5            # a call on one path of the and
+    m, code = _judge(m, x + opposite)
+    flag = bool(first) and not big
+    y, path = _fall_through(x)
+    return m, (code + path, either + first + y, flag or rooted)
+
+
+def _bits(v):
+    if isinstance(v, tuple):
+        return (type(v), tuple(_bits(x) for x in v))
+    if isinstance(v, float):
+        return (float, "nan" if v != v else struct.pack("<d", v))
+    return (type(v), v)
+
+
+def _python(*args):
+    try:
+        return language(*args)
+    except (ValueError, ZeroDivisionError, OverflowError, IndexError):
+        return None
+
+
+@pytest.fixture(scope="module")
+def compiled():
+    return native.build_function(language, (Memory(0, False, 0, 0.0),
+                                            Reading(1, (0.0,) * 4, True), 0.0))
+
+
+def _x(rng: random.Random) -> float:
+    return rng.choice((math.nan, math.inf, -math.inf, 0.0, -0.0, 2.0, -2.0, 2.25,
+                       rng.uniform(-5.0, 5.0), rng.uniform(-5.0, 5.0)))
+
+
+def test_the_compiled_function_returns_pythons_values_and_types(compiled):
+    rng = random.Random(3)
+    for _ in range(20000):
+        m = Memory(rng.choice(list(Code)).value, rng.random() < 0.5, rng.randrange(300),
+                   _x(rng))
+        r = Reading(rng.randrange(-5, 6), tuple(_x(rng) for _ in range(4)), rng.random() < 0.5)
+        x = _x(rng)
+        want, got = _python(m, r, x), compiled(m, r, x)
+        assert (got is None) if want is None else _bits(got) == _bits(want), (m, r, x)
+        if want is not None:
+            assert type(got[0]) is Memory and type(got[0].armed) is bool
+
+
+def test_an_index_out_of_range_declines_as_python_raises(compiled):
+    m, r = Memory(0, False, 0, 0.0), Reading(9, (1.0, 2.0, 3.0, 4.0), True)
+    assert _python(m, r, 0.5) is None and compiled(m, r, 0.5) is None
+    # an int field given a fraction: Python raises TypeError indexing; compiled declines
+    assert compiled(m, r._replace(rotor=1.5), 0.5) is None
+
+
+def test_the_lowered_source_runs_as_python_with_the_same_results():
+    """The front end's output is Python (its annotations say the kinds and classes):
+    run with the intrinsics it names, it is the function, before any C."""
+    example = (Memory(0, False, 0, 0.0), Reading(1, (0.0,) * 4, True), 0.0)
+    namespace = {name: fn for fn, name in _INTRINSICS.items()} | {
+        "_inf": math.inf, "_nan": math.nan, "_int": int,
+        "_index": lambda k, *items: items[k]}
+    exec(compile(native.lower(language, example), "<lowered>", "exec"), namespace)
+    rng = random.Random(5)
+    for _ in range(2000):
+        m = Memory(rng.choice((0, 3, 7)), rng.random() < 0.5, rng.randrange(9), _x(rng))
+        r = Reading(rng.randrange(0, 5), tuple(_x(rng) for _ in range(4)), rng.random() < 0.5)
+        x = _x(rng)
+        want = _python(m, r, x)
+        if want is not None:
+            got = namespace["language"](m, r, x)
+            # the lowered code builds plain tuples; the values are the function's
+            assert [_bits(v)[1:] for v in _leaves(got)] == [_bits(v)[1:] for v in _leaves(want)]
+
+
+def _leaves(v):
+    return [y for x in v for y in _leaves(x)] if isinstance(v, tuple) else [v]
