@@ -42,7 +42,7 @@ def main() -> None:
     from tfl_mav.controller.daemon import Daemon
     from tfl_mav.link.transport import Link
     from tfl_mav.scenario import load_scenario
-    from tfl_mav.sim.vehicle import Vehicle
+    from tfl_mav.sitl.vehicle import Vehicle
 
     sc = load_scenario("paper")
     vehicle = Vehicle(sc, listen=("127.0.0.1", 0))

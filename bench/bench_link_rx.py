@@ -31,7 +31,7 @@ def _tick_datagrams() -> tuple[bytes, bytes]:
 
     from tfl_mav.link.transport import Link
     from tfl_mav.scenario import load_scenario
-    from tfl_mav.sim.vehicle import Vehicle
+    from tfl_mav.sitl.vehicle import Vehicle
 
     sc = load_scenario("paper").replace(**{"attack.rotor": 0})
     vehicle = Vehicle(sc, listen=("127.0.0.1", 0))

@@ -8,7 +8,7 @@ Measures, on this machine:
    in-process per-tick breakdown of the whole lockstep loop (``--breakdown-only``: just
    these, no subprocesses);
 2. lockstep: ticks/s of ``tfl-mav sim`` (a subprocess, 1 kHz physics and control) flown by
-   the lockstep client of the tests (:class:`tfl_mav.harness.pilot.Pilot`: our Link, hover
+   the lockstep client of the tests (:class:`tfl_mav.tools.harness.pilot.Pilot`: our Link, hover
    commands), without and with ``--mcap`` recording;
 3. the full loop: ``tfl-mav sim --mcap`` flown by ``tfl-mav fly --mcap`` (the controller
    daemon: law, detector, both MCAP recorders), ticks per wall second of the flight as the
@@ -50,8 +50,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from tfl_mav.harness.pilot import Pilot, hover_controls
-from tfl_mav.harness.processes import LISTEN_RE, popen_sim
+from tfl_mav.tools.harness.pilot import Pilot, hover_controls
+from tfl_mav.tools.harness.processes import LISTEN_RE, popen_sim
 
 WARMUP_TICKS = 200
 
@@ -59,8 +59,8 @@ WARMUP_TICKS = 200
 # ---------------------------------------------------------------------------- physics
 def bench_physics(n_steps: int) -> dict[str, float]:
     from tfl_mav.scenario import load_scenario
-    from tfl_mav.sim.physics import mix, rk4_step
-    from tfl_mav.sim.vehicle import Vehicle
+    from tfl_mav.sitl.physics import mix, rk4_step
+    from tfl_mav.sitl.vehicle import Vehicle
 
     sc = load_scenario("paper").replace(**{"attack.rotor": 0})
     vehicle = Vehicle(sc, listen=("127.0.0.1", 0))
@@ -97,7 +97,7 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
     from tfl_mav.link.transport import Link
     from tfl_mav.model.frames import paper_from_odometry
     from tfl_mav.scenario import load_scenario
-    from tfl_mav.sim.vehicle import Vehicle
+    from tfl_mav.sitl.vehicle import Vehicle
 
     to_state: Any = paper_from_odometry
     try:    # the daemon's path: the received tuple's fields, no attribute reads
@@ -283,7 +283,7 @@ def bench_vehicle(n_ticks: int, mcap: Path | None = None,
     if profile is None:
         proc, address = popen_sim(args, "paper")
     else:
-        proc = subprocess.Popen([sys.executable, _PROFILER, str(profile), "tfl_mav.cli.main", "sim",
+        proc = subprocess.Popen([sys.executable, _PROFILER, str(profile), "tfl_mav.tools.cli.main", "sim",
                                  "paper", "--listen", "127.0.0.1:0", *args],
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         assert proc.stdout is not None
@@ -328,9 +328,9 @@ def bench_full_loop(n_ticks: int, out_dir: Path, scenario: str = "paper",
     prefix: dict[str, list[str]] = {"sim": [], "fly": []}
     if profile_dir is not None:
         env = dict(env or os.environ, TFL_MAV_PROFILE=str(profile_dir))
-        prefix = {role: [_PROFILER, str(profile_dir / f"{role}.prof"), "tfl_mav.cli.main"]
+        prefix = {role: [_PROFILER, str(profile_dir / f"{role}.prof"), "tfl_mav.tools.cli.main"]
                   for role in ("sim", "fly")}
-    sim_cmd = [sys.executable, *(prefix["sim"] or ["-m", "tfl_mav.cli"]), "sim", scenario,
+    sim_cmd = [sys.executable, *(prefix["sim"] or ["-m", "tfl_mav.tools.cli"]), "sim", scenario,
                "--listen", "127.0.0.1:0", "--duration", duration,
                "--mcap", str(out_dir / "run.mcap")]
     proc = subprocess.Popen(sim_cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -342,7 +342,7 @@ def bench_full_loop(n_ticks: int, out_dir: Path, scenario: str = "paper",
         if match is None:
             raise RuntimeError(f"sim did not start: {proc.communicate(timeout=20)}")
         fly = subprocess.Popen(
-            [sys.executable, *(prefix["fly"] or ["-m", "tfl_mav.cli"]), "fly", scenario,
+            [sys.executable, *(prefix["fly"] or ["-m", "tfl_mav.tools.cli"]), "fly", scenario,
              "--vehicle", f"{match.group(1)}:{match.group(2)}", "--duration", duration,
              "--mcap", str(out_dir / "ctl.mcap"), "--quiet", "--progress"],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
@@ -528,7 +528,7 @@ def _cores(core: str) -> None:
     if core == "compiled":
         from tfl_mav.controller.flight_computer import FlightComputer
         from tfl_mav.scenario import load_scenario
-        from tfl_mav.sim.simulator import Simulator
+        from tfl_mav.sitl.simulator import Simulator
 
         for sc in (load_scenario("paper"), load_scenario("paper").replace(
                 **{"attack.rotor": 0})):

@@ -47,7 +47,7 @@ _LISTEN_RE = re.compile(r"listening on ([\d.]+):(\d+)")
 
 def _start_sim(seconds: float) -> tuple[subprocess.Popen[str], int]:
     sim = subprocess.Popen(
-        [sys.executable, "-m", "tfl_mav.cli", "sim", "paper", "--listen", "127.0.0.1:0",
+        [sys.executable, "-m", "tfl_mav.tools.cli", "sim", "paper", "--listen", "127.0.0.1:0",
          "--duration", f"{seconds:g}"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
         text=True, cwd=REPO)
     assert sim.stdout is not None
@@ -99,7 +99,7 @@ def _fly(seconds: float, record: bool, tmp: Path) -> dict[str, float]:
 
 def _fly_recorder(scenario: Any, path: Path) -> tuple[dict[str, Any], Any]:
     """The recorder hooks of ``tfl-mav fly --mcap`` (its own ``open_recorder``)."""
-    from tfl_mav.cli.fly import open_recorder
+    from tfl_mav.tools.cli.fly import open_recorder
 
     rec = open_recorder(scenario, str(path), None)
     return {"on_frame": rec.on_frame, "on_tick": rec.controller,
@@ -126,7 +126,7 @@ def bench_control_path(seconds: float, repeats: int) -> dict[str, Any]:
 
 
 def _demo(seconds: float, out: Path, foxglove: str | None) -> tuple[float, Path]:
-    cmd = [sys.executable, "-m", "tfl_mav.cli", "demo", "paper", "--out", str(out),
+    cmd = [sys.executable, "-m", "tfl_mav.tools.cli", "demo", "paper", "--out", str(out),
            "--duration", f"{seconds:g}", "--no-plots", "--json"]
     if foxglove:
         cmd += ["--foxglove", foxglove]
@@ -291,7 +291,7 @@ def bench_files_and_live(seconds: float, repeats: int, live: bool) -> dict[str, 
 
 def _use_tree(tree: Path) -> None:
     """Measure checkout ``tree``: its packages first here and in every subprocess, and its
-    directory their working directory (``python -m tfl_mav.cli`` puts the cwd first)."""
+    directory their working directory (``python -m tfl_mav.tools.cli`` puts the cwd first)."""
     global REPO
     REPO = tree
     sys.path.insert(0, str(tree))
@@ -321,7 +321,7 @@ def main() -> int:
     args = ap.parse_args()
     if args.tree:
         _use_tree(args.tree.resolve())
-    import tfl_mav.cli.demo as demo_cmd
+    import tfl_mav.tools.cli.demo as demo_cmd
 
     live = "--foxglove" in Path(demo_cmd.__file__).read_text()
     res: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),

@@ -1,6 +1,6 @@
 """The simulated vehicle's lockstep tick, piece by piece, in-process.
 
-Each piece of what ``tfl_mav.sim.vehicle.Vehicle`` does per control tick, timed alone on the
+Each piece of what ``tfl_mav.sitl.vehicle.Vehicle`` does per control tick, timed alone on the
 paper scenario (rotor 2 attacked, 1 kHz physics and control): µs per call, the *minimum*
 over ``--blocks`` blocks of ``--calls`` calls, so a shared, loaded machine reads close to
 an idle one (a mean would charge other processes' time slices to whichever piece ran).
@@ -38,7 +38,7 @@ from typing import Any
 
 from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.vehicle import Vehicle, truth_hook
+from tfl_mav.sitl.vehicle import Vehicle, truth_hook
 
 
 class _Sink:
@@ -72,7 +72,7 @@ def measure_clock(ticks: int, blocks: int, record: bool) -> dict[str, float]:
     """µs per tick through ``LockstepClock.run`` with the replies pre-queued: the minimum
     over ``blocks`` of the median tick (state sent to state sent) and of the median
     critical path (reply received to state sent)."""
-    from tfl_mav.harness.pilot import hover_fraction
+    from tfl_mav.tools.harness.pilot import hover_fraction
 
     sc = load_scenario("paper").replace(**{"attack.rotor": 0,
                                            "initial.position_m": [0.0, 0.0, 5.0]})

@@ -84,7 +84,7 @@ def _wrap(out_dir: str, module: str, args: list[str]) -> None:
 
 def capture(n_ticks: int, out_dir: Path, scenario: str = "paper") -> None:
     """One lockstep flight (sim + fly, both ``--mcap``) whose batches land in ``out_dir``."""
-    wrap = [sys.executable, __file__, "--wrap", str(out_dir), "tfl_mav.cli.main"]
+    wrap = [sys.executable, __file__, "--wrap", str(out_dir), "tfl_mav.tools.cli.main"]
     dur = f"{n_ticks / 1000.0:g}"
     sim = subprocess.Popen([*wrap, "sim", scenario, "--listen", "127.0.0.1:0", "--duration",
                             dur, "--mcap", str(out_dir / "run.mcap")],

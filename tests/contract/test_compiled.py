@@ -26,7 +26,7 @@ from tfl_mav.control.path.jets import Jet, cos
 from tfl_mav.control.path.paths import Path, PathTracker, build_path
 from tfl_mav.model.state import State
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.simulator import Simulator
+from tfl_mav.sitl.simulator import Simulator
 
 # Every function an expression may use, on a path that is its own zero set by construction
 # (y = f(x), z = h(x)); t_range keeps it away from the kinks of abs/min/max/clip/step.

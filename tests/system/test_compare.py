@@ -6,7 +6,7 @@ from __future__ import annotations
 import csv
 import subprocess
 
-from tfl_mav.harness.processes import CLI
+from tfl_mav.tools.harness.processes import CLI
 
 FAILING = '''
 class NaNs:

@@ -20,9 +20,9 @@ from tfl_mav.controller.daemon import Daemon
 from tfl_mav.controller.flight_computer import FlightComputer
 from tfl_mav.link.transport import Link
 from tfl_mav.scenario import Scenario, load_scenario
-from tfl_mav.sim.power import PowerModel
-from tfl_mav.sim.simulator import Simulator
-from tfl_mav.sim.state_report import StateReport
+from tfl_mav.sitl.power import PowerModel
+from tfl_mav.sitl.simulator import Simulator
+from tfl_mav.sitl.state_report import StateReport
 
 
 # ---------------------------------------------------------------------------- detector
@@ -32,7 +32,7 @@ def _fly_through_link(sc: Scenario, seed: int, *, n_ticks: int, loss: float,
 
     Each command is lost with probability ``loss`` or arrives 0..``max_delay_ticks`` ticks
     late (uniform: later ones overtake earlier ones); the vehicle holds the newest by
-    time_usec and ignores older ones, as :class:`tfl_mav.sim.commands.ActuatorControls` does. The
+    time_usec and ignores older ones, as :class:`tfl_mav.sitl.commands.ActuatorControls` does. The
     flight computer is given the command the vehicle held over the last period (what
     ACTUATOR_OUTPUT_STATUS reports) or, ``tell_applied`` False, the last one it sent (the
     old daemon). Returns (tick of the first alarm or -1, crash reason or None)."""

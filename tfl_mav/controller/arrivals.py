@@ -2,7 +2,7 @@
 
 Why its own module: this is the daemon's defence against lost, late, repeated, reordered and
 forged states and against a restarted simulator, and it is a small state machine over times
-alone (no law, no link), easier to read, test and fuzz (tfl_mav/harness/fuzz.py predicts it) apart.
+alone (no law, no link), easier to read, test and fuzz (tools/harness/fuzz.py predicts it) apart.
 
 **Degrade, don't fall.** Each complete state is classified against the newest state accepted
 so far (the *watermark*), into exactly one of: :data:`FRESH` (newer, by a plausible step),

@@ -101,7 +101,7 @@ from tfl_mav.scenario import Scenario
 
 __all__ = ["TICK_FIELDS", "TICK_SCHEMA", "Daemon", "DaemonResult", "DaemonStats", "tick_state"]
 
-# the arrival limits, where tfl_mav/harness/fuzz.py reads them
+# the arrival limits, where tools/harness/fuzz.py reads them
 _AHEAD_S, _BACKSTEP_S, _JUMP_CONFIRM, _RESTART_OLD_STATES = (
     arrivals._AHEAD_S, arrivals._BACKSTEP_S, arrivals._JUMP_CONFIRM, arrivals._RESTART_OLD_STATES)
 _TELEMETRY_PERIOD_S = 0.02        # ≤ 50 Hz of sim time

@@ -4,7 +4,7 @@
 the vehicle *applied*, switches the TFL law to the attacked rotor when the detector (or an
 oracle) says so, evaluates the law and returns the rotor thrusts to send, with the internals
 worth logging. The daemon (:mod:`tfl_mav.controller.daemon`) is link ↔ flight computer ↔ recorder;
-the offline runner (:mod:`tfl_mav.harness.offline`) is simulator ↔ the same flight computer; so a
+the offline runner (:mod:`tfl_mav.offline`) is simulator ↔ the same flight computer; so a
 fix to
 the tick is a fix everywhere.
 

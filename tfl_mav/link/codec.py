@@ -62,7 +62,7 @@ HOT_MESSAGE_IDS = (
     mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS,
     mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS,
     mav.MAVLINK_MSG_ID_HEARTBEAT,
-    # the vehicle's GCS telemetry (tfl_mav.sim.gcs), 50 times a second of sim time in lockstep
+    # the vehicle's GCS telemetry (tfl_mav.sitl.gcs), 50 times a second of sim time in lockstep
     mav.MAVLINK_MSG_ID_ATTITUDE,
     mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
     mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
