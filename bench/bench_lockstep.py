@@ -283,7 +283,8 @@ def bench_vehicle(n_ticks: int, mcap: Path | None = None,
     if profile is None:
         proc, address = popen_sim(args, "paper")
     else:
-        proc = subprocess.Popen([sys.executable, _PROFILER, str(profile), "tfl_mav.tools.cli.main", "sim",
+        proc = subprocess.Popen([sys.executable, _PROFILER, str(profile),
+                                 "tfl_mav.tools.cli.main", "sim",
                                  "paper", "--listen", "127.0.0.1:0", *args],
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         assert proc.stdout is not None

@@ -17,8 +17,8 @@ subprocess; on a 2-core machine it takes one core):
 3. **start-up**: ``tfl-mav fly --realtime`` against a scripted vehicle already in flight
    (states at 1 kHz, t = 4 s on): process start → controller built → first HEARTBEAT →
    first command, with and without ``--mcap``; and the import cost (``-X importtime``) of
-   ``tfl_mav.tools.cli.fly`` in a fresh interpreter (scipy is not imported in flight: the safe law's LQR
-   is ``tfl_mav/control/safe/lqr.py``);
+   ``tfl_mav.tools.cli.fly`` in a fresh interpreter (scipy is not imported in flight: the safe
+   law's LQR is ``tfl_mav/control/safe/lqr.py``);
 4. **restart**: SIGKILL the daemon mid-flight and restart it on the same ``--bind``
    (:func:`bench_faults.daemon_restart`); the new daemon's flight computer takes over
    (recovery law when the state is not benign): restart → first command, motors-off time,

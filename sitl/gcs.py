@@ -15,8 +15,8 @@ in real time): ``ATTITUDE``,
 approximation: metres-scale flights, error ≪ 1 mm per km),
 ``ACTUATOR_OUTPUT_STATUS`` (``actuator[0..3]`` = commanded thrust / f_max, ``active`` 0b1111, 0
 while no command drives the motors), ``SYS_STATUS``
-(battery from :mod:`tfl_mav.sitl.power`; ``errors_count1..4`` = rejected controls, lockstep timeouts,
-command timeouts, stale controls; present/enabled/health bits only for what the simulator
+(battery from :mod:`tfl_mav.sitl.power`; ``errors_count1..4`` = rejected controls, lockstep
+timeouts, command timeouts, stale controls; present/enabled/health bits only for what the simulator
 models: rate gyro, attitude (AHRS), external position (motion capture), motor outputs and
 battery) and the latest ``ESC_TELEMETRY_1_TO_4`` (so a GCS sees the
 attacked rotor's rpm) at ``gcs_rate_hz`` (≤ 50 Hz, one datagram each time), HEARTBEAT at

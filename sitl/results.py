@@ -76,8 +76,8 @@ class ExitStatus(Enum):
 
 @dataclass(frozen=True)
 class VehicleResult:
-    """Outcome of :meth:`~tfl_mav.sitl.vehicle.Vehicle.run`. ``wall_time_s`` counts from the flight's
-    start (the controller's first HEARTBEAT), not the wait before it."""
+    """Outcome of :meth:`~tfl_mav.sitl.vehicle.Vehicle.run`. ``wall_time_s`` counts from the
+    flight's start (the controller's first HEARTBEAT), not the wait before it."""
 
     status: ExitStatus
     reason: str

@@ -18,7 +18,7 @@ claims the link's own identity is never accepted.
 Run (from the repository root, atheris from PyPI)::
 
     python tests/fuzz/link_receive.py -runs=1000000 -max_len=600 -len_control=0 tests/fuzz/corpus
-    python tests/fuzz/link_receive.py --replay tests/fuzz/corpus                     # replay, no atheris
+    python tests/fuzz/link_receive.py --replay tests/fuzz/corpus         # replay, no atheris
     coverage run --source=tfl_mav/link tests/fuzz/link_receive.py --replay tests/fuzz/corpus
     coverage report
 

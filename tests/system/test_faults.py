@@ -1,8 +1,8 @@
 """Faults on the control link (issue 5): the fault relay itself, then real ``tfl-mav sim`` /
 ``tfl-mav fly`` processes on loopback UDP through it, and killed or silent peers.
 
-The process helpers (:mod:`tfl_mav.tools.harness.processes`: timestamped output lines) are shared with
-``bench/bench_faults.py``, which measures the same runs over a range of loss rates.
+The process helpers (:mod:`tfl_mav.tools.harness.processes`: timestamped output lines) are shared
+with ``bench/bench_faults.py``, which measures the same runs over a range of loss rates.
 
 Every test here is ``slow``: each either pushes tens of thousands of datagrams through the
 relay's thread or flies real processes, and all of them time wall-clock events. Their

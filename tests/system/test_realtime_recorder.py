@@ -1,7 +1,7 @@
 """Recording never costs a real-time flight.
 
-* ``tfl-mav fly``'s :class:`~tfl_mav.tools.cli.fly.StartingRecorder` starts the recorder's child beside
-  the flight (after the first command) instead of before it: what the flight hands it
+* ``tfl-mav fly``'s :class:`~tfl_mav.tools.cli.fly.StartingRecorder` starts the recorder's
+  child beside the flight (after the first command) instead of before it: what the flight hands it
   before the child is up is kept, in order, with the wall-clock stamps of the calls;
 * :class:`~tfl_mav.flightlog.recorder_process.RecorderProcess` in real time never makes the
   flight thread wait for its child: with the child frozen (SIGSTOP, the worst a loaded

@@ -1,4 +1,5 @@
-"""``tfl-mav relay``: the command line of the UDP fault relay (:mod:`tfl_mav.tools.harness.relay`)."""
+"""``tfl-mav relay``: the command line of the UDP fault relay
+(:mod:`tfl_mav.tools.harness.relay`)."""
 
 from __future__ import annotations
 

@@ -1,8 +1,8 @@
 """``tfl-mav sim``: run the simulated vehicle as a MAVLink endpoint (see
 :mod:`tfl_mav.sitl.vehicle`).
 
-Loaded lazily by :mod:`tfl_mav.tools.cli.main` (``add_parser`` + ``run``). SIGINT and SIGTERM end the run
-cleanly: the loop stops within ~50 ms, the peers get a last HEARTBEAT, the recorder (if any)
+Loaded lazily by :mod:`tfl_mav.tools.cli.main` (``add_parser`` + ``run``). SIGINT and SIGTERM end
+the run cleanly: the loop stops within ~50 ms, the peers get a last HEARTBEAT, the recorder (if any)
 is closed, and the summary is printed.
 """
 

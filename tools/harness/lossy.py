@@ -2,7 +2,8 @@
 
 Shared by ``bench/bench_lockstep_loss.py`` (the table) and ``tests/system/test_lockstep_loss.py``
 (the bound): a ``tfl-mav sim`` subprocess (hover, no attack) flown by the test pilot
-through :class:`tfl_mav.tools.harness.relay.Relay` dropping ``drop`` of the datagrams in each direction.
+through :class:`tfl_mav.tools.harness.relay.Relay` dropping ``drop`` of the datagrams in each
+direction.
 """
 
 from __future__ import annotations

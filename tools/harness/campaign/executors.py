@@ -1,7 +1,7 @@
 """Where runs fly: ``local`` (forked processes on this machine) or ``ray`` (Ray tasks).
 
-Both hand each run to :class:`tfl_mav.tools.harness.campaign.run.Child` (a forked process with the run's
-timeout), so only the scheduling differs and the table is the same. Rows are handed to
+Both hand each run to :class:`tfl_mav.tools.harness.campaign.run.Child` (a forked process with the
+run's timeout), so only the scheduling differs and the table is the same. Rows are handed to
 ``on_row`` in the calling thread as runs finish, in completion order.
 """
 

@@ -215,7 +215,8 @@ def load_spec(name_or_path: str | Path) -> CampaignSpec:
             raise SpecError(f"cannot read spec {str(path)!r}: {exc.strerror}") from None
         source = str(path)
     else:
-        res = resources.files("tfl_mav.tools.harness.campaign").joinpath("specs", f"{name_or_path}.toml")
+        res = resources.files("tfl_mav.tools.harness.campaign").joinpath(
+            "specs", f"{name_or_path}.toml")
         if not res.is_file():
             raise SpecError(f"no built-in spec {str(name_or_path)!r} and no such file "
                             f"(built-ins: {', '.join(builtin_specs())})")

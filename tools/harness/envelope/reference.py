@@ -35,8 +35,14 @@ def reference_command(tree: Path) -> list[str]:
     if not python.exists():
         raise FileNotFoundError(f"{tree}: no .venv (make one: cd {tree} && python3 -m venv "
                                 f".venv && . .venv/bin/activate && pip install -e '.[test]')")
-    # a tree from before the CLI moved into the package still has it as top-level ``tools``
-    module = "tfl_mav.cli" if (tree / "tfl_mav" / "cli").is_dir() else "tools.cli"
+    # the CLI's import name by the tree's layout: tools/ installed as tfl_mav.tools (today),
+    # tfl_mav/cli/ (before the tools moved to the top), or a top-level ``tools`` (before that)
+    if (tree / "tfl_mav" / "cli").is_dir():
+        module = "tfl_mav.cli"
+    elif '"tfl_mav.tools"' in (tree / "pyproject.toml").read_text():
+        module = "tfl_mav.tools.cli"
+    else:
+        module = "tools.cli"
     return [str(python), "-m", module]
 
 

@@ -2,8 +2,8 @@
 
 The pool is the campaign's (:func:`tfl_mav.tools.harness.campaign.executors.run_local`: a hung or
 crashing flight is a row, not a dead pool), and the flight is the campaign's offline flight
-(:func:`tfl_mav.tools.harness.campaign.run.offline_metrics`, i.e. ``tfl-mav offline --json``), so a case's
-numbers are the CLI's numbers. Here a flight also reports the share of ticks in each law
+(:func:`tfl_mav.tools.harness.campaign.run.offline_metrics`, i.e. ``tfl-mav offline --json``), so a
+case's numbers are the CLI's numbers. Here a flight also reports the share of ticks in each law
 mode. Every flight is deterministic (seeded noise), so the result does not depend on the
 number of workers or the order they finish in.
 """
