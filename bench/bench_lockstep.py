@@ -82,7 +82,7 @@ def bench_physics(n_steps: int) -> dict[str, float]:
     vehicle.control_link.peer = None   # build and pack only; nothing is sent
     t0 = time.perf_counter()
     for _ in range(n_steps):
-        vehicle._publish_state()        # the tick's 3 messages built and packed (unsent)
+        vehicle.publish_state()         # the tick's 3 messages built and packed (unsent)
     publish_us = (time.perf_counter() - t0) / n_steps * 1e6
     vehicle.close()
     return {"rk4_step_us": rk4_us, "sim_tick_us": tick_us, "state_build_pack_us": publish_us}
@@ -167,7 +167,7 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
         t9 = cpu()
         sim.step_control_period()
         t10 = cpu()
-        sim._measure()                                 # once more, timed alone
+        sim.measure()                                  # once more, timed alone
         t11 = cpu()
         acc["state messages built"] += t1 - t0
         acc["pack ODOMETRY + AOS + ESC (Link)"] += t2 - t1

@@ -177,7 +177,7 @@ def measure(calls: int, blocks: int) -> dict[str, float]:
     pieces: dict[str, Callable[[], Any]] = {
         "RK4 step alone": lambda: sim._rk4(x, 10.8, 0.0, 0.0, 0.0, 1e-3),
         "simulator control tick (attack, motors, RK4, sensors)": sim.step_control_period,
-        "sensor sampling alone": sim._measure,
+        "sensor sampling alone": sim.measure,
         "power model": lambda: vehicle.power.step(sim.motors.omega_radps, sim.control_dt_s),
         "crash check": sim.crash_reason,
         "vehicle.step (tick + power + crash check)": vehicle.step,

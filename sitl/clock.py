@@ -190,7 +190,7 @@ class LockstepClock:
             publish_state()
             while True:
                 gcs_periodic()
-                if not await_reply(sim._time_usec):   # time_usec without the property call
+                if not await_reply(sim.time_usec):
                     if self.lost:
                         return ExitStatus.PEER_LOST, self.lost
                     return ExitStatus.STOPPED, "stopped on request"

@@ -109,7 +109,7 @@ class ActuatorControls:
             return _REJECTED
         held.time_usec = t
         sim = self.sim
-        age_usec = sim._time_usec - t   # > 0: its own tick was already integrated
+        age_usec = sim.time_usec - t    # > 0: its own tick was already integrated
         stats.command_age.add(age_usec)
         if age_usec > 0:
             stats.late_controls += 1

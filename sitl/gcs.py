@@ -248,7 +248,7 @@ class GcsTelemetry:
 
     def _periodic_sim(self) -> None:
         # whole microseconds of sim time: a float sum of periods would drift off the ticks
-        t = self.sim._time_usec      # time_usec, without the property's call (every tick)
+        t = self.sim.time_usec
         if t < self._next_usec:
             if time.monotonic() - self._heartbeat_wall_s >= 1.0:   # stalled: keep alive
                 self._heartbeat_wall_s = time.monotonic()

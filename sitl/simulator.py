@@ -84,7 +84,10 @@ class Simulator:
             self.attacker.use_signal(attack_signal)
         self.rotor_commands_n = [hover_n] * 4
         self.physics_steps = 0
-        self._time_usec = 0          # time_usec of physics_steps (set where it advances)
+        # Sim time in µs as sent on the wire (ODOMETRY.time_usec): k·T exactly, set where
+        # physics_steps advances. Read it, never write it (a plain attribute: the vehicle's
+        # per-tick paths read it without a property's call).
+        self.time_usec = 0
         self.tick = 0
         self.rejected_commands = 0
         self.attack = self.attacker.sample(0.0, self._x, hover_n)   # reads its position
@@ -127,18 +130,25 @@ class Simulator:
                                            sens.gps_velocity_noise_std_mps,
                                            cov_every=max(1, round(scenario.run.control_hz
                                                                   / EKF_COVARIANCE_HZ)))
-            self._measure = self._measure_estimated  # type: ignore[method-assign]
-        self._measure()
+        # What the controller side would measure this tick, set by measure() every tick (read
+        # them, never write them; plain attributes: the per-tick paths read them without a
+        # property's call). measured_parts: (position m, velocity m/s, quaternion wxyz, body
+        # rates rad/s) in the paper frame, measured_floats' fields without the State;
+        # measured_rpm_floats: the four ESC rpm, measured_rpm() as a float tuple.
+        self.measured_parts: tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...],
+                                   tuple[float, ...]]
+        self.measured_rpm_floats: tuple[float, ...]
+        # measure(): this tick's measurement, the sensor model alone or fused by the onboard
+        # estimator. step_control_period calls it once a tick (so repeated reads agree);
+        # calling it again draws new noise (the benches time it alone).
+        self.measure = (self._measure_estimated if self.estimator is not None
+                        else self._sample_sensors)
+        self.measure()
 
     # ------------------------------------------------------------------ time and commands
     @property
     def time_s(self) -> float:
         return self.physics_steps * self.physics_dt_s
-
-    @property
-    def time_usec(self) -> int:
-        """Sim time in µs as sent on the wire (ODOMETRY.time_usec): k·T exactly."""
-        return self._time_usec
 
     def set_command(self, thrust_cmd_n: Sequence[float]) -> None:
         """Set the four rotor thrust commands (N), clamped to [0, f_max].
@@ -222,9 +232,9 @@ class Simulator:
         self._mean_thrust_n = mean
         self.physics_steps = n
         self._x = x
-        self._time_usec = _round(n * 1_000_000 / self._physics_hz)   # round() on a float
+        self.time_usec = _round(n * 1_000_000 / self._physics_hz)   # round() on a float
         self.tick += 1
-        self._measure()
+        self.measure()
 
     def _step_control_period_air(self) -> None:
         """:meth:`step_control_period` in moving air: the same attack, motors and mixer,
@@ -278,11 +288,11 @@ class Simulator:
         self.physics_steps = n
         self._x = x
         self.wind_mps = wind_at(n) if wind_at is not None else wind
-        self._time_usec = _round(n * 1_000_000 / self._physics_hz)
+        self.time_usec = _round(n * 1_000_000 / self._physics_hz)
         self.tick += 1
-        self._measure()
+        self.measure()
 
-    def _measure(self) -> None:
+    def _sample_sensors(self) -> None:
         """Sample the sensors once per control tick (so repeated reads agree).
 
         One ``standard_normal`` draw for the whole tick, scaled per sensor: numpy's
@@ -310,7 +320,7 @@ class Simulator:
                        for r, n in zip(rpm, [next(it) for _ in range(4)], strict=True)]
             if not (min(rpm) >= 0.0 and max(rpm) <= 65535.0):   # clamp only if needed
                 rpm = [min(max(r, 0.0), 65535.0) for r in rpm]
-            self._rpm = tuple(rpm)
+            self.measured_rpm_floats = tuple(rpm)
             pos, vel, w = x[0:3], x[3:6], x[10:13]
             if noisy[1]:
                 pos = [c + next(it) for c in pos]
@@ -330,22 +340,23 @@ class Simulator:
                               w4 * RADPS_TO_RPM)
             if (0.0 <= r1 <= 65535.0 and 0.0 <= r2 <= 65535.0 and 0.0 <= r3 <= 65535.0
                     and 0.0 <= r4 <= 65535.0):   # in range (so not NaN): the clamp is a no-op
-                self._rpm = (r1, r2, r3, r4)
+                self.measured_rpm_floats = (r1, r2, r3, r4)
             else:
-                self._rpm = tuple([min(max(r, 0.0), 65535.0) for r in (r1, r2, r3, r4)])
+                self.measured_rpm_floats = tuple([min(max(r, 0.0), 65535.0)
+                                                  for r in (r1, r2, r3, r4)])
             px, py, pz, vx, vy, vz, qw, qx, qy, qz, wp, wq, wr = x
             pos, vel, q, w = (px, py, pz), (vx, vy, vz), (qw, qx, qy, qz), (wp, wq, wr)
         g = self._gyro_range_radps
         if g > 0 and not -g <= min(w) <= max(w) <= g:   # a real gyro saturates at its range
             w = [min(max(c, -g), g) for c in w]
-        self._parts = (tuple(pos), tuple(vel), tuple(q), tuple(w))
-        self._measured_floats: State | None = None    # built from _parts on first read
+        self.measured_parts = (tuple(pos), tuple(vel), tuple(q), tuple(w))
+        self._measured_floats: State | None = None    # built from measured_parts on first read
         self._measured: State | None = None
 
     def _measure_estimated(self) -> None:
         """The realistic sensors sampled now and fused (:mod:`tfl_mav.sitl.estimator`): the
-        measured state is the estimate; the ESC rpm are measured as in :meth:`_measure`."""
-        Simulator._measure(self)
+        measured state is the estimate; the ESC rpm are measured as in :meth:`_sample_sensors`."""
+        self._sample_sensors()
         suite, ekf = self.sensors, self.estimator
         assert suite is not None and ekf is not None
         imu, fixes, baro, mag = suite.sample(self.time_s, self._x)
@@ -357,7 +368,7 @@ class Simulator:
         for fix in fixes:
             ekf.fuse_gps(fix)
         est = self.estimate = ekf.output()
-        self._parts = (est.position_m, est.velocity_mps, est.quaternion_wxyz,
+        self.measured_parts = (est.position_m, est.velocity_mps, est.quaternion_wxyz,
                        est.body_rates_radps)
 
     # ------------------------------------------------------------------ outputs
@@ -389,24 +400,12 @@ class Simulator:
         """:attr:`measured` with float tuples for fields: what hot loops read (no arrays)."""
         m = self._measured_floats
         if m is None:
-            m = self._measured_floats = State(*self._parts, self._time_usec)
+            m = self._measured_floats = State(*self.measured_parts, self.time_usec)
         return m
-
-    @property
-    def measured_parts(self) -> tuple[tuple[float, ...], tuple[float, ...],
-                                      tuple[float, ...], tuple[float, ...]]:
-        """:attr:`measured_floats`' (position, velocity, quaternion, body rates) without the
-        State (the vehicle's per-tick report reads only these)."""
-        return self._parts  # type: ignore[return-value]
 
     def measured_rpm(self) -> np.ndarray:
         """ESC-reported rotor speeds (rpm, with the scenario's seeded noise); a new array."""
-        return np.array(self._rpm)
-
-    @property
-    def measured_rpm_floats(self) -> tuple[float, float, float, float]:
-        """:meth:`measured_rpm` as a float tuple (no array)."""
-        return self._rpm  # type: ignore[return-value]
+        return np.array(self.measured_rpm_floats)
 
     @property
     def rotor_thrusts_n(self) -> list[float]:

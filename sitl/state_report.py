@@ -106,16 +106,15 @@ class StateReport:
         ``struct.pack`` of the values that change (the constant tails packed once), the
         link only frames it; its fields read as the LiteMessage's would."""
         sim = self.sim
-        # float tuples: no arrays to build and convert back, no State either; read from
-        # the simulator's slots, not through its properties (a Python call each, per tick)
-        (px, py, pz), (vx, vy, vz), (w, x, y, z), (p, q, r) = sim._parts   # measured_parts
+        # float tuples: no arrays to build and convert back, no State either
+        (px, py, pz), (vx, vy, vz), (w, x, y, z), (p, q, r) = sim.measured_parts
         # tfl_mav.model.frames.odometry_from_paper written out (the same operations in the same
         # order): paper ENU/FLU → NED pose, body-FRD twist
         vb1 = (1 - 2 * (y * y + z * z)) * vx + 2 * (x * y + w * z) * vy + 2 * (x * z - w * y) * vz
         vb2 = 2 * (x * y - w * z) * vx + (1 - 2 * (x * x + z * z)) * vy + 2 * (y * z + w * x) * vz
         vb3 = 2 * (x * z + w * y) * vx + 2 * (y * z - w * x) * vy + (1 - 2 * (x * x + y * y)) * vz
         s = _SQRT1_2
-        head = (sim._time_usec, py, px, -pz, s * (w + z), s * (x + y), s * (x - y), s * (w - z),
+        head = (sim.time_usec, py, px, -pz, s * (w + z), s * (x + y), s * (x - y), s * (w - z),
                 vb1, -vb2, -vb3, p, -q, -r)
         if sim.estimate is None:
             odometry = _new(_Odometry, (_odometry_head(*head) + self._odometry_tail_bytes,
@@ -125,7 +124,7 @@ class StateReport:
             odometry = _new(_Odometry, (_odometry_head(*head) + _odometry_tail(*tail), head,
                                         tail))
         volts, (i1, i2, i3, i4), (q1, q2, q3, q4), (t1, t2, t3, t4), _ = self.power.sample
-        r1, r2, r3, r4 = sim._rpm     # measured_rpm_floats
+        r1, r2, r3, r4 = sim.measured_rpm_floats
         self._esc_count = n = (self._esc_count + 1) & 0xFFFF
         # Written out, one round() a field (a list through map() and the range scans cost
         # as much again): voltage (cV), current (cA), consumed (mAh), rpm are ≥ 0 here and

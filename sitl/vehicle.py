@@ -405,8 +405,6 @@ class Vehicle:
         self.control_link.send_many(latest)
         self.stats.states_sent += 1
 
-    _publish_state = publish_state   # bench/bench_lockstep.py times it under this name
-
     def resend_state(self) -> None:
         """The current tick's messages again, in order, in one datagram."""
         assert self.report.latest is not None
