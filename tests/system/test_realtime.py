@@ -236,14 +236,14 @@ def test_a_shuffled_burst_of_old_states_is_reordering_not_a_restart(scripted):
 
 
 def test_a_new_vehicle_waiting_at_its_first_state_is_a_restart(scripted):
-    """A vehicle restarted less than _BACKSTEP_S into a flight resends its first state until
+    """A vehicle restarted less than BACKSTEP_S into a flight resends its first state until
     answered: old states in a row at one time are a new time line (rebuild)."""
     vehicle, daemon = scripted
     for k in range(1, 6):
         vehicle.send(k * 20_000)                   # fly to t = 0.1 s
         assert vehicle.collect(1) == [k * 20_000]
     old = daemon.computer
-    for _ in range(24):                            # _RESTART_OLD_STATES − 1: still old
+    for _ in range(24):                            # RESTART_OLD_STATES − 1: still old
         vehicle.send(0)
     assert vehicle.quiet() == []
     vehicle.send(0)                                # the 25th at the same time: a restart

@@ -69,7 +69,6 @@ from typing import Any
 
 import numpy as np
 
-from tfl_mav.controller import arrivals
 from tfl_mav.controller.arrivals import Arrivals
 from tfl_mav.controller.daemon_intake import Intake
 from tfl_mav.controller.daemon_io import (
@@ -101,9 +100,6 @@ from tfl_mav.scenario import Scenario
 
 __all__ = ["TICK_FIELDS", "TICK_SCHEMA", "Daemon", "DaemonResult", "DaemonStats", "tick_state"]
 
-# the arrival limits, where tools/harness/fuzz.py reads them
-_AHEAD_S, _BACKSTEP_S, _JUMP_CONFIRM, _RESTART_OLD_STATES = (
-    arrivals._AHEAD_S, arrivals._BACKSTEP_S, arrivals._JUMP_CONFIRM, arrivals._RESTART_OLD_STATES)
 _TELEMETRY_PERIOD_S = 0.02        # ≤ 50 Hz of sim time
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
 _WAITING_REPORT_PERIOD_S = 2.0
@@ -309,7 +305,7 @@ class Daemon(Intake):
         t_usec = state.time_usec
         if stats.ticks == 0 and t_usec == 0 and self.hold_start is not None \
                 and self.hold_start():
-            self._arrivals.newest_usec = -1    # its resend of t = 0 will be fresh again
+            self._arrivals.forget_watermark()   # its resend of t = 0 will be fresh again
             return arrived
         if len(batch) > 1:
             stats.skipped_states += len(batch) - 1

@@ -41,7 +41,7 @@ _RxEsc = rx_lite_class(_ID_ESC_TELEMETRY_1_TO_4)
 _ODOMETRY_FIELDS = 16     # time_usec, x, y, z, q[4], vx..vz, rates[3], frame_id, child_frame_id
 _ESC_RPM = slice(0, 4)    # rpm[4]: the received tuple's only values (link.lite.LAZY_FIELDS)
 _from_fields = paper_from_odometry_fields
-_AHEAD_USEC = arrivals._AHEAD_S * 1e6     # Arrivals.classify's plausible step (float, as there)
+_AHEAD_USEC = arrivals.AHEAD_S * 1e6     # Arrivals.classify's plausible step (float, as there)
 
 
 class Intake:

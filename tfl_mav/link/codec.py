@@ -135,10 +135,10 @@ class Prepacked(tuple):  # type: ignore[type-arg]
         return _new_tuple(self._lite, (*self[1], *self[2], UNSENT))
 
     def get_msgId(self) -> int:
-        return self._lite._msgid
+        return self._lite.MSG_ID
 
     def get_type(self) -> str:
-        return self._lite._name
+        return self._lite.MSG_NAME
 
     def __getattr__(self, name: str) -> Any:
         if name.startswith("__"):
@@ -160,7 +160,7 @@ def prepacked_class(msgid: int) -> type[Prepacked]:
     if cls is None:
         lite = lite_class(msgid)
         attrs: dict[str, Any] = {"__slots__": (), "_lite": lite}
-        for name in lite._fieldnames:   # fields named like tuple methods (count) too
+        for name in lite.FIELDNAMES:   # fields named like tuple methods (count) too
             attrs[name] = property(lambda m, name=name: getattr(m.lite(), name))
         cls = _PREPACKED[msgid] = type(f"Prepacked{lite.__name__[4:]}", (Prepacked,), attrs)
     return cls

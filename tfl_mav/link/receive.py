@@ -276,7 +276,7 @@ class Receiver:
                     msg = _new_tuple(lite, (*unpack(
                         raw[_HEADER_LEN_V2:pend] + _ZEROS[:size + _HEADER_LEN_V2 - pend]),
                         raw))
-                msgid = lite._msgid
+                msgid = lite.MSG_ID
             else:
                 msg = self._decode_other(raw)
                 if msg is None:

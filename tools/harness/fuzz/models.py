@@ -187,15 +187,15 @@ class DaemonModel(_EndpointModel):
     its vehicle, including how it classifies a complete state against its watermark."""
 
     def __init__(self) -> None:
-        from tfl_mav.controller import daemon
+        from tfl_mav.controller import arrivals
         from tfl_mav.model.frames import paper_from_odometry
 
         self.link = LinkModel(VEHICLE_SYSID, (1, mav.MAV_COMP_ID_ONBOARD_COMPUTER))
         self._paper = paper_from_odometry
-        self._ahead = round(daemon._AHEAD_S * 1e6)
-        self._back = round(daemon._BACKSTEP_S * 1e6)
-        self._confirm = daemon._JUMP_CONFIRM
-        self._old_max = daemon._RESTART_OLD_STATES
+        self._ahead = round(arrivals.AHEAD_S * 1e6)
+        self._back = round(arrivals.BACKSTEP_S * 1e6)
+        self._confirm = arrivals.JUMP_CONFIRM
+        self._old_max = arrivals.RESTART_OLD_STATES
         self.pending: int | None = None     # time_usec of a state awaiting its ESC report
         self.watermark = -1
         self.jump = (-1, 0)                 # last implausible time, how many in a row
