@@ -16,7 +16,7 @@ split into
 Each figure is the median over ``--blocks`` blocks of ``--ticks`` ticks of one flight (a
 loaded machine slows some blocks; the median reads near an idle one). The timers cost a few
 tenths of a µs each and are in every figure alike. Runs on older trees (``Daemon``,
-``Link._ingest``, ``Daemon._handlers``/``_handle``/``_control_newest``), for before/after:
+``Link._ingest``, ``Daemon.intake``'s handlers, ``Daemon._control_newest``), for before/after:
 ``PYTHONPATH=OTHER_TREE python bench/bench_daemon_tick.py``.
 
 Usage: ``python bench/bench_daemon_tick.py [--ticks N] [--blocks B] [--json FILE]``.
@@ -42,7 +42,10 @@ def main() -> None:
     from tfl_mav.controller.daemon import Daemon
     from tfl_mav.link.transport import Link
     from tfl_mav.scenario import load_scenario
-    from tfl_mav.sitl.vehicle import Vehicle
+    try:
+        from tfl_mav.sitl.vehicle import Vehicle
+    except ImportError:                       # an older tree: the vehicle in tfl_mav/sim
+        from tfl_mav.sim.vehicle import Vehicle  # type: ignore[no-redef]
 
     sc = load_scenario("paper")
     vehicle = Vehicle(sc, listen=("127.0.0.1", 0))
@@ -70,7 +73,9 @@ def main() -> None:
     fc.step = timed_step                      # type: ignore[method-assign]
     records: list[Any] = []
     daemon.on_tick = lambda t, rec: records.append(rec)
-    handlers = daemon._handlers
+    intake = getattr(daemon, "intake", None)  # an older tree's daemon handles them itself
+    handlers = daemon._handlers if intake is None else intake.handlers
+    handle = daemon._handle if intake is None else intake.handle
     rows: dict[str, list[float]] = {k: [] for k in (
         "receive (link _ingest, 3 frames)", "intake (handlers: frames, classify)",
         "tick (control_newest, flight computer included)", "flight computer step",
@@ -89,7 +94,7 @@ def main() -> None:
             for msg in out:
                 handler = handlers.get(type(msg))
                 if handler is None:
-                    daemon._handle(msg)
+                    handle(msg)
                 else:
                     handler(msg)
             t2 = cpu()
