@@ -6,7 +6,7 @@ ACTUATOR_OUTPUT_STATUS + ESC_TELEMETRY_1_TO_4), closed loop: its commands drive 
 simulator. Per tick, thread CPU time of what the daemon's loop does with one datagram,
 split into
 
-* ``receive``: the link's ``_ingest`` (framing, checks, decode; no ``recvfrom``);
+* ``receive``: the link's ``Receiver.ingest`` (framing, checks, decode; no ``recvfrom``);
 * ``intake``: the message handlers (ODOMETRY → paper-frame State, ESC completes the state,
   classification);
 * ``tick``: ``_control_newest`` (applied command, the flight computer, the command packed
@@ -15,8 +15,9 @@ split into
 
 Each figure is the median over ``--blocks`` blocks of ``--ticks`` ticks of one flight (a
 loaded machine slows some blocks; the median reads near an idle one). The timers cost a few
-tenths of a µs each and are in every figure alike. Runs on older trees (``Daemon``,
-``Link._ingest``, ``Daemon.intake``'s handlers, ``Daemon._control_newest``), for before/after:
+tenths of a µs each and are in every figure alike. Runs on older trees (``Daemon``, the
+link's receive path, the daemon's intake handlers, ``Daemon._control_newest``), for
+before/after:
 ``PYTHONPATH=OTHER_TREE python bench/bench_daemon_tick.py``.
 
 Usage: ``python bench/bench_daemon_tick.py [--ticks N] [--blocks B] [--json FILE]``.
@@ -76,8 +77,10 @@ def main() -> None:
     intake = getattr(daemon, "intake", None)  # an older tree's daemon handles them itself
     handlers = daemon._handlers if intake is None else intake.handlers
     handle = daemon._handle if intake is None else intake.handle
+    # the receive path: the link's receiver (an older tree's Link receives itself)
+    ingest = link.receiver.ingest if hasattr(link, "receiver") else link._ingest
     rows: dict[str, list[float]] = {k: [] for k in (
-        "receive (link _ingest, 3 frames)", "intake (handlers: frames, classify)",
+        "receive (link ingest, 3 frames)", "intake (handlers: frames, classify)",
         "tick (control_newest, flight computer included)", "flight computer step",
         "outside the flight computer (receive + intake + tick - step)")}
     applied_usec = 0
@@ -89,7 +92,7 @@ def main() -> None:
             raw = b"".join(packer._codec.pack(m, packer.packer) for m in msgs)
             out: list[Any] = []
             t0 = cpu()
-            link._ingest(raw, sender, out)
+            ingest(raw, sender, out)
             t1 = cpu()
             for msg in out:
                 handler = handlers.get(type(msg))

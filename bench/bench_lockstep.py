@@ -120,6 +120,9 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
     sim_link = Link.listen(("127.0.0.1", 0), src_system=1, src_component=1,
                            peer=("127.0.0.1", 9))
     sender = ("127.0.0.1", 9)
+    # the receive paths (an older tree's Link receives itself)
+    daemon_ingest, sim_ingest = (link.receiver.ingest if hasattr(link, "receiver")
+                                 else link._ingest for link in (daemon_link, sim_link))
     acc: dict[str, float] = dict.fromkeys(
         ("physics + motors + attacker", "sensor sampling", "state messages built",
          "pack ODOMETRY + AOS + ESC (Link)", "parse ODOMETRY + AOS + ESC (Link)",
@@ -140,7 +143,7 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
         raw = b"".join(sim_link._codec.pack(m, sim_link.packer) for m in msgs)
         t2b = cpu()
         out: list = []
-        daemon_link._ingest(raw, sender, out)
+        daemon_ingest(raw, sender, out)
         t3 = cpu()
         if len(out) != 3:
             raise RuntimeError(f"breakdown: parsed {len(out)} of the tick's 3 messages")
@@ -160,7 +163,7 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
         daemon_link.send(hil)
         t7 = cpu()
         back: list = []
-        sim_link._ingest(hil_bytes.pop(), sender, back)
+        sim_ingest(hil_bytes.pop(), sender, back)
         t8 = cpu()
         sim.set_command(res.thrust_n)
         applied = list(sim.rotor_commands_n)

@@ -5,8 +5,9 @@ paper scenario (rotor 2 attacked, 1 kHz physics and control): µs per call, the 
 over ``--blocks`` blocks of ``--calls`` calls, so a shared, loaded machine reads close to
 an idle one (a mean would charge other processes' time slices to whichever piece ran).
 The control link sends to a local sink socket (real ``sendto``), frames come in through
-the link's own ``_ingest`` (no ``recvfrom``). The daemon's telemetry (4 NAMED_VALUE_FLOAT +
-DEBUG_FLOAT_ARRAY, one datagram at ≤ 50 Hz of sim time) is timed per datagram.
+the link's own receive path (``Link.receiver.ingest``, no ``recvfrom``). The daemon's
+telemetry (4 NAMED_VALUE_FLOAT + DEBUG_FLOAT_ARRAY, one datagram at ≤ 50 Hz of sim time) is
+timed per datagram.
 
 Then the tick as the vehicle's own lockstep clock runs it (``LockstepClock.run``), with the
 controller's replies already queued on the socket (so no wait: what is left is the
@@ -150,6 +151,8 @@ def measure(calls: int, blocks: int) -> dict[str, float]:
     sink.setblocking(False)
     ctl.peer = sink.getsockname()
     ctl.peer_sysid = 1
+    # the receive path (an older tree's Link receives itself)
+    ctl_ingest = ctl.receiver.ingest if hasattr(ctl, "receiver") else ctl._ingest
     vehicle._flying = vehicle._confirmed = True
     sim.set_command([sc.vehicle.mass_kg * sc.vehicle.gravity_mps2 / 4.0] * 4)
     hil = bytes(mav.MAVLink_hil_actuator_controls_message(
@@ -167,7 +170,7 @@ def measure(calls: int, blocks: int) -> dict[str, float]:
     def receive(raw: bytes) -> Callable[[], None]:
         def run() -> None:
             out: list[Any] = []
-            ctl._ingest(raw, ctl.peer, out)
+            ctl_ingest(raw, ctl.peer, out)
             for msg in out:
                 vehicle.held.time_usec = -1
                 vehicle.dispatch(msg, 0)

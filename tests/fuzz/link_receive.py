@@ -1,6 +1,6 @@
 """Coverage-guided fuzzing (atheris, libFuzzer) of the MAVLink receive path.
 
-What one input drives: :meth:`tfl_mav.link.transport.Link._ingest`, the function
+What one input drives: :meth:`tfl_mav.link.receive.Receiver.ingest`, the function
 :meth:`~tfl_mav.link.transport.Link.recv` hands every datagram to (framing, the signature,
 the CRC, the per-tick decode, pymavlink's decode, the skimmed messages, peer learning and
 pinning, the counters), on a real :class:`~tfl_mav.link.transport.Link` over a real UDP
@@ -96,7 +96,7 @@ def one_input(data: bytes) -> None:
     st = link.stats
     before_dg, before_rx = st.rx_datagrams, st.rx_frames
     out: list = []
-    link._ingest(body, PEER, out)
+    link.receiver.ingest(body, PEER, out)
     assert st.rx_datagrams == before_dg + 1
     assert st.rx_frames - before_rx == len(out)
     for msg in out:
