@@ -404,25 +404,32 @@ def bench_ab(n_ticks: int, rounds: int, first: dict[str, Any]) -> dict[str, Any]
 
 
 _FULL_LOOP_CHILD = """
-import json, os, pathlib, sys, tempfile
-sys.path.insert(0, os.path.join({tree!r}, "bench"))
+import json, pathlib, sys, tempfile
 import bench_lockstep as b
-import tfl_mav
-assert pathlib.Path(tfl_mav.__file__).resolve().is_relative_to(pathlib.Path({tree!r}).resolve())
 b._cores("compiled")
 with tempfile.TemporaryDirectory() as d:
     r = b.bench_full_loop({ticks}, pathlib.Path(d))
     r["mcap_bytes"] = {{n: (pathlib.Path(d) / n).stat().st_size for n in ("run.mcap", "ctl.mcap")}}
+# every module of the package from the tree measured (an editable install of another
+# checkout maps tfl_mav.sitl and tfl_mav.tools to its own directories)
+tree = pathlib.Path({tree!r})
+elsewhere = sorted(n for n, m in sys.modules.items() if n.split(".")[0] == "tfl_mav"
+                   and getattr(m, "__file__", None)
+                   and not pathlib.Path(m.__file__).resolve().is_relative_to(tree))
+assert not elsewhere, f"not from {{tree}}: {{elsewhere[:5]}}"
 print(json.dumps(r))
 """
 
 
 def full_loop_in(tree: Path, n_ticks: int) -> dict[str, Any]:
-    """:func:`bench_full_loop` run by checkout ``tree`` (its bench, its ``tfl_mav`` first on
-    the path, its directory the processes' working directory), in a fresh interpreter."""
+    """:func:`bench_full_loop` run by checkout ``tree`` (its bench and its ``tfl_mav`` first
+    on the path, its directory the processes' working directory), in a fresh interpreter:
+    the tree's own venv's if it has one (its editable install maps its own directories)."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        filter(None, (str(tree), os.environ.get("PYTHONPATH")))))
-    done = subprocess.run([sys.executable, "-c", _FULL_LOOP_CHILD.format(
+        filter(None, (str(tree), str(tree / "bench"), os.environ.get("PYTHONPATH")))))
+    python = tree / ".venv" / "bin" / "python"
+    done = subprocess.run([str(python) if python.exists() else sys.executable,
+                           "-c", _FULL_LOOP_CHILD.format(
         tree=str(tree.resolve()), ticks=n_ticks)], cwd=tree, env=env, capture_output=True,
         text=True, check=False)
     if done.returncode != 0:
