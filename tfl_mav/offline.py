@@ -15,7 +15,7 @@ import re
 import time
 from collections.abc import Callable, Sequence
 from itertools import chain
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -28,7 +28,7 @@ from tfl_mav.sitl.attacker import AttackSignal
 from tfl_mav.sitl.simulator import Simulator
 from tfl_mav.sitl.wind import WindField
 
-__all__ = ["ATTACK_MOVE_EVENT", "ATTACK_RELEASE_EVENT", "DETECTION_EVENT", "detections",
+__all__ = ["ATTACK_MOVE_EVENT", "ATTACK_RELEASE_EVENT", "DETECTION_EVENT", "TickRow", "detections",
            "fly_offline"]
 
 # The event a detector alarm leaves in ``FlightLog.events`` (rotor 1-4, sim time in s).
@@ -37,6 +37,26 @@ _DETECTION_RE = re.compile(r"^attack detected on rotor (\d)$")
 # The events an attack schedule ([[attack.phases]]) leaves: where the attacker went, when.
 ATTACK_MOVE_EVENT = "attacker seizes rotor {rotor}"
 ATTACK_RELEASE_EVENT = "attacker lets go"
+
+
+class TickRow(NamedTuple):
+    """One control tick of an offline flight, as the loop records it (the log's series are
+    built from the rows after the flight, :func:`_fill`)."""
+
+    t_s: float                              # sim time of the tick (s)
+    state: Sequence[float]                  # the true state, 13 floats (paper frame)
+    thrust_cmd_n: Sequence[float]           # the four commanded thrusts (N)
+    thrust_req_n: Sequence[float]           # what the law asked before the allocator (N)
+    thrust_true_n: Sequence[float]          # the rotors' true thrusts (N)
+    attack_true_n: float                    # the attacked rotor's thrust (N; 0: none)
+    attack_estimate_n: float                # the flight software's estimate of it (N)
+    path_distance_m: float                  # the software's distance to the path (m)
+    saturated: bool                         # any thrust at its bound
+    mode: int                               # the law flying (Mode)
+    detected_rotor: int                     # the detector's verdict (0: none)
+
+
+_row = tuple.__new__      # a TickRow from a plain tuple: no generated __new__ call a tick
 
 
 def detections(log: FlightLog) -> list[tuple[float, int]]:
@@ -89,7 +109,7 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
     n_ticks = round(duration / sim.control_dt_s)
     applied = sim.rotor_commands_n    # replaced (never changed in place) by set_command
     oracle = attack_info == "oracle" and hasattr(fc, "tell_attack")
-    rows: list[tuple[Any, ...]] = []     # one per tick; the series are built at the end (_fill)
+    rows: list[TickRow] = []     # one per tick; the series are built at the end (_fill)
     events = log.events
     append = rows.append
     fc_step, set_command = fc.step, sim.set_command
@@ -122,10 +142,11 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
                 events.append((t_s, text))
             set_command(thrust)
             applied = sim.rotor_commands_n
-            append((t_s, sim.state_vector, thrust, thrust if req is None else req,
-                    sim.rotor_thrusts_n, att.applied_n if att.rotor else 0.0, estimate,
-                    out.path_distance_m, any(out.saturated), int(out.mode),
-                    fc.detected_rotor))
+            append(_row(TickRow, (t_s, sim.state_vector, thrust,
+                                  thrust if req is None else req, sim.rotor_thrusts_n,
+                                  att.applied_n if att.rotor else 0.0, estimate,
+                                  out.path_distance_m, any(out.saturated), int(out.mode),
+                                  fc.detected_rotor)))
             step_period()
             reason = crash_reason()
             if reason:
@@ -151,49 +172,50 @@ def fly_offline(sc: Scenario, *, attack_info: str = "oracle",
     return log.finish()
 
 
-def _fill(log: FlightLog, rows: list[tuple[Any, ...]], sim: Simulator, *,
+def _fill(log: FlightLog, rows: list[TickRow], sim: Simulator, *,
           detector: bool) -> None:
     """The per-tick rows → the log's series (:data:`~tfl_mav.flightlog.flight.SERIES`).
 
-    Done once after the flight so the loop appends one tuple a tick: the unwrapped yaw
+    Done once after the flight so the loop appends one row a tick: the unwrapped yaw
     (ψ from the true quaternion, eq. (1)) and the true wrench (eq. (4)) are computed here, by
     the same float operations in the same order as per tick, so the values are identical.
     """
     if detector:
-        log.detected_rotor = np.asarray([r[10] for r in rows], dtype=int)
+        log.detected_rotor = np.asarray([r.detected_rotor for r in rows], dtype=int)
     if not rows:
         return
-    cols = list(zip(*rows, strict=True))
+    cols = TickRow._make(zip(*rows, strict=True))  # a column of the rows per field
     n = len(rows)
-    x = _matrix(cols[1], 13)                       # (N, 13) true state, paper frame
+    x = _matrix(cols.state, 13)                    # (N, 13) true state, paper frame
     yaw_rad = []
     yaw_prev = None
     unwrapped = 0.0
     atan2, remainder, tau = math.atan2, math.remainder, math.tau
-    for s in cols[1]:
+    for s in cols.state:
         # ψ = yaw_from_quaternion(q), written out (the same operations): 20 000 a flight
         w, qx, qy, qz = s[6], s[7], s[8], s[9]
         yaw = atan2(2 * (w * qz + qx * qy), 1 - 2 * (qy * qy + qz * qz))
         unwrapped = yaw if yaw_prev is None else unwrapped + remainder(yaw - yaw_prev, tau)
         yaw_prev = yaw
         yaw_rad.append(unwrapped)
-    f = _matrix(cols[4], 4)                        # (N, 4) true rotor thrusts
+    f = _matrix(cols.thrust_true_n, 4)             # (N, 4) true rotor thrusts
     f1, f2, f3, f4 = f.T
     ell, d = sim.params.arm_m, sim.params.drag_thrust_ratio_m
     data = log.data
     for key, value in (
-            ("t_s", np.fromiter(cols[0], float, n)), ("position_m", x[:, 0:3]),
+            ("t_s", np.fromiter(cols.t_s, float, n)), ("position_m", x[:, 0:3]),
             ("velocity_mps", x[:, 3:6]), ("quaternion_wxyz", x[:, 6:10]),
             ("body_rates_radps", x[:, 10:13]), ("yaw_rad", yaw_rad),
-            ("path_distance_m", np.fromiter(cols[7], float, n)),
-            ("thrust_cmd_n", _matrix(cols[2], 4)), ("thrust_req_n", _matrix(cols[3], 4)),
-            ("thrust_true_n", f), ("attack_true_n", np.fromiter(cols[5], float, n)),
-            ("attack_estimate_n", np.fromiter(cols[6], float, n)),
+            ("path_distance_m", np.fromiter(cols.path_distance_m, float, n)),
+            ("thrust_cmd_n", _matrix(cols.thrust_cmd_n, 4)),
+            ("thrust_req_n", _matrix(cols.thrust_req_n, 4)),
+            ("thrust_true_n", f), ("attack_true_n", np.fromiter(cols.attack_true_n, float, n)),
+            ("attack_estimate_n", np.fromiter(cols.attack_estimate_n, float, n)),
             ("uf_n", f1 + f2 + f3 + f4),
             ("torque_nm", np.stack([ell * (f4 - f2), ell * (f3 - f1), d * (f1 - f2 + f3 - f4)],
                                    axis=1)),
-            ("saturated", np.fromiter(cols[8], float, n)),
-            ("mode", np.fromiter(cols[9], float, n))):
+            ("saturated", np.fromiter(cols.saturated, float, n)),
+            ("mode", np.fromiter(cols.mode, float, n))):
         data[key] = np.ascontiguousarray(value, dtype=float)
     if sim.estimator is not None:
         # The controller flew on the onboard estimate: its distance is the estimate's. The
