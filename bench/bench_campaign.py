@@ -23,9 +23,9 @@ import time
 from pathlib import Path
 from typing import Any
 
-from tfl_mav.harness.campaign import run_campaign
-from tfl_mav.harness.campaign.run import execute
-from tfl_mav.harness.campaign.spec import spec_from_dict
+from tfl_mav.tools.harness.campaign import run_campaign
+from tfl_mav.tools.harness.campaign.run import execute
+from tfl_mav.tools.harness.campaign.spec import spec_from_dict
 
 
 def _spec(runs: int, duration_s: float) -> Any:

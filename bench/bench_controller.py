@@ -20,7 +20,7 @@ offline loop against a plain numpy RK4 physics-only loop — all in the same run
    TFL law, the safe law and the flight computer's own work, by replaying the flight's
    inputs (:func:`flight_computer_parts`).
 4. The offline loop table: the offline loop (physics + law + detector at 1 kHz,
-   ``tfl_mav.harness.offline.fly_offline``, and the whole ``tfl-mav offline`` process) against a
+   ``tfl_mav.offline.fly_offline``, and the whole ``tfl-mav offline`` process) against a
    plain numpy RK4 loop of the same rigid body with the physics only, as the ratio of
    simulated seconds per CPU second (> 1: the full loop is faster), and where a tick of
    the loop goes (flight computer: law + detector; simulator: motors, attacker, RK4,
@@ -66,11 +66,11 @@ from tfl_mav.control.safe import recovery
 from tfl_mav.control.tfl import law, step
 from tfl_mav.control.tfl.law import TFLController
 from tfl_mav.controller.flight_computer import FlightComputer
-from tfl_mav.harness import offline
-from tfl_mav.harness.offline import fly_offline
 from tfl_mav.model.state import State
+from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import Scenario, load_scenario
-from tfl_mav.sim.simulator import Simulator
+from tfl_mav.sitl.simulator import Simulator
+from tfl_mav.tools.harness import offline
 
 _cpu = time.thread_time
 
@@ -327,7 +327,7 @@ def offline_breakdown(sc: Scenario, sim_s: float) -> dict[str, float]:
 def cli_rtf(scenario: str, sim_s: float) -> float:
     """Simulated s per CPU s of the whole ``tfl-mav offline`` process (start-up included)."""
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
-    subprocess.run([sys.executable, "-m", "tfl_mav.cli", "offline", scenario, "--json",
+    subprocess.run([sys.executable, "-m", "tfl_mav.tools.cli", "offline", scenario, "--json",
                     "--attack-info", "detector", "--duration", str(sim_s)],
                    check=True, capture_output=True)
     after = resource.getrusage(resource.RUSAGE_CHILDREN)

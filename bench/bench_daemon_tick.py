@@ -6,7 +6,7 @@ ACTUATOR_OUTPUT_STATUS + ESC_TELEMETRY_1_TO_4), closed loop: its commands drive 
 simulator. Per tick, thread CPU time of what the daemon's loop does with one datagram,
 split into
 
-* ``receive``: the link's ``_ingest`` (framing, checks, decode; no ``recvfrom``);
+* ``receive``: the link's ``Receiver.ingest`` (framing, checks, decode; no ``recvfrom``);
 * ``intake``: the message handlers (ODOMETRY → paper-frame State, ESC completes the state,
   classification);
 * ``tick``: ``_control_newest`` (applied command, the flight computer, the command packed
@@ -15,8 +15,9 @@ split into
 
 Each figure is the median over ``--blocks`` blocks of ``--ticks`` ticks of one flight (a
 loaded machine slows some blocks; the median reads near an idle one). The timers cost a few
-tenths of a µs each and are in every figure alike. Runs on older trees (``Daemon``,
-``Link._ingest``, ``Daemon._handlers``/``_handle``/``_control_newest``), for before/after:
+tenths of a µs each and are in every figure alike. Runs on older trees (``Daemon``, the
+link's receive path, the daemon's intake handlers, ``Daemon._control_newest``), for
+before/after:
 ``PYTHONPATH=OTHER_TREE python bench/bench_daemon_tick.py``.
 
 Usage: ``python bench/bench_daemon_tick.py [--ticks N] [--blocks B] [--json FILE]``.
@@ -42,7 +43,10 @@ def main() -> None:
     from tfl_mav.controller.daemon import Daemon
     from tfl_mav.link.transport import Link
     from tfl_mav.scenario import load_scenario
-    from tfl_mav.sim.vehicle import Vehicle
+    try:
+        from tfl_mav.sitl.vehicle import Vehicle
+    except ImportError:                       # an older tree: the vehicle in tfl_mav/sim
+        from tfl_mav.sim.vehicle import Vehicle  # type: ignore[no-redef]
 
     sc = load_scenario("paper")
     vehicle = Vehicle(sc, listen=("127.0.0.1", 0))
@@ -70,9 +74,13 @@ def main() -> None:
     fc.step = timed_step                      # type: ignore[method-assign]
     records: list[Any] = []
     daemon.on_tick = lambda t, rec: records.append(rec)
-    handlers = daemon._handlers
+    intake = getattr(daemon, "intake", None)  # an older tree's daemon handles them itself
+    handlers = daemon._handlers if intake is None else intake.handlers
+    handle = daemon._handle if intake is None else intake.handle
+    # the receive path: the link's receiver (an older tree's Link receives itself)
+    ingest = link.receiver.ingest if hasattr(link, "receiver") else link._ingest
     rows: dict[str, list[float]] = {k: [] for k in (
-        "receive (link _ingest, 3 frames)", "intake (handlers: frames, classify)",
+        "receive (link ingest, 3 frames)", "intake (handlers: frames, classify)",
         "tick (control_newest, flight computer included)", "flight computer step",
         "outside the flight computer (receive + intake + tick - step)")}
     applied_usec = 0
@@ -84,12 +92,12 @@ def main() -> None:
             raw = b"".join(packer._codec.pack(m, packer.packer) for m in msgs)
             out: list[Any] = []
             t0 = cpu()
-            link._ingest(raw, sender, out)
+            ingest(raw, sender, out)
             t1 = cpu()
             for msg in out:
                 handler = handlers.get(type(msg))
                 if handler is None:
-                    daemon._handle(msg)
+                    handle(msg)
                 else:
                     handler(msg)
             t2 = cpu()

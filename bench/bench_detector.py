@@ -33,7 +33,7 @@ from typing import Any
 from tfl_mav.build import build_detector
 from tfl_mav.controller.flight_computer import FlightComputer
 from tfl_mav.scenario import Scenario, load_scenario
-from tfl_mav.sim.simulator import Simulator
+from tfl_mav.sitl.simulator import Simulator
 
 TAUS_S = (0.0, 0.02)
 ATTACK_STARTS_S = (0.0, 5.0)

@@ -1,7 +1,7 @@
 """The attack-class envelope: each failure family flown offline, with its bound.
 
 Every case is the paper scenario (or the circle) with ``--set`` overrides, flown in-process by
-:func:`tfl_mav.harness.offline.fly_offline` with the attack found from ESC rpm (``detector``), as
+:func:`tfl_mav.offline.fly_offline` with the attack found from ESC rpm (``detector``), as
 the daemon does. For each case the table gives whether it crashed (and why), the path
 distance over the last ``--window`` s (max), the maximum |yaw rate|, the modes the flight
 computer flew, and the bound the case is meant to meet:
@@ -28,8 +28,8 @@ from typing import Any
 import numpy as np
 
 from tfl_mav.flightlog.flight import summarize
-from tfl_mav.harness.offline import fly_offline
 from tfl_mav.model.modes import Mode
+from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import apply_overrides, load_scenario
 
 

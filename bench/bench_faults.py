@@ -1,7 +1,7 @@
 """Faults on the control link: loss rates survived and recovery times after restarts.
 
 Real processes (``tfl-mav sim`` and ``tfl-mav fly``, real UDP on loopback) with the fault
-relay of :mod:`tfl_mav.harness.relay` in between, the paper scenario throughout:
+relay of :mod:`tfl_mav.tools.harness.relay` in between, the paper scenario throughout:
 
 1. **real time** through the relay at 0-20 % loss per direction with 0-2 ms jitter:
    converged (not crashed, path distance over the last ``--window`` s below ``--tol``),
@@ -42,11 +42,11 @@ from typing import Any
 
 from tfl_mav.build import scenario_path
 from tfl_mav.control.path.paths import PathTracker
-from tfl_mav.harness.ports import free_udp_port
-from tfl_mav.harness.processes import Proc, raise_priority, start_sim, start_sim_on
-from tfl_mav.harness.relay import Faults, Relay
 from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.scenario import load_scenario
+from tfl_mav.tools.harness.ports import free_udp_port
+from tfl_mav.tools.harness.processes import Proc, raise_priority, start_sim, start_sim_on
+from tfl_mav.tools.harness.relay import Faults, Relay
 
 LOSS_RATES = (0.0, 0.01, 0.02, 0.05, 0.10, 0.15, 0.20)
 

@@ -41,8 +41,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from tfl_mav.harness.pilot import Pilot, hover_controls
-from tfl_mav.harness.processes import popen_sim
+from tfl_mav.tools.harness.pilot import Pilot, hover_controls
+from tfl_mav.tools.harness.processes import popen_sim
 
 WARMUP_TICKS = 200
 PILOT_SYSID, PILOT_COMPID = 1, 191

@@ -1,6 +1,6 @@
 """Fuzz both UDP endpoints: ≥ 100 000 hostile datagrams each, over loopback.
 
-The vehicle (``tfl_mav.sim.vehicle.Vehicle``, lockstep) and the daemon
+The vehicle (``tfl_mav.sitl.vehicle.Vehicle``, lockstep) and the daemon
 (``tfl_mav.controller.daemon.Daemon``)
 each run in a thread on a real UDP socket; the fuzzer is their pinned peer and flies them in
 lockstep while it sends random bytes, mutated frames (with and without a recomputed CRC),
@@ -27,7 +27,7 @@ import time
 import warnings
 from pathlib import Path
 
-from tfl_mav.harness import fuzz
+from tfl_mav.tools.harness import fuzz
 
 _SHORT = {"garbage": "garb", "mavlink1": "v1", "truncated": "trunc", "bad_flags": "flags",
           "bad_crc": "crc", "bad_signature": "sig", "malformed": "malf", "unknown_id": "unk",

@@ -51,7 +51,7 @@ from typing import Any
 from tfl_mav.flightlog.from_mcap import log_metadata
 from tfl_mav.flightlog.logread import LogMessage
 from tfl_mav.flightlog.mcaprepair import cut_short
-from tfl_mav.harness.processes import LISTEN_RE, Proc
+from tfl_mav.tools.harness.processes import LISTEN_RE, Proc
 
 TARGETS = ("sim", "fly", "sim-recorder", "fly-recorder")
 _PROGRESS = r"^progress ([\d.]+) "

@@ -6,12 +6,12 @@ reads) and the daemon's command (HIL_ACTUATOR_CONTROLS, what the vehicle reads),
 our Link. Measured per datagram in thread CPU time, min over many short blocks (readable
 on a loaded machine):
 
-* ``_ingest``: framing, checks, decode, counters (no socket);
+* ``ingest`` (the receive path, ``Link.receiver``): framing, checks, decode, counters (no socket);
 * ``recv``: the datagram sent on loopback beforehand (untimed), then ``recv(timeout_s)`` as
-  the daemon calls it: the waiting ``recvfrom``, ``_ingest``, the drain's "anything else?"
+  the daemon calls it: the waiting ``recvfrom``, ``ingest``, the drain's "anything else?"
   check; and ``recv(drain=False)`` as the lockstep vehicle calls it.
 
-Runs on older revisions too (only ``Link`` and its ``_ingest``), for before/after:
+Runs on older revisions too (only ``Link`` and its receive path), for before/after:
 ``cd OTHER_CHECKOUT && python /path/to/bench/bench_link_rx.py`` with that checkout's venv.
 
 Usage: ``python bench/bench_link_rx.py [--n N] [--blocks B] [--json FILE]``.
@@ -31,7 +31,7 @@ def _tick_datagrams() -> tuple[bytes, bytes]:
 
     from tfl_mav.link.transport import Link
     from tfl_mav.scenario import load_scenario
-    from tfl_mav.sim.vehicle import Vehicle
+    from tfl_mav.sitl.vehicle import Vehicle
 
     sc = load_scenario("paper").replace(**{"attack.rotor": 0})
     vehicle = Vehicle(sc, listen=("127.0.0.1", 0))
@@ -75,6 +75,8 @@ def main() -> None:
     rx = Link.listen(("127.0.0.1", 0), src_system=1, src_component=191, peer=sender,
                      peer_sysid=1)
     dest = rx.local_address
+    # the receive path (an older revision's Link receives itself)
+    rx_ingest = rx.receiver.ingest if hasattr(rx, "receiver") else rx._ingest
     rows: dict[str, float] = {}
 
     for name, dgram, n_frames in (("state (3 frames), daemon side", state, 3),
@@ -83,7 +85,7 @@ def main() -> None:
             out: list[Any] = []
             t0 = time.thread_time()
             for _ in range(n):
-                rx._ingest(dgram, sender, out)
+                rx_ingest(dgram, sender, out)
                 out.clear()
             dt = time.thread_time() - t0
             assert rx.stats.rejected == 0 and rx.stats.rx_frames % n_frames == 0
@@ -99,7 +101,7 @@ def main() -> None:
                 assert got
             return total
 
-        rows[f"_ingest: {name}"] = _min_block_us(ingest, args.n, args.blocks)
+        rows[f"ingest: {name}"] = _min_block_us(ingest, args.n, args.blocks)
         rows[f"recv(0.05): {name}"] = _min_block_us(recv, args.n, args.blocks)
         rows[f"recv(0.05, drain=False): {name}"] = _min_block_us(
             lambda n, dgram=dgram: recv(n, dgram, drain=False), args.n, args.blocks)

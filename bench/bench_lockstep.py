@@ -8,7 +8,7 @@ Measures, on this machine:
    in-process per-tick breakdown of the whole lockstep loop (``--breakdown-only``: just
    these, no subprocesses);
 2. lockstep: ticks/s of ``tfl-mav sim`` (a subprocess, 1 kHz physics and control) flown by
-   the lockstep client of the tests (:class:`tfl_mav.harness.pilot.Pilot`: our Link, hover
+   the lockstep client of the tests (:class:`tfl_mav.tools.harness.pilot.Pilot`: our Link, hover
    commands), without and with ``--mcap`` recording;
 3. the full loop: ``tfl-mav sim --mcap`` flown by ``tfl-mav fly --mcap`` (the controller
    daemon: law, detector, both MCAP recorders), ticks per wall second of the flight as the
@@ -50,8 +50,8 @@ from typing import Any
 
 from pymavlink.dialects.v20 import ardupilotmega as mav
 
-from tfl_mav.harness.pilot import Pilot, hover_controls
-from tfl_mav.harness.processes import LISTEN_RE, popen_sim
+from tfl_mav.tools.harness.pilot import Pilot, hover_controls
+from tfl_mav.tools.harness.processes import LISTEN_RE, popen_sim
 
 WARMUP_TICKS = 200
 
@@ -59,8 +59,8 @@ WARMUP_TICKS = 200
 # ---------------------------------------------------------------------------- physics
 def bench_physics(n_steps: int) -> dict[str, float]:
     from tfl_mav.scenario import load_scenario
-    from tfl_mav.sim.physics import mix, rk4_step
-    from tfl_mav.sim.vehicle import Vehicle
+    from tfl_mav.sitl.physics import mix, rk4_step
+    from tfl_mav.sitl.vehicle import Vehicle
 
     sc = load_scenario("paper").replace(**{"attack.rotor": 0})
     vehicle = Vehicle(sc, listen=("127.0.0.1", 0))
@@ -82,7 +82,7 @@ def bench_physics(n_steps: int) -> dict[str, float]:
     vehicle.control_link.peer = None   # build and pack only; nothing is sent
     t0 = time.perf_counter()
     for _ in range(n_steps):
-        vehicle._publish_state()        # the tick's 3 messages built and packed (unsent)
+        vehicle.publish_state()         # the tick's 3 messages built and packed (unsent)
     publish_us = (time.perf_counter() - t0) / n_steps * 1e6
     vehicle.close()
     return {"rk4_step_us": rk4_us, "sim_tick_us": tick_us, "state_build_pack_us": publish_us}
@@ -97,7 +97,7 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
     from tfl_mav.link.transport import Link
     from tfl_mav.model.frames import paper_from_odometry
     from tfl_mav.scenario import load_scenario
-    from tfl_mav.sim.vehicle import Vehicle
+    from tfl_mav.sitl.vehicle import Vehicle
 
     to_state: Any = paper_from_odometry
     try:    # the daemon's path: the received tuple's fields, no attribute reads
@@ -120,6 +120,9 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
     sim_link = Link.listen(("127.0.0.1", 0), src_system=1, src_component=1,
                            peer=("127.0.0.1", 9))
     sender = ("127.0.0.1", 9)
+    # the receive paths (an older tree's Link receives itself)
+    daemon_ingest, sim_ingest = (link.receiver.ingest if hasattr(link, "receiver")
+                                 else link._ingest for link in (daemon_link, sim_link))
     acc: dict[str, float] = dict.fromkeys(
         ("physics + motors + attacker", "sensor sampling", "state messages built",
          "pack ODOMETRY + AOS + ESC (Link)", "parse ODOMETRY + AOS + ESC (Link)",
@@ -140,7 +143,7 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
         raw = b"".join(sim_link._codec.pack(m, sim_link.packer) for m in msgs)
         t2b = cpu()
         out: list = []
-        daemon_link._ingest(raw, sender, out)
+        daemon_ingest(raw, sender, out)
         t3 = cpu()
         if len(out) != 3:
             raise RuntimeError(f"breakdown: parsed {len(out)} of the tick's 3 messages")
@@ -160,14 +163,14 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
         daemon_link.send(hil)
         t7 = cpu()
         back: list = []
-        sim_link._ingest(hil_bytes.pop(), sender, back)
+        sim_ingest(hil_bytes.pop(), sender, back)
         t8 = cpu()
         sim.set_command(res.thrust_n)
         applied = list(sim.rotor_commands_n)
         t9 = cpu()
         sim.step_control_period()
         t10 = cpu()
-        sim._measure()                                 # once more, timed alone
+        sim.measure()                                  # once more, timed alone
         t11 = cpu()
         acc["state messages built"] += t1 - t0
         acc["pack ODOMETRY + AOS + ESC (Link)"] += t2 - t1
@@ -283,7 +286,8 @@ def bench_vehicle(n_ticks: int, mcap: Path | None = None,
     if profile is None:
         proc, address = popen_sim(args, "paper")
     else:
-        proc = subprocess.Popen([sys.executable, _PROFILER, str(profile), "tfl_mav.cli.main", "sim",
+        proc = subprocess.Popen([sys.executable, _PROFILER, str(profile),
+                                 "tfl_mav.tools.cli.main", "sim",
                                  "paper", "--listen", "127.0.0.1:0", *args],
                                 stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
         assert proc.stdout is not None
@@ -328,9 +332,9 @@ def bench_full_loop(n_ticks: int, out_dir: Path, scenario: str = "paper",
     prefix: dict[str, list[str]] = {"sim": [], "fly": []}
     if profile_dir is not None:
         env = dict(env or os.environ, TFL_MAV_PROFILE=str(profile_dir))
-        prefix = {role: [_PROFILER, str(profile_dir / f"{role}.prof"), "tfl_mav.cli.main"]
+        prefix = {role: [_PROFILER, str(profile_dir / f"{role}.prof"), "tfl_mav.tools.cli.main"]
                   for role in ("sim", "fly")}
-    sim_cmd = [sys.executable, *(prefix["sim"] or ["-m", "tfl_mav.cli"]), "sim", scenario,
+    sim_cmd = [sys.executable, *(prefix["sim"] or ["-m", "tfl_mav.tools.cli"]), "sim", scenario,
                "--listen", "127.0.0.1:0", "--duration", duration,
                "--mcap", str(out_dir / "run.mcap")]
     proc = subprocess.Popen(sim_cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
@@ -342,7 +346,7 @@ def bench_full_loop(n_ticks: int, out_dir: Path, scenario: str = "paper",
         if match is None:
             raise RuntimeError(f"sim did not start: {proc.communicate(timeout=20)}")
         fly = subprocess.Popen(
-            [sys.executable, *(prefix["fly"] or ["-m", "tfl_mav.cli"]), "fly", scenario,
+            [sys.executable, *(prefix["fly"] or ["-m", "tfl_mav.tools.cli"]), "fly", scenario,
              "--vehicle", f"{match.group(1)}:{match.group(2)}", "--duration", duration,
              "--mcap", str(out_dir / "ctl.mcap"), "--quiet", "--progress"],
             stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
@@ -400,25 +404,32 @@ def bench_ab(n_ticks: int, rounds: int, first: dict[str, Any]) -> dict[str, Any]
 
 
 _FULL_LOOP_CHILD = """
-import json, os, pathlib, sys, tempfile
-sys.path.insert(0, os.path.join({tree!r}, "bench"))
+import json, pathlib, sys, tempfile
 import bench_lockstep as b
-import tfl_mav
-assert pathlib.Path(tfl_mav.__file__).resolve().is_relative_to(pathlib.Path({tree!r}).resolve())
 b._cores("compiled")
 with tempfile.TemporaryDirectory() as d:
     r = b.bench_full_loop({ticks}, pathlib.Path(d))
     r["mcap_bytes"] = {{n: (pathlib.Path(d) / n).stat().st_size for n in ("run.mcap", "ctl.mcap")}}
+# every module of the package from the tree measured (an editable install of another
+# checkout maps tfl_mav.sitl and tfl_mav.tools to its own directories)
+tree = pathlib.Path({tree!r})
+elsewhere = sorted(n for n, m in sys.modules.items() if n.split(".")[0] == "tfl_mav"
+                   and getattr(m, "__file__", None)
+                   and not pathlib.Path(m.__file__).resolve().is_relative_to(tree))
+assert not elsewhere, f"not from {{tree}}: {{elsewhere[:5]}}"
 print(json.dumps(r))
 """
 
 
 def full_loop_in(tree: Path, n_ticks: int) -> dict[str, Any]:
-    """:func:`bench_full_loop` run by checkout ``tree`` (its bench, its ``tfl_mav`` first on
-    the path, its directory the processes' working directory), in a fresh interpreter."""
+    """:func:`bench_full_loop` run by checkout ``tree`` (its bench and its ``tfl_mav`` first
+    on the path, its directory the processes' working directory), in a fresh interpreter:
+    the tree's own venv's if it has one (its editable install maps its own directories)."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
-        filter(None, (str(tree), os.environ.get("PYTHONPATH")))))
-    done = subprocess.run([sys.executable, "-c", _FULL_LOOP_CHILD.format(
+        filter(None, (str(tree), str(tree / "bench"), os.environ.get("PYTHONPATH")))))
+    python = tree / ".venv" / "bin" / "python"
+    done = subprocess.run([str(python) if python.exists() else sys.executable,
+                           "-c", _FULL_LOOP_CHILD.format(
         tree=str(tree.resolve()), ticks=n_ticks)], cwd=tree, env=env, capture_output=True,
         text=True, check=False)
     if done.returncode != 0:
@@ -528,7 +539,7 @@ def _cores(core: str) -> None:
     if core == "compiled":
         from tfl_mav.controller.flight_computer import FlightComputer
         from tfl_mav.scenario import load_scenario
-        from tfl_mav.sim.simulator import Simulator
+        from tfl_mav.sitl.simulator import Simulator
 
         for sc in (load_scenario("paper"), load_scenario("paper").replace(
                 **{"attack.rotor": 0})):

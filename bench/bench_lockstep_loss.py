@@ -1,8 +1,8 @@
 """Lockstep over a lossy link: what a lost datagram costs.
 
 A ``tfl-mav sim`` subprocess (hover, no attack) is flown by the test pilot
-(:class:`tfl_mav.harness.pilot.Pilot`) through the fault relay
-(:class:`tfl_mav.harness.relay.Relay`), first
+(:class:`tfl_mav.tools.harness.pilot.Pilot`) through the fault relay
+(:class:`tfl_mav.tools.harness.relay.Relay`), first
 with no loss, then dropping ``--drop`` of the datagrams in *each* direction. The vehicle
 resends its state after ``--resend-interval`` without a reply, so each loss should cost
 about that interval, not the 2 s give-up timeout. Prints the wall time of each and their
@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import json
 
-from tfl_mav.harness.lossy import fly_through_relay
+from tfl_mav.tools.harness.lossy import fly_through_relay
 
 
 def main() -> None:

@@ -19,7 +19,7 @@ from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
 from tfl_mav.flightlog.flight import summarize
-from tfl_mav.harness.offline import fly_offline
+from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import load_scenario
 
 NOISE = {"sensors.velocity_noise_std_mps": 0.01, "sensors.rate_noise_std_radps": 0.005}

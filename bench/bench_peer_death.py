@@ -28,7 +28,7 @@ import tempfile
 import time
 from pathlib import Path
 
-from tfl_mav.harness.processes import CLI
+from tfl_mav.tools.harness.processes import CLI
 
 LIMIT_S = 15.0
 
@@ -90,7 +90,7 @@ def trial(victim: str, realtime: bool, rng: random.Random) -> dict:
         time.sleep(rng.uniform(0.5, 3.0))
         tree = _tree(demo.pid)
         word = "sim" if victim == "vehicle" else "fly"
-        target = [p for p in _children_of(demo.pid) if f"tfl_mav.cli {word} " in _cmdline(p)]
+        target = [p for p in _children_of(demo.pid) if f"tfl_mav.tools.cli {word} " in _cmdline(p)]
         if not target:          # the flight ended (crashed) before the kill: not a trial
             _, err = demo.communicate(timeout=120)
             return {"victim": victim, "realtime": realtime, "skipped": True,

@@ -75,7 +75,7 @@ def _no_spin() -> list[tuple[str, tuple[str, ...], float]]:
 
 
 def fly(case: tuple[str, tuple[str, ...], float]) -> str:
-    from tfl_mav.harness.offline import fly_offline
+    from tfl_mav.offline import fly_offline
     from tfl_mav.scenario import apply_overrides, load_scenario
 
     base, sets, duration = case

@@ -17,8 +17,8 @@ subprocess; on a 2-core machine it takes one core):
 3. **start-up**: ``tfl-mav fly --realtime`` against a scripted vehicle already in flight
    (states at 1 kHz, t = 4 s on): process start → controller built → first HEARTBEAT →
    first command, with and without ``--mcap``; and the import cost (``-X importtime``) of
-   ``tfl_mav.cli.fly`` in a fresh interpreter (scipy is not imported in flight: the safe law's LQR
-   is ``tfl_mav/control/safe/lqr.py``);
+   ``tfl_mav.tools.cli.fly`` in a fresh interpreter (scipy is not imported in flight: the safe
+   law's LQR is ``tfl_mav/control/safe/lqr.py``);
 4. **restart**: SIGKILL the daemon mid-flight and restart it on the same ``--bind``
    (:func:`bench_faults.daemon_restart`); the new daemon's flight computer takes over
    (recovery law when the state is not benign): restart → first command, motors-off time,
@@ -44,12 +44,12 @@ from typing import Any
 
 from bench_faults import GcsListener, _fmt, daemon_restart
 
-from tfl_mav.harness.processes import CLI, LISTEN_RE, START_TIMEOUT_S, Proc, start_sim
 from tfl_mav.link.transport import Link
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.power import PowerModel
-from tfl_mav.sim.simulator import Simulator
-from tfl_mav.sim.state_report import StateReport
+from tfl_mav.sitl.power import PowerModel
+from tfl_mav.sitl.simulator import Simulator
+from tfl_mav.sitl.state_report import StateReport
+from tfl_mav.tools.harness.processes import CLI, LISTEN_RE, START_TIMEOUT_S, Proc, start_sim
 
 LOSSES = (0.0, 0.05, 0.10, 0.20)
 TOL_M = 0.02
@@ -187,15 +187,15 @@ def startup(extra: Sequence[str] = (), scenario: str = "paper",
 
 
 def import_costs() -> dict[str, float]:
-    """Cumulative import seconds of ``tfl_mav.cli.fly`` in a fresh interpreter (``python -X
+    """Cumulative import seconds of ``tfl_mav.tools.cli.fly`` in a fresh interpreter (``python -X
     importtime``), and the interpreter's whole run."""
     t0 = time.monotonic()
     err = subprocess.run([sys.executable, "-X", "importtime", "-c",
-                          "import tfl_mav.cli.fly"], capture_output=True,
+                          "import tfl_mav.tools.cli.fly"], capture_output=True,
                          text=True, check=False).stderr
     wall = time.monotonic() - t0
     out = {"interpreter_wall_s": wall}
-    for name in ("tfl_mav.cli.fly", "numpy"):
+    for name in ("tfl_mav.tools.cli.fly", "numpy"):
         m = re.search(rf"\|\s*(\d+) \|\s*{re.escape(name)}$", err, re.M)
         out[f"{name}_s"] = int(m.group(1)) / 1e6 if m else None
     return out
@@ -293,8 +293,8 @@ def _print(out: dict[str, Any], args: argparse.Namespace) -> None:
     if out.get("startup"):
         imp = out["imports"]
         print(f"\nstart-up of `tfl-mav fly --realtime` against a vehicle in flight (s); "
-              "imports in a fresh interpreter: tfl_mav.cli.fly "
-              f"{_fmt(imp['tfl_mav.cli.fly_s'], '.3f')}"
+              "imports in a fresh interpreter: tfl_mav.tools.cli.fly "
+              f"{_fmt(imp['tfl_mav.tools.cli.fly_s'], '.3f')}"
               f" (numpy {_fmt(imp['numpy_s'], '.3f')}), interpreter run "
               f"{imp['interpreter_wall_s']:.3f}")
         print(f"{'options':>28} {'built':>7} {'heartbeat':>9} {'1st cmd':>8}")

@@ -46,7 +46,7 @@ from typing import Any
 import numpy as np
 
 from tfl_mav.flightlog.flight import summarize
-from tfl_mav.harness.offline import detections, fly_offline
+from tfl_mav.offline import detections, fly_offline
 from tfl_mav.scenario import Scenario, load_scenario
 
 GUST_START_S = 20.0

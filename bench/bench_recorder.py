@@ -28,6 +28,7 @@ is shared: compare ratios within one run, and read the load it prints.
 from __future__ import annotations
 
 import argparse
+import importlib.util
 import json
 import math
 import os
@@ -45,9 +46,15 @@ REPO = Path(__file__).resolve().parents[1]    # the subprocesses' working direct
 _LISTEN_RE = re.compile(r"listening on ([\d.]+):(\d+)")
 
 
+def _cli() -> str:
+    """The command line's module in checkout REPO (tfl_mav/cli/ before the tools moved to
+    tools/, imported as tfl_mav.tools)."""
+    return "tfl_mav.cli" if (REPO / "tfl_mav" / "cli").is_dir() else "tfl_mav.tools.cli"
+
+
 def _start_sim(seconds: float) -> tuple[subprocess.Popen[str], int]:
     sim = subprocess.Popen(
-        [sys.executable, "-m", "tfl_mav.cli", "sim", "paper", "--listen", "127.0.0.1:0",
+        [sys.executable, "-m", _cli(), "sim", "paper", "--listen", "127.0.0.1:0",
          "--duration", f"{seconds:g}"], stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
         text=True, cwd=REPO)
     assert sim.stdout is not None
@@ -99,7 +106,7 @@ def _fly(seconds: float, record: bool, tmp: Path) -> dict[str, float]:
 
 def _fly_recorder(scenario: Any, path: Path) -> tuple[dict[str, Any], Any]:
     """The recorder hooks of ``tfl-mav fly --mcap`` (its own ``open_recorder``)."""
-    from tfl_mav.cli.fly import open_recorder
+    open_recorder = importlib.import_module(_cli() + ".fly").open_recorder
 
     rec = open_recorder(scenario, str(path), None)
     return {"on_frame": rec.on_frame, "on_tick": rec.controller,
@@ -126,7 +133,7 @@ def bench_control_path(seconds: float, repeats: int) -> dict[str, Any]:
 
 
 def _demo(seconds: float, out: Path, foxglove: str | None) -> tuple[float, Path]:
-    cmd = [sys.executable, "-m", "tfl_mav.cli", "demo", "paper", "--out", str(out),
+    cmd = [sys.executable, "-m", _cli(), "demo", "paper", "--out", str(out),
            "--duration", f"{seconds:g}", "--no-plots", "--json"]
     if foxglove:
         cmd += ["--foxglove", foxglove]
@@ -290,21 +297,28 @@ def bench_files_and_live(seconds: float, repeats: int, live: bool) -> dict[str, 
 
 
 def _use_tree(tree: Path) -> None:
-    """Measure checkout ``tree``: its packages first here and in every subprocess, and its
-    directory their working directory (``python -m tfl_mav.cli`` puts the cwd first)."""
+    """Measure checkout ``tree``: this bench again in a fresh interpreter (the tree's own
+    venv's if it has one: its editable install maps its own directories) with the tree first
+    on PYTHONPATH, inherited by every subprocess; there, the tree is their working directory
+    (``python -m`` puts the cwd first)."""
     global REPO
-    REPO = tree
-    sys.path.insert(0, str(tree))
-    os.environ["PYTHONPATH"] = os.pathsep.join(filter(None, (str(tree),
-                                                             os.environ.get("PYTHONPATH"))))
-    import recorder_replay
-
     import tfl_mav
 
+    if not Path(tfl_mav.__file__).resolve().is_relative_to(tree):
+        python = tree / ".venv" / "bin" / "python"
+        exe = str(python) if python.exists() else sys.executable
+        env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+            filter(None, (str(tree), os.environ.get("PYTHONPATH")))))
+        os.execve(exe, [exe, __file__, *sys.argv[1:]], env)
+    for name in ("tfl_mav.sitl", "tfl_mav.tools"):     # the tree's, not another checkout's
+        spec = importlib.util.find_spec(name)
+        if spec is not None and spec.origin and not Path(spec.origin).resolve().is_relative_to(
+                tree):
+            raise SystemExit(f"--tree {tree}: {name} imported from {spec.origin}")
+    REPO = tree
+    import recorder_replay
+
     recorder_replay.REPO = tree
-    here = Path(tfl_mav.__file__).resolve()
-    if not here.is_relative_to(tree):
-        raise SystemExit(f"--tree {tree}: tfl_mav imported from {here}")
 
 
 def main() -> int:
@@ -321,7 +335,7 @@ def main() -> int:
     args = ap.parse_args()
     if args.tree:
         _use_tree(args.tree.resolve())
-    import tfl_mav.cli.demo as demo_cmd
+    demo_cmd = importlib.import_module(_cli() + ".demo")
 
     live = "--foxglove" in Path(demo_cmd.__file__).read_text()
     res: dict[str, Any] = {"machine": {"cpus": os.cpu_count(), "python": platform.python_version(),

@@ -36,8 +36,8 @@ import time
 from pathlib import Path
 
 from tfl_mav.flightlog.logread import LogReader
-from tfl_mav.harness.pilot import NoStateError, Pilot, hover_controls
-from tfl_mav.harness.processes import CLI, popen_sim
+from tfl_mav.tools.harness.pilot import NoStateError, Pilot, hover_controls
+from tfl_mav.tools.harness.processes import CLI, popen_sim
 
 
 def _recorder_child(sim_pid: int) -> int:

@@ -31,7 +31,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-from tfl_mav.harness.processes import LISTEN_RE, Proc
+from tfl_mav.tools.harness.processes import LISTEN_RE, Proc
 
 _PEAK = ("import resource, subprocess, sys, time; t = time.perf_counter(); "
          "r = subprocess.run(sys.argv[1:], capture_output=True, text=True); "
@@ -57,11 +57,11 @@ def fly(duration_s: float, out: Path) -> float:
 
 
 def measure(cmd: list[str], tree: Path | None) -> dict[str, Any]:
-    """Peak RSS (MB) and wall time (s) of ``python -m tfl_mav.cli CMD`` in a fresh process."""
+    """Peak RSS (MB) and wall time (s) of ``python -m tfl_mav.tools.cli CMD`` in a fresh process."""
     env = dict(os.environ)
     if tree is not None:
         env["PYTHONPATH"] = str(tree) + os.pathsep + env.get("PYTHONPATH", "")
-    out = subprocess.run([sys.executable, "-c", _PEAK, sys.executable, "-m", "tfl_mav.cli",
+    out = subprocess.run([sys.executable, "-c", _PEAK, sys.executable, "-m", "tfl_mav.tools.cli",
                           *cmd], capture_output=True, text=True, env=env,
                          cwd=tree or Path.cwd())
     kb, wall, code = out.stdout.split()

@@ -3,7 +3,7 @@ supervisor (``auto``), TFL alone and the safe law alone — side by side.
 
     python bench/bench_seam.py [--family seam] [--only GLOB] [--jobs N] [--json FILE]
 
-Each case is the envelope's (``tfl_mav/harness/envelope/cases.toml``: ``tfl-mav offline BASE
+Each case is the envelope's (``tools/harness/envelope/cases.toml``: ``tfl-mav offline BASE
 --set ... --attack-info detector``) with ``controller.supervisor`` set to each mode. The
 table shows the max distance to the path over the last 10 s (``crash`` where the vehicle was
 lost), the switches between the laws and the share of the flight the safe law flew, and
@@ -18,8 +18,8 @@ import json
 import sys
 from pathlib import Path
 
-from tfl_mav.harness.envelope.run import fly_cases
-from tfl_mav.harness.envelope.spec import Case, load_envelope
+from tfl_mav.tools.harness.envelope.run import fly_cases
+from tfl_mav.tools.harness.envelope.spec import Case, load_envelope
 
 MODES = ("auto", "tfl", "safe")
 

@@ -7,7 +7,7 @@ Measures, on this machine, over real UDP on loopback:
    (the worst case: source address spoofed on the path, so pinning does not help and only
    signing stands in the way): unsigned, wrong key, forged signature, replayed (genuine
    frames sent again), far-future timestamp. Frames sent vs accepted by the link.
-2. **the vehicle under attack**: a signed :class:`~tfl_mav.sim.vehicle.Vehicle` flown in lockstep
+2. **the vehicle under attack**: a signed :class:`~tfl_mav.sitl.vehicle.Vehicle` flown in lockstep
    by a genuine controller that, before every reply, also injects one hostile frame
    (full-throttle controls for the awaited tick, MAV_CMD_INJECT_FAILURE, ...). Commands the
    vehicle applied or accepted from them.
@@ -37,13 +37,13 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from tfl_mav.harness.pilot import NoStateError, Pilot, hover_controls, hover_fraction
-from tfl_mav.harness.processes import popen_sim
 from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.link.signing import Signing, mavlink_timestamp, signature48
 from tfl_mav.link.transport import Link
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.vehicle import Vehicle
+from tfl_mav.sitl.vehicle import Vehicle
+from tfl_mav.tools.harness.pilot import NoStateError, Pilot, hover_controls, hover_fraction
+from tfl_mav.tools.harness.processes import popen_sim
 
 KEY = bytes.fromhex("5a" * 8 + "c3" * 8 + "0f" * 8 + "e1" * 8)
 WRONG_KEY = bytes(range(1, 33))

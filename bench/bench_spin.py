@@ -2,7 +2,7 @@
 from t = 5 s on the paper path (rotor 2) and on the circle (rotor 3), with the controller's
 model off by +2 %/+10 % or −2 %/−10 % (mass/inertia), with ideal rotors and with a 20 ms
 motor lag. The flight computer flies until the take-over, the spin law after it
-(tfl_mav.harness.spin.fly_spin). Prints one line a flight and writes the figure:
+(tfl_mav.tools.harness.spin.fly_spin). Prints one line a flight and writes the figure:
 
     python bench/bench_spin.py [--duration 45] [--takeover 5.0] [--out docs/img]
 
@@ -24,8 +24,8 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
-from tfl_mav.harness.spin import fly_spin
 from tfl_mav.scenario import load_scenario
+from tfl_mav.tools.harness.spin import fly_spin
 
 ERRORS = {"+2%/+10%": (1.02, 1.1), "-2%/-10%": (0.98, 0.9)}
 

@@ -1,12 +1,13 @@
 """The simulated vehicle's lockstep tick, piece by piece, in-process.
 
-Each piece of what ``tfl_mav.sim.vehicle.Vehicle`` does per control tick, timed alone on the
+Each piece of what ``tfl_mav.sitl.vehicle.Vehicle`` does per control tick, timed alone on the
 paper scenario (rotor 2 attacked, 1 kHz physics and control): µs per call, the *minimum*
 over ``--blocks`` blocks of ``--calls`` calls, so a shared, loaded machine reads close to
 an idle one (a mean would charge other processes' time slices to whichever piece ran).
 The control link sends to a local sink socket (real ``sendto``), frames come in through
-the link's own ``_ingest`` (no ``recvfrom``). The daemon's telemetry (4 NAMED_VALUE_FLOAT +
-DEBUG_FLOAT_ARRAY, one datagram at ≤ 50 Hz of sim time) is timed per datagram.
+the link's own receive path (``Link.receiver.ingest``, no ``recvfrom``). The daemon's
+telemetry (4 NAMED_VALUE_FLOAT + DEBUG_FLOAT_ARRAY, one datagram at ≤ 50 Hz of sim time) is
+timed per datagram.
 
 Then the tick as the vehicle's own lockstep clock runs it (``LockstepClock.run``), with the
 controller's replies already queued on the socket (so no wait: what is left is the
@@ -38,7 +39,7 @@ from typing import Any
 
 from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.vehicle import Vehicle, truth_hook
+from tfl_mav.sitl.vehicle import Vehicle, truth_hook
 
 
 class _Sink:
@@ -72,7 +73,7 @@ def measure_clock(ticks: int, blocks: int, record: bool) -> dict[str, float]:
     """µs per tick through ``LockstepClock.run`` with the replies pre-queued: the minimum
     over ``blocks`` of the median tick (state sent to state sent) and of the median
     critical path (reply received to state sent)."""
-    from tfl_mav.harness.pilot import hover_fraction
+    from tfl_mav.tools.harness.pilot import hover_fraction
 
     sc = load_scenario("paper").replace(**{"attack.rotor": 0,
                                            "initial.position_m": [0.0, 0.0, 5.0]})
@@ -150,6 +151,8 @@ def measure(calls: int, blocks: int) -> dict[str, float]:
     sink.setblocking(False)
     ctl.peer = sink.getsockname()
     ctl.peer_sysid = 1
+    # the receive path (an older tree's Link receives itself)
+    ctl_ingest = ctl.receiver.ingest if hasattr(ctl, "receiver") else ctl._ingest
     vehicle._flying = vehicle._confirmed = True
     sim.set_command([sc.vehicle.mass_kg * sc.vehicle.gravity_mps2 / 4.0] * 4)
     hil = bytes(mav.MAVLink_hil_actuator_controls_message(
@@ -167,7 +170,7 @@ def measure(calls: int, blocks: int) -> dict[str, float]:
     def receive(raw: bytes) -> Callable[[], None]:
         def run() -> None:
             out: list[Any] = []
-            ctl._ingest(raw, ctl.peer, out)
+            ctl_ingest(raw, ctl.peer, out)
             for msg in out:
                 vehicle.held.time_usec = -1
                 vehicle.dispatch(msg, 0)
@@ -177,7 +180,7 @@ def measure(calls: int, blocks: int) -> dict[str, float]:
     pieces: dict[str, Callable[[], Any]] = {
         "RK4 step alone": lambda: sim._rk4(x, 10.8, 0.0, 0.0, 0.0, 1e-3),
         "simulator control tick (attack, motors, RK4, sensors)": sim.step_control_period,
-        "sensor sampling alone": sim._measure,
+        "sensor sampling alone": sim.measure,
         "power model": lambda: vehicle.power.step(sim.motors.omega_radps, sim.control_dt_s),
         "crash check": sim.crash_reason,
         "vehicle.step (tick + power + crash check)": vehicle.step,

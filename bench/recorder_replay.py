@@ -84,7 +84,9 @@ def _wrap(out_dir: str, module: str, args: list[str]) -> None:
 
 def capture(n_ticks: int, out_dir: Path, scenario: str = "paper") -> None:
     """One lockstep flight (sim + fly, both ``--mcap``) whose batches land in ``out_dir``."""
-    wrap = [sys.executable, __file__, "--wrap", str(out_dir), "tfl_mav.cli.main"]
+    # the command line's module in checkout REPO (tfl_mav/cli/ before the tools moved)
+    cli = "tfl_mav.cli" if (REPO / "tfl_mav" / "cli").is_dir() else "tfl_mav.tools.cli"
+    wrap = [sys.executable, __file__, "--wrap", str(out_dir), f"{cli}.main"]
     dur = f"{n_ticks / 1000.0:g}"
     sim = subprocess.Popen([*wrap, "sim", scenario, "--listen", "127.0.0.1:0", "--duration",
                             dur, "--mcap", str(out_dir / "run.mcap")],

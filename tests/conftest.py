@@ -14,10 +14,10 @@ from typing import Any
 
 import pytest
 
-from tfl_mav.harness.pilot import Pilot
-from tfl_mav.harness.ports import free_udp_port
-from tfl_mav.harness.processes import Proc, start_sim
 from tfl_mav.link.transport import Address
+from tfl_mav.tools.harness.pilot import Pilot
+from tfl_mav.tools.harness.ports import free_udp_port
+from tfl_mav.tools.harness.processes import Proc, start_sim
 
 # The suite flies the compiled cores, as a user's Linux machine does: each pure step (the
 # law's, the safe law's, the detector's, the simulator's) is built once per session and per

@@ -1,8 +1,11 @@
 """tfl-mav: attack-resilient quadrotor path following over MAVLink.
 
-Subpackages: ``control`` (pure math: jets, paths, the TFL law, attack detection),
-``mavlink`` (UDP link, NED/ENU frames, MCAP recorder); ``scenario`` and ``expr`` are
-shared by the simulator (``sitl``) and the controller daemon.
+One import name over three directories (docs/design.md, "Rooms"): ``tfl_mav/`` the
+controller side (``control``: the laws and the detector; ``controller``: the flight computer
+and its daemon; ``link``, ``flightlog``, ``model``, ``accel``) and the public face (``api``,
+``offline``); ``sitl/`` the simulated vehicle, imported as ``tfl_mav.sitl``; ``tools/`` the
+harness and the command line, imported as ``tfl_mav.tools``. ``scenario`` and ``expr`` are
+shared by the vehicle and the controller.
 """
 
 import os as _os

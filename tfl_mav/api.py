@@ -21,7 +21,7 @@ Four protocols say what a part must do (structural: no base class to inherit):
 
 :class:`Environment` flies any of them offline on the lockstep simulator and returns
 :class:`FlightArrays`; ``tfl-mav fly --controller module:Name`` serves the same flight
-software to a vehicle over MAVLink. Templates: docs/api.md; examples/.
+software to a vehicle over MAVLink. Templates: docs/api.md; docs/examples/.
 
 Frames and units (everywhere): the paper frame — inertial x, y, z with z **up**, body
 front-left-up; SI units, named in every field (``_m``, ``_mps``, ``_radps``, ``_n``).
@@ -282,7 +282,7 @@ class Environment:
 
     def fly(self, duration_s: float | None = None) -> FlightArrays:
         """Fly the scenario for ``duration_s`` (s; None: its ``run.duration_s``)."""
-        from tfl_mav.harness.offline import fly_offline
+        from tfl_mav.offline import fly_offline
 
         sc = self.scenario
         software = self._software()

@@ -60,7 +60,7 @@ from tfl_mav.controller.software import (
     software_name,
 )
 from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
-from tfl_mav.sim.simulator import Simulator
+from tfl_mav.sitl.simulator import Simulator
 
 __all__ = ["OBSERVATION_FIELDS", "TflMavEnv"]
 

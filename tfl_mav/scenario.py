@@ -83,7 +83,7 @@ class VehicleConfig:
     motor_time_constant_s: float = _f(0.0, "s", lo=0.0, hi=1.0, doc="lag on w; 0 = none")
     rpm_noise_std: float = _f(0.0, "rpm", lo=0.0, hi=1000.0, doc="ESC rpm measurement noise")
     gravity_mps2: float = _f(9.81, "m/s^2", lo=0.0, lo_open=True, hi=100.0)
-    # Rotor aerodynamics in moving air (tfl_mav.sim.physics.RotorAeroParams). The defaults
+    # Rotor aerodynamics in moving air (tfl_mav.sitl.physics.RotorAeroParams). The defaults
     # are RotorPy's AscTec Hummingbird (rotorpy/vehicles/hummingbird_params.py: k_d 1.19e-4,
     # k_z 2.32e-4, k_h 3.39e-3, c_D 0.5e-2/0.5e-2/1e-2, k_eta 5.57e-6, arm 0.17 m) scaled to
     # this airframe: rotors of the same family with k_f/k_eta = 1.436 have a radius
@@ -279,7 +279,7 @@ SENSOR_MODELS = ("ideal", "realistic")
 class WindConfig:
     """The air the vehicle flies in, paper frame (z up), m/s: a mean wind, Dryden turbulence
     (MIL-F-8785C / MIL-HDBK-1797 low-altitude scales and intensities, seeded by ``run.seed``)
-    and one discrete 1 − cos gust (``tfl_mav.sim.wind``). Every aerodynamic force acts on the
+    and one discrete 1 − cos gust (``tfl_mav.sitl.wind``). Every aerodynamic force acts on the
     velocity relative to this air."""
 
     mean_mps: tuple[float, float, float] = _f((0.0, 0.0, 0.0), "m/s", length=3, lo=-50.0,

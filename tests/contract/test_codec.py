@@ -329,7 +329,7 @@ def test_link_receive_loop_is_pymavlinks_decode(
                        peer_sysid=3)
     try:
         out: list[Any] = []
-        link._ingest(b"".join(raws), _PEER, out)
+        link.receiver.ingest(b"".join(raws), _PEER, out)
     finally:
         link.close()
     assert len(out) == len(expected)
@@ -337,7 +337,7 @@ def test_link_receive_loop_is_pymavlinks_decode(
         _same_lite(got, full)
     st_ = link.stats
     assert (st_.rx_frames, st_.bad_crc, st_.rejected) == (len(expected), bad_crc, bad_crc)
-    assert link.parser.signing.sig_count == theirs_parser.signing.sig_count
+    assert link.receiver.parser.signing.sig_count == theirs_parser.signing.sig_count
 
 
 @settings(max_examples=100, deadline=None)

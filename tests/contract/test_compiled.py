@@ -24,9 +24,10 @@ from tfl_mav.control.path.compiled import (
 )
 from tfl_mav.control.path.jets import Jet, cos
 from tfl_mav.control.path.paths import Path, PathTracker, build_path
+from tfl_mav.control.path.tracker import grad_s
 from tfl_mav.model.state import State
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.simulator import Simulator
+from tfl_mav.sitl.simulator import Simulator
 
 # Every function an expression may use, on a path that is its own zero set by construction
 # (y = f(x), z = h(x)); t_range keeps it away from the kinks of abs/min/max/clip/step.
@@ -110,7 +111,7 @@ def test_kernels_run_the_jets_arithmetic(name):
         a1, a2 = path.s(*(Jet(tuple(r)) for r in rows))
         assert _normwise(a1.derivatives(), out[0:5]) <= 1e-15
         assert _normwise(a2.derivatives(), out[5:10]) <= 1e-15
-        grad = PathTracker(path)._grad_s([r[0] for r in rows])
+        grad = grad_s(path, [r[0] for r in rows])
         assert _normwise([*grad[0], *grad[1]], out[10:16]) <= 1e-15
 
 

@@ -89,7 +89,7 @@ def test_signed_frames_verify_and_count_as_decoded_ones():
                                                 signing=True)
     assert skimmed.stats == plain.stats
     assert skimmed.stats.rx_frames == 3
-    assert skimmed.parser.signing.sig_count == plain.parser.signing.sig_count == 3
+    assert skimmed.receiver.parser.signing.sig_count == plain.receiver.parser.signing.sig_count == 3
     assert [m.to_dict() for m in got_s] == [m.to_dict() for m in got_p]
 
 

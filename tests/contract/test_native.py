@@ -30,11 +30,16 @@ from tfl_mav.build import law_config, model_params
 from tfl_mav.control.path.kernelgen import compile_source
 from tfl_mav.control.path.paths import build_path
 from tfl_mav.control.tfl.law import TFLController
-from tfl_mav.harness.golden import LOCKSTEP_CASES, OFFLINE_CASES, fly_lockstep, fly_offline_case
 from tfl_mav.model.state import State
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim import physics
-from tfl_mav.sim.physics import RigidBodyParams, rk4_step, rk4_stepper
+from tfl_mav.sitl import physics
+from tfl_mav.sitl.physics import RigidBodyParams, rk4_step, rk4_stepper
+from tfl_mav.tools.harness.golden import (
+    LOCKSTEP_CASES,
+    OFFLINE_CASES,
+    fly_lockstep,
+    fly_offline_case,
+)
 
 # Where a compiler is expected (Linux: CI and every user machine we build for, or
 # TFL_MAV_EXPECT_COMPILER=1), a missing one fails these contract tests instead of skipping

@@ -6,7 +6,7 @@ import math
 
 import pytest
 
-from tfl_mav.sim.power import EXAMPLE, PowerModel, power_step
+from tfl_mav.sitl.power import EXAMPLE, PowerModel, power_step
 
 D_M, K_F = 0.016, 8.0e-6       # paper scenario: drag/thrust ratio, thrust coefficient
 HOVER_N = 1.1 * 9.81 / 4
@@ -52,7 +52,7 @@ def test_charge_and_temperature_integrate_on_sim_time():
 
 
 def test_power_step_compiled_is_the_python_step_bit_for_bit():
-    """tfl_mav.sim.power's per-tick arithmetic compiled (tfl_mav.accel.native) gives the Python
+    """tfl_mav.sitl.power's per-tick arithmetic compiled (tfl_mav.accel.native) gives the Python
     step's numbers to the bit (repr: -0.0 and NaN too), on random and non-finite inputs; a
     division by zero declines (None), so the Python step raises as before."""
     import random

@@ -12,8 +12,8 @@ from tests.contract.test_step import random_state
 from tfl_mav.build import law_config, model_params
 from tfl_mav.control.path.paths import build_path
 from tfl_mav.control.tfl.law import TFLController, as_state
-from tfl_mav.harness.offline import fly_offline
 from tfl_mav.model.state import State
+from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import load_scenario
 
 _WINDY = load_scenario("paper").replace(**{"wind.mean_mps": [3.0, 1.0, 0.0],

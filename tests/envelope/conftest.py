@@ -10,10 +10,10 @@ from __future__ import annotations
 
 import pytest
 
-from tfl_mav.harness.envelope.regression import Verdict
-from tfl_mav.harness.envelope.results import CaseResult
-from tfl_mav.harness.envelope.run import default_jobs, fly_cases
-from tfl_mav.harness.envelope.spec import load_envelope
+from tfl_mav.tools.harness.envelope.regression import Verdict
+from tfl_mav.tools.harness.envelope.results import CaseResult
+from tfl_mav.tools.harness.envelope.run import default_jobs, fly_cases
+from tfl_mav.tools.harness.envelope.spec import load_envelope
 
 _IMPROVED = pytest.StashKey[dict[str, Verdict]]()
 

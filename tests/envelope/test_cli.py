@@ -7,8 +7,8 @@ from pathlib import Path
 
 import pytest
 
-from tfl_mav.cli.main import main
-from tfl_mav.harness.envelope.results import read_results_file, write_results_file
+from tfl_mav.tools.cli.main import main
+from tfl_mav.tools.harness.envelope.results import read_results_file, write_results_file
 
 SPEC = """
 [[family]]

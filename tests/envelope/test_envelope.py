@@ -1,7 +1,7 @@
 """The envelope tier: every case of the spec flown today, judged against its baseline.
 
 One test per case (its id is the case name). A failure names the case, the baseline and
-today's flight and why it is worse (the rule: tfl_mav/harness/envelope/regression.py). The flights
+today's flight and why it is worse (the rule: tools/harness/envelope/regression.py). The flights
 are the session's (conftest.py), flown with the law's Python core like the rest of the suite
 (the compiled core gives the same bits).
 """
@@ -10,10 +10,14 @@ from __future__ import annotations
 
 import pytest
 
-from tfl_mav.harness.envelope.regression import Verdict, judge
-from tfl_mav.harness.envelope.report import detection_text, result_text
-from tfl_mav.harness.envelope.results import CaseResult, default_baseline_path, read_results_file
-from tfl_mav.harness.envelope.spec import load_envelope
+from tfl_mav.tools.harness.envelope.regression import Verdict, judge
+from tfl_mav.tools.harness.envelope.report import detection_text, result_text
+from tfl_mav.tools.harness.envelope.results import (
+    CaseResult,
+    default_baseline_path,
+    read_results_file,
+)
+from tfl_mav.tools.harness.envelope.spec import load_envelope
 
 pytestmark = [pytest.mark.envelope, pytest.mark.slow]
 

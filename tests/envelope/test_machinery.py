@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from tfl_mav.controller.feasibility import check_scenario, path_demand
-from tfl_mav.harness.offline import fly_offline
 from tfl_mav.model.modes import Mode
+from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import apply_overrides, load_scenario
 
 WINDOW_S = 10.0

@@ -1,4 +1,4 @@
-"""The regression rule (tfl_mav/harness/envelope/regression.py), on hand-made results: no
+"""The regression rule (tools/harness/envelope/regression.py), on hand-made results: no
 flights."""
 
 from __future__ import annotations
@@ -7,8 +7,8 @@ import math
 
 import pytest
 
-from tfl_mav.harness.envelope.regression import judge, worse_limit_m
-from tfl_mav.harness.envelope.results import CaseResult, outcome_of
+from tfl_mav.tools.harness.envelope.regression import judge, worse_limit_m
+from tfl_mav.tools.harness.envelope.results import CaseResult, outcome_of
 
 
 def result(outcome: str = "converged", mm: float | None = 1.0, detected: int | None = 2,

@@ -6,20 +6,20 @@ from pathlib import Path
 
 import pytest
 
-from tfl_mav.harness.envelope.report import markdown, readme_block
-from tfl_mav.harness.envelope.results import (
+from tfl_mav.scenario import apply_overrides, load_scenario
+from tfl_mav.tools.harness.envelope.report import markdown, readme_block
+from tfl_mav.tools.harness.envelope.results import (
     OUTCOMES,
     default_baseline_path,
     read_results_file,
     reference_files,
 )
-from tfl_mav.harness.envelope.spec import (
+from tfl_mav.tools.harness.envelope.spec import (
     EnvelopeSpecError,
     case_scenario,
     load_envelope,
     spec_from_dict,
 )
-from tfl_mav.scenario import apply_overrides, load_scenario
 
 REPO = Path(__file__).resolve().parents[2]
 SPEC = load_envelope()

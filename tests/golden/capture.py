@@ -14,7 +14,12 @@ import json
 import tempfile
 from pathlib import Path
 
-from tfl_mav.harness.golden import LOCKSTEP_CASES, OFFLINE_CASES, fly_lockstep, fly_offline_case
+from tfl_mav.tools.harness.golden import (
+    LOCKSTEP_CASES,
+    OFFLINE_CASES,
+    fly_lockstep,
+    fly_offline_case,
+)
 
 HERE = Path(__file__).resolve().parent
 

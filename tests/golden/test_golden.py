@@ -13,7 +13,12 @@ from pathlib import Path
 
 import pytest
 
-from tfl_mav.harness.golden import LOCKSTEP_CASES, OFFLINE_CASES, fly_lockstep, fly_offline_case
+from tfl_mav.tools.harness.golden import (
+    LOCKSTEP_CASES,
+    OFFLINE_CASES,
+    fly_lockstep,
+    fly_offline_case,
+)
 
 GOLDEN = Path(__file__).resolve().parent
 

@@ -24,9 +24,9 @@ from tfl_mav.api import (
 )
 from tfl_mav.control.detect.detector import AttackDetector
 from tfl_mav.controller.flight_computer import FlightComputer
-from tfl_mav.harness.offline import fly_offline
+from tfl_mav.offline import fly_offline
 
-EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "own_controller.py"
+EXAMPLE = Path(__file__).resolve().parents[2] / "docs" / "examples" / "own_controller.py"
 PathPD = load_object(f"{EXAMPLE}:PathPD")      # the example as a user's file
 
 

@@ -8,9 +8,9 @@ import subprocess
 from pathlib import Path
 
 from tfl_mav.api import Environment, load_object
-from tfl_mav.harness.processes import CLI, Proc
+from tfl_mav.tools.harness.processes import CLI, Proc
 
-EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "own_controller.py"
+EXAMPLE = Path(__file__).resolve().parents[2] / "docs" / "examples" / "own_controller.py"
 NO_ATTACK = ["--set", "attack.rotor=0"]
 
 FAILING = '''

@@ -19,16 +19,16 @@ from pathlib import Path
 
 import pytest
 
-from tfl_mav.cli.main import main
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.flightlog.metrics import detection, detection_from_alarms
-from tfl_mav.harness.campaign import load_spec, run_campaign, run_outcome
-from tfl_mav.harness.campaign.executors import run_local
-from tfl_mav.harness.campaign.results import read_results
-from tfl_mav.harness.campaign.run import execute, run_isolated
-from tfl_mav.harness.campaign.spec import Run
-from tfl_mav.harness.offline import fly_offline
+from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import apply_overrides, load_scenario
+from tfl_mav.tools.cli.main import main
+from tfl_mav.tools.harness.campaign import load_spec, run_campaign, run_outcome
+from tfl_mav.tools.harness.campaign.executors import run_local
+from tfl_mav.tools.harness.campaign.results import read_results
+from tfl_mav.tools.harness.campaign.run import execute, run_isolated
+from tfl_mav.tools.harness.campaign.spec import Run
 
 SMALL = """
 name = "small"
@@ -117,7 +117,7 @@ def test_bad_spec_exits_2_with_one_line(tmp_path: Path, capsys: pytest.CaptureFi
 
 
 def test_random_points_are_seeded_and_in_range() -> None:
-    from tfl_mav.harness.campaign.spec import spec_from_dict
+    from tfl_mav.tools.harness.campaign.spec import spec_from_dict
 
     data = {"duration_s": 0.5, "grid": {"attack.rotor": [1, 2]},
             "random": {"samples": 5, "seed": 7, "controller.model_inertia_scale": [0.8, 1.2],
@@ -246,7 +246,7 @@ def test_mavlink_run_over_udp(tmp_path: Path) -> None:
 
 
 def test_cli_help_lists_builtin_specs() -> None:
-    out = subprocess.run([sys.executable, "-m", "tfl_mav.cli", "campaign", "--help"],
+    out = subprocess.run([sys.executable, "-m", "tfl_mav.tools.cli", "campaign", "--help"],
                          capture_output=True, text=True, check=True).stdout
     assert "paper-envelope" in out and "attacks" in out
 
@@ -264,7 +264,7 @@ def test_unwritable_out_is_one_line_exit_3(tmp_path: Path,
 def test_an_interrupted_campaign_writes_the_report_of_what_finished(tmp_path: Path) -> None:
     spec = _spec(tmp_path, SMALL.replace("seeds = 2", "seeds = 4"))     # 16 runs
     out = tmp_path / "c"
-    proc = subprocess.Popen([sys.executable, "-m", "tfl_mav.cli", "campaign", str(spec),
+    proc = subprocess.Popen([sys.executable, "-m", "tfl_mav.tools.cli", "campaign", str(spec),
                              "--out", str(out), "--workers", "1", "--quiet"],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     try:

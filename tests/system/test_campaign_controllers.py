@@ -11,10 +11,10 @@ from pathlib import Path
 
 import pytest
 
-from tfl_mav.cli.main import main
-from tfl_mav.harness.campaign import load_spec, run_campaign
-from tfl_mav.harness.campaign.results import format_value, parse_value, read_results
-from tfl_mav.harness.campaign.run import execute
+from tfl_mav.tools.cli.main import main
+from tfl_mav.tools.harness.campaign import load_spec, run_campaign
+from tfl_mav.tools.harness.campaign.results import format_value, parse_value, read_results
+from tfl_mav.tools.harness.campaign.run import execute
 
 GRID = """
 name = "ctl"

@@ -8,7 +8,7 @@ import subprocess
 
 import pytest
 
-from tfl_mav.harness.processes import CLI
+from tfl_mav.tools.harness.processes import CLI
 
 FAILING = '''
 class NaNs:

@@ -32,8 +32,8 @@ from tfl_mav.flightlog.logread import LogReader
 from tfl_mav.flightlog.mcaprepair import cut_short, read_back, repair
 from tfl_mav.flightlog.metrics import flight_verdict
 from tfl_mav.flightlog.recorder import Recorder
-from tfl_mav.harness.processes import LISTEN_RE, Proc
 from tfl_mav.scenario import load_scenario
+from tfl_mav.tools.harness.processes import LISTEN_RE, Proc
 
 REPO = Path(__file__).resolve().parents[2]
 

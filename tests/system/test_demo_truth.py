@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from tfl_mav.harness.processes import CLI
+from tfl_mav.tools.harness.processes import CLI
 
 VERDICT_KEYS = ("detected_rotor", "detection_time_s", "detection_latency_s", "false_alarms",
                 "missed_detection", "saturated_fraction", "converged", "convergence",

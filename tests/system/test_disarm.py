@@ -23,9 +23,9 @@ from mcap.reader import make_reader
 from pymavlink import mavutil
 
 from tfl_mav.flightlog.logread import LogReader, mavlink_messages
-from tfl_mav.harness.ports import free_udp_port
-from tfl_mav.harness.processes import Proc, start_sim
 from tfl_mav.link.dialect import mav
+from tfl_mav.tools.harness.ports import free_udp_port
+from tfl_mav.tools.harness.processes import Proc, start_sim
 
 mavutil.set_dialect("ardupilotmega")
 pytestmark = pytest.mark.slow

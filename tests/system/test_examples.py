@@ -1,4 +1,4 @@
-"""Every script in examples/ runs, as a user runs it: a fresh interpreter, short flights."""
+"""Every script in docs/examples/ runs, as a user runs it: a fresh interpreter, short flights."""
 
 from __future__ import annotations
 
@@ -7,9 +7,9 @@ import subprocess
 import sys
 from pathlib import Path
 
-from tfl_mav.harness.processes import CLI
+from tfl_mav.tools.harness.processes import CLI
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+EXAMPLES = Path(__file__).resolve().parents[2] / "docs" / "examples"
 
 
 def _run(*args: str) -> str:

@@ -1,8 +1,8 @@
 """Faults on the control link (issue 5): the fault relay itself, then real ``tfl-mav sim`` /
 ``tfl-mav fly`` processes on loopback UDP through it, and killed or silent peers.
 
-The process helpers (:mod:`tfl_mav.harness.processes`: timestamped output lines) are shared with
-``bench/bench_faults.py``, which measures the same runs over a range of loss rates.
+The process helpers (:mod:`tfl_mav.tools.harness.processes`: timestamped output lines) are shared
+with ``bench/bench_faults.py``, which measures the same runs over a range of loss rates.
 
 Every test here is ``slow``: each either pushes tens of thousands of datagrams through the
 relay's thread or flies real processes, and all of them time wall-clock events. Their
@@ -25,8 +25,8 @@ from pathlib import Path
 
 import pytest
 
-from tfl_mav.harness.processes import Proc, start_sim_on
-from tfl_mav.harness.relay import Faults, Relay
+from tfl_mav.tools.harness.processes import Proc, start_sim_on
+from tfl_mav.tools.harness.relay import Faults, Relay
 
 # How late a wall-clock event may come on a 2-core machine shared by ~8 busy jobs: each
 # wake-up of a runnable thread can wait a few scheduler periods (CFS targets ~24 ms per

@@ -94,7 +94,7 @@ def _free_port(kind: int = socket.SOCK_STREAM) -> int:
 
 
 def _cli(*args: str, **kw) -> subprocess.Popen[str]:
-    return subprocess.Popen([sys.executable, "-m", "tfl_mav.cli", *args], cwd=REPO, text=True,
+    return subprocess.Popen([sys.executable, "-m", "tfl_mav.tools.cli", *args], cwd=REPO, text=True,
                             **kw)
 
 

@@ -16,12 +16,12 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tfl_mav.harness import fuzz
-from tfl_mav.harness.pilot import Pilot, hover_controls
 from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.link.transport import Link
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.vehicle import ExitStatus, Vehicle
+from tfl_mav.sitl.vehicle import ExitStatus, Vehicle
+from tfl_mav.tools.harness import fuzz
+from tfl_mav.tools.harness.pilot import Pilot, hover_controls
 
 N_INPUTS = 3000
 SEED = 20240605

@@ -1,8 +1,8 @@
 """A ground station drives the simulated vehicle: pymavlink's ``mavutil`` as the GCS.
 
 What MAVProxy, QGroundControl and mavsdk do on connect, done here with pymavlink on real
-loopback UDP against an in-process :class:`~tfl_mav.sim.vehicle.Vehicle` flown by the test
-:class:`~tfl_mav.harness.pilot.Pilot`: mode names, arm/disarm (the kill switch), read-only
+loopback UDP against an in-process :class:`~tfl_mav.sitl.vehicle.Vehicle` flown by the test
+:class:`~tfl_mav.tools.harness.pilot.Pilot`: mode names, arm/disarm (the kill switch), read-only
 parameters, "no mission", global position about the origin, and a GCS that says hello on
 the control port is refused as controller.
 """
@@ -19,14 +19,14 @@ import pytest
 os.environ.setdefault("MAVLINK20", "1")   # our links speak MAVLink 2 only
 from pymavlink import mavutil
 
-from tfl_mav.harness.pilot import NoStateError, Pilot, hover_fraction
-from tfl_mav.harness.ports import LOOPBACK
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.transport import Link
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.gcs import EARTH_RADIUS_M, Origin
-from tfl_mav.sim.ground import scenario_parameters
-from tfl_mav.sim.vehicle import Vehicle
+from tfl_mav.sitl.gcs import EARTH_RADIUS_M, Origin
+from tfl_mav.sitl.ground import scenario_parameters
+from tfl_mav.sitl.vehicle import Vehicle
+from tfl_mav.tools.harness.pilot import NoStateError, Pilot, hover_fraction
+from tfl_mav.tools.harness.ports import LOOPBACK
 
 mavutil.set_dialect("ardupilotmega")
 TIMEOUT_S = 5.0
@@ -288,7 +288,7 @@ def test_keep_alive_resets_and_waits_for_the_next_flight():
     import signal
     import subprocess
 
-    from tfl_mav.harness.processes import CLI, LISTEN_RE
+    from tfl_mav.tools.harness.processes import CLI, LISTEN_RE
 
     sim = subprocess.Popen([*CLI, "sim", "paper", "--set", "attack.rotor=0", "--listen",
                             "127.0.0.1:0", "--legacy-ports", "--gcs", "none", "--duration",

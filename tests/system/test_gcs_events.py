@@ -1,7 +1,7 @@
 """What the controller says reaches the ground station, and STATUSTEXT chunking at exactly
 50 characters.
 
-Real parts: a lockstep :class:`~tfl_mav.sim.vehicle.Vehicle` and the controller
+Real parts: a lockstep :class:`~tfl_mav.sitl.vehicle.Vehicle` and the controller
 :class:`~tfl_mav.controller.daemon.Daemon` in threads on loopback UDP, a GCS socket on the
 vehicle's GCS port, and the vehicle's MCAP log read back with the ``mcap`` library's reader.
 """
@@ -20,7 +20,7 @@ from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.link.statustext import Reassembler
 from tfl_mav.link.transport import Link
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.vehicle import Vehicle
+from tfl_mav.sitl.vehicle import Vehicle
 
 LOOPBACK = ("127.0.0.1", 0)
 
@@ -101,8 +101,8 @@ def test_a_50_character_statustext_is_whole_in_the_vehicle_log(tmp_path) -> None
 def test_vehicle_statustext_chunks_match_the_reassembler() -> None:
     """The vehicle's chunking and every receiver's reassembly agree on every length,
     50 and its multiples included, and the 8-chunk limit (400 characters)."""
-    from tfl_mav.sim.gcs import StatusText
-    from tfl_mav.sim.results import VehicleStats
+    from tfl_mav.sitl.gcs import StatusText
+    from tfl_mav.sitl.results import VehicleStats
 
     status = StatusText([], VehicleStats())
     packer = new_mavlink(1, 1)
@@ -122,7 +122,7 @@ def test_an_attack_expression_leaving_its_domain_is_said_to_the_gcs() -> None:
     """``sqrt(0.05 - t)`` has no value after 0.05 s: the vehicle flies on (rotor 2 at 0 N;
     open-loop hover here, so only 10 ms more) and says so once, with the time, by
     STATUSTEXT."""
-    from tfl_mav.harness.pilot import Pilot, hover_fraction
+    from tfl_mav.tools.harness.pilot import Pilot, hover_fraction
 
     sc = load_scenario("paper").replace(**{"attack.signal": "sqrt(0.05 - t)"})
     gcs = Link.listen(LOOPBACK, src_system=255, src_component=190)

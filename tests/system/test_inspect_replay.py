@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from tfl_mav.cli.main import main as cli_main
 from tfl_mav.flightlog.logread import raw_frames
 from tfl_mav.flightlog.recorder import Recorder
 from tfl_mav.link.dialect import mav, new_mavlink
+from tfl_mav.tools.cli.main import main as cli_main
 
 RADIUS_M, HEIGHT_M = 2.0, 1.0
 DT_S = 0.005

@@ -4,11 +4,11 @@ from __future__ import annotations
 
 import pytest
 
-from tfl_mav.harness.lossy import fly_through_relay
+from tfl_mav.tools.harness.lossy import fly_through_relay
 
 TICKS = 2000
 # What one lost datagram may cost, wall time. Expected: one resend interval (5 ms,
-# tfl_mav/sim/clock.py) plus a scheduler wake-up (a few ms on a loaded 2-core machine). The bound
+# sitl/clock.py) plus a scheduler wake-up (a few ms on a loaded 2-core machine). The bound
 # is 20x that and still 20x below the lockstep timeout (2 s) that a loss used to cost, so a
 # resend that stopped working fails it on any machine, and a busy machine does not.
 PER_LOSS_BOUND_S = 0.1

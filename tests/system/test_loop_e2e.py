@@ -16,7 +16,7 @@ from mcap.reader import make_reader
 
 from tfl_mav.flightlog.logread import LogReader
 
-CLI = [sys.executable, "-m", "tfl_mav.cli"]
+CLI = [sys.executable, "-m", "tfl_mav.tools.cli"]
 
 
 def _demo(tmp_path, *extra: str) -> dict:
@@ -149,7 +149,7 @@ def test_daemon_survives_garbage_and_stops_cleanly_on_sigterm(tmp_path):
 @pytest.mark.slow
 def test_offline_detector_mode_finds_the_rotor(rotor):
     from tfl_mav.flightlog.flight import summarize
-    from tfl_mav.harness.offline import fly_offline
+    from tfl_mav.offline import fly_offline
     from tfl_mav.scenario import load_scenario
 
     sc = load_scenario("paper").replace(**{"attack.rotor": rotor, "run.duration_s": 8.0,

@@ -15,11 +15,11 @@ import time
 
 import pytest
 
-from tfl_mav.harness.pilot import NoStateError, Pilot, hover_fraction
-from tfl_mav.harness.ports import free_udp_port
-from tfl_mav.harness.processes import CLI, LISTEN_RE
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.gcs import Origin
+from tfl_mav.sitl.gcs import Origin
+from tfl_mav.tools.harness.pilot import NoStateError, Pilot, hover_fraction
+from tfl_mav.tools.harness.ports import free_udp_port
+from tfl_mav.tools.harness.processes import CLI, LISTEN_RE
 
 mavsdk = pytest.importorskip("mavsdk")
 from mavsdk.plugins.action import Action, ActionError  # noqa: E402

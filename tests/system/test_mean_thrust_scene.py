@@ -17,7 +17,7 @@ from foxglove_schemas_protobuf.SceneUpdate_pb2 import SceneUpdate
 from mcap.reader import make_reader
 
 from tfl_mav.flightlog.recorder import MEAN_THRUST_TAU_S, Recorder
-from tfl_mav.harness.offline import fly_offline
+from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import apply_overrides, load_scenario
 
 pytestmark = pytest.mark.slow

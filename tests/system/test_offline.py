@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from tfl_mav.flightlog.flight import summarize
-from tfl_mav.harness.offline import fly_offline
+from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import load_scenario
 
 NOISE = {"sensors.velocity_noise_std_mps": 0.01, "sensors.rate_noise_std_radps": 0.005}
@@ -98,7 +98,7 @@ def test_same_seed_same_trajectory():
 @pytest.mark.slow
 def test_offline_cli_json_and_plots(tmp_path):
     out = subprocess.run(
-        [sys.executable, "-m", "tfl_mav.cli", "offline", "paper", "--duration", "3", "--json",
+        [sys.executable, "-m", "tfl_mav.tools.cli", "offline", "paper", "--duration", "3", "--json",
          "--plot", str(tmp_path)], capture_output=True, text=True, timeout=120, check=True)
     m = json.loads(out.stdout)
     for key in ("crashed", "sim_time_s", "final_path_distance_m", "max_path_distance_last_10s_m",
@@ -115,7 +115,7 @@ def test_offline_cli_json_and_plots(tmp_path):
 @pytest.mark.slow
 def test_offline_cli_bad_override_names_the_key():
     out = subprocess.run(
-        [sys.executable, "-m", "tfl_mav.cli", "offline", "paper", "--set",
+        [sys.executable, "-m", "tfl_mav.tools.cli", "offline", "paper", "--set",
          "vehicle.mass_kg=-1"],
         capture_output=True, text=True, timeout=60)
     assert out.returncode == 2
@@ -125,7 +125,7 @@ def test_offline_cli_bad_override_names_the_key():
 def test_offline_start_up_does_not_load_the_link_stack():
     """`tfl-mav offline` imports only its own subcommand: no pymavlink, MCAP or daemon."""
     code = ("import contextlib, io, sys\n"
-            "from tfl_mav.cli.main import main\n"
+            "from tfl_mav.tools.cli.main import main\n"
             "with contextlib.redirect_stdout(io.StringIO()):\n"
             "    main(['offline', 'nominal', '--json', '--duration', '0.01'])\n"
             "print(sorted(m for m in ('pymavlink', 'mcap', 'tfl_mav.controller.daemon',\n"

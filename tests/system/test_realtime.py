@@ -20,9 +20,9 @@ from tfl_mav.controller.daemon import Daemon
 from tfl_mav.controller.flight_computer import FlightComputer
 from tfl_mav.link.transport import Link
 from tfl_mav.scenario import Scenario, load_scenario
-from tfl_mav.sim.power import PowerModel
-from tfl_mav.sim.simulator import Simulator
-from tfl_mav.sim.state_report import StateReport
+from tfl_mav.sitl.power import PowerModel
+from tfl_mav.sitl.simulator import Simulator
+from tfl_mav.sitl.state_report import StateReport
 
 
 # ---------------------------------------------------------------------------- detector
@@ -32,7 +32,7 @@ def _fly_through_link(sc: Scenario, seed: int, *, n_ticks: int, loss: float,
 
     Each command is lost with probability ``loss`` or arrives 0..``max_delay_ticks`` ticks
     late (uniform: later ones overtake earlier ones); the vehicle holds the newest by
-    time_usec and ignores older ones, as :class:`tfl_mav.sim.commands.ActuatorControls` does. The
+    time_usec and ignores older ones, as :class:`tfl_mav.sitl.commands.ActuatorControls` does. The
     flight computer is given the command the vehicle held over the last period (what
     ACTUATOR_OUTPUT_STATUS reports) or, ``tell_applied`` False, the last one it sent (the
     old daemon). Returns (tick of the first alarm or -1, crash reason or None)."""
@@ -236,14 +236,14 @@ def test_a_shuffled_burst_of_old_states_is_reordering_not_a_restart(scripted):
 
 
 def test_a_new_vehicle_waiting_at_its_first_state_is_a_restart(scripted):
-    """A vehicle restarted less than _BACKSTEP_S into a flight resends its first state until
+    """A vehicle restarted less than BACKSTEP_S into a flight resends its first state until
     answered: old states in a row at one time are a new time line (rebuild)."""
     vehicle, daemon = scripted
     for k in range(1, 6):
         vehicle.send(k * 20_000)                   # fly to t = 0.1 s
         assert vehicle.collect(1) == [k * 20_000]
     old = daemon.computer
-    for _ in range(24):                            # _RESTART_OLD_STATES − 1: still old
+    for _ in range(24):                            # RESTART_OLD_STATES − 1: still old
         vehicle.send(0)
     assert vehicle.quiet() == []
     vehicle.send(0)                                # the 25th at the same time: a restart

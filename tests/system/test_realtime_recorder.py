@@ -1,7 +1,7 @@
 """Recording never costs a real-time flight.
 
-* ``tfl-mav fly``'s :class:`~tfl_mav.cli.fly.StartingRecorder` starts the recorder's child beside
-  the flight (after the first command) instead of before it: what the flight hands it
+* ``tfl-mav fly``'s :class:`~tfl_mav.tools.cli.fly.StartingRecorder` starts the recorder's
+  child beside the flight (after the first command) instead of before it: what the flight hands it
   before the child is up is kept, in order, with the wall-clock stamps of the calls;
 * :class:`~tfl_mav.flightlog.recorder_process.RecorderProcess` in real time never makes the
   flight thread wait for its child: with the child frozen (SIGSTOP, the worst a loaded
@@ -19,12 +19,12 @@ import time
 
 import pytest
 
-from tfl_mav.cli.fly import StartingRecorder
 from tfl_mav.controller.daemon import TICK_FIELDS
 from tfl_mav.flightlog.logread import LogReader
 from tfl_mav.flightlog.recorder_process import RecorderProcess
 from tfl_mav.link.transport import Link
 from tfl_mav.scenario import load_scenario
+from tfl_mav.tools.cli.fly import StartingRecorder
 
 
 def _controller_messages(path: os.PathLike[str]) -> list[tuple[int, dict]]:

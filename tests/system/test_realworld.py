@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from tfl_mav.harness.offline import fly_offline
+from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import load_scenario
 
 SCHEDULE = """
@@ -39,7 +39,7 @@ duration_s = 6.0
 def test_cli_flies_a_moving_attacker_in_wind_and_reports_each_move(tmp_path):
     path = tmp_path / "moving.toml"
     path.write_text(SCHEDULE)
-    out = subprocess.run([sys.executable, "-m", "tfl_mav.cli", "offline", str(path),
+    out = subprocess.run([sys.executable, "-m", "tfl_mav.tools.cli", "offline", str(path),
                           "--attack-info", "detector"],
                          capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stderr
@@ -74,10 +74,10 @@ def test_realistic_vehicle_sends_the_estimate_and_its_raw_sensors_over_mavlink()
     os.environ.setdefault("MAVLINK20", "1")
     from pymavlink import mavutil
 
-    from tfl_mav.harness.pilot import Pilot, hover_fraction
-    from tfl_mav.harness.ports import LOOPBACK
     from tfl_mav.link.dialect import mav
-    from tfl_mav.sim.vehicle import Vehicle
+    from tfl_mav.sitl.vehicle import Vehicle
+    from tfl_mav.tools.harness.pilot import Pilot, hover_fraction
+    from tfl_mav.tools.harness.ports import LOOPBACK
 
     mavutil.set_dialect("ardupilotmega")
     sc = load_scenario("paper").replace(**{"attack.rotor": 0, "sensors.model": "realistic"})

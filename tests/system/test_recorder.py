@@ -22,11 +22,11 @@ import pytest
 from mcap.exceptions import McapError
 from mcap.reader import make_reader
 
-from tfl_mav.cli.main import main as cli_main
 from tfl_mav.flightlog.logread import LogReader
 from tfl_mav.flightlog.recorder import Recorder, RecorderError
 from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.link.transport import Link
+from tfl_mav.tools.cli.main import main as cli_main
 
 REPO = Path(__file__).resolve().parents[2]
 NAN = float("nan")

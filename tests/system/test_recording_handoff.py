@@ -1,4 +1,4 @@
-"""The vehicle's recorder hooks in lockstep: queued off the critical path (tfl_mav.sim.recording),
+"""The vehicle's recorder hooks in lockstep: queued off the critical path (tfl_mav.sitl.recording),
 yet seen in the order things happened, with the simulator as it was, and all of them by the
 time the run returns. Real UDP on loopback, the Pilot as controller, a GCS socket."""
 
@@ -8,10 +8,10 @@ import math
 import socket
 import threading
 
-from tfl_mav.harness.pilot import Pilot, hover_controls
-from tfl_mav.harness.ports import LOOPBACK
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.vehicle import ExitStatus, Vehicle
+from tfl_mav.sitl.vehicle import ExitStatus, Vehicle
+from tfl_mav.tools.harness.pilot import Pilot, hover_controls
+from tfl_mav.tools.harness.ports import LOOPBACK
 
 TICKS = 300
 

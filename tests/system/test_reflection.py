@@ -17,7 +17,7 @@ from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.link.signing import Signing
 from tfl_mav.link.transport import Link
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.vehicle import Vehicle
+from tfl_mav.sitl.vehicle import Vehicle
 
 LOOPBACK = ("127.0.0.1", 0)
 KEY = bytes(range(1, 33))

@@ -258,7 +258,7 @@ def test_cli_sim_bad_scenario_exits_2_with_one_line(tmp_path: Path, text: str,
                                                     key: str) -> None:
     bad = tmp_path / "bad.toml"
     bad.write_text(text)
-    proc = subprocess.run([sys.executable, "-m", "tfl_mav.cli", "sim", str(bad),
+    proc = subprocess.run([sys.executable, "-m", "tfl_mav.tools.cli", "sim", str(bad),
                            "--listen", "127.0.0.1:0"], cwd=REPO, capture_output=True,
                           text=True, timeout=60)
     assert proc.returncode == 2, proc.stderr
@@ -275,7 +275,7 @@ def test_cli_bad_path_exits_2_with_one_line_before_flying(tmp_path: Path, comman
     """A bad path is a scenario error found at load: ``offline`` prints one line and
     exits 2 (no traceback); ``demo`` does so before starting any process (no hang)."""
     args = ["--out", str(tmp_path / "out")] if command == "demo" else []
-    proc = subprocess.run([sys.executable, "-m", "tfl_mav.cli", command, "paper", "--set",
+    proc = subprocess.run([sys.executable, "-m", "tfl_mav.tools.cli", command, "paper", "--set",
                            setting, *args], cwd=REPO, capture_output=True, text=True,
                           timeout=60)
     assert proc.returncode == 2, proc.stderr

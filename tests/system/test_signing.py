@@ -21,7 +21,6 @@ from pathlib import Path
 
 import pytest
 
-from tfl_mav.harness.pilot import Pilot
 from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.link.signing import (
     KEY_LEN,
@@ -36,12 +35,13 @@ from tfl_mav.link.signing import (
 )
 from tfl_mav.link.transport import Link
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.vehicle import Vehicle
+from tfl_mav.sitl.vehicle import Vehicle
+from tfl_mav.tools.harness.pilot import Pilot
 
 LOOPBACK = ("127.0.0.1", 0)
 KEY = bytes(range(1, 33))
 OTHER_KEY = bytes(range(101, 133))
-CLI = [sys.executable, "-m", "tfl_mav.cli"]
+CLI = [sys.executable, "-m", "tfl_mav.tools.cli"]
 REPO = Path(__file__).resolve().parents[2]
 T0_S = 1_750_000_000.0      # a fixed "now" (2025) for deterministic timestamp tests
 WINDOW = 60 * TIMESTAMP_UNITS_PER_S

@@ -1,4 +1,4 @@
-"""The spin law flies the simulator (tfl_mav.harness.spin.fly_spin): a rotor pinned high
+"""The spin law flies the simulator (tfl_mav.tools.harness.spin.fly_spin): a rotor pinned high
 from t = 5 s, the flight computer until the take-over, the spin law after it. Short flights
 of the hardest cases of bench/bench_spin.py (which flies all 16 for 45 s)."""
 
@@ -7,8 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from tfl_mav.harness.spin import fly_spin
 from tfl_mav.scenario import load_scenario
+from tfl_mav.tools.harness.spin import fly_spin
 
 
 def _scenario(name: str, rotor: int, signal: str, mass: float, inertia: float, lag_s: float):

@@ -20,7 +20,7 @@ import pytest
 
 pytestmark = pytest.mark.slow
 
-CLI = [sys.executable, "-m", "tfl_mav.cli"]
+CLI = [sys.executable, "-m", "tfl_mav.tools.cli"]
 # The demo polls every 0.1 s, stops the survivor with SIGTERM (a clean shutdown finishes
 # its MCAP, ~1-3 s on a loaded machine) and waits for the recorders to finish theirs.
 EXIT_LIMIT_S = 15.0
@@ -79,7 +79,7 @@ def test_demo_ends_with_one_line_when_a_child_dies(victim, word, tmp_path):
             assert time.monotonic() < deadline and demo.poll() is None, demo.stderr.read()
             time.sleep(0.05)
         tree = _tree(demo.pid)
-        target = [p for p in _children(demo.pid) if f"tfl_mav.cli {victim} " in _cmdline(p)]
+        target = [p for p in _children(demo.pid) if f"tfl_mav.tools.cli {victim} " in _cmdline(p)]
         assert len(target) == 1
         assert len(tree) >= 4       # sim, fly and their recorder children at least
         t_kill = time.monotonic()
@@ -108,7 +108,7 @@ def test_a_killed_vehicle_leaves_no_recorder_traceback(tmp_path):
     """SIGKILL of ``tfl-mav sim --mcap`` mid-flight (``tfl-mav fly`` flying it), often
     mid-message to its recorder child: the child sees its parent gone, finishes the file
     and exits without a word."""
-    from tfl_mav.harness.processes import Proc, start_sim
+    from tfl_mav.tools.harness.processes import Proc, start_sim
 
     sim, port = start_sim(["--mcap", str(tmp_path / "run.mcap"), "--duration", "60"],
                           new_session=True)
@@ -136,7 +136,7 @@ def test_a_killed_vehicle_leaves_no_recorder_traceback(tmp_path):
 def test_standalone_peer_timeout_ends_the_survivor_with_exit_3(victim):
     """``--peer-timeout 2`` (lockstep): the survivor of a SIGKILLed peer ends 2 s later
     (plus a poll), with exit 3 and a line that says why."""
-    from tfl_mav.harness.processes import Proc, start_sim
+    from tfl_mav.tools.harness.processes import Proc, start_sim
 
     sim, port = start_sim(["--gcs", "none", "--duration", "60", "--peer-timeout", "2"],
                           new_session=True)

@@ -14,7 +14,7 @@ import pytest
 from tfl_mav.flightlog.recorder import Recorder
 from tfl_mav.link.dialect import mav, new_mavlink
 
-CLI = [sys.executable, "-m", "tfl_mav.cli"]
+CLI = [sys.executable, "-m", "tfl_mav.tools.cli"]
 
 
 def _run(*args: str, cwd: Path | None = None, timeout: float = 120.0

@@ -21,7 +21,7 @@ from typing import Any
 import pytest
 from mcap.reader import make_reader
 
-from tfl_mav.harness.processes import CLI
+from tfl_mav.tools.harness.processes import CLI
 
 pytestmark = pytest.mark.slow
 DURATION_S = 1.0

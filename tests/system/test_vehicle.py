@@ -18,13 +18,13 @@ from collections.abc import Callable
 
 import pytest
 
-from tfl_mav.harness.pilot import Pilot
-from tfl_mav.harness.ports import LOOPBACK
-from tfl_mav.harness.processes import CLI, popen_sim
 from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.link.transport import Address, Link
 from tfl_mav.scenario import Scenario, load_scenario
-from tfl_mav.sim.vehicle import ExitStatus, Vehicle, VehicleResult
+from tfl_mav.sitl.vehicle import ExitStatus, Vehicle, VehicleResult
+from tfl_mav.tools.harness.pilot import Pilot
+from tfl_mav.tools.harness.ports import LOOPBACK
+from tfl_mav.tools.harness.processes import CLI, popen_sim
 
 RPM_PER_RADPS = 60.0 / (2.0 * math.pi)
 # Float32 on the wire: relative resolution 6e-8. Over 1 s the float32 rounding of the

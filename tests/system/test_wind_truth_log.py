@@ -11,9 +11,9 @@ import pytest
 from google.protobuf import descriptor_pb2, descriptor_pool, message_factory
 from mcap.reader import make_reader
 
-from tfl_mav.harness.demo import run_demo
 from tfl_mav.scenario import apply_overrides, load_scenario
-from tfl_mav.sim.wind import WindField
+from tfl_mav.sitl.wind import WindField
+from tfl_mav.tools.harness.demo import run_demo
 
 _WIND = ["wind.mean_mps=[2.0, -1.0, 0.0]", "wind.turbulence=light",
          "wind.gust_mps=[0.0, 3.0, 0.0]", "wind.gust_start_s=0.3", "wind.gust_duration_s=0.4"]

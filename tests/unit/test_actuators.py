@@ -18,9 +18,9 @@ from tfl_mav.control.actuators import (
     lag_reachable,
 )
 from tfl_mav.control.allocation import allocate_attacked, allocate_nominal
-from tfl_mav.harness.offline import fly_offline
+from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.motors import MotorBank
+from tfl_mav.sitl.motors import MotorBank
 
 KF = 8.0e-6
 FMAX = 8.0

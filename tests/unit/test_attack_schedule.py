@@ -6,7 +6,7 @@ from __future__ import annotations
 import pytest
 
 from tfl_mav.scenario import AttackConfig, AttackPhase, ScenarioError, scenario_from_dict
-from tfl_mav.sim.attacker import NO_ATTACK, Attacker
+from tfl_mav.sitl.attacker import NO_ATTACK, Attacker
 
 X = (0.0, 0.0, 2.0)
 

@@ -23,7 +23,7 @@ from tfl_mav.control.detect.detector import (
     DetectorOutput,
 )
 from tfl_mav.scenario import Scenario, ScenarioError, load_scenario, scenario_from_dict
-from tfl_mav.sim.simulator import Simulator
+from tfl_mav.sitl.simulator import Simulator
 
 BASE = load_scenario("paper")
 V = BASE.vehicle

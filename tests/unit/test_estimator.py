@@ -8,8 +8,8 @@ import pytest
 
 from tfl_mav.model.geometry import quaternion_multiply
 from tfl_mav.scenario import ScenarioError, load_scenario, scenario_from_dict
-from tfl_mav.sim.sensors import GpsSample, SensorSuite
-from tfl_mav.sim.simulator import Simulator
+from tfl_mav.sitl.sensors import GpsSample, SensorSuite
+from tfl_mav.sitl.simulator import Simulator
 
 G = 9.81
 
@@ -87,8 +87,8 @@ def test_realistic_sensors_replay_bit_for_bit():
 def test_a_filter_that_refuses_the_gps_resets_to_it():
     """Fixes 1 m away (far outside the gate): refused five times in a row, then position
     and velocity are reset to the GPS, as EKF2 does after its timeout."""
-    from tfl_mav.sim.estimator import GPS_RESET_AFTER, ErrorStateEkf
-    from tfl_mav.sim.sensors import ImuNoise, ImuSample
+    from tfl_mav.sitl.estimator import GPS_RESET_AFTER, ErrorStateEkf
+    from tfl_mav.sitl.sensors import ImuNoise, ImuSample
 
     x0 = [0.0, 0.0, 5.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0]
     ekf = ErrorStateEkf(x0, G, ImuNoise(), 0.02, 0.05)

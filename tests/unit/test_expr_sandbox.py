@@ -115,7 +115,7 @@ def test_ordinary_expressions_still_compile_and_evaluate(text: str, value: float
 
 def test_undefined_at_some_points_is_allowed_but_fails_softly_at_run_time() -> None:
     """``log(t - 1)`` is a fine signal for t > 1; at t = 0.5 it raises ValueError, which the
-    attacker turns into a recorded non-finite sample (tfl_mav.sim.attacker), not a crash."""
+    attacker turns into a recorded non-finite sample (tfl_mav.sitl.attacker), not a crash."""
     expr = compile_expr("log(t - 1)", ("t",), field="attack.signal")
     with pytest.raises(ValueError):
         expr({"t": 0.5})

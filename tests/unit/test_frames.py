@@ -272,7 +272,7 @@ def test_the_daemons_tuple_path_is_the_attribute_path(pos, q, twist, frames):
     with Link.listen(("127.0.0.1", 0), src_system=2, src_component=1,
                      peer=("127.0.0.1", 9), peer_sysid=1) as link:
         got: list = []
-        link._ingest(raw, ("127.0.0.1", 9), got)
+        link.receiver.ingest(raw, ("127.0.0.1", 9), got)
     (lite,) = got
     assert type(lite) is _RxOdometry
     assert lite.pose_covariance == [0.5] * 21 and lite.velocity_covariance == [0.25] * 21

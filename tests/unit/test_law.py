@@ -15,7 +15,7 @@ from tfl_mav.control.tfl.law import chain_gains
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.physics import RigidBodyParams, mix
+from tfl_mav.sitl.physics import RigidBodyParams, mix
 
 L, D, FMAX = 0.2656, 0.016, 8.0
 PARAMS = RigidBodyParams(1.1, (0.0020066, 0.0020038, 0.0013323), L, D, 0.05, 2.75e-3, 9.81)

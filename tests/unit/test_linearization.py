@@ -12,7 +12,7 @@ matrix D(x) (eq. (15)) is invertible, for the nominal model and for the attacked
    airframe's mixer, eq. (4)) and u_d = ü_f (from its extension update
    x14 ← x14 + Δt·u_d, exact to rounding when nothing saturates); recompute the auxiliary
    inputs v from its ξ, η (``ControlOutput.xi``/``.eta``) and its gains, eqs. (23), (24).
-3. Differentiate the *physics* (``tfl_mav.sim.physics.derivative``, the plant, written
+3. Differentiate the *physics* (``tfl_mav.sitl.physics.derivative``, the plant, written
    independently of the law with quaternions and rotor thrusts) along the closed loop:
    thrust u_f(t) = x13 + x14 t + u_d t²/2, torques held. Evaluating ``derivative`` on
    truncated power series (the small class below) and Picard-iterating gives the exact
@@ -49,7 +49,7 @@ from tfl_mav.model.geometry import euler_to_quaternion
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
 from tfl_mav.scenario import Scenario, apply_overrides, load_scenario
-from tfl_mav.sim.physics import RigidBodyParams, derivative, mix
+from tfl_mav.sitl.physics import RigidBodyParams, derivative, mix
 
 EPS = 2.2e-16
 

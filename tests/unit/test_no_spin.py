@@ -8,7 +8,7 @@ import pytest
 
 from tfl_mav.control.spin.cone import ROOM_N
 from tfl_mav.controller.feasibility import check_scenario
-from tfl_mav.harness.offline import fly_offline
+from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import apply_overrides, load_scenario
 
 # The paper airframe with a yaw drag-to-thrust ratio of 2 mm instead of 16 mm: the rotors'

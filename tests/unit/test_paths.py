@@ -9,6 +9,7 @@ import pytest
 
 from tfl_mav.control.path.jets import Jet, cos, exp, sin, sqrt
 from tfl_mav.control.path.paths import PathError, PathTracker, build_path
+from tfl_mav.control.path.tracker import newton_closest_lam
 
 PATHS = [
     ("paper", {}, (1.5, 0.3, 0.5)),
@@ -174,5 +175,5 @@ def test_expr_path_with_a_constant_component_evaluates_as_jets_and_arrays():
     assert z.c == (3.0, 0.0, 0.0, 0.0)
     zs = path.sigma(np.linspace(0.0, 1.0, 5))[2]
     assert zs.shape == (5,) and np.all(zs == 3.0)
-    lam, converged = PathTracker(path)._newton((0.4, 0.5, 3.1), 0.3)
+    lam, converged = newton_closest_lam(path, (0.4, 0.5, 3.1), 0.3)
     assert converged and abs(path.sigma(lam)[1] - 0.5) < 0.1

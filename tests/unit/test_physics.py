@@ -11,10 +11,10 @@ import pytest
 from tfl_mav.model.geometry import euler_to_quaternion
 from tfl_mav.model.geometry import rotation_from_quaternion as rotation_matrix
 from tfl_mav.scenario import AttackConfig, load_scenario
-from tfl_mav.sim.attacker import Attacker
-from tfl_mav.sim.motors import RADPS_TO_RPM, MotorBank
-from tfl_mav.sim.physics import RigidBodyParams, derivative, mix, rk4_step
-from tfl_mav.sim.simulator import Simulator
+from tfl_mav.sitl.attacker import Attacker
+from tfl_mav.sitl.motors import RADPS_TO_RPM, MotorBank
+from tfl_mav.sitl.physics import RigidBodyParams, derivative, mix, rk4_step
+from tfl_mav.sitl.simulator import Simulator
 
 G = 9.81
 

@@ -36,7 +36,7 @@ from tfl_mav.model.geometry import rotation_rows
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
 from tfl_mav.scenario import apply_overrides, load_scenario
-from tfl_mav.sim.simulator import Simulator
+from tfl_mav.sitl.simulator import Simulator
 
 
 def _rel(a, b) -> float:

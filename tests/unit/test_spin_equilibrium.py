@@ -1,6 +1,6 @@
 """The relaxed-hover equilibria (tfl_mav.control.spin.equilibrium) checked against the
 simulator itself: started at a computed equilibrium with the rotor forces held, the
-simulator's rigid body (tfl_mav.sim) keeps the body rates constant and its mean position
+simulator's rigid body (tfl_mav.sitl) keeps the body rates constant and its mean position
 still. Also the conditions themselves (E1, E2), the analytic linearisation against a
 numerical one, and the existence verdict."""
 
@@ -13,7 +13,7 @@ import pytest
 
 from tfl_mav.control.spin import equilibrium as eqm
 from tfl_mav.scenario import load_scenario
-from tfl_mav.sim.simulator import Simulator
+from tfl_mav.sitl.simulator import Simulator
 
 PAPER = load_scenario("paper")
 AIRFRAME = eqm.airframe_from_scenario(PAPER.vehicle, 2)

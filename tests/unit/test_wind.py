@@ -11,7 +11,7 @@ import pytest
 from scipy import signal
 
 from tfl_mav.scenario import ScenarioError, WindConfig, load_scenario, scenario_from_dict
-from tfl_mav.sim.physics import (
+from tfl_mav.sitl.physics import (
     RigidBodyParams,
     RotorAeroParams,
     derivative,
@@ -19,8 +19,8 @@ from tfl_mav.sim.physics import (
     rk4_air_step,
     rk4_air_stepper,
 )
-from tfl_mav.sim.simulator import Simulator
-from tfl_mav.sim.wind import (
+from tfl_mav.sitl.simulator import Simulator
+from tfl_mav.sitl.wind import (
     FT,
     KNOT,
     TURBULENCE_HZ,

@@ -69,8 +69,6 @@ from typing import Any
 
 import numpy as np
 
-from tfl_mav.controller import arrivals
-from tfl_mav.controller.arrivals import Arrivals
 from tfl_mav.controller.daemon_intake import Intake
 from tfl_mav.controller.daemon_io import (
     _HIL_TAIL,
@@ -101,9 +99,6 @@ from tfl_mav.scenario import Scenario
 
 __all__ = ["TICK_FIELDS", "TICK_SCHEMA", "Daemon", "DaemonResult", "DaemonStats", "tick_state"]
 
-# the arrival limits, where tfl_mav/harness/fuzz.py reads them
-_AHEAD_S, _BACKSTEP_S, _JUMP_CONFIRM, _RESTART_OLD_STATES = (
-    arrivals._AHEAD_S, arrivals._BACKSTEP_S, arrivals._JUMP_CONFIRM, arrivals._RESTART_OLD_STATES)
 _TELEMETRY_PERIOD_S = 0.02        # ≤ 50 Hz of sim time
 _ARMED = mav.MAV_MODE_FLAG_SAFETY_ARMED
 _WAITING_REPORT_PERIOD_S = 2.0
@@ -114,7 +109,7 @@ _FALLBACK = Mode.FALLBACK
 _isfinite = math.isfinite
 
 
-class Daemon(Intake):
+class Daemon:
     """The offboard controller for one vehicle. See the module docstring."""
 
     def __init__(self, scenario: Scenario, *, vehicle: Address, bind: Address | None = None,
@@ -171,7 +166,6 @@ class Daemon(Intake):
         # every entry deleted before it (~2 000 instructions a tick at 512 entries)
         self._history_keys: deque[int] = deque()
         self._last_usec = -1          # time_usec of the last state controlled
-        self._arrivals = Arrivals(realtime)   # the watermark and the restart rule
         self._episode_start_s: float | None = None   # sim time a degraded episode began
         self._episode_base = (0, 0)                   # gap_ticks, skipped_states before it
         self._last_gap_s = 0.0
@@ -189,7 +183,9 @@ class Daemon(Intake):
         self._motors_off = False      # the vehicle's last word: no command drives the motors
         self._next_motors_report_s = 0.0
         self._motors_said = False     # the current pause was said
-        self._init_intake()
+        # the vehicle's messages → complete, classified states (daemon_intake.py)
+        self.intake = Intake(self.stats, realtime, event=self._event,
+                             answer_repeat=self._answer_repeat, new_flight=self._rebuild)
 
     def _new_computer(self) -> FlightComputer:
         """A flight computer for a new flight, warmed: one throw-away tick on a separate
@@ -236,7 +232,8 @@ class Daemon(Intake):
         last_state_wall = time.monotonic()
         reason = "stopped"
         next_waiting_report = wall0 + _WAITING_REPORT_PERIOD_S
-        handlers = self._handlers
+        intake = self.intake
+        handlers, handle = intake.handlers, intake.handle
         while not self._stop.is_set():
             now = time.monotonic()
             if now >= next_heartbeat:
@@ -247,7 +244,7 @@ class Daemon(Intake):
             for msg in self.link.recv(timeout_s=0.05):
                 handler = handlers.get(type(msg))    # the per-tick messages, directly
                 if handler is None:
-                    self._handle(msg)
+                    handle(msg)
                 else:
                     handler(msg)
             ticked = self._control_newest()
@@ -268,8 +265,8 @@ class Daemon(Intake):
             if self.stats.ticks == 0 and now >= next_waiting_report:
                 next_waiting_report = now + _WAITING_REPORT_PERIOD_S
                 self._report_waiting(now - wall0)
-            if self._vehicle_done:
-                reason = self._vehicle_done
+            if intake.vehicle_done:
+                reason = intake.vehicle_done
                 break
             if (self.silence_end_s is not None and self.stats.ticks > 0
                     and now - last_state_wall > self.silence_end_s):
@@ -299,17 +296,15 @@ class Daemon(Intake):
         Runs every tick: the applied command's usual case (our own copy, by the
         state's ``time_usec``), the tick and the command message are written out here, one
         Python call instead of four."""
-        arrived, self._arrived = self._arrived, False
-        batch = self._complete
+        batch, arrived = self.intake.take()
         if not batch:
             return arrived
-        self._complete = []
         stats = self.stats
         state, applied_msg, rpm = batch[-1]
         t_usec = state.time_usec
         if stats.ticks == 0 and t_usec == 0 and self.hold_start is not None \
                 and self.hold_start():
-            self._arrivals.newest_usec = -1    # its resend of t = 0 will be fresh again
+            self.intake.arrivals.forget_watermark()   # its resend of t = 0: fresh again
             return arrived
         if len(batch) > 1:
             stats.skipped_states += len(batch) - 1
@@ -427,23 +422,26 @@ class Daemon(Intake):
                                 f"{type(exc).__name__}: {exc}", quiet=self.stats.law_errors > 1)
         self._send_command(t_usec, self._last_cmd)
 
-    def _rebuild(self, t_usec: int) -> None:
-        """Vehicle time jumped (a restarted simulator, or a vehicle that went on while we
-        were away): a new flight. New law and detector, no history; the pending batch
-        belongs to the old time line."""
+    def _answer_repeat(self, t_usec: int) -> None:
+        """The state of ``t_usec`` came again: if it is the one last controlled, its command
+        again (lost on the way: a lockstep vehicle waits for it)."""
+        if self._last_usec == t_usec:
+            self._send_command(t_usec, self._last_cmd)
+
+    def _rebuild(self, t_usec: int, from_usec: int) -> None:
+        """Vehicle time jumped from ``from_usec`` to ``t_usec`` (a restarted simulator, or a
+        vehicle that went on while we were away): a new flight. New law and detector, no
+        history (the intake drops its batch and restarts its watermark)."""
         self.stats.rebuilds += 1
         self._event("warning", f"vehicle time jumped to t={t_usec * 1e-6:.3f} s "
-                               f"(from {self._arrivals.newest_usec * 1e-6:.3f} s): new time line, "
+                               f"(from {from_usec * 1e-6:.3f} s): new time line, "
                                "controller rebuilt")
-        self.stats.skipped_states += len(self._complete)
-        self._complete = []
         self.computer = self._new_computer()
         if self._motors_off and self.computer.detector is not None:
             self.computer.detector.set_motors_off(True)    # still so, on the new time line
         self._history.clear()
         self._history_keys.clear()
         self._last_usec = -1
-        self._arrivals.reset()
         self._last_cmd = list(self._hover)
         self._next_telemetry_s = 0.0
         self._episode_start_s = None      # a new time line: the old episode's clock is gone

@@ -224,7 +224,7 @@ def _no_spin(sc: Scenario, lo_n: float, hi_n: float) -> list[str]:
     return out
 
 
-# The [attack] keys each built-in signal reads (tfl_mav.sim.attacker.Attacker._raw). A GCS's
+# The [attack] keys each built-in signal reads (tfl_mav.sitl.attacker.Attacker._raw). A GCS's
 # MAV_CMD_INJECT_FAILURE DRIFT flies "ramp" whatever the scenario's signal, so rate_nps and
 # initial_n are read then too: a warning, not an error.
 SIGNAL_KEYS: dict[str, frozenset[str]] = {

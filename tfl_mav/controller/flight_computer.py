@@ -4,7 +4,7 @@
 the vehicle *applied*, switches the TFL law to the attacked rotor when the detector (or an
 oracle) says so, evaluates the law and returns the rotor thrusts to send, with the internals
 worth logging. The daemon (:mod:`tfl_mav.controller.daemon`) is link ↔ flight computer ↔ recorder;
-the offline runner (:mod:`tfl_mav.harness.offline`) is simulator ↔ the same flight computer; so a
+the offline runner (:mod:`tfl_mav.offline`) is simulator ↔ the same flight computer; so a
 fix to
 the tick is a fix everywhere.
 
@@ -542,12 +542,12 @@ class FlightComputer:
     def _obtain_supervisor(self) -> None:
         """The supervisor's step compiled by the seam (the same decisions, bit for bit:
         tests/contract/test_composition_seam.py), used once it is built; Python until then."""
-        ref = weakref.ref(self)
+        use_core = weakref.WeakMethod(self._use_supervise_core)   # a finished one: not kept
 
         def ready(core: Callable[..., Any]) -> None:
-            target = ref()
-            if target is not None:
-                target._supervise_core = core   # one reference store: atomic under the GIL
+            use = use_core()
+            if use is not None:
+                use(core)
 
         example = (self.supervisor, self._sup, _new(SupervisorInputs, (
             0.0, 0, _NAN, 0.0, False, False, _ZERO4, _NAN, (1.0, 0.0, 0.0, 0.0),
@@ -555,6 +555,9 @@ class FlightComputer:
         core = native.obtain_function(supervise, example, ready)
         if core is not None:
             ready(core)
+
+    def _use_supervise_core(self, core: Callable[..., Any]) -> None:
+        self._supervise_core = core     # one reference store: atomic under the GIL
 
     def _decide(self, dt: float, rotor: int, estimate: float, spread: float,
                 out: ControlOutput | None, safe_distance_m: float, state: State,

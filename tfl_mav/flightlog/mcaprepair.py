@@ -66,6 +66,7 @@ this share of the messages stays; else the file is left without one (a stream re
 still reads it all) rather than readable by every reader but nearly empty."""
 
 _HEAD = struct.Struct("<BQ")                 # opcode, record length
+_OPCODES = frozenset(op.value for op in Opcode)   # the record kinds MCAP defines
 _MSG = struct.Struct("<HIQQ")                # channel id, sequence, log time, publish time
 _TIMED_TOPICS = ("/sim/truth/state", "/controller/state")   # records that carry t_s
 
@@ -158,7 +159,7 @@ def _scan(f: Any, size: int) -> _Scan:
         op, length = _HEAD.unpack(head)
         end = at + 9 + length
         if end > size:
-            scan.stop = (f"{Opcode(op).name if op in Opcode._value2member_map_ else op} "
+            scan.stop = (f"{Opcode(op).name if op in _OPCODES else op} "
                          f"record at byte {at} is cut short")
             break
         if op == Opcode.DATA_END:

@@ -15,8 +15,8 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Sequence
 
-from tfl_mav.control.path.paths import Path, PathTracker
-from tfl_mav.control.path.tracker import _NEWTON_ITERS, newton_on_poly, poly_g
+from tfl_mav.control.path.paths import Path
+from tfl_mav.control.path.tracker import NEWTON_ITERS, closest_lam, newton_on_poly, poly_g
 
 __all__ = ["path_distances"]
 
@@ -26,9 +26,9 @@ Coefficients = list[tuple[float, float, float]]
 
 
 def _reference(path: Path) -> Callable[[float], Coefficients]:
-    from tfl_mav.control.path.tracker import _taylor_curve
+    from tfl_mav.control.path.tracker import taylor_curve
 
-    return lambda lam: _taylor_curve(path, lam)
+    return lambda lam: taylor_curve(path, lam)
 
 
 def _compiled(path: Path) -> Callable[[float], Coefficients] | None:
@@ -52,47 +52,46 @@ def path_distances(path: Path, positions_m: Sequence[Sequence[float]], *,
     """|y − σ(λ)| of each position (m, paper frame), in order, as successive
     ``PathTracker.evaluate`` calls give it (NaN where it loses the projection).
     ``compiled`` False: the reference jets throughout."""
-    tracker = PathTracker(path)
     reference = _reference(path)
     fast = _compiled(path) if compiled else None
     out: list[float] = []
     sqrt, isfinite = math.sqrt, math.isfinite
+    lam: float | None = None        # the closest point's λ, warm-started sample to sample
     for k, y in enumerate(positions_m):
         y0 = (float(y[0]), float(y[1]), float(y[2]))
         if not (isfinite(y0[0]) and isfinite(y0[1]) and isfinite(y0[2])):
             out.append(math.nan)
             continue
-        if tracker.lam is None:
-            lam, ok = tracker._newton(y0, tracker._global_lam(y0))
-            if not ok or not isfinite(lam):
+        if lam is None:
+            found, ok = closest_lam(path, y0)
+            if not ok or not isfinite(found):
                 out.append(math.nan)
                 continue
-            tracker.lam = lam
+            lam = found
         taylor = fast if fast is not None else reference
-        if fast is not None and k < _CHECKED and fast(tracker.lam) != reference(tracker.lam):
+        if fast is not None and k < _CHECKED and fast(lam) != reference(lam):
             fast = None                 # not the same bits: the reference from here on
             taylor = reference
-        c = _project(tracker, taylor, y0)
-        if c is None:
+        projected = _project(taylor, lam, y0)
+        if projected is None:           # λ stays where it was
             out.append(math.nan)
             continue
+        c, lam = projected
         ex, ey, ez = y0[0] - c[0][0], y0[1] - c[0][1], y0[2] - c[0][2]
         out.append(sqrt(ex ** 2 + ey ** 2 + ez ** 2))
     return out
 
 
-def _project(tracker: PathTracker, taylor: Callable[[float], Coefficients],
-             y0: tuple[float, float, float]) -> Coefficients | None:
-    """PathTracker._project without the arc length: λ moved to the closest point."""
-    lam = tracker.lam
-    assert lam is not None
-    for _ in range(_NEWTON_ITERS):
+def _project(taylor: Callable[[float], Coefficients], lam: float,
+             y0: tuple[float, float, float]) -> tuple[Coefficients, float] | None:
+    """The tracker's projection without the arc length: σ's coefficients at the closest
+    point of ``y0`` and its λ, Newton from ``lam`` (None: no convergence)."""
+    for _ in range(NEWTON_ITERS):
         c = taylor(lam)
         delta = newton_on_poly(lambda x, c=c: poly_g(c, y0, x))
         if delta is None:
             return None
         if abs(delta) < 1e-10:
-            tracker.lam = lam
-            return c
+            return c, lam
         lam += delta
     return None

@@ -62,7 +62,7 @@ HOT_MESSAGE_IDS = (
     mav.MAVLINK_MSG_ID_HIL_ACTUATOR_CONTROLS,
     mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS,
     mav.MAVLINK_MSG_ID_HEARTBEAT,
-    # the vehicle's GCS telemetry (tfl_mav.sim.gcs), 50 times a second of sim time in lockstep
+    # the vehicle's GCS telemetry (tfl_mav.sitl.gcs), 50 times a second of sim time in lockstep
     mav.MAVLINK_MSG_ID_ATTITUDE,
     mav.MAVLINK_MSG_ID_LOCAL_POSITION_NED,
     mav.MAVLINK_MSG_ID_GLOBAL_POSITION_INT,
@@ -135,10 +135,10 @@ class Prepacked(tuple):  # type: ignore[type-arg]
         return _new_tuple(self._lite, (*self[1], *self[2], UNSENT))
 
     def get_msgId(self) -> int:
-        return self._lite._msgid
+        return self._lite.MSG_ID
 
     def get_type(self) -> str:
-        return self._lite._name
+        return self._lite.MSG_NAME
 
     def __getattr__(self, name: str) -> Any:
         if name.startswith("__"):
@@ -160,7 +160,7 @@ def prepacked_class(msgid: int) -> type[Prepacked]:
     if cls is None:
         lite = lite_class(msgid)
         attrs: dict[str, Any] = {"__slots__": (), "_lite": lite}
-        for name in lite._fieldnames:   # fields named like tuple methods (count) too
+        for name in lite.FIELDNAMES:   # fields named like tuple methods (count) too
             attrs[name] = property(lambda m, name=name: getattr(m.lite(), name))
         cls = _PREPACKED[msgid] = type(f"Prepacked{lite.__name__[4:]}", (Prepacked,), attrs)
     return cls

@@ -53,18 +53,19 @@ class LiteMessage(tuple):  # type: ignore[type-arg]
     list), ``m.get_msgId()``, ``m.get_srcSystem()``, ``m.to_dict()``. Immutable."""
 
     __slots__ = ()
-    _msgid = -1
-    _name = ""
-    _fieldnames: tuple[str, ...] = ()
+    # the message's id, name and fields in wire order (upper case: no MAVLink field is)
+    MSG_ID = -1
+    MSG_NAME = ""
+    FIELDNAMES: tuple[str, ...] = ()
 
     def get_msgId(self) -> int:
-        return self._msgid
+        return self.MSG_ID
 
     def get_type(self) -> str:
-        return self._name
+        return self.MSG_NAME
 
     def get_fieldnames(self) -> list[str]:
-        return list(self._fieldnames)
+        return list(self.FIELDNAMES)
 
     def get_srcSystem(self) -> int:
         return int(self[-1][5])
@@ -97,17 +98,17 @@ class LiteMessage(tuple):  # type: ignore[type-arg]
 
     def get_header(self) -> Any:
         raw = self[-1]
-        return mav.MAVLink_header(self._msgid, raw[2], raw[3], raw[1], raw[4], raw[5], raw[6])
+        return mav.MAVLink_header(self.MSG_ID, raw[2], raw[3], raw[1], raw[4], raw[5], raw[6])
 
     def to_dict(self) -> dict[str, Any]:
-        d: dict[str, Any] = {"mavpackettype": self._name}
-        for name in self._fieldnames:
+        d: dict[str, Any] = {"mavpackettype": self.MSG_NAME}
+        for name in self.FIELDNAMES:
             d[name] = getattr(self, name)
         return d
 
     def __str__(self) -> str:
-        inner = ", ".join(f"{name} : {getattr(self, name)}" for name in self._fieldnames)
-        return f"{self._name} {{{inner}}}"
+        inner = ", ".join(f"{name} : {getattr(self, name)}" for name in self.FIELDNAMES)
+        return f"{self.MSG_NAME} {{{inner}}}"
 
     __repr__ = __str__
 
@@ -131,8 +132,8 @@ def _field_attrs(cls: Any, where: dict[str, int], lengths: dict[str, int],
     """A LiteMessage subclass's namespace: a property per field, reading the tuple at the
     field's index (``where``; an array of ``lengths[name]`` items as a fresh list), or the
     ``special`` property given for it."""
-    attrs: dict[str, Any] = {"__slots__": (), "_msgid": cls.id, "_name": cls.msgname,
-                             "_fieldnames": tuple(cls.fieldnames)}
+    attrs: dict[str, Any] = {"__slots__": (), "MSG_ID": cls.id, "MSG_NAME": cls.msgname,
+                             "FIELDNAMES": tuple(cls.fieldnames)}
     for name in cls.fieldnames:
         i, n = where.get(name, -1), lengths[name]
         if name in special:

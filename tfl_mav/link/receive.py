@@ -1,13 +1,14 @@
-"""The receive half of :class:`~tfl_mav.link.transport.Link`: datagram → checked messages.
+"""The receive path of a :class:`~tfl_mav.link.transport.Link`: datagram → checked messages.
 
-Why its own module: this is the path every tick of both processes takes (the vehicle reads
-the daemon's command, the daemon the vehicle's state), and it is written for that. One
-call, :meth:`Receiver._ingest`, walks a datagram frame by frame with everything it needs
-bound once per datagram: framing (magic, length, incompatibility flags), the signature
-(:meth:`~tfl_mav.link.signing.Signing.verify`, verify then advance), then, for the per-tick
-messages of :mod:`tfl_mav.link.codec`, the CRC and the unpack written out in the loop and
-the :class:`~tfl_mav.link.codec.LiteMessage` built directly: no Python call per frame but
-the recorder's ``on_frame`` hook. Every other frame goes through
+:class:`Receiver` is an object the link owns: the socket's reading side, the parser, and
+the peer it learns (or was given) and pins. This is the path every tick of both processes
+takes (the vehicle reads the daemon's command, the daemon the vehicle's state), and it is
+written for that. One call, :meth:`Receiver.ingest`, walks a datagram frame by frame with
+everything it needs bound once per datagram: framing (magic, length, incompatibility
+flags), the signature (:meth:`~tfl_mav.link.signing.Signing.verify`, verify then advance),
+then, for the per-tick messages of :mod:`tfl_mav.link.codec`, the CRC and the unpack written
+out in the loop and the :class:`~tfl_mav.link.codec.LiteMessage` built directly: no Python
+call per frame but the recorder's ``on_frame`` hook. Every other frame goes through
 :meth:`Receiver._decode_other` (skimmed, or pymavlink's ``decode``), as before.
 
 The decisions and counters are the ones :meth:`FastCodec.decode_lite
@@ -36,7 +37,7 @@ import struct
 from typing import Any
 
 from tfl_mav.link.codec import FastCodec, _crc16, skim
-from tfl_mav.link.dialect import mav
+from tfl_mav.link.dialect import mav, new_mavlink
 
 __all__ = ["MAGIC_V1", "MAGIC_V2", "Receiver"]
 
@@ -62,34 +63,46 @@ _HOT: dict[int, tuple[Any, bytes, int, Any, Any]] = {
 
 
 class Receiver:
-    """The receiving methods of :class:`~tfl_mav.link.transport.Link` (which sets the
-    attributes named below); see the module docstring."""
+    """The receive path of one :class:`~tfl_mav.link.transport.Link` (module docstring).
 
-    _sock: socket.socket
-    _poll: Any
-    _timeout_ms: int
-    _decode: Any
-    stats: Any
-    peer: Any
-    peer_sysid: int | None
-    on_frame: Any
-    clock: Any
-    max_datagrams_per_recv: int
-    signing: Any
-    admit: Any
-    skim_ids: frozenset[int]
-    parser: Any
-    own_identity: tuple[int, int]
+    ``hooks``: the link, whose public ``on_frame``, ``on_frames`` and ``clock`` (which its
+    users may set at any time) every accepted or rejected frame is reported to; ``stats``
+    its counters (this path counts the receive side). ``peer``, ``peer_sysid``,
+    ``signing``, ``admit``, ``skim_ids``, ``max_datagrams_per_recv``: as the link's
+    constructor says. The peer is this object's: learned from the first valid HEARTBEAT,
+    read by the link's send path, set through :meth:`set_peer` / :meth:`set_peer_sysid`.
+    """
 
-    def _init_receiver(self) -> None:
-        # on_frames(direction, raws, msgs, time_s): when set (beside on_frame), the frames
-        # of a datagram the settled fast path accepts go to it in one call (msgs None: all
-        # accepted), e.g. a RecorderProcess's on_frames: one hand-off a datagram, not one
-        # a frame; every other frame still goes to on_frame, in order
-        self.on_frames: Any = None
+    def __init__(self, sock: socket.socket, hooks: Any, stats: Any, *,
+                 own_identity: tuple[int, int], peer: Any, peer_sysid: int | None,
+                 max_datagrams_per_recv: int, signing: Any, admit: Any,
+                 skim_ids: frozenset[int]) -> None:
+        self._sock = sock
+        self._hooks = hooks
+        self.stats = stats
+        self.own_identity = own_identity
+        # the parser of everything not decoded here (pymavlink's; its signing state counts
+        # the signed frames, as pymavlink's own receive would)
+        self.parser = new_mavlink(*own_identity)
+        self._decode = self.parser.decode
+        self.peer = peer                          # (host, port), None until learned
+        self.peer_sysid = peer_sysid              # pinned system id, None until learned
+        self.max_datagrams_per_recv = max_datagrams_per_recv
+        self.signing = signing
+        self.admit = admit
+        self.skim_ids = skim_ids
         self._timeout_ms = 0          # SO_RCVTIMEO now set (0: none yet)
         self._poll = select.poll()    # "is anything queued?" without an exception
-        self._poll.register(self._sock.fileno(), _POLLIN)
+        self._poll.register(sock.fileno(), _POLLIN)
+
+    def set_peer(self, peer: Any) -> None:
+        """Talk to ``peer`` ((host, port) as ``recvfrom`` reports it; None: learn it from the
+        next valid HEARTBEAT)."""
+        self.peer = peer
+
+    def set_peer_sysid(self, sysid: int | None) -> None:
+        """Pin the peer's system id (None: learn it from its next HEARTBEAT)."""
+        self.peer_sysid = sysid
 
     def recv(self, timeout_s: float = 0.0, *, drain: bool = True) -> list[Any]:
         """Accepted messages from datagrams that arrive within ``timeout_s`` (0 = poll).
@@ -121,11 +134,11 @@ class Receiver:
             self.stats.recv_errors += 1
             return out
         if not drain:
-            self._ingest(data, addr, out)
+            self.ingest(data, addr, out)
             return out
         ready = self._poll.poll
         for _ in range(self.max_datagrams_per_recv):
-            self._ingest(data, addr, out)
+            self.ingest(data, addr, out)
             if not ready(0):
                 break
             try:
@@ -147,10 +160,11 @@ class Receiver:
 
     def _reject(self, reason: str, raw: bytes) -> None:
         setattr(self.stats, reason, getattr(self.stats, reason) + 1)
-        if self.on_frame is not None:
-            self.on_frame("rx", raw, None, self.clock())
+        hooks = self._hooks
+        if hooks.on_frame is not None:
+            hooks.on_frame("rx", raw, None, hooks.clock())
 
-    def _ingest(self, data: bytes, addr: Any, out: list[Any]) -> None:
+    def ingest(self, data: bytes, addr: Any, out: list[Any]) -> None:
         """Split one datagram into frames; append accepted messages to ``out``."""
         st = self.stats
         st.rx_datagrams += 1
@@ -178,9 +192,10 @@ class Receiver:
             # checks below in the general loop's order, fewer of them. Anything else (a
             # failed check included) leaves this loop at the frame's start, untouched, and
             # the general loop decides and counts it.
-            on_frame = self.on_frame
+            hooks = self._hooks
+            on_frame = hooks.on_frame
             batch: list[bytes] | None = None
-            if on_frame is not None and self.on_frames is not None:
+            if on_frame is not None and hooks.on_frames is not None:
                 batch, on_frame = [], None
             hot = _HOT.get
             crc16 = _crc16
@@ -210,23 +225,24 @@ class Receiver:
                 st.rx_frames += 1
                 if on_frame is not None:
                     if now is None:
-                        now = self.clock()
+                        now = hooks.clock()
                     on_frame("rx", raw, msg, now)
                 elif batch is not None:
                     batch.append(raw)
                 out.append(msg)
             if batch:
-                now = self.clock()
-                self.on_frames("rx", batch, None, now)
+                now = hooks.clock()
+                hooks.on_frames("rx", batch, None, now)
             if i == n:
                 return
         self._ingest_general(data, i, n, addr, out, now)
 
     def _ingest_general(self, data: bytes, i: int, n: int, addr: Any, out: list[Any],
                         now: float | None) -> None:
-        """:meth:`_ingest` from byte ``i`` of ``data``: every frame, every check."""
+        """:meth:`ingest` from byte ``i`` of ``data``: every frame, every check."""
         st = self.stats
-        on_frame = self.on_frame
+        hooks = self._hooks
+        on_frame = hooks.on_frame
         signing = self.signing
         own_sysid, own_compid = self.own_identity
         hot = _HOT.get
@@ -276,7 +292,7 @@ class Receiver:
                     msg = _new_tuple(lite, (*unpack(
                         raw[_HEADER_LEN_V2:pend] + _ZEROS[:size + _HEADER_LEN_V2 - pend]),
                         raw))
-                msgid = lite._msgid
+                msgid = lite.MSG_ID
             else:
                 msg = self._decode_other(raw)
                 if msg is None:
@@ -303,7 +319,7 @@ class Receiver:
             st.rx_frames += 1
             if on_frame is not None:
                 if now is None:
-                    now = self.clock()
+                    now = hooks.clock()
                 on_frame("rx", raw, msg, now)
             out.append(msg)
 

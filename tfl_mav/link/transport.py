@@ -67,6 +67,7 @@ from tfl_mav.link.signing import Signing
 __all__ = [
     "Address",
     "FrameHook",
+    "FramesHook",
     "Link",
     "LinkError",
     "LinkStats",
@@ -77,6 +78,7 @@ __all__ = [
 
 Address = tuple[str, int]
 FrameHook = Callable[[str, bytes, Any, float], None]
+FramesHook = Callable[[str, Sequence[bytes], Any, float], None]
 Admit = Callable[[Any, "Address"], "str | None"]
 """``admit(heartbeat, sender) -> None`` (may pin) or the reason it may not."""
 
@@ -187,7 +189,7 @@ def finite_fields(msg: Any, names: Iterable[str]) -> bool:
     return nonfinite_field(msg, names) is None
 
 
-class Link(Receiver):
+class Link:
     """One UDP socket talking MAVLink 2 to exactly one peer. See the module docstring."""
 
     def __init__(self, sock: socket.socket, *, src_system: int, src_component: int,
@@ -213,21 +215,24 @@ class Link(Receiver):
         """
         sock.setblocking(True)
         self._sock = sock
-        self.own_identity = (src_system, src_component)
         self.packer = new_mavlink(src_system, src_component)
-        self.parser = new_mavlink(src_system, src_component)
-        self.peer: Address | None = peer
-        self.peer_sysid: int | None = peer_sysid
+        # the hooks every frame sent or received is reported to (its users set them at any
+        # time): on_frame(direction, raw, msg, time_s); on_frames(direction, raws, msgs,
+        # time_s), when set beside on_frame, a datagram's frames in one call (the settled
+        # receive path's and send_many's; msgs None: all accepted), e.g. a RecorderProcess's
+        # on_frames: one hand-off a datagram, not one a frame
         self.on_frame = on_frame
+        self.on_frames: FramesHook | None = None
         self.clock = clock
-        self.max_datagrams_per_recv = max_datagrams_per_recv
         self.stats = LinkStats()
-        self._decode = self.parser.decode
         self._codec = _CODEC
         self.signing = signing
-        self.admit = admit
-        self.skim_ids = frozenset(skim_ids)
-        self._init_receiver()
+        # the receive path, and the peer it learns and pins
+        self.receiver = Receiver(sock, self, self.stats,
+                                 own_identity=(src_system, src_component), peer=peer,
+                                 peer_sysid=peer_sysid,
+                                 max_datagrams_per_recv=max_datagrams_per_recv,
+                                 signing=signing, admit=admit, skim_ids=frozenset(skim_ids))
         if signing is not None:
             signing.configure_packer(self.packer, link_id)
 
@@ -252,6 +257,30 @@ class Link(Receiver):
         sock = _bound_socket(bind, "bind address")
         return cls(sock, src_system=src_system, src_component=src_component, peer=resolved,
                    **kw)
+
+    @property
+    def peer(self) -> Address | None:
+        """The peer's (host, port): given, or learned from its first valid HEARTBEAT (None:
+        not yet). Setting it (None: learn again) goes to the receive path, which owns it."""
+        return self.receiver.peer
+
+    @peer.setter
+    def peer(self, value: Address | None) -> None:
+        self.receiver.set_peer(value)
+
+    @property
+    def peer_sysid(self) -> int | None:
+        """The peer's pinned system id (None: learned from its next HEARTBEAT)."""
+        return self.receiver.peer_sysid
+
+    @peer_sysid.setter
+    def peer_sysid(self, value: int | None) -> None:
+        self.receiver.set_peer_sysid(value)
+
+    def recv(self, timeout_s: float = 0.0, *, drain: bool = True) -> list[Any]:
+        """Accepted messages from datagrams that arrive within ``timeout_s`` (0 = poll):
+        :meth:`Receiver.recv <tfl_mav.link.receive.Receiver.recv>`."""
+        return self.receiver.recv(timeout_s, drain=drain)
 
     @property
     def local_address(self) -> Address:
@@ -300,11 +329,12 @@ class Link(Receiver):
             self.signing.stamp(packer)
         frames = self._codec.pack_many(msgs, packer)
         st = self.stats
-        if self.peer is None:
+        peer = self.receiver.peer
+        if peer is None:
             st.unsent_no_peer += len(frames)
             return 0
         try:
-            n = self._sock.sendto(b"".join(frames), _DONTWAIT, self.peer)
+            n = self._sock.sendto(b"".join(frames), _DONTWAIT, peer)
         except OSError:
             st.send_errors += 1
             return 0
@@ -344,11 +374,12 @@ class Link(Receiver):
 
     def _sendto(self, raw: bytes, msg: Any) -> int:
         st = self.stats
-        if self.peer is None:
+        peer = self.receiver.peer
+        if peer is None:
             st.unsent_no_peer += 1
             return 0
         try:
-            n = self._sock.sendto(raw, _DONTWAIT, self.peer)
+            n = self._sock.sendto(raw, _DONTWAIT, peer)
         except OSError:
             st.send_errors += 1
             return 0

@@ -1,6 +1,6 @@
 """The vehicle state every part of tfl-mav passes around, in the paper frame.
 
-Physics produces it (``tfl_mav.sim.simulator``), the wire decodes into it
+Physics produces it (``tfl_mav.sitl.simulator``), the wire decodes into it
 (:func:`tfl_mav.model.frames.paper_from_odometry`), the flight computer and the law consume it.
 One type, so a field means the same thing wherever it is read.
 """

@@ -174,18 +174,21 @@ class AttackDetector:
         if _compiled["core"] is not None:
             self._core = _compiled["core"]
             return
-        ref = weakref.ref(self)
+        use_core = weakref.WeakMethod(self._use_core)    # a finished detector is not kept
 
         def ready(core: Any) -> None:
             _compiled["core"] = core
-            target = ref()
-            if target is not None:
-                target._core = core
+            use = use_core()
+            if use is not None:
+                use(core)
 
         example = (self.params, self.state, (0.0, _ZERO4, _ZERO4))
         core = native.obtain_function(detector_step, example, ready)
         if core is not None:
             ready(core)
+
+    def _use_core(self, core: Any) -> None:
+        self._core = core           # one reference store: atomic under the GIL
 
     def update(self, time_s: float, rpm_measured: Sequence[float],
                thrust_cmd_n: Sequence[float]) -> DetectorOutput:

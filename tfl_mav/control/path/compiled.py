@@ -31,6 +31,7 @@ from tfl_mav.control.path.tracker import (
     MIN_TUBE_MARGIN,
     PathTracker,
     VirtualOutput,
+    closest_lam,
     pi_rates,
 )
 
@@ -158,7 +159,7 @@ class CompiledPathTracker(PathTracker):
         """A global search for the closest point of ``y0`` (m), for a state without one:
         (λ, converged 1/0, the path raised 1/0 — :attr:`failure` says what)."""
         try:
-            lam, ok = self._newton(y0, self._global_lam(y0))
+            lam, ok = closest_lam(self.path, y0)
         except (ValueError, ZeroDivisionError, OverflowError) as exc:
             self.failure = str(exc)
             return 0.0, 0.0, 1.0

@@ -97,6 +97,10 @@ class Tape:
             self._memo[expr] = sym
         return sym
 
+    def negation_of(self, a: Sym) -> Sym | None:
+        """The symbol ``a`` was recorded as the negation of (None: ``a`` is no negation)."""
+        return self._negated.get(a.name)
+
     def neg(self, a: Sym) -> Sym:
         back = self._negated.get(a.name)
         if back is not None:
@@ -179,10 +183,10 @@ class Sym:
             if o == 0.0:
                 return self
         else:
-            base = self.tape._negated.get(o.name)
+            base = self.tape.negation_of(o)
             if base is not None:
                 return self.tape.emit(f"{self.name} - {base.name}")
-            base = self.tape._negated.get(self.name)
+            base = self.tape.negation_of(self)
             if base is not None:
                 return self.tape.emit(f"{o.name} - {base.name}")
         return self.tape.emit(f"{self.name} + {_text(o)}")
@@ -199,7 +203,7 @@ class Sym:
             if o == 0.0:
                 return self
         else:
-            base = self.tape._negated.get(o.name)
+            base = self.tape.negation_of(o)
             if base is not None:
                 return self.tape.emit(f"{self.name} + {base.name}")
         return self.tape.emit(f"{self.name} - {_text(o)}")
@@ -207,7 +211,7 @@ class Sym:
     def __rsub__(self, o: Any) -> Any:
         if o == 0.0:
             return self.tape.neg(self)
-        base = self.tape._negated.get(self.name)
+        base = self.tape.negation_of(self)
         if base is not None:
             return self.tape.emit(f"{_lit(o)} + {base.name}")
         return self.tape.emit(f"{_lit(o)} - {self.name}")
@@ -242,7 +246,7 @@ class Sym:
                 return self
             if _power_of_two(o):
                 return self.tape.scale(self, 1.0 / o)
-            base = self.tape._negated.get(self.name)
+            base = self.tape.negation_of(self)
             if base is not None:
                 return self.tape.emit(f"{base.name} / {_lit(-o)}")
         return self.tape.emit(f"{self.name} / {_text(o)}")

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from tfl_mav.control.path.jets import JET_LIB, Jet, cos, sin
-from tfl_mav.control.path.tracker import PathOutput, PathTracker
+from tfl_mav.control.path.tracker import PathOutput, PathTracker, grad_s
 from tfl_mav.expr import Expr, ExprError, compile_expr
 
 __all__ = ["PATH_KINDS", "Path", "PathError", "PathOutput", "PathTracker", "build_path"]
@@ -277,7 +277,7 @@ def _check_path(path: Path, n: int = 64) -> None:
             sx, sy, sz = (_as_jet1(v) for v in path.sigma(Jet.variable(lam, order=1)))
             p = (sx.c[0], sy.c[0], sz.c[0])
             r = [_as_jet1(v) for v in path.s(*(Jet((v, 1.0)) for v in p))]
-            grads = PathTracker(path)._grad_s(p)
+            grads = grad_s(path, p)
         except (ValueError, ZeroDivisionError, OverflowError) as exc:
             raise PathError("path.sigma", f"cannot evaluate at t = {lam:.4g}: {exc}") from None
         speed = math.sqrt(sx.c[1] ** 2 + sy.c[1] ** 2 + sz.c[1] ** 2)

@@ -36,8 +36,9 @@ from tfl_mav.control.path.series import sqrt_series
 if TYPE_CHECKING:
     from tfl_mav.control.path.paths import Path
 
-__all__ = ["MIN_TUBE_MARGIN", "PathOutput", "PathTracker", "VirtualOutput", "newton_on_poly",
-           "pi_rates", "poly_arc", "poly_g"]
+__all__ = ["MIN_TUBE_MARGIN", "NEWTON_ITERS", "PathOutput", "PathTracker", "VirtualOutput",
+           "closest_lam", "global_closest_lam", "grad_s", "newton_closest_lam", "newton_on_poly",
+           "pi_rates", "poly_arc", "poly_g", "taylor_curve"]
 
 
 @dataclass(slots=True)
@@ -82,17 +83,64 @@ class PathOutput:
 # unique (distance = radius of curvature, on the concave side). Below this the law stops
 # trusting π's derivatives: 1/margin amplifies them.
 MIN_TUBE_MARGIN = 0.1
-_NEWTON_ITERS = 20
+NEWTON_ITERS = 20
 _NEWTON_TOL = 1e-12
 
 
-def _taylor_curve(path: Path, lam0: float) -> list[tuple[float, float, float]]:
+def taylor_curve(path: Path, lam0: float) -> list[tuple[float, float, float]]:
     """σ(λ0 + δ) = Σ_j c_j δʲ for j = 0..5: coefficients c_j = σ⁽ʲ⁾(λ0)/j! (vectors)."""
     jx, jy, jz = path.sigma(Jet.variable(lam0, order=5))
     cx = jx.c if isinstance(jx, Jet) else (float(jx),) + (0.0,) * 5
     cy = jy.c if isinstance(jy, Jet) else (float(jy),) + (0.0,) * 5
     cz = jz.c if isinstance(jz, Jet) else (float(jz),) + (0.0,) * 5
     return [(cx[j], cy[j], cz[j]) for j in range(6)]
+
+
+def global_closest_lam(path: Path, y: Sequence[float]) -> float:
+    """The λ of the closest of 4001 points of σ over ``path.lam_range`` to ``y`` (m): the
+    start of a projection with no λ to warm-start from."""
+    lo, hi = path.lam_range
+    lam = np.linspace(lo, hi, 4001)
+    x, yy, z = path.sigma(lam)
+    d2 = (x - y[0]) ** 2 + (yy - y[1]) ** 2 + (z - y[2]) ** 2
+    return float(lam[int(np.argmin(d2))])
+
+
+def newton_closest_lam(path: Path, y: Sequence[float], lam: float) -> tuple[float, bool]:
+    """Solve g(λ, y) = (y − σ(λ))·σ'(λ) = 0 near ``lam`` on σ's jets; returns (λ, converged)."""
+    sigma = path.sigma
+    for _ in range(NEWTON_ITERS):
+        sx, sy, sz = sigma(Jet.variable(lam, order=2))
+        ex, ey, ez = y[0] - sx.c[0], y[1] - sy.c[0], y[2] - sz.c[0]
+        d1 = (sx.c[1], sy.c[1], sz.c[1])
+        d2 = (2.0 * sx.c[2], 2.0 * sy.c[2], 2.0 * sz.c[2])
+        g = ex * d1[0] + ey * d1[1] + ez * d1[2]
+        dg = -(d1[0] ** 2 + d1[1] ** 2 + d1[2] ** 2) + ex * d2[0] + ey * d2[1] + ez * d2[2]
+        if dg >= 0.0 or not math.isfinite(dg):
+            # Not a local minimum of the distance here: step towards one along −g.
+            step = -0.1 * math.copysign(1.0, g) if g else 0.1
+        else:
+            step = -g / dg
+            step = max(-0.5, min(0.5, step))
+        lam += step
+        if abs(step) < _NEWTON_TOL:
+            return lam, True
+    return lam, abs(step) < 1e-8
+
+
+def closest_lam(path: Path, y: Sequence[float]) -> tuple[float, bool]:
+    """The closest point's λ from scratch (the global search, then Newton): (λ, converged)."""
+    return newton_closest_lam(path, y, global_closest_lam(path, y))
+
+
+def grad_s(path: Path, y0: Sequence[float]) -> tuple[tuple[float, float, float], ...]:
+    """∂s/∂y at y0 (2 × 3) from three first-order jet evaluations of the path's s."""
+    cols = []
+    for axis in range(3):
+        args = [Jet((y0[i], 1.0 if i == axis else 0.0)) for i in range(3)]
+        s1, s2 = path.s(*args)
+        cols.append((_slope(s1), _slope(s2)))
+    return ((cols[0][0], cols[1][0], cols[2][0]), (cols[0][1], cols[1][1], cols[2][1]))
 
 
 class PathTracker:
@@ -106,34 +154,6 @@ class PathTracker:
         self._arc_m = 0.0         # π: arc length from there to λ (m)
 
     # ------------------------------------------------------------------ projection
-    def _global_lam(self, y: Sequence[float]) -> float:
-        lo, hi = self.path.lam_range
-        lam = np.linspace(lo, hi, 4001)
-        x, yy, z = self.path.sigma(lam)
-        d2 = (x - y[0]) ** 2 + (yy - y[1]) ** 2 + (z - y[2]) ** 2
-        return float(lam[int(np.argmin(d2))])
-
-    def _newton(self, y: Sequence[float], lam: float) -> tuple[float, bool]:
-        """Solve g(λ, y) = 0 near ``lam``; returns (λ, converged)."""
-        sigma = self.path.sigma
-        for _ in range(_NEWTON_ITERS):
-            sx, sy, sz = sigma(Jet.variable(lam, order=2))
-            ex, ey, ez = y[0] - sx.c[0], y[1] - sy.c[0], y[2] - sz.c[0]
-            d1 = (sx.c[1], sy.c[1], sz.c[1])
-            d2 = (2.0 * sx.c[2], 2.0 * sy.c[2], 2.0 * sz.c[2])
-            g = ex * d1[0] + ey * d1[1] + ez * d1[2]
-            dg = -(d1[0] ** 2 + d1[1] ** 2 + d1[2] ** 2) + ex * d2[0] + ey * d2[1] + ez * d2[2]
-            if dg >= 0.0 or not math.isfinite(dg):
-                # Not a local minimum of the distance here: step towards one along −g.
-                step = -0.1 * math.copysign(1.0, g) if g else 0.1
-            else:
-                step = -g / dg
-                step = max(-0.5, min(0.5, step))
-            lam += step
-            if abs(step) < _NEWTON_TOL:
-                return lam, True
-        return lam, abs(step) < 1e-8
-
     def _project(self, y0: Sequence[float]) -> list[tuple[float, float, float]] | None:
         """Move λ to the closest point of ``y0``; returns σ's Taylor coefficients there.
 
@@ -144,8 +164,8 @@ class PathTracker:
         """
         lam = self.lam
         assert lam is not None
-        for _ in range(_NEWTON_ITERS):
-            c = _taylor_curve(self.path, lam)
+        for _ in range(NEWTON_ITERS):
+            c = taylor_curve(self.path, lam)
             delta = _poly_newton(c, y0)
             if delta is None:
                 return None
@@ -177,7 +197,7 @@ class PathTracker:
         if not all(math.isfinite(c) for row in taylor for c in row):
             return self._lost(y0, "non-finite state")
         if self.lam is None:
-            lam, ok = self._newton(y0, self._global_lam(y0))
+            lam, ok = closest_lam(self.path, y0)
             if not ok or not math.isfinite(lam):
                 return self._lost(y0, "closest-point search did not converge")
             self.lam = self._arc_lam = lam
@@ -199,21 +219,12 @@ class PathTracker:
 
         jx, jy, jz = (Jet(tuple(taylor[i][:5])) for i in range(3))
         a1, a2 = self.path.s(jx, jy, jz)
-        grad = self._grad_s(y0)
+        grad = grad_s(self.path, y0)
         speed0 = math.sqrt(s1sq)
         k = speed0 / -slope
         grad_pi = (k * c[1][0], k * c[1][1], k * c[1][2])
         return PathOutput((_as_jet(a1), _as_jet(a2)), pi, (grad[0], grad[1], grad_pi), lam,
                           distance, True)
-
-    def _grad_s(self, y0: Sequence[float]) -> tuple[tuple[float, float, float], ...]:
-        """∂s/∂y at y0 (2 × 3) from three first-order jet evaluations."""
-        cols = []
-        for axis in range(3):
-            args = [Jet((y0[i], 1.0 if i == axis else 0.0)) for i in range(3)]
-            s1, s2 = self.path.s(*args)
-            cols.append((_slope(s1), _slope(s2)))
-        return ((cols[0][0], cols[1][0], cols[2][0]), (cols[0][1], cols[1][1], cols[2][1]))
 
     def _lost(self, y0: Sequence[float], reason: str, lam: float = math.nan,
               distance: float = math.nan) -> PathOutput:

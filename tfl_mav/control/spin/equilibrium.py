@@ -4,7 +4,7 @@ Mueller & D'Andrea's relaxed hover (ICRA 2014; IJRR 35(8), 2016) adapted to a ro
 f_stuck ∈ [m g/2, f_max] by an attacker instead of lost. Everything here is in the
 *canonical* body frame of :mod:`tfl_mav.control.allocation`: the attacked rotor is rotor 2
 (on −b2'), rotor 4 opposite it, and the yaw reaction sign d' = ±d. The model is the
-simulator's (:mod:`tfl_mav.sim.physics`, eq. (3), (4)):
+simulator's (:mod:`tfl_mav.sitl.physics`, eq. (3), (4)):
 
     J ω̇ = τ − k_r ω − ω × J ω,   τ = (l (f4 − f2), l (f3 − f1), d (f1 − f2 + f3 − f4)),
     m v̇ = f_Σ R b3 − m g e3 − k_t v.

@@ -211,12 +211,12 @@ class TFLController:
             self._obtain_core()
 
     def _obtain_core(self) -> None:
-        ref = weakref.ref(self)
+        use_core = weakref.WeakMethod(self._use_core)    # a finished law is not kept
 
         def ready(core: Callable[..., Any]) -> None:
-            target = ref()
-            if target is not None:
-                target._core = core         # one reference store: atomic under the GIL
+            use = use_core()
+            if use is not None:
+                use(core)
 
         example = (self.params, self.state, self._inputs((0.0,) * 3, (0.0,) * 3,
                                                          (1.0, 0.0, 0.0, 0.0), (0.0,) * 3,
@@ -227,18 +227,24 @@ class TFLController:
 
     def _obtain_track_core(self) -> None:
         """:func:`mass_observe` compiled by the seam, for :meth:`track`."""
-        ref = weakref.ref(self)
+        use_track_core = weakref.WeakMethod(self._use_track_core)   # a finished law: not kept
 
         def ready(core: Callable[..., Any]) -> None:
-            target = ref()
-            if target is not None:
-                target._track_core = core
+            use = use_track_core()
+            if use is not None:
+                use(core)
 
         st = as_state(self.state)
         example = (self.params.mass, st.mass, 0.001, (1.0, 0.0, 0.0, 0.0), (0.0,) * 3, 1.0)
         core = native.obtain_function(mass_observe, example, ready)
         if core is not None:
             ready(core)
+
+    def _use_core(self, core: Callable[..., Any]) -> None:
+        self._core = core           # one reference store: atomic under the GIL
+
+    def _use_track_core(self, core: Callable[..., Any]) -> None:
+        self._track_core = core     # one reference store: atomic under the GIL
 
     def _inputs(self, y: Any, v: Any, quat: Any, rates: Any, lo: Any, hi: Any,
                 lam_start: float, ok: float, failed: float) -> TFLInputs:

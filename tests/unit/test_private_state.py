@@ -1,0 +1,72 @@
+"""No object reads another's private state: an underscore attribute is read through ``self``
+or ``cls`` only, in every module of the three directories (tfl_mav/, sitl/, tools/).
+
+What another object offers is its public, documented attributes and methods; ``x._name``
+with ``x`` anything else is a reach into state its owner may change without telling anyone.
+Not counted: dunders (``__class__``), the NamedTuple API (``_replace``, ``_asdict``,
+``_fields``, ``_make``: public despite the underscore) and attributes of a module imported
+from outside the project (``argparse._SubParsersAction``: not ours to give an accessor).
+Nothing is allowlisted. The benchmarks (bench/) time private pieces on purpose, white box,
+and are not product code: they are not read here.
+"""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+import pytest
+
+REPO = Path(__file__).resolve().parents[2]
+SOURCES = sorted(p for d in ("tfl_mav", "sitl", "tools") for p in (REPO / d).rglob("*.py"))
+NAMEDTUPLE_API = {"_replace", "_asdict", "_fields", "_make", "_field_defaults"}
+
+
+def _foreign_modules(tree: ast.Module) -> set[str]:
+    """Names bound to modules imported from outside tfl_mav (``import argparse``)."""
+    out = set()
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            for a in node.names:
+                if a.name.split(".")[0] != "tfl_mav":
+                    out.add(a.asname or a.name.split(".")[0])
+    return out
+
+
+def private_reads(source: str) -> list[str]:
+    """``line: expression`` of every underscore attribute read through another object."""
+    tree = ast.parse(source)
+    foreign = _foreign_modules(tree)
+    out = []
+    for node in ast.walk(tree):
+        if not isinstance(node, ast.Attribute):
+            continue
+        name = node.attr
+        if not name.startswith("_") or name.startswith("__") or name in NAMEDTUPLE_API:
+            continue
+        owner = node.value
+        if isinstance(owner, ast.Name) and owner.id in ({"self", "cls"} | foreign):
+            continue
+        out.append(f"{node.lineno}: {ast.unparse(node)}")
+    return out
+
+
+@pytest.mark.parametrize("path", SOURCES, ids=lambda p: str(p.relative_to(REPO)))
+def test_no_module_reads_another_objects_private_state(path: Path) -> None:
+    found = private_reads(path.read_text())
+    assert not found, f"{path.relative_to(REPO)} reads private state: {'; '.join(found)}"
+
+
+def test_a_reach_into_another_object_is_seen() -> None:
+    """The reader finds each form of the reach (so the rule can fail), and lets the rest be."""
+    src = ("import argparse\n"
+           "from tfl_mav.sitl import simulator\n"
+           "def f(sim, tracker, a):\n"
+           "    t = sim._time_usec\n"                 # another object's field
+           "    g = tracker.path._grad_s(t)\n"        # through a public attribute
+           "    c = simulator._round(1.0)\n"          # a project module's private name
+           "    s = argparse._SubParsersAction\n"     # outside the project: not ours
+           "    return a._replace(x=1), a.__class__, type(a)._fields\n")
+    found = private_reads(src)
+    assert [f.split(": ")[1] for f in found] == ["sim._time_usec", "tracker.path._grad_s",
+                                                 "simulator._round"]
