@@ -23,6 +23,8 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+from tfl_mav.control.spin.step import mean_pid
+
 __all__ = ["ConeInputs", "ConeOutputs", "ConeParams", "ConeState", "cone_params", "cone_step"]
 
 CONE_RATE_RADPS = 8.0   # Ω_p: a_h/Ω_p² ≈ 0.2 m of circle at 53° of tilt
@@ -126,15 +128,9 @@ def cone_step(p: ConeParams, s: ConeState, u: ConeInputs) -> tuple[ConeState, Co
     ahx, ahy = total / m * R[0][2], total / m * R[1][2]
     vx, vy = vx - ahy / om, vy + ahx / om
     px, py = px + ahx / (om * om), py + ahy / (om * om)
-    tx, ty, tz = u.target_m
-    tvx, tvy, tvz = u.target_velocity_mps
-    tax, tay, taz = u.target_accel_mps2
-    ex, ey, ez = tx - px, ty - py, tz - pz
     ix_, iy_, iz_ = s.integral_ms
-    kt = p.k_t / m
-    ax = p.kp * ex + p.kd * (tvx - vx) + p.ki * ix_ + tax + kt * vx
-    ay = p.kp * ey + p.kd * (tvy - vy) + p.ki * iy_ + tay + kt * vy
-    az = p.kp * ez + p.kd * (tvz - vz) + p.ki * iz_ + taz + kt * vz
+    ax, ay, az, ex, ey, ez = mean_pid(p.kp, p.kd, p.ki, p.k_t / m, s.integral_ms, u,
+                                      (px, py, pz), (vx, vy, vz))
     az = _clip(az, -0.3 * g, 0.3 * g)
     h = math.sqrt(ax * ax + ay * ay)
     if h > 0.35 * g:

@@ -153,6 +153,28 @@ def _clip(x: float, lo: float, hi: float) -> float:
     return lo if x < lo else (hi if x > hi else x)
 
 
+def mean_pid(kp: float, kd: float, ki: float, kt: float,
+             integral_ms: tuple[float, float, float], target: SpinInputs | object,
+             position_m: tuple[float, float, float], velocity_mps: tuple[float, float, float]
+             ) -> tuple[float, float, float, float, float, float]:
+    """The mean position's PID towards the target (point m, velocity m/s, acceleration m/s²
+    of ``target``'s ``target_*`` fields) with the drag k_t/m v fed forward: the wanted mean
+    acceleration (m/s², paper frame) and the position error e (m). One loop for the spin
+    law and the coning hover (:mod:`~tfl_mav.control.spin.cone`), both steering the mean of
+    a turning vehicle (``position_m``, ``velocity_mps``: the turning part removed)."""
+    px, py, pz = position_m
+    vx, vy, vz = velocity_mps
+    tx, ty, tz = target.target_m                    # type: ignore[attr-defined]
+    tvx, tvy, tvz = target.target_velocity_mps      # type: ignore[attr-defined]
+    tax, tay, taz = target.target_accel_mps2        # type: ignore[attr-defined]
+    ex, ey, ez = tx - px, ty - py, tz - pz
+    ix_, iy_, iz_ = integral_ms
+    ax = kp * ex + kd * (tvx - vx) + ki * ix_ + tax + kt * vx
+    ay = kp * ey + kd * (tvy - vy) + ki * iy_ + tay + kt * vy
+    az = kp * ez + kd * (tvz - vz) + ki * iz_ + taz + kt * vz
+    return ax, ay, az, ex, ey, ez
+
+
 def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
               ) -> tuple[SpinState, SpinOutputs]:
     """One control period of the spin law (see the module docstring)."""
@@ -187,15 +209,9 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
         vx, vy = vx - ahy * inv, vy + ahx * inv
         inv2 = inv * inv
         px, py = px + ahx * inv2, py + ahy * inv2
-    tx, ty, tz = inputs.target_m
-    tvx, tvy, tvz = inputs.target_velocity_mps
-    tax, tay, taz = inputs.target_accel_mps2
-    ex, ey, ez = tx - px, ty - py, tz - pz
     ix_, iy_, iz_ = state.integral_ms
-    kt = p.k_t / m
-    ax = p.kp * ex + p.kd * (tvx - vx) + p.ki * ix_ + tax + kt * vx
-    ay = p.kp * ey + p.kd * (tvy - vy) + p.ki * iy_ + tay + kt * vy
-    az = p.kp * ez + p.kd * (tvz - vz) + p.ki * iz_ + taz + kt * vz
+    ax, ay, az, ex, ey, ez = mean_pid(p.kp, p.kd, p.ki, p.k_t / m, state.integral_ms,
+                                      inputs, (px, py, pz), (vx, vy, vz))
     limited = 0.0
     top = g * p.max_tilt_tan
     h = math.sqrt(ax * ax + ay * ay)
