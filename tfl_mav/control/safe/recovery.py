@@ -409,7 +409,7 @@ class RecoveryLaw:
             proj.start(_floats(s.position_m))
         return _new_output(SafeState, (
             proj.lam if proj is not None and proj.lam is not None else 0.0,
-            0.0 if hold is None else 1.0, _ZERO3 if hold is None else hold,
+            hold is not None, _ZERO3 if hold is None else hold,
             self.integral_ms, self.drift_mps, self.drift_age_s))
 
     def _keep(self, out: tuple[Any, ...]) -> RecoveryOutput:
@@ -423,9 +423,7 @@ class RecoveryLaw:
             self.hold_m = list(hold_m)
         self.integral_ms = list(integral)
         f = list(f)
-        c0, c1, c2, c3 = clamped
-        return _new_output(RecoveryOutput, (f, list(f), tilt_err, dist, uf,
-                                            (c0 != 0.0, c1 != 0.0, c2 != 0.0, c3 != 0.0)))
+        return _new_output(RecoveryOutput, (f, list(f), tilt_err, dist, uf, tuple(clamped)))
 
     def _three_rotor(self, s: State, attacked_rotor: int, attack_n: float) -> RecoveryOutput:
         """The three-rotor tick: the LQR gain for the canonical spin rate, then the pure
@@ -458,6 +456,6 @@ class RecoveryLaw:
 
 _ZERO3 = (0.0, 0.0, 0.0)
 # safe_tick's arguments' shapes, for the seam's lowering.
-_STATE0 = (0.0, 0.0, _ZERO3, _ZERO3, _ZERO3, 0.0)
+_STATE0 = (0.0, False, _ZERO3, _ZERO3, _ZERO3, 0.0)
 _INPUTS0 = (_ZERO3, _ZERO3, (1.0, 0.0, 0.0, 0.0), _ZERO3, 0.0, (0,) * 6, (0,) * 4,
             ((0.0,) * 4, (0.0,) * 4))

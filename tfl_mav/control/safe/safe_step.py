@@ -59,7 +59,7 @@ class SafeState(NamedTuple):
     """What the safe law remembers between ticks."""
 
     lam: float                          # the path parameter of the closest point
-    holding: float                      # 1.0: holding ``hold_m`` (told to, or the path lost)
+    holding: bool                       # holding ``hold_m`` (told to, or the path lost)
     hold_m: tuple[float, float, float]  # the held point (m)
     integral_ms: tuple[float, float, float]     # ∫ position error (m s, inertial)
     drift_mps: tuple[float, float, float]       # v − v_target across the path, low-passed
@@ -77,7 +77,7 @@ def _sigma2(a0: tuple[float]) -> tuple[float, ...]:
 def closest_point(lam: float, y: tuple[float, float, float]
                   ) -> tuple[float, float, tuple[float, float, float],
                              tuple[float, float, float], tuple[float, float, float], float]:
-    """Newton from ``lam`` on ⟨y − σ(λ), σ'(λ)⟩ = 0: (found 1/0, the new λ — the old one if
+    """Newton from ``lam`` on ⟨y − σ(λ), σ'(λ)⟩ = 0: (found, the new λ — the old one if
     Newton left the reals —, the point, the unit tangent T, the curvature vector κN, the
     distance m). σ, σ' and σ'' come exactly from one ``_sigma2`` evaluation a step."""
     yx, yy, yz = y
@@ -92,14 +92,14 @@ def closest_point(lam: float, y: tuple[float, float, float]
         lam += step
         if abs(step) < 1e-9:
             break
-    found, lam_out, dist = 0.0, lam0, 0.0
+    found, lam_out, dist = False, lam0, 0.0
     point = tangent = curvature = (0.0, 0.0, 0.0)
     if math.isfinite(lam):
         lam_out = lam
         c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = _sigma2((lam,))
         s1sq = c1x * c1x + c1y * c1y + c1z * c1z
         if s1sq > 0.0:
-            found = 1.0
+            found = True
             s1 = math.sqrt(s1sq)
             tx, ty, tz = c1x / s1, c1y / s1, c1z / s1
             # κN = (σ'' − (σ''·T) T)/|σ'|², σ'' = 2 c2
@@ -122,7 +122,7 @@ def accel_demand(p: SafeParams, target: tuple[float, float, float],
     """The outer loop's wanted acceleration (m/s², z up): PID towards ``target`` (the
     closest path point, with the path's speed × tangent and centripetal term when
     ``on_path``; else a held point, velocity zero), limited to MAX_TILT_RAD and
-    ±MAX_VERTICAL_G. Returns (a_x, a_y, a_z, the position error e m, integrate 1/0, the new
+    ±MAX_VERTICAL_G. Returns (a_x, a_y, a_z, the position error e m, integrate, the new
     drift m/s and its age s).
 
     ``integrate`` says whether e may enter the integral (conditional integration): not on a
@@ -170,7 +170,7 @@ def accel_demand(p: SafeParams, target: tuple[float, float, float],
         a0 *= amax / ah
         a1 *= amax / ah
         limited = True
-    integrate = 1.0 if (near or settled) and not limited else 0.0
+    integrate = (near or settled) and not limited
     return a0, a1, az, e, integrate, (wx, wy, wz), drift_age_s + p.dt_s
 
 
@@ -193,13 +193,13 @@ def integrated(integral: tuple[float, float, float], e: tuple[float, float, floa
     return integral
 
 
-def target(p: SafeParams, lam: float, holding: float, hold: tuple[float, float, float],
+def target(p: SafeParams, lam: float, holding: bool, hold: tuple[float, float, float],
            y: tuple[float, float, float]) -> tuple[Any, ...]:
-    """What the outer loop flies to: (found 1/0, λ, holding 1/0, the held point, the target
+    """What the outer loop flies to: (found, λ, holding, the held point, the target
     point, unit tangent, curvature vector κN, path distance m — NaN when holding). The
     closest path point; a held point when told to hold or when the path is lost (then
     where the vehicle is)."""
-    found, point, tangent, curvature, dist = 0.0, hold, hold, hold, math.nan
+    found, point, tangent, curvature, dist = False, hold, hold, hold, math.nan
     if p.has_path and not holding:
         found, lam, point, tangent, curvature, dist = closest_point(lam, y)
         if not found:
@@ -207,13 +207,14 @@ def target(p: SafeParams, lam: float, holding: float, hold: tuple[float, float, 
     if not found:
         if not holding:             # no path, or it was lost: hold where the vehicle is
             hold = (y[0], y[1], y[2])
-            holding = 1.0
+            holding = True
         point = hold
     return found, lam, holding, hold, point, tangent, curvature, dist
 
 
 def _pick(values: tuple[float, ...], k: float) -> float:
-    """``values[k]`` for a k of 0-3."""
+    """``values[k]`` for a k of 0-3 (the canonical rotor of a physical one: a plain tuple's
+    entries reach the seam as floats, not as the int an index needs)."""
     v = 0.0
     for i in range(4):
         if k == i:
@@ -229,7 +230,7 @@ def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
     (0-3), the LQR gains (two rows of four).
 
     Returns the new state and (the thrusts of the physical rotors 1-4 N, tilt error rad,
-    path distance m — NaN when holding —, u_f N, clamped 1/0 per physical rotor: its
+    path distance m — NaN when holding —, u_f N, clamped per physical rotor: its
     unconstrained demand left [0, f_max])."""
     y, v, quat, rates, attack_n, rot, inverse, gains = inputs
     qw, qx, qy, qz = quat
@@ -249,7 +250,7 @@ def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
     canon, req = (c0, c1, c2, c3), (d0, c1, d2, d3)
     hi = fmax + 1e-9
     f = tuple(_pick(canon, inverse[j]) for j in range(4))
-    clamped = tuple(0.0 if -1e-9 <= _pick(req, inverse[j]) <= hi else 1.0 for j in range(4))
+    clamped = tuple(not -1e-9 <= _pick(req, inverse[j]) <= hi for j in range(4))
     return (SafeState(lam, holding, hold, integral, drift, drift_age),
             (f, tilt_err, dist, uf, clamped))
 
@@ -263,7 +264,7 @@ def healthy_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
     velocity m/s, attitude (w, x, y, z; normalised here), body rates rad/s.
 
     Returns the new state and (the thrusts of rotors 1-4 N, tilt error rad, path distance m
-    — NaN when holding —, u_f N, clamped 1/0 per rotor: its demand left [0, f_max])."""
+    — NaN when holding —, u_f N, clamped per rotor: its demand left [0, f_max])."""
     y, v, quat, rates = inputs
     qw, qx, qy, qz = quat
     nq = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
@@ -282,7 +283,7 @@ def healthy_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
     tau_r = -iz * YAW_DAMP * rr + k_r * rr
     req = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, d_m)
     f = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, d_m, fmax)
-    clamped = tuple(0.0 if -1e-9 <= x <= fmax + 1e-9 else 1.0 for x in req)
+    clamped = tuple(not -1e-9 <= x <= fmax + 1e-9 for x in req)
     if integrate and not (clamped[0] or clamped[1] or clamped[2] or clamped[3]):
         integral = integrated(integral, e, p.dt_s, p.integral_top_ms)
     return (SafeState(lam, holding, hold, integral, drift, drift_age),
