@@ -70,7 +70,7 @@ from tfl_mav.model.state import State
 from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import Scenario, load_scenario
 from tfl_mav.sitl.simulator import Simulator
-from tfl_mav.tools.harness import offline
+from tfl_mav import offline
 
 _cpu = time.thread_time
 
