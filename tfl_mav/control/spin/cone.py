@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from tfl_mav.control.spin.step import mean_pid
+from tfl_mav.control.spin.step import attitude, mean_pid
 
 __all__ = ["ConeInputs", "ConeOutputs", "ConeParams", "ConeState", "cone_params", "cone_step"]
 
@@ -111,13 +111,7 @@ def cone_step(p: ConeParams, s: ConeState, u: ConeInputs) -> tuple[ConeState, Co
     qw, qx, qy, qz = u.quaternion_wxyz
     n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz) or 1.0
     qw, qx, qy, qz = qw / n, qx / n, qy / n, qz / n
-    R = ((1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)),
-         (2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)),
-         (2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)))
-    wp, wq, wr = u.body_rates_radps
-    w0 = r00 * wp + r01 * wq + r02 * wr
-    w1 = r10 * wp + r11 * wq + r12 * wr
-    w2 = r20 * wp + r21 * wq + r22 * wr
+    R, w0, w1, w2 = attitude((qw, qx, qy, qz), u.body_rates_radps, p.rot)
     f2 = u.stuck_thrust_n
     fmax = p.thrust_max_n
     total = _clip(2.0 * f2 + ROOM_N, 0.0, 4.0 * fmax)

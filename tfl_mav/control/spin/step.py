@@ -153,6 +153,24 @@ def _clip(x: float, lo: float, hi: float) -> float:
     return lo if x < lo else (hi if x > hi else x)
 
 
+def attitude(quat: tuple[float, float, float, float], rates: tuple[float, float, float],
+             rot: tuple[float, ...]) -> tuple[tuple[tuple[float, float, float], ...],
+                                               float, float, float]:
+    """R(q) of the unit quaternion ``quat`` (w, x, y, z) and the body rates ``rates`` (rad/s)
+    in the canonical frame, ω' = rot ω (``rot``: the frame's rotation, 9 numbers row-major).
+    One reading for the spin law and the coning hover."""
+    qw, qx, qy, qz = quat
+    R = ((1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)),
+         (2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)),
+         (2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)))
+    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot
+    wp, wq, wr = rates
+    w0 = r00 * wp + r01 * wq + r02 * wr
+    w1 = r10 * wp + r11 * wq + r12 * wr
+    w2 = r20 * wp + r21 * wq + r22 * wr
+    return R, w0, w1, w2
+
+
 def mean_pid(kp: float, kd: float, ki: float, kt: float,
              integral_ms: tuple[float, float, float], target: SpinInputs | object,
              position_m: tuple[float, float, float], velocity_mps: tuple[float, float, float]
@@ -184,14 +202,8 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     ix, iy, iz = p.inertia_kgm2
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = p.rot
     # --- 1. the attitude, canonical: R' = R rotᵀ, ω' = rot ω
-    qw, qx, qy, qz = inputs.quaternion_wxyz
-    R = ((1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)),
-         (2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)),
-         (2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)))
     wp, wq, wr = inputs.body_rates_radps
-    w0 = r00 * wp + r01 * wq + r02 * wr
-    w1 = r10 * wp + r11 * wq + r12 * wr
-    w2 = r20 * wp + r21 * wq + r22 * wr
+    R, w0, w1, w2 = attitude(inputs.quaternion_wxyz, (wp, wq, wr), p.rot)
     # --- 2. outer loop: the wanted acceleration of the mean (inertial)
     px, py, pz = inputs.position_m
     vx, vy, vz = inputs.velocity_mps
