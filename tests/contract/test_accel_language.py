@@ -151,3 +151,25 @@ def test_the_lowered_source_runs_as_python_with_the_same_results():
 
 def _leaves(v):
     return [y for x in v for y in _leaves(x)] if isinstance(v, tuple) else [v]
+
+
+def permuted(values: tuple[float, ...], order: tuple[int, ...], flags: tuple[bool, ...]
+             ) -> tuple[tuple[float, ...], tuple[bool, ...]]:
+    """A plain tuple of ints indexing another (a rotor permutation), and plain bools kept."""
+    return tuple(values[k] for k in order), tuple(not b for b in flags)
+
+
+def test_a_plain_tuples_ints_index_and_its_bools_stay_bools():
+    """A plain tuple's items have no annotation: an int in the example indexes as Python
+    indexes with it (an out-of-range one declines), a bool is returned a bool; the same
+    function with float items is another lowering (indexing with a float raises)."""
+    compiled = native.build_function(permuted, ((0.0,) * 4, (0, 1, 2, 3), (True, False)))
+    rng = random.Random(7)
+    for _ in range(2000):
+        values = tuple(_x(rng) for _ in range(4))
+        order = tuple(rng.randrange(-4, 4) for _ in range(4))
+        flags = (rng.random() < 0.5, rng.random() < 0.5)
+        assert _bits(compiled(values, order, flags)) == _bits(permuted(values, order, flags))
+    assert compiled((1.0, 2.0, 3.0, 4.0), (0, 1, 2, 4), (True, True)) is None
+    assert native.lowered(permuted, ((0.0,) * 4, (0, 1, 2, 3), (True, False))) != \
+        native.lowered(permuted, ((0.0,) * 4, (0.0, 1.0, 2.0, 3.0), (True, False)))

@@ -66,7 +66,10 @@ def _entry_shape(x: Any, what: str) -> Any:
 
 def _entry_kinds(x: Any, kind: str) -> Any:
     """The kinds of an argument's numbers (``f``, ``i``, ``b``) as its annotations say:
-    a NamedTuple's fields' own, a parameter's, else float."""
+    a NamedTuple's fields' own, a parameter's, else float. The items of a plain tuple
+    have no annotation of their own (``tuple[int, ...]`` is not read): an int or a bool
+    there is taken as the example holds it, so that a rotor index in a plain tuple can
+    index another tuple as it does in Python."""
     if not isinstance(x, (tuple, list)):
         return kind
     fields = getattr(x, "_fields", None)
@@ -74,7 +77,16 @@ def _entry_kinds(x: Any, kind: str) -> Any:
         notes = getattr(type(x), "__annotations__", {})
         return tuple(_entry_kinds(v, kind_of(notes.get(n))) for v, n in zip(x, fields,
                                                                            strict=True))
-    return tuple(_entry_kinds(v, kind) for v in x)
+    return tuple(_entry_kinds(v, _item_kind(v, kind)) for v in x)
+
+
+def _item_kind(v: Any, kind: str) -> str:
+    """A plain tuple's item's kind: a bool's or an int's own, else the tuple's."""
+    if type(v) is bool:
+        return "b"
+    if type(v) is int:
+        return "i"
+    return kind
 
 
 def _floats_only(kinds: Any) -> bool:
@@ -104,8 +116,9 @@ def lower(fn: Callable[..., Any], example: Sequence[Any]) -> str:
 
 
 def shape_key(example: Sequence[Any]) -> str:
-    """The shapes of ``example`` as text (what the lowering depends on besides the code)."""
-    return repr(tuple(_entry_shape(x, "an argument") for x in example))
+    """The shapes of ``example`` and the kinds of its numbers as text (what the lowering
+    depends on besides the code: a plain tuple's ints index, its floats do not)."""
+    return repr(tuple((_entry_shape(x, "an argument"), _entry_kinds(x, "f")) for x in example))
 
 
 class Lowered(NamedTuple):

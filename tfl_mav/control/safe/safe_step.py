@@ -212,16 +212,6 @@ def target(p: SafeParams, lam: float, holding: bool, hold: tuple[float, float, f
     return found, lam, holding, hold, point, tangent, curvature, dist
 
 
-def _pick(values: tuple[float, ...], k: float) -> float:
-    """``values[k]`` for a k of 0-3 (the canonical rotor of a physical one: a plain tuple's
-    entries reach the seam as floats, not as the int an index needs)."""
-    v = 0.0
-    for i in range(4):
-        if k == i:
-            v = values[i]
-    return v
-
-
 def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
               ) -> tuple[SafeState, tuple[Any, ...]]:
     """One tick with a rotor attacked. ``inputs``: position m, velocity m/s, attitude
@@ -249,8 +239,8 @@ def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
         integral = integrated(integral, e, p.dt_s, p.integral_top_ms)
     canon, req = (c0, c1, c2, c3), (d0, c1, d2, d3)
     hi = fmax + 1e-9
-    f = tuple(_pick(canon, inverse[j]) for j in range(4))
-    clamped = tuple(not -1e-9 <= _pick(req, inverse[j]) <= hi for j in range(4))
+    f = tuple(canon[k] for k in inverse)
+    clamped = tuple(not -1e-9 <= req[k] <= hi for k in inverse)
     return (SafeState(lam, holding, hold, integral, drift, drift_age),
             (f, tilt_err, dist, uf, clamped))
 
