@@ -14,7 +14,8 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-__all__ = ["Bounds", "RotorFrame", "allocate_attacked", "allocate_nominal", "canonical_frame"]
+__all__ = ["Bounds", "RotorFrame", "allocate_attacked", "allocate_nominal", "canonical_frame",
+           "permuted"]
 
 Bounds = tuple[Sequence[float], Sequence[float]]
 """Per-rotor (lower, upper) thrust limits (N) for one control period."""
@@ -52,6 +53,13 @@ def canonical_frame(rotor: int) -> RotorFrame:
         3: ((0, 1, 0), (-1, 0, 0), (0, 0, 1)),
     }
     return RotorFrame(rotor, rots[k], perm, -1.0 if k % 2 else 1.0, bool(k % 2))  # type: ignore[arg-type]
+
+
+def permuted(values: Sequence[float], order: Sequence[int]) -> tuple[float, float, float, float]:
+    """(values[order[0]], …, values[order[3]]): four rotors' numbers relabelled — physical
+    to canonical with ``order`` = :attr:`RotorFrame.perm`, back with its inverse. (Written
+    out: a generator costs four times as much, and this runs twice a tick.)"""
+    return values[order[0]], values[order[1]], values[order[2]], values[order[3]]
 
 
 def allocate_nominal(uf: float, tau_p: float, tau_q: float, tau_r: float,

@@ -26,7 +26,7 @@ from tfl_mav.control.path import projection
 from tfl_mav.control.path.jetcode import TRACE_LIB, Sym, TJet, TraceError
 from tfl_mav.control.path.kernelgen import Kernel, compile_kernel
 from tfl_mav.control.path.paths import Path
-from tfl_mav.control.path.projection import PATH_START, VO_OK, lost_reason
+from tfl_mav.control.path.projection import PATH_START, VO, lost_reason
 from tfl_mav.control.path.tracker import (
     MIN_TUBE_MARGIN,
     PathTracker,
@@ -143,7 +143,7 @@ class CompiledPathTracker(PathTracker):
         k = self.kernels
         self._step = projection.linked(k.sigma2.fn, k.sigma5.fn, k.s4.fn,
                                           _pi_kernel().fn)["project"]
-        self.failure = ""       # the path's last error, in words (VO_FAILED)
+        self.failure = ""       # the path's last error, in words (VO.FAILED)
 
     @property   # type: ignore[override]
     def lam(self) -> float | None:
@@ -152,24 +152,24 @@ class CompiledPathTracker(PathTracker):
 
     @lam.setter
     def lam(self, value: float | None) -> None:
-        self.state = (self.state._replace(has_lam=0.0) if value is None
-                      else self.state._replace(has_lam=1.0, lam=float(value)))
+        self.state = (self.state._replace(has_lam=False) if value is None
+                      else self.state._replace(has_lam=True, lam=float(value)))
 
-    def start(self, y0: Sequence[float]) -> tuple[float, float, float]:
+    def start(self, y0: Sequence[float]) -> tuple[float, bool, bool]:
         """A global search for the closest point of ``y0`` (m), for a state without one:
-        (λ, converged 1/0, the path raised 1/0 — :attr:`failure` says what)."""
+        (λ, converged, the path raised — :attr:`failure` says what)."""
         try:
             lam, ok = closest_lam(self.path, y0)
         except (ValueError, ZeroDivisionError, OverflowError) as exc:
             self.failure = str(exc)
-            return 0.0, 0.0, 1.0
-        return lam, 1.0 if ok else 0.0, 0.0
+            return 0.0, False, True
+        return lam, bool(ok), False
 
     def virtual_output(self, taylor: Sequence[Sequence[float]]) -> VirtualOutput:
         """(α, π) derivatives and Dφ along the position's Taylor rows (x, y, z), each
         (y, ẏ, ÿ/2, y⃛/6, y⁽⁴⁾/24) in the paper frame (m)."""
         rows = tuple(tuple(r) for r in taylor)
-        lam_start, ok, failed = 0.0, 0.0, 0.0
+        lam_start, ok, failed = 0.0, False, False
         if not self.state.has_lam and math.isfinite(sum(rows[0]) + sum(rows[1])
                                                     + sum(rows[2])):
             lam_start, ok, failed = self.start((rows[0][0], rows[1][0], rows[2][0]))
@@ -178,9 +178,9 @@ class CompiledPathTracker(PathTracker):
             vo, self.state = self._step(*args, failed)
         except (ValueError, ZeroDivisionError, OverflowError) as exc:
             self.failure = str(exc)
-            vo, self.state = self._step(*args, 1.0)
+            vo, self.state = self._step(*args, True)
         code, xi1, xi2, eta, jac, lam, distance, margin = vo
-        if code != VO_OK:
+        if code != VO.OK:
             return VirtualOutput(xi1, xi2, eta, jac, lam, distance, False,
                                  lost_reason(code, distance, margin, self.failure))
         return VirtualOutput(xi1, xi2, eta, jac, lam, distance, True)

@@ -25,17 +25,26 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
+from enum import IntEnum
 from typing import Any, NamedTuple
 
 from tfl_mav.accel.frontend import relinked
 
-__all__ = ["NEWTON_ITERS", "PATH_START", "VO_FAILED", "VO_MARGIN", "VO_NONFINITE", "VO_NO_ROOT",
-           "VO_OK", "PathState", "arc", "linked", "lost_reason", "project"]
+__all__ = ["NEWTON_ITERS", "PATH_START", "VO", "PathState", "Projected", "arc", "linked",
+           "lost_reason", "project"]
 
 NEWTON_ITERS = 20       # Newton steps of the projection before it counts as lost
 
-# What the projection found (the first item of :func:`project`'s output).
-VO_OK, VO_NONFINITE, VO_NO_ROOT, VO_MARGIN, VO_FAILED = 0.0, 1.0, 2.0, 3.0, 4.0
+
+class VO(IntEnum):
+    """What the projection found (:attr:`Projected.code`)."""
+
+    OK = 0              # the closest point, inside the tube
+    NONFINITE = 1       # the position's rows are not finite
+    NO_ROOT = 2         # no closest point (Newton lost, or no λ to start from)
+    MARGIN = 3          # the closest point, but the tube is left (the margin below tube_min)
+    FAILED = 4          # evaluating the path raised
+    REFERENCE = 5       # the reference tracker lost it (its own words; not this step's)
 
 _ZERO5 = (0.0, 0.0, 0.0, 0.0, 0.0)
 _IDENTITY = ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0), (0.0, 0.0, 1.0))
@@ -45,17 +54,33 @@ class PathState(NamedTuple):
     """What the projection remembers: λ, the last two λ (the warm start), π, and σ's degree-5
     expansion at λ."""
 
-    has_lam: float
+    has_lam: bool               # ``lam`` is set
     lam: float
-    has_lam_prev: float
+    has_lam_prev: bool          # ``lam_prev`` is set
     lam_prev: float
     arc_m: float                # π: the arc length from the first projection (m)
-    has_expansion: float        # 1.0: ``expansion`` is σ's at ``expansion_lam``
+    has_expansion: bool         # ``expansion`` is σ's at ``expansion_lam``
     expansion_lam: float
     expansion: tuple[float, ...]    # σ⁽ʲ⁾/j!, j = 0…5, x y z each (18)
 
 
-PATH_START = PathState(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, (0.0,) * 18)
+PATH_START = PathState(False, 0.0, False, 0.0, 0.0, False, 0.0, (0.0,) * 18)
+
+V5 = tuple[float, float, float, float, float]
+V3 = tuple[float, float, float]
+
+
+class Projected(NamedTuple):
+    """The virtual output at one instant (:func:`project`)."""
+
+    code: VO                    # what the projection found
+    xi1: V5                     # α1 and its derivatives to order 4 (ξ1, eq. (14))
+    xi2: V5                     # α2 likewise (ξ2)
+    eta: V5                     # π likewise (η)
+    jacobian: tuple[V3, V3, V3]     # Dφ's rows (eq. (15)); the identity when lost
+    lam: float                  # λ of the closest point (NaN: none)
+    distance_m: float           # to it (NaN: none)
+    margin: float               # −∂g/∂λ / |σ'|² there (0: none)
 
 
 def _sigma2(a0: tuple[float]) -> tuple[float, ...]:
@@ -94,18 +119,17 @@ def arc(cp: Sequence[Any], cn: Sequence[Any], delta: Any,
 
 
 def project(tube_min: float, ps: PathState, rows: tuple[Any, ...], lam_start: float,
-            lam_start_ok: float, path_failed: float) -> tuple[tuple[Any, ...], PathState]:
+            lam_start_ok: bool, path_failed: bool) -> tuple[Projected, PathState]:
     """The virtual output along the position's Taylor ``rows`` (x, y, z, each (y, ẏ, ÿ/2,
-    y⃛/6, y⁽⁴⁾/24), m): ((VO_* code, ξ1, ξ2, η rows to order 4, the Jacobian rows Dφ
-    (eq. (15)), λ, distance m, margin), the state after it).
+    y⃛/6, y⁽⁴⁾/24), m) and the state after it.
 
     ``lam_start``/``lam_start_ok``: a global search's λ for a state without one (the
     holder's, :meth:`compiled.CompiledPathTracker.start`); ``path_failed``: evaluating the
-    path raised (VO_FAILED, nothing moves). Lost (any code but VO_OK): ξ, η zero, Dφ the
-    identity; λ and the distance NaN unless the closest point was found (VO_MARGIN)."""
+    path raised (VO.FAILED, nothing moves). Lost (any code but VO.OK): ξ, η zero, Dφ the
+    identity; λ and the distance NaN unless the closest point was found (VO.MARGIN)."""
     tx, ty, tz = rows
     yx, yy, yz = tx[0], ty[0], tz[0]
-    code = VO_OK
+    code = VO.OK
     xi1 = xi2 = eta = _ZERO5
     jac = _IDENTITY
     lam_out, distance, margin = math.nan, math.nan, 0.0
@@ -113,20 +137,20 @@ def project(tube_min: float, ps: PathState, rows: tuple[Any, ...], lam_start: fl
     if not math.isfinite((tx[0] + tx[1] + tx[2] + tx[3] + tx[4])
                          + (ty[0] + ty[1] + ty[2] + ty[3] + ty[4])
                          + (tz[0] + tz[1] + tz[2] + tz[3] + tz[4])):
-        code = VO_NONFINITE
+        code = VO.NONFINITE
     elif path_failed:
-        code = VO_FAILED
+        code = VO.FAILED
     elif not has_lam:
         if lam_start_ok and math.isfinite(lam_start):
-            has_lam, lam0 = 1.0, lam_start
+            has_lam, lam0 = True, lam_start
         else:
-            code = VO_NO_ROOT
+            code = VO.NO_ROOT
     ps = PathState(has_lam, lam0, ps.has_lam_prev, ps.lam_prev, ps.arc_m, ps.has_expansion,
                    ps.expansion_lam, ps.expansion)
-    if code == VO_OK:
+    if code == VO.OK:
         fresh = ps.has_expansion and ps.expansion_lam == lam0   # λ not moved from outside
         lam = 2.0 * lam0 - ps.lam_prev if fresh and ps.has_lam_prev else lam0
-        found = 0.0
+        found = False
         for _ in range(NEWTON_ITERS):
             c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = _sigma2((lam,))
             ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
@@ -138,15 +162,15 @@ def project(tube_min: float, ps: PathState, rows: tuple[Any, ...], lam_start: fl
             if not abs(lam - lam0) <= 0.05:
                 break
             if abs(step) < 1e-9:
-                found = 1.0
+                found = True
                 break
         if found:
             cp = ps.expansion
             if not fresh:
                 cp = _sigma5((lam0,))
             c = _sigma5((lam,))
-            ps = PathState(1.0, lam, 1.0, lam0, ps.arc_m + arc(cp, c, lam - lam0, math.sqrt),
-                           1.0, lam, c)
+            ps = PathState(True, lam, True, lam0, ps.arc_m + arc(cp, c, lam - lam0, math.sqrt),
+                           True, lam, c)
             lam_out = lam
             e0x, e0y, e0z = yx - c[0], yy - c[1], yz - c[2]
             c1x, c1y, c1z = c[3], c[4], c[5]
@@ -155,7 +179,7 @@ def project(tube_min: float, ps: PathState, rows: tuple[Any, ...], lam_start: fl
             margin = -slope / s1sq if s1sq > 0.0 else 0.0
             distance = math.sqrt(e0x ** 2 + e0y ** 2 + e0z ** 2)
             if margin < tube_min:
-                code = VO_MARGIN
+                code = VO.MARGIN
             else:
                 p1, p2, p3, p4 = _pi(c, tx, ty, tz, (slope,))
                 a = _s4(tx, ty, tz)
@@ -163,21 +187,21 @@ def project(tube_min: float, ps: PathState, rows: tuple[Any, ...], lam_start: fl
                 xi1, xi2, eta = a[0:5], a[5:10], (ps.arc_m, p1, p2, p3, p4)
                 jac = (a[10:13], a[13:16], (k * c1x, k * c1y, k * c1z))
         else:
-            code = VO_NO_ROOT
-    if code != VO_OK and code != VO_MARGIN:     # no closest point to speak of
+            code = VO.NO_ROOT
+    if code != VO.OK and code != VO.MARGIN:     # no closest point to speak of
         lam_out, distance = math.nan, math.nan
-    return (code, xi1, xi2, eta, jac, lam_out, distance, margin), ps
+    return Projected(code, xi1, xi2, eta, jac, lam_out, distance, margin), ps
 
 
-def lost_reason(code: float, distance_m: float, margin: float, failure: str) -> str:
-    """Why the projection was lost (a VO_* code other than VO_OK), in words; ``failure``: the
-    path's own error (VO_FAILED)."""
-    if code == VO_NONFINITE:
+def lost_reason(code: VO, distance_m: float, margin: float, failure: str) -> str:
+    """Why the projection was lost (a code other than VO.OK), in words; ``failure``: the
+    path's own error (VO.FAILED)."""
+    if code == VO.NONFINITE:
         return "non-finite state"
-    if code == VO_MARGIN:
+    if code == VO.MARGIN:
         return (f"distance {distance_m:.3f} m near the radius of curvature "
                 f"(projection margin {margin:.2f})")
-    if code == VO_FAILED:
+    if code == VO.FAILED:
         return f"path evaluation failed: {failure}"
     return "closest-point search did not converge"
 

@@ -94,7 +94,7 @@ class MassModel(NamedTuple):
 class MassState(NamedTuple):
     """What the mass estimator remembers."""
 
-    started: float                      # 1.0 once the filters hold a first sample
+    started: bool                       # the filters hold a first sample
     mass_kg: float                      # the estimate
     v_lp: tuple[float, float, float]    # LP(v) (m/s)
     phi_lp: tuple[float, float, float]  # LP(φ), φ = u_f b3 − k_t v (N)
@@ -113,7 +113,7 @@ def mass_model(model_mass_kg: float, gravity_mps2: float, k_t: float, accel_tau_
 
 def mass_start(model_mass_kg: float) -> MassState:
     """The estimator before its first sample: the model's mass."""
-    return MassState(0.0, model_mass_kg, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0)
+    return MassState(False, model_mass_kg, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0)
 
 
 def mass_update(m: MassModel, s: MassState, dt: float, v: V3, thrust_n: float, b3: V3
@@ -136,7 +136,7 @@ def mass_update(m: MassModel, s: MassState, dt: float, v: V3, thrust_n: float, b
         kt = m.k_t
         lx, ly, lz = vx, vy, vz
         px, py, pz = thrust_n * bx - kt * vx, thrust_n * by - kt * vy, thrust_n * bz - kt * vz
-    return MassState(1.0, mass, (lx, ly, lz), (px, py, pz), updates)
+    return MassState(True, mass, (lx, ly, lz), (px, py, pz), updates)
 
 
 class DobState(NamedTuple):
@@ -144,12 +144,12 @@ class DobState(NamedTuple):
 
     d_p: float          # the estimated disturbance of ṗ, q̇ (rad/s²)
     d_q: float
-    has_prev: float     # 1.0: the rates of the last tick are known
+    has_prev: bool      # the rates of the last tick are known
     prev_p: float       # p, q of the last tick (rad/s)
     prev_q: float
 
 
-DOB_START = DobState(0.0, 0.0, 0.0, 0.0, 0.0)
+DOB_START = DobState(0.0, 0.0, False, 0.0, 0.0)
 
 
 def dob_update(tau_s: float, limit_radps2: float, s: DobState, dt: float, p: float, q: float,
@@ -162,7 +162,7 @@ def dob_update(tau_s: float, limit_radps2: float, s: DobState, dt: float, p: flo
         a = dt / (tau_s + dt)
         d_p = clamp(dob_step(d_p, p, s.prev_p, pdot_pred, dt, a), -limit_radps2, limit_radps2)
         d_q = clamp(dob_step(d_q, q, s.prev_q, qdot_pred, dt, a), -limit_radps2, limit_radps2)
-    return DobState(d_p, d_q, 1.0, p, q)
+    return DobState(d_p, d_q, True, p, q)
 
 
 class TdobState(NamedTuple):
@@ -171,7 +171,7 @@ class TdobState(NamedTuple):
     d_x: float          # the estimated unmodelled acceleration (m/s²)
     d_y: float
     d_z: float          # 0 unless the vertical is estimated too
-    has_prev: float     # 1.0: the last tick's velocity and thrust axis are known
+    has_prev: bool      # the last tick's velocity and thrust axis are known
     prev_vx: float      # the velocity of the last tick (m/s)
     prev_vy: float
     prev_vz: float
@@ -180,17 +180,17 @@ class TdobState(NamedTuple):
     prev_bz: float
 
 
-TDOB_START = TdobState(0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
+TDOB_START = TdobState(0.0, 0.0, 0.0, False, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 def tdob_update(tau_s: float, limit_mps2: float, s: TdobState, dt: float, v: V3,
                 thrust_n: float, b3: V3, mass_kg: float, k_t: float, g: float,
-                vertical: float) -> TdobState:
+                vertical: bool) -> TdobState:
     """Feed the velocity measured now (m/s) with the total thrust applied over the last
     period (N), the thrust axis b3 and the model's mass (kg) and drag (N s/m): the
     measured − modelled acceleration through a first-order filter of ``tau_s`` (the rate
     observer's :func:`dob_step` on each axis), clamped to ±``limit_mps2``; vertically only
-    when ``vertical`` is 1.0 (``d_z`` stays 0 otherwise).
+    when ``vertical`` (``d_z`` stays 0 otherwise).
 
     In still air the mass estimator is the law's vertical integral action (a steady
     vertical force reads as a mass); an observer there too fights it through every change
@@ -218,5 +218,5 @@ def tdob_update(tau_s: float, limit_mps2: float, s: TdobState, dt: float, v: V3,
             mbz, mvz = 0.5 * (bz + s.prev_bz), 0.5 * (vz + s.prev_vz)
             d_z = clamp(dob_step(d_z, vz, s.prev_vz, ufm * mbz - ktm * mvz - g, dt, a),
                         -limit_mps2, limit_mps2)
-    return TdobState(d_x, d_y, d_z, 1.0, vx, vy, vz, bx, by, bz)
+    return TdobState(d_x, d_y, d_z, True, vx, vy, vz, bx, by, bz)
 

@@ -43,7 +43,7 @@ from tfl_mav.control.actuators import MotorLagInverter
 from tfl_mav.control.allocation import RotorFrame, canonical_frame
 from tfl_mav.control.path.compiled import CompiledPathTracker, _pi_kernel, make_tracker
 from tfl_mav.control.path.paths import Path
-from tfl_mav.control.path.projection import PATH_START, VO_OK, PathState, lost_reason
+from tfl_mav.control.path.projection import PATH_START, VO, PathState, Projected, lost_reason
 from tfl_mav.control.path.tracker import PathTracker
 from tfl_mav.control.tfl import step
 from tfl_mav.control.tfl.estimators import (
@@ -56,7 +56,7 @@ from tfl_mav.control.tfl.estimators import (
     mass_update,
 )
 from tfl_mav.control.tfl.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
-from tfl_mav.control.tfl.step import R_COND, R_THRUST, R_TUBE, Frame, TFLInputs, TFLParams, TFLState
+from tfl_mav.control.tfl.step import Fallback, Frame, TFLInputs, TFLParams, TFLState
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
 
@@ -66,7 +66,6 @@ _NOMINAL, _ATTACKED, _FALLBACK = Mode.NOMINAL, Mode.ATTACKED, Mode.FALLBACK  # e
 _new_output = tuple.__new__   # ControlOutput from its fields in order, no keyword parsing
 _new_tuple = tuple.__new__
 _ndarray = np.ndarray
-_VO_REFERENCE = -1.0          # the reference tracker's own reason (its text)
 _PATH_ERRORS = (ValueError, ZeroDivisionError, OverflowError)
 # The translational observer's bound per axis (m/s²): three times the rotor drag of an 8 m/s
 # wind (0.33 m/s² per m/s), far below what a sensor glitch differentiated would read.
@@ -87,13 +86,13 @@ def law_params(model: ModelParams, cfg: LawConfig, dt_s: float,
         float(model.thrust_max_n), float(model.inertia_kgm2[2]), float(cfg.speed_mps),
         float(cfg.min_thrust_n), float(cfg.max_cond), float(tube_min),
         float(cfg.settle_alpha), float(cfg.settle_time_s),
-        float(cfg.robust and cfg.mass_estimator), float(cfg.robust and cfg.disturbance_observer),
-        float(cfg.robust and cfg.gain_switch),
+        bool(cfg.robust and cfg.mass_estimator), bool(cfg.robust and cfg.disturbance_observer),
+        bool(cfg.robust and cfg.gain_switch),
         mass_model(float(model.mass_kg), g, float(model.k_t)),
         float(cfg.observer_tau_s), 500.0,
-        float(cfg.robust and cfg.translational_observer),
+        bool(cfg.robust and cfg.translational_observer),
         float(cfg.translational_observer_tau_s), TDOB_LIMIT_MPS2,
-        float(cfg.translational_observer_vertical),
+        bool(cfg.translational_observer_vertical),
         chain_gains(cfg.xi_pole, 4), chain_gains(cfg.eta_pole, 3),  # type: ignore[arg-type]
         chain_gains(cfg.xi_pole_fine, 4), chain_gains(cfg.eta_pole_fine, 3),  # type: ignore[arg-type]
         chain_gains(cfg.yaw_pole, 2))  # type: ignore[arg-type]
@@ -119,26 +118,23 @@ def frame_numbers(model: ModelParams, frame: RotorFrame | None) -> Frame:
         d = model.drag_thrust_ratio_m * frame.d_sign
         perm = frame.perm
     (m1, s1), (m2, s2) = axes
-    inv = tuple(float(perm.index(j)) for j in range(4))
-    return Frame(0.0 if frame is None else 1.0, float(m1), s1, float(m2), s2, ixyz, d,
-                 tuple(float(i) for i in perm), inv,  # type: ignore[arg-type]
+    inv = tuple(perm.index(j) for j in range(4))
+    return Frame(frame is not None, m1, s1, m2, s2, ixyz, d,
+                 tuple(perm), inv,  # type: ignore[arg-type]
                  2 * model.inertia_kgm2[0] * d)
 
 
 def initial_state(model: ModelParams) -> TFLState:
     """The law before its first tick: u_f at the model's hover thrust, nothing learnt."""
     hover = model.mass_kg * model.gravity_mps2
-    return TFLState(hover, 0.0, mass_start(float(model.mass_kg)), DOB_START, TDOB_START, 0.0,
-                    (0.0, 0.0), (hover / 4.0,) * 4, 0.0, 0.0, 0.0, 0.0, PATH_START)
+    return TFLState(hover, 0.0, mass_start(float(model.mass_kg)), DOB_START, TDOB_START, False,
+                    (0.0, 0.0), (hover / 4.0,) * 4, False, 0.0, False, 0.0, PATH_START)
 
 
 _NESTED = {TFLState._fields.index(name): kind for name, kind in (
     ("mass", step.MassState), ("dob", step.DobState), ("tdob", step.TdobState),
     ("path", PathState))}
-_X13, _X14, _MASS, _FINE, _PATH = (TFLState._fields.index(n)
-                                   for n in ("x13", "x14", "mass", "fine", "path"))
-_MASS_KG = step.MassState._fields.index("mass_kg")
-_MASS_UPDATES = step.MassState._fields.index("updates")
+_MASS = TFLState._fields.index("mass")     # track's new state built without _replace
 
 
 def as_state(s: Any) -> TFLState:
@@ -195,7 +191,7 @@ class TFLController:
             self.lag_inverter.set_rpm_noise(rpm_noise_std)
         fmax = float(model.thrust_max_n)
         self._free = ((0.0, 0.0, 0.0, 0.0), (fmax, fmax, fmax, fmax))
-        self._failure = ""          # the last path evaluation error (VO_FAILED's words)
+        self._failure = ""          # the last path evaluation error (VO.FAILED's words)
         self._vo_reason = ""        # the reference tracker's words
         # The step on this path's kernels; compiled by the seam where it is built.
         self._linked_for: PathTracker | None = None
@@ -220,7 +216,7 @@ class TFLController:
 
         example = (self.params, self.state, self._inputs((0.0,) * 3, (0.0,) * 3,
                                                          (1.0, 0.0, 0.0, 0.0), (0.0,) * 3,
-                                                         *self._free, 0.0, 0.0, 0.0))
+                                                         *self._free, 0.0, False, False))
         core = native.obtain_function(self._step, example, ready)
         if core is not None:
             ready(core)
@@ -247,7 +243,7 @@ class TFLController:
         self._track_core = core     # one reference store: atomic under the GIL
 
     def _inputs(self, y: Any, v: Any, quat: Any, rates: Any, lo: Any, hi: Any,
-                lam_start: float, ok: float, failed: float) -> TFLInputs:
+                lam_start: float, ok: bool, failed: bool) -> TFLInputs:
         return TFLInputs(y, v, quat, rates, self._frame, self.attack_estimate_n, lo, hi,
                          lam_start, ok, failed)
 
@@ -288,7 +284,7 @@ class TFLController:
     @property
     def x13(self) -> float:
         """u_f (N), the dynamic extension's first state (eq. (9))."""
-        return float(self.state[_X13])
+        return float(self.state.x13)
 
     @x13.setter
     def x13(self, value: float) -> None:
@@ -297,7 +293,7 @@ class TFLController:
     @property
     def x14(self) -> float:
         """u̇_f (N/s), the dynamic extension's second state (eq. (9))."""
-        return float(self.state[_X14])
+        return float(self.state.x14)
 
     @x14.setter
     def x14(self, value: float) -> None:
@@ -306,17 +302,17 @@ class TFLController:
     @property
     def mass_kg(self) -> float:
         """The mass the law flies with (kg): the estimate when the estimator runs."""
-        return float(self.state[_MASS][_MASS_KG])
+        return float(self.state.mass.mass_kg)
 
     @property
     def mass_learnt_s(self) -> float:
         """How long the mass estimator has learnt (s of ticks it took a sample from)."""
-        return float(self.state[_MASS][_MASS_UPDATES]) * self._dt
+        return float(self.state.mass.updates) * self._dt
 
     @property
     def fine(self) -> bool:
         """True once the law has switched to the fine ξ, η poles."""
-        return bool(self.state[_FINE])
+        return self.state.fine
 
     @property
     def k_xi(self) -> tuple[float, ...]:
@@ -333,8 +329,8 @@ class TFLController:
         """The path parameter of the closest point (None before the first projection)."""
         if self._linked_for is not self.tracker:
             return self.tracker.lam
-        ps = self.state[_PATH]
-        return float(ps[1]) if ps[0] else None
+        ps = self.state.path
+        return ps.lam if ps.has_lam else None
 
     # ------------------------------------------------------------------ configuration
     def resume(self, thrust_n: Sequence[float], lam: float | None = None) -> None:
@@ -345,14 +341,14 @@ class TFLController:
         s = as_state(self.state)
         ps = s.path
         if lam is not None:
-            ps = ps._replace(has_lam=1.0, lam=lam)
+            ps = ps._replace(has_lam=True, lam=lam)
             if self._linked_for is not self.tracker:
                 self.tracker.lam = lam
         # The mass estimator has kept learning while the other law flew (:meth:`track`).
         # The translational observer keeps what it learnt (the air did not change with the
         # law), but not the velocity of the last tick it saw, ticks ago.
         self.state = s._replace(x13=sum(thrust_n), x14=0.0, dob=DOB_START,
-                                tdob=s.tdob._replace(has_prev=0.0), has_pred=0.0,
+                                tdob=s.tdob._replace(has_prev=False), has_pred=False,
                                 last_out=tuple(thrust_n), path=ps)
         if self.lag_inverter is not None:
             self.lag_inverter.reset()
@@ -391,7 +387,7 @@ class TFLController:
             self.attacked_rotor = rotor
             self.frame = canonical_frame(rotor) if rotor else None
             self._frame = frame_numbers(self.model, self.frame)
-            self._set(dob=DOB_START, has_pred=0.0)
+            self._set(dob=DOB_START, has_pred=False)
             if self.lag_inverter is not None:
                 self.lag_inverter.reset()
         self.attack_estimate_n = float(estimate_n)
@@ -425,8 +421,8 @@ class TFLController:
         st = self.state
         trk = self.tracker
         if self._linked_for is trk:
-            lam_start, ok, failed = 0.0, 0.0, 0.0
-            if not st[_PATH][0]:            # no λ yet: a global search first
+            lam_start, ok, failed = 0.0, False, False
+            if not st.path.has_lam:         # no λ yet: a global search first
                 lam_start, ok, failed = trk.start(y)
                 self._failure = trk.failure
             u = TFLInputs(y, v, quat, rates, self._frame, self.attack_estimate_n, lo, hi,
@@ -439,7 +435,7 @@ class TFLController:
                     r = self._step(self.params, st, u)
                 except _PATH_ERRORS as exc:
                     self._failure = str(exc)
-                    r = self._step(self.params, st, u._replace(path_failed=1.0))
+                    r = self._step(self.params, st, u._replace(path_failed=True))
         else:
             r = self._reference_tick(as_state(st), y, v, quat, rates, lo, hi)
         new, out = r
@@ -461,20 +457,20 @@ class TFLController:
         # ControlOutput's fields in order, built as the tuple it is (a keyword call of a
         # named tuple costs more than a microsecond a tick).
         return _new_output(ControlOutput, (
-            command, mode, [sat[0] != 0.0, sat[1] != 0.0, sat[2] != 0.0, sat[3] != 0.0],
-            xi, eta, mu, distance, lam, cond, uf, mass, dob, fine != 0.0, text, demand))
+            command, mode, list(sat), xi, eta, mu, distance, lam, cond, uf, mass, dob, fine,
+            text, demand))
 
     def _reference_tick(self, st: TFLState, y: Any, v: Any, quat: Any, rates: Any, lo: Any,
                         hi: Any) -> tuple[Any, Any]:
         """The step with the reference tracker's virtual output for :func:`step.project`."""
         u = TFLInputs(y, v, quat, rates, self._frame, self.attack_estimate_n, lo, hi, 0.0,
-                      0.0, 0.0)
+                      False, False)
         seen = step.observe(self.params, st, u)
-        vo = self.tracker.virtual_output(seen[9])
+        vo = self.tracker.virtual_output(seen.rows)
         self._vo_reason = vo.reason
-        packed = (VO_OK if vo.in_tube else _VO_REFERENCE, vo.xi1, vo.xi2, vo.eta,
-                  vo.jacobian, vo.lam, vo.distance_m, 0.0)
-        return step.command(self.params, st, u, seen, packed, st.path)
+        projected = Projected(VO.OK if vo.in_tube else VO.REFERENCE, vo.xi1, vo.xi2, vo.eta,
+                              vo.jacobian, vo.lam, vo.distance_m, 0.0)
+        return step.command(self.params, st, u, seen, projected, st.path)
 
     def _invert_lag(self, f: Sequence[float], new: Any, canon_rates: Any
                     ) -> tuple[list[float], Any]:
@@ -494,15 +490,15 @@ class TFLController:
         new = as_state(new)._replace(pred=pred, last_out=tuple(delivered))
         return command, new
 
-    def _reason_text(self, reason: float, code: float, distance: float, margin: float,
+    def _reason_text(self, reason: Fallback, code: VO, distance: float, margin: float,
                      uf: float, cond: float) -> str:
         """Why the law fell back, in words."""
-        if reason == R_TUBE:
-            why = (self._vo_reason if code == _VO_REFERENCE
+        if reason == Fallback.TUBE:
+            why = (self._vo_reason if code == VO.REFERENCE
                    else lost_reason(code, distance, margin, self._failure))
             return f"left the projection tube: {why}"
-        if reason == R_THRUST:
+        if reason == Fallback.THRUST:
             return f"total thrust {uf:.2f} N too small: D(x) singular"
-        if reason == R_COND:
+        if reason == Fallback.COND:
             return f"decoupling matrix ill-conditioned (cond {cond:.1e})"
         return "non-finite control (numerical failure)"

@@ -1,7 +1,8 @@
 """The TFL law's tick (paper §V) as explicit state and one pure step.
 
 :func:`tfl_step` is one control period: ``tfl_step(params, state, inputs) -> (state,
-outputs)``, in plain Python over NamedTuples of floats, the law's only hand-written form.
+outputs)``, in plain Python over NamedTuples of floats, flags (bool) and codes (IntEnum),
+the law's only hand-written form.
 In the order the paper builds the law:
 
 1. :func:`observe` — the attitude R(q) and the body axes bᵢ = R eᵢ (eq. (1)), relabelled to
@@ -19,8 +20,8 @@ In the order the paper builds the law:
    extension (eq. (9)) and the one-time switch to the fine poles.
 
 Where the law cannot act (the projection lost, u_f too small, Dφ singular or ill-conditioned,
-a non-finite result) it damps the rates and holds the thrust, and says why: ``reason`` is one
-of the ``R_*`` codes, the text is the holder's (:class:`~tfl_mav.control.tfl.law.TFLController`).
+a non-finite result) it damps the rates and holds the thrust, and says why: ``reason`` is a
+:class:`Fallback` code, the text is the holder's (:class:`~tfl_mav.control.tfl.law.TFLController`).
 The accelerator seam (:func:`tfl_mav.accel.native.obtain_function`) compiles :func:`tfl_step`
 with the path's kernels inlined — the same operations in the same order, the same bits —
 and this very Python flies wherever it is not built.
@@ -29,12 +30,13 @@ and this very Python flies wherever it is not built.
 from __future__ import annotations
 
 import math
+from enum import IntEnum
 from typing import Any, NamedTuple
 
 from tfl_mav.accel.frontend import relinked
-from tfl_mav.control.allocation import allocate_attacked, allocate_nominal
+from tfl_mav.control.allocation import allocate_attacked, allocate_nominal, permuted
 from tfl_mav.control.path import projection
-from tfl_mav.control.path.projection import VO_OK, PathState, project
+from tfl_mav.control.path.projection import VO, PathState, Projected, project
 from tfl_mav.control.tfl.estimators import (
     DobState,
     MassModel,
@@ -57,15 +59,23 @@ from tfl_mav.control.tfl.law_math import (
     yaw_tau_r,
 )
 
-__all__ = ["R_COND", "R_NONE", "R_NONFINITE", "R_THRUST", "R_TUBE", "Frame", "TFLInputs",
-           "TFLOutputs", "TFLParams", "TFLState", "command", "linked", "observe", "predict",
-           "tfl_step"]
+__all__ = ["Fallback", "Frame", "Seen", "TFLInputs", "TFLOutputs", "TFLParams", "TFLState",
+           "command", "linked", "observe", "predict", "tfl_step"]
 
-# Why the law fell back (``TFLOutputs.reason``).
-R_NONE, R_TUBE, R_THRUST, R_COND, R_NONFINITE = 0.0, 1.0, 2.0, 3.0, 4.0
+
+class Fallback(IntEnum):
+    """Why the law fell back (``TFLOutputs.reason``): rates damped, thrust held."""
+
+    NONE = 0            # it did not
+    TUBE = 1            # the projection is lost (``TFLOutputs.vo_code`` says how)
+    THRUST = 2          # u_f below ``min_thrust_n``: D(x) singular
+    COND = 3            # cond(Dφ) above ``max_cond``
+    NONFINITE = 4       # the decoupling solve gave a non-finite ü_f, ṗ or q̇
+
 
 V3 = tuple[float, float, float]
 V4 = tuple[float, float, float, float]
+I4 = tuple[int, int, int, int]
 _INF4 = (math.inf, math.inf, math.inf, math.inf)
 _ZERO4 = (0.0, 0.0, 0.0, 0.0)
 
@@ -86,16 +96,16 @@ class TFLParams(NamedTuple):
     tube_min: float             # the projection's margin below this: the tube is left
     settle_alpha: float         # |α| below this …
     settle_time_s: float        # … for this long switches to the fine poles
-    use_mass: float             # 1.0: the mass estimator runs
-    use_dob: float              # 1.0: the rate disturbance observer runs
-    use_switch: float           # 1.0: the one-time switch to the fine poles
+    use_mass: bool              # the mass estimator runs
+    use_dob: bool               # the rate disturbance observer runs
+    use_switch: bool            # the one-time switch to the fine poles
     mass: MassModel             # the mass estimator's constants
     dob_tau_s: float            # the observer's filter (s)
     dob_limit: float            # |d| ≤ this (rad/s²)
-    use_tdob: float             # 1.0: the translational disturbance observer runs
+    use_tdob: bool              # the translational disturbance observer runs
     tdob_tau_s: float           # its filter (s)
     tdob_limit: float           # |d| ≤ this per axis (m/s²)
-    tdob_vertical: float        # 1.0: it estimates the vertical too
+    tdob_vertical: bool         # it estimates the vertical too
     k_xi: V4                    # ξ chain gains k₀…k₃ (eq. (23))
     k_eta: V3                   # η chain gains k₀…k₂ (eq. (24))
     k_xi_fine: V4               # the same after the switch
@@ -107,15 +117,15 @@ class Frame(NamedTuple):
     """The canonical frame of the attacked rotor (:func:`allocation.canonical_frame`) as
     numbers: b1' = s1 · (column m1 of R), p' = s1 · Ω[m1] (m ∈ {0, 1}), likewise b2', q'."""
 
-    attacked: float             # 1.0: a rotor is attacked (f₂' = A), 0.0: all four are ours
-    m1: float
+    attacked: bool              # a rotor is attacked (f₂' = A); False: all four are ours
+    m1: int
     s1: float
-    m2: float
+    m2: int
     s2: float
     ixyz: V3                    # (I_x', I_y', I_z') kg m²
     d_m: float                  # the yaw-reaction ratio d' (m)
-    perm: V4                    # the physical rotor (0-3) of canonical rotor i
-    inv_perm: V4                # the canonical rotor of physical rotor j
+    perm: I4                    # the physical rotor (0-3) of canonical rotor i
+    inv_perm: I4                # the canonical rotor of physical rotor j
     mu_den: float               # 2 I_x d' (μ2 = −p/I_z − l r/(2 I_x d), eq. (18))
 
 
@@ -127,12 +137,12 @@ class TFLState(NamedTuple):
     mass: MassState
     dob: DobState
     tdob: TdobState             # the translational observer (paper frame, horizontal)
-    has_pred: float             # 1.0: ``pred`` holds the model's ṗ, q̇ for the last command
+    has_pred: bool              # ``pred`` holds the model's ṗ, q̇ for the last command
     pred: tuple[float, float]   # (rad/s²)
     last_out: V4                # the thrusts the rotors deliver over the last period (N)
-    has_psi_ref: float
+    has_psi_ref: bool           # ``psi_ref`` is set
     psi_ref: float              # the nominal law's yaw set point (rad)
-    fine: float                 # 1.0: the fine poles
+    fine: bool                  # the fine poles
     settled_s: float            # time |α| has stayed below ``settle_alpha`` (s)
     path: PathState
 
@@ -149,16 +159,17 @@ class TFLInputs(NamedTuple):
     lo_n: V4                    # what each physical rotor can reach this period (N)
     hi_n: V4
     lam_start: float            # λ of a global search when the state has none
-    lam_start_ok: float         # 1.0: that search converged
-    path_failed: float          # 1.0: evaluating the path raised (the holder has the error)
+    lam_start_ok: bool          # that search converged
+    path_failed: bool           # evaluating the path raised (the holder has the error)
 
 
 class TFLOutputs(NamedTuple):
     """One decision (physical rotor order, N) and the internals worth logging."""
 
     command_n: V4               # thrusts within [0, f_max]; the attacked rotor: A
-    attacked: float             # 1.0: the attacked law flew
-    saturated: V4               # 1.0: that rotor's unbounded demand left [0, f_max]
+    attacked: bool              # the attacked law flew
+    saturated: tuple[bool, bool, bool, bool]    # that rotor's unbounded demand left
+                                                # [0, f_max]
     xi: tuple[V4, V4]           # (α1, α̇1, α̈1, α⃛1), the same for α2
     eta: V4                     # (π, π̇, π̈, π⃛)
     mu: tuple[float, float]     # (ψ, μ2), eq. (18)
@@ -168,44 +179,47 @@ class TFLOutputs(NamedTuple):
     uf_n: float                 # u_f this tick
     mass_kg: float              # the mass the law used
     dob: tuple[float, float]    # the observer's estimate (rad/s²)
-    fine: float
-    reason: float               # R_*: why it fell back (R_NONE: it did not)
-    vo_code: float              # VO_*: what the projection found
-    margin: float               # the projection's margin (VO_MARGIN's)
+    fine: bool
+    reason: Fallback            # why it fell back (Fallback.NONE: it did not)
+    vo_code: VO                 # what the projection found
+    margin: float               # the projection's margin (VO.MARGIN's)
     rates: V3                   # canonical (p, q, r) rad/s: :func:`predict`'s
-    saturated_any: float
+    saturated_any: bool
     demand_n: V4                # the unbounded allocation (N, physical): what the law asks
 
 
-def _pick(values: tuple[float, ...], k: float) -> float:
-    """``values[k]`` for a k of 0.0-3.0 (an index the compiled form can take)."""
-    return values[0] if k == 0.0 else (values[1] if k == 1.0 else (
-        values[2] if k == 2.0 else values[3]))
+class Seen(NamedTuple):
+    """The state as the law sees it this tick (:func:`observe`)."""
+
+    psi: float                  # ψ = atan2(R₁₀, R₀₀) (rad)
+    r2: V3                      # R's last row
+    b1: V3                      # the canonical body axes b1', b2', b3 (eq. (1))
+    b2: V3
+    b3: V3
+    rates: V3                   # canonical (p, q, r) rad/s
+    mass: MassState             # the estimators after this tick
+    dob: DobState
+    mass_kg: float              # the mass the law uses
+    rows: tuple[tuple[float, ...], tuple[float, ...], tuple[float, ...]]
+                                # the output's Taylor rows x, y, z, each (y, ẏ, ÿ/2, y⃛/6,
+                                # a₀/24), eqs. (3), (5), (9)
+    tdob: TdobState
 
 
-def _permuted(values: V4, perm: V4) -> V4:
-    """(values[perm[0]], …, values[perm[3]])."""
-    return (_pick(values, perm[0]), _pick(values, perm[1]), _pick(values, perm[2]),
-            _pick(values, perm[3]))
-
-
-def observe(p: TFLParams, s: TFLState, u: TFLInputs) -> tuple[Any, ...]:
-    """The state seen by the law: ψ, R's last row, the canonical b1, b2, b3 and (p, q, r),
-    the estimators after this tick, the mass used and the output's Taylor rows (x, y, z,
-    each (y, ẏ, ÿ/2, y⃛/6, a₀/24), eqs. (3), (5), (9))."""
+def observe(p: TFLParams, s: TFLState, u: TFLInputs) -> Seen:
+    """The state seen by the law (:class:`Seen`): ψ, R's last row, the canonical b1', b2',
+    b3 and (p, q, r), the estimators fed with what was applied, and the output's Taylor
+    rows."""
     fr = u.frame
     r00, r01, r02, r10, r11, r12, r20, r21, r22 = rotation(u.quaternion_wxyz)
     psi = math.atan2(r10, r00)
+    row0, row1, row2 = (r00, r01, r02), (r10, r11, r12), (r20, r21, r22)
     m1, s1, m2, s2 = fr.m1, fr.s1, fr.m2, fr.s2
-    b1 = (s1 * (r00 if m1 == 0.0 else r01), s1 * (r10 if m1 == 0.0 else r11),
-          s1 * (r20 if m1 == 0.0 else r21))
-    b2 = (s2 * (r00 if m2 == 0.0 else r01), s2 * (r10 if m2 == 0.0 else r11),
-          s2 * (r20 if m2 == 0.0 else r21))
+    b1 = (s1 * row0[m1], s1 * row1[m1], s1 * row2[m1])
+    b2 = (s2 * row0[m2], s2 * row1[m2], s2 * row2[m2])
     b3 = (r02, r12, r22)
-    wp, wq, wr = u.body_rates_radps
-    pc = s1 * (wp if m1 == 0.0 else wq)
-    qc = s2 * (wp if m2 == 0.0 else wq)
-    rc = wr
+    w = u.body_rates_radps
+    pc, qc, rc = s1 * w[m1], s2 * w[m2], w[2]
     v = u.velocity_mps
     # The estimators, fed with what was applied over the last period.
     mass_s = s.mass
@@ -225,7 +239,8 @@ def observe(p: TFLParams, s: TFLState, u: TFLInputs) -> tuple[Any, ...]:
                              p.tdob_vertical)
     rows = output_rows(u.position_m, v, b1, b2, b3, pc, qc, rc, s.x13, s.x14, mass, p.k_t,
                        p.gravity_mps2, (tdob_s.d_x, tdob_s.d_y, tdob_s.d_z))
-    return psi, (r20, r21, r22), b1, b2, b3, (pc, qc, rc), mass_s, dob_s, mass, rows, tdob_s
+    return Seen(psi, (r20, r21, r22), b1, b2, b3, (pc, qc, rc), mass_s, dob_s, mass, rows,
+                tdob_s)
 
 
 def predict(p: TFLParams, fr: Frame, delivered: V4, rates: V3) -> tuple[float, float]:
@@ -233,17 +248,17 @@ def predict(p: TFLParams, fr: Frame, delivered: V4, rates: V3) -> tuple[float, f
     (N) at the canonical rates (p, q, r): what the observer compares the next tick with."""
     pc, qc, rc = rates
     ix, iy, iz = fr.ixyz
-    d0, d1, d2, d3 = _permuted(delivered, fr.perm)
+    d0, d1, d2, d3 = permuted(delivered, fr.perm)   # canonical order
     return rate_prediction(d0, d1, d2, d3, pc, qc, rc, ix, iy, iz, p.k_r, p.arm_m)
 
 
-def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: tuple[Any, ...],
-            vo: tuple[Any, ...], ps: PathState) -> tuple[TFLState, TFLOutputs]:
+def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: Seen, vo: Projected,
+            ps: PathState) -> tuple[TFLState, TFLOutputs]:
     """The rest of the tick from what :func:`observe` saw and the virtual output ``vo``
-    (:func:`project`'s, or the reference tracker's packed the same way)."""
-    psi, r2, b1, b2, b3, rates, mass_s, dob_s, mass, _rows, tdob_s = seen
-    code, xi1, xi2, eta, jac, lam, distance, margin = vo
-    pc, qc, rc = rates
+    (:func:`project`'s, or the reference tracker's as the same type)."""
+    psi, b1, b2, b3, mass = seen.psi, seen.b1, seen.b2, seen.b3, seen.mass_kg
+    xi1, xi2, eta = vo.xi1, vo.xi2, vo.eta
+    pc, qc, rc = seen.rates
     fr = u.frame
     uf, duf = s.x13, s.x14
     fine = s.fine
@@ -252,29 +267,29 @@ def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: tuple[Any, ...],
     kx = p.k_xi_fine if fine else p.k_xi
     ke = p.k_eta_fine if fine else p.k_eta
     rhs = linear_rhs(xi1, xi2, eta, kx, ke, p.speed_mps)
-    reason = R_NONE
-    if code != VO_OK:
-        reason = R_TUBE
+    reason = Fallback.NONE
+    if vo.code != VO.OK:
+        reason = Fallback.TUBE
     elif uf < p.min_thrust_n:
-        reason = R_THRUST
+        reason = Fallback.THRUST
     # First Dφ z = rhs (z = B₀ w, the commanded snap) …
-    z, rel = solve3(jac, rhs)
+    z, rel = solve3(vo.jacobian, rhs)
     cond = 1.0 / rel if rel > 0 else math.inf
-    if reason == R_NONE and cond > p.max_cond:
-        reason = R_COND
+    if reason == Fallback.NONE and cond > p.max_cond:
+        reason = Fallback.COND
     # … then B₀ w = z with B₀ = [b3/m, −(u_f/m) b2, (u_f/m) b1]: orthogonal columns.
     if uf > 0:
         udd, pdot, qdot = b0_inverse(z, b1, b2, b3, mass, uf)
     else:
         udd, pdot, qdot = mass * (z[0] * b3[0] + z[1] * b3[1] + z[2] * b3[2]), 0.0, 0.0
-    if reason == R_NONE and not (math.isfinite(udd) and math.isfinite(pdot)
-                                 and math.isfinite(qdot)):
-        reason = R_NONFINITE
-    if reason != R_NONE:        # rates damped, thrust held
+    if reason == Fallback.NONE and not (math.isfinite(udd) and math.isfinite(pdot)
+                                        and math.isfinite(qdot)):
+        reason = Fallback.NONFINITE
+    if reason != Fallback.NONE:     # rates damped, thrust held
         udd, pdot, qdot = -4.0 * duf, -20.0 * pc, -20.0 * qc
     if p.use_dob:
-        pdot -= dob_s.d_p
-        qdot -= dob_s.d_q
+        pdot -= seen.dob.d_p
+        qdot -= seen.dob.d_q
     ix, iy, iz = fr.ixyz
     tau_p, tau_q = torques(pdot, qdot, pc, qc, rc, ix, iy, iz, p.k_r)
     # The rotors: f₂' = A and τ_r from τ_p (eq. (6)), or all four with the yaw loop.
@@ -282,24 +297,24 @@ def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: tuple[Any, ...],
     a_n = u.attack_n
     psi_ref = s.psi_ref if s.has_psi_ref else psi
     if fr.attacked:
-        lo, hi = _permuted(u.lo_n, fr.perm), _permuted(u.hi_n, fr.perm)   # canonical order
+        lo, hi = permuted(u.lo_n, fr.perm), permuted(u.hi_n, fr.perm)   # canonical order
         tau_r = attacked_tau_r(uf, tau_p, a_n, arm, d)
         raw_c = allocate_attacked(uf, tau_q, tau_r, a_n, arm, d, math.inf, (_ZERO4, _INF4))
         f_c = allocate_attacked(uf, tau_q, tau_r, a_n, arm, d, fmax, (lo, hi))
-        raw, f = _permuted(raw_c, fr.inv_perm), _permuted(f_c, fr.inv_perm)  # physical
+        raw, f = permuted(raw_c, fr.inv_perm), permuted(f_c, fr.inv_perm)  # physical order
     else:
-        tau_r = yaw_tau_r(r2, psi, psi_ref, pc, qc, rc, qdot, p.k_yaw, fr.ixyz, p.k_r)
+        tau_r = yaw_tau_r(seen.r2, psi, psi_ref, pc, qc, rc, qdot, p.k_yaw, fr.ixyz, p.k_r)
         raw = allocate_nominal(uf, tau_p, tau_q, tau_r, arm, d, math.inf, (_ZERO4, _INF4))
         f = allocate_nominal(uf, tau_p, tau_q, tau_r, arm, d, fmax, (u.lo_n, u.hi_n))
     # Clip to [0, f_max]; the attacked rotor is given what it is (not ours to command).
     f, sat = saturate(f, raw, s.last_out, fmax)
     if fr.attacked:
-        p1 = fr.perm[1]
-        f = (a_n if p1 == 0.0 else f[0], a_n if p1 == 1.0 else f[1], a_n if p1 == 2.0 else f[2],
-             a_n if p1 == 3.0 else f[3])
-    sat_any = 1.0 if sat[0] or sat[1] or sat[2] or sat[3] else 0.0
+        attacked = fr.perm[1]       # canonical rotor 2's physical index
+        f = (a_n if attacked == 0 else f[0], a_n if attacked == 1 else f[1],
+             a_n if attacked == 2 else f[2], a_n if attacked == 3 else f[3])
+    sat_any = sat[0] or sat[1] or sat[2] or sat[3]
     applied_uf = f[0] + f[1] + f[2] + f[3]
-    pred = predict(p, fr, f, rates)
+    pred = predict(p, fr, f, seen.rates)
     # The dynamic extension (eq. (9)), kept consistent with the thrust actually applied
     # (anti-windup at the limits).
     dt = p.dt_s
@@ -312,27 +327,26 @@ def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: tuple[Any, ...],
     x14 = x14 + dt * udd
     # The one-time switch to the fine ξ, η poles once |α| has stayed small long enough.
     settled = s.settled_s
-    if p.use_switch and not fine and reason == R_NONE:
+    if p.use_switch and not fine and reason == Fallback.NONE:
         settled = settled + dt if math.hypot(xi1[0], xi2[0]) < p.settle_alpha else 0.0
         if settled >= p.settle_time_s:
-            fine = 1.0
+            fine = True
     wp, _wq, wr = u.body_rates_radps
-    state = TFLState(x13, x14, mass_s, dob_s, tdob_s, 1.0, pred, f, 1.0, psi_ref, fine, settled,
-                     ps)
+    state = TFLState(x13, x14, seen.mass, seen.dob, seen.tdob, True, pred, f, True, psi_ref,
+                     fine, settled, ps)
     out = TFLOutputs(
-        f, fr.attacked, (1.0 if sat[0] else 0.0, 1.0 if sat[1] else 0.0,
-                         1.0 if sat[2] else 0.0, 1.0 if sat[3] else 0.0),
+        f, fr.attacked, (sat[0], sat[1], sat[2], sat[3]),
         ((xi1[0], xi1[1], xi1[2], xi1[3]), (xi2[0], xi2[1], xi2[2], xi2[3])),
         (eta[0], eta[1], eta[2], eta[3]), (psi, -wp / p.iz_kgm2 - arm * wr / fr.mu_den),
-        distance, lam, cond, uf, mass, (dob_s.d_p, dob_s.d_q), fine, reason, code, margin,
-        rates, sat_any, (raw[0], raw[1], raw[2], raw[3]))
+        vo.distance_m, vo.lam, cond, uf, mass, (seen.dob.d_p, seen.dob.d_q), fine, reason,
+        vo.code, vo.margin, seen.rates, sat_any, (raw[0], raw[1], raw[2], raw[3]))
     return state, out
 
 
 def tfl_step(p: TFLParams, s: TFLState, u: TFLInputs) -> tuple[TFLState, TFLOutputs]:
     """One control period of the law (module doc): the new state and the decision."""
     seen = observe(p, s, u)
-    vo, ps = project(p.tube_min, s.path, seen[9], u.lam_start, u.lam_start_ok, u.path_failed)
+    vo, ps = project(p.tube_min, s.path, seen.rows, u.lam_start, u.lam_start_ok, u.path_failed)
     return command(p, s, u, seen, vo, ps)
 
 
