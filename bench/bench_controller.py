@@ -121,7 +121,7 @@ def time_law(sc: Scenario, ticks: int, compiled_path: bool, core: str | None = N
 # ----- breakdown ----------------------------------------------------------------------------
 COMPILED = "the compiled step (one call)"
 # The step's pieces (tfl_mav.control.tfl.step), wrapped where the flying step calls them: in
-# the namespace of the path's linked step, and in the module (the reference tracker's tick).
+# the module, where tfl_step (and the reference tracker's tick) look them up.
 PIECES = [("observe: R, axes, estimators, rows (1), (3), (9)", "observe"),
           ("project: closest point, π, α, Dφ (13)-(15)", "project"),
           ("command: (21), (3), allocation (4), (6), (9)", "command")]
@@ -184,17 +184,13 @@ def breakdown(sc: Scenario, ticks: int, compiled_path: bool, core: str | None = 
         if fn is not None:
             saved.append((owner, name, fn))
             setattr(owner, name, wrap(label, fn))
-    spaces = [vars(step)]
-
     def wrap_ctrl(ctrl: TFLController) -> None:
         if ctrl._core is not None:
             ctrl._core = wrap(COMPILED, ctrl._core)
-        if ctrl._step.__globals__ is not vars(step):
-            spaces.append(ctrl._step.__globals__)
-        for ns in spaces:
-            for label, name in PIECES:
-                saved.append((ns, name, ns[name]))
-                ns[name] = wrap(label, ns[name])
+        ns = vars(step)
+        for label, name in PIECES:
+            saved.append((ns, name, ns[name]))
+            ns[name] = wrap(label, ns[name])
 
     try:
         time_law(sc, ticks, compiled_path, core, wrap_ctrl=wrap_ctrl)

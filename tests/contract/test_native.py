@@ -239,7 +239,8 @@ def test_the_lowered_step_run_as_python_is_the_step(monkeypatch):
     monkeypatch.setenv("TFL_MAV_NATIVE", "off")
     law = _controllers(build_path("paper", {}))
     example = (law.params, law.state, law._inputs((0.0,) * 3, (0.0,) * 3, (1.0, 0.0, 0.0, 0.0),
-                                                  (0.0,) * 3, *law._free, 0.0, False, False))
+                                                  (0.0,) * 3, *law._free, 0.0, False, False),
+               law._kernels)
     namespace = {name: fn for fn, name in _INTRINSICS.items()} | {
         "_inf": math.inf, "_nan": math.nan, "_int": int,
         "_index": lambda k, *items: items[k]}     # the rotor permutation's variable index
@@ -254,8 +255,8 @@ def test_the_lowered_step_run_as_python_is_the_step(monkeypatch):
             u = law._inputs(tuple(st.position_m), tuple(st.velocity_mps),
                             tuple(st.quaternion_wxyz), tuple(st.body_rates_radps), *law._free,
                             0.3, True, False)
-            want = law._step(law.params, law.state, u)
-            got = lowered(law.params, law.state, u)
+            want = law._step(law.params, law.state, u, law._kernels)
+            got = lowered(law.params, law.state, u, law._kernels)
             assert [_bits(float(x)) for x in _leaves(got)] == \
                 [_bits(float(x)) for x in _leaves(want)]
             law.update(st)

@@ -354,9 +354,11 @@ class _C:
 
 
 def _objects(fn: ast.FunctionDef) -> set[str]:
-    """The parameters used as sequences (unpacked) or compared with None."""
+    """The parameters used as sequences (unpacked) or compared with None, and those bound
+    at lowering (annotated ``"bound"``: a path's kernels, inlined; never read here)."""
     params = {a.arg for a in fn.args.args}
-    objs = set()
+    objs = {a.arg for a in fn.args.args if isinstance(a.annotation, ast.Constant)
+            and a.annotation.value == "bound"}
     for node in ast.walk(fn):
         if isinstance(node, ast.Assign) and isinstance(node.targets[0], ast.Tuple) \
                 and isinstance(node.value, ast.Name):

@@ -50,14 +50,39 @@ from typing import Any, NamedTuple
 
 from tfl_mav.accel.ctranslate import NativeError
 from tfl_mav.accel.lowering import Lowerer
-from tfl_mav.accel.values import Frame, Tup, _source, kind_of, named_class
+from tfl_mav.accel.values import Frame, Tup, _source, _value, kind_of, named_class
 
-__all__ = ["Lowered", "Tup", "lower", "lower_files", "relinked", "shape_key"]
+__all__ = ["BOUND", "Lowered", "Tup", "bound", "bound_functions", "lower", "lower_files",
+           "shape_key"]
+
+
+BOUND = "bound"
+"""The annotation of a parameter bound at lowering (:func:`bound`): the translator takes
+the argument as an object it never reads."""
+
+
+def bound(x: Any) -> bool:
+    """Whether an example argument is bound at lowering rather than read when the compiled
+    function runs: a function, or a non-empty tuple of functions (a NamedTuple of a path's
+    kernels). Its calls are inlined — the compiled function is the function on *these*
+    functions, and the caller gives it the same ones (the lowering is keyed on them)."""
+    if isinstance(x, types.FunctionType):
+        return True
+    return isinstance(x, tuple) and bool(x) and all(
+        isinstance(v, types.FunctionType) for v in x)
+
+
+def bound_functions(example: Sequence[Any]) -> tuple[types.FunctionType, ...]:
+    """The functions the bound arguments of ``example`` hold, in order."""
+    return tuple(g for x in example if bound(x)
+                 for g in (x if isinstance(x, tuple) else (x,)))
 
 
 def _entry_shape(x: Any, what: str) -> Any:
     if isinstance(x, (bool, int, float)):
         return None
+    if bound(x):
+        return BOUND
     if isinstance(x, (tuple, list)) and x:
         return Tup([_entry_shape(v, what) for v in x], getattr(x, "_fields", None),
                    named_class(x))
@@ -70,7 +95,7 @@ def _entry_kinds(x: Any, kind: str) -> Any:
     have no annotation of their own (``tuple[int, ...]`` is not read): an int or a bool
     there is taken as the example holds it, so that a rotor index in a plain tuple can
     index another tuple as it does in Python."""
-    if not isinstance(x, (tuple, list)):
+    if not isinstance(x, (tuple, list)) or bound(x):
         return kind
     fields = getattr(x, "_fields", None)
     if fields:
@@ -144,6 +169,10 @@ def lower_files(fn: Callable[..., Any], example: Sequence[Any]) -> Lowered:
     args = []
     for a, x in zip(node.args.args, example, strict=True):
         p = a.arg
+        if bound(x):            # its calls inlined; the compiled function does not read it
+            f.alias[p] = _value(x, f"{fn.__qualname__}({p})")
+            args.append(ast.arg(p, ast.Constant(BOUND)))
+            continue
         shape = f.shapes[p] = _entry_shape(x, f"{fn.__qualname__}({p})")
         if shape is not None:
             target = _target(f.local(p, shape))
@@ -184,24 +213,3 @@ def _target(v: Any) -> ast.expr:
 
 def _tuple(v: Any) -> ast.expr:
     return ast.Tuple([_tuple(x) for x in v.items], ast.Load()) if isinstance(v, Tup) else v
-
-
-def relinked(namespace: dict[str, Any], **names: Any) -> dict[str, Any]:
-    """A module's namespace (its ``globals()``) with ``names`` bound to other objects — a
-    path's generated kernels — and every function defined in it rebound to the copy: the
-    same code, calling those objects; one copy per set of objects, kept. The front end then
-    inlines what the functions call there (the generated code included)."""
-    key = (namespace["__name__"], tuple(sorted(names.items())))
-    ns = _RELINKED.get(key)
-    if ns is None:
-        ns = dict(namespace)
-        ns.update(names)
-        module = namespace["__name__"]
-        for name, fn in list(ns.items()):
-            if isinstance(fn, types.FunctionType) and fn.__module__ == module:
-                ns[name] = types.FunctionType(fn.__code__, ns, name, fn.__defaults__)
-        _RELINKED[key] = ns
-    return ns
-
-
-_RELINKED: dict[tuple[Any, ...], dict[str, Any]] = {}

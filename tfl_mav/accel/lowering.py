@@ -121,8 +121,10 @@ class Lowerer:
                 value = _value(defaults[p], f"default of {p!r}")
             else:
                 raise NativeError(f"{fn.__qualname__}: no argument for {p!r}")
-            if isinstance(value, _Ref):     # a function passed in (``sqrt=math.sqrt``)
-                f.alias[p] = value
+            if isinstance(value, _Ref) or (isinstance(value, Tup) and all(
+                    isinstance(x, _Ref) for x in value.items)):
+                f.alias[p] = value          # a function passed in, or a tuple of them
+                                            # (``sqrt=math.sqrt``, a path's kernels)
             else:
                 f.bind(p, value)
         self.stack.append(fn)

@@ -348,21 +348,22 @@ def build_function(fn: Callable[..., Any], example: Sequence[Any]) -> Core:
     return build(lowered(fn, example))
 
 
-_lowered: dict[tuple[Any, str], str] = {}
+_lowered: dict[tuple[Any, str, tuple[Any, ...]], str] = {}
 
 
 def lowered(fn: Callable[..., Any], example: Sequence[Any]) -> str:
     """:func:`frontend.lower`'s source, kept: in this process, and in the cache directory
     with the hashes of the source files it was lowered from (a process that flies once
     would otherwise spend a tenth of a second lowering the detector)."""
-    key = (fn, frontend.shape_key(example))
+    kernels = frontend.bound_functions(example)
+    key = (fn, frontend.shape_key(example), kernels)
     source = _lowered.get(key)
     if source is not None:
         return source
-    # A function linked to generated code (a path's σ kernel) is another lowering.
-    linked = sorted(_file_hash(g.__code__.co_filename) for g in getattr(fn, "__globals__", {})
-                    .values() if isinstance(g, types.FunctionType)
-                    and g.__code__.co_filename.startswith("<"))
+    # A function on generated code (a path's kernels, passed in) is another lowering.
+    linked = sorted(_file_hash(g.__code__.co_filename) for g in (
+        *kernels, *getattr(fn, "__globals__", {}).values())
+        if isinstance(g, types.FunctionType) and g.__code__.co_filename.startswith("<"))
     # The function's own file is part of the name: two checkouts share one cache, and an
     # entry validated against the other checkout's files (unchanged there) is that tree's
     # lowering, not this one's.

@@ -22,11 +22,10 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
-from tfl_mav.control.path import projection
 from tfl_mav.control.path.jetcode import TRACE_LIB, Sym, TJet, TraceError
 from tfl_mav.control.path.kernelgen import Kernel, compile_kernel
 from tfl_mav.control.path.paths import Path
-from tfl_mav.control.path.projection import PATH_START, VO, lost_reason
+from tfl_mav.control.path.projection import PATH_START, VO, Kernels, lost_reason, project
 from tfl_mav.control.path.tracker import (
     MIN_TUBE_MARGIN,
     PathTracker,
@@ -141,8 +140,8 @@ class CompiledPathTracker(PathTracker):
         super().__init__(path, min_tube_margin=min_tube_margin)
         self.kernels = kernels if kernels is not None else compile_path(path)
         k = self.kernels
-        self._step = projection.linked(k.sigma2.fn, k.sigma5.fn, k.s4.fn,
-                                          _pi_kernel().fn)["project"]
+        # What the projection step (and the law's step, which calls it) is given.
+        self.projection_kernels = Kernels(k.sigma2.fn, k.sigma5.fn, k.s4.fn, _pi_kernel().fn)
         self.failure = ""       # the path's last error, in words (VO.FAILED)
 
     @property   # type: ignore[override]
@@ -173,12 +172,12 @@ class CompiledPathTracker(PathTracker):
         if not self.state.has_lam and math.isfinite(sum(rows[0]) + sum(rows[1])
                                                     + sum(rows[2])):
             lam_start, ok, failed = self.start((rows[0][0], rows[1][0], rows[2][0]))
-        args = (self.min_tube_margin, self.state, rows, lam_start, ok)
+        args = (self.projection_kernels, self.min_tube_margin, self.state, rows, lam_start, ok)
         try:
-            vo, self.state = self._step(*args, failed)
+            vo, self.state = project(*args, failed)
         except (ValueError, ZeroDivisionError, OverflowError) as exc:
             self.failure = str(exc)
-            vo, self.state = self._step(*args, True)
+            vo, self.state = project(*args, True)
         code, xi1, xi2, eta, jac, lam, distance, margin = vo
         if code != VO.OK:
             return VirtualOutput(xi1, xi2, eta, jac, lam, distance, False,

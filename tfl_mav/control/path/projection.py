@@ -2,7 +2,7 @@
 
 :func:`project` is what the law needs of the path at one instant, on the path's generated
 kernels (σ, σ', σ''/2; σ's degree-5 expansion; α = s(y) and its gradients along the
-position's Taylor rows; π's rates — :mod:`compiled`, linked in per path by :func:`linked`):
+position's Taylor rows; π's rates — :mod:`compiled`), passed in as :class:`Kernels`:
 
 * the closest point (eq. (13)): Newton on g(λ) = ⟨y − σ(λ), σ'(λ)⟩ with the exact σ, σ',
   σ'', from the last λ extrapolated by the one before; lost when g' ≥ 0 (not a closest
@@ -28,9 +28,7 @@ from collections.abc import Callable, Sequence
 from enum import IntEnum
 from typing import Any, NamedTuple
 
-from tfl_mav.accel.frontend import relinked
-
-__all__ = ["NEWTON_ITERS", "PATH_START", "VO", "PathState", "Projected", "arc", "linked",
+__all__ = ["NEWTON_ITERS", "PATH_START", "VO", "Kernels", "PathState", "Projected", "arc",
            "lost_reason", "project"]
 
 NEWTON_ITERS = 20       # Newton steps of the projection before it counts as lost
@@ -83,45 +81,38 @@ class Projected(NamedTuple):
     margin: float               # −∂g/∂λ / |σ'|² there (0: none)
 
 
-def _sigma2(a0: tuple[float]) -> tuple[float, ...]:
-    """σ, σ', σ''/2 at λ (9 floats): the path's kernel, linked in by :func:`linked`."""
-    raise NotImplementedError("project flies on a path: projection.linked(kernels)")
+class Kernels(NamedTuple):
+    """One path's generated kernels (:func:`compiled.compile_path`, :func:`compiled.pi_kernel`),
+    what :func:`project` evaluates the path with. The accelerator seam inlines them: a
+    compiled projection is the projection on these kernels (bound when it is lowered)."""
+
+    sigma2: Callable[[tuple[float]], tuple[float, ...]]
+        # σ, σ', σ''/2 at λ (9 floats: x y z of each)
+    sigma5: Callable[[tuple[float]], tuple[float, ...]]
+        # σ⁽ʲ⁾/j! at λ, j = 0…5 (18 floats)
+    s4: Callable[..., tuple[float, ...]]
+        # α1, α2 to order 4 and their gradients along the position's rows x, y, z
+    pi: Callable[..., tuple[float, ...]]
+        # π̇ … π⁽⁴⁾ from σ's expansion, the rows and the slope ∂g/∂λ
 
 
-def _sigma5(a0: tuple[float]) -> tuple[float, ...]:
-    """σ⁽ʲ⁾/j! at λ, j = 0…5 (18 floats): the path's kernel, linked in by :func:`linked`."""
-    raise NotImplementedError("project flies on a path: projection.linked(kernels)")
-
-
-def _s4(a0: tuple[float, ...], a1: tuple[float, ...], a2: tuple[float, ...]
-        ) -> tuple[float, ...]:
-    """α1, α2 to order 4 and their gradients along the position's rows: linked in."""
-    raise NotImplementedError("project flies on a path: projection.linked(kernels)")
-
-
-def _pi(a0: tuple[float, ...], a1: tuple[float, ...], a2: tuple[float, ...],
-        a3: tuple[float, ...], a4: tuple[float]) -> tuple[float, ...]:
-    """π̇ … π⁽⁴⁾: the tracker's kernel, linked in."""
-    raise NotImplementedError("project flies on a path: projection.linked(kernels)")
-
-
-def arc(cp: Sequence[Any], cn: Sequence[Any], delta: Any,
-        sqrt: Callable[[Any], Any] = math.sqrt) -> Any:
+def arc(cp: Sequence[Any], cn: Sequence[Any], delta: Any) -> Any:
     """∫|σ'| dλ over [λ, λ + δ] by Simpson's rule: |σ'| at both ends from the expansions
     ``cp`` (at λ) and ``cn`` (at λ + δ), at the middle from ``cp``'s polynomial."""
     h = 0.5 * delta
     mx = cp[3] + h * (2.0 * cp[6] + h * (3.0 * cp[9] + h * (4.0 * cp[12] + h * 5.0 * cp[15])))
     my = cp[4] + h * (2.0 * cp[7] + h * (3.0 * cp[10] + h * (4.0 * cp[13] + h * 5.0 * cp[16])))
     mz = cp[5] + h * (2.0 * cp[8] + h * (3.0 * cp[11] + h * (4.0 * cp[14] + h * 5.0 * cp[17])))
-    return delta / 6.0 * (sqrt(cp[3] * cp[3] + cp[4] * cp[4] + cp[5] * cp[5])
-                          + 4.0 * sqrt(mx * mx + my * my + mz * mz)
-                          + sqrt(cn[3] * cn[3] + cn[4] * cn[4] + cn[5] * cn[5]))
+    return delta / 6.0 * (math.sqrt(cp[3] * cp[3] + cp[4] * cp[4] + cp[5] * cp[5])
+                          + 4.0 * math.sqrt(mx * mx + my * my + mz * mz)
+                          + math.sqrt(cn[3] * cn[3] + cn[4] * cn[4] + cn[5] * cn[5]))
 
 
-def project(tube_min: float, ps: PathState, rows: tuple[Any, ...], lam_start: float,
-            lam_start_ok: bool, path_failed: bool) -> tuple[Projected, PathState]:
+def project(k: Kernels, tube_min: float, ps: PathState, rows: tuple[Any, ...],
+            lam_start: float, lam_start_ok: bool, path_failed: bool
+            ) -> tuple[Projected, PathState]:
     """The virtual output along the position's Taylor ``rows`` (x, y, z, each (y, ẏ, ÿ/2,
-    y⃛/6, y⁽⁴⁾/24), m) and the state after it.
+    y⃛/6, y⁽⁴⁾/24), m) on the path of kernels ``k``, and the state after it.
 
     ``lam_start``/``lam_start_ok``: a global search's λ for a state without one (the
     holder's, :meth:`compiled.CompiledPathTracker.start`); ``path_failed``: evaluating the
@@ -152,7 +143,7 @@ def project(tube_min: float, ps: PathState, rows: tuple[Any, ...], lam_start: fl
         lam = 2.0 * lam0 - ps.lam_prev if fresh and ps.has_lam_prev else lam0
         found = False
         for _ in range(NEWTON_ITERS):
-            c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = _sigma2((lam,))
+            c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = k.sigma2((lam,))
             ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
             dg = 2.0 * (ex * c2x + ey * c2y + ez * c2z) - (c1x * c1x + c1y * c1y + c1z * c1z)
             if not dg < 0.0:
@@ -167,10 +158,10 @@ def project(tube_min: float, ps: PathState, rows: tuple[Any, ...], lam_start: fl
         if found:
             cp = ps.expansion
             if not fresh:
-                cp = _sigma5((lam0,))
-            c = _sigma5((lam,))
-            ps = PathState(True, lam, True, lam0, ps.arc_m + arc(cp, c, lam - lam0, math.sqrt),
-                           True, lam, c)
+                cp = k.sigma5((lam0,))
+            c = k.sigma5((lam,))
+            ps = PathState(True, lam, True, lam0, ps.arc_m + arc(cp, c, lam - lam0), True,
+                           lam, c)
             lam_out = lam
             e0x, e0y, e0z = yx - c[0], yy - c[1], yz - c[2]
             c1x, c1y, c1z = c[3], c[4], c[5]
@@ -181,11 +172,11 @@ def project(tube_min: float, ps: PathState, rows: tuple[Any, ...], lam_start: fl
             if margin < tube_min:
                 code = VO.MARGIN
             else:
-                p1, p2, p3, p4 = _pi(c, tx, ty, tz, (slope,))
-                a = _s4(tx, ty, tz)
-                k = math.sqrt(s1sq) / -slope
+                p1, p2, p3, p4 = k.pi(c, tx, ty, tz, (slope,))
+                a = k.s4(tx, ty, tz)
+                kn = math.sqrt(s1sq) / -slope
                 xi1, xi2, eta = a[0:5], a[5:10], (ps.arc_m, p1, p2, p3, p4)
-                jac = (a[10:13], a[13:16], (k * c1x, k * c1y, k * c1z))
+                jac = (a[10:13], a[13:16], (kn * c1x, kn * c1y, kn * c1z))
         else:
             code = VO.NO_ROOT
     if code != VO.OK and code != VO.MARGIN:     # no closest point to speak of
@@ -204,9 +195,3 @@ def lost_reason(code: VO, distance_m: float, margin: float, failure: str) -> str
     if code == VO.FAILED:
         return f"path evaluation failed: {failure}"
     return "closest-point search did not converge"
-
-
-def linked(sigma2: Any, sigma5: Any, s4: Any, pi: Any) -> dict[str, Any]:
-    """This module's functions on one path's kernels (σ, σ', σ''/2; σ's degree-5 expansion;
-    α and Dφ along the rows; π's rates): one namespace per kernel set, the same code."""
-    return relinked(globals(), _sigma2=sigma2, _sigma5=sigma5, _s4=s4, _pi=pi)

@@ -218,16 +218,16 @@ class PathProjector:
         if sigma2 is None:
             sigma2, evaluation = projector_sigma2(path)
         self.evaluation = evaluation        # "compiled" | "reference jets (why)" | "given"
-        self.linked = safe_step.linked(sigma2)      # the safe law's functions on this σ
+        self.sigma2 = sigma2                        # what the safe law's step is given
         self.lowerable = source is not None         # the seam can compile them
-        self._closest = self.linked["closest_point"]
         self._closest_c: Callable[..., Any] | None = None
         self.lam: float | None = None
         if self.lowerable:
             def ready(core: Callable[..., Any]) -> None:
                 self._closest_c = core
 
-            core = native.obtain_function(self._closest, (0.0, (0.0, 0.0, 0.0)), ready)
+            core = native.obtain_function(safe_step.closest_point,
+                                         (sigma2, 0.0, (0.0, 0.0, 0.0)), ready)
             if core is not None:
                 ready(core)
 
@@ -248,10 +248,10 @@ class PathProjector:
         if self.lam is None:
             self.start(y)
         fast = self._closest_c
-        out = fast(self.lam, y) if fast is not None else None
+        out = fast(self.sigma2, self.lam, y) if fast is not None else None
         if out is None:
             yx, yy, yz = y
-            out = self._closest(self.lam, (yx, yy, yz))
+            out = safe_step.closest_point(self.sigma2, self.lam, (yx, yy, yz))
         found, self.lam, point, tangent, curvature, dist = out
         return (point, tangent, curvature, dist) if found else None
 
@@ -323,14 +323,15 @@ class RecoveryLaw:
         self._safe = SafeParams(self._step_model, speed_mps, dt_s, self._integral_top_ms,
                                 self.projector is not None,
                                 (*self.inertia, float(k_r), float(drag_thrust_ratio_m)))
-        steps = self.projector.linked if self.projector is not None else vars(safe_step)
-        self._tick, self._healthy_tick = steps["safe_tick"], steps["healthy_tick"]
+        self._sigma2 = self.projector.sigma2 if self.projector is not None \
+            else safe_step.no_path
         self._tick_c: Callable[..., Any] | None = None
         if self.projector is None or self.projector.lowerable:
             def ready(core: Callable[..., Any]) -> None:
                 self._tick_c = core
 
-            core = native.obtain_function(self._tick, (self._safe, _STATE0, _INPUTS0), ready)
+            core = native.obtain_function(safe_step.safe_tick,
+                                          (self._safe, _STATE0, _INPUTS0, self._sigma2), ready)
             if core is not None:
                 ready(core)
 
@@ -397,9 +398,9 @@ class RecoveryLaw:
             self._safe = _new_output(SafeParams, (m, sp[1], sp[2], sp[3], sp[4], sp[5]))
         if attacked_rotor:
             return self._three_rotor(s, attacked_rotor, attack_n)
-        out = self._healthy_tick(self._safe, self._state(s), (
+        out = safe_step.healthy_tick(self._safe, self._state(s), (
             _floats(s.position_m), _floats(s.velocity_mps), _floats(s.quaternion_wxyz),
-            _floats(s.body_rates_radps)))
+            _floats(s.body_rates_radps)), self._sigma2)
         return self._keep(out)
 
     def _state(self, s: State) -> SafeState:
@@ -444,13 +445,13 @@ class RecoveryLaw:
         core = self._tick_c
         out = core(self._safe, state, (s.position_m, s.velocity_mps, s.quaternion_wxyz,
                                        rates, attack_n, self._rot6[attacked_rotor],
-                                       self._inverse_perm[attacked_rotor], gains)) \
-            if core is not None else None
+                                       self._inverse_perm[attacked_rotor], gains),
+                   self._sigma2) if core is not None else None
         if out is None:       # the C bails where Python raises: raise here
-            out = self._tick(self._safe, state, (
+            out = safe_step.safe_tick(self._safe, state, (
                 _floats(s.position_m), _floats(s.velocity_mps), _floats(s.quaternion_wxyz),
                 rates, attack_n, self._rot6[attacked_rotor], self._inverse_perm[attacked_rotor],
-                gains))
+                gains), self._sigma2)
         return self._keep(out)
 
 

@@ -5,26 +5,26 @@ attacked, :func:`healthy_tick` with four healthy rotors: the closest point of th
 (:func:`closest_point`, Newton on ⟨y − σ(λ), σ'(λ)⟩ = 0), the outer PID loop
 (:func:`accel_demand`) and its conditional integral, then the three-rotor step
 (:func:`~tfl_mav.control.safe.lost_rotor.lost_rotor_step`) or the four-rotor attitude loop
-and mixer, in plain Python over tuples of floats. The path's σ kernel is linked in per path
-(:func:`linked`: these functions with ``_sigma2`` the path's generated kernel), and the
+and mixer, in plain Python over tuples of floats. The path comes in as its σ kernel
+(``sigma2((λ,))`` → σ, σ', σ''/2: the path's generated code, or :func:`no_path`), and the
 accelerator seam compiles the three-rotor tick (:func:`tfl_mav.accel.native.obtain_function`)
-— the same operations in the same order, the same bits — where it is built; this very Python
-flies otherwise. :mod:`recovery` says what the law does and why.
+with that kernel inlined — the same operations in the same order, the same bits — where it
+is built; this very Python flies otherwise. :mod:`recovery` says what the law does and why.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from typing import Any, NamedTuple
 
-from tfl_mav.accel.frontend import relinked
 from tfl_mav.control.allocation import allocate_nominal
 from tfl_mav.control.safe.lost_rotor import lost_rotor_step, thrust_direction
 
 __all__ = ["ATT_KD", "ATT_KP", "INTEGRAL_BAND_M", "MAX_INTEGRAL_G", "MAX_TILT_RAD",
            "MAX_VERTICAL_G", "POS_OMEGA", "SETTLED_MPS", "SETTLE_TAU_S", "YAW_DAMP", "SafeParams",
-           "SafeState", "accel_demand", "closest_point", "healthy_tick", "integrated", "linked",
-           "safe_tick", "target"]
+           "SafeState", "Sigma2", "accel_demand", "closest_point", "healthy_tick", "integrated",
+           "no_path", "safe_tick", "target"]
 
 MAX_TILT_RAD = math.radians(30.0)   # outer loop: horizontal acceleration ≤ g tan 30°
 MAX_VERTICAL_G = 0.5                # outer loop: |vertical acceleration| ≤ 0.5 g
@@ -68,22 +68,27 @@ class SafeState(NamedTuple):
                                         # started: it starts at the first velocity)
 
 
-def _sigma2(a0: tuple[float]) -> tuple[float, ...]:
-    """σ, σ', σ''/2 at λ: the path's kernel, linked in per path (:func:`linked`); no path
-    here."""
+Sigma2 = Callable[[tuple[float]], tuple[float, ...]]
+"""A path's σ kernel: ``sigma2((λ,))`` → σ, σ', σ''/2 at λ (nine floats, x y z of each)."""
+
+
+def no_path(a0: tuple[float]) -> tuple[float, ...]:
+    """The σ kernel of a law without a path (``SafeParams.has_path`` False: it holds a
+    point and never evaluates it): zeros."""
     return (0.0,) * 9
 
 
-def closest_point(lam: float, y: tuple[float, float, float]
-                  ) -> tuple[float, float, tuple[float, float, float],
+def closest_point(sigma2: Sigma2, lam: float, y: tuple[float, float, float]
+                  ) -> tuple[bool, float, tuple[float, float, float],
                              tuple[float, float, float], tuple[float, float, float], float]:
-    """Newton from ``lam`` on ⟨y − σ(λ), σ'(λ)⟩ = 0: (found, the new λ — the old one if
-    Newton left the reals —, the point, the unit tangent T, the curvature vector κN, the
-    distance m). σ, σ' and σ'' come exactly from one ``_sigma2`` evaluation a step."""
+    """Newton from ``lam`` on ⟨y − σ(λ), σ'(λ)⟩ = 0 on the path of ``sigma2``: (found, the
+    new λ — the old one if Newton left the reals —, the point, the unit tangent T, the
+    curvature vector κN, the distance m). σ, σ' and σ'' come exactly from one ``sigma2``
+    evaluation a step."""
     yx, yy, yz = y
     lam0 = lam
     for _ in range(8):
-        c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = _sigma2((lam,))
+        c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = sigma2((lam,))
         ex, ey, ez = yx - c0x, yy - c0y, yz - c0z
         g = ex * c1x + ey * c1y + ez * c1z
         dg = 2.0 * (ex * c2x + ey * c2y + ez * c2z) - (c1x * c1x + c1y * c1y + c1z * c1z)
@@ -96,7 +101,7 @@ def closest_point(lam: float, y: tuple[float, float, float]
     point = tangent = curvature = (0.0, 0.0, 0.0)
     if math.isfinite(lam):
         lam_out = lam
-        c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = _sigma2((lam,))
+        c0x, c0y, c0z, c1x, c1y, c1z, c2x, c2y, c2z = sigma2((lam,))
         s1sq = c1x * c1x + c1y * c1y + c1z * c1z
         if s1sq > 0.0:
             found = True
@@ -193,15 +198,15 @@ def integrated(integral: tuple[float, float, float], e: tuple[float, float, floa
     return integral
 
 
-def target(p: SafeParams, lam: float, holding: bool, hold: tuple[float, float, float],
-           y: tuple[float, float, float]) -> tuple[Any, ...]:
+def target(p: SafeParams, sigma2: Sigma2, lam: float, holding: bool,
+           hold: tuple[float, float, float], y: tuple[float, float, float]) -> tuple[Any, ...]:
     """What the outer loop flies to: (found, λ, holding, the held point, the target
     point, unit tangent, curvature vector κN, path distance m — NaN when holding). The
     closest path point; a held point when told to hold or when the path is lost (then
     where the vehicle is)."""
     found, point, tangent, curvature, dist = False, hold, hold, hold, math.nan
     if p.has_path and not holding:
-        found, lam, point, tangent, curvature, dist = closest_point(lam, y)
+        found, lam, point, tangent, curvature, dist = closest_point(sigma2, lam, y)
         if not found:
             dist = math.nan
     if not found:
@@ -212,12 +217,12 @@ def target(p: SafeParams, lam: float, holding: bool, hold: tuple[float, float, f
     return found, lam, holding, hold, point, tangent, curvature, dist
 
 
-def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
+def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...], sigma2: Sigma2
               ) -> tuple[SafeState, tuple[Any, ...]]:
-    """One tick with a rotor attacked. ``inputs``: position m, velocity m/s, attitude
-    (w, x, y, z; normalised here), body rates rad/s, the attacked rotor's thrust estimate N,
-    the canonical frame's rotation rows 1-2, the canonical rotor of each physical one
-    (0-3), the LQR gains (two rows of four).
+    """One tick with a rotor attacked, on the path of ``sigma2``. ``inputs``: position m,
+    velocity m/s, attitude (w, x, y, z; normalised here), body rates rad/s, the attacked
+    rotor's thrust estimate N, the canonical frame's rotation rows 1-2, the canonical rotor
+    of each physical one (0-3), the LQR gains (two rows of four).
 
     Returns the new state and (the thrusts of the physical rotors 1-4 N, tilt error rad,
     path distance m — NaN when holding —, u_f N, clamped per physical rotor: its
@@ -228,8 +233,8 @@ def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
     q = (qw / nq, qx / nq, qy / nq, qz / nq)
     lam, holding, hold, integral, drift, drift_age = s
     g, fmax = p.model[2], p.model[4]
-    found, lam, holding, hold, point, tangent, curvature, dist = target(p, lam, holding, hold,
-                                                                        y)
+    found, lam, holding, hold, point, tangent, curvature, dist = target(p, sigma2, lam,
+                                                                        holding, hold, y)
     a0, a1, a2, e, integrate, drift, drift_age = accel_demand(
         p, point, tangent, curvature, integral, drift, drift_age, y, v, g, found)
     tilt_err, uf, c0, c1, c2, c3, made, d0, d2, d3 = lost_rotor_step(
@@ -245,7 +250,7 @@ def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
             (f, tilt_err, dist, uf, clamped))
 
 
-def healthy_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
+def healthy_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...], sigma2: Sigma2
                  ) -> tuple[SafeState, tuple[Any, ...]]:
     """One tick with four healthy rotors (a take-over with no rotor attacked): the outer loop
     as :func:`safe_tick` flies it, the reduced attitude h = Rᵀ n by a PD on (−h₂, h₁) through
@@ -261,8 +266,8 @@ def healthy_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
     q = (qw / nq, qx / nq, qy / nq, qz / nq)
     lam, holding, hold, integral, drift, drift_age = s
     m, k_t, g, ell, fmax = p.model
-    found, lam, holding, hold, point, tangent, curvature, dist = target(p, lam, holding, hold,
-                                                                        y)
+    found, lam, holding, hold, point, tangent, curvature, dist = target(p, sigma2, lam,
+                                                                        holding, hold, y)
     a0, a1, a2, e, integrate, drift, drift_age = accel_demand(
         p, point, tangent, curvature, integral, drift, drift_age, y, v, g, found)
     ix, iy, iz, k_r, d_m = p.airframe
@@ -278,9 +283,3 @@ def healthy_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...]
         integral = integrated(integral, e, p.dt_s, p.integral_top_ms)
     return (SafeState(lam, holding, hold, integral, drift, drift_age),
             (tuple(f), tilt_err, dist, uf, clamped))
-
-
-def linked(sigma2: Any) -> dict[str, Any]:
-    """This module's functions with ``_sigma2`` the path's kernel (``sigma2((λ,))`` → σ, σ',
-    σ''/2: nine floats): one namespace per kernel, the same code."""
-    return relinked(globals(), _sigma2=sigma2)

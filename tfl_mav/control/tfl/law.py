@@ -41,9 +41,16 @@ import numpy as np
 from tfl_mav.accel import native
 from tfl_mav.control.actuators import MotorLagInverter
 from tfl_mav.control.allocation import RotorFrame, canonical_frame
-from tfl_mav.control.path.compiled import CompiledPathTracker, _pi_kernel, make_tracker
+from tfl_mav.control.path.compiled import CompiledPathTracker, make_tracker
 from tfl_mav.control.path.paths import Path
-from tfl_mav.control.path.projection import PATH_START, VO, PathState, Projected, lost_reason
+from tfl_mav.control.path.projection import (
+    PATH_START,
+    VO,
+    Kernels,
+    PathState,
+    Projected,
+    lost_reason,
+)
 from tfl_mav.control.path.tracker import PathTracker
 from tfl_mav.control.tfl import step
 from tfl_mav.control.tfl.estimators import (
@@ -194,15 +201,14 @@ class TFLController:
         self._failure = ""          # the last path evaluation error (VO.FAILED's words)
         self._vo_reason = ""        # the reference tracker's words
         # The step on this path's kernels; compiled by the seam where it is built.
-        self._linked_for: PathTracker | None = None
+        self._linked_for: PathTracker | None = None     # the tracker the kernels are of
+        self._kernels: Kernels | None = None
         self._step: Callable[..., Any] = step.tfl_step
         self._core: Callable[..., Any] | None = None
         self._track_core: Callable[..., Any] | None = None
         self._obtain_track_core()
         if type(self.tracker) is CompiledPathTracker:
-            k = self.tracker.kernels
-            ns = step.linked(k.sigma2.fn, k.sigma5.fn, k.s4.fn, _pi_kernel().fn)
-            self._step = ns["tfl_step"]
+            self._kernels = self.tracker.projection_kernels
             self._linked_for = self.tracker
             self._obtain_core()
 
@@ -216,7 +222,8 @@ class TFLController:
 
         example = (self.params, self.state, self._inputs((0.0,) * 3, (0.0,) * 3,
                                                          (1.0, 0.0, 0.0, 0.0), (0.0,) * 3,
-                                                         *self._free, 0.0, False, False))
+                                                         *self._free, 0.0, False, False),
+                   self._kernels)
         core = native.obtain_function(self._step, example, ready)
         if core is not None:
             ready(core)
@@ -427,15 +434,15 @@ class TFLController:
                 self._failure = trk.failure
             u = TFLInputs(y, v, quat, rates, self._frame, self.attack_estimate_n, lo, hi,
                           lam_start, ok, failed)
-            core = self._core
-            r = core(self.params, st, u) if core is not None else None
+            core, kernels = self._core, self._kernels
+            r = core(self.params, st, u, kernels) if core is not None else None
             if r is None:       # not compiled, or the compiled step declined: Python decides
                 st = as_state(st)
                 try:
-                    r = self._step(self.params, st, u)
+                    r = self._step(self.params, st, u, kernels)
                 except _PATH_ERRORS as exc:
                     self._failure = str(exc)
-                    r = self._step(self.params, st, u._replace(path_failed=True))
+                    r = self._step(self.params, st, u._replace(path_failed=True), kernels)
         else:
             r = self._reference_tick(as_state(st), y, v, quat, rates, lo, hi)
         new, out = r

@@ -1,7 +1,7 @@
 """The TFL law's tick (paper §V) as explicit state and one pure step.
 
-:func:`tfl_step` is one control period: ``tfl_step(params, state, inputs) -> (state,
-outputs)``, in plain Python over NamedTuples of floats, flags (bool) and codes (IntEnum),
+:func:`tfl_step` is one control period: ``tfl_step(params, state, inputs, kernels) ->
+(state, outputs)``, in plain Python over NamedTuples of floats, flags (bool) and codes (IntEnum),
 the law's only hand-written form.
 In the order the paper builds the law:
 
@@ -12,8 +12,8 @@ In the order the paper builds the law:
    plus the translational observer's unmodelled acceleration.
 2. :func:`~tfl_mav.control.path.projection.project` — the virtual output along those rows:
    the closest path point (Newton on ⟨y − σ(λ), σ'(λ)⟩ = 0, eq. (13)), π's rates, α = s(y)
-   and Dφ (eqs. (8), (14), (15)), on the path's generated kernels (linked in per path by
-   :func:`linked`).
+   and Dφ (eqs. (8), (14), (15)), on the path's generated kernels
+   (:class:`~tfl_mav.control.path.projection.Kernels`, an argument).
 3. :func:`command` — the ξ, η controllers (eqs. (23), (24)), the decoupling solve (eq. (21)),
    the torques (eq. (3)), the allocation (eqs. (4), (6); yaw as internal dynamics, eq. (18),
    when a rotor is attacked), saturation, the ṗ, q̇ prediction for the observer, the
@@ -23,20 +23,19 @@ Where the law cannot act (the projection lost, u_f too small, Dφ singular or il
 a non-finite result) it damps the rates and holds the thrust, and says why: ``reason`` is a
 :class:`Fallback` code, the text is the holder's (:class:`~tfl_mav.control.tfl.law.TFLController`).
 The accelerator seam (:func:`tfl_mav.accel.native.obtain_function`) compiles :func:`tfl_step`
-with the path's kernels inlined — the same operations in the same order, the same bits —
-and this very Python flies wherever it is not built.
+with the path's kernels inlined (bound when it is lowered: one build per kernel set) — the
+same operations in the same order, the same bits — and this very Python flies wherever it
+is not built.
 """
 
 from __future__ import annotations
 
 import math
 from enum import IntEnum
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
-from tfl_mav.accel.frontend import relinked
 from tfl_mav.control.allocation import allocate_attacked, allocate_nominal, permuted
-from tfl_mav.control.path import projection
-from tfl_mav.control.path.projection import VO, PathState, Projected, project
+from tfl_mav.control.path.projection import VO, Kernels, PathState, Projected, project
 from tfl_mav.control.tfl.estimators import (
     DobState,
     MassModel,
@@ -60,7 +59,7 @@ from tfl_mav.control.tfl.law_math import (
 )
 
 __all__ = ["Fallback", "Frame", "Seen", "TFLInputs", "TFLOutputs", "TFLParams", "TFLState",
-           "command", "linked", "observe", "predict", "tfl_step"]
+           "command", "observe", "predict", "tfl_step"]
 
 
 class Fallback(IntEnum):
@@ -343,17 +342,11 @@ def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: Seen, vo: Projected,
     return state, out
 
 
-def tfl_step(p: TFLParams, s: TFLState, u: TFLInputs) -> tuple[TFLState, TFLOutputs]:
-    """One control period of the law (module doc): the new state and the decision."""
+def tfl_step(p: TFLParams, s: TFLState, u: TFLInputs, k: Kernels
+             ) -> tuple[TFLState, TFLOutputs]:
+    """One control period of the law (module doc) on the path of kernels ``k``: the new
+    state and the decision."""
     seen = observe(p, s, u)
-    vo, ps = project(p.tube_min, s.path, seen.rows, u.lam_start, u.lam_start_ok, u.path_failed)
+    vo, ps = project(k, p.tube_min, s.path, seen.rows, u.lam_start, u.lam_start_ok,
+                     u.path_failed)
     return command(p, s, u, seen, vo, ps)
-
-
-def linked(sigma2: Any, sigma5: Any, s4: Any, pi: Any) -> dict[str, Any]:
-    """This module's functions with :func:`~tfl_mav.control.path.projection.project` on the
-    path's kernels (:func:`projection.linked`): one namespace per kernel set, the same code.
-    The kernels are named here too, so that a lowering of the step is keyed on them."""
-    projected = projection.linked(sigma2, sigma5, s4, pi)["project"]
-    return relinked(globals(), project=projected, _sigma2=sigma2, _sigma5=sigma5, _s4=s4,
-                    _pi=pi)
