@@ -9,6 +9,7 @@ from __future__ import annotations
 import math
 import random
 import struct
+from collections.abc import Callable
 from enum import IntEnum
 from typing import NamedTuple
 
@@ -173,3 +174,40 @@ def test_a_plain_tuples_ints_index_and_its_bools_stay_bools():
     assert compiled((1.0, 2.0, 3.0, 4.0), (0, 1, 2, 4), (True, True)) is None
     assert native.lowered(permuted, ((0.0,) * 4, (0, 1, 2, 3), (True, False))) != \
         native.lowered(permuted, ((0.0,) * 4, (0.0, 1.0, 2.0, 3.0), (True, False)))
+
+
+class Pair(NamedTuple):
+    scale: Callable[[float], float]
+    shift: Callable[[float], float]
+
+
+def _double(x: float) -> float:
+    return 2.0 * x
+
+
+def _halve(x: float) -> float:
+    return 0.5 * x
+
+
+def _plus_one(x: float) -> float:
+    return x + 1.0
+
+
+def on_kernels(x: float, k: Pair) -> tuple[float, float]:
+    """Functions passed in a tuple argument (a path's kernels): called through its fields."""
+    return k.scale(x), k.shift(k.scale(x))
+
+
+def test_functions_passed_as_an_argument_are_bound_at_lowering():
+    """An argument that is a tuple of functions is inlined where it is called: the compiled
+    function computes with the functions of its example (it takes the argument, and does not
+    read it), and other functions are another lowering, not the same source."""
+    fast = native.build_function(on_kernels, (0.0, Pair(_double, _plus_one)))
+    rng = random.Random(9)
+    for _ in range(200):
+        x = _x(rng)
+        assert _bits(fast(x, Pair(_double, _plus_one))) == \
+            _bits(on_kernels(x, Pair(_double, _plus_one)))
+    first = native.lowered(on_kernels, (0.0, Pair(_double, _plus_one)))
+    other = native.lowered(on_kernels, (0.0, Pair(_halve, _plus_one)))
+    assert first != other and "0.5" in other and "2.0" in first

@@ -361,8 +361,11 @@ def lowered(fn: Callable[..., Any], example: Sequence[Any]) -> str:
     if source is not None:
         return source
     # A function on generated code (a path's kernels, passed in) is another lowering.
-    linked = sorted(_file_hash(g.__code__.co_filename) for g in (
-        *kernels, *getattr(fn, "__globals__", {}).values())
+    # A function bound at lowering is named (its file's hash validates the entry, as for
+    # any function read); generated code is named by its text's hash too.
+    linked = [f"{g.__module__}.{g.__qualname__}" for g in kernels] + sorted(
+        _file_hash(g.__code__.co_filename) for g in (
+            *kernels, *getattr(fn, "__globals__", {}).values())
         if isinstance(g, types.FunctionType) and g.__code__.co_filename.startswith("<"))
     # The function's own file is part of the name: two checkouts share one cache, and an
     # entry validated against the other checkout's files (unchanged there) is that tree's
