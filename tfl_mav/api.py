@@ -185,7 +185,7 @@ def path_distance_m(scenario: Scenario, position_m: np.ndarray) -> np.ndarray:
     out = np.full(len(position_m), math.nan)
     for i, p in enumerate(np.asarray(position_m, dtype=float).tolist()):
         if not all(math.isfinite(c) for c in p):
-            projector.lam = None        # a fresh global search once it is back
+            projector.forget()          # a fresh global search once it is back
             continue
         proj = projector.project(p)
         if proj is not None:

@@ -111,7 +111,7 @@ class TflMavEnv(gymnasium.Env):
         self._seen = PathReference.for_scenario(sc)       # from the measured state (obs)
         self._true = PathReference(self._seen.path, sc.path.speed_mps)   # reward
         self._true.at(sc.initial.position_m)
-        self._lam0 = self._true.projector.lam
+        self._lam0 = self._true.lam
 
     def _set_base(self, base: str | None) -> None:
         self.base = base
@@ -165,8 +165,8 @@ class TflMavEnv(gymnasium.Env):
         self._signal = (AttackSignal(self._attack, software_name(self._attack))
                         if self._attack is not None else None)
         self.sim = Simulator(sc, attack_signal=self._signal)
-        self._seen.projector.lam = self._lam0
-        self._true.projector.lam = self._lam0
+        self._seen.start_at(self._lam0)
+        self._true.start_at(self._lam0)
         self._base = (GuardedSoftware(self._base_factory(sc), name=self._base_name,
                                       thrust_max_n=sc.vehicle.thrust_max_n)
                       if self._base_factory is not None else None)

@@ -70,3 +70,68 @@ def test_a_reach_into_another_object_is_seen() -> None:
     found = private_reads(src)
     assert [f.split(": ")[1] for f in found] == ["sim._time_usec", "tracker.path._grad_s",
                                                  "simulator._round"]
+
+
+# The objects the flight computer holds and steers: its laws and filters.
+FLIGHT_COMPUTER = REPO / "tfl_mav" / "controller" / "flight_computer.py"
+FLIGHT_COMPUTER_HOLDS = {"controller", "recovery", "detector", "state_filter", "yaw_model"}
+
+
+def reaches_through(source: str, holds: set[str]) -> list[str]:
+    """``line: expression`` of every write into an object held as ``self.<name>`` (``name``
+    in ``holds``) and every use of one of its parts — an attribute of an attribute of it
+    (``self.recovery.projector.lam``, ``self.controller.lag_inverter.reset``) — also through
+    a local name bound to it or to its part (``rec = self.recovery``; ``proj =
+    rec.projector``). A held object is asked through its own methods and properties; its
+    parts are its own business."""
+    tree = ast.parse(source)
+    out = []
+    for fn in ast.walk(tree):
+        if not isinstance(fn, (ast.FunctionDef, ast.AsyncFunctionDef)):
+            continue
+        held_names: set[str] = set()
+        part_names: set[str] = set()
+
+        def held(e: ast.expr) -> bool:
+            return (isinstance(e, ast.Attribute) and isinstance(e.value, ast.Name)
+                    and e.value.id == "self" and e.attr in holds) or (
+                isinstance(e, ast.Name) and e.id in held_names)
+
+        def part(e: ast.expr) -> bool:
+            return (isinstance(e, ast.Attribute) and held(e.value)) or (
+                isinstance(e, ast.Name) and e.id in part_names)
+
+        for node in ast.walk(fn):
+            if isinstance(node, ast.Assign) and len(node.targets) == 1 \
+                    and isinstance(node.targets[0], ast.Name):
+                if held(node.value):
+                    held_names.add(node.targets[0].id)
+                elif part(node.value):
+                    part_names.add(node.targets[0].id)
+        for node in ast.walk(fn):
+            if not isinstance(node, ast.Attribute) or node.attr in NAMEDTUPLE_API:
+                continue
+            if (isinstance(node.ctx, ast.Store) and held(node.value)) or part(node.value):
+                out.append(f"{node.lineno}: {ast.unparse(node)}")
+    return sorted(set(out), key=lambda s: int(s.split(":")[0]))
+
+
+def test_the_flight_computer_steers_its_laws_through_their_methods() -> None:
+    found = reaches_through(FLIGHT_COMPUTER.read_text(), FLIGHT_COMPUTER_HOLDS)
+    assert not found, f"the flight computer reaches into its laws: {'; '.join(found)}"
+
+
+def test_a_reach_through_a_held_object_is_seen() -> None:
+    src = ("class FC:\n"
+           "    def tick(self, y):\n"
+           "        self.recovery.projector.lam = None\n"      # a part's field, written
+           "        rec = self.recovery\n"
+           "        rec.hold_m = y\n"                           # the law's field, written
+           "        lag = self.controller.lag_inverter\n"
+           "        lag.reset()\n"                              # a part, used
+           "        k = self.controller.model.k_f\n"            # a part, read
+           "        out = rec.update(y)\n"                      # asked: fine
+           "        return out.thrust_n, rec.holding, self.controller.has_motor_lag, k\n")
+    found = reaches_through(src, {"controller", "recovery"})
+    assert [f.split(": ")[1] for f in found] == [
+        "self.recovery.projector.lam", "rec.hold_m", "lag.reset", "self.controller.model.k_f"]

@@ -50,16 +50,25 @@ class PathReference:
     def for_scenario(cls, scenario: Scenario) -> PathReference:
         return cls(scenario_path(scenario), scenario.path.speed_mps)
 
+    @property
+    def lam(self) -> float | None:
+        """λ of the last closest point (None: the next call searches the whole path)."""
+        return self.projector.lam
+
+    def start_at(self, lam: float | None) -> None:
+        """The next closest-point search starts at ``lam`` (None: a global search)."""
+        self.projector.lam = lam
+
     def at(self, position_m: Sequence[float]) -> Reference | None:
         """The reference for ``position_m`` (m), or None if the projection fails (the state
         is not finite); the next call then searches the whole path again."""
         y = tuple(float(c) for c in position_m)
         if not all(math.isfinite(c) for c in y):
-            self.projector.lam = None
+            self.projector.forget()
             return None
         proj = self.projector.project(y)
         if proj is None:
-            self.projector.lam = None
+            self.projector.forget()
             return None
         p, t, k, dist = proj
         s = self.speed_mps

@@ -180,11 +180,11 @@ class FlightComputer:
         self.detector: AttackDetector | None = (build_detector(scenario)
                                                 if attack_info == "detector" else None)
         self.thrust_max_n = scenario.vehicle.thrust_max_n
-        self.k_f = self.controller.model.k_f
+        mp = model_params(scenario)     # the laws' model of the vehicle
+        self.k_f = mp.k_f
         self._told_rotor = 0
         self.detected_rotor = 0
         self.detection_time_s = math.nan
-        mp = model_params(scenario)
         self.recovery = RecoveryLaw(mp.mass_kg, mp.inertia_kgm2, mp.arm_m,
                                     mp.drag_thrust_ratio_m, mp.k_t, mp.k_r, mp.thrust_max_n,
                                     mp.gravity_mps2, scenario.run.control_dt_s,
@@ -242,7 +242,7 @@ class FlightComputer:
         self.yaw_model = (YawRateModel(mp, self.k_f, sens.gyro_range_radps)
                           if sens.gyro_range_radps > 0.0 else None)
         self._needs_omega = (self.state_filter is not None or self.yaw_model is not None
-                             or self.controller.lag_inverter is not None)
+                             or self.controller.has_motor_lag)
         self.internal_errors = 0   # ticks a law raised (held the last command)
         self._last_t: float | None = None
         self._supervise_core: Callable[..., Any] | None = None
@@ -469,8 +469,7 @@ class FlightComputer:
         rates = tuple(_floats(state.body_rates_radps))
         w = rpm[rotor - 1] * RPM_TO_RADPS
         stuck = self.k_f * w * w
-        proj = self.recovery.projector
-        found = proj.project(y) if proj is not None else None
+        found = self.recovery.closest_path_point(y)
         if found is None:
             point, tangent, curvature, dist = tuple(y), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), _NAN
         else:
@@ -490,12 +489,9 @@ class FlightComputer:
             thrust, clipped = list(out.thrusts_n), out.clipped
             reason = (f"spin: {out.spin_radps:.0f} rad/s, cone "
                       f"{math.degrees(out.cone_rad):.0f} deg")
-        lag = self.controller.lag_inverter
-        if lag is not None:
-            omega = [r * RPM_TO_RADPS for r in rpm]
-            lag.reachable(omega)
-            command = lag.invert(thrust).command_n
-            command[rotor - 1] = thrust[rotor - 1]
+        if self.controller.has_motor_lag:
+            command, _ = self.controller.invert_lag(thrust, [r * RPM_TO_RADPS for r in rpm],
+                                                    rotor)
             self._last_safe_thrust = list(thrust)
             thrust = command
         else:
@@ -578,7 +574,7 @@ class FlightComputer:
             demand = out.demand_n or _ZERO4
         fields = (dt, rotor, estimate, spread, tfl_flew, answer, demand, safe_distance_m,
                   state.quaternion_wxyz, state.body_rates_radps, state.velocity_mps,
-                  self._distance_to_path(state) if first else _NAN,
+                  self.recovery.distance_to_path(_floats(state.position_m)) if first else _NAN,
                   self._spin_ready(rotor, estimate) if rotor else False)
         old = self._sup
         core = self._supervise_core
@@ -599,7 +595,7 @@ class FlightComputer:
         if start == Start.SAFE_HOLD:
             rec.hold(state.position_m)
         elif start == Start.SAFE_PATH:
-            if rec.hold_m is not None:         # after a held point: we may be far away
+            if rec.holding:                    # after a held point: we may be far away
                 rec.follow_path(search=True)
             elif out is not None:              # from TFL: its λ is where the vehicle is
                 rec.follow_path(out.lam)
@@ -607,28 +603,15 @@ class FlightComputer:
                 rec.follow_path(search=True)
         if (start in (Start.SAFE_HOLD, Start.SAFE_PATH)
                 and old.law in (Law.TFL, Law.SPIN)) or start == Start.SPIN:
-            lag = self.controller.lag_inverter
-            if lag is not None:
-                lag.reset()            # the old law's demand is not a trend of this one's
+            self.controller.reset_lag_inverse()   # the old law's demand is not a trend
         elif start == Start.TFL_RESUME:
             self._resume_tfl()
         return self._sup
 
-    def _distance_to_path(self, state: State) -> float:
-        """The distance (m) from ``state`` to the path (a global search), NaN without one."""
-        proj = self.recovery.projector
-        if proj is None:
-            return math.nan
-        found = proj.project(_floats(state.position_m))
-        proj.lam = None          # the safe law, if it flies, searches afresh
-        return found[3] if found is not None else math.nan
-
     def _resume_tfl(self) -> None:
         """Back to TFL, bumpless: its dynamic extension starts at the thrust now applied,
         its path parameter at the safe law's, its estimators keep what they learnt."""
-        projector = self.recovery.projector
-        self.controller.resume(self._last_safe_thrust,
-                               projector.lam if projector is not None else None)
+        self.controller.resume(self._last_safe_thrust, self.recovery.path_lam)
 
     def _fly_safe(self, dt: float, state: State, rotor: int, estimate: float, spread: float,
                   omega: list[float] | None, events: list[str],
@@ -660,15 +643,9 @@ class FlightComputer:
         # the lag model's mean for the command sent (the attacked rotor: its estimate) —
         # what TFL's own step feeds its estimator with; never the ESC's noisy sample.
         delivered = list(thrust)
-        lag = ctrl.lag_inverter
-        if lag is not None:     # the motor-lag inverse, as the TFL law flies it
-            lag.reachable(omega)
-            inv = lag.invert(thrust)
-            command, delivered = inv.command_n, list(inv.expected_mean_n)
-            if rotor:
-                command[rotor - 1] = thrust[rotor - 1]   # not ours to command
-                delivered[rotor - 1] = thrust[rotor - 1]
-            thrust = command
+        if ctrl.has_motor_lag:      # the motor-lag inverse, as the TFL law flies it (the
+            # attacked rotor is not ours to command)
+            thrust, delivered = ctrl.invert_lag(thrust, omega, rotor)
         self._delivered = delivered if self._sup.law != _TFL else None
         # the output; after a hand-back this tick is still the safe law's
         mode = _LOST_ROTOR if rotor else _RECOVERY

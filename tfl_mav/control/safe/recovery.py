@@ -240,6 +240,11 @@ class PathProjector:
         d2 = (x - yx) ** 2 + (sy - yy) ** 2 + (z - yz) ** 2
         self.lam = float(lam_grid[int(np.argmin(d2))])
 
+    def forget(self) -> None:
+        """Drop λ: the next projection starts with a global search (the vehicle may be
+        anywhere: after a held point, or a stretch off the path)."""
+        self.lam = None
+
     def project(self, y: Sequence[float]) -> tuple[tuple[float, float, float],
                                                    tuple[float, float, float],
                                                    tuple[float, float, float],
@@ -350,9 +355,40 @@ class RecoveryLaw:
         self.drift_age_s = 0.0
         if self.projector is not None:
             if search:
-                self.projector.lam = None
+                self.projector.forget()
             elif lam is not None and math.isfinite(lam):
                 self.projector.lam = float(lam)
+
+    @property
+    def holding(self) -> bool:
+        """Whether the law holds a point (told to, or the path lost) rather than the path."""
+        return self.hold_m is not None
+
+    @property
+    def path_lam(self) -> float | None:
+        """λ of the path point this law last flew to (None: no path, or none found yet)."""
+        return self.projector.lam if self.projector is not None else None
+
+    def closest_path_point(self, y: Sequence[float]) -> tuple[tuple[float, float, float],
+                                                              tuple[float, float, float],
+                                                              tuple[float, float, float],
+                                                              float] | None:
+        """The path point closest to ``y`` (m), warm-started from this law's λ and kept as
+        its λ — another law flying the path this law would fly back to (the spin law):
+        (point, unit tangent, curvature vector κN, distance m), None without a path or a
+        closest point."""
+        return self.projector.project(y) if self.projector is not None else None
+
+    def distance_to_path(self, y: Sequence[float]) -> float:
+        """The distance (m) from ``y`` to the path (from this law's λ; a global search when
+        it has none, as before it first flies), NaN without a path or a closest point; λ is
+        dropped after it (the law, if it flies, searches afresh)."""
+        proj = self.projector
+        if proj is None:
+            return math.nan
+        found = proj.project(y)
+        proj.forget()
+        return found[3] if found is not None else math.nan
 
     # ------------------------------------------------------------------ gains
     def _lqr(self, r: float, ix: float, iy: float) -> Gains:

@@ -339,6 +339,36 @@ class TFLController:
         ps = self.state.path
         return ps.lam if ps.has_lam else None
 
+    @property
+    def has_motor_lag(self) -> bool:
+        """Whether the motors lag (the model's time constant > 0): the law then commands
+        through the motor-lag inverse (:mod:`~tfl_mav.control.actuators`)."""
+        return self.lag_inverter is not None
+
+    def invert_lag(self, thrust_n: Sequence[float], rotor_speed_radps: Sequence[float] | None,
+                   pinned: int = 0) -> tuple[list[float], list[float]]:
+        """Another law's thrusts (N, physical order) through this law's motor-lag inverse,
+        which then knows what was commanded (its trend) when this law flies again: (the
+        command to send, the mean the rotors deliver over the period) from the rotor speeds
+        ω (rad/s). Rotor ``pinned`` (1-4; 0: none) is not ours to command: it passes as it
+        is. Without motor lag: the thrusts, twice."""
+        lag = self.lag_inverter
+        if lag is None:
+            return list(thrust_n), list(thrust_n)
+        lag.reachable(rotor_speed_radps)
+        inv = lag.invert(thrust_n)
+        command, delivered = inv.command_n, list(inv.expected_mean_n)
+        if pinned:
+            command[pinned - 1] = thrust_n[pinned - 1]
+            delivered[pinned - 1] = thrust_n[pinned - 1]
+        return command, delivered
+
+    def reset_lag_inverse(self) -> None:
+        """Another law takes over (or this one after another): the demand inverted next is
+        not a trend of the last one's (:meth:`.actuators.MotorLagInverter.reset`)."""
+        if self.lag_inverter is not None:
+            self.lag_inverter.reset()
+
     # ------------------------------------------------------------------ configuration
     def resume(self, thrust_n: Sequence[float], lam: float | None = None) -> None:
         """Fly again, bumpless, from a state another law flew: the dynamic extension starts at
