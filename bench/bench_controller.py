@@ -58,19 +58,19 @@ from typing import Any
 import numpy as np
 from fc_parts import flight_computer_parts
 
-from tfl_mav.build import build_controller, model_params
+from tfl_mav import offline
 from tfl_mav.control import actuators
 from tfl_mav.control.path import compiled, tracker
 from tfl_mav.control.path.compiled import compile_path
 from tfl_mav.control.safe import recovery
-from tfl_mav.control.tfl import law, step
-from tfl_mav.control.tfl.law import TFLController
+from tfl_mav.control.tfl import step, tfl_controller
+from tfl_mav.control.tfl.tfl_controller import TFLController
 from tfl_mav.controller.flight_computer import FlightComputer
+from tfl_mav.from_scenario import build_controller, model_params
 from tfl_mav.model.state import State
 from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import Scenario, load_scenario
 from tfl_mav.sitl.simulator import Simulator
-from tfl_mav import offline
 
 _cpu = time.thread_time
 
@@ -129,7 +129,7 @@ STEPS: list[tuple[str, Any, str]] = [
     ("path: reference jets (8), (13)-(15)", tracker.PathTracker, "virtual_output"),
     ("lag inverse", actuators.MotorLagInverter, "reachable"),
     ("lag inverse", actuators.MotorLagInverter, "invert"),
-    ("update: the rest (inputs, words, record)", law.TFLController, "update"),
+    ("update: the rest (inputs, words, record)", tfl_controller.TFLController, "update"),
 ]
 LABELS = [COMPILED, *(label for label, _ in PIECES), *(label for label, _, _ in STEPS)]
 

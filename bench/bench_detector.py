@@ -30,8 +30,8 @@ from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from typing import Any
 
-from tfl_mav.build import build_detector
 from tfl_mav.controller.flight_computer import FlightComputer
+from tfl_mav.from_scenario import build_detector
 from tfl_mav.scenario import Scenario, load_scenario
 from tfl_mav.sitl.simulator import Simulator
 

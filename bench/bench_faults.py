@@ -40,8 +40,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from tfl_mav.build import scenario_path
 from tfl_mav.control.path.paths import PathTracker
+from tfl_mav.from_scenario import scenario_path
 from tfl_mav.link.dialect import mav, new_mavlink
 from tfl_mav.scenario import load_scenario
 from tfl_mav.tools.harness.ports import free_udp_port

@@ -13,7 +13,7 @@ from typing import Any
 
 from tfl_mav.control.detect.detector import AttackDetector
 from tfl_mav.control.safe.recovery import RecoveryLaw
-from tfl_mav.control.tfl.law import TFLController
+from tfl_mav.control.tfl.tfl_controller import TFLController
 from tfl_mav.controller.flight_computer import FlightComputer
 from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import Scenario

@@ -38,7 +38,6 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from tfl_mav.build import scenario_path
 from tfl_mav.control.safe.recovery import PathProjector
 from tfl_mav.controller.flight_computer import FlightComputer, TickResult
 from tfl_mav.controller.software import (
@@ -51,6 +50,7 @@ from tfl_mav.controller.software import (
     tick_result,
 )
 from tfl_mav.flightlog.metrics import detection_events, law_report
+from tfl_mav.from_scenario import scenario_path
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
 from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario

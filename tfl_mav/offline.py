@@ -19,10 +19,10 @@ from typing import Any, NamedTuple
 
 import numpy as np
 
-from tfl_mav.build import scenario_path
 from tfl_mav.controller.flight_computer import FlightComputer
 from tfl_mav.flightlog.flight import FlightLog
 from tfl_mav.flightlog.pathdist import path_distances
+from tfl_mav.from_scenario import scenario_path
 from tfl_mav.scenario import Scenario
 from tfl_mav.sitl.attacker import AttackSignal
 from tfl_mav.sitl.simulator import Simulator

@@ -16,7 +16,7 @@ from typing import NamedTuple
 import pytest
 
 from tfl_mav.accel import native
-from tfl_mav.accel.values import _INTRINSICS
+from tfl_mav.accel.lowering_values import _INTRINSICS
 
 pytestmark = pytest.mark.skipif(native._compiler() is None and not native.compiler_expected(),
                                 reason="no C compiler, and none expected on this platform")

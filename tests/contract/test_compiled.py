@@ -15,7 +15,6 @@ import re
 import numpy as np
 import pytest
 
-from tfl_mav.build import build_controller
 from tfl_mav.control.path.compiled import (
     CompiledPathTracker,
     _pi_kernel,
@@ -25,6 +24,7 @@ from tfl_mav.control.path.compiled import (
 from tfl_mav.control.path.jets import Jet, cos
 from tfl_mav.control.path.paths import Path, PathTracker, build_path
 from tfl_mav.control.path.tracker import grad_s
+from tfl_mav.from_scenario import build_controller
 from tfl_mav.model.state import State
 from tfl_mav.scenario import load_scenario
 from tfl_mav.sitl.simulator import Simulator

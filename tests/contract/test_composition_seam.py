@@ -5,7 +5,7 @@ what the Python steps return, bit for bit and type for type.
   a :class:`SupervisorState`), over random and edge inputs in every mode — and along chains
   of ticks, where the hysteresis timers and the window shares build up.
 * The TFL law's mass estimator fed a tick another law flew
-  (:func:`~tfl_mav.control.tfl.law.mass_observe`)."""
+  (:func:`~tfl_mav.control.tfl.tfl_controller.mass_observe`)."""
 
 from __future__ import annotations
 
@@ -17,7 +17,7 @@ import pytest
 
 from tfl_mav.accel import native
 from tfl_mav.control.tfl.estimators import MassState, mass_model, mass_start
-from tfl_mav.control.tfl.law import mass_observe
+from tfl_mav.control.tfl.tfl_controller import mass_observe
 from tfl_mav.controller.supervisor import (
     SupervisorInputs,
     SupervisorState,

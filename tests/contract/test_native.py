@@ -26,10 +26,10 @@ from tests.contract.test_compiled import PATHS
 from tests.contract.test_step import random_state as _random_state
 from tests.golden.test_golden import _LOCKSTEP, _OFFLINE
 from tfl_mav.accel import native
-from tfl_mav.build import law_config, model_params
 from tfl_mav.control.path.kernelgen import compile_source
 from tfl_mav.control.path.paths import build_path
-from tfl_mav.control.tfl.law import TFLController
+from tfl_mav.control.tfl.tfl_controller import TFLController
+from tfl_mav.from_scenario import law_config, model_params
 from tfl_mav.model.state import State
 from tfl_mav.scenario import load_scenario
 from tfl_mav.sitl import physics
@@ -234,7 +234,7 @@ def test_the_lowered_step_run_as_python_is_the_step(monkeypatch):
     scalar-replaced), run as Python with no C at all, gives the step's bits: the lowering
     itself is exact, before the translation to C."""
     from tfl_mav.accel import frontend
-    from tfl_mav.accel.values import _INTRINSICS
+    from tfl_mav.accel.lowering_values import _INTRINSICS
 
     monkeypatch.setenv("TFL_MAV_NATIVE", "off")
     law = _controllers(build_path("paper", {}))

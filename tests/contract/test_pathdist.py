@@ -8,9 +8,9 @@ import random
 
 import pytest
 
-from tfl_mav.build import scenario_path
 from tfl_mav.control.path.paths import PathTracker
 from tfl_mav.flightlog import pathdist
+from tfl_mav.from_scenario import scenario_path
 from tfl_mav.scenario import load_scenario
 
 

@@ -21,7 +21,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from mcap.reader import make_reader
 
-from tfl_mav.controller.daemon_io import TICK_FIELDS, TICK_SCHEMA
+from tfl_mav.controller.daemon_wire import TICK_FIELDS, TICK_SCHEMA
 from tfl_mav.flightlog import protos
 from tfl_mav.flightlog.logread import LogReader, raw_frames
 from tfl_mav.flightlog.recorder import Recorder

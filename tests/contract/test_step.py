@@ -15,10 +15,10 @@ import random
 import pytest
 
 from tests.contract.test_compiled import PATHS, _normwise
-from tfl_mav.build import law_config, model_params
 from tfl_mav.control.path.paths import build_path
 from tfl_mav.control.tfl import step
-from tfl_mav.control.tfl.law import TFLController, as_state
+from tfl_mav.control.tfl.tfl_controller import TFLController, as_state
+from tfl_mav.from_scenario import law_config, model_params
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
 from tfl_mav.scenario import load_scenario

@@ -27,8 +27,8 @@ from scipy import signal
 from tfl_mav.api import Environment, Mode, load_scenario
 from tfl_mav.baselines import cascade, se3
 from tfl_mav.baselines.reference import PathReference, controller_model
-from tfl_mav.build import scenario_path
 from tfl_mav.control.safe.recovery import reference_sigma2
+from tfl_mav.from_scenario import scenario_path
 
 MARGIN = 1.5
 

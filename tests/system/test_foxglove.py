@@ -194,7 +194,7 @@ def test_the_controllers_live_view_draws_its_estimate():
     scene = EstimateScene(ROTORS, 8.0)
     server = LiveServer("127.0.0.1", 0, scene)
     odo_ch = server.channel("/mavlink/1/1/ODOMETRY", "ODOMETRY", "jsonschema", b"{}", "json")
-    from tfl_mav.controller.daemon_io import TICK_FIELDS, TICK_SCHEMA
+    from tfl_mav.controller.daemon_wire import TICK_FIELDS, TICK_SCHEMA
     from tfl_mav.flightlog.protos import RecordEncoder
 
     record = RecordEncoder(TICK_SCHEMA, TICK_FIELDS)

@@ -177,7 +177,7 @@ def test_daemon_tick_record_is_tick_state(sim_factory):
     the tuple ``tick_state`` builds from the same tick's result. A real lockstep flight (the
     paper's attack: detection, then the attacked and safe laws), every tick compared."""
     from tfl_mav.controller.daemon import Daemon
-    from tfl_mav.controller.daemon_io import tick_state
+    from tfl_mav.controller.daemon_wire import tick_state
     from tfl_mav.controller.flight_computer import FlightComputer
     from tfl_mav.scenario import load_scenario
 

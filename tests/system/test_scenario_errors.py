@@ -18,8 +18,8 @@ from typing import Any
 
 import pytest
 
-from tfl_mav.build import scenario_path
 from tfl_mav.control.path.paths import _KNOWN_KEYS
+from tfl_mav.from_scenario import scenario_path
 from tfl_mav.scenario import (
     _SECTIONS,
     Scenario,

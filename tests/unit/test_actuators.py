@@ -9,7 +9,6 @@ import math
 import numpy as np
 import pytest
 
-from tfl_mav.build import build_controller
 from tfl_mav.control.actuators import (
     LAG_START,
     MotorLagInverter,
@@ -18,6 +17,7 @@ from tfl_mav.control.actuators import (
     lag_reachable,
 )
 from tfl_mav.control.allocation import allocate_attacked, allocate_nominal
+from tfl_mav.from_scenario import build_controller
 from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import load_scenario
 from tfl_mav.sitl.motors import MotorBank

@@ -15,13 +15,13 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tfl_mav.build import build_detector
 from tfl_mav.control.detect.detector import (
     RPM_QUANTISATION_STD,
     AttackDetector,
     DetectorConfig,
     DetectorOutput,
 )
+from tfl_mav.from_scenario import build_detector
 from tfl_mav.scenario import Scenario, ScenarioError, load_scenario, scenario_from_dict
 from tfl_mav.sitl.simulator import Simulator
 

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import pytest
 
-from tfl_mav.build import scenario_path
 from tfl_mav.expr import MAX_EXPR_LENGTH, ExprError, compile_expr
+from tfl_mav.from_scenario import scenario_path
 from tfl_mav.scenario import ScenarioError, scenario_from_dict
 
 # Each line: code execution, escape or DoS attempt; all must be refused.

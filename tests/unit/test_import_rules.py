@@ -31,7 +31,7 @@ CONTROL_ROOMS = {"control", "control.path", "control.tfl", "control.safe", "cont
                  "control.spin"}
 # The controller side: everything under tfl_mav/ except the public face.
 CONTROLLER_SIDE = {"model", "accel", "link", "flightlog", "controller", "baselines", "shared",
-                   "build", *CONTROL_ROOMS}
+                   "from_scenario", *CONTROL_ROOMS}
 
 # room → rooms it may import besides itself ("control" is the control package's top level;
 # "control.tfl" etc. its rooms).
@@ -48,12 +48,12 @@ ALLOWED: dict[str, set[str]] = {
     # the spin law designs its gains with the safe law's numpy LQR (control.safe.lqr)
     "control.spin": {"model", "accel", "control", "control.safe", "shared"},
     # a scenario → the controller's model, law, path, detector
-    "build": {"model", "control", *CONTROL_ROOMS, "shared"},
+    "from_scenario": {"model", "control", *CONTROL_ROOMS, "shared"},
     # a finished flight's reader rebuilds the scenario's path (flightlog.from_mcap)
-    "flightlog": {"model", "accel", "link", "control.path", "shared", "build"},
+    "flightlog": {"model", "accel", "link", "control.path", "shared", "from_scenario"},
     "controller": {"model", "accel", "link", "flightlog", "control", *CONTROL_ROOMS, "shared",
-                   "build"},
-    "baselines": {"model", "control", *CONTROL_ROOMS, "shared", "build"},
+                   "from_scenario"},
+    "baselines": {"model", "control", *CONTROL_ROOMS, "shared", "from_scenario"},
     # the vehicle: never the controller, its laws or its log
     "sitl": {"model", "accel", "link", "shared"},
     "face": CONTROLLER_SIDE | {"sitl"},
@@ -70,8 +70,8 @@ def _room(module: str) -> str:
         return "shared"
     if module in FACE:
         return "face"
-    if module == "tfl_mav.build":
-        return "build"
+    if module == "tfl_mav.from_scenario":
+        return "from_scenario"
     if parts[1] == "tools":
         return "tools" if len(parts) == 2 else f"tools.{parts[2]}"
     if parts[1] == "control":

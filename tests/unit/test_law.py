@@ -9,9 +9,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tfl_mav.build import build_controller
 from tfl_mav.control.allocation import allocate_attacked, allocate_nominal, canonical_frame
-from tfl_mav.control.tfl.law import chain_gains
+from tfl_mav.control.tfl.tfl_controller import chain_gains
+from tfl_mav.from_scenario import build_controller
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
 from tfl_mav.scenario import load_scenario

@@ -44,7 +44,7 @@ from collections.abc import Sequence
 
 import pytest
 
-from tfl_mav.build import build_controller
+from tfl_mav.from_scenario import build_controller
 from tfl_mav.model.geometry import euler_to_quaternion
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State

@@ -12,9 +12,9 @@ import pytest
 from scipy.linalg import expm as scipy_expm
 from scipy.linalg import solve_discrete_are
 
-from tfl_mav.build import model_params
 from tfl_mav.control.safe import lqr, recovery
 from tfl_mav.control.safe.recovery import LQR_MAX_SPIN_RADPS, LQR_Q, LQR_R, RecoveryLaw
+from tfl_mav.from_scenario import model_params
 from tfl_mav.model.state import State
 from tfl_mav.scenario import load_scenario
 
@@ -86,7 +86,7 @@ def test_the_safe_law_designs_its_gains_without_scipy():
     """A restarted daemon need not import scipy: a lost-rotor tick designs its gain with
     numpy alone (checked in a fresh interpreter)."""
     code = ("import sys\n"
-            "from tfl_mav.build import model_params\n"
+            "from tfl_mav.from_scenario import model_params\n"
             "from tfl_mav.control.safe.recovery import RecoveryLaw\n"
             "from tfl_mav.scenario import load_scenario\n"
             "from tfl_mav.model.state import State\n"

@@ -77,6 +77,19 @@ FLIGHT_COMPUTER = REPO / "tfl_mav" / "controller" / "flight_computer.py"
 FLIGHT_COMPUTER_HOLDS = {"controller", "recovery", "detector", "state_filter", "yaw_model"}
 
 
+def _held(e: ast.expr, holds: set[str], held_names: set[str]) -> bool:
+    """``e`` is a held object: ``self.<name>`` (``name`` in ``holds``) or a local bound to one."""
+    return (isinstance(e, ast.Attribute) and isinstance(e.value, ast.Name)
+            and e.value.id == "self" and e.attr in holds) or (
+        isinstance(e, ast.Name) and e.id in held_names)
+
+
+def _part(e: ast.expr, holds: set[str], held_names: set[str], part_names: set[str]) -> bool:
+    """``e`` is a part of a held object (an attribute of it), or a local bound to one."""
+    return (isinstance(e, ast.Attribute) and _held(e.value, holds, held_names)) or (
+        isinstance(e, ast.Name) and e.id in part_names)
+
+
 def reaches_through(source: str, holds: set[str]) -> list[str]:
     """``line: expression`` of every write into an object held as ``self.<name>`` (``name``
     in ``holds``) and every use of one of its parts — an attribute of an attribute of it
@@ -91,27 +104,18 @@ def reaches_through(source: str, holds: set[str]) -> list[str]:
             continue
         held_names: set[str] = set()
         part_names: set[str] = set()
-
-        def held(e: ast.expr) -> bool:
-            return (isinstance(e, ast.Attribute) and isinstance(e.value, ast.Name)
-                    and e.value.id == "self" and e.attr in holds) or (
-                isinstance(e, ast.Name) and e.id in held_names)
-
-        def part(e: ast.expr) -> bool:
-            return (isinstance(e, ast.Attribute) and held(e.value)) or (
-                isinstance(e, ast.Name) and e.id in part_names)
-
         for node in ast.walk(fn):
             if isinstance(node, ast.Assign) and len(node.targets) == 1 \
                     and isinstance(node.targets[0], ast.Name):
-                if held(node.value):
+                if _held(node.value, holds, held_names):
                     held_names.add(node.targets[0].id)
-                elif part(node.value):
+                elif _part(node.value, holds, held_names, part_names):
                     part_names.add(node.targets[0].id)
         for node in ast.walk(fn):
             if not isinstance(node, ast.Attribute) or node.attr in NAMEDTUPLE_API:
                 continue
-            if (isinstance(node.ctx, ast.Store) and held(node.value)) or part(node.value):
+            if (isinstance(node.ctx, ast.Store) and _held(node.value, holds, held_names)) \
+                    or _part(node.value, holds, held_names, part_names):
                 out.append(f"{node.lineno}: {ast.unparse(node)}")
     return sorted(set(out), key=lambda s: int(s.split(":")[0]))
 

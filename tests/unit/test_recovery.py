@@ -20,7 +20,6 @@ import numpy as np
 import pytest
 
 from tests.contract.test_compiled import PATHS
-from tfl_mav.build import model_params
 from tfl_mav.control.path.compiled import compile_path
 from tfl_mav.control.path.paths import Path, build_path
 from tfl_mav.control.safe.recovery import (
@@ -32,6 +31,7 @@ from tfl_mav.control.safe.recovery import (
     reference_sigma2,
 )
 from tfl_mav.controller.flight_computer import TAKEOVER_TILT_RAD, FlightComputer
+from tfl_mav.from_scenario import model_params
 from tfl_mav.model.geometry import rotation_rows
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State

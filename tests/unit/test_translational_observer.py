@@ -13,9 +13,9 @@ import math
 
 import pytest
 
-from tfl_mav.build import law_config, translational_observer
 from tfl_mav.control.tfl.estimators import TDOB_START, tdob_update
 from tfl_mav.flightlog.flight import summarize
+from tfl_mav.from_scenario import law_config, translational_observer
 from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import ScenarioError, load_scenario
 

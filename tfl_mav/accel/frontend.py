@@ -27,7 +27,7 @@ syntax tree, never its arithmetic:
   translator returns each result as the kind Python's is (a bool a bool) and a NamedTuple
   built in the function as its class;
 * **returns on several paths**: what follows an ``if`` that returns on some of its paths
-  runs on the others (:class:`~tfl_mav.accel.values.Rest`, guarded by a flag the returns
+  runs on the others (:class:`~tfl_mav.accel.lowering_values.Rest`, guarded by a flag the returns
   set); every return sets the result's locals;
 * **a short circuit that calls**: ``a and f(x)`` (``or``) is ``if`` statements, ``f`` called
   only where Python calls it.
@@ -50,7 +50,7 @@ from typing import Any, NamedTuple
 
 from tfl_mav.accel.ctranslate import NativeError
 from tfl_mav.accel.lowering import Lowerer
-from tfl_mav.accel.values import Frame, Tup, _source, _value, kind_of, named_class
+from tfl_mav.accel.lowering_values import Frame, Tup, _source, _value, kind_of, named_class
 
 __all__ = ["BOUND", "Lowered", "Tup", "bound", "bound_functions", "lower", "lower_files",
            "shape_key"]

@@ -8,7 +8,7 @@ import types
 from typing import Any
 
 from tfl_mav.accel.ctranslate import NativeError
-from tfl_mav.accel.values import (
+from tfl_mav.accel.lowering_values import (
     _INT_OPS,
     _INTRINSICS,
     Frame,
@@ -139,7 +139,7 @@ class Lowerer:
 
     def ret(self, f: Frame, e: ast.expr) -> None:
         """``return e``: the function's value. A return on one path of a branch (the
-        others return too: :func:`~tfl_mav.accel.values._single_exit`) sets the result's
+        others return too: :func:`~tfl_mav.accel.lowering_values._single_exit`) sets the result's
         locals, which every other return then sets."""
         value = self.value(f, e, False)
         if f.result is None and self.depth == f.depth:

@@ -117,7 +117,7 @@ def _translator() -> str:
     here = Path(__file__).parent
     text = Path(ctranslate.__file__).read_bytes() + b"".join(
         (here / name).read_bytes() for name in ("cruntime.py", "frontend.py", "lowering.py",
-                                                  "values.py"))
+                                                  "lowering_values.py"))
     return hashlib.sha256(text).hexdigest()[:16]
 
 

@@ -4,5 +4,6 @@
 
 Both fly the path through the same path-to-reference code (:mod:`~tfl_mav.baselines.
 reference`) and the controller's own (wrong on purpose) model of the vehicle, the one the
-TFL law gets (:func:`~tfl_mav.build.model_params`), so a difference between them is the law's.
+TFL law gets (:func:`~tfl_mav.from_scenario.model_params`), so a difference between them is
+the law's.
 """

@@ -17,10 +17,10 @@ import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
-from tfl_mav.build import model_params, scenario_path
 from tfl_mav.control.path.paths import Path
 from tfl_mav.control.safe.recovery import PathProjector
 from tfl_mav.control.tfl.law_types import ModelParams
+from tfl_mav.from_scenario import model_params, scenario_path
 from tfl_mav.scenario import Scenario
 
 __all__ = ["PathReference", "Reference", "controller_model"]

@@ -13,8 +13,8 @@ One :class:`Daemon` talks MAVLink 2 over one UDP socket to one vehicle (docs/des
   history is kept), else ``actuator[0..3]`` × f_max (a restarted daemon, motors cut). A
   late, lost, duplicated or reordered command is then never an attack; in lockstep the
   applied command is the last one sent, so nothing changes there;
-* answers every state with ``HIL_ACTUATOR_CONTROLS`` (:mod:`tfl_mav.controller.daemon_io`, with the
-  telemetry and the recorder's tick record);
+* answers every state with ``HIL_ACTUATOR_CONTROLS`` (:mod:`tfl_mav.controller.daemon_wire`,
+  with the telemetry and the recorder's tick record);
 * is **not told** about the attack: :class:`~tfl_mav.control.detect.detector.AttackDetector`
   finds it from rpm alone and switches the law (STATUSTEXT on detection);
 * publishes its own telemetry at ≤ 50 Hz of sim time (``NAMED_VALUE_FLOAT`` mode, det_rotor,
@@ -70,7 +70,7 @@ from typing import Any
 import numpy as np
 
 from tfl_mav.controller.daemon_intake import Intake
-from tfl_mav.controller.daemon_io import (
+from tfl_mav.controller.daemon_wire import (
     _HIL_TAIL,
     _MODE_NAMES,
     LOCKSTEP_FLAG,

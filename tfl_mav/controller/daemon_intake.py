@@ -15,7 +15,7 @@ The per-tick messages arrive as the link's LiteMessage tuples (:func:`~tfl_mav.l
 .rx_lite_class`): :meth:`Intake.on_odometry` passes ODOMETRY's first 16 items straight to
 :func:`~tfl_mav.model.frames.paper_from_odometry_fields` and :meth:`Intake.on_esc` reads the rpm
 items, with no property read (same values as the attribute path, tests/unit/test_frames.py).
-Bad input is counted in :class:`~tfl_mav.controller.daemon_io.DaemonStats` and never raises.
+Bad input is counted in :class:`~tfl_mav.controller.daemon_wire.DaemonStats` and never raises.
 """
 
 from __future__ import annotations
@@ -25,7 +25,7 @@ from collections.abc import Callable
 from typing import Any
 
 from tfl_mav.controller.arrivals import FRESH, OLD, REPEATED, RESTART, Arrivals
-from tfl_mav.controller.daemon_io import DaemonStats
+from tfl_mav.controller.daemon_wire import DaemonStats
 from tfl_mav.link.codec import rx_lite_class
 from tfl_mav.link.dialect import mav
 from tfl_mav.link.statustext import Reassembler

@@ -42,7 +42,7 @@ class PathDemand:
 
 def path_demand(sc: Scenario, n: int = 4001) -> PathDemand:
     """Required acceleration and thrust along the scenario's path at its speed."""
-    from tfl_mav.build import scenario_path
+    from tfl_mav.from_scenario import scenario_path
 
     path = scenario_path(sc)
     lo, hi = path.lam_range

@@ -51,14 +51,6 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from tfl_mav.accel import native
-from tfl_mav.build import (
-    build_controller,
-    build_detector,
-    detector_config,
-    model_params,
-    scenario_path,
-    spin_params_for,
-)
 from tfl_mav.control.detect.attack_estimate import (
     ATTACK_START,
     AttackParams,
@@ -74,7 +66,7 @@ from tfl_mav.control.spin.law import initial_state as spin_initial_state
 from tfl_mav.control.spin.step import SpinInputs, SpinParams, SpinState, spin_step
 from tfl_mav.control.spin.step import row_at as spin_row
 from tfl_mav.control.state_filter import StateFilter, YawRateModel
-from tfl_mav.control.tfl.law import ControlOutput, TFLController
+from tfl_mav.control.tfl.tfl_controller import ControlOutput, TFLController
 from tfl_mav.controller.feasibility import feasible_speed_mps, path_demand
 from tfl_mav.controller.supervisor import (
     Law,
@@ -86,6 +78,14 @@ from tfl_mav.controller.supervisor import (
     initial_state,
     supervise,
     supervisor_params,
+)
+from tfl_mav.from_scenario import (
+    build_controller,
+    build_detector,
+    detector_config,
+    model_params,
+    scenario_path,
+    spin_params_for,
 )
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State

@@ -30,11 +30,11 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from tfl_mav.build import build_detector, scenario_path
 from tfl_mav.control.detect.detector import DetectorOutput
 from tfl_mav.control.safe.recovery import PathProjector
 from tfl_mav.control.tfl.law_types import ControlOutput
 from tfl_mav.controller.flight_computer import FlightComputer, TickResult
+from tfl_mav.from_scenario import build_detector, scenario_path
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
 from tfl_mav.scenario import Scenario

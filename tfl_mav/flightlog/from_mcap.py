@@ -20,10 +20,10 @@ from typing import Any
 
 import numpy as np
 
-from tfl_mav.build import scenario_path
 from tfl_mav.flightlog.flight import SERIES, FlightLog
 from tfl_mav.flightlog.logread import LogReader
 from tfl_mav.flightlog.pathdist import path_distances
+from tfl_mav.from_scenario import scenario_path
 from tfl_mav.model.airframe import mix
 from tfl_mav.model.modes import Mode
 from tfl_mav.scenario import Scenario, ScenarioError, scenario_from_dict

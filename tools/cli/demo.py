@@ -24,9 +24,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from tfl_mav.build import scenario_path
 from tfl_mav.controller.feasibility import check_scenario
 from tfl_mav.flightlog.metrics import DEFAULT_BOUND_M, DEFAULT_WINDOW_S, law_text
+from tfl_mav.from_scenario import scenario_path
 from tfl_mav.link.signing import load_key
 from tfl_mav.scenario import ScenarioError, apply_overrides, load_scenario
 from tfl_mav.tools.cli.args import duration_s

@@ -288,9 +288,9 @@ def open_recorder(scenario: Any, mcap: str | None, live: tuple[str, int] | None,
     the vehicle from the controller's state estimate (it has no truth; see
     :mod:`~tfl_mav.flightlog.live`). Raises OSError (a RecorderError) if the file or the
     live port is unusable, PathError for a bad path."""
-    from tfl_mav.build import scenario_path
     from tfl_mav.flightlog.live import EstimateScene, LiveAddress
     from tfl_mav.flightlog.recorder_process import RecorderProcess
+    from tfl_mav.from_scenario import scenario_path
     from tfl_mav.model.airframe import rotor_xy_m
 
     path = scenario_path(scenario).sample(800)

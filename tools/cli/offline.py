@@ -17,9 +17,9 @@ import json
 import sys
 from pathlib import Path
 
-from tfl_mav.build import scenario_path
 from tfl_mav.controller.feasibility import check_scenario
 from tfl_mav.flightlog.flight import summarize
+from tfl_mav.from_scenario import scenario_path
 from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
 from tfl_mav.tools.cli.args import duration_s

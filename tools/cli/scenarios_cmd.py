@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     try:
         sc = load_scenario(args.scenario)
-        from tfl_mav.build import scenario_path
+        from tfl_mav.from_scenario import scenario_path
 
         scenario_path(sc)  # validates the path keys too
     except ScenarioError as exc:

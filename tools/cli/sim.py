@@ -350,8 +350,8 @@ def _open_recorder(path: str | None, scenario: Scenario, prog: str,
         print(f"{prog}: {'--mcap: ' if path and 'foxglove' not in str(exc) else ''}{exc}",
               file=sys.stderr)
         return None, EXIT_LINK
-    from tfl_mav.build import scenario_path
     from tfl_mav.control.path.paths import PathError
+    from tfl_mav.from_scenario import scenario_path
 
     try:
         recorder.path(scenario_path(scenario).sample(800))   # what the 3-D view draws

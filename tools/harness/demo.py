@@ -22,12 +22,12 @@ from typing import Any
 
 import numpy as np
 
-from tfl_mav.build import scenario_path
 from tfl_mav.flightlog.atomic import write_text_atomic
 from tfl_mav.flightlog.flight import summarize
 from tfl_mav.flightlog.from_mcap import flight_log_from_mcap
 from tfl_mav.flightlog.logread import raw_frames
 from tfl_mav.flightlog.metrics import DEFAULT_BOUND_M, DEFAULT_WINDOW_S, flight_verdict
+from tfl_mav.from_scenario import scenario_path
 from tfl_mav.scenario import apply_overrides, load_scenario
 from tfl_mav.tools.harness.processes import raise_priority
 

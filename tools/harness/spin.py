@@ -15,11 +15,11 @@ from typing import NamedTuple
 
 import numpy as np
 
-from tfl_mav.build import scenario_path, spin_params_for
 from tfl_mav.control.safe.recovery import PathProjector
 from tfl_mav.control.spin.law import initial_state
 from tfl_mav.control.spin.step import SpinInputs, SpinParams, spin_step
 from tfl_mav.controller.flight_computer import FlightComputer
+from tfl_mav.from_scenario import scenario_path, spin_params_for
 from tfl_mav.scenario import Scenario
 from tfl_mav.sitl.motors import RADPS_TO_RPM
 from tfl_mav.sitl.simulator import Simulator

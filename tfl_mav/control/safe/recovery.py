@@ -1,7 +1,7 @@
 """A safe reduced-attitude law: a dead rotor, a take-over from an unknown state, a lost path.
 
-Why another law. The TFL attacked law (:mod:`tfl_mav.control.tfl.law`) needs τ_p of both signs
-from the rotor opposite the attacked one: f4 = A + τ_p/l (canonical frame, see
+Why another law. The TFL attacked law (:mod:`tfl_mav.control.tfl.tfl_controller`) needs τ_p
+of both signs from the rotor opposite the attacked one: f4 = A + τ_p/l (canonical frame, see
 :mod:`tfl_mav.control.allocation`). With A ≈ 0 (a dead rotor, or the paper's signal
 clamped to 0 while 3.2 < z < 6.2) f4 ≥ 0 allows τ_p ≥ 0 only, so the law's τ_p demand is
 physically out of reach and the vehicle flips within seconds. This law never asks for τ_p.

@@ -21,7 +21,8 @@ In the order the paper builds the law:
 
 Where the law cannot act (the projection lost, u_f too small, Dφ singular or ill-conditioned,
 a non-finite result) it damps the rates and holds the thrust, and says why: ``reason`` is a
-:class:`Fallback` code, the text is the holder's (:class:`~tfl_mav.control.tfl.law.TFLController`).
+:class:`Fallback` code, the text is the holder's
+(:class:`~tfl_mav.control.tfl.tfl_controller.TFLController`).
 The accelerator seam (:func:`tfl_mav.accel.native.obtain_function`) compiles :func:`tfl_step`
 with the path's kernels inlined (bound when it is lowered: one build per kernel set) — the
 same operations in the same order, the same bits — and this very Python flies wherever it

@@ -27,8 +27,8 @@ from typing import Any
 
 import numpy as np
 
-from tfl_mav.build import build_controller
 from tfl_mav.controller.software import FlightSoftwareError
+from tfl_mav.from_scenario import build_controller
 from tfl_mav.scenario import Scenario, ScenarioError, apply_overrides, load_scenario
 
 __all__ = ["CONTROLLER_KEY", "DEFAULT_CONTROLLER", "SUCCESS_MAX_DISTANCE_M", "CampaignSpec",

@@ -191,7 +191,7 @@ def spec_from_dict(data: dict[str, Any], source: str = "<dict>", *,
 
 def _validate(case: Case, where: str) -> None:
     """The case's overrides and path, checked by the scenario's own parser."""
-    from tfl_mav.build import scenario_path
+    from tfl_mav.from_scenario import scenario_path
 
     try:
         scenario_path(case_scenario(case))

@@ -18,7 +18,7 @@ from tfl_mav.control.detect.detector import AttackDetector, DetectorConfig
 from tfl_mav.control.path.paths import Path, build_path
 from tfl_mav.control.spin.law import build as build_spin_law
 from tfl_mav.control.spin.step import SpinParams
-from tfl_mav.control.tfl.law import LawConfig, ModelParams, TFLController
+from tfl_mav.control.tfl.tfl_controller import LawConfig, ModelParams, TFLController
 from tfl_mav.scenario import Scenario, ScenarioError
 
 __all__ = ["build_controller", "build_detector", "detector_config", "law_config",
