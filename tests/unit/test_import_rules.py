@@ -22,8 +22,9 @@ ROOTS = {"tfl_mav": REPO / "tfl_mav", "tfl_mav.sitl": REPO / "sitl",
          "tfl_mav.tools": REPO / "tools"}
 
 # Modules at the package's top level that every room shares (scenario files and the
-# expressions in them, the package itself).
-SHARED_TOP = {"tfl_mav.scenario", "tfl_mav.expr", "tfl_mav", "tfl_mav.scenarios"}
+# expressions in them, the flight logs' Foxglove layouts: data packages, the package itself).
+SHARED_TOP = {"tfl_mav.scenario", "tfl_mav.expr", "tfl_mav", "tfl_mav.scenarios",
+              "tfl_mav.layouts"}
 # The public face: fly flight software on the simulated vehicle in one process.
 FACE = {"tfl_mav.api", "tfl_mav.offline", "tfl_mav.gym", "tfl_mav.comparison"}
 

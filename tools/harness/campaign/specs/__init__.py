@@ -1,0 +1,1 @@
+"""Built-in campaign specs, addressable by name (``tfl-mav campaign paper-envelope``)."""
