@@ -439,7 +439,7 @@ def _results(e: ast.expr, c: _C, body: list[str]) -> ast.expr:
     return ast.Name(v, ast.Load())
 
 
-_BOX = {"f": "PyFloat_FromDouble({0})", "i": "PyLong_FromLongLong((long long){0})",
+_BOX = {"f": "tfl_float({0})", "i": "PyLong_FromLongLong((long long){0})",
         "b": "PyBool_FromLong({0} != 0.0)"}
 
 
@@ -567,7 +567,7 @@ PyInit_{module}(void)
         return NULL;
     tfl_py_hypot = PyObject_GetAttrString(math, "hypot");
     Py_DECREF(math);
-    if (tfl_py_hypot == NULL)
+    if (tfl_py_hypot == NULL || tfl_init_floats() != 0)
         return NULL;
 {_classes_init(named)}    return PyModule_Create(&moduledef);
 }}
