@@ -216,7 +216,9 @@ def test_compiled_core_flies_the_python_cores_bits_on_random_states(name, monkey
                                                               strict=True)),
                            st.velocity_mps, st.quaternion_wxyz, st.body_rates_radps)
             if trial % 2:       # the daemon's and the simulator's states are numpy arrays
-                st = State(*(np.array(f, dtype=float) for f in (
+                # (float64, read in place by the compiled step; float32 too, as floats)
+                dtype = np.float32 if trial % 4 == 3 else float
+                st = State(*(np.array(f, dtype=dtype) for f in (
                     st.position_m, st.velocity_mps, st.quaternion_wxyz, st.body_rates_radps)))
             assert repr(py.update(st)) == repr(c.update(st))
 
