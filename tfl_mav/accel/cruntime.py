@@ -8,6 +8,7 @@ own answers where libm's differ.
 * ``tfl_atan2``: CPython's ``math.atan2`` (its answers for NaN, ±inf and ±0, libm's
   otherwise).
 * ``tfl_hypot``: ``math.hypot`` itself, called (CPython's vector_norm is not libm's hypot).
+* ``tfl_frozen``: an argument whose numbers cannot change (its unpacking remembered).
 * ``tfl_float``: a result's float object; +0.0 and 1.0 (a third of a TFL tick's ~100
   results: flags, idle observers) are one shared object each instead of a new one per call.
 """
@@ -170,6 +171,21 @@ tfl_unpack(PyObject *o, double *out, Py_ssize_t n)
     }
     return 0;
 }
+/* 1 when o's numbers can never change: a number (a float or an int, subclasses too: their
+   value is fixed at creation, and read without calling them) or a tuple of such, nested. */
+static int
+tfl_frozen(PyObject *o)
+{
+    if (PyFloat_Check(o) || PyLong_Check(o))
+        return 1;
+    if (!PyTuple_Check(o))
+        return 0;
+    for (Py_ssize_t k = 0; k < PyTuple_GET_SIZE(o); k++)
+        if (!tfl_frozen(PyTuple_GET_ITEM(o, k)))
+            return 0;
+    return 1;
+}
+
 /* CPython's math.atan2 (Modules/mathmodule.c, m_atan2): its own answers for NaN, ±inf and
    ±0 (C99 Annex F's, spelled out), libm's atan2 otherwise. */
 static double
