@@ -35,16 +35,15 @@ def measure(law_name: str, rounds: int) -> dict[str, float]:
     os.environ["TFL_MAV_NATIVE"] = "sync"
     sys.path.insert(0, os.path.join(os.getcwd(), "bench"))
     import bench_controller as bc
+
     import tfl_mav
-
-    print(f"bench_tfl_call: tfl_mav from {os.path.dirname(tfl_mav.__file__)}", file=sys.stderr)
-
     from tfl_mav.model.state import State
     from tfl_mav.scenario import load_scenario
     try:
         from tfl_mav.sitl.simulator import Simulator
     except ImportError:                 # 07a6a37's layout
         from tfl_mav.sim.simulator import Simulator  # type: ignore[no-redef]
+    print(f"bench_tfl_call: tfl_mav from {os.path.dirname(tfl_mav.__file__)}", file=sys.stderr)
 
     sc = load_scenario("paper").replace(**{"controller.law": law_name})
     sim, ctrl = Simulator(sc), bc._controller(sc, True, "compiled")
