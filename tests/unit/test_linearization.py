@@ -9,7 +9,8 @@ matrix D(x) (eq. (15)) is invertible, for the nominal model and for the attacked
    mass or inertia error, ideal motors), put the dynamic extension (eq. (9)) at a random
    x13 = u_f, x14 = u̇_f, and evaluate the law once on a random state near the §VI path.
 2. Read back what the law commanded: the rotor thrusts (→ the body torques, through the
-   airframe's mixer, eq. (4)) and u_d = ü_f (from its extension update
+   airframe's mixer, eq. (4), less the turn the law gives a torque held over its period:
+   :func:`continuous_torques`) and u_d = ü_f (from its extension update
    x14 ← x14 + Δt·u_d, exact to rounding when nothing saturates); recompute the auxiliary
    inputs v from its ξ, η (``ControlOutput.xi``/``.eta``) and its gains, eqs. (23), (24).
 3. Differentiate the *physics* (``tfl_mav.sitl.physics.derivative``, the plant, written
@@ -45,6 +46,7 @@ from collections.abc import Sequence
 import pytest
 
 from tfl_mav.build import build_controller
+from tfl_mav.control.tfl.law_math import held_rate_command
 from tfl_mav.model.geometry import euler_to_quaternion
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
@@ -142,6 +144,23 @@ def random_state(rng: random.Random) -> tuple[State, float, float, float]:
             rng.uniform(-3.0, 3.0), rng.uniform(1.0, 3.0))
 
 
+def continuous_torques(p: RigidBodyParams, state: State, tau_p: float, tau_q: float,
+                       dt: float) -> tuple[float, float]:
+    """The (τ_p, τ_q) of the continuous law from those it commanded for a period ``dt``.
+
+    The law turns its (ṗ, q̇) by (I_z/I)·r·dt/2 so that a torque held over the period
+    gives the continuous law's mean acceleration (``law_math.held_rate_command``, a
+    discretisation, not eq. (21)); eq. (22) is the continuous law's claim, so the turn is
+    undone here (the same function at −r) before the physics is differentiated."""
+    ix, iy, iz = p.inertia_kgm2
+    pr, qr, rr = state.body_rates_radps
+    pdot = (tau_p - p.k_r * pr - (iz - iy) * qr * rr) / ix
+    qdot = (tau_q - p.k_r * qr - (ix - iz) * pr * rr) / iy
+    pdot, qdot = held_rate_command(pdot, qdot, -rr, dt, p.inertia_kgm2)
+    return (ix * pdot + p.k_r * pr + (iz - iy) * qr * rr,
+            iy * qdot + p.k_r * qr + (ix - iz) * pr * rr)
+
+
 def check_one(sc: Scenario, rotor: int, rng: random.Random) -> tuple[float, float] | None:
     """One random state: returns (|φ⁽⁴⁾ − v|_∞, scale), or None when the law saturated a
     rotor (then it cannot deliver w, and eq. (22) is not claimed)."""
@@ -163,6 +182,8 @@ def check_one(sc: Scenario, rotor: int, rng: random.Random) -> tuple[float, floa
         assert f[rotor - 1] == a_n                       # the attacker's rotor, not ours
     wrench = mix(p, f)
     assert wrench[0] == pytest.approx(uf, abs=1e-12)   # the rotors deliver x13 now
+    wrench = (wrench[0], *continuous_torques(p, state, wrench[1], wrench[2], ctrl.dt),
+              wrench[3])
     x0 = [*state.position_m, *state.velocity_mps, *state.quaternion_wxyz,
           *state.body_rates_radps]
     coeffs = taylor_of_trajectory(p, x0, (uf, duf, 0.5 * u_d), wrench[1:], order=4)

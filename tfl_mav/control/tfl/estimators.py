@@ -13,7 +13,11 @@ the plain law sits 6–7 cm off the path or crashes. Two estimators remove the t
   measured ṗ, q̇ and the model's prediction for the torque actually applied. A fast
   (τ ≈ 4 ms) filtered difference estimates it; the law subtracts it from its p/q
   acceleration demand (INDI-like). A slower filter lags the ~60 rad/s yaw spin under attack
-  by tens of degrees and crashes.
+  by tens of degrees and crashes. The estimate is carried in the yaw-free frame (turned by
+  −r·dt in (b1, b2) each tick): the inertia error's share is proportional to the law's own
+  (ṗ, q̇), which point at a direction fixed over a tick and so turn at −r in the body;
+  filtered in body axes it lagged by atan(r τ) ≈ 0.16 rad at r = 40 rad/s, a sideways
+  error of 10 % × 0.16 on a 10 % inertia error (0.1-0.5 mm on the paper path's bends).
 * the translational disturbance observer (:func:`tdob_update`) — the same construction on
   the velocity: the measured v̇ against the model's acceleration for the thrust applied,
   (Σf/m) b3 − g e3 − (k_t/m) v (eq. (3)). What the model does not know — the drag of a
@@ -153,12 +157,16 @@ DOB_START = DobState(0.0, 0.0, 0.0, 0.0, 0.0)
 
 
 def dob_update(tau_s: float, limit_radps2: float, s: DobState, dt: float, p: float, q: float,
-               pdot_pred: float, qdot_pred: float) -> DobState:
-    """Feed the rates measured now (rad/s) and the model's ṗ, q̇ for the command just applied:
-    the measured − predicted rate derivative through a first-order filter of ``tau_s``,
-    clamped to ±``limit_radps2``."""
+               r: float, pdot_pred: float, qdot_pred: float) -> DobState:
+    """Feed the rates measured now (rad/s, r the yaw rate about b3) and the model's ṗ, q̇
+    for the command just applied: the measured − predicted rate derivative through a
+    first-order filter of ``tau_s`` in the yaw-free frame, clamped to ±``limit_radps2``."""
     d_p, d_q = s.d_p, s.d_q
     if s.has_prev:
+        # Kept in the yaw-free frame: the body turned by r·dt under last tick's estimate.
+        th = r * dt
+        ct, st = math.cos(th), math.sin(th)
+        d_p, d_q = ct * d_p + st * d_q, ct * d_q - st * d_p
         a = dt / (tau_s + dt)
         d_p = clamp(dob_step(d_p, p, s.prev_p, pdot_pred, dt, a), -limit_radps2, limit_radps2)
         d_q = clamp(dob_step(d_q, q, s.prev_q, qdot_pred, dt, a), -limit_radps2, limit_radps2)

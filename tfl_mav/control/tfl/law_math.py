@@ -11,7 +11,8 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
-__all__ = ["attacked_tau_r", "b0_inverse", "cofactors", "cramer", "linear_rhs", "output_rows",
+__all__ = ["attacked_tau_r", "b0_inverse", "cofactors", "cramer", "held_rate_command",
+           "linear_rhs", "output_rows",
            "rate_prediction", "rotation", "saturate", "solve3", "torques", "yaw_tau_r"]
 
 V3 = Sequence[Any]
@@ -148,6 +149,23 @@ def yaw_tau_r(r2: V3, psi_e: float, psi_ref: float, pc: float, qc: float, rc: fl
         * dth / (cth * cth)
     rdot = ((psi_dd - drift) * cth - qdot * sph) / cph
     return iz * rdot + kr * rc + (iy - ix) * pc * qc
+
+
+def held_rate_command(pdot: float, qdot: float, rc: float, dt: float, ixyz: V3
+                      ) -> tuple[float, float]:
+    """The (ṗ, q̇) to command (rad/s²) for a torque held over a tick of ``dt`` s while the
+    body spins at r = ``rc`` rad/s under it, given the law's (ṗ, q̇) at the tick's start.
+
+    The continuous law's (ṗ, q̇) turn the thrust axis towards a direction fixed over the
+    tick, so in (b1, b2) they turn by −r·t. The acceleration a held torque gives turns by
+    −(1 − I_z/I)·r·t only: eq. (3)'s gyroscopic terms ṗ = … − ((I_z − I_y)/I_x) q r,
+    q̇ = … − ((I_x − I_z)/I_y) p r, I = (I_x + I_y)/2. Turning the command by the
+    difference over half a tick, (I_z/I)·r·dt/2, makes the tick's mean acceleration the
+    law's mean to O(dt²); held as it is, the tilt lags the demand by that angle (0.013 rad
+    at 1 kHz with the yaw spinning at 40 rad/s: 0.2-0.5 mm on the paper path's bends)."""
+    half = dt * rc * ixyz[2] / (ixyz[0] + ixyz[1])
+    ch, sh = math.cos(half), math.sin(half)
+    return ch * pdot + sh * qdot, ch * qdot - sh * pdot
 
 
 def saturate(f: Sequence[float], raw: Sequence[float], last: Sequence[float], fmax: float

@@ -47,6 +47,7 @@ from tfl_mav.control.tfl.estimators import (
 from tfl_mav.control.tfl.law_math import (
     attacked_tau_r,
     b0_inverse,
+    held_rate_command,
     linear_rhs,
     output_rows,
     rate_prediction,
@@ -214,7 +215,7 @@ def observe(p: TFLParams, s: TFLState, u: TFLInputs) -> tuple[Any, ...]:
         mass_s = mass_update(p.mass, mass_s, p.dt_s, v, lo[0] + lo[1] + lo[2] + lo[3], b3)
     dob_s = s.dob
     if p.use_dob and s.has_pred:
-        dob_s = dob_update(p.dob_tau_s, p.dob_limit, dob_s, p.dt_s, pc, qc, s.pred[0],
+        dob_s = dob_update(p.dob_tau_s, p.dob_limit, dob_s, p.dt_s, pc, qc, rc, s.pred[0],
                            s.pred[1])
     mass = mass_s.mass_kg
     tdob_s = s.tdob
@@ -265,6 +266,8 @@ def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: tuple[Any, ...],
     # … then B₀ w = z with B₀ = [b3/m, −(u_f/m) b2, (u_f/m) b1]: orthogonal columns.
     if uf > 0:
         udd, pdot, qdot = b0_inverse(z, b1, b2, b3, mass, uf)
+        # The torque is held over the tick while the body spins under it (eq. (3)).
+        pdot, qdot = held_rate_command(pdot, qdot, rc, p.dt_s, fr.ixyz)
     else:
         udd, pdot, qdot = mass * (z[0] * b3[0] + z[1] * b3[1] + z[2] * b3[2]), 0.0, 0.0
     if reason == R_NONE and not (math.isfinite(udd) and math.isfinite(pdot)
