@@ -168,6 +168,29 @@ def test_sequences_nested_unpacking_none_and_nested_results():
     assert c(0.25, ((1.0,), 2.0), (1.0, 2.0, 3.0)) is None
 
 
+def test_an_argument_passed_again_is_read_again_unless_it_cannot_change():
+    """The compiled function remembers the numbers of an argument passed again as the same
+    object only where they cannot change (tuples of numbers): a list, an array or a tuple
+    holding a list changed in place between two calls gives the new numbers."""
+    py = compile_source("seqs", _SEQ_SOURCE)
+    c = native.build(_SEQ_SOURCE)
+    frozen = ((2.0, 3.0), 0.5)
+    for _ in range(3):                  # seen, checked, then read from the module's copy
+        assert c(0.25, frozen, (1.0, 2.0, 3.0)) == py(0.25, frozen, (1.0, 2.0, 3.0))
+    assert c(0.25, ((4.0, 3.0), 0.5), (1.0, 2.0, 3.0))[0] == 11.5    # another object
+    inner, outer, arr = [2.0, 3.0], [[2.0, 3.0], 0.5], np.array([2.0, 3.0])
+    for p, change in [((inner, 0.5), lambda: inner.__setitem__(0, inner[0] + 1.0)),
+                      (outer, lambda: outer.__setitem__(1, outer[1] + 1.0)),
+                      ((arr, 0.5), lambda: arr.__setitem__(1, arr[1] * 2.0))]:
+        for _ in range(4):
+            assert c(0.25, p, (1.0, 2.0, 3.0)) == py(0.25, p, (1.0, 2.0, 3.0)), p
+            change()
+    q = [1.0, 2.0, 3.0]
+    for _ in range(3):
+        assert c(0.25, None, q)[1] == (q[0], (q[1], q[2]))
+        q[2] += 1.0
+
+
 @pytest.mark.parametrize("src, match", [
     ("def f(a):\n    b = a.x\n    return (b,)\n", "cannot translate"),
     ("def f(a):\n    return (b,)\n", "never set"),
@@ -216,7 +239,9 @@ def test_compiled_core_flies_the_python_cores_bits_on_random_states(name, monkey
                                                               strict=True)),
                            st.velocity_mps, st.quaternion_wxyz, st.body_rates_radps)
             if trial % 2:       # the daemon's and the simulator's states are numpy arrays
-                st = State(*(np.array(f, dtype=float) for f in (
+                # (float64, read in place by the compiled step; float32 too, as floats)
+                dtype = np.float32 if trial % 4 == 3 else float
+                st = State(*(np.array(f, dtype=dtype) for f in (
                     st.position_m, st.velocity_mps, st.quaternion_wxyz, st.body_rates_radps)))
             assert repr(py.update(st)) == repr(c.update(st))
 

@@ -8,6 +8,9 @@ own answers where libm's differ.
 * ``tfl_atan2``: CPython's ``math.atan2`` (its answers for NaN, ±inf and ±0, libm's
   otherwise).
 * ``tfl_hypot``: ``math.hypot`` itself, called (CPython's vector_norm is not libm's hypot).
+* ``tfl_frozen``: an argument whose numbers cannot change (its unpacking remembered).
+* ``tfl_float``: a result's float object; +0.0 and 1.0 (a third of a TFL tick's ~100
+  results: flags, idle observers) are one shared object each instead of a new one per call.
 """
 
 from __future__ import annotations
@@ -15,6 +18,35 @@ from __future__ import annotations
 __all__ = ["PRELUDE"]
 
 PRELUDE = r"""
+/* The float objects +0.0 and 1.0, made once by the module's init (tfl_init_floats). Floats
+   are immutable: a shared one is the same value as a new one; only its identity differs. */
+static PyObject *tfl_zero = NULL;
+static PyObject *tfl_one = NULL;
+
+static int
+tfl_init_floats(void)
+{
+    tfl_zero = PyFloat_FromDouble(0.0);
+    tfl_one = PyFloat_FromDouble(1.0);
+    return tfl_zero != NULL && tfl_one != NULL ? 0 : -1;
+}
+
+/* A result's float: the shared +0.0 or 1.0 (−0.0, which compares equal to 0.0, is made
+   apart: its sign bit is part of the value), else a new float. */
+static inline PyObject *
+tfl_float(double x)
+{
+    if (x == 0.0 && !signbit(x)) {
+        Py_INCREF(tfl_zero);
+        return tfl_zero;
+    }
+    if (x == 1.0) {
+        Py_INCREF(tfl_one);
+        return tfl_one;
+    }
+    return PyFloat_FromDouble(x);
+}
+
 /* math.hypot is CPython's own algorithm (vector_norm), not libm's hypot: call it. */
 static PyObject *tfl_py_hypot = NULL;
 
@@ -139,6 +171,21 @@ tfl_unpack(PyObject *o, double *out, Py_ssize_t n)
     }
     return 0;
 }
+/* 1 when o's numbers can never change: a number (a float or an int, subclasses too: their
+   value is fixed at creation, and read without calling them) or a tuple of such, nested. */
+static int
+tfl_frozen(PyObject *o)
+{
+    if (PyFloat_Check(o) || PyLong_Check(o))
+        return 1;
+    if (!PyTuple_Check(o))
+        return 0;
+    for (Py_ssize_t k = 0; k < PyTuple_GET_SIZE(o); k++)
+        if (!tfl_frozen(PyTuple_GET_ITEM(o, k)))
+            return 0;
+    return 1;
+}
+
 /* CPython's math.atan2 (Modules/mathmodule.c, m_atan2): its own answers for NaN, ±inf and
    ±0 (C99 Annex F's, spelled out), libm's atan2 otherwise. */
 static double

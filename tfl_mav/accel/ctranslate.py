@@ -51,6 +51,7 @@ class _C:
         self.objects = objects      # parameters kept as Python objects (sequences, None)
         self.tmp = 0
         self.kinds: dict[str, str] = kinds or {}    # a name's kind where it is not float
+        self.memos: list[str] = []      # the module's static memo declarations (``memo``)
 
     def kind(self, e: ast.expr) -> str | None:
         """What Python's value of ``e`` is: ``f`` float, ``i`` int, ``b`` bool (None: not
@@ -305,14 +306,43 @@ class _C:
         out.append(f"{ind}Py_DECREF({s});")
         out.append(f"{ind}if (PyErr_Occurred()) {{ PyErr_Clear(); {release}goto bail; }}")
 
+    def memo(self, target: ast.Tuple, obj: str, ind: str, out: list[str]) -> None:
+        """``target = obj`` for a sequence argument (:meth:`unpack`), remembered: an
+        argument passed again as the same object (a law's constants, every tick) whose
+        numbers cannot have changed — tuples of floats and ints all the way down — has them
+        read from the module's copy instead. The object is held (a strong reference), so
+        the same address is the same object; ``ok``: 0 not yet checked (seen once), 1 its
+        numbers kept, −1 it could change (a list, an array): read each time."""
+        names = _leaf_names(target)
+        k = len(self.memos)
+        o, ok, v = f"tfl_memo{k}_obj", f"tfl_memo{k}_ok", f"tfl_memo{k}"
+        self.memos.append(f"static PyObject *{o} = NULL;\nstatic int {ok} = 0;\n"
+                          f"static double {v}[{len(names)}];")
+        i2 = ind + "    "
+        out.append(f"{ind}if ({obj} == {o} && {ok} == 1) {{")
+        out.extend(f"{i2}{x} = {v}[{j}];" for j, x in enumerate(names))
+        out.append(f"{ind}}} else {{")
+        self.unpack(target, obj, i2, out)
+        out.append(f"{i2}if ({obj} != {o}) {{")
+        # The new object in first, the old one released last: releasing it may run code
+        # that calls this function again, which then finds the memo whole.
+        out.append(f"{i2}    PyObject *old = {o};")
+        out.append(f"{i2}    Py_INCREF({obj});")
+        out.append(f"{i2}    {o} = {obj};")
+        out.append(f"{i2}    {ok} = 0;")
+        out.append(f"{i2}    Py_XDECREF(old);")
+        out.append(f"{i2}}} else if ({ok} == 0) {{")
+        out.append(f"{i2}    {ok} = tfl_frozen({obj}) ? 1 : -1;")
+        out.extend(f"{i2}    {v}[{j}] = {x};" for j, x in enumerate(names))
+        out.append(f"{i2}}}")
+        out.append(f"{ind}}}")
+
     def stmt(self, st: ast.stmt, ind: str, out: list[str]) -> None:
         if isinstance(st, ast.Assign) and len(st.targets) == 1 \
                 and isinstance(st.targets[0], ast.Tuple):
             if not (isinstance(st.value, ast.Name) and st.value.id in self.objects):
                 raise NativeError(f"only a sequence argument unpacks: {ast.unparse(st)!r}")
-            out.append(f"{ind}{{")
-            self.unpack(st.targets[0], st.value.id, ind + "    ", out)
-            out.append(f"{ind}}}")
+            self.memo(st.targets[0], st.value.id, ind, out)
         elif isinstance(st, ast.Assign) and len(st.targets) == 1 \
                 and isinstance(st.targets[0], ast.Name):
             value = self.expr(st.value)
@@ -351,6 +381,13 @@ class _C:
             pass
         else:
             raise NativeError(f"cannot translate statement {ast.unparse(st)!r}")
+
+
+def _leaf_names(target: ast.expr) -> list[str]:
+    """The names an unpacking target assigns, in order (nested tuples flattened)."""
+    if isinstance(target, ast.Tuple):
+        return [x for e in target.elts for x in _leaf_names(e)]
+    return [target.id] if isinstance(target, ast.Name) else []
 
 
 def _objects(fn: ast.FunctionDef) -> set[str]:
@@ -441,7 +478,7 @@ def _results(e: ast.expr, c: _C, body: list[str]) -> ast.expr:
     return ast.Name(v, ast.Load())
 
 
-_BOX = {"f": "PyFloat_FromDouble({0})", "i": "PyLong_FromLongLong((long long){0})",
+_BOX = {"f": "tfl_float({0})", "i": "PyLong_FromLongLong((long long){0})",
         "b": "PyBool_FromLong({0} != 0.0)"}
 
 
@@ -532,6 +569,7 @@ def translate(source: str, module: str) -> str:
 #include <math.h>
 {PRELUDE}
 static PyObject *tfl_classes[{max(len(named), 1)}];
+{chr(10).join(c.memos)}
 
 static PyObject *
 {name}(PyObject *self, PyObject *const *args, Py_ssize_t nargs)
@@ -569,7 +607,7 @@ PyInit_{module}(void)
         return NULL;
     tfl_py_hypot = PyObject_GetAttrString(math, "hypot");
     Py_DECREF(math);
-    if (tfl_py_hypot == NULL)
+    if (tfl_py_hypot == NULL || tfl_init_floats() != 0)
         return NULL;
 {_classes_init(named)}    return PyModule_Create(&moduledef);
 }}

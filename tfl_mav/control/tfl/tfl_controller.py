@@ -450,9 +450,10 @@ class TFLController:
             finally:
                 self.dt = period
         self.ticks += 1
-        # Python floats: numpy scalars (the simulator's arrays) cost 3-5× per operation.
-        y, v, quat, rates = (_floats(s.position_m), _floats(s.velocity_mps),
-                             _floats(s.quaternion_wxyz), _floats(s.body_rates_radps))
+        # As measured: a float64 array's numbers the compiled step reads in place (its
+        # buffer); Python floats for the Python step, where numpy scalars (the simulator's
+        # arrays) cost 3-5× per operation.
+        y, v, quat, rates = s.position_m, s.velocity_mps, s.quaternion_wxyz, s.body_rates_radps
         lag = self.lag_inverter
         lo, hi = lag.reachable(rotor_speed_radps) if lag is not None else self._free
         st = self.state
@@ -460,12 +461,21 @@ class TFLController:
         if self._linked_for is trk:
             lam_start, ok, failed = 0.0, False, False
             if not st.path.has_lam:         # no λ yet: a global search first
-                lam_start, ok, failed = trk.start(y)
+                lam_start, ok, failed = trk.start(_floats(y))
                 self._failure = trk.failure
-            u = TFLInputs(y, v, quat, rates, self._frame, self.attack_estimate_n, lo, hi,
-                          lam_start, ok, failed)
             core, kernels = self._core, self._kernels
-            r = core(self.params, st, u, kernels) if core is not None else None
+            r = None
+            if core is not None:
+                r = core(self.params, st, TFLInputs(y, v, quat, rates, self._frame,
+                                                    self.attack_estimate_n, lo, hi,
+                                                    lam_start, ok, failed), kernels)
+            if r is None:
+                u = TFLInputs(_floats(y), _floats(v), _floats(quat), _floats(rates),
+                              self._frame, self.attack_estimate_n, lo, hi, lam_start, ok,
+                              failed)
+                if core is not None and (u[0] is not y or u[1] is not v or u[2] is not quat
+                                         or u[3] is not rates):
+                    r = core(self.params, st, u, kernels)   # arrays, not of float64: as floats
             if r is None:       # not compiled, or the compiled step declined: Python decides
                 st = as_state(st)
                 try:
@@ -474,7 +484,8 @@ class TFLController:
                     self._failure = str(exc)
                     r = self._step(self.params, st, u._replace(path_failed=True), kernels)
         else:
-            r = self._reference_tick(as_state(st), y, v, quat, rates, lo, hi)
+            r = self._reference_tick(as_state(st), _floats(y), _floats(v), _floats(quat),
+                                     _floats(rates), lo, hi)
         new, out = r
         f, attacked, sat, xi, eta, mu, distance, lam, cond, uf, mass, dob, fine, reason, \
             code, margin, canon_rates, sat_any, demand = out

@@ -1,0 +1,143 @@
+"""The TFL law's compiled tick, and the compiled step's call alone, in µs of thread CPU.
+
+1. ``tick``: ``TFLController.update`` on the compiled core (``TFL_MAV_NATIVE=sync``), over
+   1000 measured states of a closed-loop paper flight (ticks 2000-3000, rotor 2 attacked
+   from 5 s: the attacked law), each round 20 passes over them;
+2. ``call``: the compiled step (``ctrl._core``) alone, 20 000 calls on one tick's
+   arguments — the C function with its argument reading and its results (built and freed).
+
+Each figure is the median over ``--rounds`` rounds (thread CPU time: a time slice another
+process takes is not counted). With ``--ab-tree DIR`` the same runs alternate between
+checkout ``DIR`` (its own ``.venv`` if it has one; its working directory, so its
+``tfl_mav``) and this one, ``--pairs`` pairs, each a fresh interpreter; the table gives
+the median of each tree's medians and the change. The script runs from any checkout with
+``bench/bench_controller.py``'s ``_controller`` (07a6a37 on).
+
+Usage: ``python bench/bench_tfl_call.py [--law robust|paper] [--rounds N]
+[--ab-tree DIR [--pairs N]] [--json FILE]`` from the repository root.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+
+def measure(law_name: str, rounds: int) -> dict[str, float]:
+    """Median µs per tick and per compiled call in the working directory's checkout."""
+    os.environ["TFL_MAV_NATIVE"] = "sync"
+    sys.path.insert(0, os.path.join(os.getcwd(), "bench"))
+    import bench_controller as bc
+
+    import tfl_mav
+    from tfl_mav.model.state import State
+    from tfl_mav.scenario import load_scenario
+    try:
+        from tfl_mav.sitl.simulator import Simulator
+    except ImportError:                 # 07a6a37's layout
+        from tfl_mav.sim.simulator import Simulator  # type: ignore[no-redef]
+    print(f"bench_tfl_call: tfl_mav from {os.path.dirname(tfl_mav.__file__)}", file=sys.stderr)
+
+    sc = load_scenario("paper").replace(**{"controller.law": law_name})
+    sim, ctrl = Simulator(sc), bc._controller(sc, True, "compiled")
+    states = []
+    for k in range(3000):
+        m = sim.measured
+        if sim.attack.rotor:
+            ctrl.set_attack(sim.attack.rotor, sim.attack.applied_n)
+        st = State(m.position_m, m.velocity_mps, m.quaternion_wxyz, m.body_rates_radps)
+        out = ctrl.update(st)
+        sim.set_command(out.rotor_thrust_n)
+        sim.step_control_period()
+        if k >= 2000:
+            states.append(st)
+    st = states[0]
+    u = ctrl._inputs(st.position_m.tolist(), st.velocity_mps.tolist(),
+                     st.quaternion_wxyz.tolist(), st.body_rates_radps.tolist(), *ctrl._free,
+                     0.0, 0.0, 0.0)
+    core, p, s0 = ctrl._core, ctrl.params, ctrl.state
+    n = 20 * len(states)
+    clock = time.thread_time
+    ticks, calls = [], []
+    for _ in range(rounds):
+        t0 = clock()
+        for _ in range(20):
+            for st in states:
+                ctrl.update(st)
+        ticks.append((clock() - t0) / n * 1e6)
+        t0 = clock()
+        for _ in range(n):
+            core(p, s0, u)
+        calls.append((clock() - t0) / n * 1e6)
+    return {"tick_us": statistics.median(ticks), "call_us": statistics.median(calls)}
+
+
+def _run_in(tree: Path, law_name: str, rounds: int) -> dict[str, float]:
+    """:func:`measure` in a fresh interpreter of checkout ``tree`` (its directory first on
+    the path: a worktree without a venv of its own runs its ``tfl_mav`` too)."""
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join(
+        filter(None, (str(tree), os.environ.get("PYTHONPATH")))))
+    python = tree / ".venv" / "bin" / "python"
+    done = subprocess.run(
+        [str(python) if python.exists() else sys.executable, str(Path(__file__).resolve()),
+         "--law", law_name, "--rounds", str(rounds), "--child"],
+        cwd=tree, env=env, capture_output=True, text=True, check=False)
+    if done.returncode != 0:
+        raise SystemExit(f"bench_tfl_call: the run in {tree} failed: "
+                         f"{(done.stderr.strip().splitlines() or [''])[-1]}")
+    return json.loads(done.stdout.splitlines()[-1])  # type: ignore[no-any-return]
+
+
+def main(argv: list[str] | None = None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--law", choices=("robust", "paper"), default="robust")
+    ap.add_argument("--rounds", type=int, default=5)
+    ap.add_argument("--ab-tree", metavar="DIR", type=Path,
+                    help="alternate with checkout DIR (fresh interpreters)")
+    ap.add_argument("--pairs", type=int, default=5, help="pairs for --ab-tree (default 5)")
+    ap.add_argument("--json", metavar="FILE")
+    ap.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    args = ap.parse_args(argv)
+    if args.rounds < 1 or args.pairs < 1:
+        ap.error("--rounds and --pairs must be at least 1")
+    if args.child:
+        print(json.dumps(measure(args.law, args.rounds)))
+        return 0
+    if args.ab_tree is None:
+        r: dict[str, Any] = measure(args.law, args.rounds)
+        print(f"{args.law} law, compiled: tick {r['tick_us']:.2f} µs, the compiled call alone "
+              f"{r['call_us']:.2f} µs (thread CPU, median of {args.rounds} rounds)")
+    else:
+        if not (args.ab_tree / "tfl_mav").is_dir():
+            ap.error(f"--ab-tree {args.ab_tree}: not a checkout (no tfl_mav/)")
+        here = Path(__file__).resolve().parents[1]
+        runs: dict[str, list[dict[str, float]]] = {"other": [], "this": []}
+        for _ in range(args.pairs):
+            runs["other"].append(_run_in(args.ab_tree, args.law, args.rounds))
+            runs["this"].append(_run_in(here, args.law, args.rounds))
+        r = {"law": args.law, "rounds": args.rounds, "pairs": args.pairs,
+             "other_tree": str(args.ab_tree), "runs": runs}
+        print(f"{args.law} law, compiled, µs of thread CPU: {args.ab_tree} vs this checkout "
+              f"({args.pairs} alternated pairs, median of {args.rounds} rounds each)")
+        for key, label in (("tick_us", "tick (update)"), ("call_us", "the compiled call")):
+            a = statistics.median(x[key] for x in runs["other"])
+            b = statistics.median(x[key] for x in runs["this"])
+            r[key] = {"other": a, "this": b}
+            each = " ".join(f"{x[key]:.2f}/{y[key]:.2f}"
+                            for x, y in zip(runs["other"], runs["this"], strict=True))
+            print(f"  {label:18s} {a:6.2f} → {b:6.2f}  ({100 * (b / a - 1):+.1f} %)   "
+                  f"pairs: {each}")
+    if args.json:
+        Path(args.json).write_text(json.dumps(r, indent=1) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
