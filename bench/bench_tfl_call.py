@@ -59,10 +59,16 @@ def measure(law_name: str, rounds: int) -> dict[str, float]:
         if k >= 2000:
             states.append(st)
     st = states[0]
+    # Trees since the path kernels became an argument pass them last and take the start's
+    # flags as booleans; older trees take floats and no kernels.
+    kernels = (ctrl._kernels,) if hasattr(ctrl, "_kernels") else ()
+    flags = (0.0, False, False) if kernels else (0.0, 0.0, 0.0)
     u = ctrl._inputs(st.position_m.tolist(), st.velocity_mps.tolist(),
                      st.quaternion_wxyz.tolist(), st.body_rates_radps.tolist(), *ctrl._free,
-                     0.0, 0.0, 0.0)
+                     *flags)
     core, p, s0 = ctrl._core, ctrl.params, ctrl.state
+    if core(p, s0, u, *kernels) is None:
+        raise SystemExit("bench_tfl_call: the compiled step declined the inputs (not timed)")
     n = 20 * len(states)
     clock = time.thread_time
     ticks, calls = [], []
@@ -74,7 +80,7 @@ def measure(law_name: str, rounds: int) -> dict[str, float]:
         ticks.append((clock() - t0) / n * 1e6)
         t0 = clock()
         for _ in range(n):
-            core(p, s0, u)
+            core(p, s0, u, *kernels)
         calls.append((clock() - t0) / n * 1e6)
     return {"tick_us": statistics.median(ticks), "call_us": statistics.median(calls)}
 
