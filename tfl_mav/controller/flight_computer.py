@@ -509,7 +509,7 @@ class FlightComputer:
 
     def _fly_cone(self, rotor: int, stuck: float, state: State, rates: tuple[float, ...],
                   target: tuple[tuple[float, ...], ...], events: list[str]
-                  ) -> tuple[list[float], float, str]:
+                  ) -> tuple[list[float], bool, str]:
         """A tick of the coning hover (:mod:`~tfl_mav.control.spin.cone`), flown where no
         relaxed hover holds m g at the pinned thrust; said once, with its numbers."""
         params = self._cone_laws.get(rotor)
