@@ -477,7 +477,7 @@ class FlightComputer:
         sp = self.speed_mps
         target = (tuple(point), (sp * tangent[0], sp * tangent[1], sp * tangent[2]),
                   (sp * sp * curvature[0], sp * sp * curvature[1], sp * sp * curvature[2]))
-        if params is None or spin_row(params.table, stuck)[1] == 0.0:
+        if params is None or not spin_row(params.table, stuck).exists:
             thrust, clipped, reason = self._fly_cone(rotor, stuck, state, rates, target,
                                                      events)
         else:
@@ -502,7 +502,7 @@ class FlightComputer:
             self._spin_state = None
             self._cone_state = None
         law = ControlOutput(
-            list(thrust), Mode.SPIN, [clipped != 0.0] * 4, _ZERO_XI, _ZERO4, _ZERO2, dist,
+            list(thrust), Mode.SPIN, [clipped] * 4, _ZERO_XI, _ZERO4, _ZERO2, dist,
             _NAN, _NAN, sum(thrust), self.controller.mass_kg, _ZERO2, False, reason,
             tuple(thrust))
         return self._result(thrust, None, law, detection, rotor, estimate, new, events)
