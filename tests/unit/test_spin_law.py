@@ -12,7 +12,14 @@ import pytest
 
 from tfl_mav.control.spin import equilibrium as eqm
 from tfl_mav.control.spin import law
-from tfl_mav.control.spin.step import SpinInputs, SpinOutputs, SpinState, row_at, spin_step
+from tfl_mav.control.spin.step import (
+    SpinInputs,
+    SpinOutputs,
+    SpinState,
+    gain_at,
+    hover_at,
+    spin_step,
+)
 from tfl_mav.model.geometry import euler_to_quaternion
 from tfl_mav.scenario import load_scenario
 
@@ -117,13 +124,13 @@ def test_no_equilibrium_is_said_with_the_numbers() -> None:
     _, hi = eqm.vertical_range(a, 8.0)
     assert hi < a.mass_kg * a.gravity_mps2
     params = law.build(heavy, 2, 0.001, f_stuck_grid=[8.0])
-    row = params.table[0]
-    assert not row.exists and row.vertical_excess_mps2 < 0.0
+    hover = params.table[0].hover
+    assert not hover.exists and hover.vertical_excess_mps2 < 0.0
     inp = SpinInputs((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0),
                      8.0, (0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     _, out = spin_step(params, law.initial_state(params), inp)
     assert not out.exists
-    assert out.vertical_excess_mps2 == pytest.approx(row.vertical_excess_mps2)
+    assert out.vertical_excess_mps2 == pytest.approx(hover.vertical_excess_mps2)
     # the least-bad spin sinks no faster than the greatest vertical force allows
     assert out.vertical_excess_mps2 >= (hi - a.mass_kg * a.gravity_mps2) / a.mass_kg - 0.5
 
@@ -134,23 +141,27 @@ def _mean(u: tuple[float, ...], v: tuple[float, ...]) -> list[float]:
 
 def test_between_rows_the_table_is_blended() -> None:
     """A 3 kg airframe holds m g in a relaxed hover with a rotor at 7 N but not at 6 or 6.5 N.
-    Between two rows every number of the table is linear in f_stuck (half way: the mean of
-    the two rows, gains included); a relaxed hover is said to exist wherever the blend leans
-    on a row that has one; on a row and beyond the ends the row itself."""
+    Between two rows the hover and the gains are linear in f_stuck (half way: the mean of
+    the two rows); a relaxed hover is said to exist wherever the blend leans on a row that
+    has one; on a row and beyond the ends the row itself."""
     heavy = PAPER.replace(**{"vehicle.mass_kg": 3.0}).vehicle
     params = law.build(heavy, 2, PAPER.run.control_dt_s, f_stuck_grid=[6.0, 6.5, 7.0])
-    r6, r65, r7 = params.table
+    table = params.table
+    r6, r65, r7 = (row.hover for row in table)
     assert (r6.exists, r65.exists, r7.exists) == (False, False, True)
-    assert row_at(params.table, 5.0) == r6 and row_at(params.table, 9.0) == r7
-    assert row_at(params.table, 6.5) == r65 and row_at(params.table, 7.0) == r7
-    assert not row_at(params.table, 6.25).exists
-    mid = row_at(params.table, 6.75)
+    assert hover_at(table, 5.0) == r6 and hover_at(table, 9.0) == r7
+    assert hover_at(table, 6.5) == r65 and hover_at(table, 7.0) == r7
+    assert not hover_at(table, 6.25).exists
+    mid = hover_at(table, 6.75)
     assert mid.exists
     assert mid.spin_radps == pytest.approx(0.5 * (r65.spin_radps + r7.spin_radps), rel=1e-12)
     assert mid.axis == pytest.approx(_mean(r65.axis, r7.axis), rel=1e-12)
-    for k_mid, k_lo, k_hi in zip(mid.gains, r65.gains, r7.gains, strict=True):
+    for rho in (0.0, 0.33, 1.0, 2.5):
+        k_mid, k_lo, k_hi = (gain_at(table, f, rho) for f in (6.75, 6.5, 7.0))
         for row_mid, row_lo, row_hi in zip(k_mid, k_lo, k_hi, strict=True):
             assert row_mid == pytest.approx(_mean(row_lo, row_hi), rel=1e-12, abs=1e-12)
+    # on a schedule point the gain is the one designed there
+    assert gain_at(table, 7.0, 1.0) == table[2].gains[10]
 
 
 @pytest.mark.parametrize("phase_rad", [0.0, 1.0, 2.5])

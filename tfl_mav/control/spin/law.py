@@ -24,10 +24,11 @@ from tfl_mav.control.spin.step import (
     RHO_STEPS,
     RHO_TILT,
     Gain,
+    SpinHover,
     SpinParams,
     SpinRow,
     SpinState,
-    row_at,
+    hover_at,
 )
 
 __all__ = ["LQR_Q", "LQR_R", "POS_OMEGA", "build", "equilibrium_or_closest", "initial_state",
@@ -108,12 +109,12 @@ def table_row(a: Airframe, eq: Equilibrium, exists: bool, weight_n: float, dt_s:
     w_lo, w_hi = weight_range(a, eq)
     wx, wy, wz = eq.rates_radps
     nx, ny, nz = eq.axis
-    return SpinRow(
+    hover = SpinHover(
         float(eq.f_stuck_n), exists, float(f4), float(f1 + f3),
         (float(wx), float(wy), float(wz)), (float(nx), float(ny), float(nz)),
         float(eq.spin_radps), float(eq.total_n), float(eq.cone_rad),
-        float(eq.radius_m), float(excess), float(eq.margin_n), float(w_lo), float(w_hi),
-        tuple(gains))
+        float(eq.radius_m), float(excess), float(eq.margin_n), float(w_lo), float(w_hi))
+    return SpinRow(hover, tuple(gains))
 
 
 def equilibrium_or_closest(a: Airframe, f_stuck: float) -> tuple[Equilibrium, bool, float]:
@@ -193,7 +194,7 @@ def initial_state(params: SpinParams, body_rates_radps: Sequence[float] = (0.0, 
     *_, r20, r21, r22 = params.rot
     wp, wq, wr = body_rates_radps
     w2 = r20 * wp + r21 * wq + r22 * wr
-    f = params.table[-1].f_stuck_n if stuck_thrust_n is None else stuck_thrust_n
-    _, _, wbz = row_at(params.table, f).rates_radps
+    f = params.table[-1].hover.f_stuck_n if stuck_thrust_n is None else stuck_thrust_n
+    _, _, wbz = hover_at(params.table, f).rates_radps
     rho = min(RHO_MAX, max(0.0, w2 / wbz)) if wbz != 0.0 else 1.0
     return SpinState((0.0, 0.0, 0.0), rho)

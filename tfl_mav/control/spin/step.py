@@ -16,7 +16,7 @@ outputs)`` in plain Python over NamedTuples of floats. In order:
    force W = m |a + g e3| sets f_Σ = W / n̄_z.
 3. **Equilibrium at the measured f_stuck.** The relaxed hover (f1..f4, ω̄ = Ω n̄) is read from
    a table over f_stuck (:mod:`equilibrium`, solved before the flight), linearly
-   interpolated (:class:`SpinRow`). If no equilibrium holds m g the table holds the spin that
+   interpolated (:func:`hover_at`). If no equilibrium holds m g the table holds the spin that
    comes closest (the least climb or descent) and ``exists`` is False.
 4. **Spin schedule.** ρ = ω'_z / ω̄_z ∈ [0, ρ_max] is the spin relative to the equilibrium's.
    The reference rate is ω_ref = ρ Ω̄ n_ref and the torques k_r ω_ref + ω_ref × J ω_ref are
@@ -48,12 +48,14 @@ __all__ = [
     "RHO_TILT",
     "SPIN_MEAN_RADPS",
     "Gain",
+    "SpinHover",
     "SpinInputs",
     "SpinOutputs",
     "SpinParams",
     "SpinRow",
     "SpinState",
-    "row_at",
+    "gain_at",
+    "hover_at",
     "spin_step",
 ]
 
@@ -67,10 +69,9 @@ Gain = tuple[Vec4, Vec4]
 """An LQR gain K (2×4): the rows give τ_p and τ_q (N m) from (p, q, n_x, n_y) − reference."""
 
 
-class SpinRow(NamedTuple):
-    """The relaxed hover at one f_stuck (canonical frame, SI) and the LQR gains along its
-    spin-up: one row of :attr:`SpinParams.table`, built by
-    :func:`tfl_mav.control.spin.law.table_row`, read between rows by :func:`row_at`."""
+class SpinHover(NamedTuple):
+    """The relaxed hover at one f_stuck (canonical frame, SI), or where none holds m g the
+    spin that comes closest; what the law flies there (:func:`hover_at`)."""
 
     f_stuck_n: float            # the pinned rotor's thrust
     exists: bool                # a relaxed hover holds m g here; else the closest spin
@@ -86,6 +87,14 @@ class SpinRow(NamedTuple):
     margin_n: float             # least distance of f̄1, f̄3, f̄4 to 0 and f_max
     weight_lo_n: float          # W_lo … W_hi: the mean vertical forces the spin holds with
     weight_hi_n: float          # every rotor in range
+
+
+class SpinRow(NamedTuple):
+    """One row of :attr:`SpinParams.table` (built by
+    :func:`tfl_mav.control.spin.law.table_row`): the hover at one f_stuck and the LQR gains
+    along its spin-up, read between rows by :func:`hover_at` and :func:`gain_at`."""
+
+    hover: SpinHover
     gains: tuple[Gain, ...]     # K at ρ = 0, RHO_MAX/RHO_STEPS, …, RHO_MAX
 
 
@@ -155,11 +164,12 @@ def _lerp3(a: Vec3, b: Vec3, w: float) -> Vec3:
     return (a1 + w * (b1 - a1), a2 + w * (b2 - a2), a3 + w * (b3 - a3))
 
 
-def _lerp4(a: Vec4, b: Vec4, w: float) -> Vec4:
-    """a + w (b − a), by component."""
-    a1, a2, a3, a4 = a
-    b1, b2, b3, b4 = b
-    return (a1 + w * (b1 - a1), a2 + w * (b2 - a2), a3 + w * (b3 - a3), a4 + w * (b4 - a4))
+def _lerp_gain(ka: Gain, kb: Gain, w: float) -> Gain:
+    """ka + w (kb − ka), by entry."""
+    (a1, a2, a3, a4), (a5, a6, a7, a8) = ka
+    (b1, b2, b3, b4), (b5, b6, b7, b8) = kb
+    return ((a1 + w * (b1 - a1), a2 + w * (b2 - a2), a3 + w * (b3 - a3), a4 + w * (b4 - a4)),
+            (a5 + w * (b5 - a5), a6 + w * (b6 - a6), a7 + w * (b7 - a7), a8 + w * (b8 - a8)))
 
 
 def _dot4(k: Vec4, x: Vec4) -> float:
@@ -169,35 +179,56 @@ def _dot4(k: Vec4, x: Vec4) -> float:
     return k1 * x1 + k2 * x2 + k3 * x3 + k4 * x4
 
 
-def row_at(table: tuple[SpinRow, ...], f: float) -> SpinRow:
-    """The table's row at f_stuck ``f`` (N): linear in f between the rows around it, clamped
-    to the table's range; what the law flies there. A relaxed hover exists there when one
-    exists at a row the blend gives weight to."""
+def _bracket(table: tuple[SpinRow, ...], f: float) -> tuple[SpinRow, SpinRow, float]:
+    """The rows around f_stuck ``f`` and the weight w of the upper one (a + w (b − a)); the
+    end row twice (w = 0) at and beyond the table's ends."""
     first, last = table[0], table[-1]
-    if f <= first.f_stuck_n:
-        return first
-    if f >= last.f_stuck_n:
-        return last
+    if f <= first.hover.f_stuck_n:
+        return first, first, 0.0
+    if f >= last.hover.f_stuck_n:
+        return last, last, 0.0
     i = 0
-    while table[i + 1].f_stuck_n < f:
+    while table[i + 1].hover.f_stuck_n < f:
         i += 1
     a, b = table[i], table[i + 1]
-    w = (f - a.f_stuck_n) / (b.f_stuck_n - a.f_stuck_n)
+    return a, b, (f - a.hover.f_stuck_n) / (b.hover.f_stuck_n - a.hover.f_stuck_n)
+
+
+def hover_at(table: tuple[SpinRow, ...], f: float) -> SpinHover:
+    """The hover at f_stuck ``f`` (N): linear in f between the rows around it, the end row's
+    beyond the table. A relaxed hover exists there when one exists at a row the blend gives
+    weight to (1 − w to the lower, w to the upper)."""
+    below, above, w = _bracket(table, f)
+    a, b = below.hover, above.hover
+    if below is above:
+        return a
 
     def lerp(x: float, y: float) -> float:
         return x + w * (y - x)
 
-    # each row's weight: 1 − w for a, w for b
-    return SpinRow(
+    return SpinHover(
         lerp(a.f_stuck_n, b.f_stuck_n), (a.exists and w < 1.0) or (b.exists and w > 0.0),
         lerp(a.f4_n, b.f4_n), lerp(a.f13_n, b.f13_n),
         _lerp3(a.rates_radps, b.rates_radps, w), _lerp3(a.axis, b.axis, w),
         lerp(a.spin_radps, b.spin_radps), lerp(a.total_n, b.total_n),
         lerp(a.cone_rad, b.cone_rad), lerp(a.drift_m, b.drift_m),
         lerp(a.vertical_excess_mps2, b.vertical_excess_mps2), lerp(a.margin_n, b.margin_n),
-        lerp(a.weight_lo_n, b.weight_lo_n), lerp(a.weight_hi_n, b.weight_hi_n),
-            tuple([(_lerp4(kpa, kpb, w), _lerp4(kqa, kqb, w))
-               for (kpa, kqa), (kpb, kqb) in zip(a.gains, b.gains, strict=True)]))
+        lerp(a.weight_lo_n, b.weight_lo_n), lerp(a.weight_hi_n, b.weight_hi_n))
+
+
+def gain_at(table: tuple[SpinRow, ...], f: float, rho: float) -> Gain:
+    """K at f_stuck ``f`` (N) and spin fraction ``rho`` ∈ [0, RHO_MAX]: linear in f between
+    the rows around it (as :func:`hover_at`), then in ρ between the schedule's points."""
+    below, above, w = _bracket(table, f)
+    k = rho * (RHO_STEPS / RHO_MAX)
+    j = int(k)
+    j = RHO_STEPS - 1 if j >= RHO_STEPS else j
+    if below is above:
+        k_lo, k_hi = below.gains[j], below.gains[j + 1]
+    else:
+        k_lo = _lerp_gain(below.gains[j], above.gains[j], w)
+        k_hi = _lerp_gain(below.gains[j + 1], above.gains[j + 1], w)
+    return _lerp_gain(k_lo, k_hi, k - j)
 
 
 def _clip(x: float, lo: float, hi: float) -> float:
@@ -287,10 +318,10 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     weight = math.sqrt(fx * fx + fy * fy + fz * fz)
     ndx, ndy, ndz = fx / weight, fy / weight, fz / weight
     f2 = inputs.stuck_thrust_n
-    row = row_at(p.table, f2)
-    if weight < row.weight_lo_n or weight > row.weight_hi_n:
+    hover = hover_at(p.table, f2)       # 3. the equilibrium at the measured f_stuck
+    if weight < hover.weight_lo_n or weight > hover.weight_hi_n:
         # keep the spin where the rotors hold it
-        weight, limited = _clip(weight, row.weight_lo_n, row.weight_hi_n), True
+        weight, limited = _clip(weight, hover.weight_lo_n, hover.weight_hi_n), True
     # n_des in the canonical body: rot Rᵀ n_des
     bx = R[0][0] * ndx + R[1][0] * ndy + R[2][0] * ndz
     by = R[0][1] * ndx + R[1][1] * ndy + R[2][1] * ndz
@@ -298,10 +329,9 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     nx = r00 * bx + r01 * by + r02 * bz
     ny = r10 * bx + r11 * by + r12 * bz
     nz = r20 * bx + r21 * by + r22 * bz
-    # --- 3. the equilibrium at the measured f_stuck (row, read above)
-    _, _, wbz = row.rates_radps
-    nbx, nby, nbz = row.axis
-    spin = row.spin_radps
+    _, _, wbz = hover.rates_radps
+    nbx, nby, nbz = hover.axis
+    spin = hover.spin_radps
     # --- 4. the spin schedule: ρ and the reference (rate ρ Ω̄ n_ref, axis tilted in below ρ₀)
     rho = _clip(w2 / wbz, 0.0, RHO_MAX) if wbz != 0.0 else 1.0
     cone = math.acos(_clip(nbz, -1.0, 1.0))
@@ -317,12 +347,7 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     tff_p = p.k_r * orx + (iz - iy) * ory * orz
     tff_q = p.k_r * ory + (ix - iz) * orx * orz
     # --- 5. reduced-attitude LQR, gains at ρ
-    k = rho * (RHO_STEPS / RHO_MAX)
-    j = int(k)
-    j = RHO_STEPS - 1 if j >= RHO_STEPS else j
-    wgt = k - j
-    (kp_lo, kq_lo), (kp_hi, kq_hi) = row.gains[j], row.gains[j + 1]
-    k_p, k_q = _lerp4(kp_lo, kp_hi, wgt), _lerp4(kq_lo, kq_hi, wgt)
+    k_p, k_q = gain_at(p.table, f2, rho)
     err = (w0 - orx, w1 - ory, nx - rx, ny - ry)    # (p, q, n_x, n_y) − reference
     tau_p = tff_p - _dot4(k_p, err)
     tau_q = tff_q - _dot4(k_q, err)
@@ -357,5 +382,5 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
         iz_ = _clip(iz_ + ez * p.dt_s, -top_i, top_i)
     axis_err = math.acos(_clip(nx * rx + ny * ry + nz * rz, -1.0, 1.0))
     return (SpinState((ix_, iy_, iz_), rho, f1 + f2 + f3 + f4),
-            SpinOutputs((out[0], out[1], out[2], out[3]), row.exists, spin, row.cone_rad,
-                        row.drift_m, row.vertical_excess_mps2, rho, axis_err, clipped))
+            SpinOutputs((out[0], out[1], out[2], out[3]), hover.exists, spin, hover.cone_rad,
+                        hover.drift_m, hover.vertical_excess_mps2, rho, axis_err, clipped))
