@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from tfl_mav.control.spin.step import attitude, mean_pid
+from tfl_mav.control.spin.step import Mat3, attitude, mat3, mean_pid
 
 __all__ = ["ConeInputs", "ConeOutputs", "ConeParams", "ConeState", "cone_params", "cone_step"]
 
@@ -43,7 +43,7 @@ class ConeParams(NamedTuple):
     gravity_mps2: float
     thrust_max_n: float
     dt_s: float
-    rot: tuple[float, ...]                      # body → canonical, 9 floats row-major
+    rot: Mat3                                   # body → canonical (rows)
     perm: tuple[int, int, int, int]             # canonical rotor i is physical perm[i]
     rate_radps: float                           # Ω_p (signed)
     kp: float
@@ -92,7 +92,7 @@ def cone_params(vehicle: object, rotor: int, dt_s: float, *, mass_scale: float =
     rate = CONE_RATE_RADPS if a.drag_m >= 0.0 else -CONE_RATE_RADPS
     return ConeParams(
         a.mass_kg, a.inertia_kgm2, a.arm_m, a.k_r, a.k_t, a.gravity_mps2, a.thrust_max_n,
-        float(dt_s), tuple(float(x) for row in fr.rot for x in row),
+        float(dt_s), mat3(fr.rot),
         fr.perm, rate, 3.0 * w * w, 3.0 * w, w ** 3,
         (ix * ATT_OMEGA ** 2, iy * ATT_OMEGA ** 2),
         (2.0 * ATT_ZETA * ATT_OMEGA * ix, 2.0 * ATT_ZETA * ATT_OMEGA * iy))
@@ -106,7 +106,7 @@ def cone_step(p: ConeParams, s: ConeState, u: ConeInputs) -> tuple[ConeState, Co
     """One control period of the coning hover (module docstring)."""
     g, m = p.gravity_mps2, p.mass_kg
     ix, iy, iz = p.inertia_kgm2
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = p.rot
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = p.rot
     qw, qx, qy, qz = u.quaternion_wxyz
     n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz) or 1.0
     qw, qx, qy, qz = qw / n, qx / n, qy / n, qz / n

@@ -29,6 +29,7 @@ from tfl_mav.control.spin.step import (
     SpinRow,
     SpinState,
     hover_at,
+    mat3,
 )
 
 __all__ = ["LQR_Q", "LQR_R", "POS_OMEGA", "build", "equilibrium_or_closest", "initial_state",
@@ -182,7 +183,7 @@ def build(vehicle: object, rotor: int, dt_s: float, *, mass_scale: float = 1.0,
     ki = w_p ** 3
     return SpinParams(
         a.mass_kg, a.inertia_kgm2, a.arm_m, a.drag_m, a.k_r, a.k_t, g, a.thrust_max_n,
-        float(dt_s), tuple(float(x) for row in fr.rot for x in row),
+        float(dt_s), mat3(fr.rot),
         fr.perm, 3.0 * w_p * w_p, 3.0 * w_p, ki, math.tan(math.radians(MAX_TILT_DEG)),
         MAX_VERTICAL_G * g, MAX_INTEGRAL_G * g / ki, tuple(rows))
 
@@ -191,7 +192,7 @@ def initial_state(params: SpinParams, body_rates_radps: Sequence[float] = (0.0, 
                   stuck_thrust_n: float | None = None) -> SpinState:
     """The state to enter with: no integral, ρ from the rates (reported only; the step
     recomputes it every tick from the measurement, so any entry state is bumpless)."""
-    *_, r20, r21, r22 = params.rot
+    _, _, (r20, r21, r22) = params.rot
     wp, wq, wr = body_rates_radps
     w2 = r20 * wp + r21 * wq + r22 * wr
     f = params.table[-1].hover.f_stuck_n if stuck_thrust_n is None else stuck_thrust_n

@@ -40,6 +40,7 @@ outputs)`` in plain Python over NamedTuples of floats. In order:
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 __all__ = [
@@ -48,6 +49,7 @@ __all__ = [
     "RHO_TILT",
     "SPIN_MEAN_RADPS",
     "Gain",
+    "Mat3",
     "SpinHover",
     "SpinInputs",
     "SpinOutputs",
@@ -56,6 +58,7 @@ __all__ = [
     "SpinState",
     "gain_at",
     "hover_at",
+    "mat3",
     "spin_step",
 ]
 
@@ -65,6 +68,7 @@ RHO_STEPS = 25          # gains at ρ = 0, 0.1, …, RHO_MAX
 RHO_TILT = 0.6          # ρ₀: below it the reference axis tilts in as (ρ/ρ₀)²
 Vec3 = tuple[float, float, float]
 Vec4 = tuple[float, float, float, float]
+Mat3 = tuple[Vec3, Vec3, Vec3]
 Gain = tuple[Vec4, Vec4]
 """An LQR gain K (2×4): the rows give τ_p and τ_q (N m) from (p, q, n_x, n_y) − reference."""
 
@@ -110,7 +114,7 @@ class SpinParams(NamedTuple):
     gravity_mps2: float
     thrust_max_n: float
     dt_s: float                 # control period: the integral's step
-    rot: tuple[float, ...]      # body → canonical body, 9 floats row-major
+    rot: Mat3                   # body → canonical body (rows)
     perm: tuple[int, int, int, int]     # canonical rotor i is physical rotor perm[i] (0-based)
     kp: float                   # outer loop (1/s², 1/s, 1/s³)
     kd: float
@@ -231,21 +235,27 @@ def gain_at(table: tuple[SpinRow, ...], f: float, rho: float) -> Gain:
     return _lerp_gain(k_lo, k_hi, k - j)
 
 
+def mat3(rows: Sequence[Sequence[float]]) -> Mat3:
+    """A 3×3 matrix (rows) of floats, e.g. the canonical frame's integer rotation."""
+    (a, b, c), (d, e, f), (g, h, i) = rows
+    return ((float(a), float(b), float(c)), (float(d), float(e), float(f)),
+            (float(g), float(h), float(i)))
+
+
 def _clip(x: float, lo: float, hi: float) -> float:
     return lo if x < lo else (hi if x > hi else x)
 
 
 def attitude(quat: tuple[float, float, float, float], rates: tuple[float, float, float],
-             rot: tuple[float, ...]) -> tuple[tuple[tuple[float, float, float], ...],
-                                               float, float, float]:
+             rot: Mat3) -> tuple[Mat3, float, float, float]:
     """R(q) of the unit quaternion ``quat`` (w, x, y, z) and the body rates ``rates`` (rad/s)
-    in the canonical frame, ω' = rot ω (``rot``: the frame's rotation, 9 numbers row-major).
+    in the canonical frame, ω' = rot ω (``rot``: the frame's rotation).
     One reading for the spin law and the coning hover."""
     qw, qx, qy, qz = quat
     R = ((1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)),
          (2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)),
          (2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)))
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rot
     wp, wq, wr = rates
     w0 = r00 * wp + r01 * wq + r02 * wr
     w1 = r10 * wp + r11 * wq + r12 * wr
@@ -282,7 +292,7 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     g = p.gravity_mps2
     m = p.mass_kg
     ix, iy, iz = p.inertia_kgm2
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = p.rot
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = p.rot
     # --- 1. the attitude, canonical: R' = R rotᵀ, ω' = rot ω
     wp, wq, wr = inputs.body_rates_radps
     R, w0, w1, w2 = attitude(inputs.quaternion_wxyz, (wp, wq, wr), p.rot)
