@@ -12,7 +12,14 @@ import pytest
 
 from tfl_mav.control.spin import equilibrium as eqm
 from tfl_mav.control.spin import law
-from tfl_mav.control.spin.step import SpinInputs, SpinOutputs, SpinState, spin_step
+from tfl_mav.control.spin.step import (
+    SpinInputs,
+    SpinOutputs,
+    SpinState,
+    gain_at,
+    hover_at,
+    spin_step,
+)
 from tfl_mav.model.geometry import euler_to_quaternion
 from tfl_mav.scenario import load_scenario
 
@@ -44,7 +51,7 @@ def test_at_the_hover_it_asks_for_the_hover(params2: law.SpinParams, f_stuck: fl
     assert isinstance(out, SpinOutputs) and isinstance(state, SpinState)
     assert out.thrusts_n[1] == f_stuck          # the attacked rotor: its measured thrust
     assert out.thrusts_n == pytest.approx(eq.thrusts_n, abs=1e-6)
-    assert (out.exists, out.rho, out.clipped) == (1.0, 1.0, 0.0)
+    assert out.exists and not out.clipped and out.rho == 1.0
     assert out.spin_radps == pytest.approx(eq.spin_radps, rel=1e-9)
     assert out.cone_rad == pytest.approx(eq.cone_rad, rel=1e-9)
     assert out.drift_m == pytest.approx(eq.radius_m, rel=1e-9)
@@ -110,22 +117,51 @@ def test_no_input_makes_a_bad_command(params2: law.SpinParams) -> None:
 
 def test_no_equilibrium_is_said_with_the_numbers() -> None:
     """An airframe too heavy to hover spinning with a rotor at 8 N (m = 3.4 kg: even the
-    greatest vertical force of a spin is short of m g): the law is built, says exists = 0,
+    greatest vertical force of a spin is short of m g): the law is built, says none exists,
     and flies the spin of the greatest vertical force, with the sink rate left over."""
     heavy = PAPER.replace(**{"vehicle.mass_kg": 3.4}).vehicle
     a = eqm.airframe_from_scenario(heavy, 2)
     _, hi = eqm.vertical_range(a, 8.0)
     assert hi < a.mass_kg * a.gravity_mps2
     params = law.build(heavy, 2, 0.001, f_stuck_grid=[8.0])
-    row = params.table[0]
-    assert row[1] == 0.0 and row[14] < 0.0       # exists, vertical acceleration left (m/s²)
+    hover = params.table[0].hover
+    assert not hover.exists and hover.vertical_excess_mps2 < 0.0
     inp = SpinInputs((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), (0.0, 0.0, 0.0),
                      8.0, (0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (0.0, 0.0, 0.0))
     _, out = spin_step(params, law.initial_state(params), inp)
-    assert out.exists == 0.0
-    assert out.vertical_excess_mps2 == pytest.approx(row[14])
+    assert not out.exists
+    assert out.vertical_excess_mps2 == pytest.approx(hover.vertical_excess_mps2)
     # the least-bad spin sinks no faster than the greatest vertical force allows
     assert out.vertical_excess_mps2 >= (hi - a.mass_kg * a.gravity_mps2) / a.mass_kg - 0.5
+
+
+def _mean(u: tuple[float, ...], v: tuple[float, ...]) -> list[float]:
+    return [0.5 * (x + y) for x, y in zip(u, v, strict=True)]
+
+
+def test_between_rows_the_table_is_blended() -> None:
+    """A 3 kg airframe holds m g in a relaxed hover with a rotor at 7 N but not at 6 or 6.5 N.
+    Between two rows the hover and the gains are linear in f_stuck (half way: the mean of
+    the two rows); a relaxed hover is said to exist wherever the blend leans on a row that
+    has one; on a row and beyond the ends the row itself."""
+    heavy = PAPER.replace(**{"vehicle.mass_kg": 3.0}).vehicle
+    params = law.build(heavy, 2, PAPER.run.control_dt_s, f_stuck_grid=[6.0, 6.5, 7.0])
+    table = params.table
+    r6, r65, r7 = (row.hover for row in table)
+    assert (r6.exists, r65.exists, r7.exists) == (False, False, True)
+    assert hover_at(table, 5.0) == r6 and hover_at(table, 9.0) == r7
+    assert hover_at(table, 6.5) == r65 and hover_at(table, 7.0) == r7
+    assert not hover_at(table, 6.25).exists
+    mid = hover_at(table, 6.75)
+    assert mid.exists
+    assert mid.spin_radps == pytest.approx(0.5 * (r65.spin_radps + r7.spin_radps), rel=1e-12)
+    assert mid.axis == pytest.approx(_mean(r65.axis, r7.axis), rel=1e-12)
+    for rho in (0.0, 0.33, 1.0, 2.5):
+        k_mid, k_lo, k_hi = (gain_at(table, f, rho) for f in (6.75, 6.5, 7.0))
+        for row_mid, row_lo, row_hi in zip(k_mid, k_lo, k_hi, strict=True):
+            assert row_mid == pytest.approx(_mean(row_lo, row_hi), rel=1e-12, abs=1e-12)
+    # on a schedule point the gain is the one designed there
+    assert gain_at(table, 7.0, 1.0) == table[2].gains[10]
 
 
 @pytest.mark.parametrize("phase_rad", [0.0, 1.0, 2.5])

@@ -64,7 +64,7 @@ from tfl_mav.control.safe.takeover import floats as _floats
 from tfl_mav.control.spin.cone import ConeInputs, ConeParams, ConeState, cone_params, cone_step
 from tfl_mav.control.spin.law import initial_state as spin_initial_state
 from tfl_mav.control.spin.step import SpinInputs, SpinParams, SpinState, spin_step
-from tfl_mav.control.spin.step import row_at as spin_row
+from tfl_mav.control.spin.step import hover_at as spin_hover_at
 from tfl_mav.control.state_filter import StateFilter, YawRateModel
 from tfl_mav.control.tfl.tfl_controller import ControlOutput, TFLController
 from tfl_mav.controller.feasibility import feasible_speed_mps, path_demand
@@ -477,7 +477,7 @@ class FlightComputer:
         sp = self.speed_mps
         target = (tuple(point), (sp * tangent[0], sp * tangent[1], sp * tangent[2]),
                   (sp * sp * curvature[0], sp * sp * curvature[1], sp * sp * curvature[2]))
-        if params is None or spin_row(params.table, stuck)[1] == 0.0:
+        if params is None or not spin_hover_at(params.table, stuck).exists:
             thrust, clipped, reason = self._fly_cone(rotor, stuck, state, rates, target,
                                                      events)
         else:
@@ -502,14 +502,14 @@ class FlightComputer:
             self._spin_state = None
             self._cone_state = None
         law = ControlOutput(
-            list(thrust), Mode.SPIN, [clipped != 0.0] * 4, _ZERO_XI, _ZERO4, _ZERO2, dist,
+            list(thrust), Mode.SPIN, [clipped] * 4, _ZERO_XI, _ZERO4, _ZERO2, dist,
             _NAN, _NAN, sum(thrust), self.controller.mass_kg, _ZERO2, False, reason,
             tuple(thrust))
         return self._result(thrust, None, law, detection, rotor, estimate, new, events)
 
     def _fly_cone(self, rotor: int, stuck: float, state: State, rates: tuple[float, ...],
                   target: tuple[tuple[float, ...], ...], events: list[str]
-                  ) -> tuple[list[float], float, str]:
+                  ) -> tuple[list[float], bool, str]:
         """A tick of the coning hover (:mod:`~tfl_mav.control.spin.cone`), flown where no
         relaxed hover holds m g at the pinned thrust; said once, with its numbers."""
         params = self._cone_laws.get(rotor)

@@ -36,7 +36,7 @@ class SpinFlight(NamedTuple):
     distance_m: np.ndarray          # to the path (closest point)
     thrusts_n: np.ndarray           # (n, 4) commanded, physical rotors
     rho: np.ndarray                 # spin-up fraction (NaN before the take-over)
-    exists: float                   # the law's verdict at the last tick
+    exists: bool | None             # the law's verdict at the last tick (None: it never flew)
     spin_radps: float               # Ω of the equilibrium at the last tick
     cone_rad: float
     drift_m: float
@@ -114,6 +114,6 @@ def fly_spin(sc: Scenario, *, takeover_s: float = 5.0, duration_s: float | None 
             break
     return SpinFlight(np.array(ts), np.array(pos), np.array(rates), np.array(dist),
                       np.array(thr), np.array(rhos),
-                      out.exists if out else math.nan, out.spin_radps if out else math.nan,
+                      out.exists if out else None, out.spin_radps if out else math.nan,
                       out.cone_rad if out else math.nan, out.drift_m if out else math.nan,
                       crashed, reason, takeover_s)

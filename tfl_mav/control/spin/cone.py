@@ -23,7 +23,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
-from tfl_mav.control.spin.step import attitude, mean_pid
+from tfl_mav.control.spin.step import Mat3, attitude, mat3, mean_pid
 
 __all__ = ["ConeInputs", "ConeOutputs", "ConeParams", "ConeState", "cone_params", "cone_step"]
 
@@ -43,8 +43,8 @@ class ConeParams(NamedTuple):
     gravity_mps2: float
     thrust_max_n: float
     dt_s: float
-    rot: tuple[float, ...]                      # body → canonical, 9 floats row-major
-    perm: tuple[float, float, float, float]
+    rot: Mat3                                   # body → canonical (rows)
+    perm: tuple[int, int, int, int]             # canonical rotor i is physical perm[i]
     rate_radps: float                           # Ω_p (signed)
     kp: float
     kd: float
@@ -74,7 +74,7 @@ class ConeOutputs(NamedTuple):
     tilt_rad: float          # θ: the cone's half-angle asked for
     drift_m: float           # radius of the circle the centre of mass runs (m)
     axis_error_rad: float    # b3 to b3_des
-    clipped: float
+    clipped: bool            # the allocation gave something up
 
 
 def cone_params(vehicle: object, rotor: int, dt_s: float, *, mass_scale: float = 1.0,
@@ -92,9 +92,8 @@ def cone_params(vehicle: object, rotor: int, dt_s: float, *, mass_scale: float =
     rate = CONE_RATE_RADPS if a.drag_m >= 0.0 else -CONE_RATE_RADPS
     return ConeParams(
         a.mass_kg, a.inertia_kgm2, a.arm_m, a.k_r, a.k_t, a.gravity_mps2, a.thrust_max_n,
-        float(dt_s), tuple(float(x) for row in fr.rot for x in row),
-        tuple(float(i) for i in fr.perm),  # type: ignore[arg-type]
-        rate, 3.0 * w * w, 3.0 * w, w ** 3,
+        float(dt_s), mat3(fr.rot),
+        fr.perm, rate, 3.0 * w * w, 3.0 * w, w ** 3,
         (ix * ATT_OMEGA ** 2, iy * ATT_OMEGA ** 2),
         (2.0 * ATT_ZETA * ATT_OMEGA * ix, 2.0 * ATT_ZETA * ATT_OMEGA * iy))
 
@@ -107,7 +106,7 @@ def cone_step(p: ConeParams, s: ConeState, u: ConeInputs) -> tuple[ConeState, Co
     """One control period of the coning hover (module docstring)."""
     g, m = p.gravity_mps2, p.mass_kg
     ix, iy, iz = p.inertia_kgm2
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = p.rot
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = p.rot
     qw, qx, qy, qz = u.quaternion_wxyz
     n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz) or 1.0
     qw, qx, qy, qz = qw / n, qx / n, qy / n, qz / n
@@ -157,27 +156,28 @@ def cone_step(p: ConeParams, s: ConeState, u: ConeInputs) -> tuple[ConeState, Co
     h0, h1, h2 = body(bx, by, bz)
     pr, qr, _ = body(wix, wiy, wiz)
     # --- reduced attitude PD on e3 × h, the gyroscope and the drag fed forward
-    tau_p = (p.kp_att[0] * (-h1) + p.kd_att[0] * (pr - w0) + p.k_r * pr
+    kp_x, kp_y = p.kp_att
+    kd_x, kd_y = p.kd_att
+    tau_p = (kp_x * (-h1) + kd_x * (pr - w0) + p.k_r * pr
              + (iz - iy) * w1 * w2)
-    tau_q = (p.kp_att[1] * h0 + p.kd_att[1] * (qr - w1) + p.k_r * qr
+    tau_q = (kp_y * h0 + kd_y * (qr - w1) + p.k_r * qr
              + (ix - iz) * w0 * w2)
     # --- allocation (canonical): f2 the pinned rotor, f4 carries τ_p, f3 − f1 τ_q
     ell = p.arm_m
-    clipped = 0.0
+    clipped = False
     f4 = f2 + tau_p / ell
     if f4 < 0.0 or f4 > fmax:
-        f4, clipped = _clip(f4, 0.0, fmax), 1.0
+        f4, clipped = _clip(f4, 0.0, fmax), True
     s13 = total - f2 - f4
     half = _clip(0.5 * tau_q / ell, -0.5 * fmax, 0.5 * fmax)
     lo, hi = 2.0 * abs(half), 2.0 * (fmax - abs(half))
     if s13 < lo or s13 > hi:
-        s13, clipped = _clip(s13, lo, hi), 1.0
+        s13, clipped = _clip(s13, lo, hi), True
     f1, f3 = 0.5 * s13 - half, 0.5 * s13 + half
-    can = (f1, f2, f3, f4)
     out = [0.0, 0.0, 0.0, 0.0]
-    for i in range(4):
-        out[int(p.perm[i])] = can[i]
-    if clipped == 0.0:
+    for phys, f in zip(p.perm, (f1, f2, f3, f4), strict=True):
+        out[phys] = f
+    if not clipped:     # anti-windup: the integral frozen while the allocation gives up
         ix_ = _clip(ix_ + ex * p.dt_s, -2.0, 2.0)
         iy_ = _clip(iy_ + ey * p.dt_s, -2.0, 2.0)
         iz_ = _clip(iz_ + ez * p.dt_s, -2.0, 2.0)

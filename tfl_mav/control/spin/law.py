@@ -23,10 +23,13 @@ from tfl_mav.control.spin.step import (
     RHO_MAX,
     RHO_STEPS,
     RHO_TILT,
-    ROW_HEAD,
-    TABLE_WIDTH,
+    Gain,
+    SpinHover,
     SpinParams,
+    SpinRow,
     SpinState,
+    hover_at,
+    mat3,
 )
 
 __all__ = ["LQR_Q", "LQR_R", "POS_OMEGA", "build", "equilibrium_or_closest", "initial_state",
@@ -89,26 +92,30 @@ def weight_range(a: Airframe, eq: Equilibrium, margin_n: float = 0.5) -> tuple[f
 
 
 def table_row(a: Airframe, eq: Equilibrium, exists: bool, weight_n: float, dt_s: float,
-              motor_time_constant_s: float = 0.0) -> tuple[float, ...]:
-    """One row of :attr:`SpinParams.table` (the layout :mod:`step` reads)."""
+              motor_time_constant_s: float = 0.0) -> SpinRow:
+    """One row of :attr:`SpinParams.table`: the relaxed hover ``eq`` (``exists``: it holds
+    m g; else it is the closest spin, of mean vertical force ``weight_n``) and its gains."""
     tau = max(0.0, motor_time_constant_s)
     scale = 1.0 + (eq.spin_radps * tau) ** 2
     q = np.diag(LQR_Q)
     r = np.diag(LQR_R) * scale
-    gains: list[float] = []
+    gains: list[Gain] = []
     for j in range(RHO_STEPS + 1):
         w, n = _schedule_point(eq, j * RHO_MAX / RHO_STEPS)
         k = dlqr(*zoh(*reduced_model(a.inertia_kgm2, a.k_r, w, n), dt_s), q, r)
-        gains.extend(float(x) for x in k.ravel())
+        (kp1, kp2, kp3, kp4), (kq1, kq2, kq3, kq4) = k.tolist()   # the τ_p and τ_q rows
+        gains.append(((kp1, kp2, kp3, kp4), (kq1, kq2, kq3, kq4)))
     f1, _, f3, f4 = eq.thrusts_n
     excess = 0.0 if exists else (weight_n - a.mass_kg * a.gravity_mps2) / a.mass_kg
     w_lo, w_hi = weight_range(a, eq)
-    head = (eq.f_stuck_n, 1.0 if exists else 0.0, f4, f1 + f3, *eq.rates_radps, *eq.axis,
-            eq.spin_radps, eq.total_n, eq.cone_rad, eq.radius_m, excess, eq.margin_n,
-            w_lo, w_hi)
-    row = tuple(float(x) for x in head) + tuple(gains)
-    assert len(head) == ROW_HEAD and len(row) == TABLE_WIDTH
-    return row
+    wx, wy, wz = eq.rates_radps
+    nx, ny, nz = eq.axis
+    hover = SpinHover(
+        float(eq.f_stuck_n), exists, float(f4), float(f1 + f3),
+        (float(wx), float(wy), float(wz)), (float(nx), float(ny), float(nz)),
+        float(eq.spin_radps), float(eq.total_n), float(eq.cone_rad),
+        float(eq.radius_m), float(excess), float(eq.margin_n), float(w_lo), float(w_hi))
+    return SpinRow(hover, tuple(gains))
 
 
 def equilibrium_or_closest(a: Airframe, f_stuck: float) -> tuple[Equilibrium, bool, float]:
@@ -176,9 +183,8 @@ def build(vehicle: object, rotor: int, dt_s: float, *, mass_scale: float = 1.0,
     ki = w_p ** 3
     return SpinParams(
         a.mass_kg, a.inertia_kgm2, a.arm_m, a.drag_m, a.k_r, a.k_t, g, a.thrust_max_n,
-        float(dt_s), tuple(float(x) for row in fr.rot for x in row),
-        tuple(float(i) for i in fr.perm),  # type: ignore[arg-type]
-        3.0 * w_p * w_p, 3.0 * w_p, ki, math.tan(math.radians(MAX_TILT_DEG)),
+        float(dt_s), mat3(fr.rot),
+        fr.perm, 3.0 * w_p * w_p, 3.0 * w_p, ki, math.tan(math.radians(MAX_TILT_DEG)),
         MAX_VERTICAL_G * g, MAX_INTEGRAL_G * g / ki, tuple(rows))
 
 
@@ -186,10 +192,10 @@ def initial_state(params: SpinParams, body_rates_radps: Sequence[float] = (0.0, 
                   stuck_thrust_n: float | None = None) -> SpinState:
     """The state to enter with: no integral, ρ from the rates (reported only; the step
     recomputes it every tick from the measurement, so any entry state is bumpless)."""
-    r = params.rot
-    w2 = r[6] * body_rates_radps[0] + r[7] * body_rates_radps[1] + r[8] * body_rates_radps[2]
-    f = params.table[-1][0] if stuck_thrust_n is None else stuck_thrust_n
-    from tfl_mav.control.spin.step import _row
-    wbz = _row(params.table, f)[6]
+    _, _, (r20, r21, r22) = params.rot
+    wp, wq, wr = body_rates_radps
+    w2 = r20 * wp + r21 * wq + r22 * wr
+    f = params.table[-1].hover.f_stuck_n if stuck_thrust_n is None else stuck_thrust_n
+    _, _, wbz = hover_at(params.table, f).rates_radps
     rho = min(RHO_MAX, max(0.0, w2 / wbz)) if wbz != 0.0 else 1.0
     return SpinState((0.0, 0.0, 0.0), rho)

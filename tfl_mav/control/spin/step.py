@@ -16,8 +16,8 @@ outputs)`` in plain Python over NamedTuples of floats. In order:
    force W = m |a + g e3| sets f_Σ = W / n̄_z.
 3. **Equilibrium at the measured f_stuck.** The relaxed hover (f1..f4, ω̄ = Ω n̄) is read from
    a table over f_stuck (:mod:`equilibrium`, solved before the flight), linearly
-   interpolated. If no equilibrium holds m g the table holds the spin that comes closest
-   (the least climb or descent) and ``exists`` is 0.
+   interpolated (:func:`hover_at`). If no equilibrium holds m g the table holds the spin that
+   comes closest (the least climb or descent) and ``exists`` is False.
 4. **Spin schedule.** ρ = ω'_z / ω̄_z ∈ [0, ρ_max] is the spin relative to the equilibrium's.
    The reference rate is ω_ref = ρ Ω̄ n_ref and the torques k_r ω_ref + ω_ref × J ω_ref are
    fed forward: they balance the axis n_ref at that spin (E1), so every ρ is a
@@ -40,20 +40,25 @@ outputs)`` in plain Python over NamedTuples of floats. In order:
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from typing import NamedTuple
 
 __all__ = [
     "RHO_MAX",
     "RHO_STEPS",
     "RHO_TILT",
-    "ROW_HEAD",
     "SPIN_MEAN_RADPS",
-    "TABLE_WIDTH",
+    "Gain",
+    "Mat3",
+    "SpinHover",
     "SpinInputs",
     "SpinOutputs",
     "SpinParams",
+    "SpinRow",
     "SpinState",
-    "row_at",
+    "gain_at",
+    "hover_at",
+    "mat3",
     "spin_step",
 ]
 
@@ -61,12 +66,40 @@ SPIN_MEAN_RADPS = 5.0   # above this spin the cone's circle is removed from the 
 RHO_MAX = 2.5           # the schedule spans ρ ∈ [0, RHO_MAX]
 RHO_STEPS = 25          # gains at ρ = 0, 0.1, …, RHO_MAX
 RHO_TILT = 0.6          # ρ₀: below it the reference axis tilts in as (ρ/ρ₀)²
-# One table row per f_stuck: f_stuck, exists, f4̄, f̄1 + f̄3, ω̄ (3), n̄ (3), Ω, f̄_Σ, cone θ̄,
-# circle radius, vertical acceleration left over (m/s², 0 where it exists), margin, the
-# mean vertical forces W_lo, W_hi (N) the spin holds with every rotor in range, then the
-# LQR gains K (2×4, row-major) at ρ = 0, …, RHO_MAX.
-ROW_HEAD = 18
-TABLE_WIDTH = ROW_HEAD + 8 * (RHO_STEPS + 1)
+Vec3 = tuple[float, float, float]
+Vec4 = tuple[float, float, float, float]
+Mat3 = tuple[Vec3, Vec3, Vec3]
+Gain = tuple[Vec4, Vec4]
+"""An LQR gain K (2×4): the rows give τ_p and τ_q (N m) from (p, q, n_x, n_y) − reference."""
+
+
+class SpinHover(NamedTuple):
+    """The relaxed hover at one f_stuck (canonical frame, SI), or where none holds m g the
+    spin that comes closest; what the law flies there (:func:`hover_at`)."""
+
+    f_stuck_n: float            # the pinned rotor's thrust
+    exists: bool                # a relaxed hover holds m g here; else the closest spin
+    f4_n: float                 # f̄4
+    f13_n: float                # f̄1 + f̄3
+    rates_radps: Vec3           # ω̄ = Ω n̄ (canonical body)
+    axis: Vec3                  # n̄, the spin axis (n̄_z > 0)
+    spin_radps: float           # Ω, signed
+    total_n: float              # f̄_Σ
+    cone_rad: float             # θ̄: thrust axis to the spin axis
+    drift_m: float              # radius of the circle the centre of mass runs
+    vertical_excess_mps2: float  # acceleration left over where none exists (0 where it does)
+    margin_n: float             # least distance of f̄1, f̄3, f̄4 to 0 and f_max
+    weight_lo_n: float          # W_lo … W_hi: the mean vertical forces the spin holds with
+    weight_hi_n: float          # every rotor in range
+
+
+class SpinRow(NamedTuple):
+    """One row of :attr:`SpinParams.table` (built by
+    :func:`tfl_mav.control.spin.law.table_row`): the hover at one f_stuck and the LQR gains
+    along its spin-up, read between rows by :func:`hover_at` and :func:`gain_at`."""
+
+    hover: SpinHover
+    gains: tuple[Gain, ...]     # K at ρ = 0, RHO_MAX/RHO_STEPS, …, RHO_MAX
 
 
 class SpinParams(NamedTuple):
@@ -81,15 +114,15 @@ class SpinParams(NamedTuple):
     gravity_mps2: float
     thrust_max_n: float
     dt_s: float                 # control period: the integral's step
-    rot: tuple[float, ...]      # body → canonical body, 9 floats row-major
-    perm: tuple[float, float, float, float]  # canonical rotor i is physical rotor perm[i] (0-based)
+    rot: Mat3                   # body → canonical body (rows)
+    perm: tuple[int, int, int, int]     # canonical rotor i is physical rotor perm[i] (0-based)
     kp: float                   # outer loop (1/s², 1/s, 1/s³)
     kd: float
     ki: float
     max_tilt_tan: float         # |a_horizontal| ≤ g tan(max tilt)
     max_vertical_mps2: float    # |a_vertical| ≤ this
     integral_top_ms: float      # |∫e| ≤ this per axis (m s)
-    table: tuple[tuple[float, ...], ...]        # rows by increasing f_stuck, TABLE_WIDTH each
+    table: tuple[SpinRow, ...]  # by increasing f_stuck
 
 
 class SpinState(NamedTuple):
@@ -118,35 +151,95 @@ class SpinOutputs(NamedTuple):
 
     thrusts_n: tuple[float, float, float, float]    # physical rotors 1-4 (N); the attacked
     #                                                  one is its measured thrust
-    exists: float            # 1.0: a relaxed hover holds m g at this f_stuck, else 0.0
+    exists: bool             # a relaxed hover holds m g at this f_stuck
     spin_radps: float        # Ω of the equilibrium (signed, about n̄)
     cone_rad: float          # θ̄: thrust axis to the spin axis
     drift_m: float           # radius of the circle the centre of mass runs about its mean
     vertical_excess_mps2: float  # where none exists: the least climb (+) / sink (−) left
     rho: float               # spin fraction ω'_z/ω̄_z ∈ [0, RHO_MAX]
     axis_error_rad: float    # angle between the spin-axis reference and n_des, in the body
-    clipped: float           # 1.0 if the allocation gave something up
+    clipped: bool            # the allocation gave something up
 
 
-def _row(table: tuple[tuple[float, ...], ...], f: float) -> tuple[float, ...]:
-    """The table interpolated linearly at f_stuck ``f`` (clamped to its range)."""
-    n = len(table)
-    if f <= table[0][0]:
-        return table[0]
-    if f >= table[n - 1][0]:
-        return table[n - 1]
+def _lerp3(a: Vec3, b: Vec3, w: float) -> Vec3:
+    """a + w (b − a), by component."""
+    a1, a2, a3 = a
+    b1, b2, b3 = b
+    return (a1 + w * (b1 - a1), a2 + w * (b2 - a2), a3 + w * (b3 - a3))
+
+
+def _lerp_gain(ka: Gain, kb: Gain, w: float) -> Gain:
+    """ka + w (kb − ka), by entry."""
+    (a1, a2, a3, a4), (a5, a6, a7, a8) = ka
+    (b1, b2, b3, b4), (b5, b6, b7, b8) = kb
+    return ((a1 + w * (b1 - a1), a2 + w * (b2 - a2), a3 + w * (b3 - a3), a4 + w * (b4 - a4)),
+            (a5 + w * (b5 - a5), a6 + w * (b6 - a6), a7 + w * (b7 - a7), a8 + w * (b8 - a8)))
+
+
+def _dot4(k: Vec4, x: Vec4) -> float:
+    """k · x, summed left to right."""
+    k1, k2, k3, k4 = k
+    x1, x2, x3, x4 = x
+    return k1 * x1 + k2 * x2 + k3 * x3 + k4 * x4
+
+
+def _bracket(table: tuple[SpinRow, ...], f: float) -> tuple[SpinRow, SpinRow, float]:
+    """The rows around f_stuck ``f`` and the weight w of the upper one (a + w (b − a)); the
+    end row twice (w = 0) at and beyond the table's ends."""
+    first, last = table[0], table[-1]
+    if f <= first.hover.f_stuck_n:
+        return first, first, 0.0
+    if f >= last.hover.f_stuck_n:
+        return last, last, 0.0
     i = 0
-    while table[i + 1][0] < f:
+    while table[i + 1].hover.f_stuck_n < f:
         i += 1
     a, b = table[i], table[i + 1]
-    w = (f - a[0]) / (b[0] - a[0])
-    return tuple([x + w * (y - x) for x, y in zip(a, b, strict=True)])
+    return a, b, (f - a.hover.f_stuck_n) / (b.hover.f_stuck_n - a.hover.f_stuck_n)
 
 
-def row_at(table: tuple[tuple[float, ...], ...], f: float) -> tuple[float, ...]:
-    """The table's row at f_stuck ``f`` (linear in f, clamped to its range): what the law
-    flies there (``row[1]``: 1 where a relaxed hover holds m g)."""
-    return _row(table, f)
+def hover_at(table: tuple[SpinRow, ...], f: float) -> SpinHover:
+    """The hover at f_stuck ``f`` (N): linear in f between the rows around it, the end row's
+    beyond the table. A relaxed hover exists there when one exists at a row the blend gives
+    weight to (1 − w to the lower, w to the upper)."""
+    below, above, w = _bracket(table, f)
+    a, b = below.hover, above.hover
+    if below is above:
+        return a
+
+    def lerp(x: float, y: float) -> float:
+        return x + w * (y - x)
+
+    return SpinHover(
+        lerp(a.f_stuck_n, b.f_stuck_n), (a.exists and w < 1.0) or (b.exists and w > 0.0),
+        lerp(a.f4_n, b.f4_n), lerp(a.f13_n, b.f13_n),
+        _lerp3(a.rates_radps, b.rates_radps, w), _lerp3(a.axis, b.axis, w),
+        lerp(a.spin_radps, b.spin_radps), lerp(a.total_n, b.total_n),
+        lerp(a.cone_rad, b.cone_rad), lerp(a.drift_m, b.drift_m),
+        lerp(a.vertical_excess_mps2, b.vertical_excess_mps2), lerp(a.margin_n, b.margin_n),
+        lerp(a.weight_lo_n, b.weight_lo_n), lerp(a.weight_hi_n, b.weight_hi_n))
+
+
+def gain_at(table: tuple[SpinRow, ...], f: float, rho: float) -> Gain:
+    """K at f_stuck ``f`` (N) and spin fraction ``rho`` ∈ [0, RHO_MAX]: linear in f between
+    the rows around it (as :func:`hover_at`), then in ρ between the schedule's points."""
+    below, above, w = _bracket(table, f)
+    k = rho * (RHO_STEPS / RHO_MAX)
+    j = int(k)
+    j = RHO_STEPS - 1 if j >= RHO_STEPS else j
+    if below is above:
+        k_lo, k_hi = below.gains[j], below.gains[j + 1]
+    else:
+        k_lo = _lerp_gain(below.gains[j], above.gains[j], w)
+        k_hi = _lerp_gain(below.gains[j + 1], above.gains[j + 1], w)
+    return _lerp_gain(k_lo, k_hi, k - j)
+
+
+def mat3(rows: Sequence[Sequence[float]]) -> Mat3:
+    """A 3×3 matrix (rows) of floats, e.g. the canonical frame's integer rotation."""
+    (a, b, c), (d, e, f), (g, h, i) = rows
+    return ((float(a), float(b), float(c)), (float(d), float(e), float(f)),
+            (float(g), float(h), float(i)))
 
 
 def _clip(x: float, lo: float, hi: float) -> float:
@@ -154,16 +247,15 @@ def _clip(x: float, lo: float, hi: float) -> float:
 
 
 def attitude(quat: tuple[float, float, float, float], rates: tuple[float, float, float],
-             rot: tuple[float, ...]) -> tuple[tuple[tuple[float, float, float], ...],
-                                               float, float, float]:
+             rot: Mat3) -> tuple[Mat3, float, float, float]:
     """R(q) of the unit quaternion ``quat`` (w, x, y, z) and the body rates ``rates`` (rad/s)
-    in the canonical frame, ω' = rot ω (``rot``: the frame's rotation, 9 numbers row-major).
+    in the canonical frame, ω' = rot ω (``rot``: the frame's rotation).
     One reading for the spin law and the coning hover."""
     qw, qx, qy, qz = quat
     R = ((1 - 2 * (qy * qy + qz * qz), 2 * (qx * qy - qw * qz), 2 * (qx * qz + qw * qy)),
          (2 * (qx * qy + qw * qz), 1 - 2 * (qx * qx + qz * qz), 2 * (qy * qz - qw * qx)),
          (2 * (qx * qz - qw * qy), 2 * (qy * qz + qw * qx), 1 - 2 * (qx * qx + qy * qy)))
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = rot
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rot
     wp, wq, wr = rates
     w0 = r00 * wp + r01 * wq + r02 * wr
     w1 = r10 * wp + r11 * wq + r12 * wr
@@ -200,7 +292,7 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     g = p.gravity_mps2
     m = p.mass_kg
     ix, iy, iz = p.inertia_kgm2
-    r00, r01, r02, r10, r11, r12, r20, r21, r22 = p.rot
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = p.rot
     # --- 1. the attitude, canonical: R' = R rotᵀ, ω' = rot ω
     wp, wq, wr = inputs.body_rates_radps
     R, w0, w1, w2 = attitude(inputs.quaternion_wxyz, (wp, wq, wr), p.rot)
@@ -224,21 +316,22 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     ix_, iy_, iz_ = state.integral_ms
     ax, ay, az, ex, ey, ez = mean_pid(p.kp, p.kd, p.ki, p.k_t / m, state.integral_ms,
                                       inputs, (px, py, pz), (vx, vy, vz))
-    limited = 0.0
+    limited = False     # the wanted acceleration or vertical force was cut to its range
     top = g * p.max_tilt_tan
     h = math.sqrt(ax * ax + ay * ay)
     if h > top:
-        ax, ay, limited = ax * top / h, ay * top / h, 1.0
+        ax, ay, limited = ax * top / h, ay * top / h, True
     vtop = p.max_vertical_mps2
     if az > vtop or az < -vtop:
-        az, limited = _clip(az, -vtop, vtop), 1.0
+        az, limited = _clip(az, -vtop, vtop), True
     fx, fy, fz = m * ax, m * ay, m * (az + g)
     weight = math.sqrt(fx * fx + fy * fy + fz * fz)
     ndx, ndy, ndz = fx / weight, fy / weight, fz / weight
     f2 = inputs.stuck_thrust_n
-    row = _row(p.table, f2)
-    if weight < row[16] or weight > row[17]:    # keep the spin where the rotors hold it
-        weight, limited = _clip(weight, row[16], row[17]), 1.0
+    hover = hover_at(p.table, f2)       # 3. the equilibrium at the measured f_stuck
+    if weight < hover.weight_lo_n or weight > hover.weight_hi_n:
+        # keep the spin where the rotors hold it
+        weight, limited = _clip(weight, hover.weight_lo_n, hover.weight_hi_n), True
     # n_des in the canonical body: rot Rᵀ n_des
     bx = R[0][0] * ndx + R[1][0] * ndy + R[2][0] * ndz
     by = R[0][1] * ndx + R[1][1] * ndy + R[2][1] * ndz
@@ -246,11 +339,9 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     nx = r00 * bx + r01 * by + r02 * bz
     ny = r10 * bx + r11 * by + r12 * bz
     nz = r20 * bx + r21 * by + r22 * bz
-    # --- 3. the equilibrium at the measured f_stuck (row, read above)
-    exists = row[1]
-    wbz = row[6]
-    nbx, nby, nbz = row[7], row[8], row[9]
-    spin = row[10]
+    _, _, wbz = hover.rates_radps
+    nbx, nby, nbz = hover.axis
+    spin = hover.spin_radps
     # --- 4. the spin schedule: ρ and the reference (rate ρ Ω̄ n_ref, axis tilted in below ρ₀)
     rho = _clip(w2 / wbz, 0.0, RHO_MAX) if wbz != 0.0 else 1.0
     cone = math.acos(_clip(nbz, -1.0, 1.0))
@@ -266,46 +357,40 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     tff_p = p.k_r * orx + (iz - iy) * ory * orz
     tff_q = p.k_r * ory + (ix - iz) * orx * orz
     # --- 5. reduced-attitude LQR, gains at ρ
-    k = rho * (RHO_STEPS / RHO_MAX)
-    j = int(k)
-    j = RHO_STEPS - 1 if j >= RHO_STEPS else j
-    wgt = k - j
-    base = ROW_HEAD + 8 * j
-    K = [row[base + i] + wgt * (row[base + 8 + i] - row[base + i]) for i in range(8)]
-    dp, dq, dnx, dny = w0 - orx, w1 - ory, nx - rx, ny - ry
-    tau_p = tff_p - (K[0] * dp + K[1] * dq + K[2] * dnx + K[3] * dny)
-    tau_q = tff_q - (K[4] * dp + K[5] * dq + K[6] * dnx + K[7] * dny)
+    k_p, k_q = gain_at(p.table, f2, rho)
+    err = (w0 - orx, w1 - ory, nx - rx, ny - ry)    # (p, q, n_x, n_y) − reference
+    tau_p = tff_p - _dot4(k_p, err)
+    tau_q = tff_q - _dot4(k_q, err)
     # --- 6. allocation (canonical), f2 the measured thrust of the attacked rotor
     ell, fmax = p.arm_m, p.thrust_max_n
-    clipped = 0.0
+    clipped = False     # the allocation gave something up
     f4 = f2 + tau_p / ell
     if f4 < 0.0 or f4 > fmax:
-        f4, clipped = _clip(f4, 0.0, fmax), 1.0
+        f4, clipped = _clip(f4, 0.0, fmax), True
     total = weight / (rz if rz > 0.3 else 0.3)
     s13 = total - f2 - f4
     half = 0.5 * tau_q / ell
     ah = abs(half)
     if ah > fmax:   # τ_q beyond what a pair can make at all: keep its sign
-        half, ah, clipped = math.copysign(fmax, half), fmax, 1.0
+        half, ah, clipped = math.copysign(fmax, half), fmax, True
     lo, hi = 2.0 * ah, 2.0 * (fmax - ah)
     if lo > hi:     # τ_q so large no sum carries it: give up τ_q to the middle
         half = math.copysign(0.5 * fmax, half)
         lo = hi = fmax
-        clipped = 1.0
+        clipped = True
     if s13 < lo or s13 > hi:
-        s13, clipped = _clip(s13, lo, hi), 1.0
+        s13, clipped = _clip(s13, lo, hi), True
     f1, f3 = 0.5 * s13 - half, 0.5 * s13 + half
-    can = (f1, f2, f3, f4)
     out = [0.0, 0.0, 0.0, 0.0]
-    for i in range(4):
-        out[int(p.perm[i])] = can[i]
+    for phys, f in zip(p.perm, (f1, f2, f3, f4), strict=True):
+        out[phys] = f
     # --- the integral (anti-windup: frozen while the demand is limited or clipped)
-    if limited == 0.0 and clipped == 0.0:
+    if not limited and not clipped:
         top_i = p.integral_top_ms
         ix_ = _clip(ix_ + ex * p.dt_s, -top_i, top_i)
         iy_ = _clip(iy_ + ey * p.dt_s, -top_i, top_i)
         iz_ = _clip(iz_ + ez * p.dt_s, -top_i, top_i)
-    err = math.acos(_clip(nx * rx + ny * ry + nz * rz, -1.0, 1.0))
+    axis_err = math.acos(_clip(nx * rx + ny * ry + nz * rz, -1.0, 1.0))
     return (SpinState((ix_, iy_, iz_), rho, f1 + f2 + f3 + f4),
-            SpinOutputs((out[0], out[1], out[2], out[3]), exists, spin, row[12], row[13],
-                        row[14], rho, err, clipped))
+            SpinOutputs((out[0], out[1], out[2], out[3]), hover.exists, spin, hover.cone_rad,
+                        hover.drift_m, hover.vertical_excess_mps2, rho, axis_err, clipped))
