@@ -260,6 +260,21 @@ def test_unwritable_out_is_one_line_exit_3(tmp_path: Path,
     assert len(err.splitlines()) == 1 and "--out" in err and "Errno" not in err, err
 
 
+def test_a_stop_asked_between_waits_ends_the_campaign_as_ctrl_c_does(tmp_path: Path) -> None:
+    """The CLI's SIGTERM handler only records the signal (an exception raised from a handler
+    that lands in a fork's at-fork callback is printed and dropped: the campaign flew on);
+    the executor asks ``stop`` between waits and stops with the runs that finished."""
+    spec = load_spec(_spec(tmp_path, SMALL.replace("seeds = 2", "seeds = 4")))    # 16 runs
+    out = tmp_path / "c"
+    t0 = time.monotonic()
+    summary = run_campaign(spec, out, workers=1, progress=False,
+                           stop=lambda: len(read_results(out / "results.csv")[1]) >= 2)
+    rows = read_results(out / "results.csv")[1]
+    assert summary["interrupted"] is True and 2 <= len(rows) < 16
+    assert summary["not_flown"] == 16 - len(rows)
+    assert time.monotonic() - t0 < 60
+
+
 @pytest.mark.slow   # a campaign subprocess flying one run at a time until it is stopped
 def test_an_interrupted_campaign_writes_the_report_of_what_finished(tmp_path: Path) -> None:
     spec = _spec(tmp_path, SMALL.replace("seeds = 2", "seeds = 4"))     # 16 runs

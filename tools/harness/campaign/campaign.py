@@ -13,6 +13,7 @@ import math
 import os
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any, TextIO
 
@@ -80,10 +81,12 @@ def _hms(s: float) -> str:
 
 def run_campaign(spec: CampaignSpec, out: Path, *, executor: str = "local",
                  workers: int | None = None, ray_address: str | None = None,
-                 progress: bool = True, report: bool = True) -> dict[str, Any]:
+                 progress: bool = True, report: bool = True,
+                 stop: Callable[[], bool] | None = None) -> dict[str, Any]:
     """Fly what ``out`` is missing of ``spec``; returns the summary (also summary.json).
-    Interrupted (KeyboardInterrupt), it returns the summary and report of the runs that
-    finished, with ``interrupted`` True (the next call resumes)."""
+    Interrupted (KeyboardInterrupt, or ``stop()`` true between runs), it returns the summary
+    and report of the runs that finished, with ``interrupted`` True (the next call
+    resumes)."""
     out.mkdir(parents=True, exist_ok=True)
     meta_path = out / "campaign.json"
     meta = {"name": spec.name, "fingerprint": spec.fingerprint, "source": spec.source,
@@ -123,9 +126,9 @@ def run_campaign(spec: CampaignSpec, out: Path, *, executor: str = "local",
     interrupted = False
     try:
         if executor == "local":
-            run_local(todo, workers, on_row)
+            run_local(todo, workers, on_row, stop=stop)
         elif executor == "ray":
-            extra = run_ray(todo, workers, on_row, ray_address)
+            extra = run_ray(todo, workers, on_row, ray_address, stop=stop)
         else:
             raise SpecError(f"executor: must be local or ray, got {executor!r}")
     except KeyboardInterrupt:

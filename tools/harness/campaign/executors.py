@@ -26,13 +26,20 @@ class ExecutorError(RuntimeError):
 
 
 def run_local(runs: Sequence[Run], workers: int, on_row: OnRow,
-              target: Target | None = None) -> None:
+              target: Target | None = None,
+              stop: Callable[[], bool] | None = None) -> None:
     """At most ``workers`` runs at a time, each in its own forked process (``target``: what
-    the process computes, :func:`tfl_mav.tools.harness.campaign.run.execute` by default)."""
+    the process computes, :func:`tfl_mav.tools.harness.campaign.run.execute` by default).
+    ``stop``: asked between waits (every 0.25 s at most); true stops as Ctrl-C does
+    (KeyboardInterrupt, the live runs killed). A signal handler sets what it reads: an
+    exception raised from the handler itself is dropped when it lands in a fork's at-fork
+    callback."""
     pending = deque(runs)
     live: list[Child] = []
     try:
         while pending or live:
+            if stop is not None and stop():
+                raise KeyboardInterrupt
             while pending and len(live) < workers:
                 live.append(Child(pending.popleft(), target))
             wait([c.conn for c in live], timeout=0.25)
@@ -47,7 +54,8 @@ def run_local(runs: Sequence[Run], workers: int, on_row: OnRow,
 
 
 def run_ray(runs: Sequence[Run], workers: int | None, on_row: OnRow,
-            address: str | None = None) -> dict[str, Any]:
+            address: str | None = None,
+            stop: Callable[[], bool] | None = None) -> dict[str, Any]:
     """Runs as Ray tasks (one CPU each). Joins ``address``, else starts a local Ray instance
     with ``workers`` CPUs (shut down at the end). Returns facts about the cluster."""
     try:
@@ -72,10 +80,12 @@ def run_ray(runs: Sequence[Run], workers: int | None, on_row: OnRow,
         inflight: dict[Any, Run] = {}
         try:
             while pending or inflight:
+                if stop is not None and stop():
+                    raise KeyboardInterrupt
                 while pending and len(inflight) < window:
                     run = pending.popleft()
                     inflight[remote.remote(run)] = run
-                ready, _ = ray.wait(list(inflight), num_returns=1)
+                ready, _ = ray.wait(list(inflight), num_returns=1, timeout=0.25)
                 for ref in ready:
                     run = inflight.pop(ref)
                     t0 = time.monotonic()
