@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -51,6 +52,24 @@ _MAX_BODY_RATE2 = MAX_BODY_RATE_RADPS * MAX_BODY_RATE_RADPS   # exact: 90000, 10
 _MAX_SPEED2 = MAX_SPEED_MPS * MAX_SPEED_MPS
 assert math.sqrt(_MAX_BODY_RATE2) == MAX_BODY_RATE_RADPS and math.sqrt(_MAX_SPEED2) == MAX_SPEED_MPS
 
+
+
+def _attacked_targets(attacker: Attacker, t: float, x: Any, commands: Sequence[float],
+                      held: Any, omega_for_thrust: Any) -> tuple[AttackSample, Any]:
+    """One physics step's attack sample at time ``t`` s on the true state ``x`` and the
+    rotor-speed targets (rad/s) it leaves: the held command's, with the attacked rotor's
+    replaced by the speed of the thrust the attacker applies. ``Attacker.sample``'s own
+    test (a rotor held, ``t`` past the start) is made here first: most steps need no call.
+    One copy for the still-air and the moving-air steps."""
+    rotor = attacker.rotor
+    if rotor and t >= attacker.start_s:
+        att = attacker.sample(t, x, commands[rotor - 1])
+        if att.rotor:
+            targets = held.copy()
+            targets[att.rotor - 1] = omega_for_thrust(att.applied_n)
+            return att, targets
+        return att, held
+    return NO_ATTACK, held
 
 class Simulator:
     """Fixed-step physics at ``run.physics_hz``; the control period is a whole multiple."""
@@ -209,16 +228,8 @@ class Simulator:
         att = NO_ATTACK
         mean = self._mean_thrust_n
         for _ in range(self.steps_per_control):
-            rotor = attacker.rotor
-            t = n * h
-            targets = held
-            if rotor and t >= attacker.start_s:    # Attacker.sample's own test, inlined
-                att = attacker.sample(t, x, commands[rotor - 1])   # the true state
-                if att.rotor:
-                    targets = held.copy()
-                    targets[att.rotor - 1] = omega_for_thrust(att.applied_n)
-            else:
-                att = NO_ATTACK
+            att, targets = _attacked_targets(attacker, n * h, x, commands, held,
+                                             omega_for_thrust)
             mean = motors.step(targets, h)
             f1, f2, f3, f4 = mean
             wrench = (f1 + f2 + f3 + f4, ell * (f4 - f2), ell * (f3 - f1),
@@ -256,16 +267,8 @@ class Simulator:
         att = NO_ATTACK
         mean = self._mean_thrust_n
         for _ in range(self.steps_per_control):
-            rotor = attacker.rotor
-            t = n * h
-            targets = held
-            if rotor and t >= attacker.start_s:
-                att = attacker.sample(t, x, commands[rotor - 1])
-                if att.rotor:
-                    targets = held.copy()
-                    targets[att.rotor - 1] = omega_for_thrust(att.applied_n)
-            else:
-                att = NO_ATTACK
+            att, targets = _attacked_targets(attacker, n * h, x, commands, held,
+                                             omega_for_thrust)
             w1, w2, w3, w4 = motors.omega_radps
             mean = motors.step(targets, h)
             f1, f2, f3, f4 = mean
