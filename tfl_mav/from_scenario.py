@@ -22,7 +22,7 @@ from tfl_mav.control.tfl.tfl_controller import LawConfig, ModelParams, TFLContro
 from tfl_mav.scenario import Scenario, ScenarioError
 
 __all__ = ["build_controller", "build_detector", "detector_config", "law_config",
-           "model_params", "scenario_path", "translational_observer"]
+           "model_params", "noisy_measurements", "scenario_path", "translational_observer"]
 
 
 def model_params(sc: Scenario) -> ModelParams:
@@ -65,6 +65,18 @@ def translational_observer(sc: Scenario) -> bool:
     if mode == "auto":
         return sc.wind.active or sc.vehicle.rotor_aero or sc.sensors.model == "realistic"
     return mode == "on"
+
+
+def noisy_measurements(sc: Scenario) -> bool:
+    """Whether what the controller measures is noisy: ESC rpm noise, noisy state sensors,
+    the realistic sensors behind an onboard estimator, or moving air and rotor aerodynamics
+    (forces the model does not have, which the translational observer turns into noise).
+    The safe law's outer loop is slower there (:func:`~tfl_mav.control.safe.safe_step.
+    outer_loop_omega`)."""
+    s = sc.sensors
+    return (detector_config(sc).rpm_noise_std > 0.0 or s.position_noise_std_m > 0.0
+            or s.velocity_noise_std_mps > 0.0 or s.attitude_noise_std_rad > 0.0
+            or s.rate_noise_std_radps > 0.0 or translational_observer(sc))
 
 
 def scenario_path(sc: Scenario) -> Path:

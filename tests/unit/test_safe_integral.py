@@ -16,23 +16,24 @@ import pytest
 
 from tfl_mav.control.safe.safe_step import (
     INTEGRAL_BAND_M,
-    KI,
-    KP,
     MAX_INTEGRAL_G,
+    POS_OMEGA,
     SafeParams,
     accel_demand,
     integrated,
+    pid_gains,
 )
 
 G = 9.81
 DT = 0.001
+KP, _KD, KI = pid_gains(POS_OMEGA)
 
 
 def _fly(d_mps2: float, seconds: float, start_m: float = 1.0,
          wobble_mps: float = 0.0) -> list[float]:
     """x(t) of ÿ = a + d (x only; y, z at rest on the target), the target held at 0; the
     law measures v with a wobble of ``wobble_mps`` added."""
-    p = SafeParams((1.0, 0.0, G, 0.2, 8.0), 0.5, DT, MAX_INTEGRAL_G * G / KI, False,
+    p = SafeParams((1.0, 0.0, G, 0.2, 8.0), 0.5, DT, POS_OMEGA, False,
                    (0.01, 0.01, 0.02, 0.0, 0.01))
     x, v, integral = start_m, 0.0, (0.0, 0.0, 0.0)
     zero = (0.0, 0.0, 0.0)
@@ -44,19 +45,21 @@ def _fly(d_mps2: float, seconds: float, start_m: float = 1.0,
         wobble = wobble_mps * math.sin(60.0 * i * DT)
         a0, _a1, _a2, e, integrate, drift, age = accel_demand(
             p, zero, zero, zero, integral, drift, age, (x, 0.0, 0.0), (v + wobble, 0.0, 0.0),
-            G, 0.0)
+            G, 0.0, POS_OMEGA, math.inf)
         if integrate:
-            integral = integrated(integral, e, DT, p.integral_top_ms)
+            integral = integrated(integral, e, KI * DT, MAX_INTEGRAL_G * G)
         v += (a0 + d_mps2) * DT
         x += v * DT
         xs.append(x)
     return xs
 
 
-@pytest.mark.parametrize(("d_mps2", "wobble_mps"), [(0.5, 0.0), (-0.8, 0.0), (0.5, 0.2)])
+@pytest.mark.parametrize(("d_mps2", "wobble_mps"), [(1.6, 0.0), (-1.8, 0.0), (1.6, 0.2)])
 def test_a_steady_force_beyond_the_band_is_still_learnt(d_mps2, wobble_mps):
-    # Its PD offset lies outside the band: only the not-closing branch can learn it.
+    # Its PD offset lies outside the band, and the integral's bound holds it: only the
+    # not-closing branch can learn it.
     assert abs(d_mps2) / KP > INTEGRAL_BAND_M
+    assert abs(d_mps2) < MAX_INTEGRAL_G * G
     # settled: then it is learnt to the last millimetre
     xs = _fly(d_mps2, 40.0, wobble_mps=wobble_mps)
     assert abs(xs[-1]) < 1e-3

@@ -84,6 +84,7 @@ from tfl_mav.from_scenario import (
     build_detector,
     detector_config,
     model_params,
+    noisy_measurements,
     scenario_path,
     spin_params_for,
 )
@@ -192,7 +193,8 @@ class FlightComputer:
                                     kernels=getattr(self.controller.tracker, "kernels", None),
                                     compiled_path=self.controller.path_eval == "compiled",
                                     design_gains=design_gains,
-                                    motor_time_constant_s=mp.motor_time_constant_s)
+                                    motor_time_constant_s=mp.motor_time_constant_s,
+                                    noisy_measurements=noisy_measurements(scenario))
         self._weight_n = mp.mass_kg * mp.gravity_mps2
         self._spin_from_n = self._weight_n - 2.0   # 2A above it: the spin law is built
         # Which law flies: the supervisor's constants and state (supervisor.py).
@@ -635,6 +637,7 @@ class FlightComputer:
         mass = mass_kg if ctrl.mass_learnt_s >= MASS_TRUSTED_S else None
         out = rec.update(state, rotor, a_n, mass_kg=mass)
         dist = out.path_distance_m
+        ctrl.settle_on(dist)
         self._last_safe_thrust = out.thrust_n
         if flying.law != _TFL:      # a take-over this tick is judged from the next one
             self._decide(dt, rotor, estimate, spread, None, dist, state, events)

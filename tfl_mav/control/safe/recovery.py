@@ -31,22 +31,30 @@ flown with a PD on (−h2, h1) through both torques and a yaw-rate damper.
 
 The outer loop is a PID on position towards a target: the closest point of the path with
 its velocity (speed × tangent) and centripetal acceleration, or a held point (altitude hold,
-velocity zero). Its poles are a triple one at −ω_p (ω_p = 1.25 rad/s): k_p = 3ω_p², k_d = 3ω_p,
-k_i = ω_p³. The integral is what makes the law precise: the steady forces it does not model
-(the model's mass error Δm g, drag, the spinning attitude loop's bias) are a constant
-acceleration demand, which a PD alone leaves as an offset Δm g/k_p (0.10 m at 5 % mass
-error) and the integral removes. It learns only what holds the vehicle off its target: within
+velocity zero). Its poles are a triple one at −ω_p: k_p = 3ω_p², k_d = 3ω_p, k_i = ω_p³
+(:func:`~tfl_mav.control.safe.safe_step.pid_gains`). With three rotors ω_p is 3 rad/s where
+the controller's measurements are clean and the motors prompt, lowered with the motor lag
+(ω_p τ_m ≤ 0.1) and as the attack leaves the side rotors less of the weight
+(:func:`~tfl_mav.control.safe.safe_step.outer_loop_omega`,
+:func:`~tfl_mav.control.safe.safe_step.attack_omega`); 1.25 rad/s with noisy measurements
+and with four rotors (under the 10 rad/s attitude loop). The position error a dead rotor
+leaves is the acceleration the loop does not feed forward over k_p: 2.8 mm on the paper path
+at 1.25 rad/s, 0.08 mm at 3. The integral is what makes the law precise: the steady forces it
+does not model (the model's mass error Δm g, drag, the spinning attitude loop's bias) are a
+constant acceleration demand, which a PD alone leaves as an offset Δm g/k_p and the integral
+removes. It is held as the acceleration it has learnt (k_i ∫e, m/s²), so a pole that moves
+leaves it as it is. It learns only what holds the vehicle off its target: within
 ``INTEGRAL_BAND_M`` of it, or farther once the vehicle has settled (conditional
 integration, :func:`~tfl_mav.control.safe.safe_step.accel_demand`). Fed on the approach after
-a take-over a metre off the path, it banked ~0.3 m s that the loop paid back as a 0.15 m
-overshoot decaying at ω_p/3, and the paper's zero-attack stretch was handed back to TFL 40-60 mm
-off. A stiffer loop (ω_p = 2 rad/s) costs a dead rotor with motor lag or a 250 Hz loop 3-6×
-its precision (the spinning attitude loop's bandwidth); a stiffness scheduled on the position
-error rings near the path. The integral is bounded (±``MAX_INTEGRAL_G`` g) and frozen while
-the demand is limited or the allocation cannot make it (anti-windup,
-:func:`~tfl_mav.control.safe.safe_step.integrated`).
-The wanted acceleration is limited to a 30° tilt and ±0.5 g vertically: a safe law does not
-chase the path hard.
+a take-over a metre off the path, it banked a debt the loop paid back as a 0.15 m overshoot,
+and the paper's zero-attack stretch was handed back to TFL 40-60 mm off. The integral is
+bounded (±``MAX_INTEGRAL_G`` g) and frozen while the demand is limited or the allocation
+cannot make it (anti-windup, :func:`~tfl_mav.control.safe.safe_step.integrated`).
+The wanted acceleration is limited to a 30° tilt and ±0.5 g vertically — a safe law does not
+chase the path hard — and to what the rotors can make: vertically within ± the climb the
+most thrust allows (a heavy airframe on two side rotors climbs at 0.1-0.2 g; a dive at
+0.5 g it cannot arrest was a crash from half a metre), horizontally within the tilt the
+vertical demand leaves.
 
 Thrust requests are feasible by construction: the three-rotor allocation gives up τ_p (the
 opposite rotor within [0, f_max]) before τ_q, and τ_q before u_f, so what the law asks for
@@ -70,7 +78,6 @@ from tfl_mav.control.path.paths import Path
 from tfl_mav.control.safe import safe_step
 from tfl_mav.control.safe.lqr import dlqr, dlqr_zoh_many, zoh
 from tfl_mav.control.safe.safe_step import (
-    KI,
     MAX_INTEGRAL_G,
     MAX_TILT_RAD,
     MAX_VERTICAL_G,
@@ -281,7 +288,8 @@ class RecoveryLaw:
                  gravity_mps2: float, dt_s: float, path: Path | None,
                  speed_mps: float, *, kernels: PathKernels | None = None,
                  compiled_path: bool = True, design_gains: bool = True,
-                 motor_time_constant_s: float = 0.0) -> None:
+                 motor_time_constant_s: float = 0.0,
+                 noisy_measurements: bool = False) -> None:
         self.mass_kg = mass_kg
         self.inertia = tuple(inertia_kgm2)
         self.arm_m = arm_m
@@ -314,18 +322,18 @@ class RecoveryLaw:
         self._inverse_perm: dict[int, tuple[int, int, int, int]] = {}
         self._rot6: dict[int, tuple[int, ...]] = {}       # the canonical rotation's rows 1-2
         self._step_model = (mass_kg, k_t, gravity_mps2, arm_m, thrust_max_n)
-        # ∫ position error (m s, inertial): the integral action's state. It carries over
+        # k_i ∫ position error (m/s², inertial): the integral action's state. It carries over
         # between take-overs of one flight: the steady force it has learnt (the model's mass
         # error) is the same force the next time.
-        self.integral_ms = [0.0, 0.0, 0.0]
+        self.integral_mps2 = [0.0, 0.0, 0.0]
         # v − v_target low-passed and the filter's age (accel_demand's settled test); each
         # start begins it again: a law that starts has not settled.
         self.drift_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.drift_age_s = 0.0
-        self._integral_top_ms = MAX_INTEGRAL_G * gravity_mps2 / KI
+        omega_p = safe_step.outer_loop_omega(motor_time_constant_s, noisy_measurements)
         # The attacked tick: safe_step's pure step, on this path's σ, compiled by the seam
         # where it is built (the projection's kernel must be generated code to be inlined).
-        self._safe = SafeParams(self._step_model, speed_mps, dt_s, self._integral_top_ms,
+        self._safe = SafeParams(self._step_model, speed_mps, dt_s, omega_p,
                                 self.projector is not None,
                                 (*self.inertia, float(k_r), float(drag_thrust_ratio_m)))
         self._sigma2 = self.projector.sigma2 if self.projector is not None \
@@ -431,7 +439,7 @@ class RecoveryLaw:
             self.mass_kg = mass_kg
             m = self._step_model = (mass_kg, *self._step_model[1:])
             sp = self._safe      # SafeParams with the new model, built as the tuple it is
-            self._safe = _new_output(SafeParams, (m, sp[1], sp[2], sp[3], sp[4], sp[5]))
+            self._safe = _new_output(SafeParams, (m, *sp[1:]))
         if attacked_rotor:
             return self._three_rotor(s, attacked_rotor, attack_n)
         out = safe_step.healthy_tick(self._safe, self._state(s), (
@@ -447,7 +455,7 @@ class RecoveryLaw:
         return _new_output(SafeState, (
             proj.lam if proj is not None and proj.lam is not None else 0.0,
             hold is not None, _ZERO3 if hold is None else hold,
-            self.integral_ms, self.drift_mps, self.drift_age_s))
+            self.integral_mps2, self.drift_mps, self.drift_age_s))
 
     def _keep(self, out: tuple[Any, ...]) -> RecoveryOutput:
         """Keep the pure step's new state as this law's; its output as a RecoveryOutput."""
@@ -458,7 +466,7 @@ class RecoveryLaw:
             proj.lam = lam
         if holding and self.hold_m is None:
             self.hold_m = list(hold_m)
-        self.integral_ms = list(integral)
+        self.integral_mps2 = list(integral)
         f = list(f)
         return _new_output(RecoveryOutput, (f, list(f), tilt_err, dist, uf, tuple(clamped)))
 

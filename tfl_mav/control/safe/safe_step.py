@@ -21,22 +21,47 @@ from typing import Any, NamedTuple
 from tfl_mav.control.allocation import allocate_nominal
 from tfl_mav.control.safe.lost_rotor import lost_rotor_step, thrust_direction
 
-__all__ = ["ATT_KD", "ATT_KP", "INTEGRAL_BAND_M", "MAX_INTEGRAL_G", "MAX_TILT_RAD",
-           "MAX_VERTICAL_G", "POS_OMEGA", "SETTLED_MPS", "SETTLE_TAU_S", "YAW_DAMP", "SafeParams",
-           "SafeState", "Sigma2", "accel_demand", "closest_point", "healthy_tick", "integrated",
-           "no_path", "safe_tick", "target"]
+__all__ = [
+    "ATT_KD",
+    "ATT_KP",
+    "INTEGRAL_BAND_M",
+    "LAG_POLE_PRODUCT",
+    "MAX_INTEGRAL_G",
+    "MAX_TILT_RAD",
+    "MAX_VERTICAL_G",
+    "MIN_POS_OMEGA",
+    "POS_OMEGA",
+    "SETTLE_TAU_S",
+    "SIDE_SHARE_FAST",
+    "SIDE_SHARE_SLOW",
+    "YAW_DAMP",
+    "SafeParams",
+    "SafeState",
+    "Sigma2",
+    "accel_demand",
+    "attack_omega",
+    "closest_point",
+    "healthy_tick",
+    "integrated",
+    "no_path",
+    "outer_loop_omega",
+    "pid_gains",
+    "safe_tick",
+    "target",
+]
 
 MAX_TILT_RAD = math.radians(30.0)   # outer loop: horizontal acceleration ≤ g tan 30°
 MAX_VERTICAL_G = 0.5                # outer loop: |vertical acceleration| ≤ 0.5 g
-POS_OMEGA = 1.25  # outer-loop triple pole (rad/s)
+POS_OMEGA = 3.0                    # outer-loop triple pole (rad/s) with prompt motors …
+LAG_POLE_PRODUCT = 0.1              # … and ω_p τ_m ≤ this with a motor lag τ_m …
+MIN_POS_OMEGA = 1.25                # … but never below (rad/s): see :func:`outer_loop_omega`;
+                                    # the four-rotor take-over's, under a 10 rad/s attitude loop
+SIDE_SHARE_FAST = 0.9               # the side rotors carry this much of the weight: full ω_p …
+SIDE_SHARE_SLOW = 0.6               # … this little: MIN_POS_OMEGA (:func:`attack_omega`)
 MAX_INTEGRAL_G = 0.2                # |integral action| ≤ 0.2 g per axis (a 20 % model error)
 INTEGRAL_BAND_M = 0.05              # the integral learns within this of its target (m),
                                     # or farther once the vehicle has settled
 TAN_MAX_TILT = math.tan(MAX_TILT_RAD)
-KP = 3.0 * POS_OMEGA * POS_OMEGA      # outer-loop PID gains: (s + ω_p)³
-KD = 3.0 * POS_OMEGA
-KI = POS_OMEGA * POS_OMEGA * POS_OMEGA
-SETTLED_MPS = POS_OMEGA * INTEGRAL_BAND_M   # |v − v_target| low-passed below this (m/s) …
 ATT_KP = 100.0                      # four healthy rotors: reduced attitude (10 rad/s)² …
 ATT_KD = 20.0                       # … critically damped
 YAW_DAMP = 2.0                      # … and r decays at 2 /s
@@ -49,10 +74,57 @@ class SafeParams(NamedTuple):
     model: tuple[float, ...]    # (m kg, k_t N s/m, g m/s², l m, f_max N): lost_rotor_step's
     speed_mps: float            # the speed along the path
     dt_s: float                 # control period (s): the integral's step
-    integral_top_ms: float      # |∫e| ≤ this (m s): MAX_INTEGRAL_G g / k_i
+    omega_p_radps: float        # the three-rotor outer loop's fastest pole (rad/s,
+                                # :func:`outer_loop_omega`); each tick's: :func:`attack_omega`
     has_path: bool              # False: a point is held, no path to project on
     airframe: tuple[float, float, float, float, float]  # (I_x, I_y, I_z kg m², k_r N m s,
                                 # d m): the four-rotor attitude loop's (:func:`healthy_tick`)
+
+
+def outer_loop_omega(motor_time_constant_s: float, noisy: bool) -> float:
+    """The three-rotor outer loop's fastest triple pole ω_p (rad/s) for motors that lag by
+    τ_m (s, the controller's model): POS_OMEGA, lowered to LAG_POLE_PRODUCT/τ_m, never below
+    MIN_POS_OMEGA; MIN_POS_OMEGA where the measurements are ``noisy`` (rpm or state noise,
+    an onboard estimator, moving air): what a stiffer loop gains on the model's errors it
+    pays there in noise (the realistic sensors behind the EKF: 65 → 83 mm at 3 rad/s).
+
+    Why these: the position error a dead rotor leaves is the acceleration the loop does not
+    feed forward (the spinning attitude loop's lag behind a turning thrust direction, the
+    model's errors before the integral has learnt them) over k_p = 3ω_p², so it falls as
+    1/ω_p² — the paper path with a dead rotor, exact model: 4.2 mm at 1.25 rad/s, 0.08 mm at
+    3. The pole is bounded by the attitude loop under the spin, whose bandwidth the motor lag
+    takes: a dead rotor with 50 ms lag flies at ω_p = 2.5 rad/s (0.3 mm), rings at 3 (6 mm),
+    crashes at 4; with 60 ms it diverges at 3. ω_p τ_m ≤ 0.1 keeps a factor ≥ 1.5 to the
+    ring with a lag the model underestimates by 30 %. Faster than 3 rad/s buys little
+    (the error is already the attitude loop's) and leaves less margin to wind and sensor
+    noise."""
+    if noisy:
+        return MIN_POS_OMEGA
+    if motor_time_constant_s > 0.0:
+        w = LAG_POLE_PRODUCT / motor_time_constant_s
+        w = POS_OMEGA if w > POS_OMEGA else w
+        return MIN_POS_OMEGA if w < MIN_POS_OMEGA else w
+    return POS_OMEGA
+
+
+def attack_omega(omega_p_radps: float, attack_n: float, weight_n: float) -> float:
+    """The three-rotor outer loop's pole (rad/s) with the attacked rotor at ``attack_n``
+    (N, within [0, f_max]): ``omega_p_radps`` while the two side rotors carry at least
+    SIDE_SHARE_FAST of the weight (N), MIN_POS_OMEGA from SIDE_SHARE_SLOW down, linear
+    between. The side rotors make u_f − 2A and, from its difference, all of τ_q: the less
+    of the weight they carry the sooner the spinning attitude loop saturates, and a stiff
+    outer loop there drives it into a limit cycle (a constant 5 N: 0.15 m at 1.25 rad/s,
+    lost at 2)."""
+    share = (weight_n - 2.0 * attack_n) / weight_n
+    k = (share - SIDE_SHARE_SLOW) / (SIDE_SHARE_FAST - SIDE_SHARE_SLOW)
+    k = 0.0 if k < 0.0 else (1.0 if k > 1.0 else k)
+    return MIN_POS_OMEGA + k * (omega_p_radps - MIN_POS_OMEGA)
+
+
+def pid_gains(omega_p_radps: float) -> tuple[float, float, float]:
+    """(k_p 1/s², k_d 1/s, k_i 1/s³) placing the outer loop's poles at (s + ω_p)³."""
+    w = omega_p_radps
+    return 3.0 * w * w, 3.0 * w, w * w * w
 
 
 class SafeState(NamedTuple):
@@ -61,7 +133,8 @@ class SafeState(NamedTuple):
     lam: float                          # the path parameter of the closest point
     holding: bool                       # holding ``hold_m`` (told to, or the path lost)
     hold_m: tuple[float, float, float]  # the held point (m)
-    integral_ms: tuple[float, float, float]     # ∫ position error (m s, inertial)
+    integral_mps2: tuple[float, float, float]   # the integral action k_i ∫e (m/s²,
+                                                # inertial): what the loop has learnt
     drift_mps: tuple[float, float, float]       # v − v_target across the path, low-passed
                                                 # over SETTLE_TAU_S (m/s)
     drift_age_s: float                  # how long the filter has run (0: the law has just
@@ -121,24 +194,34 @@ def accel_demand(p: SafeParams, target: tuple[float, float, float],
                  tangent: tuple[float, float, float], curvature: tuple[float, float, float],
                  integral: tuple[float, float, float], drift: tuple[float, float, float],
                  drift_age_s: float, y: tuple[float, float, float],
-                 v: tuple[float, float, float], g: float, on_path: float
+                 v: tuple[float, float, float], g: float, on_path: float,
+                 omega_p_radps: float, thrust_max_n: float
                  ) -> tuple[float, float, float, tuple[float, float, float], float,
                             tuple[float, float, float], float]:
     """The outer loop's wanted acceleration (m/s², z up): PID towards ``target`` (the
     closest path point, with the path's speed × tangent and centripetal term when
-    ``on_path``; else a held point, velocity zero), limited to MAX_TILT_RAD and
-    ±MAX_VERTICAL_G. Returns (a_x, a_y, a_z, the position error e m, integrate, the new
-    drift m/s and its age s).
+    ``on_path``; else a held point, velocity zero), poles at (s + ``omega_p_radps``)³
+    (:func:`pid_gains`), limited to MAX_TILT_RAD and
+    ±MAX_VERTICAL_G, and to what ``thrust_max_n`` (the most the rotors can make along b3,
+    N) can fly with the model mass m: vertically within ±(thrust_max_n/m − g) — never a
+    descent faster than the rotors can arrest: a heavy airframe on two side rotors climbs at
+    0.1-0.2 g, and a dive at 0.5 g from half a metre is a crash —, horizontally within
+    √((thrust_max_n/m)² − (g + a_z)²), the tilt the vertical demand leaves. A vehicle that
+    cannot hover (thrust_max_n ≤ m g) keeps the fixed limits. Returns (a_x, a_y, a_z, the
+    position error e m, integrate, the new drift m/s and its age s).
 
     ``integrate`` says whether e may enter the integral (conditional integration): not on a
     limited demand, and beyond INTEGRAL_BAND_M of the target only once the vehicle has
     settled: v − v_target across the path, low-passed over SETTLE_TAU_S (``drift``, started at
-    the first tick's value when ``drift_age_s`` is 0) below SETTLED_MPS, the filter at least
+    the first tick's value when ``drift_age_s`` is 0) below ω_p INTEGRAL_BAND_M, the filter at least
     SETTLE_TAU_S old — a vehicle at rest when a law starts is about to move, not held off.
     An integral fed on the approach (a take-over a metre off the path) is a debt of ~0.3 m s
     that the loop pays back as an overshoot of 0.15 m decaying at ω_p/3; a steady force (mass
     error, drag) holds the vehicle still off its target, settled, and is learnt wherever it
     leaves it."""
+    w = omega_p_radps
+    kp, kd = 3.0 * w * w, 3.0 * w       # (s + ω_p)³, as pid_gains; k_i is in the integral
+    settled_mps = w * INTEGRAL_BAND_M
     e = (target[0] - y[0], target[1] - y[1], target[2] - y[2])
     ff = (0.0, 0.0, 0.0)
     vt = (0.0, 0.0, 0.0)
@@ -146,8 +229,8 @@ def accel_demand(p: SafeParams, target: tuple[float, float, float],
         sp = p.speed_mps
         sp2 = sp * sp
         vt = (sp * tangent[0], sp * tangent[1], sp * tangent[2])
-        ff = (KD * sp * tangent[0] + sp2 * curvature[0], KD * sp * tangent[1]
-              + sp2 * curvature[1], KD * sp * tangent[2] + sp2 * curvature[2])
+        ff = (kd * sp * tangent[0] + sp2 * curvature[0], kd * sp * tangent[1]
+              + sp2 * curvature[1], kd * sp * tangent[2] + sp2 * curvature[2])
     # Settled: the vehicle moves across the path (or against a held point) slower than the
     # loop closes a band-sized error. On an approach it is not; held off by a steady force it
     # is. Along the path it may fly faster or slower than the path speed (a tangential force
@@ -160,16 +243,22 @@ def accel_demand(p: SafeParams, target: tuple[float, float, float],
         k = p.dt_s / SETTLE_TAU_S
         wx, wy, wz = (drift[0] + k * (wx - drift[0]), drift[1] + k * (wy - drift[1]),
                       drift[2] + k * (wz - drift[2]))
-    settled = (wx * wx + wy * wy + wz * wz <= SETTLED_MPS * SETTLED_MPS
+    settled = (wx * wx + wy * wy + wz * wz <= settled_mps * settled_mps
                and drift_age_s >= SETTLE_TAU_S)
     near = e[0] * e[0] + e[1] * e[1] + e[2] * e[2] <= INTEGRAL_BAND_M * INTEGRAL_BAND_M
-    a0 = KP * e[0] - KD * v[0] + ff[0] + KI * integral[0]
-    a1 = KP * e[1] - KD * v[1] + ff[1] + KI * integral[1]
-    a2 = KP * e[2] - KD * v[2] + ff[2] + KI * integral[2]
+    a0 = kp * e[0] - kd * v[0] + ff[0] + integral[0]
+    a1 = kp * e[1] - kd * v[1] + ff[1] + integral[1]
+    a2 = kp * e[2] - kd * v[2] + ff[2] + integral[2]
     lim = MAX_VERTICAL_G * g
+    top = thrust_max_n / p.model[0]          # the most acceleration along b3 (m/s²)
+    lim = top - g if g < top < g + lim else lim
     az = lim if a2 > lim else (-lim if a2 < -lim else a2)
     ah = math.hypot(a0, a1)
     amax = (g + az) * TAN_MAX_TILT
+    if top > g:
+        side = top * top - (g + az) * (g + az)
+        side = math.sqrt(side) if side > 0.0 else 0.0
+        amax = side if side < amax else amax
     limited = az != a2
     if ah > amax:
         a0 *= amax / ah
@@ -180,21 +269,25 @@ def accel_demand(p: SafeParams, target: tuple[float, float, float],
 
 
 def integrated(integral: tuple[float, float, float], e: tuple[float, float, float],
-               dt_s: float, top_ms: float) -> tuple[float, float, float]:
-    """∫e after one tick flown as asked: the position error enters only on a tick whose
-    demand was flown as asked — neither limited by the tilt/vertical caps nor clipped by the
-    allocation (a rotor at a bound: the wanted thrust or τ_q was not made; the callers
-    decide) — and never past ``top_ms`` per axis, so a wrong integral costs at most
-    MAX_INTEGRAL_G of acceleration. An attack near m g/2 leaves the side rotors almost
-    nothing (f₁ + f₃ = u_f − 2A): an integral fed through that saturation winds up into a
-    limit cycle metres wide. A non-finite error is left out."""
+               ki_dt: float, top_mps2: float) -> tuple[float, float, float]:
+    """The integral action k_i ∫e (m/s²) after one tick flown as asked, ``ki_dt`` = k_i × the
+    control period: the position error enters only on a tick whose demand was flown as
+    asked — neither limited by the tilt/vertical caps nor clipped by the allocation (a
+    rotor at a bound: the wanted thrust or τ_q was not made; the callers decide) — and never
+    past ``top_mps2`` per axis (MAX_INTEGRAL_G g), so a wrong integral costs at most that.
+    Held as an acceleration, not as ∫e, what it has learnt stays what it is when the
+    loop's pole moves (:func:`attack_omega`) or the four-rotor tick takes over. An attack
+    near m g/2 leaves the side rotors almost nothing (f₁ + f₃ = u_f − 2A): an integral fed
+    through that saturation winds up into a limit cycle metres wide. A non-finite error is
+    left out."""
     e0, e1, e2 = e
     if math.isfinite(e0 + e1 + e2):          # a finite sum: all three finite
         i0, i1, i2 = integral
-        i0, i1, i2 = i0 + e0 * dt_s, i1 + e1 * dt_s, i2 + e2 * dt_s
-        integral = ((top_ms if i0 > top_ms else (-top_ms if i0 < -top_ms else i0)),
-                    (top_ms if i1 > top_ms else (-top_ms if i1 < -top_ms else i1)),
-                    (top_ms if i2 > top_ms else (-top_ms if i2 < -top_ms else i2)))
+        i0, i1, i2 = i0 + e0 * ki_dt, i1 + e1 * ki_dt, i2 + e2 * ki_dt
+        top = top_mps2
+        integral = ((top if i0 > top else (-top if i0 < -top else i0)),
+                    (top if i1 > top else (-top if i1 < -top else i1)),
+                    (top if i2 > top else (-top if i2 < -top else i2)))
     return integral
 
 
@@ -235,13 +328,18 @@ def safe_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...], sigma2: Sigm
     g, fmax = p.model[2], p.model[4]
     found, lam, holding, hold, point, tangent, curvature, dist = target(p, sigma2, lam,
                                                                         holding, hold, y)
+    # The most along b3: the two side rotors at f_max, the attacked one at its estimate and
+    # the opposite one balancing it in roll (lost_rotor_step's f₄ = A + τ_p/l).
+    an = 0.0 if attack_n < 0.0 else (fmax if attack_n > fmax else attack_n)
+    w = attack_omega(p.omega_p_radps, an, p.model[0] * g)
     a0, a1, a2, e, integrate, drift, drift_age = accel_demand(
-        p, point, tangent, curvature, integral, drift, drift_age, y, v, g, found)
+        p, point, tangent, curvature, integral, drift, drift_age, y, v, g, found, w,
+        2.0 * fmax + 2.0 * an)
     tilt_err, uf, c0, c1, c2, c3, made, d0, d2, d3 = lost_rotor_step(
         (a0, a1, a2), (v[0], v[1], v[2]), q, rates, rot, (*gains[0], *gains[1]), p.model,
         attack_n)
     if made and integrate:
-        integral = integrated(integral, e, p.dt_s, p.integral_top_ms)
+        integral = integrated(integral, e, w * w * w * p.dt_s, MAX_INTEGRAL_G * g)
     canon, req = (c0, c1, c2, c3), (d0, c1, d2, d3)
     hi = fmax + 1e-9
     f = tuple(canon[k] for k in inverse)
@@ -269,7 +367,8 @@ def healthy_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...], sigma2: S
     found, lam, holding, hold, point, tangent, curvature, dist = target(p, sigma2, lam,
                                                                         holding, hold, y)
     a0, a1, a2, e, integrate, drift, drift_age = accel_demand(
-        p, point, tangent, curvature, integral, drift, drift_age, y, v, g, found)
+        p, point, tangent, curvature, integral, drift, drift_age, y, v, g, found,
+        MIN_POS_OMEGA, 4.0 * fmax)
     ix, iy, iz, k_r, d_m = p.airframe
     pr, qr, rr = rates
     tilt_err, uf, h0, h1, _h2 = thrust_direction((a0, a1, a2), v, q, m, k_t, g)
@@ -280,6 +379,7 @@ def healthy_tick(p: SafeParams, s: SafeState, inputs: tuple[Any, ...], sigma2: S
     f = allocate_nominal(uf, tau_p, tau_q, tau_r, ell, d_m, fmax)
     clamped = tuple(not -1e-9 <= x <= fmax + 1e-9 for x in req)
     if integrate and not (clamped[0] or clamped[1] or clamped[2] or clamped[3]):
-        integral = integrated(integral, e, p.dt_s, p.integral_top_ms)
+        ki_dt = MIN_POS_OMEGA * MIN_POS_OMEGA * MIN_POS_OMEGA * p.dt_s
+        integral = integrated(integral, e, ki_dt, MAX_INTEGRAL_G * g)
     return (SafeState(lam, holding, hold, integral, drift, drift_age),
             (tuple(f), tilt_err, dist, uf, clamped))

@@ -61,7 +61,7 @@ from tfl_mav.control.tfl.law_math import (
 )
 
 __all__ = ["Fallback", "Frame", "Seen", "TFLInputs", "TFLOutputs", "TFLParams", "TFLState",
-           "command", "observe", "predict", "tfl_step"]
+           "command", "observe", "predict", "settle", "tfl_step"]
 
 
 class Fallback(IntEnum):
@@ -328,12 +328,9 @@ def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: Seen, vo: Projected,
             x14 = 0.0
     x13 = x13 + (dt * x14 + 0.5 * dt * dt * udd)
     x14 = x14 + dt * udd
-    # The one-time switch to the fine ξ, η poles once |α| has stayed small long enough.
     settled = s.settled_s
-    if p.use_switch and not fine and reason == Fallback.NONE:
-        settled = settled + dt if math.hypot(xi1[0], xi2[0]) < p.settle_alpha else 0.0
-        if settled >= p.settle_time_s:
-            fine = True
+    if reason == Fallback.NONE:
+        fine, settled = settle(p, fine, settled, math.hypot(xi1[0], xi2[0]), dt)
     wp, _wq, wr = u.body_rates_radps
     state = TFLState(x13, x14, seen.mass, seen.dob, seen.tdob, True, pred, f, True, psi_ref,
                      fine, settled, ps)
@@ -345,6 +342,19 @@ def command(p: TFLParams, s: TFLState, u: TFLInputs, seen: Seen, vo: Projected,
         vo.code, vo.margin, seen.rates, sat_any, (raw[0], raw[1], raw[2], raw[3]))
     return state, out
 
+
+
+def settle(p: TFLParams, fine: bool, settled_s: float, alpha_m: float, dt_s: float
+           ) -> tuple[bool, float]:
+    """The one-time switch to the fine ξ, η poles: (fine, settled_s) after a tick ``dt_s``
+    the vehicle flew |α| = ``alpha_m`` (m) from the path. Fine once |α| has stayed below
+    ``settle_alpha`` for ``settle_time_s`` — whichever law held it there
+    (:meth:`~tfl_mav.control.tfl.tfl_controller.TFLController.settle_on`)."""
+    if p.use_switch and not fine:
+        settled_s = settled_s + dt_s if alpha_m < p.settle_alpha else 0.0
+        if settled_s >= p.settle_time_s:
+            fine = True
+    return fine, settled_s
 
 def tfl_step(p: TFLParams, s: TFLState, u: TFLInputs, k: Kernels
              ) -> tuple[TFLState, TFLOutputs]:

@@ -63,7 +63,7 @@ from tfl_mav.control.tfl.estimators import (
     mass_update,
 )
 from tfl_mav.control.tfl.law_types import ControlOutput, LawConfig, ModelParams, chain_gains
-from tfl_mav.control.tfl.step import Fallback, Frame, TFLInputs, TFLParams, TFLState
+from tfl_mav.control.tfl.step import Fallback, Frame, TFLInputs, TFLParams, TFLState, settle
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
 
@@ -407,6 +407,19 @@ class TFLController:
         if mass is None:        # not compiled, or declined (Python raises there): Python
             mass = mass_observe(p.mass, st.mass, p.dt_s, q, v, thrust)
         self.state = _new_tuple(TFLState, (*st[:_MASS], mass, *st[_MASS + 1:]))
+
+    def settle_on(self, path_distance_m: float) -> None:
+        """A tick another law flew ``path_distance_m`` (m) from the path: the one-time switch
+        to the fine poles counts it as its own (:func:`~tfl_mav.control.tfl.step.settle`).
+        A vehicle the safe law has held on the path is settled, and TFL resumes with the
+        poles it would have had: on the coarse ones the safe law's last jerk (a spinning
+        vehicle's nutation, (u_f/m)·|(p, q)| ≈ 0.08 m/s³) rang out as a 1 mm tail over the
+        second the switch waited, on the fine ones 0.1-0.3 mm."""
+        st = as_state(self.state)
+        d = path_distance_m if math.isfinite(path_distance_m) else math.inf
+        fine, settled = settle(self.params, st.fine, st.settled_s, d, self.params.dt_s)
+        if fine != st.fine or settled != st.settled_s:
+            self.state = st._replace(fine=fine, settled_s=settled)
 
     def set_attack(self, rotor: int, estimate_n: float) -> None:
         """Declare rotor (1-4) attacked with the given thrust estimate (N); 0 = none.
