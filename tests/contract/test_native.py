@@ -555,8 +555,9 @@ def test_safe_law_attacked_tick_compiled_is_the_python_tick(held, monkeypatch):
         a, b = py.update(s, rotor, attack), c.update(s, rotor, attack)
         assert repr(a) == repr(b), trial
         assert repr((py.integral_mps2, py.hold_m, py.projector.lam, py.drift_mps,
-                     py.drift_age_s)) == \
-            repr((c.integral_mps2, c.hold_m, c.projector.lam, c.drift_mps, c.drift_age_s)), trial
+                     py.drift_age_s, py.attack_lp_n)) == \
+            repr((c.integral_mps2, c.hold_m, c.projector.lam, c.drift_mps, c.drift_age_s,
+                  c.attack_lp_n)), trial
     assert any(x != 0.0 for x in py.integral_mps2)
 
 

@@ -33,7 +33,7 @@ def _fly(d_mps2: float, seconds: float, start_m: float = 1.0,
          wobble_mps: float = 0.0) -> list[float]:
     """x(t) of ÿ = a + d (x only; y, z at rest on the target), the target held at 0; the
     law measures v with a wobble of ``wobble_mps`` added."""
-    p = SafeParams((1.0, 0.0, G, 0.2, 8.0), 0.5, DT, POS_OMEGA, False,
+    p = SafeParams((1.0, 0.0, G, 0.2, 8.0), 0.5, DT, POS_OMEGA, False, True,
                    (0.01, 0.01, 0.02, 0.0, 0.01))
     x, v, integral = start_m, 0.0, (0.0, 0.0, 0.0)
     zero = (0.0, 0.0, 0.0)

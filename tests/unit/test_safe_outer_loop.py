@@ -14,6 +14,7 @@ import random
 import pytest
 
 from tfl_mav.control.safe.safe_step import (
+    ATTACK_TAU_S,
     LAG_POLE_PRODUCT,
     MAX_TILT_RAD,
     MAX_VERTICAL_G,
@@ -22,10 +23,13 @@ from tfl_mav.control.safe.safe_step import (
     SIDE_SHARE_FAST,
     SIDE_SHARE_SLOW,
     SafeParams,
+    SafeState,
     accel_demand,
     attack_omega,
+    no_path,
     outer_loop_omega,
     pid_gains,
+    safe_tick,
 )
 from tfl_mav.control.tfl.step import settle
 from tfl_mav.from_scenario import build_controller
@@ -36,7 +40,7 @@ ZERO = (0.0, 0.0, 0.0)
 
 
 def _params(mass_kg: float = 1.0) -> SafeParams:
-    return SafeParams((mass_kg, 0.0, G, 0.2, 8.0), 0.5, 0.001, POS_OMEGA, False,
+    return SafeParams((mass_kg, 0.0, G, 0.2, 8.0), 0.5, 0.001, POS_OMEGA, False, True,
                       (0.01, 0.01, 0.02, 0.0, 0.01))
 
 
@@ -132,3 +136,34 @@ def test_a_vehicle_the_safe_law_held_on_the_path_resumes_on_the_fine_poles():
         held.settle_on(0.2 * held.params.settle_alpha)
         far.settle_on(math.nan)            # holding a point: no distance to the path
     assert held.fine and not far.fine
+
+
+def test_without_a_known_authority_the_fixed_limits_hold():
+    p = _params(1.45)
+    assert _demand(p, (0.0, 0.0, -0.5), (0.0, 0.0, 0.4), thrust_max_n=0.0) == \
+        pytest.approx(_demand(p, (0.0, 0.0, -0.5), (0.0, 0.0, 0.4)))
+
+
+def test_the_pole_follows_the_attacks_level_not_its_steps():
+    # 0-5 N switched every 1.25 s (an intermittent attack near m g/2): the pole reads the
+    # attack low-passed over ATTACK_TAU_S, so it stays near the mean's, not jumping between
+    # the fast and the slow pole at each step.
+    p = _params()._replace(has_path=False)
+    s = SafeState(0.0, True, (0.0, 0.0, 5.0), ZERO, ZERO, 0.0, 0.0)
+    rot = (1, 0, 0, 0, 1, 0)
+    lps = []
+    for i in range(int(20.0 / p.dt_s)):
+        a_n = 5.0 if (i * p.dt_s) % 2.5 < 1.25 else 0.0
+        s, _out = safe_tick(p, s, ((0.0, 0.0, 5.0), ZERO, (1.0, 0.0, 0.0, 0.0), ZERO, a_n,
+                                   rot, (0, 1, 2, 3), ((0.0,) * 4, (0.0,) * 4)), no_path)
+        lps.append(s.attack_lp_n)
+    assert lps[0] == 5.0                     # started at the first estimate
+    late = lps[len(lps) * 3 // 5:]     # periodic by then (5 τ in)
+    # a first-order filter's ripple on a square wave: ±(A/2) tanh(T_half/(2τ)) = ±0.76 N
+    ripple = 2.5 * math.tanh(1.25 / (2.0 * ATTACK_TAU_S))
+    assert min(late) > 2.5 - ripple - 0.05 and max(late) < 2.5 + ripple + 0.05
+    poles = [attack_omega(POS_OMEGA, a, G) for a in late]
+    # near the slow pole throughout (read unfiltered, the pole would jump between 1.25 and
+    # 3 rad/s at every step)
+    assert min(poles) >= MIN_POS_OMEGA and max(poles) < MIN_POS_OMEGA + 0.3
+    assert ATTACK_TAU_S > 1.25               # longer than a step of this attack

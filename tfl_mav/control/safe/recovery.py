@@ -289,7 +289,7 @@ class RecoveryLaw:
                  speed_mps: float, *, kernels: PathKernels | None = None,
                  compiled_path: bool = True, design_gains: bool = True,
                  motor_time_constant_s: float = 0.0,
-                 noisy_measurements: bool = False) -> None:
+                 noisy_measurements: bool = False, thrust_known: bool = True) -> None:
         self.mass_kg = mass_kg
         self.inertia = tuple(inertia_kgm2)
         self.arm_m = arm_m
@@ -330,11 +330,12 @@ class RecoveryLaw:
         # start begins it again: a law that starts has not settled.
         self.drift_mps: tuple[float, float, float] = (0.0, 0.0, 0.0)
         self.drift_age_s = 0.0
+        self.attack_lp_n = 0.0      # the attack low-passed (safe_step.attack_omega's)
         omega_p = safe_step.outer_loop_omega(motor_time_constant_s, noisy_measurements)
         # The attacked tick: safe_step's pure step, on this path's σ, compiled by the seam
         # where it is built (the projection's kernel must be generated code to be inlined).
         self._safe = SafeParams(self._step_model, speed_mps, dt_s, omega_p,
-                                self.projector is not None,
+                                self.projector is not None, thrust_known,
                                 (*self.inertia, float(k_r), float(drag_thrust_ratio_m)))
         self._sigma2 = self.projector.sigma2 if self.projector is not None \
             else safe_step.no_path
@@ -455,11 +456,12 @@ class RecoveryLaw:
         return _new_output(SafeState, (
             proj.lam if proj is not None and proj.lam is not None else 0.0,
             hold is not None, _ZERO3 if hold is None else hold,
-            self.integral_mps2, self.drift_mps, self.drift_age_s))
+            self.integral_mps2, self.drift_mps, self.drift_age_s, self.attack_lp_n))
 
     def _keep(self, out: tuple[Any, ...]) -> RecoveryOutput:
         """Keep the pure step's new state as this law's; its output as a RecoveryOutput."""
-        (lam, holding, hold_m, integral, self.drift_mps, self.drift_age_s), \
+        (lam, holding, hold_m, integral, self.drift_mps, self.drift_age_s,
+         self.attack_lp_n), \
             (f, tilt_err, dist, uf, clamped) = out
         proj = self.projector
         if proj is not None and self.hold_m is None:
@@ -501,6 +503,6 @@ class RecoveryLaw:
 
 _ZERO3 = (0.0, 0.0, 0.0)
 # safe_tick's arguments' shapes, for the seam's lowering.
-_STATE0 = (0.0, False, _ZERO3, _ZERO3, _ZERO3, 0.0)
+_STATE0 = (0.0, False, _ZERO3, _ZERO3, _ZERO3, 0.0, 0.0)
 _INPUTS0 = (_ZERO3, _ZERO3, (1.0, 0.0, 0.0, 0.0), _ZERO3, 0.0, (0,) * 6, (0,) * 4,
             ((0.0,) * 4, (0.0,) * 4))
