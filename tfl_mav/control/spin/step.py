@@ -43,6 +43,8 @@ import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
+from tfl_mav.control.scalar import clamp
+
 __all__ = [
     "RHO_MAX",
     "RHO_STEPS",
@@ -242,10 +244,6 @@ def mat3(rows: Sequence[Sequence[float]]) -> Mat3:
             (float(g), float(h), float(i)))
 
 
-def _clip(x: float, lo: float, hi: float) -> float:
-    return lo if x < lo else (hi if x > hi else x)
-
-
 def attitude(quat: tuple[float, float, float, float], rates: tuple[float, float, float],
              rot: Mat3) -> tuple[Mat3, float, float, float]:
     """R(q) of the unit quaternion ``quat`` (w, x, y, z) and the body rates ``rates`` (rad/s)
@@ -323,7 +321,7 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
         ax, ay, limited = ax * top / h, ay * top / h, True
     vtop = p.max_vertical_mps2
     if az > vtop or az < -vtop:
-        az, limited = _clip(az, -vtop, vtop), True
+        az, limited = clamp(az, -vtop, vtop), True
     fx, fy, fz = m * ax, m * ay, m * (az + g)
     weight = math.sqrt(fx * fx + fy * fy + fz * fz)
     ndx, ndy, ndz = fx / weight, fy / weight, fz / weight
@@ -331,7 +329,7 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     hover = hover_at(p.table, f2)       # 3. the equilibrium at the measured f_stuck
     if weight < hover.weight_lo_n or weight > hover.weight_hi_n:
         # keep the spin where the rotors hold it
-        weight, limited = _clip(weight, hover.weight_lo_n, hover.weight_hi_n), True
+        weight, limited = clamp(weight, hover.weight_lo_n, hover.weight_hi_n), True
     # n_des in the canonical body: rot Rᵀ n_des
     bx = R[0][0] * ndx + R[1][0] * ndy + R[2][0] * ndz
     by = R[0][1] * ndx + R[1][1] * ndy + R[2][1] * ndz
@@ -343,8 +341,8 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     nbx, nby, nbz = hover.axis
     spin = hover.spin_radps
     # --- 4. the spin schedule: ρ and the reference (rate ρ Ω̄ n_ref, axis tilted in below ρ₀)
-    rho = _clip(w2 / wbz, 0.0, RHO_MAX) if wbz != 0.0 else 1.0
-    cone = math.acos(_clip(nbz, -1.0, 1.0))
+    rho = clamp(w2 / wbz, 0.0, RHO_MAX) if wbz != 0.0 else 1.0
+    cone = math.acos(clamp(nbz, -1.0, 1.0))
     horiz = math.sqrt(nbx * nbx + nby * nby)
     ramp = rho / RHO_TILT
     th = cone * (ramp * ramp if ramp < 1.0 else 1.0)
@@ -366,7 +364,7 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     clipped = False     # the allocation gave something up
     f4 = f2 + tau_p / ell
     if f4 < 0.0 or f4 > fmax:
-        f4, clipped = _clip(f4, 0.0, fmax), True
+        f4, clipped = clamp(f4, 0.0, fmax), True
     total = weight / (rz if rz > 0.3 else 0.3)
     s13 = total - f2 - f4
     half = 0.5 * tau_q / ell
@@ -379,7 +377,7 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
         lo = hi = fmax
         clipped = True
     if s13 < lo or s13 > hi:
-        s13, clipped = _clip(s13, lo, hi), True
+        s13, clipped = clamp(s13, lo, hi), True
     f1, f3 = 0.5 * s13 - half, 0.5 * s13 + half
     out = [0.0, 0.0, 0.0, 0.0]
     for phys, f in zip(p.perm, (f1, f2, f3, f4), strict=True):
@@ -387,10 +385,10 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     # --- the integral (anti-windup: frozen while the demand is limited or clipped)
     if not limited and not clipped:
         top_i = p.integral_top_ms
-        ix_ = _clip(ix_ + ex * p.dt_s, -top_i, top_i)
-        iy_ = _clip(iy_ + ey * p.dt_s, -top_i, top_i)
-        iz_ = _clip(iz_ + ez * p.dt_s, -top_i, top_i)
-    axis_err = math.acos(_clip(nx * rx + ny * ry + nz * rz, -1.0, 1.0))
+        ix_ = clamp(ix_ + ex * p.dt_s, -top_i, top_i)
+        iy_ = clamp(iy_ + ey * p.dt_s, -top_i, top_i)
+        iz_ = clamp(iz_ + ez * p.dt_s, -top_i, top_i)
+    axis_err = math.acos(clamp(nx * rx + ny * ry + nz * rz, -1.0, 1.0))
     return (SpinState((ix_, iy_, iz_), rho, f1 + f2 + f3 + f4),
             SpinOutputs((out[0], out[1], out[2], out[3]), hover.exists, spin, hover.cone_rad,
                         hover.drift_m, hover.vertical_excess_mps2, rho, axis_err, clipped))

@@ -39,17 +39,13 @@ import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
-__all__ = ["DOB_START", "TDOB_START", "DobState", "MassModel", "MassState", "TdobState", "clamp",
+from tfl_mav.control.scalar import clamp
+
+__all__ = ["DOB_START", "TDOB_START", "DobState", "MassModel", "MassState", "TdobState",
            "dob_step", "dob_update", "mass_blend", "mass_filters", "mass_model", "mass_start",
            "mass_update", "tdob_update"]
 
 V3 = Sequence[Any]
-
-
-def clamp(x: float, lo: float, hi: float) -> float:
-    """``min(max(x, lo), hi)`` written out (the same result, NaN and ties included)."""
-    x = lo if lo > x else x
-    return hi if hi < x else x
 
 
 def mass_filters(dt: Any, tau_s: Any, kt: Any, g: Any, v: V3, thrust: Any, b3: V3,
