@@ -536,9 +536,10 @@ def test_safe_law_attacked_tick_compiled_is_the_python_tick(held, monkeypatch):
     for trial in range(600):
         if trial % 50 == 0:
             hold = [rng.uniform(-3, 3), 0.0, 4.0]
-            for lw in (py, c):
-                lw.hold_m = list(hold) if held else None
-                lw.projector.lam = None
+            for lw in (py, c):      # λ from a global search; then the point to hold
+                lw.follow_path(search=True)
+                if held:
+                    lw.hold(hold)
         q = [rng.gauss(0, 0.1) + (1.0 if k == 0 else 0.0) for k in range(4)]
         if trial % 2:     # anywhere
             y = [rng.uniform(-4, 4), rng.uniform(-1, 1), rng.uniform(2, 8)]
@@ -554,9 +555,9 @@ def test_safe_law_attacked_tick_compiled_is_the_python_tick(held, monkeypatch):
         rotor, attack = 1 + trial % 4, rng.choice([0.0, 0.5, 2.0, 7.0])
         a, b = py.update(s, rotor, attack), c.update(s, rotor, attack)
         assert repr(a) == repr(b), trial
-        assert repr((py.integral_ms, py.hold_m, py.projector.lam, py.drift_mps,
+        assert repr((py.integral_ms, py.hold_m, py.path_lam, py.drift_mps,
                      py.drift_age_s)) == \
-            repr((c.integral_ms, c.hold_m, c.projector.lam, c.drift_mps, c.drift_age_s)), trial
+            repr((c.integral_ms, c.hold_m, c.path_lam, c.drift_mps, c.drift_age_s)), trial
     assert any(x != 0.0 for x in py.integral_ms)
 
 
