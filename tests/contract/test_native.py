@@ -517,6 +517,22 @@ def test_safe_law_three_rotor_step_compiled_is_the_python_step():
         assert repr(compiled(*args)) == repr(lost_rotor.lost_rotor_step(*args))
 
 
+def _spin_law_paper():
+    from tfl_mav.control.spin import law as spin_law
+    sc = load_scenario("paper")
+    params = spin_law.build(sc.vehicle, 2, sc.run.control_dt_s)
+    return params, (params, spin_law.initial_state(params), spin_law.STEP_INPUTS_EXAMPLE)
+
+
+def test_spin_law_step_lowers():
+    """The seam's front end lowers spin_step whole (no construct it declines): what the
+    compiled == Python test below builds, without the ~15 s of compiler."""
+    from tfl_mav.control.spin.step import spin_step
+    _, example = _spin_law_paper()
+    assert "def spin_step(" in native.lowered(spin_step, example)
+
+
+@pytest.mark.slow       # a 2 MB kernel (the table's rows picked by index): ~15 s of compiler
 def test_spin_law_step_compiled_is_the_python_step():
     """spin_step compiled from its own source (the table's rows picked by the measured
     f_stuck, the gains by ρ, the allocation's clipping) against the Python function, tick by
@@ -525,10 +541,8 @@ def test_spin_law_step_compiled_is_the_python_step():
     bit. A SpinLaw flies the compiled step once it is built."""
     from tfl_mav.control.spin import law as spin_law
     from tfl_mav.control.spin.step import SpinInputs, SpinState, spin_step
-    sc = load_scenario("paper")
-    params = spin_law.build(sc.vehicle, 2, sc.run.control_dt_s)
-    compiled = native.build_function(spin_step, (params, spin_law.initial_state(params),
-                                                 spin_law.STEP_INPUTS_EXAMPLE))
+    params, example = _spin_law_paper()
+    compiled = native.build_function(spin_step, example)
     held = spin_law.SpinLaw(params)     # built now: it finds the build in the cache
     assert held.compiled
     lo, hi = params.table[0].hover.f_stuck_n, params.table[-1].hover.f_stuck_n
