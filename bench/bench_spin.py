@@ -10,7 +10,7 @@ motor lag. The flight computer flies until the take-over, the spin law after it
 attack, 0.1 t + sin z, for 120 s with the spin law taking over at 40 s (where the signal
 passes m g/2). ``--tick`` times one step of the law instead (no flight): the paper airframe,
 rotor 2 pinned at 7.25 N (between two table rows), a tilted spinning body 0.1 m off the
-target; the best of 5 runs of 3000 steps.
+target; the best of 5 runs of 3000 steps, in Python and compiled by the seam.
 """
 
 from __future__ import annotations
@@ -27,6 +27,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from tfl_mav.accel import native
 from tfl_mav.control.spin import equilibrium, law
 from tfl_mav.control.spin.step import SpinInputs, spin_step
 from tfl_mav.scenario import load_scenario
@@ -47,8 +48,10 @@ def case(name: str, signal: float, err: str, lag_s: float, duration: float,
     return sc
 
 
-def tick_us(number: int = 3000, repeat: int = 5) -> float:
-    """The spin law's step time (µs, best of ``repeat`` runs of ``number`` steps)."""
+def tick_us(number: int = 3000, repeat: int = 5, compiled: bool = False) -> float:
+    """The spin law's step time (µs, best of ``repeat`` runs of ``number`` steps): the
+    Python step, or (``compiled``) the seam's build of it, which the flight computer flies
+    once built (:class:`~tfl_mav.control.spin.law.SpinLaw`)."""
     sc = load_scenario("paper")
     params = law.build(sc.vehicle, 2, sc.run.control_dt_s)
     eq = equilibrium.solve(equilibrium.airframe_from_scenario(sc.vehicle, 2), 7.25,
@@ -58,7 +61,11 @@ def tick_us(number: int = 3000, repeat: int = 5) -> float:
     inputs = SpinInputs((0.1, 0.0, 5.0), (0.1, 0.0, 0.0), (0.99, 0.1, 0.05, 0.0),
                         eq.rates_radps, 7.25, (0.0, 0.0, 5.0), (0.0, 0.0, 0.0),
                         (0.0, 0.0, 0.0))
-    best = min(timeit.repeat(lambda: spin_step(params, state, inputs), number=number,
+    step = spin_step
+    if compiled:
+        step = native.build_function(spin_step, (params, state, law.STEP_INPUTS_EXAMPLE))
+        assert repr(step(params, state, inputs)) == repr(spin_step(params, state, inputs))
+    best = min(timeit.repeat(lambda: step(params, state, inputs), number=number,
                              repeat=repeat))
     return best / number * 1e6
 
@@ -74,7 +81,8 @@ def main() -> None:
                     help="time one step of the law (no flight)")
     args = ap.parse_args()
     if args.tick:
-        print(f"spin_step: {tick_us():.1f} µs a tick (best of 5 × 3000, f_stuck 7.25 N)")
+        print(f"spin_step: {tick_us():.1f} µs a tick in Python, "
+              f"{tick_us(compiled=True):.2f} µs compiled (best of 5 × 3000, f_stuck 7.25 N)")
         return
     if args.paper120:
         sc = load_scenario("paper").replace(**{"run.duration_s": 120.0})

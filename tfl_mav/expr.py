@@ -20,6 +20,8 @@ from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+from tfl_mav.control.scalar import clamp
+
 __all__ = ["MATH", "Expr", "ExprError", "compile_expr"]
 
 # Function names a scenario may call. Every library passed to Expr.__call__ must provide
@@ -40,14 +42,10 @@ def _step(x: float) -> float:
     return 1.0 if x >= 0.0 else 0.0
 
 
-def _clip(x: float, lo: float, hi: float) -> float:
-    return min(max(x, lo), hi)
-
-
 MATH: Mapping[str, Callable[..., Any]] = {
     "sin": math.sin, "cos": math.cos, "tan": math.tan, "exp": math.exp, "log": math.log,
     "sqrt": math.sqrt, "atan": math.atan, "tanh": math.tanh, "abs": abs, "min": min,
-    "max": max, "clip": _clip, "step": _step,
+    "max": max, "clip": clamp, "step": _step,
 }
 
 

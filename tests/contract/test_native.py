@@ -517,6 +517,60 @@ def test_safe_law_three_rotor_step_compiled_is_the_python_step():
         assert repr(compiled(*args)) == repr(lost_rotor.lost_rotor_step(*args))
 
 
+def _spin_law_paper():
+    from tfl_mav.control.spin import law as spin_law
+    sc = load_scenario("paper")
+    params = spin_law.build(sc.vehicle, 2, sc.run.control_dt_s)
+    return params, (params, spin_law.initial_state(params), spin_law.STEP_INPUTS_EXAMPLE)
+
+
+def test_spin_law_step_lowers():
+    """The seam's front end lowers spin_step whole (no construct it declines): what the
+    compiled == Python test below builds, without the ~15 s of compiler."""
+    from tfl_mav.control.spin.step import spin_step
+    _, example = _spin_law_paper()
+    assert "def spin_step(" in native.lowered(spin_step, example)
+
+
+@pytest.mark.slow       # a 2 MB kernel (the table's rows picked by index): ~15 s of compiler
+def test_spin_law_step_compiled_is_the_python_step():
+    """spin_step compiled from its own source (the table's rows picked by the measured
+    f_stuck, the gains by ρ, the allocation's clipping) against the Python function, tick by
+    tick from random states and measurements: f_stuck across the table and beyond its
+    ends, fast and slow spins, the mean's circle removed or not; the same floats, bit for
+    bit. A SpinLaw flies the compiled step once it is built."""
+    from tfl_mav.control.spin import law as spin_law
+    from tfl_mav.control.spin.step import SpinInputs, SpinState, spin_step
+    params, example = _spin_law_paper()
+    compiled = native.build_function(spin_step, example)
+    held = spin_law.SpinLaw(params)     # built now: it finds the build in the cache
+    assert held.compiled
+    lo, hi = params.table[0].hover.f_stuck_n, params.table[-1].hover.f_stuck_n
+    rng = random.Random(17)
+    state = spin_law.initial_state(params)
+    clipped = 0
+    for trial in range(3000):
+        q = [rng.gauss(0, 0.3) + (1.0 if k == 0 else 0.0) for k in range(4)]
+        n = math.sqrt(sum(c * c for c in q))
+        f = rng.choice([lo, hi, params.table[3].hover.f_stuck_n, rng.uniform(lo - 1, hi + 1),
+                        rng.uniform(lo, hi)])
+        u = SpinInputs(tuple(rng.uniform(-3, 3) for _ in range(3)),
+                       tuple(rng.gauss(0, 2) for _ in range(3)), tuple(c / n for c in q),
+                       (rng.gauss(0, 5), rng.gauss(0, 5), rng.uniform(-70, 70)), f,
+                       tuple(rng.uniform(-3, 3) for _ in range(3)),
+                       tuple(rng.gauss(0, 1) for _ in range(3)),
+                       tuple(rng.gauss(0, 1) for _ in range(3)))
+        if trial % 7 == 0:
+            state = SpinState(tuple(rng.uniform(-1, 1) for _ in range(3)), rng.uniform(0, 3),
+                              rng.uniform(0, 30))
+        a, b = compiled(params, state, u), spin_step(params, state, u)
+        assert repr(a) == repr(b), trial
+        assert repr(held.step(state, u)) == repr(b), trial
+        state = b[0]
+        clipped += b[1].clipped
+    assert 0 < clipped < 3000       # both sides of the allocation's limits were flown
+
+
 @pytest.mark.parametrize("held", [False, True])
 def test_safe_law_attacked_tick_compiled_is_the_python_tick(held, monkeypatch):
     """RecoveryLaw's attacked tick (safe_step.safe_tick on the paper path's σ: projection,
@@ -536,9 +590,10 @@ def test_safe_law_attacked_tick_compiled_is_the_python_tick(held, monkeypatch):
     for trial in range(600):
         if trial % 50 == 0:
             hold = [rng.uniform(-3, 3), 0.0, 4.0]
-            for lw in (py, c):
-                lw.hold_m = list(hold) if held else None
-                lw.projector.lam = None
+            for lw in (py, c):      # λ from a global search; then the point to hold
+                lw.follow_path(search=True)
+                if held:
+                    lw.hold(hold)
         q = [rng.gauss(0, 0.1) + (1.0 if k == 0 else 0.0) for k in range(4)]
         if trial % 2:     # anywhere
             y = [rng.uniform(-4, 4), rng.uniform(-1, 1), rng.uniform(2, 8)]
@@ -554,9 +609,9 @@ def test_safe_law_attacked_tick_compiled_is_the_python_tick(held, monkeypatch):
         rotor, attack = 1 + trial % 4, rng.choice([0.0, 0.5, 2.0, 7.0])
         a, b = py.update(s, rotor, attack), c.update(s, rotor, attack)
         assert repr(a) == repr(b), trial
-        assert repr((py.integral_mps2, py.hold_m, py.projector.lam, py.drift_mps,
+        assert repr((py.integral_mps2, py.hold_m, py.path_lam, py.drift_mps,
                      py.drift_age_s, py.attack_lp_n)) == \
-            repr((c.integral_mps2, c.hold_m, c.projector.lam, c.drift_mps, c.drift_age_s,
+            repr((c.integral_mps2, c.hold_m, c.path_lam, c.drift_mps, c.drift_age_s,
                   c.attack_lp_n)), trial
     assert any(x != 0.0 for x in py.integral_mps2)
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import math
 
 import numpy as np
@@ -64,15 +65,14 @@ def test_derivatives_match_finite_differences(kind, params, y0):
 @pytest.mark.parametrize(("kind", "params", "y0"), PATHS, ids=[p[0] for p in PATHS])
 def test_jacobian_matches_finite_differences(kind, params, y0):
     path = build_path(kind, params)
-    base = PathTracker(path).evaluate(_trajectory(y0, 0.0))
+    tracker = PathTracker(path)
+    base = tracker.evaluate(_trajectory(y0, 0.0))
     eps = 1e-5
 
     def moved(axis: int, step: float):
         rows = _trajectory(y0, 0.0)
         rows[axis][0] += step
-        t = PathTracker(path)
-        t.lam = base.lam
-        t._arc_m = base.pi.c[0]
+        t = copy.copy(tracker)      # from the base's λ and π
         out = t.evaluate(rows)
         return (out.alpha[0].c[0], out.alpha[1].c[0], out.pi.c[0])
 

@@ -294,12 +294,14 @@ def _work() -> None:
             done(core)
 
 
-def obtain(source: str, ready: Callable[[Core], None]) -> Core | None:
+def obtain(source: str, ready: Callable[[Core], None], *, now: bool = True) -> Core | None:
     """The compiled function of ``source`` now — loaded already, cached, or built here when
     ``TFL_MAV_NATIVE=sync`` — else None, and with ``auto`` a background build calls
     ``ready(core)`` when it is done (one build per source however many ask). ``off``, no
     compiler, a failed build: None (one warning). The translation (which holds the GIL)
-    happens here, before any flight, once per source."""
+    happens here, before any flight, once per source. ``now=False``: never build here,
+    ``sync`` included — for a step made during a flight, whose tick must not wait for the
+    compiler (the Python step flies until ``ready``: the same numbers)."""
     how = mode()
     if how == "off":
         return None
@@ -313,7 +315,7 @@ def obtain(source: str, ready: Callable[[Core], None]) -> Core | None:
             return None
     try:
         core = load_cached(source)
-        if core is None and how == "sync":
+        if core is None and how == "sync" and now:
             core = build(source)
         if core is not None:
             return core
@@ -328,7 +330,7 @@ def obtain(source: str, ready: Callable[[Core], None]) -> Core | None:
 
 
 def obtain_function(fn: Callable[..., Any], example: Sequence[Any],
-                    ready: Callable[[Core], None]) -> Core | None:
+                    ready: Callable[[Core], None], *, now: bool = True) -> Core | None:
     """:func:`obtain` for a pure Python function itself: lowered first (:func:`frontend.lower`:
     its calls inlined, its index loops unrolled, its tuples scalar-replaced, for arguments
     shaped like ``example``). A function the front end cannot lower is a warning and None,
@@ -340,7 +342,7 @@ def obtain_function(fn: Callable[..., Any], example: Sequence[Any],
     except NativeError as exc:
         warn_once(str(exc))
         return None
-    return obtain(source, ready)
+    return obtain(source, ready, now=now)
 
 
 def build_function(fn: Callable[..., Any], example: Sequence[Any]) -> Core:

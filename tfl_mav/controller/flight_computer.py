@@ -62,8 +62,9 @@ from tfl_mav.control.safe.recovery import RecoveryLaw
 from tfl_mav.control.safe.takeover import A_HANDBACK_N, TAKEOVER_TILT_RAD
 from tfl_mav.control.safe.takeover import floats as _floats
 from tfl_mav.control.spin.cone import ConeInputs, ConeParams, ConeState, cone_params, cone_step
+from tfl_mav.control.spin.law import SpinLaw
 from tfl_mav.control.spin.law import initial_state as spin_initial_state
-from tfl_mav.control.spin.step import SpinInputs, SpinParams, SpinState, spin_step
+from tfl_mav.control.spin.step import SpinInputs, SpinState
 from tfl_mav.control.spin.step import hover_at as spin_hover_at
 from tfl_mav.control.state_filter import StateFilter, YawRateModel
 from tfl_mav.control.tfl.tfl_controller import ControlOutput, TFLController
@@ -99,21 +100,22 @@ ATTACK_INFO = ("detector", "oracle")
 RPM_TO_RADPS = 2.0 * math.pi / 60.0   # ESC rpm → rotor speed ω (rad/s)
 # The spin laws built in this process, by (vehicle, controller, period, rotor): a sweep flies
 # thousands of flights of a few airframes.
-_SPIN_LAWS: dict[tuple[object, ...], SpinParams] = {}
+_SPIN_LAWS: dict[tuple[object, ...], SpinLaw] = {}
 _SPIN_BUILDING: set[tuple[object, ...]] = set()
 _SPIN_LOCK = threading.Lock()
 _NO_SPIN: dict[tuple[object, ...], str] = {}   # … and why none could be built
 
 
-def _build_spin_law(key: tuple[object, ...], sc: object, rotor: int) -> SpinParams | None:
-    """Build the spin law into the shared table; None (the reason kept) where the airframe
-    has no relaxed hover with that rotor pinned (:func:`~tfl_mav.control.spin.law.build`)."""
+def _build_spin_law(key: tuple[object, ...], sc: object, rotor: int) -> SpinLaw | None:
+    """Build the spin law (its table, its compiled step) into the shared table; None (the
+    reason kept) where the airframe has no relaxed hover with that rotor pinned
+    (:func:`~tfl_mav.control.spin.law.build`)."""
     try:
-        law = spin_params_for(sc, rotor)  # type: ignore[arg-type]
+        params = spin_params_for(sc, rotor)  # type: ignore[arg-type]
     except ValueError as exc:
         _NO_SPIN[key] = str(exc)
         return None
-    _SPIN_LAWS[key] = law
+    law = _SPIN_LAWS[key] = SpinLaw(params)
     return law
 MASS_TRUSTED_S = 1.0    # the safe law flies the estimated mass once it has learnt this long
 
@@ -210,7 +212,7 @@ class FlightComputer:
         self.spin_enabled = True
         self.spin_build = spin_build
         self._spin_state: SpinState | None = None
-        self._spin_laws: dict[int, SpinParams] = {}   # by attacked rotor, once built
+        self._spin_laws: dict[int, SpinLaw] = {}      # by attacked rotor, once built
         self._said_no_spin = False
         # Why no spin law can be built, by attacked rotor (said once, with the numbers).
         self._no_spin: dict[int, str] = {}
@@ -468,7 +470,7 @@ class FlightComputer:
         """A tick of the spin law (:func:`~tfl_mav.control.spin.step.spin_step`): the mean
         axis steered towards the closest path point moving at the path speed, the pinned
         rotor's thrust read from its rpm; then the supervisor, and the output."""
-        params = self._spin_laws.get(rotor)
+        spin = self._spin_laws.get(rotor)
         y = _floats(state.position_m)
         rates = tuple(_floats(state.body_rates_radps))
         w = rpm[rotor - 1] * RPM_TO_RADPS
@@ -481,15 +483,15 @@ class FlightComputer:
         sp = self.speed_mps
         target = (tuple(point), (sp * tangent[0], sp * tangent[1], sp * tangent[2]),
                   (sp * sp * curvature[0], sp * sp * curvature[1], sp * sp * curvature[2]))
-        if params is None or not spin_hover_at(params.table, stuck).exists:
+        if spin is None or not spin_hover_at(spin.params.table, stuck).exists:
             thrust, clipped, reason = self._fly_cone(rotor, stuck, state, rates, target,
                                                      events)
         else:
             if self._spin_state is None:
-                self._spin_state = spin_initial_state(params, rates, stuck)
+                self._spin_state = spin_initial_state(spin.params, rates, stuck)
             inputs = SpinInputs(tuple(y), tuple(_floats(state.velocity_mps)),
                                 tuple(_floats(state.quaternion_wxyz)), rates, stuck, *target)
-            self._spin_state, out = spin_step(params, self._spin_state, inputs)
+            self._spin_state, out = spin.step(self._spin_state, inputs)
             thrust, clipped = list(out.thrusts_n), out.clipped
             reason = (f"spin: {out.spin_radps:.0f} rad/s, cone "
                       f"{math.degrees(out.cone_rad):.0f} deg")

@@ -25,7 +25,14 @@ from typing import Any
 from tfl_mav.control.path.jetcode import TRACE_LIB, Sym, TJet, TraceError
 from tfl_mav.control.path.kernelgen import Kernel, compile_kernel
 from tfl_mav.control.path.paths import Path
-from tfl_mav.control.path.projection import PATH_START, VO, Kernels, lost_reason, project
+from tfl_mav.control.path.projection import (
+    PATH_START,
+    VO,
+    Kernels,
+    expansion,
+    lost_reason,
+    project,
+)
 from tfl_mav.control.path.tracker import (
     MIN_TUBE_MARGIN,
     PathTracker,
@@ -54,10 +61,6 @@ class PathKernels:
     @property
     def build_s(self) -> float:
         return self.sigma2.build_s + self.sigma5.build_s + self.s4.build_s
-
-
-def _rows(c: Sequence[Any]) -> list[tuple[Any, Any, Any]]:
-    return [(c[3 * j], c[3 * j + 1], c[3 * j + 2]) for j in range(6)]
 
 
 def _coeffs(x: Any, n: int) -> tuple[Any, ...]:
@@ -118,7 +121,7 @@ def trace_pi(c: list[Sym], x: list[Sym], y: list[Sym], z: list[Sym],
              slope: list[Sym]) -> list[Any]:
     """π̇ … π⁽⁴⁾ traced from :func:`tracker.pi_rates` (inputs as :data:`C_NAMES`, the
     position's Taylor rows, the slope)."""
-    p = pi_rates(_rows(c), [x, y, z], slope[0], traced_sqrt)
+    p = pi_rates(expansion(c), [x, y, z], slope[0], traced_sqrt)
     # As Jet((π, p0, p1/2, p2/3, p3/4)).derivatives() in the reference.
     return [p[0], p[1] / 2.0 * 2.0, p[2] / 3.0 * 6.0, p[3] / 4.0 * 24.0]
 

@@ -28,8 +28,8 @@ from collections.abc import Callable, Sequence
 from enum import IntEnum
 from typing import Any, NamedTuple
 
-__all__ = ["NEWTON_ITERS", "PATH_START", "VO", "Kernels", "PathState", "Projected", "arc",
-           "lost_reason", "project"]
+__all__ = ["NEWTON_ITERS", "PATH_START", "VO", "Expansion", "Kernels", "PathState", "Projected",
+           "arc", "expansion", "lost_reason", "project"]
 
 NEWTON_ITERS = 20       # Newton steps of the projection before it counts as lost
 
@@ -59,7 +59,8 @@ class PathState(NamedTuple):
     arc_m: float                # π: the arc length from the first projection (m)
     has_expansion: bool         # ``expansion`` is σ's at ``expansion_lam``
     expansion_lam: float
-    expansion: tuple[float, ...]    # σ⁽ʲ⁾/j!, j = 0…5, x y z each (18)
+    expansion: tuple[float, ...]    # σ⁽ʲ⁾/j!, j = 0…5, x y z each: the 18 floats of the
+    #                                 sigma5 kernel (:func:`expansion` names them)
 
 
 PATH_START = PathState(False, 0.0, False, 0.0, 0.0, False, 0.0, (0.0,) * 18)
@@ -96,16 +97,40 @@ class Kernels(NamedTuple):
         # π̇ … π⁽⁴⁾ from σ's expansion, the rows and the slope ∂g/∂λ
 
 
-def arc(cp: Sequence[Any], cn: Sequence[Any], delta: Any) -> Any:
-    """∫|σ'| dλ over [λ, λ + δ] by Simpson's rule: |σ'| at both ends from the expansions
-    ``cp`` (at λ) and ``cn`` (at λ + δ), at the middle from ``cp``'s polynomial."""
+class Expansion(NamedTuple):
+    """σ's degree-5 expansion at λ: σ(λ + δ) = Σ_j s_j δʲ, s_j = σ⁽ʲ⁾(λ)/j! (x, y, z, m)."""
+
+    s0: V3      # σ
+    s1: V3      # σ'
+    s2: V3      # σ''/2
+    s3: V3      # σ⁽³⁾/6
+    s4: V3      # σ⁽⁴⁾/24
+    s5: V3      # σ⁽⁵⁾/120
+
+
+def expansion(c: Sequence[Any]) -> Expansion:
+    """The :class:`Expansion` of the 18 floats a ``sigma5`` kernel gives (j-major: x y z of
+    σ⁽ʲ⁾/j!, j = 0…5; :data:`compiled.C_NAMES`)."""
+    return Expansion((c[0], c[1], c[2]), (c[3], c[4], c[5]), (c[6], c[7], c[8]),
+                     (c[9], c[10], c[11]), (c[12], c[13], c[14]), (c[15], c[16], c[17]))
+
+
+def _norm(v: V3) -> Any:
+    """|v|."""
+    x, y, z = v
+    return math.sqrt(x * x + y * y + z * z)
+
+
+def arc(cp: Expansion, cn: Expansion, delta: Any) -> Any:
+    """π's advance: ∫|σ'| dλ over [λ, λ + δ] by Simpson's rule (signed: negative for δ < 0),
+    |σ'| at both ends from the expansions ``cp`` (at λ) and ``cn`` (at λ + δ), at the middle
+    from ``cp``'s polynomial. The one rule of the flown projection and of the reference
+    tracker (:class:`tracker.PathTracker`)."""
     h = 0.5 * delta
-    mx = cp[3] + h * (2.0 * cp[6] + h * (3.0 * cp[9] + h * (4.0 * cp[12] + h * 5.0 * cp[15])))
-    my = cp[4] + h * (2.0 * cp[7] + h * (3.0 * cp[10] + h * (4.0 * cp[13] + h * 5.0 * cp[16])))
-    mz = cp[5] + h * (2.0 * cp[8] + h * (3.0 * cp[11] + h * (4.0 * cp[14] + h * 5.0 * cp[17])))
-    return delta / 6.0 * (math.sqrt(cp[3] * cp[3] + cp[4] * cp[4] + cp[5] * cp[5])
-                          + 4.0 * math.sqrt(mx * mx + my * my + mz * mz)
-                          + math.sqrt(cn[3] * cn[3] + cn[4] * cn[4] + cn[5] * cn[5]))
+    s1, s2, s3, s4, s5 = cp.s1, cp.s2, cp.s3, cp.s4, cp.s5
+    mid = [s1[i] + h * (2.0 * s2[i] + h * (3.0 * s3[i] + h * (4.0 * s4[i] + h * 5.0 * s5[i])))
+           for i in range(3)]       # σ' at λ + δ/2
+    return delta / 6.0 * (_norm(s1) + 4.0 * _norm(mid) + _norm(cn.s1))
 
 
 def project(k: Kernels, tube_min: float, ps: PathState, rows: tuple[Any, ...],
@@ -160,13 +185,14 @@ def project(k: Kernels, tube_min: float, ps: PathState, rows: tuple[Any, ...],
             if not fresh:
                 cp = k.sigma5((lam0,))
             c = k.sigma5((lam,))
-            ps = PathState(True, lam, True, lam0, ps.arc_m + arc(cp, c, lam - lam0), True,
-                           lam, c)
+            sig = expansion(c)
+            ps = PathState(True, lam, True, lam0,
+                           ps.arc_m + arc(expansion(cp), sig, lam - lam0), True, lam, c)
             lam_out = lam
-            e0x, e0y, e0z = yx - c[0], yy - c[1], yz - c[2]
-            c1x, c1y, c1z = c[3], c[4], c[5]
+            (sx, sy, sz), (c1x, c1y, c1z), (c2x, c2y, c2z) = sig.s0, sig.s1, sig.s2
+            e0x, e0y, e0z = yx - sx, yy - sy, yz - sz
             s1sq = c1x ** 2 + c1y ** 2 + c1z ** 2
-            slope = -s1sq + 2.0 * (e0x * c[6] + e0y * c[7] + e0z * c[8])
+            slope = -s1sq + 2.0 * (e0x * c2x + e0y * c2y + e0z * c2z)
             margin = -slope / s1sq if s1sq > 0.0 else 0.0
             distance = math.sqrt(e0x ** 2 + e0y ** 2 + e0z ** 2)
             if margin < tube_min:

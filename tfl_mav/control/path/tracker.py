@@ -31,6 +31,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from tfl_mav.control.path.jets import Jet
+from tfl_mav.control.path.projection import Expansion, arc
 from tfl_mav.control.path.series import sqrt_series
 
 if TYPE_CHECKING:
@@ -38,7 +39,7 @@ if TYPE_CHECKING:
 
 __all__ = ["MIN_TUBE_MARGIN", "NEWTON_ITERS", "PathOutput", "PathTracker", "VirtualOutput",
            "closest_lam", "global_closest_lam", "grad_s", "newton_closest_lam", "newton_on_poly",
-           "pi_rates", "poly_arc", "poly_g", "taylor_curve"]
+           "pi_rates", "poly_g", "taylor_curve"]
 
 
 @dataclass(slots=True)
@@ -87,13 +88,13 @@ NEWTON_ITERS = 20
 _NEWTON_TOL = 1e-12
 
 
-def taylor_curve(path: Path, lam0: float) -> list[tuple[float, float, float]]:
+def taylor_curve(path: Path, lam0: float) -> Expansion:
     """σ(λ0 + δ) = Σ_j c_j δʲ for j = 0..5: coefficients c_j = σ⁽ʲ⁾(λ0)/j! (vectors)."""
     jx, jy, jz = path.sigma(Jet.variable(lam0, order=5))
     cx = jx.c if isinstance(jx, Jet) else (float(jx),) + (0.0,) * 5
     cy = jy.c if isinstance(jy, Jet) else (float(jy),) + (0.0,) * 5
     cz = jz.c if isinstance(jz, Jet) else (float(jz),) + (0.0,) * 5
-    return [(cx[j], cy[j], cz[j]) for j in range(6)]
+    return Expansion(*((cx[j], cy[j], cz[j]) for j in range(6)))
 
 
 def global_closest_lam(path: Path, y: Sequence[float]) -> float:
@@ -154,26 +155,30 @@ class PathTracker:
         self._arc_m = 0.0         # π: arc length from there to λ (m)
 
     # ------------------------------------------------------------------ projection
-    def _project(self, y0: Sequence[float]) -> list[tuple[float, float, float]] | None:
-        """Move λ to the closest point of ``y0``; returns σ's Taylor coefficients there.
+    def _project(self, y0: Sequence[float]) -> Expansion | None:
+        """Move λ to the closest point of ``y0``; returns σ's expansion there.
 
         Newton runs on σ's degree-5 Taylor polynomial about the current λ (no calls into
         the path code), then σ is re-expanded at the new λ; from a warm start that is two
-        evaluations of σ per tick. The arc length π is advanced on the same polynomial
-        (Simpson's rule on |σ'|, exact to O(Δλ⁵)).
+        evaluations of σ per tick. The arc length π is advanced over each step by
+        :func:`projection.arc` on the expansions at the step's two ends — the flown
+        projection's rule —, and only when the root is found (λ stays where it was if not).
         """
         lam = self.lam
         assert lam is not None
+        arc_m = self._arc_m
+        c = taylor_curve(self.path, lam)
         for _ in range(NEWTON_ITERS):
-            c = taylor_curve(self.path, lam)
             delta = _poly_newton(c, y0)
             if delta is None:
                 return None
             if abs(delta) < 1e-10:
-                self.lam = lam
+                self.lam, self._arc_m = lam, arc_m
                 return c
-            self._arc_m += poly_arc(c, delta)
             lam += delta
+            cn = taylor_curve(self.path, lam)
+            arc_m += arc(c, cn, delta)
+            c = cn
         return None
 
     # ------------------------------------------------------------------ evaluation
@@ -205,9 +210,9 @@ class PathTracker:
         if c is None:
             return self._lost(y0, "closest-point search did not converge")
         lam = self.lam
-        e0 = tuple(y0[i] - c[0][i] for i in range(3))
-        s1sq = c[1][0] ** 2 + c[1][1] ** 2 + c[1][2] ** 2
-        slope = -s1sq + 2.0 * (e0[0] * c[2][0] + e0[1] * c[2][1] + e0[2] * c[2][2])
+        e0 = tuple(y0[i] - c.s0[i] for i in range(3))
+        s1sq = c.s1[0] ** 2 + c.s1[1] ** 2 + c.s1[2] ** 2
+        slope = -s1sq + 2.0 * (e0[0] * c.s2[0] + e0[1] * c.s2[1] + e0[2] * c.s2[2])
         margin = -slope / s1sq if s1sq > 0.0 else 0.0
         distance = math.sqrt(e0[0] ** 2 + e0[1] ** 2 + e0[2] ** 2)
         if margin < self.min_tube_margin:
@@ -222,7 +227,7 @@ class PathTracker:
         grad = grad_s(self.path, y0)
         speed0 = math.sqrt(s1sq)
         k = speed0 / -slope
-        grad_pi = (k * c[1][0], k * c[1][1], k * c[1][2])
+        grad_pi = (k * c.s1[0], k * c.s1[1], k * c.s1[2])
         return PathOutput((_as_jet(a1), _as_jet(a2)), pi, (grad[0], grad[1], grad_pi), lam,
                           distance, True)
 
@@ -271,20 +276,6 @@ def newton_on_poly(g_dg: Callable[[float], tuple[float, float]],
 def _poly_newton(c: Sequence[Sequence[float]], y0: Sequence[float]) -> float | None:
     """δ with ⟨y0 − S(δ), S'(δ)⟩ = 0 for S(δ) = Σ c_j δʲ (see :func:`newton_on_poly`)."""
     return newton_on_poly(lambda x: poly_g(c, y0, x))
-
-
-def poly_arc(c: Sequence[Sequence[Any]], delta: Any,
-             sqrt: Callable[[Any], Any] = math.sqrt) -> Any:
-    """∫₀^δ |S'(u)| du by Simpson's rule (signed: negative for δ < 0)."""
-    def speed(x: Any) -> Any:
-        acc = 0.0
-        for i in range(3):
-            d = c[1][i] + x * (2 * c[2][i] + x * (3 * c[3][i] + x * (4 * c[4][i]
-                                                                   + x * 5 * c[5][i])))
-            acc += d * d
-        return sqrt(acc)
-
-    return delta / 6.0 * (speed(0.0) + 4.0 * speed(0.5 * delta) + speed(delta))
 
 
 def _lambda_series(c: Sequence[Sequence[Any]], taylor: Sequence[Sequence[Any]],

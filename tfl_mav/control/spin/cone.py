@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 from typing import NamedTuple
 
+from tfl_mav.control.scalar import clamp
 from tfl_mav.control.spin.step import Mat3, attitude, mat3, mean_pid
 
 __all__ = ["ConeInputs", "ConeOutputs", "ConeParams", "ConeState", "cone_params", "cone_step"]
@@ -98,10 +99,6 @@ def cone_params(vehicle: object, rotor: int, dt_s: float, *, mass_scale: float =
         (2.0 * ATT_ZETA * ATT_OMEGA * ix, 2.0 * ATT_ZETA * ATT_OMEGA * iy))
 
 
-def _clip(x: float, lo: float, hi: float) -> float:
-    return lo if x < lo else (hi if x > hi else x)
-
-
 def cone_step(p: ConeParams, s: ConeState, u: ConeInputs) -> tuple[ConeState, ConeOutputs]:
     """One control period of the coning hover (module docstring)."""
     g, m = p.gravity_mps2, p.mass_kg
@@ -113,7 +110,7 @@ def cone_step(p: ConeParams, s: ConeState, u: ConeInputs) -> tuple[ConeState, Co
     R, w0, w1, w2 = attitude((qw, qx, qy, qz), u.body_rates_radps, p.rot)
     f2 = u.stuck_thrust_n
     fmax = p.thrust_max_n
-    total = _clip(2.0 * f2 + ROOM_N, 0.0, 4.0 * fmax)
+    total = clamp(2.0 * f2 + ROOM_N, 0.0, 4.0 * fmax)
     om = p.rate_radps
     # --- outer loop on the mean: the circle (a_h turning at Ω_p) removed first
     px, py, pz = u.position_m
@@ -124,7 +121,7 @@ def cone_step(p: ConeParams, s: ConeState, u: ConeInputs) -> tuple[ConeState, Co
     ix_, iy_, iz_ = s.integral_ms
     ax, ay, az, ex, ey, ez = mean_pid(p.kp, p.kd, p.ki, p.k_t / m, s.integral_ms, u,
                                       (px, py, pz), (vx, vy, vz))
-    az = _clip(az, -0.3 * g, 0.3 * g)
+    az = clamp(az, -0.3 * g, 0.3 * g)
     h = math.sqrt(ax * ax + ay * ay)
     if h > 0.35 * g:
         ax, ay = ax * 0.35 * g / h, ay * 0.35 * g / h
@@ -167,22 +164,22 @@ def cone_step(p: ConeParams, s: ConeState, u: ConeInputs) -> tuple[ConeState, Co
     clipped = False
     f4 = f2 + tau_p / ell
     if f4 < 0.0 or f4 > fmax:
-        f4, clipped = _clip(f4, 0.0, fmax), True
+        f4, clipped = clamp(f4, 0.0, fmax), True
     s13 = total - f2 - f4
-    half = _clip(0.5 * tau_q / ell, -0.5 * fmax, 0.5 * fmax)
+    half = clamp(0.5 * tau_q / ell, -0.5 * fmax, 0.5 * fmax)
     lo, hi = 2.0 * abs(half), 2.0 * (fmax - abs(half))
     if s13 < lo or s13 > hi:
-        s13, clipped = _clip(s13, lo, hi), True
+        s13, clipped = clamp(s13, lo, hi), True
     f1, f3 = 0.5 * s13 - half, 0.5 * s13 + half
     out = [0.0, 0.0, 0.0, 0.0]
     for phys, f in zip(p.perm, (f1, f2, f3, f4), strict=True):
         out[phys] = f
     if not clipped:     # anti-windup: the integral frozen while the allocation gives up
-        ix_ = _clip(ix_ + ex * p.dt_s, -2.0, 2.0)
-        iy_ = _clip(iy_ + ey * p.dt_s, -2.0, 2.0)
-        iz_ = _clip(iz_ + ez * p.dt_s, -2.0, 2.0)
-    tilt = math.acos(_clip(bz, -1.0, 1.0))
+        ix_ = clamp(ix_ + ex * p.dt_s, -2.0, 2.0)
+        iy_ = clamp(iy_ + ey * p.dt_s, -2.0, 2.0)
+        iz_ = clamp(iz_ + ez * p.dt_s, -2.0, 2.0)
+    tilt = math.acos(clamp(bz, -1.0, 1.0))
     drift = total * math.sin(tilt) / m / (om * om)
-    err = math.acos(_clip(h2, -1.0, 1.0))
+    err = math.acos(clamp(h2, -1.0, 1.0))
     return (ConeState(phase, (ix_, iy_, iz_)),
             ConeOutputs((out[0], out[1], out[2], out[3]), tilt, drift, err, clipped))

@@ -11,10 +11,12 @@ what the previous law did).
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
+from typing import Any
 
 import numpy as np
 
+from tfl_mav.accel import native
 from tfl_mav.control.allocation import canonical_frame
 from tfl_mav.control.safe.lqr import dlqr, zoh
 from tfl_mav.control.spin import equilibrium
@@ -25,15 +27,19 @@ from tfl_mav.control.spin.step import (
     RHO_TILT,
     Gain,
     SpinHover,
+    SpinInputs,
+    SpinOutputs,
     SpinParams,
     SpinRow,
     SpinState,
     hover_at,
     mat3,
+    spin_step,
 )
 
-__all__ = ["LQR_Q", "LQR_R", "POS_OMEGA", "build", "equilibrium_or_closest", "initial_state",
-           "schedule_forces", "table_row", "weight_range"]
+__all__ = ["LQR_Q", "LQR_R", "POS_OMEGA", "STEP_INPUTS_EXAMPLE", "SpinLaw", "build",
+           "equilibrium_or_closest", "initial_state", "schedule_forces", "table_row",
+           "weight_range"]
 
 # LQR weights on (p, q, n_x, n_y) and (τ_p, τ_q): Bryson's rule with 10 rad/s of rate error,
 # 0.1 of axis error (≈ 6°) and 0.2 N m of torque. A lagging rotor cannot swing a body-fixed
@@ -199,3 +205,42 @@ def initial_state(params: SpinParams, body_rates_radps: Sequence[float] = (0.0, 
     _, _, wbz = hover_at(params.table, f).rates_radps
     rho = min(RHO_MAX, max(0.0, w2 / wbz)) if wbz != 0.0 else 1.0
     return SpinState((0.0, 0.0, 0.0), rho)
+
+
+_ZERO3 = (0.0, 0.0, 0.0)
+# spin_step's inputs' shape, for the seam's lowering (its kinds: floats)
+STEP_INPUTS_EXAMPLE = SpinInputs(_ZERO3, _ZERO3, (1.0, 0.0, 0.0, 0.0), _ZERO3, 0.0, _ZERO3,
+                                 _ZERO3, _ZERO3)
+
+
+class SpinLaw:
+    """The spin law built for one airframe and rotor: its constants (:attr:`params`) and its
+    step, compiled by the accelerator seam for a table of their shape (the same bits as
+    :func:`~tfl_mav.control.spin.step.spin_step`: tests/contract/test_native.py). The step
+    flies in Python until the compiled one is built, always in the background (a build
+    takes ~15 s of compiler; a law is made in flight), and wherever the C declines."""
+
+    def __init__(self, params: SpinParams) -> None:
+        self.params = params
+        self._core: Callable[..., Any] | None = None
+        # Made during a flight (the attack nears m g/2): no tick waits for the compiler.
+        example = (params, initial_state(params), STEP_INPUTS_EXAMPLE)
+        core = native.obtain_function(spin_step, example, self._ready, now=False)
+        if core is not None:
+            self._ready(core)
+
+    def _ready(self, core: Callable[..., Any]) -> None:
+        self._core = core
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the step runs compiled."""
+        return self._core is not None
+
+    def step(self, state: SpinState, inputs: SpinInputs) -> tuple[SpinState, SpinOutputs]:
+        """One control period (:func:`~tfl_mav.control.spin.step.spin_step`)."""
+        core = self._core
+        out = core(self.params, state, inputs) if core is not None else None
+        if out is None:         # not built, or the C bails where Python raises
+            out = spin_step(self.params, state, inputs)
+        return out

@@ -43,6 +43,8 @@ import math
 from collections.abc import Sequence
 from typing import NamedTuple
 
+from tfl_mav.control.scalar import clamp
+
 __all__ = [
     "RHO_MAX",
     "RHO_STEPS",
@@ -183,55 +185,72 @@ def _dot4(k: Vec4, x: Vec4) -> float:
     return k1 * x1 + k2 * x2 + k3 * x3 + k4 * x4
 
 
-def _bracket(table: tuple[SpinRow, ...], f: float) -> tuple[SpinRow, SpinRow, float]:
-    """The rows around f_stuck ``f`` and the weight w of the upper one (a + w (b − a)); the
-    end row twice (w = 0) at and beyond the table's ends."""
+def _lerp(x: float, y: float, w: float) -> float:
+    """x + w (y − x)."""
+    return x + w * (y - x)
+
+
+def _bracket(table: tuple[SpinRow, ...], f: float) -> tuple[bool, SpinRow, SpinRow, float]:
+    """Whether f_stuck ``f`` lies between two rows, those rows and the weight w of the upper
+    one (a + w (b − a)); at and beyond the table's ends not (False), the end row twice and
+    w = 0."""
     first, last = table[0], table[-1]
     if f <= first.hover.f_stuck_n:
-        return first, first, 0.0
+        return False, first, first, 0.0
     if f >= last.hover.f_stuck_n:
-        return last, last, 0.0
+        return False, last, last, 0.0
     i = 0
-    while table[i + 1].hover.f_stuck_n < f:
-        i += 1
+    below = True        # every row from the second up to j lies below f
+    for j in range(1, len(table) - 1):
+        if below and table[j].hover.f_stuck_n < f:
+            i = j
+        else:
+            below = False
     a, b = table[i], table[i + 1]
-    return a, b, (f - a.hover.f_stuck_n) / (b.hover.f_stuck_n - a.hover.f_stuck_n)
+    return True, a, b, (f - a.hover.f_stuck_n) / (b.hover.f_stuck_n - a.hover.f_stuck_n)
 
 
 def hover_at(table: tuple[SpinRow, ...], f: float) -> SpinHover:
     """The hover at f_stuck ``f`` (N): linear in f between the rows around it, the end row's
     beyond the table. A relaxed hover exists there when one exists at a row the blend gives
     weight to (1 − w to the lower, w to the upper)."""
-    below, above, w = _bracket(table, f)
+    return _hover_between(_bracket(table, f))
+
+
+def _hover_between(bracket: tuple[bool, SpinRow, SpinRow, float]) -> SpinHover:
+    """:func:`hover_at` on the rows :func:`_bracket` found."""
+    inside, below, above, w = bracket
     a, b = below.hover, above.hover
-    if below is above:
+    if not inside:
         return a
-
-    def lerp(x: float, y: float) -> float:
-        return x + w * (y - x)
-
     return SpinHover(
-        lerp(a.f_stuck_n, b.f_stuck_n), (a.exists and w < 1.0) or (b.exists and w > 0.0),
-        lerp(a.f4_n, b.f4_n), lerp(a.f13_n, b.f13_n),
+        _lerp(a.f_stuck_n, b.f_stuck_n, w), (a.exists and w < 1.0) or (b.exists and w > 0.0),
+        _lerp(a.f4_n, b.f4_n, w), _lerp(a.f13_n, b.f13_n, w),
         _lerp3(a.rates_radps, b.rates_radps, w), _lerp3(a.axis, b.axis, w),
-        lerp(a.spin_radps, b.spin_radps), lerp(a.total_n, b.total_n),
-        lerp(a.cone_rad, b.cone_rad), lerp(a.drift_m, b.drift_m),
-        lerp(a.vertical_excess_mps2, b.vertical_excess_mps2), lerp(a.margin_n, b.margin_n),
-        lerp(a.weight_lo_n, b.weight_lo_n), lerp(a.weight_hi_n, b.weight_hi_n))
+        _lerp(a.spin_radps, b.spin_radps, w), _lerp(a.total_n, b.total_n, w),
+        _lerp(a.cone_rad, b.cone_rad, w), _lerp(a.drift_m, b.drift_m, w),
+        _lerp(a.vertical_excess_mps2, b.vertical_excess_mps2, w),
+        _lerp(a.margin_n, b.margin_n, w),
+        _lerp(a.weight_lo_n, b.weight_lo_n, w), _lerp(a.weight_hi_n, b.weight_hi_n, w))
 
 
 def gain_at(table: tuple[SpinRow, ...], f: float, rho: float) -> Gain:
     """K at f_stuck ``f`` (N) and spin fraction ``rho`` ∈ [0, RHO_MAX]: linear in f between
     the rows around it (as :func:`hover_at`), then in ρ between the schedule's points."""
-    below, above, w = _bracket(table, f)
+    return _gain_between(_bracket(table, f), rho)
+
+
+def _gain_between(bracket: tuple[bool, SpinRow, SpinRow, float], rho: float) -> Gain:
+    """:func:`gain_at` on the rows :func:`_bracket` found."""
+    inside, below, above, w = bracket
     k = rho * (RHO_STEPS / RHO_MAX)
     j = int(k)
     j = RHO_STEPS - 1 if j >= RHO_STEPS else j
-    if below is above:
-        k_lo, k_hi = below.gains[j], below.gains[j + 1]
-    else:
+    if inside:
         k_lo = _lerp_gain(below.gains[j], above.gains[j], w)
         k_hi = _lerp_gain(below.gains[j + 1], above.gains[j + 1], w)
+    else:
+        k_lo, k_hi = below.gains[j], below.gains[j + 1]
     return _lerp_gain(k_lo, k_hi, k - j)
 
 
@@ -240,10 +259,6 @@ def mat3(rows: Sequence[Sequence[float]]) -> Mat3:
     (a, b, c), (d, e, f), (g, h, i) = rows
     return ((float(a), float(b), float(c)), (float(d), float(e), float(f)),
             (float(g), float(h), float(i)))
-
-
-def _clip(x: float, lo: float, hi: float) -> float:
-    return lo if x < lo else (hi if x > hi else x)
 
 
 def attitude(quat: tuple[float, float, float, float], rates: tuple[float, float, float],
@@ -323,15 +338,16 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
         ax, ay, limited = ax * top / h, ay * top / h, True
     vtop = p.max_vertical_mps2
     if az > vtop or az < -vtop:
-        az, limited = _clip(az, -vtop, vtop), True
+        az, limited = clamp(az, -vtop, vtop), True
     fx, fy, fz = m * ax, m * ay, m * (az + g)
     weight = math.sqrt(fx * fx + fy * fy + fz * fz)
     ndx, ndy, ndz = fx / weight, fy / weight, fz / weight
     f2 = inputs.stuck_thrust_n
-    hover = hover_at(p.table, f2)       # 3. the equilibrium at the measured f_stuck
+    rows = _bracket(p.table, f2)        # 3. the equilibrium at the measured f_stuck
+    hover = _hover_between(rows)
     if weight < hover.weight_lo_n or weight > hover.weight_hi_n:
         # keep the spin where the rotors hold it
-        weight, limited = _clip(weight, hover.weight_lo_n, hover.weight_hi_n), True
+        weight, limited = clamp(weight, hover.weight_lo_n, hover.weight_hi_n), True
     # n_des in the canonical body: rot Rᵀ n_des
     bx = R[0][0] * ndx + R[1][0] * ndy + R[2][0] * ndz
     by = R[0][1] * ndx + R[1][1] * ndy + R[2][1] * ndz
@@ -343,8 +359,8 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     nbx, nby, nbz = hover.axis
     spin = hover.spin_radps
     # --- 4. the spin schedule: ρ and the reference (rate ρ Ω̄ n_ref, axis tilted in below ρ₀)
-    rho = _clip(w2 / wbz, 0.0, RHO_MAX) if wbz != 0.0 else 1.0
-    cone = math.acos(_clip(nbz, -1.0, 1.0))
+    rho = clamp(w2 / wbz, 0.0, RHO_MAX) if wbz != 0.0 else 1.0
+    cone = math.acos(clamp(nbz, -1.0, 1.0))
     horiz = math.sqrt(nbx * nbx + nby * nby)
     ramp = rho / RHO_TILT
     th = cone * (ramp * ramp if ramp < 1.0 else 1.0)
@@ -357,7 +373,7 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     tff_p = p.k_r * orx + (iz - iy) * ory * orz
     tff_q = p.k_r * ory + (ix - iz) * orx * orz
     # --- 5. reduced-attitude LQR, gains at ρ
-    k_p, k_q = gain_at(p.table, f2, rho)
+    k_p, k_q = _gain_between(rows, rho)
     err = (w0 - orx, w1 - ory, nx - rx, ny - ry)    # (p, q, n_x, n_y) − reference
     tau_p = tff_p - _dot4(k_p, err)
     tau_q = tff_q - _dot4(k_q, err)
@@ -366,7 +382,7 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
     clipped = False     # the allocation gave something up
     f4 = f2 + tau_p / ell
     if f4 < 0.0 or f4 > fmax:
-        f4, clipped = _clip(f4, 0.0, fmax), True
+        f4, clipped = clamp(f4, 0.0, fmax), True
     total = weight / (rz if rz > 0.3 else 0.3)
     s13 = total - f2 - f4
     half = 0.5 * tau_q / ell
@@ -379,18 +395,17 @@ def spin_step(params: SpinParams, state: SpinState, inputs: SpinInputs
         lo = hi = fmax
         clipped = True
     if s13 < lo or s13 > hi:
-        s13, clipped = _clip(s13, lo, hi), True
+        s13, clipped = clamp(s13, lo, hi), True
     f1, f3 = 0.5 * s13 - half, 0.5 * s13 + half
-    out = [0.0, 0.0, 0.0, 0.0]
-    for phys, f in zip(p.perm, (f1, f2, f3, f4), strict=True):
-        out[phys] = f
+    c0, c1, c2, _ = p.perm     # physical rotor k: the canonical one perm maps to it
+    out = [f1 if c0 == k else (f2 if c1 == k else (f3 if c2 == k else f4)) for k in range(4)]
     # --- the integral (anti-windup: frozen while the demand is limited or clipped)
     if not limited and not clipped:
         top_i = p.integral_top_ms
-        ix_ = _clip(ix_ + ex * p.dt_s, -top_i, top_i)
-        iy_ = _clip(iy_ + ey * p.dt_s, -top_i, top_i)
-        iz_ = _clip(iz_ + ez * p.dt_s, -top_i, top_i)
-    axis_err = math.acos(_clip(nx * rx + ny * ry + nz * rz, -1.0, 1.0))
+        ix_ = clamp(ix_ + ex * p.dt_s, -top_i, top_i)
+        iy_ = clamp(iy_ + ey * p.dt_s, -top_i, top_i)
+        iz_ = clamp(iz_ + ez * p.dt_s, -top_i, top_i)
+    axis_err = math.acos(clamp(nx * rx + ny * ry + nz * rz, -1.0, 1.0))
     return (SpinState((ix_, iy_, iz_), rho, f1 + f2 + f3 + f4),
             SpinOutputs((out[0], out[1], out[2], out[3]), hover.exists, spin, hover.cone_rad,
                         hover.drift_m, hover.vertical_excess_mps2, rho, axis_err, clipped))

@@ -39,17 +39,13 @@ import math
 from collections.abc import Sequence
 from typing import Any, NamedTuple
 
-__all__ = ["DOB_START", "TDOB_START", "DobState", "MassModel", "MassState", "TdobState", "clamp",
+from tfl_mav.control.scalar import clamp
+
+__all__ = ["DOB_START", "TDOB_START", "DobState", "MassModel", "MassState", "TdobState",
            "dob_step", "dob_update", "mass_blend", "mass_filters", "mass_model", "mass_start",
            "mass_update", "tdob_update"]
 
 V3 = Sequence[Any]
-
-
-def clamp(x: float, lo: float, hi: float) -> float:
-    """``min(max(x, lo), hi)`` written out (the same result, NaN and ties included)."""
-    x = lo if lo > x else x
-    return hi if hi < x else x
 
 
 def mass_filters(dt: Any, tau_s: Any, kt: Any, g: Any, v: V3, thrust: Any, b3: V3,
@@ -102,7 +98,7 @@ class MassState(NamedTuple):
     mass_kg: float                      # the estimate
     v_lp: tuple[float, float, float]    # LP(v) (m/s)
     phi_lp: tuple[float, float, float]  # LP(φ), φ = u_f b3 − k_t v (N)
-    updates: float                      # ticks the estimate learnt from
+    updates: int                        # ticks the estimate learnt from
 
 
 def mass_model(model_mass_kg: float, gravity_mps2: float, k_t: float, accel_tau_s: float = 0.2,
@@ -117,7 +113,7 @@ def mass_model(model_mass_kg: float, gravity_mps2: float, k_t: float, accel_tau_
 
 def mass_start(model_mass_kg: float) -> MassState:
     """The estimator before its first sample: the model's mass."""
-    return MassState(False, model_mass_kg, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0.0)
+    return MassState(False, model_mass_kg, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), 0)
 
 
 def mass_update(m: MassModel, s: MassState, dt: float, v: V3, thrust_n: float, b3: V3
@@ -134,7 +130,7 @@ def mass_update(m: MassModel, s: MassState, dt: float, v: V3, thrust_n: float, b
             m_inst = num / den
             if -math.inf < m_inst < math.inf:
                 mass = clamp(mass_blend(mass, m_inst, dt, m.ratio_tau_s), m.lo_kg, m.hi_kg)
-                updates = updates + 1.0
+                updates = updates + 1
     else:       # the first sample: the filters start at it
         bx, by, bz = b3
         kt = m.k_t

@@ -173,16 +173,9 @@ def saturate(f: Sequence[float], raw: Sequence[float], last: Sequence[float], fm
     """(f clipped to [0, f_max], saturated flags of the unbounded thrusts ``raw``); a
     non-finite thrust (f − f is NaN) keeps the ``last`` command (floats only)."""
     hi = fmax + 1e-9
-    r0, r1, r2, r3 = raw
-    sat = [not -1e-9 <= r0 <= hi, not -1e-9 <= r1 <= hi, not -1e-9 <= r2 <= hi,
-           not -1e-9 <= r3 <= hi]
-    # max(f, 0), min(·, f_max) written out, rotor by rotor (this runs every tick).
-    f0, f1, f2, f3 = f
-    l0, l1, l2, l3 = last
-    return [(0.0 if f0 < 0.0 else (fmax if fmax < f0 else f0)) if f0 - f0 == 0.0 else l0,
-            (0.0 if f1 < 0.0 else (fmax if fmax < f1 else f1)) if f1 - f1 == 0.0 else l1,
-            (0.0 if f2 < 0.0 else (fmax if fmax < f2 else f2)) if f2 - f2 == 0.0 else l2,
-            (0.0 if f3 < 0.0 else (fmax if fmax < f3 else f3)) if f3 - f3 == 0.0 else l3], sat
+    sat = [not -1e-9 <= raw[k] <= hi for k in range(4)]
+    return [(0.0 if f[k] < 0.0 else (fmax if fmax < f[k] else f[k])) if f[k] - f[k] == 0.0
+            else last[k] for k in range(4)], sat
 
 
 def rate_prediction(d0: Any, d1: Any, d2: Any, d3: Any, pc: Any, qc: Any, rc: Any, ix: Any,
