@@ -22,7 +22,8 @@ from tfl_mav.control.tfl.tfl_controller import LawConfig, ModelParams, TFLContro
 from tfl_mav.scenario import Scenario, ScenarioError
 
 __all__ = ["build_controller", "build_detector", "detector_config", "law_config",
-           "model_params", "noisy_measurements", "scenario_path", "translational_observer"]
+           "model_params", "noisy_measurements", "outdoors", "scenario_path",
+           "translational_observer"]
 
 
 def model_params(sc: Scenario) -> ModelParams:
@@ -63,8 +64,17 @@ def translational_observer(sc: Scenario) -> bool:
     in still air — cannot take for a mass (without it the built-in ``realistic`` flips)."""
     mode = sc.controller.translational_observer
     if mode == "auto":
-        return sc.wind.active or sc.vehicle.rotor_aero or sc.sensors.model == "realistic"
+        return outdoors(sc)
     return mode == "on"
+
+
+def outdoors(sc: Scenario) -> bool:
+    """Whether forces the paper's model lacks act on the vehicle or its measurements: moving
+    air, the rotors' aerodynamics, or the realistic sensors behind an estimator. There the
+    estimated mass also carries them (1.14 kg for 1.0 in the built-in ``realistic``), so
+    f_max over it is not the climb authority (the safe law keeps its fixed limits:
+    ``SafeParams.thrust_known``)."""
+    return sc.wind.active or sc.vehicle.rotor_aero or sc.sensors.model == "realistic"
 
 
 def noisy_measurements(sc: Scenario) -> bool:
@@ -76,7 +86,7 @@ def noisy_measurements(sc: Scenario) -> bool:
     s = sc.sensors
     return (detector_config(sc).rpm_noise_std > 0.0 or s.position_noise_std_m > 0.0
             or s.velocity_noise_std_mps > 0.0 or s.attitude_noise_std_rad > 0.0
-            or s.rate_noise_std_radps > 0.0 or translational_observer(sc))
+            or s.rate_noise_std_radps > 0.0 or outdoors(sc))
 
 
 def scenario_path(sc: Scenario) -> Path:

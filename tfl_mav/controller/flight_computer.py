@@ -86,9 +86,9 @@ from tfl_mav.from_scenario import (
     detector_config,
     model_params,
     noisy_measurements,
+    outdoors,
     scenario_path,
     spin_params_for,
-    translational_observer,
 )
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
@@ -198,7 +198,7 @@ class FlightComputer:
                                     design_gains=design_gains,
                                     motor_time_constant_s=mp.motor_time_constant_s,
                                     noisy_measurements=noisy_measurements(scenario),
-                                    thrust_known=not translational_observer(scenario))
+                                    thrust_known=not outdoors(scenario))
         self._weight_n = mp.mass_kg * mp.gravity_mps2
         self._spin_from_n = self._weight_n - 2.0   # 2A above it: the spin law is built
         # Which law flies: the supervisor's constants and state (supervisor.py).
