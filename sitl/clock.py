@@ -41,30 +41,29 @@ a real ESC does when its signal stops: **the motors are cut to zero thrust** (co
 behind the wall clock by more than 0.1 s re-anchors the clock (counted in ``overruns``)
 instead of racing to catch up.
 
-A clock drives the vehicle only through :class:`Paced`, so pacing can change without
-touching what goes on the wire.
+The clocks are pacing policy only, as PX4's lockstep scheduler holds sim time and not the
+simulator's loop: :class:`~tfl_mav.sitl.vehicle.Vehicle` runs the loop and owns what it
+drives (simulator, links, recorder hand-off, counters, STATUSTEXT), and asks its clock only
+*when*: when a silent tick's state is resent, reported or given up
+(:meth:`LockstepClock.silence`), when the next control period is due and when silence cuts
+the motors, ends the run or re-anchors the clock (:class:`RealtimeClock`). Each clock's
+state is its own (the current tick's wait, the anchor) and its decisions are small methods
+of the wall time it is given, so pacing can change without touching what goes on the wire.
 """
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
-from typing import Any, Protocol
+from enum import IntFlag
 
-from tfl_mav.link.dialect import mav
-from tfl_mav.link.transport import Link
-from tfl_mav.sitl.results import ExitStatus, VehicleStats
-from tfl_mav.sitl.simulator import Simulator
-
-__all__ = ["GCS_POLL_S", "RESEND_SPAN", "START_RESEND_S", "WAIT_SLICE_S", "Clock", "HeldCommand",
-           "LockstepClock", "Paced", "RealtimeClock"]
+__all__ = ["GCS_POLL_S", "RESEND_SPAN", "START_RESEND_S", "WAIT_SLICE_S", "HeldCommand",
+           "LockstepClock", "RealtimeClock", "Silence"]
 
 WAIT_SLICE_S = 0.05   # longest uninterrupted wait: bounds the reaction to Vehicle.stop()
 _OVERRUN_S = 0.1      # real time: re-anchor the clock when this far behind
 START_RESEND_S = 0.01  # real time: the t = 0 state is resent this often until commands flow
 RESEND_SPAN = 4       # lockstep: later resends of one tick back off to 4 × the first interval
 GCS_POLL_S = 0.01     # lockstep: the GCS port is read this often (wall), not every tick
-_monotonic = time.monotonic
 
 
 @dataclass
@@ -72,8 +71,8 @@ class HeldCommand:
     """The rotor command the motors hold, and since when.
 
     Written by :class:`~tfl_mav.sitl.commands.ActuatorControls` when it applies or cuts a command;
-    read by the clocks (real time: how long the controller has been silent) and the GCS
-    telemetry (motor health).
+    read by the vehicle's real-time loop (how long the controller has been silent, which it
+    hands to :class:`RealtimeClock`) and the GCS telemetry (motor health).
     """
 
     time_usec: int = -1       # time_usec of the newest applied HIL_ACTUATOR_CONTROLS (-1: none)
@@ -98,258 +97,128 @@ class HeldCommand:
         return 0 if self.time_usec < 0 or not self.driven else self.time_usec
 
 
-class Paced(Protocol):
-    """What a clock drives (implemented by :class:`~tfl_mav.sitl.vehicle.Vehicle`)."""
+class Silence(IntFlag):
+    """What a lockstep tick's silence calls for now (:meth:`LockstepClock.silence`); the
+    vehicle acts in this order: LOST ends the run, TIMED_OUT is counted and announced, RESEND
+    sends the state again."""
 
-    sim: Simulator
-    stats: VehicleStats
-    held: HeldCommand
-    control_link: Link
-
-    def send_heartbeat(self) -> None:
-        """HEARTBEAT to the controller."""
-
-    def publish_state(self) -> None:
-        """Build the current tick's state and send it to the controller."""
-
-    def resend_state(self) -> None:
-        """Send the current tick's state again."""
-
-    def dispatch(self, msg: Any, awaited_usec: int | None) -> bool:
-        """Handle one message from the control port; True if it is the reply that completes
-        the awaited tick (lockstep, ``awaited_usec`` given)."""
-
-    def gcs_periodic(self) -> None:
-        """GCS telemetry and HEARTBEAT, if due (nothing without a GCS)."""
-
-    def serve_gcs(self) -> None:
-        """Handle what the GCS sent (nothing without a GCS)."""
-
-    def wait(self, timeout_s: float) -> None:
-        """Sleep until a datagram arrives on either port or ``timeout_s`` passes."""
-
-    def stopped(self) -> bool:
-        """True once a stop was requested."""
-
-    def step(self) -> str | None:
-        """Integrate one control period; the crash reason, if any."""
-
-    def defer_recording(self, defer: bool) -> None:
-        """Queue the recorder hooks (True) or hand them over and call them at once again."""
-
-    def hand_off(self) -> None:
-        """Call the queued recorder hooks, in order (the simulator is as it was queued)."""
-
-    def status(self, severity: int, text: str, *, key: str | None = None) -> None:
-        """STATUSTEXT to both peers (rate-limited per ``key``)."""
-
-    def cut_motors(self, silent_s: float, timeout_s: float) -> None:
-        """Real-time link loss: zero thrust until the next valid command."""
+    NOTHING = 0
+    LOST = 1        # silent past peer_timeout_s: the controller is gone
+    TIMED_OUT = 2   # silent for another timeout_s: count, STATUSTEXT, HEARTBEAT
+    RESEND = 4      # the state again (the resend interval backs off, doubling)
 
 
-class Clock(Protocol):
-    def run(self, n_ticks: float) -> tuple[ExitStatus, str]:
-        """Fly ``n_ticks`` control periods (``math.inf``: until stopped or crashed)."""
-        ...
+_NOTHING, _LOST, _TIMED_OUT, _RESEND = (Silence.NOTHING, Silence.LOST, Silence.TIMED_OUT,
+                                        Silence.RESEND)
 
 
 class LockstepClock:
-    """Sim time advances only when the controller has answered the current tick."""
+    """Lockstep pacing: sim time advances only when the controller has answered the current
+    tick; this says how long to wait and what a silence calls for.
 
-    def __init__(self, vehicle: Paced, timeout_s: float, resend_s: float = 0.005,
+    Its state is the current tick's wait (wall times, ``time.monotonic`` seconds), set by
+    :meth:`start` and advanced by :meth:`silence`.
+    """
+
+    __slots__ = ("_deadline_s", "_interval_s", "_resend_at_s", "_since_s", "peer_timeout_s",
+                 "resend_max_s", "resend_s", "timeout_s")
+
+    def __init__(self, timeout_s: float, resend_s: float = 0.005,
                  peer_timeout_s: float | None = None) -> None:
-        self.vehicle = vehicle
         self.timeout_s = timeout_s   # wall seconds without a reply before reporting it
         # wall seconds without a reply before the run ends (PEER_LOST); None: wait for a
         # restarted controller however long it takes
         self.peer_timeout_s = peer_timeout_s
-        self.lost = ""               # why the run ended PEER_LOST
         self.resend_s = min(resend_s, timeout_s)   # wall seconds before the first resend
         self.resend_max_s = min(RESEND_SPAN * resend_s, timeout_s)   # ... the later ones
-        self._next_gcs_s = 0.0       # wall time the GCS port is next read
+        self._since_s = self._deadline_s = self._resend_at_s = 0.0
+        self._interval_s = self.resend_s
 
-    def run(self, n_ticks: float) -> tuple[ExitStatus, str]:
-        """The tick, ordered for the critical path: the reply k → apply → integrate → the
-        HEARTBEAT if due and the state k+1 on the wire; then, while the controller
-        computes, what only reports on the tick (recorder hand-off, GCS). Same messages,
-        same order on each port as "state, GCS, wait, step" (the recorder's calls are
-        queued in between and handed over in order: :meth:`Paced.hand_off`)."""
-        v = self.vehicle
-        sim = v.sim
-        stats = v.stats
-        ticks_per_heartbeat = max(1, round(1.0 / sim.control_dt_s))
-        if stats.ticks >= n_ticks:
-            return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
-        v.defer_recording(True)
-        # bound once: every tick calls each of them
-        gcs_periodic, await_reply = v.gcs_periodic, self._await_reply
-        step, publish_state = v.step, v.publish_state
-        try:
-            if stats.ticks % ticks_per_heartbeat == 0:
-                v.send_heartbeat()
-            publish_state()
-            while True:
-                gcs_periodic()
-                if not await_reply(sim.time_usec):
-                    if self.lost:
-                        return ExitStatus.PEER_LOST, self.lost
-                    return ExitStatus.STOPPED, "stopped on request"
-                # --- critical path: reply consumed → next state sent
-                crash = step()
-                if crash is not None:
-                    return ExitStatus.CRASHED, crash
-                ticks = stats.ticks
-                if ticks >= n_ticks:
-                    return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
-                if ticks % ticks_per_heartbeat == 0:
-                    v.send_heartbeat()
-                publish_state()
-                # --- the controller computes from here: report on the tick
-        finally:
-            v.defer_recording(False)
+    def start(self, now_s: float) -> None:
+        """The tick's state went out at wall time ``now_s``: its wait begins."""
+        self._since_s = now_s
+        self._deadline_s = now_s + self.timeout_s
+        self._interval_s = self.resend_s
+        self._resend_at_s = now_s + self.resend_s
 
-    def _await_reply(self, time_usec: int) -> bool:
-        """Block until the reply for ``time_usec`` is consumed; False if stopped.
+    def slice_s(self, now_s: float) -> float:
+        """How long the next receive may block: until the next resend, at most
+        ``WAIT_SLICE_S`` (the reaction time to a stop)."""
+        wait_s = self._resend_at_s - now_s
+        return wait_s if wait_s < WAIT_SLICE_S else WAIT_SLICE_S
 
-        The wait is the control link's ``recvfrom`` itself (no select). Before each wait:
-        the recorder hand-off, and the GCS port, read every ``GCS_POLL_S`` of wall time,
-        not on every tick (a GCS is a person): both while the controller computes, so
-        the consumed reply goes straight on to the next state."""
-        v = self.vehicle
-        ctl = v.control_link
-        dispatch = v.dispatch
-        now = _monotonic()
-        since = now
-        deadline = now + self.timeout_s
-        interval = self.resend_s
-        resend_at = now + interval
-        while True:
-            v.hand_off()      # the recorder's share of the tick
-            if now >= self._next_gcs_s:
-                self._next_gcs_s = now + GCS_POLL_S
-                v.serve_gcs()
-            awaited = time_usec
-            # One datagram a pass: the reply comes alone, and the loop reads what follows.
-            wait_s = resend_at - now
-            for msg in ctl.recv(wait_s if wait_s < WAIT_SLICE_S else WAIT_SLICE_S,
-                                drain=False):
-                # Handle the whole batch (a command may follow the reply); once the reply
-                # is consumed, a duplicate for the same tick is stale (-1 matches nothing).
-                if dispatch(msg, awaited):
-                    awaited = -1
-            if awaited == -1:
-                return True
-            now = _monotonic()
-            if v.stopped():
-                return False
-            peer_timeout = self.peer_timeout_s
-            if peer_timeout is not None and now - since > peer_timeout:
-                self.lost = (f"no HIL_ACTUATOR_CONTROLS for {now - since:.1f} s (over "
-                             f"--peer-timeout {peer_timeout:g} s): the controller is gone")
-                return False
-            if now >= deadline:
-                v.stats.lockstep_timeouts += 1
-                v.status(mav.MAV_SEVERITY_WARNING,
-                         f"lockstep: no HIL_ACTUATOR_CONTROLS for time_usec {time_usec} "
-                         f"within {self.timeout_s:g} s; state resent every "
-                         f"{1000 * self.resend_s:g}-{1000 * self.resend_max_s:g} ms",
-                         key="lockstep_timeout")
-                v.send_heartbeat()
-                deadline = now + self.timeout_s
-            if now >= resend_at:
-                v.stats.lockstep_resends += 1
-                v.resend_state()
-                interval = min(2.0 * interval, self.resend_max_s)   # back off, as TCP does
-                resend_at = now + interval
-                v.gcs_periodic()
+    def silence(self, now_s: float) -> Silence:
+        """No reply yet at ``now_s``: what is due (and the next deadlines, if any fired)."""
+        peer_timeout = self.peer_timeout_s
+        if peer_timeout is not None and now_s - self._since_s > peer_timeout:
+            return _LOST
+        due = _NOTHING
+        if now_s >= self._deadline_s:
+            due |= _TIMED_OUT
+            self._deadline_s = now_s + self.timeout_s
+        if now_s >= self._resend_at_s:
+            due |= _RESEND
+            self._interval_s = min(2.0 * self._interval_s, self.resend_max_s)   # as TCP does
+            self._resend_at_s = now_s + self._interval_s
+        return due
+
+    def lost_reason(self, now_s: float) -> str:
+        """Why the run ends PEER_LOST at ``now_s``."""
+        return (f"no HIL_ACTUATOR_CONTROLS for {now_s - self._since_s:.1f} s (over "
+                f"--peer-timeout {self.peer_timeout_s:g} s): the controller is gone")
+
+    def timeout_text(self, time_usec: int) -> str:
+        """The STATUSTEXT for a tick whose reply is ``timeout_s`` late."""
+        return (f"lockstep: no HIL_ACTUATOR_CONTROLS for time_usec {time_usec} "
+                f"within {self.timeout_s:g} s; state resent every "
+                f"{1000 * self.resend_s:g}-{1000 * self.resend_max_s:g} ms")
 
 
 class RealtimeClock:
-    """Sim time follows the wall clock; the latest valid command is held."""
+    """Real-time pacing: sim time follows the wall clock from an anchor; this says when the
+    next control period is due and what the controller's silence or a late period calls for.
 
-    def __init__(self, vehicle: Paced, command_timeout_s: float,
+    Its state is the anchor: wall time ``t0`` (``time.monotonic`` seconds) at which tick
+    ``k0`` began, so tick k ends at t0 + (k + 1 − k0)·T.
+    """
+
+    __slots__ = ("_k0", "_t0_s", "command_timeout_s", "control_dt_s", "peer_timeout_s")
+
+    def __init__(self, control_dt_s: float, command_timeout_s: float,
                  peer_timeout_s: float | None = None) -> None:
-        self.vehicle = vehicle
+        self.control_dt_s = control_dt_s             # T, sim seconds a control period
         self.command_timeout_s = command_timeout_s   # wall seconds of silence → motors cut
         self.peer_timeout_s = peer_timeout_s         # ... → the run ends (None: never)
+        self._t0_s = 0.0
+        self._k0 = 0
 
-    def run(self, n_ticks: float) -> tuple[ExitStatus, str]:
-        v = self.vehicle
-        sim = v.sim
-        stats = v.stats
-        held = v.held
-        dt = sim.control_dt_s
-        ticks_per_heartbeat = max(1, round(1.0 / dt))
-        ctl = v.control_link
-        if not self._await_first_command():
-            return ExitStatus.STOPPED, "stopped on request"
-        t0 = time.monotonic()   # sim time starts with the first command applied
-        k0 = 0                  # tick at which the clock was last anchored at t0
-        first = True
-        while stats.ticks < n_ticks:
-            if not first:
-                if stats.ticks % ticks_per_heartbeat == 0:
-                    v.send_heartbeat()
-                v.publish_state()
-            first = False
-            target = t0 + (stats.ticks + 1 - k0) * dt
-            while True:
-                for msg in ctl.recv(0.0):
-                    v.dispatch(msg, None)
-                v.gcs_periodic()
-                v.serve_gcs()
-                if v.stopped():
-                    return ExitStatus.STOPPED, "stopped on request"
-                now = time.monotonic()
-                if now >= target:
-                    break
-                v.wait(min(WAIT_SLICE_S, target - now))
-            if not held.motors_cut and now - held.since_s > self.command_timeout_s:
-                v.cut_motors(now - held.since_s, self.command_timeout_s)
-            if held.motors_cut and self.peer_timeout_s is not None \
-                    and now - held.since_s > self.peer_timeout_s:
-                return ExitStatus.PEER_LOST, (
-                    f"no valid HIL_ACTUATOR_CONTROLS for {now - held.since_s:.1f} s (over "
-                    f"--peer-timeout {self.peer_timeout_s:g} s): the controller is gone")
-            stats.held_age.add(sim.time_usec - held.time_usec)
-            crash = v.step()
-            if crash is not None:
-                return ExitStatus.CRASHED, crash
-            if now - target > _OVERRUN_S:
-                stats.overruns += 1
-                t0, k0 = now, stats.ticks
-                v.status(mav.MAV_SEVERITY_WARNING,
-                         f"real time: physics fell {now - target:.3f} s behind the wall "
-                         "clock; clock re-anchored", key="overrun")
-        return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
+    def start(self, now_s: float) -> None:
+        """Sim time starts at wall time ``now_s`` (the first command applied), at tick 0."""
+        self._t0_s, self._k0 = now_s, 0
 
-    def _await_first_command(self) -> bool:
-        """Send the t = 0 state every ``START_RESEND_S`` until a valid command for it is
-        applied; False if stopped first. Sim time has not started, so a controller that is
-        slow to start costs nothing and the command timeout cannot cut the motors."""
-        v = self.vehicle
-        ctl = v.control_link
-        held = v.held
-        next_heartbeat = next_state = 0.0
-        first = True
-        while held.time_usec < 0:
-            now = time.monotonic()
-            if now >= next_heartbeat:
-                v.send_heartbeat()
-                next_heartbeat = now + 1.0
-            if now >= next_state:
-                if first:
-                    v.publish_state()
-                    first = False
-                else:
-                    v.resend_state()
-                v.stats.start_wait_states += 1
-                next_state = now + START_RESEND_S
-            v.wait(min(WAIT_SLICE_S, max(0.0, next_state - time.monotonic())))
-            for msg in ctl.recv(0.0):
-                v.dispatch(msg, None)
-            v.gcs_periodic()
-            v.serve_gcs()
-            if v.stopped():
-                return False
-        return True
+    def due_s(self, ticks: int) -> float:
+        """Wall time at which the control period after ``ticks`` periods ends."""
+        return self._t0_s + (ticks + 1 - self._k0) * self.control_dt_s
+
+    def cuts_motors(self, silent_s: float, motors_cut: bool) -> bool:
+        """Whether ``silent_s`` wall seconds since the last valid command cut the motors now
+        (an ESC whose signal stopped)."""
+        return not motors_cut and silent_s > self.command_timeout_s
+
+    def lost_reason(self, silent_s: float, motors_cut: bool) -> str | None:
+        """Why the run ends PEER_LOST after ``silent_s`` of silence, or None (it goes on)."""
+        peer_timeout = self.peer_timeout_s
+        if motors_cut and peer_timeout is not None and silent_s > peer_timeout:
+            return (f"no valid HIL_ACTUATOR_CONTROLS for {silent_s:.1f} s (over "
+                    f"--peer-timeout {peer_timeout:g} s): the controller is gone")
+        return None
+
+    def overrun(self, now_s: float, due_s: float, ticks: int) -> str | None:
+        """After the period due at ``due_s`` was integrated (``ticks`` periods flown): if it
+        ran more than 0.1 s late, re-anchor at ``now_s`` instead of racing to catch up and
+        return the STATUSTEXT; else None."""
+        if now_s - due_s > _OVERRUN_S:
+            self._t0_s, self._k0 = now_s, ticks
+            return (f"real time: physics fell {now_s - due_s:.3f} s behind the wall "
+                    "clock; clock re-anchored")
+        return None

@@ -20,7 +20,8 @@ One :class:`Vehicle` owns a :class:`~tfl_mav.sitl.simulator.Simulator` and two l
 
 The vehicle wires the parts together and runs the flight; each part has its own module:
 
-* :mod:`tfl_mav.sitl.clock` — lockstep (default) and real-time pacing, and the held command;
+* :mod:`tfl_mav.sitl.clock` — lockstep (default) and real-time pacing (when to step, resend,
+  cut the motors), and the held command;
 * :mod:`tfl_mav.sitl.commands` — HIL_ACTUATOR_CONTROLS and COMMAND_LONG/COMMAND_INT;
 * :mod:`tfl_mav.sitl.state_report` — the per-tick ODOMETRY, ACTUATOR_OUTPUT_STATUS (which command
   the rpm answer) and ESC_TELEMETRY_1_TO_4;
@@ -71,7 +72,15 @@ from tfl_mav.link.dialect import mav
 from tfl_mav.link.signing import Signing
 from tfl_mav.link.transport import Address, FrameHook, Link
 from tfl_mav.scenario import Scenario
-from tfl_mav.sitl.clock import WAIT_SLICE_S, Clock, HeldCommand, LockstepClock, RealtimeClock
+from tfl_mav.sitl.clock import (
+    GCS_POLL_S,
+    START_RESEND_S,
+    WAIT_SLICE_S,
+    HeldCommand,
+    LockstepClock,
+    RealtimeClock,
+    Silence,
+)
 from tfl_mav.sitl.commands import CONTROL_TOLERANCE, ActuatorControls, CommandHandler, Outcome
 from tfl_mav.sitl.gcs import FlightStatus, GcsTelemetry, Origin, StatusText
 from tfl_mav.sitl.ground import GroundCommands
@@ -101,6 +110,8 @@ _STALE = Outcome.STALE   # an Enum member through its class costs ~10× a global
 _CONTROL_LINK_ID, _GCS_LINK_ID = 0, 1      # MAVLink signing link ids of our two ports
 _FINAL_HEARTBEATS, _FINAL_HEARTBEAT_GAP_S = 3, 0.01   # the last HEARTBEAT, sent 3 times
 _REFUSAL_INTERVAL_S = 1.0                   # STATUSTEXT to one refused sender at most 1/s
+_LOST, _TIMED_OUT, _RESEND = Silence.LOST, Silence.TIMED_OUT, Silence.RESEND
+_monotonic = time.monotonic
 
 
 class Vehicle:
@@ -149,7 +160,6 @@ class Vehicle:
         self.sim = Simulator(scenario)
         self.recording = HandOff(self.sim, on_frame, on_truth,
                                  on_frames if on_frame is not None else None)
-        self.hand_off = self.recording.flush   # type: ignore[method-assign]  # every tick
         hook = self.recording.frame if on_frame is not None else None
         # The links.
         self.signing = Signing(key) if key is not None else None
@@ -204,9 +214,10 @@ class Vehicle:
                                  flight=self.flight, report=self.report, origin=self.origin,
                                  sim_time=not realtime)
                     if self.gcs_link is not None else None)
-        self.clock: Clock = (RealtimeClock(self, command_timeout_s, peer_timeout_s) if realtime
-                             else LockstepClock(self, lockstep_timeout_s, resend_interval_s,
-                                                peer_timeout_s))
+        self.clock: LockstepClock | RealtimeClock = (
+            RealtimeClock(self.sim.control_dt_s, command_timeout_s, peer_timeout_s) if realtime
+            else LockstepClock(lockstep_timeout_s, resend_interval_s, peer_timeout_s))
+        self._next_gcs_s = 0.0       # lockstep: wall time the GCS port is next read
         # The run's phase.
         self._stop = threading.Event()
         self._external_stop: threading.Event | None = None
@@ -284,7 +295,7 @@ class Vehicle:
             wall0 = self._flight_wall0 = time.monotonic()
             if self.on_truth is not None:
                 self.on_truth(self.sim)
-            status, reason = self.clock.run(n_ticks)
+            status, reason = self.fly(n_ticks)
         finally:
             gc.unfreeze()
         return self._finish(status, reason, time.monotonic() - wall0)
@@ -312,10 +323,10 @@ class Vehicle:
                 if self.gcs_link is not None:
                     self.gcs_link.send(hb)
                 next_heartbeat = now + 1.0
-            self.wait(min(WAIT_SLICE_S, max(0.0, next_heartbeat - time.monotonic())))
+            self._wait(min(WAIT_SLICE_S, max(0.0, next_heartbeat - time.monotonic())))
             for msg in ctl.recv(0.0):
                 self.dispatch(msg, None)
-            self.serve_gcs()
+            self._serve_gcs()
             if self.signing is not None:
                 self._report_refused_signatures()
         host, port = ctl.peer or ("?", 0)
@@ -390,9 +401,181 @@ class Vehicle:
                     link.send(hb)
         return VehicleResult(status, reason, self.stats.ticks, self.sim.time_s, wall_s)
 
-    # ------------------------------------------------------------------ what a clock drives
-    # (tfl_mav.sitl.clock.Paced)
-    def send_heartbeat(self) -> None:
+    # ------------------------------------------------------------------ the flight's loop
+    def fly(self, n_ticks: float) -> tuple[ExitStatus, str]:
+        """Fly on until ``n_ticks`` control periods in all (``math.inf``: until stopped or
+        crashed), paced by :attr:`clock`: how the run ended and why. :meth:`run` calls it
+        once the controller is connected."""
+        clock = self.clock
+        if isinstance(clock, LockstepClock):
+            return self._fly_lockstep(clock, n_ticks)
+        return self._fly_realtime(clock, n_ticks)
+
+    def _fly_lockstep(self, clock: LockstepClock, n_ticks: float) -> tuple[ExitStatus, str]:
+        """The tick, ordered for the critical path: the reply k → apply → integrate → the
+        HEARTBEAT if due and the state k+1 on the wire; then, while the controller
+        computes, what only reports on the tick (recorder hand-off, GCS). Same messages,
+        same order on each port as "state, GCS, wait, step" (the recorder's calls are
+        queued in between and handed over in order: :class:`HandOff`)."""
+        sim = self.sim
+        stats = self.stats
+        ticks_per_heartbeat = max(1, round(1.0 / sim.control_dt_s))
+        if stats.ticks >= n_ticks:
+            return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
+        recording = self.recording
+        recording.defer(True)
+        # bound once: every tick calls each of them
+        gcs_periodic, await_reply = self._gcs_periodic, self._await_reply
+        step, publish_state = self.step, self.publish_state
+        try:
+            if stats.ticks % ticks_per_heartbeat == 0:
+                self._send_heartbeat()
+            publish_state()
+            while True:
+                gcs_periodic()
+                ended = await_reply(clock, sim.time_usec)
+                if ended is not None:
+                    return ended
+                # --- critical path: reply consumed → next state sent
+                crash = step()
+                if crash is not None:
+                    return ExitStatus.CRASHED, crash
+                ticks = stats.ticks
+                if ticks >= n_ticks:
+                    return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
+                if ticks % ticks_per_heartbeat == 0:
+                    self._send_heartbeat()
+                publish_state()
+                # --- the controller computes from here: report on the tick
+        finally:
+            recording.defer(False)
+
+    def _await_reply(self, clock: LockstepClock,
+                     time_usec: int) -> tuple[ExitStatus, str] | None:
+        """Block until the reply for ``time_usec`` is consumed (None), or the run's end
+        (stopped, or the controller gone) and why.
+
+        The wait is the control link's ``recvfrom`` itself (no select). Before each wait:
+        the recorder hand-off, and the GCS port, read every ``GCS_POLL_S`` of wall time,
+        not on every tick (a GCS is a person): both while the controller computes, so
+        the consumed reply goes straight on to the next state. Between waits the clock
+        says what the silence calls for (resend, report, give up)."""
+        ctl = self.control_link
+        dispatch = self.dispatch
+        flush = self.recording.flush
+        now = _monotonic()
+        clock.start(now)
+        while True:
+            flush()      # the recorder's share of the tick
+            if now >= self._next_gcs_s:
+                self._next_gcs_s = now + GCS_POLL_S
+                self._serve_gcs()
+            awaited = time_usec
+            # One datagram a pass: the reply comes alone, and the loop reads what follows.
+            for msg in ctl.recv(clock.slice_s(now), drain=False):
+                # Handle the whole batch (a command may follow the reply); once the reply
+                # is consumed, a duplicate for the same tick is stale (-1 matches nothing).
+                if dispatch(msg, awaited):
+                    awaited = -1
+            if awaited == -1:
+                return None
+            now = _monotonic()
+            if self.stopped():
+                return ExitStatus.STOPPED, "stopped on request"
+            due = clock.silence(now)
+            if not due:
+                continue
+            if due & _LOST:
+                return ExitStatus.PEER_LOST, clock.lost_reason(now)
+            if due & _TIMED_OUT:
+                self.stats.lockstep_timeouts += 1
+                self.status(mav.MAV_SEVERITY_WARNING, clock.timeout_text(time_usec),
+                            key="lockstep_timeout")
+                self._send_heartbeat()
+            if due & _RESEND:
+                self.stats.lockstep_resends += 1
+                self._resend_state()
+                self._gcs_periodic()
+
+    def _fly_realtime(self, clock: RealtimeClock, n_ticks: float) -> tuple[ExitStatus, str]:
+        """Physics follows the wall clock from the first applied command; the latest valid
+        command is held, silence cuts the motors (and, past ``peer_timeout_s``, ends the
+        run), a period more than 0.1 s late re-anchors the clock."""
+        sim = self.sim
+        stats = self.stats
+        held = self.held
+        ticks_per_heartbeat = max(1, round(1.0 / sim.control_dt_s))
+        ctl = self.control_link
+        if not self._await_first_command():
+            return ExitStatus.STOPPED, "stopped on request"
+        clock.start(time.monotonic())   # sim time starts with the first command applied
+        first = True
+        while stats.ticks < n_ticks:
+            if not first:
+                if stats.ticks % ticks_per_heartbeat == 0:
+                    self._send_heartbeat()
+                self.publish_state()
+            first = False
+            due_s = clock.due_s(stats.ticks)
+            while True:
+                for msg in ctl.recv(0.0):
+                    self.dispatch(msg, None)
+                self._gcs_periodic()
+                self._serve_gcs()
+                if self.stopped():
+                    return ExitStatus.STOPPED, "stopped on request"
+                now = time.monotonic()
+                if now >= due_s:
+                    break
+                self._wait(min(WAIT_SLICE_S, due_s - now))
+            silent_s = now - held.since_s
+            if clock.cuts_motors(silent_s, held.motors_cut):
+                self.controls.cut_motors(silent_s, clock.command_timeout_s)
+            lost = clock.lost_reason(silent_s, held.motors_cut)
+            if lost is not None:
+                return ExitStatus.PEER_LOST, lost
+            stats.held_age.add(sim.time_usec - held.time_usec)
+            crash = self.step()
+            if crash is not None:
+                return ExitStatus.CRASHED, crash
+            overrun = clock.overrun(now, due_s, stats.ticks)
+            if overrun is not None:
+                stats.overruns += 1
+                self.status(mav.MAV_SEVERITY_WARNING, overrun, key="overrun")
+        return ExitStatus.COMPLETED, f"ran {sim.time_s:.3f} s of sim time"
+
+    def _await_first_command(self) -> bool:
+        """Real time: send the t = 0 state every ``START_RESEND_S`` until a valid command
+        for it is applied; False if stopped first. Sim time has not started, so a controller
+        that is slow to start costs nothing and the command timeout cannot cut the motors."""
+        ctl = self.control_link
+        held = self.held
+        next_heartbeat = next_state = 0.0
+        first = True
+        while held.time_usec < 0:
+            now = time.monotonic()
+            if now >= next_heartbeat:
+                self._send_heartbeat()
+                next_heartbeat = now + 1.0
+            if now >= next_state:
+                if first:
+                    self.publish_state()
+                    first = False
+                else:
+                    self._resend_state()
+                self.stats.start_wait_states += 1
+                next_state = now + START_RESEND_S
+            self._wait(min(WAIT_SLICE_S, max(0.0, next_state - time.monotonic())))
+            for msg in ctl.recv(0.0):
+                self.dispatch(msg, None)
+            self._gcs_periodic()
+            self._serve_gcs()
+            if self.stopped():
+                return False
+        return True
+
+    # ------------------------------------------------------------------ the tick's parts
+    def _send_heartbeat(self) -> None:
         self.control_link.send(self.flight.heartbeat())
 
     def publish_state(self) -> None:
@@ -400,12 +583,12 @@ class Vehicle:
         controller (:mod:`tfl_mav.sitl.state_report`)."""
         held = self.held
         latest = self.report.build(held.applied_usec, held.driven)
-        if not self._confirmed:      # resend_state's body: one call less every tick
+        if not self._confirmed:      # _resend_state's body: one call less every tick
             self._release_silent_candidate()
         self.control_link.send_many(latest)
         self.stats.states_sent += 1
 
-    def resend_state(self) -> None:
+    def _resend_state(self) -> None:
         """The current tick's messages again, in order, in one datagram."""
         assert self.report.latest is not None
         if not self._confirmed:
@@ -444,12 +627,12 @@ class Vehicle:
         if link is self.control_link and gcs is not None and gcs.peer is not None:
             gcs.send_raw(bytes(msg.get_msgbuf()))
 
-    def gcs_periodic(self) -> None:
+    def _gcs_periodic(self) -> None:
         gcs = self.gcs
         if gcs is not None:
             gcs.periodic()
 
-    def serve_gcs(self) -> None:
+    def _serve_gcs(self) -> None:
         gcs = self.gcs_link
         if gcs is None:
             return
@@ -459,7 +642,7 @@ class Vehicle:
             if route is not None:
                 route(gcs, msg)
 
-    def wait(self, timeout_s: float) -> None:
+    def _wait(self, timeout_s: float) -> None:
         if timeout_s > 0.0:
             select.select(self._fds, [], [], timeout_s)
 
@@ -472,14 +655,5 @@ class Vehicle:
             self.recording.truth()
         return sim.crash_reason()
 
-    def defer_recording(self, defer: bool) -> None:
-        self.recording.defer(defer)
-
-    def hand_off(self) -> None:
-        self.recording.flush()
-
     def status(self, severity: int, text: str, *, key: str | None = None) -> None:
         self.statustext.send(severity, text, key=key)
-
-    def cut_motors(self, silent_s: float, timeout_s: float) -> None:
-        self.controls.cut_motors(silent_s, timeout_s)
