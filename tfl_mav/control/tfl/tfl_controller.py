@@ -419,7 +419,7 @@ class TFLController:
         d = path_distance_m if math.isfinite(path_distance_m) else math.inf
         fine, settled = settle(self.params, st.fine, st.settled_s, d, self.params.dt_s)
         if fine != st.fine or settled != st.settled_s:
-            self.state = st._replace(fine=fine, settled_s=settled)
+            self._set(fine=fine, settled_s=settled)
 
     def set_attack(self, rotor: int, estimate_n: float) -> None:
         """Declare rotor (1-4) attacked with the given thrust estimate (N); 0 = none.
