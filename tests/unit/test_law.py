@@ -109,3 +109,36 @@ def test_far_from_the_path_falls_back_safely():
     assert out.mode is Mode.FALLBACK
     assert "tube" in out.reason
     assert all(math.isfinite(x) and 0 <= x <= FMAX for x in out.rotor_thrust_n)
+
+
+def test_the_lost_projection_says_why_in_words():
+    """Each code a lost projection can return reads as its own sentence, the numbers in it
+    as measured (mm-resolution distance, the margin to two places)."""
+    from tfl_mav.control.path.projection import VO, lost_reason
+    assert lost_reason(VO.NONFINITE, math.nan, 0.0, "") == "non-finite state"
+    assert lost_reason(VO.MARGIN, 0.12345, 0.0449, "") == (
+        "distance 0.123 m near the radius of curvature (projection margin 0.04)")
+    assert lost_reason(VO.FAILED, math.nan, 0.0, "math domain error {x}") == (
+        "path evaluation failed: math domain error {x}")
+    assert lost_reason(VO.REFERENCE, 0.5, 0.0, "outside the tube") == "outside the tube"
+    assert lost_reason(VO.NO_ROOT, math.nan, 0.0, "") == (
+        "closest-point search did not converge")
+
+
+def test_both_trackers_fall_back_in_the_same_words():
+    """0.2 m from the centre of a 2 m circle the closest point is 1.8 m away, inside the
+    radius of curvature: the compiled projection (a code, told by lost_reason) and the
+    reference tracker (its own words, passed through) say the same sentence."""
+    from tfl_mav.control.path.compiled import make_tracker
+    sc = load_scenario("circle")
+    said = []
+    for compiled in (True, False):
+        ctrl = build_controller(sc)
+        if not compiled:
+            ctrl.tracker, ctrl.path_eval = make_tracker(ctrl.tracker.path, False)
+        assert (ctrl.core == "reference jets") is not compiled
+        out = ctrl.update(_state(pos=(0.2, 0.0, 5.0)))
+        assert out.mode is Mode.FALLBACK
+        said.append(out.reason)
+    assert said[0] == said[1] == ("left the projection tube: distance 1.800 m near the "
+                                  "radius of curvature (projection margin 0.10)")

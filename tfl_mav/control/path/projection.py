@@ -210,14 +210,24 @@ def project(k: Kernels, tube_min: float, ps: PathState, rows: tuple[Any, ...],
     return Projected(code, xi1, xi2, eta, jac, lam_out, distance, margin), ps
 
 
+# What a lost projection's code says (str.format fields: distance_m, margin, failure); a
+# code not here: the closest-point search did not converge. A table read once rather than
+# a chain of ``code == VO.X``: on Python 3.11 each ``VO.X`` is a class attribute read
+# through ``EnumType.__getattr__``, 0.1 µs, and a replayed tick that falls back read four.
+_LOST_WORDS: dict[VO, str] = {
+    VO.NONFINITE: "non-finite state",
+    VO.MARGIN: ("distance {distance_m:.3f} m near the radius of curvature "
+                "(projection margin {margin:.2f})"),
+    VO.FAILED: "path evaluation failed: {failure}",
+    VO.REFERENCE: "{failure}",
+}
+
+
 def lost_reason(code: VO, distance_m: float, margin: float, failure: str) -> str:
     """Why the projection was lost (a code other than VO.OK), in words; ``failure``: the
-    path's own error (VO.FAILED)."""
-    if code == VO.NONFINITE:
-        return "non-finite state"
-    if code == VO.MARGIN:
-        return (f"distance {distance_m:.3f} m near the radius of curvature "
-                f"(projection margin {margin:.2f})")
-    if code == VO.FAILED:
-        return f"path evaluation failed: {failure}"
-    return "closest-point search did not converge"
+    words of what lost it — the path's own error (VO.FAILED), the reference tracker's
+    reason (VO.REFERENCE)."""
+    words = _LOST_WORDS.get(code)
+    if words is None:
+        return "closest-point search did not converge"
+    return words.format(distance_m=distance_m, margin=margin, failure=failure)

@@ -74,6 +74,15 @@ _new_output = tuple.__new__   # ControlOutput from its fields in order, no keywo
 _new_tuple = tuple.__new__
 _ndarray = np.ndarray
 _PATH_ERRORS = (ValueError, ZeroDivisionError, OverflowError)
+# Why the law fell back, by code (str.format fields: uf, cond), but for Fallback.TUBE, whose
+# words are the lost projection's (lost_reason). A table read once rather than a chain of
+# ``reason == Fallback.X``: on Python 3.11 each is a class attribute read through
+# ``EnumType.__getattr__``, 0.1 µs.
+_FALLBACK_WORDS: dict[Fallback, str] = {
+    Fallback.THRUST: "total thrust {uf:.2f} N too small: D(x) singular",
+    Fallback.COND: "decoupling matrix ill-conditioned (cond {cond:.1e})",
+    Fallback.NONFINITE: "non-finite control (numerical failure)",
+}
 # The translational observer's bound per axis (m/s²): three times the rotor drag of an 8 m/s
 # wind (0.33 m/s² per m/s), far below what a sensor glitch differentiated would read.
 TDOB_LIMIT_MPS2 = 8.0
@@ -198,8 +207,9 @@ class TFLController:
             self.lag_inverter.set_rpm_noise(rpm_noise_std)
         fmax = float(model.thrust_max_n)
         self._free = ((0.0, 0.0, 0.0, 0.0), (fmax, fmax, fmax, fmax))
-        self._failure = ""          # the last path evaluation error (VO.FAILED's words)
-        self._vo_reason = ""        # the reference tracker's words
+        # The words of what last lost the path: the path's evaluation error (VO.FAILED's),
+        # the reference tracker's reason (VO.REFERENCE's).
+        self._failure = ""
         # The step on this path's kernels; compiled by the seam where it is built.
         self._linked_for: PathTracker | None = None     # the tracker the kernels are of
         self._kernels: Kernels | None = None
@@ -528,7 +538,7 @@ class TFLController:
                       False, False)
         seen = step.observe(self.params, st, u)
         vo = self.tracker.virtual_output(seen.rows)
-        self._vo_reason = vo.reason
+        self._failure = vo.reason
         projected = Projected(VO.OK if vo.in_tube else VO.REFERENCE, vo.xi1, vo.xi2, vo.eta,
                               vo.jacobian, vo.lam, vo.distance_m, 0.0)
         return step.command(self.params, st, u, seen, projected, st.path)
@@ -554,12 +564,8 @@ class TFLController:
     def _reason_text(self, reason: Fallback, code: VO, distance: float, margin: float,
                      uf: float, cond: float) -> str:
         """Why the law fell back, in words."""
-        if reason == Fallback.TUBE:
-            why = (self._vo_reason if code == VO.REFERENCE
-                   else lost_reason(code, distance, margin, self._failure))
-            return f"left the projection tube: {why}"
-        if reason == Fallback.THRUST:
-            return f"total thrust {uf:.2f} N too small: D(x) singular"
-        if reason == Fallback.COND:
-            return f"decoupling matrix ill-conditioned (cond {cond:.1e})"
-        return "non-finite control (numerical failure)"
+        words = _FALLBACK_WORDS.get(reason)
+        if words is None:           # Fallback.TUBE: the lost projection's own words
+            return "left the projection tube: " + lost_reason(code, distance, margin,
+                                                               self._failure)
+        return words.format(uf=uf, cond=cond)
