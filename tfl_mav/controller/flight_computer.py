@@ -61,7 +61,7 @@ from tfl_mav.control.detect.detector import AttackDetector, DetectorOutput
 from tfl_mav.control.safe.recovery import RecoveryLaw
 from tfl_mav.control.safe.takeover import A_HANDBACK_N, TAKEOVER_TILT_RAD
 from tfl_mav.control.safe.takeover import floats as _floats
-from tfl_mav.control.spin.cone import ConeInputs, ConeParams, ConeState, cone_params, cone_step
+from tfl_mav.control.spin.cone import CONE_START, ConeInputs, ConeLaw, ConeState, cone_params
 from tfl_mav.control.spin.law import SpinLaw
 from tfl_mav.control.spin.law import initial_state as spin_initial_state
 from tfl_mav.control.spin.step import SpinInputs, SpinState
@@ -217,7 +217,7 @@ class FlightComputer:
         # Why no spin law can be built, by attacked rotor (said once, with the numbers).
         self._no_spin: dict[int, str] = {}
         # The coning hover (control/spin/cone) flown where no relaxed hover holds m g.
-        self._cone_laws: dict[int, ConeParams] = {}
+        self._cone_laws: dict[int, ConeLaw] = {}
         self._cone_state: ConeState | None = None
         self._climbing = False         # said: the attack is more than the weight allows
         self._hover_share_n = mp.mass_kg * mp.gravity_mps2 / 4.0
@@ -451,14 +451,15 @@ class FlightComputer:
     def _cone_instead(self, rotor: int, why: str) -> bool:
         """No spin law for ``rotor`` (``why``): the coning hover flies in its place."""
         self._no_spin[rotor] = why
-        self._cone_laws[rotor] = self._cone_params(rotor)
+        self._cone_laws[rotor] = self._cone_law(rotor)
         return True
 
-    def _cone_params(self, rotor: int) -> ConeParams:
+    def _cone_law(self, rotor: int) -> ConeLaw:
         sc = self.scenario
         c = sc.controller
-        return cone_params(sc.vehicle, rotor, sc.run.control_dt_s,
-                           mass_scale=c.model_mass_scale, inertia_scale=c.model_inertia_scale)
+        return ConeLaw(cone_params(sc.vehicle, rotor, sc.run.control_dt_s,
+                                   mass_scale=c.model_mass_scale,
+                                   inertia_scale=c.model_inertia_scale))
 
     def _spin_key(self, rotor: int) -> tuple[object, ...]:
         sc = self.scenario
@@ -518,16 +519,16 @@ class FlightComputer:
                   ) -> tuple[list[float], bool, str]:
         """A tick of the coning hover (:mod:`~tfl_mav.control.spin.cone`), flown where no
         relaxed hover holds m g at the pinned thrust; said once, with its numbers."""
-        params = self._cone_laws.get(rotor)
-        if params is None:
-            params = self._cone_laws[rotor] = self._cone_params(rotor)
+        cone = self._cone_laws.get(rotor)
+        if cone is None:
+            cone = self._cone_laws[rotor] = self._cone_law(rotor)
         if self._cone_state is None:
-            self._cone_state = ConeState(0.0, (0.0, 0.0, 0.0))
+            self._cone_state = CONE_START
         inputs = ConeInputs(tuple(_floats(state.position_m)),
                             tuple(_floats(state.velocity_mps)),
                             tuple(_floats(state.quaternion_wxyz)), rates, stuck,
                             *target)  # type: ignore[arg-type]
-        self._cone_state, out = cone_step(params, self._cone_state, inputs)
+        self._cone_state, out = cone.step(self._cone_state, inputs)
         if not self._said_no_spin:
             self._said_no_spin = True
             why = self._no_spin.get(rotor, f"no relaxed hover holds m g with rotor {rotor} "
@@ -535,7 +536,7 @@ class FlightComputer:
             events.append(f"spin: {why}; flying a coning hover instead: the thrust tilted "
                           f"{math.degrees(out.tilt_rad):.0f} deg so that its vertical part "
                           f"is the weight, swung round the vertical at "
-                          f"{abs(params.rate_radps):.0f} rad/s (a {out.drift_m:.2f} m circle "
+                          f"{abs(cone.params.rate_radps):.0f} rad/s (a {out.drift_m:.2f} m circle "
                           "about the path)")
         reason = (f"spin: coning hover, tilt {math.degrees(out.tilt_rad):.0f} deg, circle "
                   f"{out.drift_m:.2f} m")

@@ -21,12 +21,15 @@ Everything in the canonical frame of :mod:`~tfl_mav.control.allocation` (attacke
 from __future__ import annotations
 
 import math
-from typing import NamedTuple
+from collections.abc import Callable
+from typing import Any, NamedTuple
 
+from tfl_mav.accel import native
 from tfl_mav.control.scalar import clamp
-from tfl_mav.control.spin.step import Mat3, attitude, mat3, mean_pid
+from tfl_mav.control.spin.step import Mat3, Vec3, attitude, mat3, mean_pid
 
-__all__ = ["ConeInputs", "ConeOutputs", "ConeParams", "ConeState", "cone_params", "cone_step"]
+__all__ = ["CONE_START", "ConeInputs", "ConeLaw", "ConeOutputs", "ConeParams", "ConeState",
+           "cone_params", "cone_step"]
 
 CONE_RATE_RADPS = 8.0   # Ω_p: a_h/Ω_p² ≈ 0.2 m of circle at 53° of tilt
 ROOM_N = 2.0            # f1 + f3 at rest: the room for τ_q (± l ROOM_N/2 … )
@@ -45,7 +48,7 @@ class ConeParams(NamedTuple):
     thrust_max_n: float
     dt_s: float
     rot: Mat3                                   # body → canonical (rows)
-    perm: tuple[int, int, int, int]             # canonical rotor i is physical perm[i]
+    inverse: tuple[int, int, int, int]          # physical rotor k is canonical inverse[k]
     rate_radps: float                           # Ω_p (signed)
     kp: float
     kd: float
@@ -68,6 +71,14 @@ class ConeInputs(NamedTuple):
     target_m: tuple[float, float, float]
     target_velocity_mps: tuple[float, float, float]
     target_accel_mps2: tuple[float, float, float]
+
+
+CONE_START = ConeState(0.0, (0.0, 0.0, 0.0))
+"""The state to enter with: the cone's phase at 0, no integral."""
+
+_INPUTS_EXAMPLE = ConeInputs((0.0, 0.0, 0.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0),
+                             (0.0, 0.0, 0.0), 0.0, (0.0, 0.0, 0.0), (0.0, 0.0, 0.0),
+                             (0.0, 0.0, 0.0))
 
 
 class ConeOutputs(NamedTuple):
@@ -94,18 +105,38 @@ def cone_params(vehicle: object, rotor: int, dt_s: float, *, mass_scale: float =
     return ConeParams(
         a.mass_kg, a.inertia_kgm2, a.arm_m, a.k_r, a.k_t, a.gravity_mps2, a.thrust_max_n,
         float(dt_s), mat3(fr.rot),
-        fr.perm, rate, 3.0 * w * w, 3.0 * w, w ** 3,
+        tuple(fr.perm.index(k) for k in range(4)), rate, 3.0 * w * w, 3.0 * w, w ** 3,
         (ix * ATT_OMEGA ** 2, iy * ATT_OMEGA ** 2),
         (2.0 * ATT_ZETA * ATT_OMEGA * ix, 2.0 * ATT_ZETA * ATT_OMEGA * iy))
+
+
+def canonical_body(R: Mat3, rot: Mat3, v: Vec3) -> Vec3:
+    """An inertial vector ``v`` in the canonical body: rot Rᵀ v (R the body's attitude,
+    ``rot`` the frame's rotation)."""
+    vx, vy, vz = v
+    b0 = R[0][0] * vx + R[1][0] * vy + R[2][0] * vz
+    b1 = R[0][1] * vx + R[1][1] * vy + R[2][1] * vz
+    b2 = R[0][2] * vx + R[1][2] * vy + R[2][2] * vz
+    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = rot
+    return (r00 * b0 + r01 * b1 + r02 * b2, r10 * b0 + r11 * b1 + r12 * b2,
+            r20 * b0 + r21 * b1 + r22 * b2)
+
+
+def physical(inverse: tuple[int, int, int, int], canon: tuple[float, float, float, float]
+               ) -> tuple[float, float, float, float]:
+    """The canonical rotors' values in physical order: physical rotor k is canonical
+    ``inverse[k]``."""
+    return tuple(canon[inverse[k]] for k in range(4))  # type: ignore[return-value]
 
 
 def cone_step(p: ConeParams, s: ConeState, u: ConeInputs) -> tuple[ConeState, ConeOutputs]:
     """One control period of the coning hover (module docstring)."""
     g, m = p.gravity_mps2, p.mass_kg
     ix, iy, iz = p.inertia_kgm2
-    (r00, r01, r02), (r10, r11, r12), (r20, r21, r22) = p.rot
     qw, qx, qy, qz = u.quaternion_wxyz
-    n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz) or 1.0
+    n = math.sqrt(qw * qw + qx * qx + qy * qy + qz * qz)
+    if n == 0.0:        # no attitude measured: read as it is
+        n = 1.0
     qw, qx, qy, qz = qw / n, qx / n, qy / n, qz / n
     R, w0, w1, w2 = attitude((qw, qx, qy, qz), u.body_rates_radps, p.rot)
     f2 = u.stuck_thrust_n
@@ -143,15 +174,8 @@ def cone_step(p: ConeParams, s: ConeState, u: ConeInputs) -> tuple[ConeState, Co
     # its rate: ḃ = Ω_p e3 × (C/f_Σ) (the turning part), ω_⊥ = b × ḃ (inertial)
     dbx, dby = -om * c * math.sin(phase) * inv, om * c * math.cos(phase) * inv
     wix, wiy, wiz = by * 0.0 - bz * dby, bz * dbx - bx * 0.0, bx * dby - by * dbx
-    # into the canonical body: rot Rᵀ v
-    def body(vx_: float, vy_: float, vz_: float) -> tuple[float, float, float]:
-        b0 = R[0][0] * vx_ + R[1][0] * vy_ + R[2][0] * vz_
-        b1 = R[0][1] * vx_ + R[1][1] * vy_ + R[2][1] * vz_
-        b2 = R[0][2] * vx_ + R[1][2] * vy_ + R[2][2] * vz_
-        return (r00 * b0 + r01 * b1 + r02 * b2, r10 * b0 + r11 * b1 + r12 * b2,
-                r20 * b0 + r21 * b1 + r22 * b2)
-    h0, h1, h2 = body(bx, by, bz)
-    pr, qr, _ = body(wix, wiy, wiz)
+    h0, h1, h2 = canonical_body(R, p.rot, (bx, by, bz))
+    pr, qr, _ = canonical_body(R, p.rot, (wix, wiy, wiz))
     # --- reduced attitude PD on e3 × h, the gyroscope and the drag fed forward
     kp_x, kp_y = p.kp_att
     kd_x, kd_y = p.kd_att
@@ -171,9 +195,7 @@ def cone_step(p: ConeParams, s: ConeState, u: ConeInputs) -> tuple[ConeState, Co
     if s13 < lo or s13 > hi:
         s13, clipped = clamp(s13, lo, hi), True
     f1, f3 = 0.5 * s13 - half, 0.5 * s13 + half
-    out = [0.0, 0.0, 0.0, 0.0]
-    for phys, f in zip(p.perm, (f1, f2, f3, f4), strict=True):
-        out[phys] = f
+    out = physical(p.inverse, (f1, f2, f3, f4))
     if not clipped:     # anti-windup: the integral frozen while the allocation gives up
         ix_ = clamp(ix_ + ex * p.dt_s, -2.0, 2.0)
         iy_ = clamp(iy_ + ey * p.dt_s, -2.0, 2.0)
@@ -181,5 +203,36 @@ def cone_step(p: ConeParams, s: ConeState, u: ConeInputs) -> tuple[ConeState, Co
     tilt = math.acos(clamp(bz, -1.0, 1.0))
     drift = total * math.sin(tilt) / m / (om * om)
     err = math.acos(clamp(h2, -1.0, 1.0))
-    return (ConeState(phase, (ix_, iy_, iz_)),
-            ConeOutputs((out[0], out[1], out[2], out[3]), tilt, drift, err, clipped))
+    return ConeState(phase, (ix_, iy_, iz_)), ConeOutputs(out, tilt, drift, err, clipped)
+
+
+class ConeLaw:
+    """The coning hover built for one airframe and rotor: its constants (:attr:`params`) and
+    its step, compiled by the accelerator seam (the same bits as :func:`cone_step`:
+    tests/contract/test_native.py). The step flies in Python until the compiled one is
+    built, always in the background (a law is made in flight, when no relaxed hover holds
+    the weight), and wherever the C declines."""
+
+    def __init__(self, params: ConeParams) -> None:
+        self.params = params
+        self._core: Callable[..., Any] | None = None
+        core = native.obtain_function(cone_step, (params, CONE_START, _INPUTS_EXAMPLE),
+                                      self._ready, now=False)
+        if core is not None:
+            self._ready(core)
+
+    def _ready(self, core: Callable[..., Any]) -> None:
+        self._core = core           # one reference store: atomic under the GIL
+
+    @property
+    def compiled(self) -> bool:
+        """Whether the step runs compiled."""
+        return self._core is not None
+
+    def step(self, state: ConeState, inputs: ConeInputs) -> tuple[ConeState, ConeOutputs]:
+        """One control period (:func:`cone_step`)."""
+        core = self._core
+        out = core(self.params, state, inputs) if core is not None else None
+        if out is None:         # not built, or the C bails where Python raises
+            out = cone_step(self.params, state, inputs)
+        return out  # type: ignore[no-any-return]
