@@ -10,7 +10,9 @@ motor lag. The flight computer flies until the take-over, the spin law after it
 attack, 0.1 t + sin z, for 120 s with the spin law taking over at 40 s (where the signal
 passes m g/2). ``--tick`` times one step of the law instead (no flight): the paper airframe,
 rotor 2 pinned at 7.25 N (between two table rows), a tilted spinning body 0.1 m off the
-target; the best of 5 runs of 3000 steps, in Python and compiled by the seam.
+target; the best of 5 runs of 3000 steps, in Python and compiled by the seam; and the same
+for the coning hover's step (the fallback where no relaxed hover holds the weight) on the
+same body, the thrust pinned at 7.5 N.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ import numpy as np
 
 from tfl_mav.accel import native
 from tfl_mav.control.spin import equilibrium, law
+from tfl_mav.control.spin.cone import CONE_START, ConeInputs, cone_params, cone_step
 from tfl_mav.control.spin.step import SpinInputs, spin_step
 from tfl_mav.scenario import load_scenario
 from tfl_mav.tools.harness.spin import fly_spin
@@ -70,6 +73,25 @@ def tick_us(number: int = 3000, repeat: int = 5, compiled: bool = False) -> floa
     return best / number * 1e6
 
 
+def cone_tick_us(number: int = 3000, repeat: int = 5, compiled: bool = False) -> float:
+    """The coning hover's step time (µs, best of ``repeat`` runs of ``number`` steps), as
+    :func:`tick_us`: the Python step, or the seam's build of it
+    (:class:`~tfl_mav.control.spin.cone.ConeLaw`)."""
+    sc = load_scenario("paper")
+    params = cone_params(sc.vehicle, 2, sc.run.control_dt_s)
+    inputs = ConeInputs((0.1, 0.0, 5.0), (0.1, 0.0, 0.0), (0.99, 0.1, 0.05, 0.0),
+                        (1.0, 2.0, 10.0), 7.5, (0.0, 0.0, 5.0), (0.0, 0.0, 0.0),
+                        (0.0, 0.0, 0.0))
+    step = cone_step
+    if compiled:
+        step = native.build_function(cone_step, (params, CONE_START, inputs))
+        assert repr(step(params, CONE_START, inputs)) == repr(
+            cone_step(params, CONE_START, inputs))
+    best = min(timeit.repeat(lambda: step(params, CONE_START, inputs), number=number,
+                             repeat=repeat))
+    return best / number * 1e6
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--duration", type=float, default=45.0, help="flight length (s)")
@@ -83,6 +105,9 @@ def main() -> None:
     if args.tick:
         print(f"spin_step: {tick_us():.1f} µs a tick in Python, "
               f"{tick_us(compiled=True):.2f} µs compiled (best of 5 × 3000, f_stuck 7.25 N)")
+        print(f"cone_step: {cone_tick_us():.1f} µs a tick in Python, "
+              f"{cone_tick_us(compiled=True):.2f} µs compiled (best of 5 × 3000, "
+              "f_stuck 7.5 N)")
         return
     if args.paper120:
         sc = load_scenario("paper").replace(**{"run.duration_s": 120.0})
