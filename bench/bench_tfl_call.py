@@ -5,7 +5,10 @@
    from 5 s: the attacked law), each round 20 passes over them. The law's state carries on
    from pass to pass, so the states are not its own next ones: most replayed ticks lose
    the projection and fall back (the figure printed; 75 % on the robust law), and the
-   tick times the step, the fallback's words and the holder around them;
+   tick times the step, the fallback's words and the holder around them. ``--own``: each
+   pass from a copy of the law as it was at tick 2000 (``copy.deepcopy``, not timed), so
+   the states are its own next ones and no tick falls back (the attack estimate held at
+   tick 2000's);
 2. ``call``: the compiled step (``ctrl._core``) alone, 20 000 calls on one tick's
    arguments — the C function with its argument reading and its results (built and freed).
 
@@ -16,13 +19,14 @@ checkout ``DIR`` (its own ``.venv`` if it has one; its working directory, so its
 the median of each tree's medians and the change. The script runs from any checkout with
 ``bench/bench_controller.py``'s ``_controller`` (07a6a37 on).
 
-Usage: ``python bench/bench_tfl_call.py [--law robust|paper] [--rounds N]
+Usage: ``python bench/bench_tfl_call.py [--law robust|paper] [--own] [--rounds N]
 [--ab-tree DIR [--pairs N]] [--json FILE]`` from the repository root.
 """
 
 from __future__ import annotations
 
 import argparse
+import copy
 import json
 import math
 import os
@@ -34,8 +38,10 @@ from pathlib import Path
 from typing import Any
 
 
-def measure(law_name: str, rounds: int) -> dict[str, float]:
-    """Median µs per tick and per compiled call in the working directory's checkout."""
+def measure(law_name: str, rounds: int, own: bool = False) -> dict[str, float]:
+    """Median µs per tick and per compiled call in the working directory's checkout; ``own``:
+    each pass from a copy of the law as it was at tick 2000, so that the states are its
+    own next ones (the attacked law's command, no fallback)."""
     os.environ["TFL_MAV_NATIVE"] = "sync"
     sys.path.insert(0, os.path.join(os.getcwd(), "bench"))
     import bench_controller as bc
@@ -57,6 +63,8 @@ def measure(law_name: str, rounds: int) -> dict[str, float]:
         if sim.attack.rotor:
             ctrl.set_attack(sim.attack.rotor, sim.attack.applied_n)
         st = State(m.position_m, m.velocity_mps, m.quaternion_wxyz, m.body_rates_radps)
+        if k == 2000:
+            at_2000 = copy.deepcopy(ctrl)
         out = ctrl.update(st)
         sim.set_command(out.rotor_thrust_n)
         sim.step_control_period()
@@ -77,11 +85,14 @@ def measure(law_name: str, rounds: int) -> dict[str, float]:
     clock = time.thread_time
     ticks, calls = [], []
     for _ in range(rounds):
-        t0 = clock()
+        spent = 0.0
         for _ in range(20):
+            law = copy.deepcopy(at_2000) if own else ctrl
+            t0 = clock()
             for st in states:
-                ctrl.update(st)
-        ticks.append((clock() - t0) / n * 1e6)
+                law.update(st)
+            spent += clock() - t0
+        ticks.append(spent / n * 1e6)
         t0 = clock()
         for _ in range(n):
             core(p, s0, u, *kernels)
@@ -89,12 +100,13 @@ def measure(law_name: str, rounds: int) -> dict[str, float]:
     # The replayed states are not the law's own next ones (each pass starts where the last
     # left the law's λ and observers): what share of the timed ticks fell back, and so ran
     # the fallback's words rather than the attacked law's command.
-    fallback = sum(bool(ctrl.update(st).reason) for st in states) / len(states)
+    law = copy.deepcopy(at_2000) if own else ctrl
+    fallback = sum(bool(law.update(st).reason) for st in states) / len(states)
     return {"tick_us": statistics.median(ticks), "call_us": statistics.median(calls),
             "fallback_share": fallback}
 
 
-def _run_in(tree: Path, law_name: str, rounds: int) -> dict[str, float]:
+def _run_in(tree: Path, law_name: str, rounds: int, own: bool) -> dict[str, float]:
     """:func:`measure` in a fresh interpreter of checkout ``tree`` (its directory first on
     the path: a worktree without a venv of its own runs its ``tfl_mav`` too)."""
     env = dict(os.environ, PYTHONPATH=os.pathsep.join(
@@ -102,7 +114,7 @@ def _run_in(tree: Path, law_name: str, rounds: int) -> dict[str, float]:
     python = tree / ".venv" / "bin" / "python"
     done = subprocess.run(
         [str(python) if python.exists() else sys.executable, str(Path(__file__).resolve()),
-         "--law", law_name, "--rounds", str(rounds), "--child"],
+         "--law", law_name, "--rounds", str(rounds), "--child", *(["--own"] if own else [])],
         cwd=tree, env=env, capture_output=True, text=True, check=False)
     if done.returncode != 0:
         raise SystemExit(f"bench_tfl_call: the run in {tree} failed: "
@@ -113,6 +125,9 @@ def _run_in(tree: Path, law_name: str, rounds: int) -> dict[str, float]:
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--law", choices=("robust", "paper"), default="robust")
+    ap.add_argument("--own", action="store_true",
+                    help="tick over the flight's own next states: each pass from a copy of "
+                         "the law at tick 2000 (no fallback)")
     ap.add_argument("--rounds", type=int, default=5)
     ap.add_argument("--ab-tree", metavar="DIR", type=Path,
                     help="alternate with checkout DIR (fresh interpreters)")
@@ -123,10 +138,10 @@ def main(argv: list[str] | None = None) -> int:
     if args.rounds < 1 or args.pairs < 1:
         ap.error("--rounds and --pairs must be at least 1")
     if args.child:
-        print(json.dumps(measure(args.law, args.rounds)))
+        print(json.dumps(measure(args.law, args.rounds, args.own)))
         return 0
     if args.ab_tree is None:
-        r: dict[str, Any] = measure(args.law, args.rounds)
+        r: dict[str, Any] = measure(args.law, args.rounds, args.own)
         print(f"{args.law} law, compiled: tick {r['tick_us']:.2f} µs, the compiled call alone "
               f"{r['call_us']:.2f} µs (thread CPU, median of {args.rounds} rounds; "
               f"{100 * r['fallback_share']:.0f} % of the replayed ticks fall back)")
@@ -136,9 +151,9 @@ def main(argv: list[str] | None = None) -> int:
         here = Path(__file__).resolve().parents[1]
         runs: dict[str, list[dict[str, float]]] = {"other": [], "this": []}
         for _ in range(args.pairs):
-            runs["other"].append(_run_in(args.ab_tree, args.law, args.rounds))
-            runs["this"].append(_run_in(here, args.law, args.rounds))
-        r = {"law": args.law, "rounds": args.rounds, "pairs": args.pairs,
+            runs["other"].append(_run_in(args.ab_tree, args.law, args.rounds, args.own))
+            runs["this"].append(_run_in(here, args.law, args.rounds, args.own))
+        r = {"law": args.law, "own": args.own, "rounds": args.rounds, "pairs": args.pairs,
              "other_tree": str(args.ab_tree), "runs": runs}
         print(f"{args.law} law, compiled, µs of thread CPU: {args.ab_tree} vs this checkout "
               f"({args.pairs} alternated pairs, median of {args.rounds} rounds each)")
