@@ -18,7 +18,7 @@ import pytest
 from tfl_mav.accel import native
 from tfl_mav.accel.lowering_values import _INTRINSICS
 
-pytestmark = pytest.mark.skipif(native._compiler() is None and not native.compiler_expected(),
+pytestmark = pytest.mark.skipif(native.compiler() is None and not native.compiler_expected(),
                                 reason="no C compiler, and none expected on this platform")
 
 
