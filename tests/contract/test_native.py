@@ -260,12 +260,12 @@ def test_the_lowered_step_run_as_python_is_the_step(monkeypatch):
     scalar-replaced), run as Python with no C at all, gives the step's bits: the lowering
     itself is exact, before the translation to C."""
     from tfl_mav.accel import frontend
-    from tfl_mav.accel.lowering_values import _INTRINSICS
+    from tfl_mav.accel.lowering_values import INTRINSICS
 
     monkeypatch.setenv("TFL_MAV_NATIVE", "off")
     law = _controllers(build_path("paper", {}))
     example = law.step_arguments(State((0.0,) * 3, (0.0,) * 3, (1.0, 0.0, 0.0, 0.0), (0.0,) * 3))
-    namespace = {name: fn for fn, name in _INTRINSICS.items()} | {
+    namespace = {name: fn for fn, name in INTRINSICS.items()} | {
         "_inf": math.inf, "_nan": math.nan, "_int": int,
         "_index": lambda k, *items: items[k]}     # the rotor permutation's variable index
     exec(compile(frontend.lower(step.tfl_step, example), "<lowered tfl_step>", "exec"),
