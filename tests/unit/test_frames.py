@@ -261,8 +261,7 @@ def test_the_daemons_tuple_path_is_the_attribute_path(pos, q, twist, frames):
     """What the daemon does with the link's ODOMETRY (its tuple's first 16 items to
     paper_from_odometry_fields) is what paper_from_odometry makes of pymavlink's message:
     the same State to the bit, or the same error."""
-    from tfl_mav.controller.daemon_intake import ODOMETRY_FIELDS
-    from tfl_mav.link.codec import rx_lite_class
+    from tfl_mav.controller.daemon_intake import ODOMETRY_FIELDS, RxOdometry
     from tfl_mav.link.transport import Link
     from tfl_mav.model.frames import paper_from_odometry_fields
 
@@ -275,7 +274,7 @@ def test_the_daemons_tuple_path_is_the_attribute_path(pos, q, twist, frames):
         got: list = []
         link.receiver.ingest(raw, ("127.0.0.1", 9), got)
     (lite,) = got
-    assert type(lite) is rx_lite_class(mav.MAVLINK_MSG_ID_ODOMETRY)   # the daemon's test
+    assert type(lite) is RxOdometry
     assert lite.pose_covariance == [0.5] * 21 and lite.velocity_covariance == [0.25] * 21
     try:
         expected = paper_from_odometry(full)
