@@ -26,7 +26,7 @@ from tfl_mav.controller.supervisor import (
     supervisor_params,
 )
 
-pytestmark = pytest.mark.skipif(native._compiler() is None and not native.compiler_expected(),
+pytestmark = pytest.mark.skipif(native.compiler() is None and not native.compiler_expected(),
                                 reason="no C compiler, and none expected on this platform")
 
 WEIGHT_N, FMAX_N = 0.75 * 9.81, 6.0

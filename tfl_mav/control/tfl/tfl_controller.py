@@ -287,6 +287,19 @@ class TFLController:
             return "reference jets"
         return "compiled" if self._core is not None else "python"
 
+    def step_arguments(self, s: State, lam_start: float = 0.0, lam_start_ok: bool = False,
+                       path_failed: bool = False
+                       ) -> tuple[TFLParams, TFLState, TFLInputs, Kernels | None]:
+        """``(params, state, inputs, kernels)``: what :func:`step.tfl_step` is called with
+        for the measured state ``s`` (ENU, body FLU) now, with the rotors free (no motor-lag
+        bound: 0 … f_max N each) and the path's projection kernels (None on the reference
+        tracker) — to run, time or lower the pure step on its own. The last three are
+        :class:`step.TFLInputs`'s fields of those names."""
+        u = self._inputs(tuple(_floats(s.position_m)), tuple(_floats(s.velocity_mps)),
+                         tuple(_floats(s.quaternion_wxyz)), tuple(_floats(s.body_rates_radps)),
+                         *self._free, lam_start, lam_start_ok, path_failed)
+        return self.params, as_state(self.state), u, self._kernels
+
     def _set(self, **fields: Any) -> None:
         self.state = as_state(self.state)._replace(**fields)
 
