@@ -378,7 +378,7 @@ def main(argv: list[str] | None = None) -> int:
     result["codegen_ms"] = {"path": 1e3 * kernels.build_s,
                             "controller_build": 1e3 * (_cpu() - t0)}
     mp = model_params(sc0)
-    recovery._SCHEDULES.clear()          # designed afresh, as a new process would
+    recovery.forget_gain_schedules()     # designed afresh, as a new process would
     t0 = _cpu()
     n_gains = len(recovery.gain_schedule(mp.inertia_kgm2, mp.k_r, sc0.run.control_dt_s))
     result["safe_law_gains"] = {"count": n_gains, "design_ms": 1e3 * (_cpu() - t0)}

@@ -101,11 +101,11 @@ def bench_breakdown(n_ticks: int) -> dict[str, float]:
 
     to_state: Any = paper_from_odometry
     try:    # the daemon's path: the received tuple's fields, no attribute reads
-        from tfl_mav.controller.daemon_intake import _ODOMETRY_FIELDS
+        from tfl_mav.controller.daemon_intake import ODOMETRY_FIELDS
         from tfl_mav.model.frames import paper_from_odometry_fields
 
         def to_state(msg: Any) -> Any:
-            return paper_from_odometry_fields(*msg[:_ODOMETRY_FIELDS])
+            return paper_from_odometry_fields(*msg[:ODOMETRY_FIELDS])
     except ImportError:     # an older tree
         pass
 

@@ -32,11 +32,13 @@ from tfl_mav.model.airframe import mix
 from tfl_mav.model.geometry import rotation_from_quaternion
 
 __all__ = [
+    "RK4_STEP_EXAMPLE",
     "RigidBodyParams",
     "RigidBodyState",
     "Rk4AirStep",
     "Rk4Step",
     "RotorAeroParams",
+    "compiled_rk4_step",
     "derivative",
     "derivative_air",
     "mix",
@@ -259,12 +261,14 @@ Rk4AirStep = Callable[[Sequence[float], Sequence[float], Sequence[float], float]
 
 # The compiled rk4_step, once built: one for every airframe (its constants are an argument).
 _compiled: dict[str, Any] = {"core": None}
-# The arguments' shapes, which the lowering reads (their values are not folded in).
-_EXAMPLE = (RigidBodyParams(1.0, (1.0, 1.0, 1.0), 1.0, 1.0, 1.0, 1.0, 1.0), (0.0,) * 13,
-            (0.0,) * 4, 1.0)
+#: Arguments shaped like :func:`rk4_step`'s (airframe, state, wrench, h), which the seam's
+#: lowering reads to build it (their values are not folded in).
+RK4_STEP_EXAMPLE = (RigidBodyParams(1.0, (1.0, 1.0, 1.0), 1.0, 1.0, 1.0, 1.0, 1.0),
+                    (0.0,) * 13, (0.0,) * 4, 1.0)
 _compiled_air: dict[str, Any] = {"core": None}
-_EXAMPLE_AIR = (_EXAMPLE[0], RotorAeroParams(1.0, 1.0, 1.0, (1.0, 1.0, 1.0), 1.0, 1.0),
-                (0.0,) * 13, (0.0,) * 4, (0.0,) * 7, 1.0)
+_EXAMPLE_AIR = (RK4_STEP_EXAMPLE[0],
+                RotorAeroParams(1.0, 1.0, 1.0, (1.0, 1.0, 1.0), 1.0, 1.0), (0.0,) * 13,
+                (0.0,) * 4, (0.0,) * 7, 1.0)
 
 
 def rk4_stepper(p: RigidBodyParams, compiled: bool = True) -> Rk4Step:
@@ -295,6 +299,13 @@ def rk4_stepper(p: RigidBodyParams, compiled: bool = True) -> Rk4Step:
     return step
 
 
+def compiled_rk4_step() -> Any:
+    """The compiled :func:`rk4_step` this process's steppers fly — one for every airframe
+    (the airframe's constants are an argument) — or None while it is not built (or
+    ``TFL_MAV_NATIVE=off``, or no compiler): the Python step flies then, the same bits."""
+    return _compiled["core"]
+
+
 def _attach() -> None:
     """The compiled rk4_step into ``_compiled``: now if it is built, else when a background
     build completes (``auto``)."""
@@ -304,7 +315,7 @@ def _attach() -> None:
     def ready(core: Any) -> None:
         _compiled["core"] = core
 
-    core = native.obtain_function(rk4_step, _EXAMPLE, ready)
+    core = native.obtain_function(rk4_step, RK4_STEP_EXAMPLE, ready)
     if core is not None:
         ready(core)
 

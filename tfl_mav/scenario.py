@@ -23,6 +23,7 @@ from typing import Any
 from tfl_mav.control.detect.detector import DetectorConfig
 
 __all__ = [
+    "SECTIONS",
     "AttackConfig",
     "AttackPhase",
     "ControllerConfig",
@@ -366,7 +367,8 @@ class Scenario:
         return d
 
 
-_SECTIONS: dict[str, type] = {
+#: The scenario's sections (a TOML table each) and the config type each is read into.
+SECTIONS: dict[str, type] = {
     "vehicle": VehicleConfig,
     "initial": InitialConfig,
     "attack": AttackConfig,
@@ -498,12 +500,12 @@ def scenario_from_dict(data: dict[str, Any], *, source: str = "<dict>",
             if not isinstance(value, str):
                 raise ScenarioError(key, f"must be a string, got {value!r}")
             kwargs[key] = value
-        elif key in _SECTIONS:
-            kwargs[key] = _section(_SECTIONS[key], value, key, base=getattr(sc, key))
+        elif key in SECTIONS:
+            kwargs[key] = _section(SECTIONS[key], value, key, base=getattr(sc, key))
         elif key == "path":
             kwargs[key] = _path_section(value, sc.path)
         else:
-            known = ", ".join(["name", "description", "path", *_SECTIONS])
+            known = ", ".join(["name", "description", "path", *SECTIONS])
             raise ScenarioError(key, f"unknown section (known: {known})")
     return dataclasses.replace(sc, **kwargs)
 

@@ -17,7 +17,7 @@ from hypothesis import strategies as st
 from tfl_mav.accel import native
 from tfl_mav.accel.native import NativeError
 
-pytestmark = pytest.mark.skipif(native._compiler() is None and not native.compiler_expected(),
+pytestmark = pytest.mark.skipif(native.compiler() is None and not native.compiler_expected(),
                                 reason="no C compiler, and none expected on this platform")
 
 N_ROTORS = 4
@@ -225,15 +225,15 @@ def test_a_kept_lowering_is_used_until_a_constant_it_folded_in_changes(tmp_path,
     """native.lowered keeps a lowering on disk; it is taken while the functions' files and
     the module constants it read are as they were, and lowered afresh once one changes."""
     monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path))
-    monkeypatch.setattr(native, "_lowered", {})
+    native.forget()             # as a new process: nothing lowered in memory
     first = native.lowered(natural, _EXAMPLE)
     (kept,) = tmp_path.glob("_tflf_*.json")
     entry = json.loads(kept.read_text())
     assert [__name__, "GAIN", "0.75"] in entry["constants"]
     kept.write_text(json.dumps({**entry, "source": "marker"}))
-    monkeypatch.setattr(native, "_lowered", {})
+    native.forget()
     assert native.lowered(natural, _EXAMPLE) == "marker"        # the kept one
     monkeypatch.setattr(sys.modules[__name__], "GAIN", 0.5)
-    monkeypatch.setattr(native, "_lowered", {})
+    native.forget()
     again = native.lowered(natural, _EXAMPLE)
     assert again != first and "0.5" in again

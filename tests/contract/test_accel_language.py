@@ -16,9 +16,9 @@ from typing import NamedTuple
 import pytest
 
 from tfl_mav.accel import native
-from tfl_mav.accel.lowering_values import _INTRINSICS
+from tfl_mav.accel.lowering_values import INTRINSICS
 
-pytestmark = pytest.mark.skipif(native._compiler() is None and not native.compiler_expected(),
+pytestmark = pytest.mark.skipif(native.compiler() is None and not native.compiler_expected(),
                                 reason="no C compiler, and none expected on this platform")
 
 
@@ -134,7 +134,7 @@ def test_the_lowered_source_runs_as_python_with_the_same_results():
     """The front end's output is Python (its annotations say the kinds and classes):
     run with the intrinsics it names, it is the function, before any C."""
     example = (Memory(0, False, 0, 0.0), Reading(1, (0.0,) * 4, True), 0.0)
-    namespace = {name: fn for fn, name in _INTRINSICS.items()} | {
+    namespace = {name: fn for fn, name in INTRINSICS.items()} | {
         "_inf": math.inf, "_nan": math.nan, "_int": int,
         "_index": lambda k, *items: items[k]}
     exec(compile(native.lower(language, example), "<lowered>", "exec"), namespace)

@@ -17,9 +17,9 @@ import pytest
 
 from tfl_mav.control.path.compiled import (
     CompiledPathTracker,
-    _pi_kernel,
     compile_path,
     make_tracker,
+    pi_kernel,
 )
 from tfl_mav.control.path.jets import Jet, cos
 from tfl_mav.control.path.paths import Path, PathTracker, build_path
@@ -188,7 +188,7 @@ def test_inlined_kernels_equal_one_line_per_operation(name):
     path = build_path(kind, params)
     fast, plain = compile_path(path), compile_path(path, inline=False)
     assert fast.s4.source.count("\n") < plain.s4.source.count("\n")
-    pi_fast, pi_plain = _pi_kernel().fn, _pi_kernel(inline=False).fn
+    pi_fast, pi_plain = pi_kernel().fn, pi_kernel(inline=False).fn
     rng = random.Random(3)
     for _ in range(50):
         lam = rng.uniform(*path.lam_range)

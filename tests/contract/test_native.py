@@ -28,6 +28,7 @@ from tests.golden.test_golden import _LOCKSTEP, _OFFLINE
 from tfl_mav.accel import native
 from tfl_mav.control.path.kernelgen import compile_source
 from tfl_mav.control.path.paths import build_path
+from tfl_mav.control.tfl import step
 from tfl_mav.control.tfl.tfl_controller import TFLController
 from tfl_mav.from_scenario import law_config, model_params
 from tfl_mav.model.state import State
@@ -44,7 +45,7 @@ from tfl_mav.tools.harness.golden import (
 # Where a compiler is expected (Linux: CI and every user machine we build for, or
 # TFL_MAV_EXPECT_COMPILER=1), a missing one fails these contract tests instead of skipping
 # them, so "compiled = Python, bit for bit" is never silently untested.
-pytestmark = pytest.mark.skipif(native._compiler() is None and not native.compiler_expected(),
+pytestmark = pytest.mark.skipif(native.compiler() is None and not native.compiler_expected(),
                                 reason="no C compiler, and none expected on this platform")
 
 # One function holding every operation the translation knows, chosen by k: one build.
@@ -259,17 +260,16 @@ def test_the_lowered_step_run_as_python_is_the_step(monkeypatch):
     scalar-replaced), run as Python with no C at all, gives the step's bits: the lowering
     itself is exact, before the translation to C."""
     from tfl_mav.accel import frontend
-    from tfl_mav.accel.lowering_values import _INTRINSICS
+    from tfl_mav.accel.lowering_values import INTRINSICS
 
     monkeypatch.setenv("TFL_MAV_NATIVE", "off")
     law = _controllers(build_path("paper", {}))
-    example = (law.params, law.state, law._inputs((0.0,) * 3, (0.0,) * 3, (1.0, 0.0, 0.0, 0.0),
-                                                  (0.0,) * 3, *law._free, 0.0, False, False),
-               law._kernels)
-    namespace = {name: fn for fn, name in _INTRINSICS.items()} | {
+    example = law.step_arguments(State((0.0,) * 3, (0.0,) * 3, (1.0, 0.0, 0.0, 0.0), (0.0,) * 3))
+    namespace = {name: fn for fn, name in INTRINSICS.items()} | {
         "_inf": math.inf, "_nan": math.nan, "_int": int,
         "_index": lambda k, *items: items[k]}     # the rotor permutation's variable index
-    exec(compile(frontend.lower(law._step, example), "<lowered tfl_step>", "exec"), namespace)
+    exec(compile(frontend.lower(step.tfl_step, example), "<lowered tfl_step>", "exec"),
+         namespace)
     lowered = namespace["tfl_step"]
     rng = random.Random(11)
     for trial in range(30):
@@ -277,11 +277,9 @@ def test_the_lowered_step_run_as_python_is_the_step(monkeypatch):
         law.set_attack(rotor, 1.0 if rotor else 0.0)
         st = _random_state(rng, PATHS["paper"][2])
         for _ in range(3):
-            u = law._inputs(tuple(st.position_m), tuple(st.velocity_mps),
-                            tuple(st.quaternion_wxyz), tuple(st.body_rates_radps), *law._free,
-                            0.3, True, False)
-            want = law._step(law.params, law.state, u, law._kernels)
-            got = lowered(law.params, law.state, u, law._kernels)
+            args = law.step_arguments(st, 0.3, True, False)
+            want = step.tfl_step(*args)
+            got = lowered(*args)
             assert [_bits(float(x)) for x in _leaves(got)] == \
                 [_bits(float(x)) for x in _leaves(want)]
             law.update(st)
@@ -306,22 +304,22 @@ def test_auto_switches_to_the_compiled_core_mid_flight_without_changing_a_bit(
     """A cold cache: the controller flies the Python core while the compiler runs in the
     background, then switches; the outputs are those of a Python-only controller."""
     monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path / "cold"))
-    monkeypatch.setattr(native, "_loaded", {})      # as a new process: nothing loaded yet
+    native.forget()                                 # as a new process: nothing loaded yet
     path = build_path("paper", {})
     monkeypatch.setenv("TFL_MAV_NATIVE", "off")
     py = _controllers(path)
     monkeypatch.setenv("TFL_MAV_NATIVE", "auto")
     c = _controllers(path)
-    assert c._core is None
+    assert c.core == "python"
     rng = random.Random(3)
     st = _random_state(rng, PATHS["paper"][2])
     deadline = time.monotonic() + 120.0     # a compile of ~1 s, on a loaded 2-core box
     ticks_before = 0
-    while c._core is None and time.monotonic() < deadline:
+    while c.core == "python" and time.monotonic() < deadline:
         assert repr(py.update(st)) == repr(c.update(st))
         ticks_before += 1
         time.sleep(0.001)
-    assert c._core is not None, "the background build never completed"
+    assert c.core == "compiled", "the background build never completed"
     assert ticks_before > 0
     for _ in range(50):
         assert repr(py.update(st)) == repr(c.update(st))
@@ -330,15 +328,14 @@ def test_auto_switches_to_the_compiled_core_mid_flight_without_changing_a_bit(
 def test_no_compiler_leaves_the_python_core_flying_with_one_warning(monkeypatch, caplog,
                                                                     tmp_path):
     monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path / "empty"))
-    monkeypatch.setattr(native, "_loaded", {})
+    native.forget()                                 # as a new process: nothing warned yet
     monkeypatch.setenv("CC", str(tmp_path / "no-such-cc"))
     monkeypatch.setenv("TFL_MAV_NATIVE", "sync")
-    monkeypatch.setattr(native, "_warned", set())
     path = build_path("paper", {})
     with caplog.at_level(logging.WARNING, logger="tfl_mav.accel.native"):
         a = _controllers(path)
         b = _controllers(path)
-    assert a._core is None and b._core is None and a.core == "python"
+    assert a.core == b.core == "python"
     warnings = [r for r in caplog.records if "no C compiler" in r.getMessage()]
     assert len(warnings) == 1
 
@@ -400,7 +397,7 @@ _AIRFRAME = st.builds(
 
 @pytest.fixture(scope="module")
 def rk4_core():
-    return native.build_function(rk4_step, physics._EXAMPLE)
+    return native.build_function(rk4_step, physics.RK4_STEP_EXAMPLE)
 
 
 @settings(max_examples=500, deadline=None)
@@ -435,8 +432,8 @@ def test_the_simulators_rk4_step_flies_compiled_and_python_decides_otherwise(mon
         p = RigidBodyParams(mass_kg=mass, inertia_kgm2=inertia, k_t=0.05, k_r=0.00275,
                             gravity_mps2=9.81, arm_m=0.2656, drag_thrust_ratio_m=0.02)
         py, c = rk4_stepper(p, compiled=False), rk4_stepper(p)
-        assert physics._compiled["core"] is not None
-        cores.add(id(physics._compiled["core"]))
+        assert physics.compiled_rk4_step() is not None
+        cores.add(id(physics.compiled_rk4_step()))
         for _ in range(2000):
             x = [rng.uniform(-5, 5) for _ in range(13)]
             w = (rng.uniform(0, 30), rng.gauss(0, 1), rng.gauss(0, 1), rng.gauss(0, 0.1))
@@ -460,12 +457,12 @@ def test_one_build_per_source_and_a_cache_that_cannot_be_written(tmp_path, monke
     core; a cache directory that cannot be created is a warning, not an error."""
     monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(tmp_path / "cold"))
     monkeypatch.setenv("TFL_MAV_NATIVE", "auto")
-    monkeypatch.setattr(native, "_loaded", {})
+    native.forget()
     got: list = []
     source = _LOOP_SOURCE.replace("loop", "loop_once")
     for _ in range(5):
         assert native.obtain(source, got.append) is None
-    assert len(native._waiting[native._paths(source)[0]]) == 5
+    assert native.waiting(source) == 5
     deadline = time.monotonic() + 120.0
     while len(got) < 5 and time.monotonic() < deadline:
         time.sleep(0.05)
@@ -486,7 +483,7 @@ def test_a_build_left_behind_by_an_exited_process_is_swept(tmp_path, monkeypatch
     cache = tmp_path / "kernels"
     cache.mkdir()
     monkeypatch.setenv("TFL_MAV_KERNEL_CACHE", str(cache))
-    monkeypatch.setattr(native, "_loaded", {})
+    native.forget()
     old, fresh = cache / ".build-old", cache / ".build-fresh"
     for d in (old, fresh):
         d.mkdir()
@@ -633,7 +630,7 @@ def test_safe_law_attacked_tick_compiled_is_the_python_tick(held, monkeypatch):
         return FlightComputer(load_scenario("paper")).recovery
 
     py, c = law("off"), law("sync")
-    assert py._tick_c is None and c._tick_c is not None
+    assert py.core == "python" and c.core == "compiled"
     rng = random.Random(3)
     for trial in range(600):
         if trial % 50 == 0:
@@ -667,5 +664,5 @@ def test_safe_law_attacked_tick_compiled_is_the_python_tick(held, monkeypatch):
 def test_a_compiler_is_there_where_one_is_expected():
     """On Linux the compiled cores are part of the product: no compiler is a failure."""
     if native.compiler_expected():
-        assert native._compiler() is not None, \
+        assert native.compiler() is not None, \
             "no C compiler (cc or $CC) with Python's headers: install gcc and python3-dev"

@@ -188,10 +188,10 @@ class _Syscalls(io.RawIOBase):
 
 def test_mcap_file_writes_reach_the_kernel_in_bounded_pieces() -> None:
     # a finished chunk is ~0.3 MB; the kernel must see it in pieces (mcapout's docstring)
-    from tfl_mav.flightlog.mcapout import WRITE_PIECE_BYTES, _File
+    from tfl_mav.flightlog.mcapout import WRITE_PIECE_BYTES, PiecewiseFile
 
     raw = _Syscalls()
-    f = _File(io.BufferedWriter(raw, buffer_size=8192), lambda exc: None)
+    f = PiecewiseFile(io.BufferedWriter(raw, buffer_size=8192), lambda exc: None)
     rng = random.Random(7)
     parts = [rng.randbytes(n) for n in (5, 300_000, WRITE_PIECE_BYTES, 1, 70_001, 0, 9000)]
     parts.append(memoryview(bytearray(rng.randbytes(4 * 20_000))).cast("I"))   # non-byte view

@@ -17,7 +17,7 @@ import pytest
 from tests.contract.test_compiled import PATHS, _normwise
 from tfl_mav.control.path.paths import build_path
 from tfl_mav.control.tfl import step
-from tfl_mav.control.tfl.tfl_controller import TFLController, as_state
+from tfl_mav.control.tfl.tfl_controller import TFLController
 from tfl_mav.from_scenario import law_config, model_params
 from tfl_mav.model.modes import Mode
 from tfl_mav.model.state import State
@@ -130,11 +130,11 @@ def test_the_step_is_pure():
     rng = random.Random(2)
     for _ in range(5):
         law.update(random_state(rng, y0))
-    s = as_state(law.state)
-    u = step.TFLInputs((2.5, 0.2, 4.5), (0.1, 0.2, 0.0), (1.0, 0.0, 0.0, 0.0), (0.1, 0.2, 9.0),
-                       law._frame, 1.2, *law._free, 0.0, False, False)
+    params, s, u, kernels = law.step_arguments(State((2.5, 0.2, 4.5), (0.1, 0.2, 0.0),
+                                                     (1.0, 0.0, 0.0, 0.0), (0.1, 0.2, 9.0)))
+    assert u.attack_n == 1.2 and kernels is not None
     before = repr(s)
-    first = law._step(law.params, s, u, law._kernels)
-    second = law._step(law.params, s, u, law._kernels)
+    first = step.tfl_step(params, s, u, kernels)
+    second = step.tfl_step(params, s, u, kernels)
     assert repr(first) == repr(second) and repr(s) == before
     assert all(isinstance(x, tuple) for x in (s.mass, s.dob, s.path, s.pred, s.last_out))

@@ -16,7 +16,7 @@ import pytest
 
 from tfl_mav.flightlog.child_priority import NICE_INCREMENT, can_promote
 from tfl_mav.flightlog.logread import raw_frames
-from tfl_mav.flightlog.recorder_process import _BEHIND_S, RecorderProcess
+from tfl_mav.flightlog.recorder_process import BEHIND_S, RecorderProcess
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "SCHED_IDLE"), reason="Linux scheduling")
 
@@ -35,7 +35,7 @@ def _expected_nice() -> int:
 
 def test_lockstep_child_is_idle_on_every_thread_and_niced(tmp_path: Path) -> None:
     with RecorderProcess(tmp_path / "a.mcap") as rec:
-        pid = rec._proc.pid
+        pid = rec.pid
         assert len(_threads(pid)) >= 2        # the child's recorder has its flush thread
         assert os.getpriority(os.PRIO_PROCESS, pid) == _expected_nice()
         if can_promote(_expected_nice()):
@@ -50,7 +50,7 @@ def test_lockstep_child_is_idle_on_every_thread_and_niced(tmp_path: Path) -> Non
 def test_realtime_child_is_only_niced(tmp_path: Path) -> None:
     # in real time a starved child drops records: it must never be idle
     with RecorderProcess(tmp_path / "a.mcap", realtime=True) as rec:
-        pid = rec._proc.pid
+        pid = rec.pid
         assert not rec.priority.idle
         assert _policies(pid) == {os.SCHED_OTHER}
         assert os.getpriority(os.PRIO_PROCESS, pid) == _expected_nice()
@@ -63,7 +63,7 @@ def test_a_child_that_gets_no_cpu_is_promoted_and_loses_nothing(tmp_path: Path) 
                     "CAP_SYS_NICE): the child is never made idle")
     path = tmp_path / "starved.mcap"
     rec = RecorderProcess(path, batch_s=0.005)
-    pid = rec._proc.pid
+    pid = rec.pid
     assert rec.priority.idle
     os.kill(pid, signal.SIGSTOP)
     try:
@@ -73,12 +73,12 @@ def test_a_child_that_gets_no_cpu_is_promoted_and_loses_nothing(tmp_path: Path) 
         for i in range(n):           # distinct frames (pickle would send one shared copy)
             rec.on_frame("rx", i.to_bytes(2, "big") * 500, None, float(i))
         t0 = time.monotonic()
-        while rec.priority.idle and time.monotonic() - t0 < 30 * _BEHIND_S:
+        while rec.priority.idle and time.monotonic() - t0 < 30 * BEHIND_S:
             time.sleep(0.01)
         waited = time.monotonic() - t0
         assert not rec.priority.idle, "still idle after its sends waited 30x the threshold"
         assert rec.priority.promoted
-        assert waited >= _BEHIND_S * 0.5      # not at the first full pipe
+        assert waited >= BEHIND_S * 0.5      # not at the first full pipe
         assert _policies(pid) == {os.SCHED_OTHER}
         assert os.getpriority(os.PRIO_PROCESS, pid) == _expected_nice()
     finally:
@@ -96,7 +96,7 @@ def test_env_switch_keeps_a_lockstep_child_niced_only(tmp_path: Path,
     monkeypatch.setenv("TFL_MAV_RECORDER_IDLE", "0")
     with RecorderProcess(tmp_path / "a.mcap") as rec:
         assert not rec.priority.idle
-        assert _policies(rec._proc.pid) == {os.SCHED_OTHER}
+        assert _policies(rec.pid) == {os.SCHED_OTHER}
 
 
 def test_env_switch_bad_value_warns_and_keeps_the_default(

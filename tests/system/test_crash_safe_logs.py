@@ -219,7 +219,7 @@ def test_a_killed_recorder_child_is_said_at_once_and_its_file_repaired(tmp_path)
             k += 1
         time.sleep(0.002)
     t_kill, sim_at_kill = time.monotonic(), k * 1e-3
-    os.kill(rec._proc.pid, signal.SIGKILL)
+    os.kill(rec.pid, signal.SIGKILL)
     while time.monotonic() - t_kill < 1.5:  # the flight goes on
         rec.truth(k * 1e-3, [0.0, 0.0, 5.0], [0.0] * 3, [1.0, 0.0, 0.0, 0.0], [0.0] * 3,
                   [2.7] * 4, 0, 0.0, 0.0)

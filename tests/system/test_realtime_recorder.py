@@ -52,12 +52,12 @@ def test_starting_recorder_keeps_what_came_before_the_child_was_up(tmp_path):
         call(k)
     deadline = time.monotonic() + 60
     k = 3000
-    while not rec._direct and time.monotonic() < deadline:   # calls keep coming meanwhile
+    while not rec.direct and time.monotonic() < deadline:   # calls keep coming meanwhile
         call(k)
         k += 1
         time.sleep(0.0005)
     rec.close()
-    assert rec.error is None and rec._direct
+    assert rec.error is None and rec.direct
     got = _controller_messages(path)
     assert [m["path_distance_m"] for _t, m in got] == [pytest.approx(0.001 * j)
                                                        for j in range(k)]
@@ -88,10 +88,10 @@ def test_an_attached_link_is_recorded_before_and_after_the_child_is_up(tmp_path)
         rec.attach(link)
         sent = 0
         deadline = time.monotonic() + 60
-        while not rec._direct and time.monotonic() < deadline:
+        while not rec.direct and time.monotonic() < deadline:
             sent += link.send_raw(b"\xfdbefore") > 0
             time.sleep(0.001)
-        assert rec._direct and link.on_frame == rec._rec.on_frame
+        assert rec.direct and link.on_frame == rec.recorder.on_frame
         for _ in range(10):
             sent += link.send_raw(b"\xfdafter") > 0
     finally:
@@ -107,7 +107,7 @@ def test_an_attached_link_is_recorded_before_and_after_the_child_is_up(tmp_path)
 def test_realtime_recorder_never_waits_for_a_frozen_child(tmp_path):
     path = tmp_path / "rt.mcap"
     rec = RecorderProcess(path, realtime=True, batch_max=512)
-    os.kill(rec._proc.pid, signal.SIGSTOP)
+    os.kill(rec.pid, signal.SIGSTOP)
     try:
         n = 200_000                             # far more than the pipe and the queue hold
         worst = 0.0
@@ -121,7 +121,7 @@ def test_realtime_recorder_never_waits_for_a_frozen_child(tmp_path):
         assert worst < 0.5
         assert rec.stats.dropped > 0
     finally:
-        os.kill(rec._proc.pid, signal.SIGCONT)
+        os.kill(rec.pid, signal.SIGCONT)
     rec.close()
     assert rec.error is None
     kept = _controller_messages(path)

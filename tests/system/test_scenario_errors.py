@@ -18,10 +18,10 @@ from typing import Any
 
 import pytest
 
-from tfl_mav.control.path.paths import _KNOWN_KEYS
+from tfl_mav.control.path.paths import KNOWN_KEYS
 from tfl_mav.from_scenario import scenario_path
 from tfl_mav.scenario import (
-    _SECTIONS,
+    SECTIONS,
     Scenario,
     ScenarioError,
     load_scenario,
@@ -49,7 +49,7 @@ def _kind(f: dataclasses.Field) -> str:
 
 
 def _fields() -> list[tuple[str, str, dataclasses.Field]]:
-    return [(sec, f.name, f) for sec, cls in _SECTIONS.items() for f in dataclasses.fields(cls)]
+    return [(sec, f.name, f) for sec, cls in SECTIONS.items() for f in dataclasses.fields(cls)]
 
 
 def _bad_values(f: dataclasses.Field) -> list[tuple[str, Any]]:
@@ -129,7 +129,7 @@ def test_every_float_field_is_bounded_or_declared_free(section: str, name: str,
         f"{section}.{name}: declare lo/hi in its _f(...) or add it to ANY_FINITE")
 
 
-@pytest.mark.parametrize("section", sorted(_SECTIONS))
+@pytest.mark.parametrize("section", sorted(SECTIONS))
 def test_unknown_key_and_non_table_name_the_section(section: str) -> None:
     with pytest.raises(ScenarioError) as info:
         scenario_from_dict({section: {"no_such_key": 1}})
@@ -182,7 +182,7 @@ _FREE_SIGN = {"t_range"}
 
 def _path_cases() -> list[Any]:
     out = []
-    for kind, keys in _KNOWN_KEYS.items():
+    for kind, keys in KNOWN_KEYS.items():
         for key in sorted(keys):
             for label, value in _PATH_BAD:
                 if label == "negative" and (key in _VECTOR_OK or key in _FREE_SIGN

@@ -261,7 +261,7 @@ def test_the_daemons_tuple_path_is_the_attribute_path(pos, q, twist, frames):
     """What the daemon does with the link's ODOMETRY (its tuple's first 16 items to
     paper_from_odometry_fields) is what paper_from_odometry makes of pymavlink's message:
     the same State to the bit, or the same error."""
-    from tfl_mav.controller.daemon_intake import _ODOMETRY_FIELDS, _RxOdometry
+    from tfl_mav.controller.daemon_intake import ODOMETRY_FIELDS, RxOdometry
     from tfl_mav.link.transport import Link
     from tfl_mav.model.frames import paper_from_odometry_fields
 
@@ -274,14 +274,14 @@ def test_the_daemons_tuple_path_is_the_attribute_path(pos, q, twist, frames):
         got: list = []
         link.receiver.ingest(raw, ("127.0.0.1", 9), got)
     (lite,) = got
-    assert type(lite) is _RxOdometry
+    assert type(lite) is RxOdometry
     assert lite.pose_covariance == [0.5] * 21 and lite.velocity_covariance == [0.25] * 21
     try:
         expected = paper_from_odometry(full)
     except ValueError as exc:
         with pytest.raises(ValueError) as caught:
-            paper_from_odometry_fields(*lite[:_ODOMETRY_FIELDS])
+            paper_from_odometry_fields(*lite[:ODOMETRY_FIELDS])
         assert str(caught.value) == str(exc)
         return
-    state = paper_from_odometry_fields(*lite[:_ODOMETRY_FIELDS])
+    state = paper_from_odometry_fields(*lite[:ODOMETRY_FIELDS])
     assert repr(state) == repr(expected)

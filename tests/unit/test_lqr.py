@@ -109,14 +109,14 @@ def test_the_law_uses_the_scipy_equal_gains():
     law.hold((0.0, 0.0, 5.0))
     law.update(State((0.0, 0.0, 5.0), (0.0, 0.0, 0.0), (1.0, 0.0, 0.0, 0.0), (0.1, 0.0, 40.0)),
                2, 0.1)
-    # Lazy: the gains of the block around r = 40 rad/s (step 80) were designed on first use.
-    designed = {key: g for key, g in law._gains.items() if key[0] == 80}
-    assert designed
+    # Lazy: the gains of the block around r = 40 rad/s were designed on first use; the
+    # rates of that block and the block's edges, in either canonical inertia order.
     ix, iy = MP.inertia_kgm2[:2]
-    for (key, ixgt), gains in designed.items():
-        ixc, iyc = (ix, iy) if ixgt == (ix > iy) else (iy, ix)
-        k_ref, _ = _scipy_gain(*_model(key / 2.0, ixc, iyc), 0.001)
-        assert np.max(np.abs(np.array(gains) - k_ref)) <= 1e-10 * np.max(np.abs(k_ref))
+    for r in (32.0, 39.5, 40.0, 40.5, 47.5):
+        for ixc, iyc in ((ix, iy), (iy, ix)):
+            gains = law.spin_gains(r, ixc, iyc)
+            k_ref, _ = _scipy_gain(*_model(r, ixc, iyc), 0.001)
+            assert np.max(np.abs(np.array(gains) - k_ref)) <= 1e-10 * np.max(np.abs(k_ref))
 
 
 @pytest.mark.parametrize("inertia", [MP.inertia_kgm2, (0.0030, 0.0022, 0.0015)])
@@ -124,8 +124,7 @@ def test_the_schedule_designed_at_once_is_the_gains_one_at_a_time(inertia):
     """The whole schedule (stacked numpy calls before the flight), the blocks a lazy law
     designs when first meeting a spin rate, and a gain designed alone are the very same
     gains, bit for bit (every 7th step of each inertia order, and both ends)."""
-    recovery._SCHEDULES.clear()
-    recovery._PARTIAL.clear()
+    recovery.forget_gain_schedules()     # the lazy law designs its blocks afresh
     lazy = RecoveryLaw(MP.mass_kg, inertia, MP.arm_m, MP.drag_thrust_ratio_m, MP.k_t,
                        MP.k_r, MP.thrust_max_n, MP.gravity_mps2, 0.001, None, 0.5,
                        design_gains=False)
@@ -133,11 +132,11 @@ def test_the_schedule_designed_at_once_is_the_gains_one_at_a_time(inertia):
     ix, iy = inertia[:2]
     orders = {(ix, iy), (iy, ix)}
     keys = [(k, ixc, iyc) for ixc, iyc in orders for k in [*range(-top, top + 1, 7), top]]
-    from_blocks = {(k, ixc > iyc): lazy._lqr(k / 2.0, ixc, iyc) for k, ixc, iyc in keys}
+    from_blocks = {(k, ixc > iyc): lazy.spin_gains(k / 2.0, ixc, iyc) for k, ixc, iyc in keys}
     sched = recovery.gain_schedule(inertia, MP.k_r, 0.001)
     assert len(sched) == len(orders) * (2 * top + 1)
     for k, ixc, iyc in keys:
-        alone = lqr.dlqr(*lqr.zoh(*recovery._spin_model(k / 2.0, ixc, iyc, inertia[2], MP.k_r),
+        alone = lqr.dlqr(*lqr.zoh(*recovery.spin_model(k / 2.0, ixc, iyc, inertia[2], MP.k_r),
                                   0.001), np.diag(LQR_Q), np.diag(LQR_R))
         gains = (tuple(alone[0].tolist()), tuple(alone[1].tolist()))
         assert from_blocks[(k, ixc > iyc)] == sched[(k, ixc > iyc)] == gains

@@ -1,5 +1,8 @@
 """No object reads another's private state: an underscore attribute is read through ``self``
-or ``cls`` only, in every module of the three directories (tfl_mav/, sitl/, tools/).
+or ``cls`` only, in every module of the three directories (tfl_mav/, sitl/, tools/) and in
+every test (which, besides, imports no private name of the project and names no private
+attribute in a string: ``monkeypatch.setattr(native, "_loaded", ...)`` is a write all the
+same).
 
 What another object offers is its public, documented attributes and methods; ``x._name``
 with ``x`` anything else is a reach into state its owner may change without telling anyone.
@@ -55,6 +58,63 @@ def private_reads(source: str) -> list[str]:
 def test_no_module_reads_another_objects_private_state(path: Path) -> None:
     found = private_reads(path.read_text())
     assert not found, f"{path.relative_to(REPO)} reads private state: {'; '.join(found)}"
+
+
+def private_imports(source: str) -> list[str]:
+    """``line: module.name`` of every underscore name imported from the project."""
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        if isinstance(node, ast.ImportFrom) and (node.module or "").split(".")[0] == "tfl_mav":
+            out += [f"{node.lineno}: {node.module}.{a.name}" for a in node.names
+                    if a.name.startswith("_") and not a.name.startswith("__")]
+    return out
+
+
+def private_by_name(source: str) -> list[str]:
+    """``line: call`` of every ``getattr``/``setattr``/``hasattr``/``delattr`` (and
+    ``monkeypatch.setattr``/``delattr``) of an underscore name given as a string."""
+    out = []
+    for node in ast.walk(ast.parse(source)):
+        if not (isinstance(node, ast.Call) and len(node.args) >= 2):
+            continue
+        fn = node.func
+        name = fn.id if isinstance(fn, ast.Name) else fn.attr if isinstance(
+            fn, ast.Attribute) else ""
+        attr = node.args[1]
+        if name in ("getattr", "setattr", "hasattr", "delattr") \
+                and isinstance(attr, ast.Constant) and isinstance(attr.value, str) \
+                and attr.value.startswith("_") and not attr.value.startswith("__") \
+                and attr.value not in NAMEDTUPLE_API:
+            out.append(f"{node.lineno}: {ast.unparse(node)}")
+    return out
+
+
+# The tests hold the same rule, and import no private name of the project either: a test
+# asks an object what a user could ask, so it fails when the behaviour breaks, not when a
+# name inside it is changed. (The suite's own helpers, ``tests.…``, are not the project's.)
+TESTS = sorted((REPO / "tests").rglob("*.py"))
+
+
+@pytest.mark.parametrize("path", TESTS, ids=lambda p: str(p.relative_to(REPO)))
+def test_no_test_reaches_into_the_projects_private_state(path: Path) -> None:
+    source = path.read_text()
+    found = private_reads(source) + private_imports(source) + private_by_name(source)
+    assert not found, f"{path.relative_to(REPO)} reaches into private state: {'; '.join(found)}"
+
+
+def test_a_private_import_is_seen() -> None:
+    src = ("from tfl_mav.flightlog.metrics import _median, median\n"
+           "from tests.contract.test_accel import _bits\n"
+           "from argparse import _SubParsersAction\n")
+    assert [f.split(": ")[1] for f in private_imports(src)] == ["tfl_mav.flightlog.metrics._median"]
+
+
+def test_a_private_name_given_as_a_string_is_seen() -> None:
+    src = ("monkeypatch.setattr(native, '_loaded', {})\n"
+           "ok = hasattr(sim, '_rk4_air') or getattr(t, '_fields', None) or getattr(t, 'x')\n"
+           "monkeypatch.setattr(native, 'mode', lambda: 'off')\n")
+    assert [f.split(": ")[1] for f in private_by_name(src)] == [
+        "monkeypatch.setattr(native, '_loaded', {})", "hasattr(sim, '_rk4_air')"]
 
 
 def test_a_reach_into_another_object_is_seen() -> None:

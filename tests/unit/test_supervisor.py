@@ -181,3 +181,66 @@ def test_the_spin_ends_only_where_the_safe_law_can_hand_on_to_tfl(p):
     s, d = fly(p, s, pinned._replace(attack_n=half - p.a_handback_n - 0.05),
                p.spin_hold_s + 0.01)
     assert s.law == Law.LOST_ROTOR and (Law.LOST_ROTOR, Why.RELENTED, Start.SAFE_PATH) in d
+
+
+def _due(p):
+    """A safe law flying with the hand-back conditions met for all but the last tick."""
+    s, _ = fly(p, initial_state(), inputs(a=0.0, opposite=0.0), 0.3)
+    assert s.law == Law.LOST_ROTOR
+    while s.good_s + DT < p.handback_s:
+        s, d = supervise(p, s, inputs(a=1.0, flew=False))
+        assert d[1] == Why.STAY
+    assert s.law == Law.LOST_ROTOR and s.good_s > 0.4
+    return s
+
+
+def test_a_hand_back_waits_while_tfl_would_make_it_worse_and_the_wait_pays(p):
+    """1 mm off, TFL predicted to peak at 3 mm: the safe law keeps it while the prediction
+    falls (the state it hands on gets better), and hands it back once TFL's peak is within
+    max(ratio × d, d + excess) of the distance now."""
+    s = _due(p)
+    d = 1e-3
+    back_at = None
+    for k in range(400):
+        peak = 3e-3 - 1e-5 * k          # falling by 10 µm a tick
+        s, dec = supervise(p, s, inputs(a=1.0, flew=False, safe_distance=d)._replace(
+            tfl_peak_m=peak))
+        if dec[1] == Why.HANDBACK:
+            back_at = peak
+            break
+        assert s.law == Law.LOST_ROTOR
+    assert back_at is not None and back_at <= max(p.peak_ratio * d, d + p.peak_excess_m)
+    assert back_at > max(p.peak_ratio * d, d + p.peak_excess_m) - 2e-5
+
+
+def test_a_hand_back_does_not_wait_when_waiting_makes_it_worse(p):
+    """A prediction that rises tick to tick: the safe law's state is getting worse for TFL,
+    so the hand-back happens on the next tick, not at the end of the wait."""
+    s = _due(p)
+    s, dec = supervise(p, s, inputs(a=1.0, flew=False)._replace(tfl_peak_m=3e-3))
+    assert dec[1] == Why.STAY and s.peak_m == 3e-3
+    s, dec = supervise(p, s, inputs(a=1.0, flew=False)._replace(tfl_peak_m=3.1e-3))
+    assert dec == (Law.TFL, Why.HANDBACK, Start.TFL_RESUME)
+
+
+def test_the_wait_for_a_better_hand_back_is_bounded(p):
+    s = _due(p)
+    ticks = 0
+    for k in range(round(2.0 / DT)):
+        s, dec = supervise(p, s, inputs(a=1.0, flew=False)._replace(
+            tfl_peak_m=0.5 - 1e-6 * k))       # far above d, falling slowly
+        ticks += 1
+        if dec[1] == Why.HANDBACK:
+            break
+    assert s.law == Law.TFL
+    assert ticks * DT == pytest.approx(p.peak_wait_s, abs=3 * DT)
+
+
+def test_an_unpredicted_hand_back_is_not_held(p):
+    """No prediction (NaN: TFL found no answer from this state, or none was asked): the
+    hand-back comes after ``handback_s`` as it would without one."""
+    s = _due(p)
+    s, ds = fly(p, s, inputs(a=1.0, flew=False), 4 * DT)
+    assert s.law == Law.TFL
+    assert [d[1] for d in ds].count(Why.HANDBACK) == 1
+    assert ds.index((Law.TFL, Why.HANDBACK, Start.TFL_RESUME)) == 0

@@ -10,7 +10,7 @@ from typing import Any
 from tfl_mav.accel.ctranslate import NativeError
 from tfl_mav.accel.lowering_values import (
     _INT_OPS,
-    _INTRINSICS,
+    INTRINSICS,
     Frame,
     Rest,
     Tup,
@@ -362,7 +362,7 @@ class Lowerer:
         in (what the callee then calls)."""
         v = self.expr(f, e, cond)
         if isinstance(v, _Ref) and not (isinstance(v.obj, types.FunctionType)
-                                        or v.obj in _INTRINSICS):
+                                        or v.obj in INTRINSICS):
             raise NativeError(f"{ast.unparse(e)!r} is {v.obj!r}, not a number or tuple")
         return v
 
@@ -443,7 +443,7 @@ class Lowerer:
         if obj in (tuple, list) and len(e.args) == 1:
             return Tup(list(self.tup(f, e.args[0], cond).items))
         try:
-            name = _INTRINSICS.get(obj)
+            name = INTRINSICS.get(obj)
         except TypeError:
             name = None
         if name is not None:

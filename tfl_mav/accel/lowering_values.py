@@ -21,11 +21,13 @@ from tfl_mav.accel.ctranslate import NativeError
 if TYPE_CHECKING:
     from tfl_mav.accel.lowering import Lowerer
 
-_INTRINSICS: dict[Any, str] = {
+#: The functions a lowered source calls as they are (C's math intrinsics in translation),
+#: each with the name it has there.
+INTRINSICS: dict[Any, str] = {
     getattr(math, n): f"_{n}" for n in ("sqrt", "sin", "cos", "tan", "atan", "acos", "tanh",
                                         "log", "exp", "pow", "atan2", "copysign", "hypot",
                                         "isfinite", "isnan", "asin", "remainder")}
-_INTRINSICS[abs] = "abs"
+INTRINSICS[abs] = "abs"
 _RESERVED = re.compile(r"_[itv]\d.*|.*__.*")     # the names lowering itself makes
 
 

@@ -62,8 +62,8 @@ from tfl_mav.accel.ctranslate import NativeError, translate
 from tfl_mav.accel.frontend import lower
 
 __all__ = ["NativeError", "build", "build_function", "c_source", "cache_dir", "compile_async",
-           "load_cached", "lower", "lowered", "mode", "obtain", "obtain_function",
-           "translate", "warn_once"]
+           "compiler", "forget", "load_cached", "lower", "lowered", "mode", "obtain",
+           "obtain_function", "translate", "waiting", "warn_once"]
 
 log = logging.getLogger(__name__)
 
@@ -103,7 +103,10 @@ def compiler_expected() -> bool:
     return sys.platform.startswith("linux")
 
 
-def _compiler() -> list[str] | None:
+def compiler() -> list[str] | None:
+    """The C compiler the seam builds with, as an argv (``$CC``, else the one Python was
+    built with, else ``cc``), or None when it is not on ``PATH``: the compiled cores then
+    stay off and the Python ones fly."""
     cc = os.environ.get("CC") or sysconfig.get_config_var("CC") or "cc"
     argv = shlex.split(cc)
     if not argv or shutil.which(argv[0]) is None:
@@ -198,7 +201,7 @@ def build(source: str, c_text: str | None = None) -> Core:
 
 def _compile(c_text: str, module: str, path: Path) -> None:
     """``cc`` ``c_text`` into the extension ``path`` (atomically: a temporary, then rename)."""
-    cc = _compiler()
+    cc = compiler()
     if cc is None:
         raise NativeError("no C compiler (set CC, or install gcc)")
     include = sysconfig.get_paths()["include"]
@@ -275,6 +278,26 @@ def warn_once(msg: str) -> None:
         _warned.add(msg)
         log.warning("the law's compiled core is not available (%s); the Python core flies "
                     "(the same numbers, slower)", msg)
+
+
+def waiting(source: str) -> int:
+    """How many asks (their ``ready`` callbacks) wait for ``source``'s background build in
+    this process: 0 when none is under way."""
+    with _lock:
+        return len(_waiting.get(_paths(source)[0], ()))
+
+
+def forget() -> None:
+    """Forget what this process has loaded, lowered, failed to build and warned about (the
+    cache directory keeps its builds and lowerings): the next ask is answered as in a new
+    process — from the cache, or a build. For a long-lived interpreter whose laws' module
+    constants changed (a lowering is kept in memory on the functions' files alone), and
+    for a test of what a fresh process does. Builds under way still call their askers."""
+    with _lock:
+        _loaded.clear()
+        _lowered.clear()
+        _failed.clear()
+        _warned.clear()
 
 
 def _work() -> None:

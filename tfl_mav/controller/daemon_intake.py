@@ -32,14 +32,19 @@ from tfl_mav.link.statustext import Reassembler
 from tfl_mav.model.frames import paper_from_odometry, paper_from_odometry_fields
 from tfl_mav.model.state import State
 
-__all__ = ["Intake"]
+__all__ = ["ODOMETRY_FIELDS", "Intake", "RxOdometry"]
 
 _ID_ODOMETRY = mav.MAVLINK_MSG_ID_ODOMETRY
 _ID_ACTUATOR_OUTPUT_STATUS = mav.MAVLINK_MSG_ID_ACTUATOR_OUTPUT_STATUS
 _ID_ESC_TELEMETRY_1_TO_4 = mav.MAVLINK_MSG_ID_ESC_TELEMETRY_1_TO_4
-_RxOdometry = rx_lite_class(_ID_ODOMETRY)
+#: The type of the ODOMETRY tuples the link hands the intake: read by position (the first
+#: :data:`ODOMETRY_FIELDS` items), not through pymavlink's message.
+RxOdometry = rx_lite_class(_ID_ODOMETRY)
 _RxEsc = rx_lite_class(_ID_ESC_TELEMETRY_1_TO_4)
-_ODOMETRY_FIELDS = 16     # time_usec, x, y, z, q[4], vx..vz, rates[3], frame_id, child_frame_id
+#: ODOMETRY's leading fields (in wire order: time_usec, x, y, z, q[4], vx..vz, rates[3],
+#: frame_id, child_frame_id) that ``paper_from_odometry_fields`` takes: the link's tuple's
+#: first items.
+ODOMETRY_FIELDS = 16
 _ESC_RPM = slice(0, 4)    # rpm[4]: the received tuple's only values (link.lite.LAZY_FIELDS)
 _from_fields = paper_from_odometry_fields
 
@@ -72,7 +77,7 @@ class Intake:
         self.handlers: dict[type, Callable[[Any], None]] = {
             # the per-tick messages, by the link's classes: the daemon's loop calls these
             # directly, everything else goes through handle()
-            _RxOdometry: self.on_odometry,
+            RxOdometry: self.on_odometry,
             rx_lite_class(_ID_ACTUATOR_OUTPUT_STATUS): self.on_applied,
             _RxEsc: self.on_esc}
 
@@ -127,8 +132,8 @@ class Intake:
     def on_odometry(self, msg: Any) -> None:
         self._pending_applied = None
         try:
-            if type(msg) is _RxOdometry:   # the link's tuple: fields in wire order
-                self._pending_state = _from_fields(*msg[:_ODOMETRY_FIELDS])
+            if type(msg) is RxOdometry:   # the link's tuple: fields in wire order
+                self._pending_state = _from_fields(*msg[:ODOMETRY_FIELDS])
             else:
                 self._pending_state = paper_from_odometry(msg)
         except ValueError as exc:

@@ -10,7 +10,7 @@ message (e.g. the path) first so it survives seeking, and turns the first write 
 a stopped recording instead of an exception (see :mod:`~tfl_mav.flightlog.recorder`).
 
 Every call into the SDK's writer is made under one lock: the SDK writes to our Python file
-object (:class:`_File`: write errors seen, writes in pieces) while holding its own lock, so
+object (:class:`PiecewiseFile`: write errors seen, writes in pieces) while holding its own lock, so
 a flush on the background thread and a ``log`` on the loop's thread, each waiting for what
 the other holds (the SDK's lock, the GIL), would deadlock.
 
@@ -71,7 +71,7 @@ process wait for the whole copy, even from a ``SCHED_IDLE`` child. In 32 KiB pie
 flight waits ≤ one piece."""
 
 
-class _File:
+class PiecewiseFile:
     """The binary file the SDK writes: writes reach the kernel in pieces of at most
     :data:`WRITE_PIECE_BYTES`, and the first failing write is kept in :attr:`error` (the
     SDK only logs it) and reported to ``on_error``."""
@@ -225,7 +225,7 @@ class McapOutput:
         _quiet_sdk()
         self._context = foxglove.Context()     # this recorder's channels and sinks only
         self._live = None
-        self._file: _File | None = None
+        self._file: PiecewiseFile | None = None
         self._writer: Any = None
         if self.file_path is not None:
             try:
@@ -233,7 +233,7 @@ class McapOutput:
             except OSError as exc:
                 raise RecorderError(f"cannot write MCAP file {self.file_path}: "
                                     f"{exc.strerror or exc}") from None
-            self._file = _File(f, self._failed)
+            self._file = PiecewiseFile(f, self._failed)
             try:
                 self._writer = foxglove.open_mcap(
                     self._file, context=self._context, writer_options=MCAPWriteOptions(

@@ -41,6 +41,7 @@ __all__ = [
     "flight_verdict",
     "law_report",
     "law_text",
+    "median",
     "saturated_fraction",
 ]
 
@@ -186,7 +187,7 @@ def law_report(t_s: Sequence[float] | np.ndarray, mode: Sequence[float] | np.nda
         return {"time_in_law_s": dict.fromkeys(LAWS, 0.0), "safe_law_fraction": None,
                 "law_switches": 0}
     dt = np.diff(t)
-    dt = np.append(dt, _median(dt) if len(dt) else 0.0)
+    dt = np.append(dt, median(dt) if len(dt) else 0.0)
     known = np.isfinite(m)
     codes = np.where(known, m, -1).astype(int)
     times = dict.fromkeys(LAWS, 0.0)
@@ -235,7 +236,7 @@ def saturated_fraction(flags: Sequence[float] | np.ndarray) -> float | None:
     return float(np.mean(known != 0.0)) if len(known) else None
 
 
-def _median(x: np.ndarray) -> float:
+def median(x: np.ndarray) -> float:
     """``np.median`` to the bit (the middle two averaged as it does), without the
     ``numpy.ma`` import it triggers (~12 ms of every ``tfl-mav offline`` start-up)."""
     n = len(x)
@@ -251,7 +252,7 @@ def flight_verdict(log: Any, *, bound_m: float = DEFAULT_BOUND_M,
     """Convergence and (if the controller's detections are in the log) detection of a
     :class:`~tfl_mav.flightlog.flight.FlightLog`: the keys every summary carries."""
     t = log["t_s"]
-    dt = _median(np.diff(t)) if len(t) > 1 else 0.0
+    dt = median(np.diff(t)) if len(t) > 1 else 0.0
     conv = converged(t, log["path_distance_m"], bound_m=bound_m, window_s=window_s,
                      duration_s=log.duration_s, crashed=log.crashed,
                      interrupted=log.interrupted, dt_s=dt)

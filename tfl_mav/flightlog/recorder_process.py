@@ -59,12 +59,12 @@ from tfl_mav.flightlog.child_priority import NICE_INCREMENT, Priority
 from tfl_mav.flightlog.mcaprepair import CUT_METADATA
 from tfl_mav.flightlog.recorder import Recorder, RecorderError, RecorderStats
 
-__all__ = ["NICE_INCREMENT", "RecorderProcess"]
+__all__ = ["BEHIND_S", "NICE_INCREMENT", "RecorderProcess"]
 
 _FRAME, _TRUTH, _PATH, _LOG, _CONTROLLER, _SIM_TIME, _METADATA, _CLOSE, _FRAMES = range(9)
 _START_TIMEOUT_S = 30.0
 _CLOSE_TIMEOUT_S = 60.0
-_BEHIND_S = 0.25
+BEHIND_S = 0.25
 """A batch's send that has waited this long for room in the pipe: the child is behind (a
 lockstep flight's backpressure makes it wait ~10 ms; a child starved by other programs
 waits seconds), and an idle child is promoted (:mod:`~tfl_mav.flightlog.child_priority`)."""
@@ -324,6 +324,11 @@ class RecorderProcess:
         link.clock = self.clock
 
     @property
+    def pid(self) -> int:
+        """The recorder child's process id (the OS's)."""
+        return self._proc.pid
+
+    @property
     def error(self) -> str | None:
         """The child's write error, or why the child is gone; None while all is well."""
         if self._error is None and self._alive:
@@ -565,7 +570,7 @@ class RecorderProcess:
 
     def _behind(self, waited_s: float) -> None:
         """A send has waited ``waited_s`` for room in the pipe (the child is behind)."""
-        if waited_s >= _BEHIND_S:
+        if waited_s >= BEHIND_S:
             self.priority.promote()
 
     def _send_stale(self) -> None:

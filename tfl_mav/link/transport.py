@@ -122,15 +122,16 @@ class LinkStats:
     send_errors: int = 0
     unsent_no_peer: int = 0     # send() before any peer was known
 
-    _REJECTIONS = ("garbage", "mavlink1", "truncated", "bad_flags", "bad_crc",
-                   "bad_signature", "unsigned", "replayed", "bad_timestamp", "malformed",
-                   "unknown_id", "foreign", "wrong_sysid", "no_peer", "refused_peer",
-                   "reflected")
+    #: The counters of frames/datagrams dropped (the others: traffic and local trouble).
+    REJECTIONS = ("garbage", "mavlink1", "truncated", "bad_flags", "bad_crc",
+                  "bad_signature", "unsigned", "replayed", "bad_timestamp", "malformed",
+                  "unknown_id", "foreign", "wrong_sysid", "no_peer", "refused_peer",
+                  "reflected")
 
     @property
     def rejected(self) -> int:
         """Frames/datagrams dropped for any reason."""
-        return sum(getattr(self, name) for name in self._REJECTIONS)
+        return sum(getattr(self, name) for name in self.REJECTIONS)
 
     def as_dict(self) -> dict[str, int]:
         return asdict(self)

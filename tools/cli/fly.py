@@ -395,6 +395,16 @@ class StartingRecorder:
                 link.on_frames = getattr(self._rec, "on_frames", None)
 
     @property
+    def direct(self) -> bool:
+        """The child is up and the backlog handed over: calls go straight to the recorder."""
+        return self._direct
+
+    @property
+    def recorder(self) -> Any:
+        """The recorder once it is up (:func:`open_recorder`'s), else None."""
+        return self._rec
+
+    @property
     def starting(self) -> bool:
         """The child is not up yet (or its backlog not yet handed over)."""
         return self._thread.is_alive()

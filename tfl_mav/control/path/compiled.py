@@ -42,7 +42,7 @@ from tfl_mav.control.path.tracker import (
 )
 
 __all__ = ["C_NAMES", "Y_NAMES", "CompiledPathTracker", "PathKernels", "compile_path",
-           "make_tracker", "trace_pi", "traced_sqrt"]
+           "make_tracker", "pi_kernel", "trace_pi", "traced_sqrt"]
 
 _AXES = "xyz"
 C_NAMES = [f"c{j}{a}" for j in range(6) for a in _AXES]          # σ⁽ʲ⁾/j!, j-major
@@ -127,8 +127,9 @@ def trace_pi(c: list[Sym], x: list[Sym], y: list[Sym], z: list[Sym],
 
 
 @functools.cache
-def _pi_kernel(inline: bool = True) -> Kernel:
-    """π's rates (path independent: made once a process)."""
+def pi_kernel(inline: bool = True) -> Kernel:
+    """The kernel of π's rates (:func:`trace_pi`; path independent: made once a process);
+    ``inline`` False: one line per operation."""
     return compile_kernel("pi_rates", [C_NAMES, *Y_NAMES, ["slope"]], trace_pi,
                           inline=inline)
 
@@ -144,7 +145,7 @@ class CompiledPathTracker(PathTracker):
         self.kernels = kernels if kernels is not None else compile_path(path)
         k = self.kernels
         # What the projection step (and the law's step, which calls it) is given.
-        self.projection_kernels = Kernels(k.sigma2.fn, k.sigma5.fn, k.s4.fn, _pi_kernel().fn)
+        self.projection_kernels = Kernels(k.sigma2.fn, k.sigma5.fn, k.s4.fn, pi_kernel().fn)
         self.failure = ""       # the path's last error, in words (VO.FAILED)
 
     @property   # type: ignore[override]

@@ -20,7 +20,8 @@ from tfl_mav.control.path.jets import JET_LIB, Jet, cos, sin
 from tfl_mav.control.path.tracker import PathOutput, PathTracker, grad_s
 from tfl_mav.expr import Expr, ExprError, compile_expr
 
-__all__ = ["PATH_KINDS", "Path", "PathError", "PathOutput", "PathTracker", "build_path"]
+__all__ = ["KNOWN_KEYS", "PATH_KINDS", "Path", "PathError", "PathOutput", "PathTracker",
+           "build_path"]
 
 Fn3 = Callable[[Any, Any, Any], tuple[Any, Any]]
 Curve = Callable[[Any], tuple[Any, Any, Any]]
@@ -308,7 +309,8 @@ PATH_KINDS: dict[str, Callable[[Mapping[str, Any]], Path]] = {
     "expr": _expr,
 }
 
-_KNOWN_KEYS: dict[str, set[str]] = {
+#: The keys of each path kind's ``[path]`` table (besides kind and speed_mps).
+KNOWN_KEYS: dict[str, set[str]] = {
     "paper": set(),
     "line": {"point_m", "direction", "length_m"},
     "circle": {"center_m", "radius_m"},
@@ -323,8 +325,8 @@ def build_path(kind: str, params: Mapping[str, Any] | None = None) -> Path:
     params = dict(params or {})
     if kind not in PATH_KINDS:
         raise PathError("path.kind", f"unknown kind {kind!r} (known: {', '.join(PATH_KINDS)})")
-    unknown = sorted(set(params) - _KNOWN_KEYS[kind])
+    unknown = sorted(set(params) - KNOWN_KEYS[kind])
     if unknown:
-        known = ", ".join(sorted(_KNOWN_KEYS[kind])) or "none"
+        known = ", ".join(sorted(KNOWN_KEYS[kind])) or "none"
         raise PathError(f"path.{unknown[0]}", f"unknown key for kind {kind!r} (known: {known})")
     return PATH_KINDS[kind](params)

@@ -88,14 +88,14 @@ from tfl_mav.control.safe.safe_step import (
 from tfl_mav.model.state import State
 
 __all__ = ["MAX_INTEGRAL_G", "MAX_TILT_RAD", "MAX_VERTICAL_G", "POS_OMEGA", "PathProjector",
-           "RecoveryLaw", "RecoveryOutput", "gain_schedule", "projector_sigma2",
-           "reference_sigma2"]
+           "RecoveryLaw", "RecoveryOutput", "forget_gain_schedules", "gain_schedule",
+           "projector_sigma2", "reference_sigma2", "spin_model"]
 
 # LQR weights on (h1, h2, p, q) and (τ_p, τ_q): Bryson's rule with 0.1 of h (≈ 6°),
 # 10 rad/s of p, q and 0.2 N m of τ_q; τ_p costs 100× (one-sided, only for a slow spin).
 # With motor lag the τ_q weight grows (:func:`lqr_r`).
 _new_output = tuple.__new__     # a named tuple made without its Python __new__ frame
-LQR_MAX_SPIN_RADPS = 150.0   # gain schedule range (see RecoveryLaw._lqr)
+LQR_MAX_SPIN_RADPS = 150.0   # gain schedule range (see RecoveryLaw.spin_gains)
 LQR_Q = (100.0, 100.0, 0.01, 0.01)
 LQR_R = (2500.0, 25.0)
 SPIN_SWING_HZ = 10.0         # the rate τ_q must swing at: the ~60 rad/s spin of a dead rotor
@@ -122,9 +122,10 @@ _PARTIAL: dict[tuple[float, ...], dict[GainKey, Gains]] = {}     # blocks met so
 GAIN_BLOCK = 32    # spin-rate steps (16 rad/s) designed together when first met (lazy law)
 
 
-def _spin_model(rr: float, ix: float, iy: float, iz: float,
-                kr: float) -> tuple[np.ndarray, np.ndarray]:
-    """(A, B) of the reduced attitude (h1, h2, p, q) linearised about the spin ``rr``."""
+def spin_model(rr: float, ix: float, iy: float, iz: float,
+               kr: float) -> tuple[np.ndarray, np.ndarray]:
+    """(A, B) of the reduced attitude (h1, h2, p, q) linearised about the spin ``rr``
+    (rad/s), inputs (τ_p, τ_q) (N m); inertias (kg m²) and the rotational drag ``kr``."""
     a = np.array([[0.0, rr, 0.0, -1.0],
                   [-rr, 0.0, 1.0, 0.0],
                   [0.0, 0.0, -kr / ix, -(iz - iy) * rr / ix],
@@ -135,7 +136,7 @@ def _spin_model(rr: float, ix: float, iy: float, iz: float,
 
 def gain_schedule(inertia_kgm2: Sequence[float], k_r: float, dt_s: float,
                   motor_time_constant_s: float = 0.0) -> dict[GainKey, Gains]:
-    """Every gain :meth:`RecoveryLaw._lqr` can ask for (|r| ≤ LQR_MAX_SPIN_RADPS, either
+    """Every gain :meth:`RecoveryLaw.spin_gains` can ask for (|r| ≤ LQR_MAX_SPIN_RADPS, either
     canonical inertia order), designed at once by :func:`lqr.dlqr_zoh_many` — the same
     gains bit for bit as one at a time, ~0.1 ms apiece instead of ~1 ms, so a flight never
     designs one mid-air (an overrun at 1 kHz). Cached by model within a process (the daemon
@@ -156,21 +157,28 @@ def gain_schedule(inertia_kgm2: Sequence[float], k_r: float, dt_s: float,
     return sched
 
 
+def forget_gain_schedules() -> None:
+    """Drop the gains this process designed (they are kept by model: a sweep over many
+    airframes would keep every one); the next law of a model designs them afresh."""
+    _SCHEDULES.clear()
+    _PARTIAL.clear()
+
+
 def _design_steps(ixc: float, iyc: float, iz: float, k_r: float, dt_s: float, lo: int,
                   hi: int, r_weights: tuple[float, float] = LQR_R) -> dict[GainKey, Gains]:
     """The gains of spin-rate steps lo … hi−1 (0.5 rad/s each) in one inertia order, by
     stacked calls (:func:`lqr.dlqr_zoh_many`: item by item the same operations, so the same
     gains bit for bit whatever else is in the stack); a step whose design fails is left out
-    (:meth:`RecoveryLaw._lqr` then designs it alone and reports the failure)."""
+    (:meth:`RecoveryLaw.spin_gains` then designs it alone and reports the failure)."""
     steps = np.arange(lo, hi)
-    # _spin_model for every step at once (the same IEEE operations, element-wise).
+    # spin_model for every step at once (the same IEEE operations, element-wise).
     rr = steps / 2.0
     a = np.zeros((len(steps), 4, 4))
     a[:, 0, 1], a[:, 0, 3] = rr, -1.0
     a[:, 1, 0], a[:, 1, 2] = -rr, 1.0
     a[:, 2, 2], a[:, 2, 3] = -k_r / ixc, -(iz - iyc) * rr / ixc
     a[:, 3, 2], a[:, 3, 3] = -(ixc - iz) * rr / iyc, -k_r / iyc
-    b = np.repeat(_spin_model(0.0, ixc, iyc, iz, k_r)[1][None], len(steps), 0)
+    b = np.repeat(spin_model(0.0, ixc, iyc, iz, k_r)[1][None], len(steps), 0)
     gains = dlqr_zoh_many(a, b, np.diag(LQR_Q), np.diag(r_weights), dt_s)
     order = ixc > iyc
     return {(k, order): (tuple(g[0].tolist()), tuple(g[1].tolist()))
@@ -369,6 +377,12 @@ class RecoveryLaw:
                 self.projector.lam = float(lam)
 
     @property
+    def core(self) -> str:
+        """What flies the attacked tick's arithmetic: ``compiled`` (the seam's build of
+        :func:`safe_step.safe_tick`) or ``python`` (the step itself)."""
+        return "compiled" if self._tick_c is not None else "python"
+
+    @property
     def holding(self) -> bool:
         """Whether the law holds a point (told to, or the path lost) rather than the path."""
         return self.hold_m is not None
@@ -400,7 +414,11 @@ class RecoveryLaw:
         return found[3] if found is not None else math.nan
 
     # ------------------------------------------------------------------ gains
-    def _lqr(self, r: float, ix: float, iy: float) -> Gains:
+    def spin_gains(self, r: float, ix: float, iy: float) -> Gains:
+        """The LQR gain K (2×4: (τ_p, τ_q) from (h1, h2, p, q)) the attacked tick flies at
+        the spin rate ``r`` (rad/s, about b3) with the canonical frame's inertias ``ix``,
+        ``iy`` (kg m²): the schedule's step nearest ``r`` (0.5 rad/s steps, clamped to
+        ±LQR_MAX_SPIN_RADPS), its block designed now if this model has not met it yet."""
         # Gains are scheduled on the spin rate in 0.5 rad/s steps; beyond ±LQR_MAX_SPIN the
         # airframe has long come apart (the simulator ends a run at 300 rad/s), so a measured
         # rate out there (a glitch, a fuzzed message) uses the edge's gains: bounded cache,
@@ -418,7 +436,7 @@ class RecoveryLaw:
         k = self._gains.get(key)
         if k is not None:
             return k
-        a, b = _spin_model(key[0] / 2.0, ix, iy, self.inertia[2], self.k_r)
+        a, b = spin_model(key[0] / 2.0, ix, iy, self.inertia[2], self.k_r)
         ad, bd = zoh(a, b, self.dt)
         k = dlqr(ad, bd, np.diag(LQR_Q), np.diag(self._r_weights))
         gains = self._gains[key] = (tuple(k[0].tolist()), tuple(k[1].tolist()))
@@ -486,7 +504,7 @@ class RecoveryLaw:
         rates = p, q, r = _floats(s.body_rates_radps)
         ix, iy = self.inertia[0], self.inertia[1]
         ixc, iyc = (iy, ix) if fr.swap_xy else (ix, iy)
-        gains = self._lqr(0 + r20 * p + r21 * q + r22 * r, ixc, iyc)
+        gains = self.spin_gains(0 + r20 * p + r21 * q + r22 * r, ixc, iyc)
         state = self._state(s)
         core = self._tick_c
         out = core(self._safe, state, (s.position_m, s.velocity_mps, s.quaternion_wxyz,
