@@ -12,6 +12,7 @@ import pytest
 from tfl_mav.control.tfl.free_response import (
     TREND_TAU_S,
     peak_distance_m,
+    response_rows,
     thrust_trend,
 )
 from tfl_mav.control.tfl.tfl_controller import chain_gains
@@ -108,3 +109,20 @@ def test_the_preview_carries_the_thrust_and_its_rate_into_the_chain():
         d_jerk = turning[i][3] - base[i][3]
         assert d_jerk == pytest.approx(d_acc, rel=1e-4)
     assert max(abs(more[0][2] - base[0][2]), abs(more[1][2] - base[1][2])) > 0.0
+
+
+def test_the_response_is_the_matrix_exponential_s():
+    """The runtime's own exp (the library does not need scipy) against scipy's, row by row:
+    e₁ᵀ exp(A t) over 10 time constants of the slowest pole."""
+    from scipy.linalg import expm
+
+    for pole in (-2.5, -4.0, -9.0):
+        k = chain_gains(pole, 4)
+        rows = response_rows(k)
+        a = np.zeros((4, 4))
+        a[0, 1] = a[1, 2] = a[2, 3] = 1.0
+        a[3] = [-x for x in k]
+        horizon = 10.0 / -float(np.max(np.linalg.eigvals(a).real))    # ≈ 10/|pole|
+        for j in (0, 1, len(rows) // 3, len(rows) - 1):
+            want = expm(a * (horizon * j / (len(rows) - 1)))[0]
+            assert np.allclose(rows[j], want, rtol=1e-9, atol=1e-12)

@@ -406,7 +406,7 @@ def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
     if good >= p.handback_s:
         d, peak = u.safe_distance_m, u.tfl_peak_m
         quiet = not (peak > max(p.peak_ratio * d, d + p.peak_excess_m))     # NaN: quiet
-        rising = peak >= s.peak_m
+        rising = peak >= s.peak_m          # (False on the first due tick: NaN)
         if quiet or rising or good >= p.handback_s + p.peak_wait_s:
             return _switch(p, s, Law.TFL, Why.HANDBACK, Start.TFL_RESUME, False)
         return s._replace(peak_m=peak), (s.law, _STAY, _NONE)
