@@ -44,23 +44,19 @@ def flight_computer_parts(sc: Scenario, duration_s: float | None,
     law, so a recorded safe law would change the TFL law's inputs.) Measured: in situ
     ~2x alone; with the laws replaced as well it is the same as alone, so the difference
     is what the laws' code and data leave of the caches, not the detector's inputs."""
-    # (class, method, part): the TFL law's part is its tick and its preview of a hand-back
-    # (the supervisor's decision reads it: a preview made from a stood-in law's state would
-    # decide another flight than the one recorded).
-    parts = [(AttackDetector, "update", "detector"), (TFLController, "update", "TFL law"),
-             (TFLController, "preview", "TFL law"), (RecoveryLaw, "update", "safe law")]
-    labels = ["detector", "TFL law", "safe law"]
-    saved = [(owner, name, getattr(owner, name)) for owner, name, _ in parts]
-    outs: dict[tuple[Any, str], list[Any]] = {(owner, name): [] for owner, name, _ in parts}
+    parts = [(AttackDetector, "detector"), (TFLController, "TFL law"),
+             (RecoveryLaw, "safe law")]
+    saved = [(owner, owner.update) for owner, _ in parts]
+    outs: dict[str, list[Any]] = {label: [] for _, label in parts}
     det_args: list[tuple[Any, ...]] = []
     inputs: list[tuple[Any, ...]] = []
     step = FlightComputer.step
 
-    def recording(owner: Any, name: str, fn: Callable[..., Any]) -> Callable[..., Any]:
+    def recording(owner: Any, fn: Callable[..., Any], label: str) -> Callable[..., Any]:
         def rec(*a: Any, **k: Any) -> Any:
             out = fn(*a, **k)
-            outs[owner, name].append(out)
-            if owner is AttackDetector and name == "update":
+            outs[label].append(out)
+            if owner is AttackDetector:
                 det_args.append(a[1:])
             return out
         return rec
@@ -70,40 +66,39 @@ def flight_computer_parts(sc: Scenario, duration_s: float | None,
         return step(self, *a, **k)
 
     try:
-        for owner, name, fn in saved:
-            setattr(owner, name, recording(owner, name, fn))
+        for (owner, label), (_, fn) in zip(parts, saved, strict=True):
+            owner.update = recording(owner, fn, label)  # type: ignore[method-assign]
         FlightComputer.step = rec_step  # type: ignore[method-assign]
         fly_offline(sc, attack_info="detector", duration_s=duration_s)
     finally:
         FlightComputer.step = step  # type: ignore[method-assign]
-        for owner, name, fn in saved:
-            setattr(owner, name, fn)
+        for owner, fn in saved:
+            owner.update = fn  # type: ignore[method-assign]
 
-    def stand_in(owner: Any, name: str) -> Callable[..., Any]:
-        """The method's recorded outputs, one a call, in order."""
-        it = iter(outs[owner, name])
+    def stand_in(label: str) -> Callable[..., Any]:
+        """The part's recorded outputs, one a call, in order."""
+        it = iter(outs[label])
         return lambda self, *a, _it=it, **k: next(_it)
 
     def replay(stubbed: bool, timed: str | None = None,
                only: str | None = None) -> float:
         try:
             if stubbed:
-                for owner, name, label in parts:
+                for owner, label in parts:
                     if only is not None and label != only:
                         continue
-                    setattr(owner, name, stand_in(owner, name))
+                    owner.update = stand_in(label)  # type: ignore[method-assign]
             elif timed is not None:
+                owner, fn = next((o, f) for (o, lb), (_, f) in zip(parts, saved, strict=True)
+                                 if lb == timed)
                 acc = [0.0]
-                for (owner, name, label), (_, _, fn) in zip(parts, saved, strict=True):
-                    if label != timed:
-                        continue
 
-                    def t(*a: Any, _fn: Callable[..., Any] = fn, **k: Any) -> Any:
-                        t0 = _cpu()
-                        out = _fn(*a, **k)
-                        acc[0] += _cpu() - t0
-                        return out
-                    setattr(owner, name, t)
+                def t(*a: Any, _fn: Callable[..., Any] = fn, **k: Any) -> Any:
+                    t0 = _cpu()
+                    out = _fn(*a, **k)
+                    acc[0] += _cpu() - t0
+                    return out
+                owner.update = t  # type: ignore[method-assign]
             fc = FlightComputer(sc, attack_info="detector", design_gains=False)
             st = fc.step
             t0 = _cpu()
@@ -112,8 +107,8 @@ def flight_computer_parts(sc: Scenario, duration_s: float | None,
             total = _cpu() - t0
             return acc[0] if timed is not None else total
         finally:
-            for owner, name, fn in saved:
-                setattr(owner, name, fn)
+            for owner, fn in saved:
+                owner.update = fn  # type: ignore[method-assign]
 
     # What a part's timer reads around nothing (a clock read can be a system call in a VM):
     # taken off each timed call.
@@ -126,9 +121,9 @@ def flight_computer_parts(sc: Scenario, duration_s: float | None,
         bias.append(t_sum / 20000)
 
     def stand_in_calls() -> float:
-        fn = stand_in(AttackDetector, "update")
+        fn = stand_in("detector")
         t0 = _cpu()
-        for _ in range(len(outs[AttackDetector, "update"])):
+        for _ in range(len(outs["detector"])):
             fn(None, 0.0, (), ())
         return _cpu() - t0
 
@@ -153,8 +148,7 @@ def flight_computer_parts(sc: Scenario, duration_s: float | None,
     res["detector in situ"] = (min(whole) - min(without)
                                + min(stand_in_calls() for _ in range(rounds)))
     res["detector alone"] = min(detector_alone() for _ in range(rounds))
-    for label in labels:
-        calls = sum(len(outs[owner, name]) for owner, name, lb in parts if lb == label)
+    for _, label in parts:
         res[label] = max(min(replay(False, label) for _ in range(rounds))
-                         - min(bias) * calls, 0.0)
+                         - min(bias) * len(outs[label]), 0.0)
     return {k: 1e6 * v / n for k, v in res.items()}

@@ -72,8 +72,7 @@ def _state(rng: random.Random) -> SupervisorState:
         law, rng.random() < 0.5, _number(rng, 3.0, 1.0), _number(rng, 1.0, 0.5, 0.2),
         rng.random(), rng.random(), rng.random(), rng.random(),
         rng.choice((0, 1, 2, 3, 500, 20000)), rng.randrange(6), rng.uniform(0, 20),
-        rng.uniform(0, 5), rng.uniform(0, 5), rng.uniform(0, 5), _number(rng, 0.5, 0.2),
-        _number(rng, 0.01, 0.002))
+        rng.uniform(0, 5), rng.uniform(0, 5), rng.uniform(0, 5), _number(rng, 0.5, 0.2))
 
 
 def _inputs(rng: random.Random) -> SupervisorInputs:
@@ -91,7 +90,7 @@ def _inputs(rng: random.Random) -> SupervisorInputs:
         rng.random() < 0.8, rng.random() < 0.8, demand, _number(rng, 8.0, 4.0),
         q, tuple(_number(rng, 4.0, 2.0) for _ in range(3)),
         tuple(_number(rng, 3.0, 0.5, 2.0) for _ in range(3)), _number(rng, 8.0, 4.0),
-        rng.random() < 0.5, _number(rng, 0.01, 0.002))
+        rng.random() < 0.5)
 
 
 @pytest.mark.parametrize("mode", ["auto", "tfl", "safe"])
@@ -123,8 +122,7 @@ def test_along_chains_of_ticks_the_timers_and_shares_agree(compiled, mode):
             d = (u.demand_n[0] + rng.uniform(-0.5, 0.5), rng.uniform(-0.2, FMAX_N + 0.2),
                  rng.uniform(-0.2, 1.0), rng.uniform(FMAX_N - 1.0, FMAX_N + 0.2))
             u = u._replace(attack_n=a, demand_n=d, tfl_answer=rng.random() < 0.995,
-                           spin_ready=tick > 100,
-                           tfl_peak_m=1.0 + 0.3 * math.sin(tick / 25.0))
+                           spin_ready=tick > 100)
             want, got = supervise(p, s, u), compiled(p, s, u)
             assert _same(got, want), (chain, tick, s, u, got, want)
             s = want[0]

@@ -67,8 +67,8 @@ from tfl_mav.control.spin.law import initial_state as spin_initial_state
 from tfl_mav.control.spin.step import SpinInputs, SpinState
 from tfl_mav.control.spin.step import hover_at as spin_hover_at
 from tfl_mav.control.state_filter import StateFilter, YawRateModel
-from tfl_mav.control.tfl.free_response import ThrustTrend, peak_distance_m, thrust_trend
 from tfl_mav.control.tfl.tfl_controller import ControlOutput, TFLController
+from tfl_mav.control.tfl.thrust_trend import ThrustTrend, thrust_trend
 from tfl_mav.controller.feasibility import feasible_speed_mps, path_demand
 from tfl_mav.controller.supervisor import (
     Law,
@@ -558,7 +558,7 @@ class FlightComputer:
 
         example = (self.supervisor, self._sup, _new(SupervisorInputs, (
             0.0, 0, _NAN, 0.0, False, False, _ZERO4, _NAN, (1.0, 0.0, 0.0, 0.0),
-            (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), _NAN, False, _NAN)))
+            (0.0, 0.0, 0.0), (0.0, 0.0, 0.0), _NAN, False)))
         core = native.obtain_function(supervise, example, ready)
         if core is not None:
             ready(core)
@@ -568,8 +568,7 @@ class FlightComputer:
 
     def _decide(self, dt: float, rotor: int, estimate: float, spread: float,
                 out: ControlOutput | None, safe_distance_m: float, state: State,
-                events: list[str], *, first: bool = False, tfl_peak_m: float = _NAN
-                ) -> SupervisorState:
+                events: list[str], *, first: bool = False) -> SupervisorState:
         """One supervisor step; start the law it chose as it says; the words for it.
 
         ``out``: the TFL law's output if it flew this tick; ``safe_distance_m``: the safe
@@ -577,8 +576,7 @@ class FlightComputer:
         first tick (the distance to the path is searched for). What the supervisor is told
         goes as :class:`SupervisorInputs`' fields in order, a plain tuple (the compiled step
         reads them by position; named only where Python reads them); the state's vectors
-        as they are (the step reads any sequence of floats). ``tfl_peak_m``: the largest
-        distance TFL would take the vehicle to were it resumed now (m; NaN: not predicted)."""
+        as they are (the step reads any sequence of floats)."""
         if out is None:
             tfl_flew = answer = False
             demand = _ZERO4
@@ -588,7 +586,7 @@ class FlightComputer:
         fields = (dt, rotor, estimate, spread, tfl_flew, answer, demand, safe_distance_m,
                   state.quaternion_wxyz, state.body_rates_radps, state.velocity_mps,
                   self.recovery.distance_to_path(_floats(state.position_m)) if first else _NAN,
-                  self._spin_ready(rotor, estimate) if rotor else False, tfl_peak_m)
+                  self._spin_ready(rotor, estimate) if rotor else False)
         old = self._sup
         core = self._supervise_core
         r = core(self.supervisor, old, fields) if core is not None else None
@@ -656,13 +654,7 @@ class FlightComputer:
         self._trend = thrust_trend(self._trend if self._delivered is not None else None,
                                    sum(out.thrust_n), dt)
         if flying.law != _TFL:      # a take-over this tick is judged from the next one
-            peak = _NAN
-            if flying.good_s + dt >= self.supervisor.handback_s and not flying.holding:
-                # The supervisor may hand back this tick: what TFL would make of this state.
-                xi = ctrl.preview(state, out.thrust_n, rec.path_lam, self._trend.rate_nps)
-                peak = peak_distance_m(ctrl.k_xi, xi)
-            self._decide(dt, rotor, estimate, spread, None, dist, state, events,
-                         tfl_peak_m=peak)
+            self._decide(dt, rotor, estimate, spread, None, dist, state, events)
         thrust = out.thrust_n
         # What the rotors deliver over the coming period (N): the demand, or with motor lag
         # the lag model's mean for the command sent (the attacked rotor: its estimate) —

@@ -39,16 +39,6 @@ The rules, and the physics that sizes them (canonical frame of the attacked roto
   and following the path (not holding a point), all for ``handback_s``. The hysteresis
   between ``a_takeover_n`` and ``a_handback_n`` plus that hold time bounds an intermittent
   attack to one round trip per change of the attack.
-  - **When, within that**: the flight computer tells the supervisor the largest distance
-    TFL's ξ chain would take the vehicle to were it resumed now (``tfl_peak_m``: the free
-    response of eq. (23) from the transverse state the law would start from,
-    :mod:`tfl_mav.control.tfl.free_response`). A safe law mid-correction hands on a state
-    that TFL's poles bring back the long way (1 mm off, accelerating at 0.03 m/s² across
-    the path: 2.4 mm). So the hand-back waits while that peak is above
-    max(``peak_ratio`` × d, d + ``peak_excess_m``) *and falling* (the safe law is settling:
-    each tick hands on a better state), at most ``peak_wait_s``; a peak that rises hands
-    back at once (waiting makes it worse: a safe law that is itself drifting, e.g. through
-    a spin passing zero, went from 1 to 7.7 mm while a wait for a calm state lasted).
 * **The first tick**: a state TFL is not known to converge from (tilted, moving fast,
   rolling, beyond the region of attraction) goes to the safe law holding its altitude.
 * **A rotor pinned high** (A − 2σ_A above m g/2 by ``spin_margin_n`` for ``spin_hold_s``):
@@ -145,9 +135,6 @@ class SupervisorParams(NamedTuple):
     handback_tilt_rad: float  # the calmer attitude a hand-back needs
     spin_margin_n: float      # the spin law flies while A ± 2σ stays this far above m g/2
     spin_hold_s: float        # … held this long before a change (s)
-    peak_ratio: float         # a hand-back waits while TFL's predicted peak distance is
-    peak_excess_m: float      # above max(ratio × d, d + excess), d the distance now …
-    peak_wait_s: float        # … at most this long past ``handback_s`` (s)
 
 
 class SupervisorState(NamedTuple):
@@ -168,8 +155,6 @@ class SupervisorState(NamedTuple):
     lost_rotor_s: float
     spin_s: float = 0.0
     high_s: float = 0.0       # time the attack has been pinned above m g/2 with margin
-    peak_m: float = math.nan  # TFL's predicted peak distance last tick, a hand-back due
-                              # (m; NaN: none is due)
 
 
 class SupervisorInputs(NamedTuple):
@@ -188,8 +173,6 @@ class SupervisorInputs(NamedTuple):
     velocity_mps: tuple[float, float, float]             # paper frame
     path_distance_m: float      # first tick only: distance to the path (m; NaN: unknown)
     spin_ready: bool = False    # the spin law is built for the attacked rotor
-    tfl_peak_m: float = math.nan   # the largest distance TFL's ξ chain would take the
-                                   # vehicle to if it resumed now (m; NaN: not predicted)
 
 
 _EPS_N = 1e-6   # a demand within this of a bound is at that bound (N)
@@ -204,9 +187,7 @@ def supervisor_params(mode: str, weight_n: float, thrust_max_n: float, speed_mps
                       a_takeover_n: float = 0.35, a_handback_n: float = 0.6,
                       handback_s: float = 0.5, hold_before_path_s: float = 1.0,
                       roa_m: float = 4.0, spin_margin_n: float = 0.25,
-                      spin_hold_s: float = 0.2, peak_ratio: float = 1.25,
-                      peak_excess_m: float = 2e-4, peak_wait_s: float = 0.5
-                      ) -> SupervisorParams:
+                      spin_hold_s: float = 0.2) -> SupervisorParams:
     """The constants for a vehicle of weight ``weight_n`` flying a path at ``speed_mps``.
 
     TFL is started from hover in every scenario; the take-over limits are those with a
@@ -227,8 +208,7 @@ def supervisor_params(mode: str, weight_n: float, thrust_max_n: float, speed_mps
         SUPERVISOR_MODES.index(mode), weight_n, thrust_max_n, window_s, lost_share,
         persist_window_s, persist_share, a_takeover_n, a_handback_n, handback_s,
         hold_before_path_s, roa_m, math.radians(30.0), 2.0, max(0.5, 2.0 * speed_mps),
-        math.radians(20.0), spin_margin_n, spin_hold_s, peak_ratio, peak_excess_m,
-        peak_wait_s)
+        math.radians(20.0), spin_margin_n, spin_hold_s)
 
 
 def initial_state(mode: str = "auto") -> SupervisorState:
@@ -266,7 +246,7 @@ def _switch(p: SupervisorParams, s: SupervisorState, law: Law, why: Why, start: 
     changed = law != s.law
     return (s._replace(law=int(law), holding=holding, since_s=0.0, good_s=0.0,
                        floor_share=0.0, ceiling_share=0.0, top_share=0.0,
-                       persist_share=0.0, high_s=0.0, peak_m=math.nan,
+                       persist_share=0.0, high_s=0.0,
                        switches=s.switches + (1 if changed else 0)),
             (int(law), int(why), int(start)))
 
@@ -300,7 +280,7 @@ def _authority(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs, dt:
     since, ticks, tfl_s, rec_s, lost_s, spin_s = clock
     # One state built, positionally (a named tuple's _replace costs microseconds).
     s = _new(SupervisorState, (s.law, s.holding, since, s.good_s, fs, cs, ts, ps, ticks,
-                               s.switches, tfl_s, rec_s, lost_s, spin_s, s.high_s, s.peak_m))
+                               s.switches, tfl_s, rec_s, lost_s, spin_s, s.high_s))
     small = not known or a + 2.0 * sigma < p.a_takeover_n
     if (fs > p.lost_share and small) or ps > p.persist_share or ts > p.lost_share:
         return _switch(p, s, Law.LOST_ROTOR, Why.FLOOR, Start.SAFE_PATH, False)
@@ -335,8 +315,7 @@ def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
         return _authority(p, s, u, dt, (since, ticks, tfl_s, rec_s, lost_s, spin_s))
     s = _new(SupervisorState, (law_now, s.holding, since, s.good_s, s.floor_share,
                                s.ceiling_share, s.top_share, s.persist_share, ticks,
-                               s.switches, tfl_s, rec_s, lost_s, spin_s, s.high_s,
-                               s.peak_m))
+                               s.switches, tfl_s, rec_s, lost_s, spin_s, s.high_s))
     if p.mode == 1:                       # "tfl": the TFL law alone
         return s, stay
     if p.mode == 2:                       # "safe": the safe law alone, never TFL
@@ -404,14 +383,7 @@ def supervise(p: SupervisorParams, s: SupervisorState, u: SupervisorInputs
     if good != s.good_s:
         s = s._replace(good_s=good)
     if good >= p.handback_s:
-        d, peak = u.safe_distance_m, u.tfl_peak_m
-        quiet = not (peak > max(p.peak_ratio * d, d + p.peak_excess_m))     # NaN: quiet
-        rising = peak >= s.peak_m          # (False on the first due tick: NaN)
-        if quiet or rising or good >= p.handback_s + p.peak_wait_s:
-            return _switch(p, s, Law.TFL, Why.HANDBACK, Start.TFL_RESUME, False)
-        return s._replace(peak_m=peak), (s.law, _STAY, _NONE)
-    if s.peak_m == s.peak_m:
-        s = s._replace(peak_m=math.nan)
+        return _switch(p, s, Law.TFL, Why.HANDBACK, Start.TFL_RESUME, False)
     return s, (s.law, _STAY, _NONE)
 
 

@@ -39,7 +39,7 @@ class LawConfig:
     speed_mps: float = 0.5
     xi_pole: float = -2.5
     eta_pole: float = -2.0
-    xi_pole_fine: float = -4.0
+    xi_pole_fine: float = -8.0      # scenario.ControllerConfig.xi_pole_fine says why
     eta_pole_fine: float = -2.5
     yaw_pole: float = -4.0
     robust: bool = True

@@ -31,7 +31,6 @@ cannot be traced) the tracker's own virtual output stands in for :func:`step.pro
 
 from __future__ import annotations
 
-import copy
 import math
 import weakref
 from collections.abc import Callable, Sequence
@@ -84,7 +83,6 @@ _FALLBACK_WORDS: dict[Fallback, str] = {
     Fallback.COND: "decoupling matrix ill-conditioned (cond {cond:.1e})",
     Fallback.NONFINITE: "non-finite control (numerical failure)",
 }
-_NAN_XI = ((math.nan,) * 4, (math.nan,) * 4)
 # The translational observer's bound per axis (m/s²): three times the rotor drag of an 8 m/s
 # wind (0.33 m/s² per m/s), far below what a sensor glitch differentiated would read.
 TDOB_LIMIT_MPS2 = 8.0
@@ -399,60 +397,24 @@ class TFLController:
                thrust_rate_nps: float = 0.0) -> None:
         """Fly again, bumpless, from a state another law flew: the dynamic extension starts at
         the thrust now applied and its rate (x13 = Σ f N, x14 = ``thrust_rate_nps`` N/s,
-        eq. (9)), the rate observer, the ṗ, q̇ prediction and the lag inverse start afresh,
-        and the path parameter moves to ``lam`` (the other law's projection; None keeps its
-        own)."""
-        if lam is not None and self._linked_for is not self.tracker:
-            self.tracker.lam = lam
-        self.state = self._resumed(thrust_n, lam, thrust_rate_nps)
-        if self.lag_inverter is not None:
-            self.lag_inverter.reset()
-
-    def _resumed(self, thrust_n: Sequence[float], lam: float | None,
-                 thrust_rate_nps: float) -> TFLState:
-        """The state :meth:`resume` starts from (this law's state is not touched)."""
+        eq. (9); starting x14 at 0 while the other law's thrust was changing is a jerk the ξ
+        chain then rings out), the rate observer, the ṗ, q̇ prediction and the lag inverse
+        start afresh, and the path parameter moves to ``lam`` (the other law's projection;
+        None keeps its own)."""
         s = as_state(self.state)
         ps = s.path
         if lam is not None:
             ps = ps._replace(has_lam=True, lam=lam)
+            if self._linked_for is not self.tracker:
+                self.tracker.lam = lam
         # The mass estimator has kept learning while the other law flew (:meth:`track`).
         # The translational observer keeps what it learnt (the air did not change with the
         # law), but not the velocity of the last tick it saw, ticks ago.
-        return s._replace(x13=sum(thrust_n), x14=thrust_rate_nps, dob=DOB_START,
-                          tdob=s.tdob._replace(has_prev=False), has_pred=False,
-                          last_out=tuple(thrust_n), path=ps)
-
-    def preview(self, s: State, thrust_n: Sequence[float], lam: float | None = None,
-                thrust_rate_nps: float = 0.0) -> tuple[tuple[float, ...], tuple[float, ...]]:
-        """The transverse state ξ = ((α1, α̇1, α̈1, α⃛1), (α2, …); m, m/s, m/s², m/s³) the
-        law would start from at the measured state ``s`` were it resumed now with
-        :meth:`resume`'s arguments; nothing of this law changes. NaNs where the law finds
-        no answer (off the projection's tube, a path that fails)."""
-        st = self._resumed(thrust_n, lam, thrust_rate_nps)
-        y, v = _floats(s.position_m), _floats(s.velocity_mps)
-        quat, rates = _floats(s.quaternion_wxyz), _floats(s.body_rates_radps)
-        lo, hi = self._free
-        u = TFLInputs(y, v, quat, rates, self._frame, self.attack_estimate_n, lo, hi, 0.0,
-                      False, False)
-        if self._linked_for is self.tracker:
-            r = None
-            if self._core is not None:
-                r = self._core(self.params, st, u, self._kernels)
-            if r is None:
-                try:
-                    r = self._step(self.params, st, u, self._kernels)
-                except _PATH_ERRORS:
-                    return _NAN_XI
-            out = r[1]      # TFLOutputs' fields by position (the compiled step's tuple)
-            xi, code = out[3], out[14]
-            return (tuple(xi[0]), tuple(xi[1])) if code == VO.OK else _NAN_XI
-        tracker = copy.copy(self.tracker)       # the reference tracker keeps its λ: a copy's
-        if lam is not None:
-            tracker.lam = lam
-        vo = tracker.virtual_output(step.observe(self.params, st, u).rows)
-        if not vo.in_tube:
-            return _NAN_XI
-        return tuple(vo.xi1[:4]), tuple(vo.xi2[:4])
+        self.state = s._replace(x13=sum(thrust_n), x14=thrust_rate_nps, dob=DOB_START,
+                                tdob=s.tdob._replace(has_prev=False), has_pred=False,
+                                last_out=tuple(thrust_n), path=ps)
+        if self.lag_inverter is not None:
+            self.lag_inverter.reset()
 
     def track(self, s: State, applied_n: Sequence[float]) -> None:
         """A tick another law flew: the mass estimator learns from it as from its own
@@ -477,8 +439,9 @@ class TFLController:
         to the fine poles counts it as its own (:func:`~tfl_mav.control.tfl.step.settle`).
         A vehicle the safe law has held on the path is settled, and TFL resumes with the
         poles it would have had: on the coarse ones the safe law's last jerk (a spinning
-        vehicle's nutation, (u_f/m)·|(p, q)| ≈ 0.08 m/s³) rang out as a 1 mm tail over the
-        second the switch waited, on the fine ones 0.1-0.3 mm."""
+        vehicle's nutation, (u_f/m)·|(p, q)| ≈ 0.08 m/s³) rings out as a 1 mm tail over the
+        second the switch waits (j (3/p)³ e⁻³/6 at p = 2.5), on the fine ones (p = 8) as
+        0.03 mm."""
         st = as_state(self.state)
         d = path_distance_m if math.isfinite(path_distance_m) else math.inf
         fine, settled = settle(self.params, st.fine, st.settled_s, d, self.params.dt_s)
