@@ -38,26 +38,22 @@ from pathlib import Path
 from typing import Any
 
 
-def measure(law_name: str, rounds: int, own: bool = False) -> dict[str, float]:
-    """Median µs per tick and per compiled call in the working directory's checkout; ``own``:
-    each pass from a copy of the law as it was at tick 2000, so that the states are its
-    own next ones (the attacked law's command, no fallback)."""
-    os.environ["TFL_MAV_NATIVE"] = "sync"
-    sys.path.insert(0, os.path.join(os.getcwd(), "bench"))
-    import bench_controller as bc
-
-    import tfl_mav
+def flight_states(bc: Any, law_name: str) -> tuple[Any, Any, list[Any]]:
+    """The paper flight's law (``controller.law`` = ``law_name``, compiled) flown 3000 ticks
+    on the simulator of the working directory's checkout: (the law after them, a copy of it
+    at tick 2000, the 1000 measured states from tick 2000 on). ``bc``: that checkout's
+    bench_controller (its ``_controller``)."""
     from tfl_mav.model.state import State
     from tfl_mav.scenario import load_scenario
     try:
         from tfl_mav.sitl.simulator import Simulator
     except ImportError:                 # 07a6a37's layout
         from tfl_mav.sim.simulator import Simulator  # type: ignore[no-redef]
-    print(f"bench_tfl_call: tfl_mav from {os.path.dirname(tfl_mav.__file__)}", file=sys.stderr)
 
     sc = load_scenario("paper").replace(**{"controller.law": law_name})
     sim, ctrl = Simulator(sc), bc._controller(sc, True, "compiled")
     states = []
+    at_2000 = None
     for k in range(3000):
         m = sim.measured
         if sim.attack.rotor:
@@ -70,6 +66,20 @@ def measure(law_name: str, rounds: int, own: bool = False) -> dict[str, float]:
         sim.step_control_period()
         if k >= 2000:
             states.append(st)
+    return ctrl, at_2000, states
+
+
+def measure(law_name: str, rounds: int, own: bool = False) -> dict[str, float]:
+    """Median µs per tick and per compiled call in the working directory's checkout; ``own``:
+    each pass from a copy of the law as it was at tick 2000, so that the states are its
+    own next ones (the attacked law's command, no fallback)."""
+    os.environ["TFL_MAV_NATIVE"] = "sync"
+    sys.path.insert(0, os.path.join(os.getcwd(), "bench"))
+    import bench_controller as bc
+
+    import tfl_mav
+    print(f"bench_tfl_call: tfl_mav from {os.path.dirname(tfl_mav.__file__)}", file=sys.stderr)
+    ctrl, at_2000, states = flight_states(bc, law_name)
     st = states[0]
     # Trees since the path kernels became an argument pass them last and take the start's
     # flags as booleans; older trees take floats and no kernels.

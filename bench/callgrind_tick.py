@@ -34,29 +34,9 @@ def main(argv: list[str] | None = None) -> int:
     os.environ["TFL_MAV_NATIVE"] = "sync"
     sys.path.insert(0, os.path.join(os.getcwd(), "bench"))
     import bench_controller as bc
+    from bench_tfl_call import flight_states  # this script's own directory
 
-    from tfl_mav.model.state import State
-    from tfl_mav.scenario import load_scenario
-    try:
-        from tfl_mav.sitl.simulator import Simulator
-    except ImportError:                 # 07a6a37's layout
-        from tfl_mav.sim.simulator import Simulator  # type: ignore[no-redef]
-
-    sc = load_scenario("paper").replace(**{"controller.law": "robust"})
-    sim, ctrl = Simulator(sc), bc._controller(sc, True, "compiled")
-    states = []
-    for k in range(3000):
-        m = sim.measured
-        if sim.attack.rotor:
-            ctrl.set_attack(sim.attack.rotor, sim.attack.applied_n)
-        st = State(m.position_m, m.velocity_mps, m.quaternion_wxyz, m.body_rates_radps)
-        if k == 2000:
-            at_2000 = copy.deepcopy(ctrl)
-        out = ctrl.update(st)
-        sim.set_command(out.rotor_thrust_n)
-        sim.step_control_period()
-        if k >= 2000:
-            states.append(st)
+    ctrl, at_2000, states = flight_states(bc, "robust")
     laws = [ctrl if args.replay else copy.deepcopy(at_2000) for _ in range(args.passes + 1)]
     for st in states:                   # one pass uncounted: everything warm
         laws[0].update(st)
