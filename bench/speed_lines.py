@@ -17,7 +17,8 @@ from pathlib import Path
 
 # file stem (unique across the package in every layout this knows) → why it is speed only
 SPEED_ONLY = {
-    "fused": "the TFL tick generated as one function per flight (tfl_controller.py flies without it)",
+    "fused": ("the TFL tick generated as one function per flight (tfl_controller.py flies "
+              "without it)"),
     "fused_native": "the fused tick's arithmetic laid out for the C compiler",
     "compiled": "the compiled path tracker (the reference jets give the same numbers)",
     "projection": "the compiled tracker's projection step (the reference jets: the same)",

@@ -21,10 +21,9 @@ Everything in the canonical frame of :mod:`~tfl_mav.control.allocation` (attacke
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
-from tfl_mav.accel import native
+from tfl_mav.accel.background import BackgroundLaw
 from tfl_mav.control.scalar import clamp
 from tfl_mav.control.spin.step import Mat3, Vec3, attitude, mat3, mean_pid
 
@@ -206,33 +205,10 @@ def cone_step(p: ConeParams, s: ConeState, u: ConeInputs) -> tuple[ConeState, Co
     return ConeState(phase, (ix_, iy_, iz_)), ConeOutputs(out, tilt, drift, err, clipped)
 
 
-class ConeLaw:
+class ConeLaw(BackgroundLaw[ConeParams, ConeState, ConeInputs, ConeOutputs]):
     """The coning hover built for one airframe and rotor: its constants (:attr:`params`) and
-    its step, compiled by the accelerator seam (the same bits as :func:`cone_step`:
-    tests/contract/test_native.py). The step flies in Python until the compiled one is
-    built, always in the background (a law is made in flight, when no relaxed hover holds
-    the weight), and wherever the C declines."""
+    its step (:func:`cone_step`), compiled by the accelerator seam in the background (a law
+    is made in flight, when no relaxed hover holds the weight): :class:`BackgroundLaw`."""
 
     def __init__(self, params: ConeParams) -> None:
-        self.params = params
-        self._core: Callable[..., Any] | None = None
-        core = native.obtain_function(cone_step, (params, CONE_START, _INPUTS_EXAMPLE),
-                                      self._ready, now=False)
-        if core is not None:
-            self._ready(core)
-
-    def _ready(self, core: Callable[..., Any]) -> None:
-        self._core = core           # one reference store: atomic under the GIL
-
-    @property
-    def compiled(self) -> bool:
-        """Whether the step runs compiled."""
-        return self._core is not None
-
-    def step(self, state: ConeState, inputs: ConeInputs) -> tuple[ConeState, ConeOutputs]:
-        """One control period (:func:`cone_step`)."""
-        core = self._core
-        out = core(self.params, state, inputs) if core is not None else None
-        if out is None:         # not built, or the C bails where Python raises
-            out = cone_step(self.params, state, inputs)
-        return out  # type: ignore[no-any-return]
+        super().__init__(cone_step, params, CONE_START, _INPUTS_EXAMPLE)

@@ -11,12 +11,11 @@ what the previous law did).
 from __future__ import annotations
 
 import math
-from collections.abc import Callable, Sequence
-from typing import Any
+from collections.abc import Sequence
 
 import numpy as np
 
-from tfl_mav.accel import native
+from tfl_mav.accel.background import BackgroundLaw
 from tfl_mav.control.allocation import canonical_frame
 from tfl_mav.control.safe.lqr import dlqr, zoh
 from tfl_mav.control.spin import equilibrium
@@ -213,34 +212,11 @@ STEP_INPUTS_EXAMPLE = SpinInputs(_ZERO3, _ZERO3, (1.0, 0.0, 0.0, 0.0), _ZERO3, 0
                                  _ZERO3, _ZERO3)
 
 
-class SpinLaw:
+class SpinLaw(BackgroundLaw[SpinParams, SpinState, SpinInputs, SpinOutputs]):
     """The spin law built for one airframe and rotor: its constants (:attr:`params`) and its
-    step, compiled by the accelerator seam for a table of their shape (the same bits as
-    :func:`~tfl_mav.control.spin.step.spin_step`: tests/contract/test_native.py). The step
-    flies in Python until the compiled one is built, always in the background (a build
-    takes ~15 s of compiler; a law is made in flight), and wherever the C declines."""
+    step (:func:`~tfl_mav.control.spin.step.spin_step`), compiled by the accelerator seam for
+    a table of their shape in the background (a build takes ~15 s of compiler; a law is made
+    in flight, as the attack nears m g/2): :class:`BackgroundLaw`."""
 
     def __init__(self, params: SpinParams) -> None:
-        self.params = params
-        self._core: Callable[..., Any] | None = None
-        # Made during a flight (the attack nears m g/2): no tick waits for the compiler.
-        example = (params, initial_state(params), STEP_INPUTS_EXAMPLE)
-        core = native.obtain_function(spin_step, example, self._ready, now=False)
-        if core is not None:
-            self._ready(core)
-
-    def _ready(self, core: Callable[..., Any]) -> None:
-        self._core = core
-
-    @property
-    def compiled(self) -> bool:
-        """Whether the step runs compiled."""
-        return self._core is not None
-
-    def step(self, state: SpinState, inputs: SpinInputs) -> tuple[SpinState, SpinOutputs]:
-        """One control period (:func:`~tfl_mav.control.spin.step.spin_step`)."""
-        core = self._core
-        out = core(self.params, state, inputs) if core is not None else None
-        if out is None:         # not built, or the C bails where Python raises
-            out = spin_step(self.params, state, inputs)
-        return out
+        super().__init__(spin_step, params, initial_state(params), STEP_INPUTS_EXAMPLE)
