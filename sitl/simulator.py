@@ -438,14 +438,15 @@ class Simulator:
                     f" at t = {self.time_s:.3f} s")
         # sqrt only past the limit's square: sqrt is monotonic and sqrt(limit²) = limit
         # exactly, so a sum not above the square can never have a root above the limit
-        rate2 = wp ** 2 + wq ** 2 + wr ** 2
+        # (products, not ** 2: a finite 1e160 squares to inf here, where ** raises OverflowError)
+        rate2 = wp * wp + wq * wq + wr * wr
         if rate2 > _MAX_BODY_RATE2:
             rate = math.sqrt(rate2)
             if rate > MAX_BODY_RATE_RADPS:
                 return (f"spinning at {rate:.0f} rad/s (> {MAX_BODY_RATE_RADPS:.0f} rad/s, "
                         f"beyond what a real airframe and its gyros survive) at t = "
                         f"{self.time_s:.3f} s")
-        speed2 = vx ** 2 + vy ** 2 + vz ** 2
+        speed2 = vx * vx + vy * vy + vz * vz
         if speed2 > _MAX_SPEED2:
             speed = math.sqrt(speed2)
             if speed > MAX_SPEED_MPS:

@@ -289,3 +289,12 @@ def test_the_state_is_plain_floats_and_a_diverging_one_ends_the_run(scenario):
     sim = Simulator(scenario.replace(**{"initial.body_rates_radps": (1e80, 0.0, 0.0)}))
     sim.step_control_period()
     assert "non-finite" in sim.crash_reason()
+
+
+def test_a_huge_but_finite_state_is_a_crash_said_in_words(scenario):
+    """1e160 rad/s is a finite float whose square is not: asked before any step, the crash
+    check says the vehicle spins too fast rather than raising OverflowError."""
+    sim = Simulator(scenario.replace(**{"initial.body_rates_radps": (1e160, 0.0, 0.0)}))
+    assert "spinning at" in sim.crash_reason()
+    sim = Simulator(scenario.replace(**{"initial.velocity_mps": (0.0, 1e160, 0.0)}))
+    assert "runaway" in sim.crash_reason()
