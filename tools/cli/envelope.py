@@ -11,15 +11,25 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import shlex
 import subprocess
 import sys
 from pathlib import Path
 
+from tfl_mav.tools.harness.envelope.laws import (
+    LAWS_BEGIN,
+    LAWS_END,
+    judge_laws,
+    law_runs,
+    laws_json,
+    laws_markdown,
+)
 from tfl_mav.tools.harness.envelope.regression import judge
 from tfl_mav.tools.harness.envelope.report import (
     columns_table,
     diff_table,
     markdown,
+    readme_block,
     replace_readme_block,
     run_table,
 )
@@ -51,9 +61,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
                     "further from the path over the last 10 s. Progress goes to stderr, the "
                     "table to stdout.",
         epilog="Exit codes: 0 no regression, 1 a regression (or a flight error), 2 usage or "
-               "spec error. Examples: `tfl-mav envelope --only 'paper-lag*'`; "
-               "`tfl-mav envelope --rewrite-baseline` (then commit baseline.json with the "
-               "printed table); `tfl-mav envelope --markdown --write-readme`.")
+               "spec error; with --laws 0 whatever the verdicts (a comparison, not the "
+               "guard), 1 only when a flight failed to run. Examples: `tfl-mav envelope "
+               "--only 'paper-lag*'`; `tfl-mav envelope --rewrite-baseline` (then commit "
+               "baseline.json with the printed table); `tfl-mav envelope --markdown "
+               "--write-readme`; `tfl-mav envelope --laws --only 'seam-*' --write-readme`.")
     p.add_argument("--only", metavar="GLOB",
                    help="fly only the cases whose name matches the shell glob, e.g. 'dead-*'")
     p.add_argument("--jobs", type=int, default=None, metavar="N",
@@ -66,11 +78,17 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--compare", action="store_true",
                    help="print the committed reference column(s) beside the baseline, case "
                         "by case (no flights)")
+    p.add_argument("--laws", action="store_true",
+                   help="fly each selected case three ways (controller.supervisor = auto, "
+                        "tfl, safe) and print the supervisor against the better single law "
+                        "by the same max(10 %%, 0.05 mm) rule, its law switches and time in "
+                        "the safe law (no baseline; exit 0 unless a flight fails to run)")
     p.add_argument("--markdown", action="store_true",
                    help="print the README envelope table from the baseline (no flights)")
     p.add_argument("--write-readme", action="store_true",
                    help="with --markdown: write the families between the README's envelope "
-                        "markers and every case between docs/envelope.md's")
+                        "markers and every case between docs/envelope.md's; with --laws: "
+                        "write the table between docs/envelope.md's laws markers")
     p.add_argument("--fly-reference", metavar="TREE",
                    help="fly the spec with another checkout's own `tfl-mav offline` (its "
                         ".venv) and write reference-LABEL.json next to the baseline")
@@ -104,9 +122,23 @@ def _tree_name(path: Path) -> str:
     return commit + ("+dirty" if dirty else "")
 
 
+def _usage_error(args: argparse.Namespace) -> str | None:
+    """The one-line complaint about a combination of options, or None."""
+    if args.laws:
+        clash = [f"--{name.replace('_', '-')}" for name in
+                 ("rewrite_baseline", "compare", "markdown", "fly_reference")
+                 if getattr(args, name)]
+        if clash:
+            return f"--laws cannot be combined with {' or '.join(clash)}"
+    elif args.write_readme and not args.markdown:
+        return "--write-readme needs --markdown or --laws"
+    return None
+
+
 def run(args: argparse.Namespace) -> int:
-    if args.write_readme and not args.markdown:
-        print("tfl-mav envelope: --write-readme needs --markdown", file=sys.stderr)
+    problem = _usage_error(args)
+    if problem:
+        print(f"tfl-mav envelope: {problem}", file=sys.stderr)
         return EXIT_USAGE
     if args.jobs is not None and args.jobs < 1:
         print(f"tfl-mav envelope: --jobs must be >= 1, got {args.jobs}", file=sys.stderr)
@@ -131,6 +163,8 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.fly_reference:
         return _fly_reference(args, spec, cases, baseline_path)
+    if args.laws:
+        return _laws(args, cases)
     print(f"flying {len(cases)} cases, {args.jobs or default_jobs()} at a time",
           file=sys.stderr)
     now = fly_cases(cases, jobs=args.jobs, on_result=print_progress)
@@ -225,4 +259,42 @@ def _markdown(args: argparse.Namespace, spec: EnvelopeSpec, baseline: ResultsFil
             print(f"tfl-mav envelope: {path}: {exc}", file=sys.stderr)
             return EXIT_USAGE
         print(f"{'updated' if changed else 'unchanged'}: {path}")
+    return 0
+
+
+def _laws(args: argparse.Namespace, cases: list) -> int:
+    doc = Path(args.readme).parent / "docs" / "envelope.md"
+    if args.write_readme:   # before the flights, not after them
+        try:
+            readme_block(doc.read_text(encoding="utf-8"), (LAWS_BEGIN, LAWS_END))
+        except (OSError, ValueError) as exc:
+            print(f"tfl-mav envelope: {doc}: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+    runs = law_runs(cases)
+    print(f"flying {len(cases)} cases three ways ({len(runs)} flights), "
+          f"{args.jobs or default_jobs()} at a time", file=sys.stderr)
+    flown = fly_cases(runs, jobs=args.jobs, on_result=print_progress)
+    errors = [r for r in flown.values() if r.outcome == ERROR]
+    verdicts = [judge_laws(c, flown) for c in cases]
+    if args.json:
+        print(json.dumps(laws_json(cases, flown), indent=2))
+    else:
+        print(laws_markdown(verdicts), end="")
+    for r in errors:
+        print(f"tfl-mav envelope: {r.name}: the flight failed to run ({r.reason})",
+              file=sys.stderr)
+    if errors:
+        if args.write_readme:
+            print(f"tfl-mav envelope: {doc} left as it was (a flight failed)",
+                  file=sys.stderr)
+        return EXIT_REGRESSION
+    if args.write_readme:
+        only = f" --only {shlex.quote(args.only)}" if args.only else ""
+        block = laws_markdown(verdicts, command=f"tfl-mav envelope --laws{only} --write-readme")
+        try:
+            changed = replace_readme_block(doc, block, (LAWS_BEGIN, LAWS_END))
+        except (OSError, ValueError) as exc:
+            print(f"tfl-mav envelope: {doc}: {exc}", file=sys.stderr)
+            return EXIT_USAGE
+        print(f"{'updated' if changed else 'unchanged'}: {doc}", file=sys.stderr)
     return 0

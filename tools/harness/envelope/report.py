@@ -220,30 +220,33 @@ def markdown(spec: EnvelopeSpec, baseline: ResultsFile,
     return "\n".join(lines) + "\n"
 
 
-def replace_readme_block(readme: Path, block: str) -> bool:
-    """Put ``block`` between the README's envelope markers; True if the file changed.
-    Raises ValueError when the markers are missing or out of order."""
+def replace_readme_block(readme: Path, block: str,
+                         markers: tuple[str, str] = (README_BEGIN, README_END)) -> bool:
+    """Put ``block`` between the file's ``markers`` (default: the envelope's); True if the
+    file changed. Raises ValueError when the markers are missing or out of order."""
     text = readme.read_text(encoding="utf-8")
-    new = readme_with_block(text, block)
+    new = readme_with_block(text, block, markers)
     if new == text:
         return False
     readme.write_text(new, encoding="utf-8")
     return True
 
 
-def readme_block(text: str) -> str:
-    """What the README holds between its markers (without them)."""
-    start, end = _markers(text)
-    return text[start + len(README_BEGIN):end].strip("\n") + "\n"
+def readme_block(text: str, markers: tuple[str, str] = (README_BEGIN, README_END)) -> str:
+    """What the text holds between its ``markers`` (without them)."""
+    start, end = _markers(text, markers)
+    return text[start + len(markers[0]):end].strip("\n") + "\n"
 
 
-def readme_with_block(text: str, block: str) -> str:
-    start, end = _markers(text)
-    return text[:start + len(README_BEGIN)] + "\n" + block.rstrip("\n") + "\n" + text[end:]
+def readme_with_block(text: str, block: str,
+                      markers: tuple[str, str] = (README_BEGIN, README_END)) -> str:
+    start, end = _markers(text, markers)
+    return text[:start + len(markers[0])] + "\n" + block.rstrip("\n") + "\n" + text[end:]
 
 
-def _markers(text: str) -> tuple[int, int]:
-    start, end = text.find(README_BEGIN), text.find(README_END)
+def _markers(text: str, markers: tuple[str, str]) -> tuple[int, int]:
+    begin, end_marker = markers
+    start, end = text.find(begin), text.find(end_marker)
     if start < 0 or end < start:
-        raise ValueError(f"README: no {README_BEGIN} … {README_END} block")
+        raise ValueError(f"no {begin} … {end_marker} block")
     return start, end
