@@ -55,13 +55,34 @@ def test_attacked_allocation_for_any_rotor(rotor):
 
 @settings(max_examples=300, deadline=None)
 @given(uf=st.floats(0, 40), tq=st.floats(-3, 3), tr=st.floats(-1, 1), a=st.floats(0, FMAX))
-def test_saturated_attacked_allocation_is_feasible_and_keeps_thrust(uf, tq, tr, a):
+def test_saturated_attacked_allocation_is_feasible_and_gives_up_what_it_must(uf, tq, tr, a):
     f = allocate_attacked(uf, tq, tr, a, L, D, FMAX)
     assert all(0.0 <= x <= FMAX for x in f)
     assert f[1] == a
-    # u_f is kept whenever the three healthy rotors can carry u_f − A.
-    if a <= uf <= a + 3 * FMAX:
+    # u_f is kept whenever the three healthy rotors can carry u_f − A, unless a side rotor
+    # sits at its top: there the collective went so that τ_q fits.
+    top = max(f[0], f[2]) >= FMAX - 1e-9
+    if a <= uf <= a + 3 * FMAX and not top:
         assert sum(f) == pytest.approx(uf, abs=1e-9)
+    # τ_q is kept unless the side rotors cannot make it at any collective (|τ_q|/l > f_max)
+    # or one of them sits at its bottom (raising the collective there would climb).
+    if abs(tq) / L <= FMAX and min(f[0], f[2]) > 1e-9:
+        assert L * (f[2] - f[0]) == pytest.approx(tq, abs=1e-9)
+
+
+def test_a_saturated_climb_gives_up_thrust_not_the_pitch_torque():
+    """A heavier airframe climbing on two side rotors: u_f asked beyond what they make
+    with the pitch torque. τ_q stays exact (one side rotor at f_max, the other below it by
+    τ_q/l) and the roll torque's rotor keeps A; only the collective is short. (The old
+    order kept u_f and left τ_q = 0: the vehicle pitched over within 0.3 s.)"""
+    a, tq = 0.5, 0.2
+    uf = 16.5                              # f1 + f3 = 15.5 N asked, 2 f_max − τ_q/l made
+    tr = D * (uf - 2.0 * (a + a))          # f4 = (u_f − τ_r/d)/2 − A = A: τ_p = 0
+    f = allocate_attacked(uf, tq, tr, a, L, D, FMAX)
+    assert f[3] == pytest.approx(a, abs=1e-12)
+    assert L * (f[2] - f[0]) == pytest.approx(tq, abs=1e-12)
+    assert f[2] == pytest.approx(FMAX, abs=1e-12)
+    assert sum(f) == pytest.approx(2 * a + 2 * FMAX - tq / L, abs=1e-12)
 
 
 @settings(max_examples=300, deadline=None)

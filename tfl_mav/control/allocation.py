@@ -110,10 +110,18 @@ def allocate_attacked(uf: float, tau_q: float, tau_r: float, attack_n: float,
 
     With ``thrust_max_n`` the result is feasible, sacrificing inputs in reverse order of
     importance: τ_r (hence τ_p) first — f4 is clipped and f1 + f3 absorb the difference so
-    that u_f is kept — then τ_q, and u_f only when two rotors cannot carry it. When A ≈ 0
-    (the paper's attack while climbing) f4 ≥ A means τ_p ≥ 0 only: the law's τ_p demand is
-    then physically unreachable and this keeps the rest of the wrench exact. ``bounds`` =
-    (lo, hi) per canonical rotor (N) replaces [0, f_max] (rotor 2's entry is ignored).
+    that u_f is kept. When A ≈ 0 (the paper's attack while climbing) f4 ≥ A means τ_p ≥ 0
+    only: the law's τ_p demand is then physically unreachable and this keeps the rest of
+    the wrench exact. Then, where a side rotor would pass its top (f1 + f3 = 2m, f3 − f1 =
+    τ_q/l, m + |τ_q|/2l > f_max), the collective goes before τ_q: m comes down to where
+    both fit, as a multirotor mixer desaturates. τ_q is the one torque that turns b3 about
+    the pitch axis; given up for thrust the rotors cannot make anyway, a saturated climb (a
+    heavier airframe on two side rotors, the paper's start 3.85 m off) pitched the vehicle
+    over within 0.3 s. At the bottom (a side rotor would go below 0: A near m g/2, the side
+    rotors carrying little) τ_q still goes first: raising the collective to keep it climbs,
+    unasked, with an attack that already lifts the vehicle. u_f goes last only when the two
+    side rotors cannot carry it. ``bounds`` = (lo, hi) per canonical rotor (N) replaces
+    [0, f_max] (rotor 2's entry is ignored).
     """
     lo, hi = bounds if bounds is not None else ((0.0,) * 4, (thrust_max_n,) * 4)
     lo1, lo3, lo4 = lo[0], lo[2], lo[3]
@@ -135,8 +143,16 @@ def allocate_attacked(uf: float, tau_q: float, tau_r: float, attack_n: float,
     x = s_lo if s_lo > x else x
     s13 = s_hi if s_hi < x else x
     half = 0.5 * tau_q / arm_m
-    # Keep f1 + f3 = s13 and reduce |f3 − f1| until both are within their bounds.
     m = 0.5 * s13
+    # The collective before τ_q at the top: m no higher than where f1 = m − half and
+    # f3 = m + half both fit under their tops, where they also fit above their bottoms.
+    a, b = hi3 - half, hi1 + half
+    m_top = b if b < a else a
+    a, b = lo1 + half, lo3 - half
+    m_bottom = b if b > a else a
+    if m_top < m and m_bottom <= m_top:
+        m = m_top
+    # Then keep f1 + f3 = 2m and reduce |f3 − f1| until both are within their bounds.
     a, b = m - hi1, lo3 - m
     lower = b if b > a else a
     a, b = m - lo1, hi3 - m
