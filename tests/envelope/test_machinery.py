@@ -96,6 +96,19 @@ def test_feasibility_flags_the_impossible_and_passes_the_paper() -> None:
     assert any("no attitude hold exists" in w for w in check_scenario(strong))
 
 
+def test_feasibility_says_when_the_side_rotors_cannot_make_the_paths_thrust() -> None:
+    """A dead rotor: the opposite matches it (0 N), so the two side rotors make at most
+    2 f_max = 16 N. The paper path at 0.5 m/s asks up to 11.9 N on 1.1 kg, so 1.45 kg
+    (15.7 N) flies and 1.5 kg (16.2 N) does not, and is told so."""
+    dead = apply_overrides(load_scenario("paper"), ["attack.signal=off"])
+    for mass, said in ((1.1, False), (1.45, False), (1.5, True)):
+        sc = apply_overrides(dead, [f"vehicle.mass_kg={mass}"])
+        warned = [w for w in check_scenario(sc) if "2A + 2 f_max = 16.0 N" in w]
+        assert bool(warned) is said, (mass, check_scenario(sc))
+        if said:
+            assert "16.2 N" in warned[0] and "sinks off the path" in warned[0]
+
+
 @pytest.mark.slow
 def test_too_fast_path_is_flown_at_the_highest_feasible_speed() -> None:
     """The paper path at 2 m/s needs 16 m/s² downward at its top bend (impossible). The

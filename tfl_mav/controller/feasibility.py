@@ -5,7 +5,8 @@ attack on rotor 2 (:mod:`tfl_mav.control.allocation`): τ_p = l(f4 − A) must a
 (no steady roll torque can be balanced at low body rates), so f4 = A, and the total thrust
 u_f = 2A + f1 + f3 with f1, f3 ∈ [0, f_max]. Hence
 
-* hover needs 2A ≤ m g ≤ 2A + 2 f_max, i.e. A ≤ m g / 2 (and A ≥ m g/2 − f_max);
+* hover needs 2A ≤ m g ≤ 2A + 2 f_max, i.e. A ≤ m g / 2 (and A ≥ m g/2 − f_max), and the
+  most thrust the path asks must be ≤ 2A + 2 f_max too (a heavier airframe with a dead rotor);
 * along a path flown at speed s the thrust must supply m (s² κ N + g e3) + k_t v, so its
   smallest component along b3 — at the top of a bend curving down — must be ≥ 2A: the
   attack must stay below u_min / 2, and u_min > 0 for any vehicle (a rotor cannot push);
@@ -175,6 +176,15 @@ def check_scenario(sc: Scenario) -> list[str]:
                        "law flies a relaxed hover about a tilted axis (docs/relaxed-hover.md) "
                        "and says so where no spin holds the weight either")
             out += _no_spin(sc, max(a_lo, mg / 2.0), a_hi)
+        # With the attitude held the opposite rotor matches A, so the thrust is at most
+        # 2A + 2 f_max: the two side rotors carry the rest of what the path asks.
+        ceiling = 2.0 * a_lo + 2.0 * v.thrust_max_n
+        if d.max_thrust_n > ceiling:
+            out.append(f"attack on rotor {sc.attack.rotor} down to {a_lo:.2f} N: with the "
+                       f"attitude held the rotors make at most 2A + 2 f_max = {ceiling:.1f} N "
+                       f"and the path at {sc.path.speed_mps:g} m/s asks up to "
+                       f"{d.max_thrust_n:.1f} N (weight {mg:.1f} N): the vehicle sinks off "
+                       "the path where it asks more; fly it slower or lighter")
         if a_lo < A_HANDBACK_N:
             spin = v.drag_thrust_ratio_m * (mg - 4.0 * a_lo) / v.k_r
             out.append(f"attack on rotor {sc.attack.rotor} down to {a_lo:.2f} N: near 0 N the "
