@@ -67,7 +67,8 @@ TAN_MAX_TILT = math.tan(MAX_TILT_RAD)
 ATT_KP = 100.0                      # four healthy rotors: reduced attitude (10 rad/s)² …
 ATT_KD = 20.0                       # … critically damped
 YAW_DAMP = 2.0                      # … and r decays at 2 /s
-SETTLE_TAU_S = 0.5                  # … over this: a spinning vehicle's wobble (≥ 5 Hz) averages out
+SETTLE_TAU_S = 0.5                  # … over this: a spinning vehicle's wobble (≥ 5 Hz) averages
+                                    # out; and a law's start passes (the integral waits it)
 
 
 class SafeParams(NamedTuple):
@@ -220,14 +221,20 @@ def accel_demand(p: SafeParams, target: tuple[float, float, float],
     position error e m, integrate, the new drift m/s and its age s).
 
     ``integrate`` says whether e may enter the integral (conditional integration): not on a
-    limited demand, and beyond INTEGRAL_BAND_M of the target only once the vehicle has
+    limited demand, not before the law has flown SETTLE_TAU_S since it started
+    (``drift_age_s``), and beyond INTEGRAL_BAND_M of the target only once the vehicle has
     settled: v − v_target across the path, low-passed over SETTLE_TAU_S (``drift``, started at
-    the first tick's value when ``drift_age_s`` is 0) below ω_p INTEGRAL_BAND_M, the filter at least
-    SETTLE_TAU_S old — a vehicle at rest when a law starts is about to move, not held off.
+    the first tick's value when ``drift_age_s`` is 0) below ω_p INTEGRAL_BAND_M — a vehicle at
+    rest when a law starts is about to move, not held off.
     An integral fed on the approach (a take-over a metre off the path) is a debt of ~0.3 m s
     that the loop pays back as an overshoot of 0.15 m decaying at ω_p/3; a steady force (mass
     error, drag) holds the vehicle still off its target, settled, and is learnt wherever it
-    leaves it."""
+    leaves it. Nor is a law's own start a steady force: a take-over on the path spins the
+    vehicle up (r to the three-rotor equilibrium with the yaw drag's I_z/k_r ≈ 0.5 s), and
+    the ~10 mm its first 0.3 s leave, learnt, banked ~0.06 m/s². What the path then turns
+    along its tangent the error no longer shows (the closest point moves with it), so the
+    loop unlearns it only as fast as the path turns: a circle of 3 m at 0.5 m/s carried
+    0.014 m/s² for 20 s, 0.09 mm off where the safe law flown from the start holds 0.006."""
     w = omega_p_radps
     kp, kd = 3.0 * w * w, 3.0 * w       # (s + ω_p)³, as pid_gains; k_i is in the integral
     settled_mps = w * INTEGRAL_BAND_M
@@ -252,8 +259,8 @@ def accel_demand(p: SafeParams, target: tuple[float, float, float],
         k = p.dt_s / SETTLE_TAU_S
         wx, wy, wz = (drift[0] + k * (wx - drift[0]), drift[1] + k * (wy - drift[1]),
                       drift[2] + k * (wz - drift[2]))
-    settled = (wx * wx + wy * wy + wz * wz <= settled_mps * settled_mps
-               and drift_age_s >= SETTLE_TAU_S)
+    started = drift_age_s >= SETTLE_TAU_S
+    settled = wx * wx + wy * wy + wz * wz <= settled_mps * settled_mps
     near = e[0] * e[0] + e[1] * e[1] + e[2] * e[2] <= INTEGRAL_BAND_M * INTEGRAL_BAND_M
     a0 = kp * e[0] - kd * v[0] + ff[0] + integral[0]
     a1 = kp * e[1] - kd * v[1] + ff[1] + integral[1]
@@ -273,7 +280,7 @@ def accel_demand(p: SafeParams, target: tuple[float, float, float],
         a0 *= amax / ah
         a1 *= amax / ah
         limited = True
-    integrate = (near or settled) and not limited
+    integrate = (near or settled) and started and not limited
     return a0, a1, az, e, integrate, (wx, wy, wz), drift_age_s + p.dt_s
 
 
