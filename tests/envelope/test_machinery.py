@@ -15,6 +15,7 @@ from tfl_mav.controller.feasibility import check_scenario, path_demand
 from tfl_mav.model.modes import Mode
 from tfl_mav.offline import fly_offline
 from tfl_mav.scenario import apply_overrides, load_scenario
+from tfl_mav.tools.harness.envelope.run import peak_after_approach
 
 WINDOW_S = 10.0
 
@@ -142,3 +143,12 @@ def test_gyro_range_saturated_yaw_rate_is_replaced_by_the_model() -> None:
     assert any("gyro's range" in text for _, text in log.events)
     assert float(np.max(np.abs(log["body_rates_radps"][:, 2]))) > 34.9   # it really spun
     assert _last_max(log) <= 5e-3
+
+
+def test_the_peak_is_taken_past_the_approach_and_skips_what_is_not_a_distance() -> None:
+    t = np.arange(0.0, 30.0, 0.01)
+    d = 3.85 * np.exp(-t) + 1e-3 * np.exp(-((t - 19.4) / 0.3) ** 2)   # approach, then a bend
+    d[2500] = np.nan                                            # a held point: no distance
+    peak, when = peak_after_approach(t, d, 30.0)
+    assert peak == pytest.approx(1e-3, rel=1e-3) and when == pytest.approx(19.4)
+    assert peak_after_approach(t[:900], d[:900], 30.0) == (None, None)   # lost before 10 s

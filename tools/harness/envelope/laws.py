@@ -9,7 +9,10 @@ the better single-law flight's by at most max(10 %, 0.05 mm)
 did not run) is infinitely far, so a supervisor that flies where a single law crashes is
 within the rule, and one that crashes is within it only where both single laws crash too.
 Beside it: the supervised flight's law switches and the share of its control ticks flown by
-the safe law (modes recovery, lost_rotor, spin).
+the safe law (modes recovery, lost_rotor, spin). A case outside the rule also shows each
+flight's peak after the approach and when (:attr:`CaseResult.peak_distance_m`): the last 10 s
+of a path open where they open, and two flights that reach the same bend a few tenths of a
+second apart can read differently there while their peaks are the same.
 
 Pure: the runs to fly are :func:`law_runs`, the pool is the envelope's
 (:func:`~tfl_mav.tools.harness.envelope.run.fly_cases`); everything from the results on is
@@ -79,10 +82,18 @@ class LawsVerdict:
     switches: int | None            # the supervised flight's switches between the laws
     safe_share: float               # the supervised flight's share of ticks in the safe law
     outcomes: tuple[str, str, str]  # auto, tfl, safe
+    # each flight's peak after the approach (m) and its time (s), auto, tfl, safe (None:
+    # not known: crashed early, or flown by a tree that does not report it)
+    peaks: tuple[tuple[float | None, float | None], ...] = ()
 
     @property
     def best_single_m(self) -> float:
         return min(self.tfl_m, self.safe_m)
+
+    @property
+    def best_single_law(self) -> str:
+        """``tfl`` or ``safe``: the single law closer over the last 10 s (TFL on a tie)."""
+        return "tfl" if self.tfl_m <= self.safe_m else "safe"
 
     @property
     def within_rule(self) -> bool:
@@ -111,7 +122,9 @@ def judge_laws(case: Case, flown: Mapping[str, CaseResult]) -> LawsVerdict:
         switches=auto.law_switches if auto is not None else None,
         safe_share=safe_law_share(auto) if auto is not None else 0.0,
         outcomes=tuple(x.outcome if x is not None else "missing"   # type: ignore[arg-type]
-                       for x in (r["auto"], r["tfl"], r["safe"])))
+                       for x in (r["auto"], r["tfl"], r["safe"])),
+        peaks=tuple((x.peak_distance_m, x.peak_time_s) if x is not None else (None, None)
+                    for x in (r["auto"], r["tfl"], r["safe"])))
 
 
 @dataclass(frozen=True)
@@ -145,12 +158,25 @@ def _cell(d: float, outcome: str) -> str:
             "missing": "—"}.get(outcome, "∞")
 
 
+def _peak_text(peak: tuple[float | None, float | None]) -> str | None:
+    d, t = peak
+    if d is None or t is None or not math.isfinite(d):
+        return None
+    return f"{fmt_mm(d)} mm at {t:.1f} s"
+
+
 def _rule_cell(v: LawsVerdict) -> str:
     if v.within_rule:
         return "ok"
     if math.isinf(v.margin_m):
         return "worse: crash"
-    return f"worse by {fmt_distance(v.margin_m)}"
+    text = f"worse by {fmt_distance(v.margin_m)}"
+    if len(v.peaks) == len(LAWS):
+        auto = _peak_text(v.peaks[0])
+        best = _peak_text(v.peaks[LAWS.index(v.best_single_law)])
+        if auto and best:
+            text += f"; peaks after the approach {auto}, {v.best_single_law} {best}"
+    return text
 
 
 def summary_line(s: FamilySummary) -> str:
@@ -172,7 +198,8 @@ def laws_markdown(verdicts: Sequence[LawsVerdict], command: str = "") -> str:
                   "over the last 10 s in mm (*crash*: the vehicle was lost), the supervised "
                   "flight's law switches and share of ticks in the safe law (recovery, "
                   f"lost_rotor, spin); *rule*: the supervisor within {RULE_TEXT} of the "
-                  "better single law.", ""]
+                  "better single law, and where it is not, each flight's largest distance "
+                  "from a third of the flight on (past the approach) and when.", ""]
     lines += ["| case | auto (mm) | switches | safe law | TFL alone (mm) | safe alone (mm) "
               "| rule |",
               "| --- | ---: | ---: | ---: | ---: | ---: | --- |"]
@@ -205,7 +232,8 @@ def laws_json(cases: Sequence[Case], flown: Mapping[str, CaseResult]) -> dict[st
             "verdict": {"auto_m": _finite_or_none(v.auto_m), "tfl_m": _finite_or_none(v.tfl_m),
                         "safe_m": _finite_or_none(v.safe_m),
                         "best_single_m": _finite_or_none(v.best_single_m),
-                        "within_rule": v.within_rule, "law_switches": v.switches,
+                        "within_rule": v.within_rule, "best_single_law": v.best_single_law,
+                        "law_switches": v.switches,
                         "safe_law_share": v.safe_share}})
     return {"rule": f"auto within {RULE_TEXT} of the better of tfl and safe (a crash is "
                     "infinitely far)",

@@ -59,6 +59,10 @@ class CaseResult:
     base: str = ""
     settings: tuple[str, ...] = ()
     law_switches: int | None = None             # switches between TFL and the safe law
+    # The largest distance to the path from a third of the flight on (past the approach: the
+    # paper's 30 s from 10 s) and when (s): where the last 10 s open on a peak, the peak.
+    peak_distance_m: float | None = None
+    peak_time_s: float | None = None
 
     def to_json(self) -> dict[str, Any]:
         d = asdict(self)

@@ -24,7 +24,7 @@ from tfl_mav.tools.harness.envelope.results import ERROR, NOT_AVAILABLE, CaseRes
 from tfl_mav.tools.harness.envelope.spec import Case, case_scenario
 
 __all__ = ["case_run", "default_jobs", "fly_case", "fly_cases", "mode_fractions",
-           "print_progress"]
+           "peak_after_approach", "print_progress"]
 
 OnResult = Callable[[int, int, CaseResult], None]
 TIMEOUT_S = 900.0       # a 120 s flight takes ~10 s on an idle core
@@ -63,19 +63,35 @@ def _measure(run: Run) -> dict[str, Any]:
     return _to_result(case, *offline_metrics(case_scenario(case), "detector")).__dict__
 
 
+def peak_after_approach(t_s: Any, distance_m: Any, duration_s: float
+                        ) -> tuple[float | None, float | None]:
+    """The largest finite distance to the path (m) from a third of ``duration_s`` on, and
+    its time (s); (None, None) where the flight has no finite distance there (it ended
+    before, or held a point)."""
+    t = np.asarray(t_s, dtype=float)
+    d = np.asarray(distance_m, dtype=float)
+    keep = (t >= duration_s / 3.0) & np.isfinite(d)
+    if not keep.any():
+        return None, None
+    k = int(np.argmax(np.where(keep, d, -np.inf)))
+    return float(d[k]), round(float(t[k]), 6)
+
+
 def _to_result(case: Case, m: dict[str, Any], log: Any) -> CaseResult:
     dist = m.get("max_path_distance_last_10s_m")
+    sc = case_scenario(case)
+    peak, peak_t = peak_after_approach(log["t_s"], log["path_distance_m"], sc.run.duration_s)
     return CaseResult(
         name=case.name, outcome=outcome_of(bool(m.get("crashed")), dist),
         max_distance_m=dist, rms_distance_m=m.get("rms_path_distance_last_10s_m"),
-        attack_rotor=case_scenario(case).attack.rotor,
+        attack_rotor=sc.attack.rotor,
         detected_rotor=m.get("detected_rotor"),
         detection_latency_s=m.get("detection_latency_s"),
         false_alarms=m.get("false_alarms"), mode_fraction=mode_fractions(log["mode"]),
         thrust_req_min_n=m.get("thrust_min_n"), thrust_req_max_n=m.get("thrust_max_n"),
         sim_time_s=m.get("sim_time_s"), reason=m.get("crash_reason") or "",
         wall_time_s=m.get("wall_time_s"), base=case.base, settings=case.settings,
-        law_switches=m.get("law_switches"))
+        law_switches=m.get("law_switches"), peak_distance_m=peak, peak_time_s=peak_t)
 
 
 def fly_case(case: Case) -> CaseResult:
