@@ -52,8 +52,14 @@ class LawConfig:
     translational_observer_tau_s: float = 0.1
     translational_observer_vertical: bool = False   # and the vertical (else: horizontal only)
     aware_of_attack: bool = True
-    settle_alpha: float = 0.01      # |α| below this …
-    settle_time_s: float = 1.0      # … for this long switches to the fine poles
+    # |α| below settle_alpha for settle_time_s switches to the fine poles. A steady residual
+    # acceleration d holds the coarse poles 6d/p² off (p = 2.5: 0.1 m/s² of rotor drag or of
+    # an estimate's tilt is 9.6 cm), so a threshold of 1 cm kept the coarse poles exactly
+    # where the fine ones are needed (the built-in realistic: 155 mm where 28 flies). The
+    # switch's kick from a steady α is α (p_fine² − p²)/6: 1.9 m/s² from 20 cm, a third of
+    # the tilt's g tan 30°.
+    settle_alpha: float = 0.2       # |α| below this (m) …
+    settle_time_s: float = 1.0      # … for this long (s) switches to the fine poles
     min_thrust_n: float = 0.5       # u_f below this makes D singular: fall back
     max_cond: float = 1e8           # cond(Dφ) above this: fall back
 
