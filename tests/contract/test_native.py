@@ -632,8 +632,10 @@ def test_safe_law_attacked_tick_compiled_is_the_python_tick(held, monkeypatch):
     py, c = law("off"), law("sync")
     assert py.core == "python" and c.core == "compiled"
     rng = random.Random(3)
-    for trial in range(600):
-        if trial % 50 == 0:
+    # A start every 600 ticks: the integral learns only once the law has flown SETTLE_TAU_S
+    # (0.5 s, 500 ticks at 1 kHz) since it started.
+    for trial in range(1800):
+        if trial % 600 == 0:
             hold = [rng.uniform(-3, 3), 0.0, 4.0]
             for lw in (py, c):      # λ from a global search; then the point to hold
                 lw.follow_path(search=True)
